@@ -1,0 +1,34 @@
+# Two commands a newcomer needs: `make demo` and `make test`. Each creates .venv and installs what it needs.
+PYTHON ?= python3
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+OUT    ?= demo_out
+
+.PHONY: install test demo lint format bench-envs clean
+
+$(VENV)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q torch==2.13.0
+	$(PY) -m pip install -q -e ".[dev]"
+	touch $@
+
+install: $(VENV)/.installed
+
+test: install
+	$(PY) -m pytest -q
+
+demo: install
+	MPLBACKEND=Agg $(PY) examples/demo.py --out $(OUT)
+
+lint: install
+	$(PY) -m ruff check phast_gym phast_model tests examples benchmarks
+
+format: install
+	$(PY) -m ruff format phast_gym phast_model tests examples benchmarks
+
+bench-envs: install
+	$(PY) benchmarks/envs.py --out docs/envs_benchmark.json
+
+clean:
+	rm -rf $(VENV) demo_out .pytest_cache .ruff_cache

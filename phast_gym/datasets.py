@@ -1,0 +1,215 @@
+"""Batched dataset generation with the paper's split and an on-disk cache.
+
+All trajectories of a dataset are integrated at once by
+:func:`phast_gym.integrate.simulate` (the same physics and integrator as the
+env, vectorized over trajectories).  Files are cached under
+``$PHAST_CACHE_DIR`` (default ``~/.cache/phast``) keyed by a hash of the full
+configuration; writes are atomic and every array carries a checksum, so a
+truncated or corrupted cache file is detected and regenerated.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+import warnings
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .integrate import simulate
+from .registry import ENV_KWARGS, make_env_system, resolve_env_id
+from .systems import NUMPY, wrap
+
+CACHE_VERSION = 1
+_ARRAYS = ("q", "q_true", "p", "u", "damping")
+
+
+@dataclass
+class Dataset:
+    """A batch of trajectories of one env (float64 arrays).
+
+    Attributes
+    ----------
+    q : (N, T, n) observation: true q plus observation noise, angles wrapped.
+    q_true : (N, T, n) true q, angles unwrapped.
+    p : (N, T, n) true momentum (predator density for predator-prey).
+    u : (N, T-1, m) port input applied over each interval [t, t+1].
+    damping : (N, T, n) diagonal of the true D(q_t).
+    dt : sampling interval.
+    """
+
+    env_id: str
+    q: np.ndarray
+    q_true: np.ndarray
+    p: np.ndarray
+    u: np.ndarray
+    damping: np.ndarray
+    dt: float
+    angle_dims: tuple[int, ...]
+    actuated_dofs: tuple[int, ...]
+    config: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def n_traj(self) -> int:
+        return self.q.shape[0]
+
+    @property
+    def T(self) -> int:
+        return self.q.shape[1]
+
+    def __len__(self) -> int:
+        return self.n_traj
+
+    def subset(self, idx: Any) -> Dataset:
+        """Trajectories ``idx`` (slice or index array) as a new dataset."""
+        kw = {k: getattr(self, k)[idx] for k in _ARRAYS}
+        return Dataset(self.env_id, dt=self.dt, angle_dims=self.angle_dims, actuated_dofs=self.actuated_dofs,
+                       config=dict(self.config), **kw)
+
+
+def _config_key(config: dict[str, Any]) -> str:
+    blob = json.dumps(config, sort_keys=True, default=str).encode()
+    return hashlib.sha256(blob).hexdigest()[:24]
+
+
+def cache_dir() -> Path:
+    """Directory of the dataset cache (``$PHAST_CACHE_DIR`` or ``~/.cache/phast``)."""
+    return Path(os.environ.get("PHAST_CACHE_DIR", Path.home() / ".cache" / "phast")) / "datasets"
+
+
+def _checksum(arr: np.ndarray) -> str:
+    return hashlib.sha256(np.ascontiguousarray(arr).tobytes()).hexdigest()
+
+
+def _save(path: Path, ds: Dataset) -> None:
+    meta = {"env_id": ds.env_id, "dt": ds.dt, "angle_dims": list(ds.angle_dims),
+            "actuated_dofs": list(ds.actuated_dofs), "config": ds.config,
+            "checksums": {k: _checksum(getattr(ds, k)) for k in _ARRAYS}}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp.npz")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            np.savez(fh, meta=np.array(json.dumps(meta)), **{k: getattr(ds, k) for k in _ARRAYS})
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _load(path: Path, config: dict[str, Any]) -> Dataset:
+    """Load a cache file, raising ``ValueError`` on any inconsistency."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            meta = json.loads(str(z["meta"]))
+            arrays = {k: z[k] for k in _ARRAYS}
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile, EOFError, json.JSONDecodeError) as exc:
+        raise ValueError(f"unreadable cache file {path}: {exc}") from None
+    if meta.get("config") != json.loads(json.dumps(config, default=str)):
+        raise ValueError(f"cache file {path} holds another configuration")
+    for k in _ARRAYS:
+        if _checksum(arrays[k]) != meta["checksums"][k]:
+            raise ValueError(f"checksum mismatch for '{k}' in {path}")
+    return Dataset(meta["env_id"], dt=float(meta["dt"]), angle_dims=tuple(meta["angle_dims"]),
+                   actuated_dofs=tuple(meta["actuated_dofs"]), config=meta["config"], **arrays)
+
+
+def make_dataset(
+    env_id: str,
+    n_traj: int,
+    T: int = 200,
+    seed: int = 42,
+    u: np.ndarray | None = None,
+    cache: bool = True,
+    **env_kwargs: Any,
+) -> Dataset:
+    """Generate ``n_traj`` trajectories of ``T`` samples of a registered env, all at once.
+
+    Parameters
+    ----------
+    env_id : a ``PHAST/*`` id.
+    n_traj, T : number of trajectories and samples per trajectory (T - 1 steps).
+    seed : dataset seed (initial states, observation noise, Langevin noise).
+    u : optional port input, broadcastable to (n_traj, T-1, m); default zeros.
+    cache : read/write the on-disk cache.
+    env_kwargs : the env's kwargs (physical parameters, ``obs_noise_std``,
+        ``actuated_dofs``); other env-only kwargs are rejected.
+    """
+    env_id = resolve_env_id(env_id)
+    if int(n_traj) != n_traj or n_traj < 1:
+        raise ValueError(f"n_traj must be a positive integer, got {n_traj!r}")
+    if int(T) != T or T < 2:
+        raise ValueError(f"T must be an integer >= 2, got {T!r}")
+    allowed = {"obs_noise_std", "actuated_dofs", "substeps"}
+    bad = [k for k in env_kwargs if k in ENV_KWARGS and k not in allowed]
+    if bad:
+        raise ValueError(f"make_dataset does not take env kwarg(s) {bad}")
+    system = make_env_system(env_id, **env_kwargs)
+    n = system.n
+    actuated = tuple(int(i) for i in env_kwargs.get("actuated_dofs", range(n)))
+    m = len(actuated)
+    if u is None:
+        u_arr = np.zeros((n_traj, T - 1, m))
+    else:
+        u_arr = np.asarray(u, dtype=np.float64)
+        try:
+            u_arr = np.broadcast_to(u_arr, (n_traj, T - 1, m)).copy()
+        except ValueError:
+            raise ValueError(f"u must broadcast to (n_traj, T-1, m) = {(n_traj, T - 1, m)}, got {np.shape(u)}") from None
+        if not np.isfinite(u_arr).all():
+            raise ValueError("u must be finite")
+    noise = float(env_kwargs.get("obs_noise_std", 0.0))
+    config = {
+        "version": CACHE_VERSION, "env_id": env_id, "n_traj": int(n_traj), "T": int(T), "seed": int(seed),
+        "system": system.name, "params": system.params, "obs_noise_std": noise, "actuated_dofs": list(actuated),
+        "substeps": env_kwargs.get("substeps", system.substeps),
+        "u": None if u is None else _checksum(u_arr),
+    }
+    path = cache_dir() / f"{env_id.replace('/', '_')}-{_config_key(config)}.npz"
+    if cache and path.exists():
+        try:
+            return _load(path, config)
+        except ValueError as exc:
+            warnings.warn(f"{exc}; regenerating the dataset", RuntimeWarning, stacklevel=2)
+
+    ss = np.random.SeedSequence(int(seed))
+    rng_init, rng_noise, rng_sim = (np.random.default_rng(s) for s in ss.spawn(3))
+    x0 = system.sample_initial(rng_init, int(n_traj))
+    G = np.eye(n)[:, list(actuated)]
+    traj = simulate(system, x0, T - 1, u=u_arr @ G.T, rng=rng_sim, substeps=env_kwargs.get("substeps"))
+    q_true, p = traj[..., :n], traj[..., n:]
+    q = q_true + (rng_noise.normal(0.0, noise, q_true.shape) if noise > 0 else 0.0)
+    for i in system.angle_dims:
+        q[..., i] = wrap(q[..., i])
+    qs = tuple(q_true[..., i] for i in range(n))
+    damping = np.stack(np.broadcast_arrays(*system.damping(qs, NUMPY)), -1).astype(np.float64)
+    ds = Dataset(env_id, q=q, q_true=q_true, p=p, u=u_arr, damping=damping, dt=float(system.dt),
+                 angle_dims=tuple(system.angle_dims), actuated_dofs=actuated, config=config)
+    if cache:
+        try:
+            _save(path, ds)
+        except OSError as exc:  # a read-only cache must not break generation
+            warnings.warn(f"could not write dataset cache {path}: {exc}", RuntimeWarning, stacklevel=2)
+    return ds
+
+
+def split_dataset(ds: Dataset, n_train: int = 1000, n_val: int = 200, n_test: int = 200) -> dict[str, Dataset]:
+    """Split consecutive trajectories into train / val / test (paper Sec. 4.1.1)."""
+    if n_train + n_val + n_test > ds.n_traj:
+        raise ValueError(f"split {n_train}/{n_val}/{n_test} needs {n_train + n_val + n_test} trajectories, have {ds.n_traj}")
+    a, b = n_train, n_train + n_val
+    return {"train": ds.subset(slice(0, a)), "val": ds.subset(slice(a, b)), "test": ds.subset(slice(b, b + n_test))}
+
+
+def make_splits(
+    env_id: str, n_train: int = 1000, n_val: int = 200, n_test: int = 200, T: int = 200, seed: int = 42, **kwargs: Any
+) -> dict[str, Dataset]:
+    """The paper's protocol: 1000 / 200 / 200 trajectories of T = 200, dataset seed 42."""
+    ds = make_dataset(env_id, n_train + n_val + n_test, T=T, seed=seed, **kwargs)
+    return split_dataset(ds, n_train, n_val, n_test)

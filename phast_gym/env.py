@@ -1,0 +1,226 @@
+"""One generic port-Hamiltonian Gymnasium env, driven by a :class:`System`.
+
+Observation: q only (angles wrapped into [-pi, pi)), optionally noisy, or the
+full state with ``observe="qp"``.  Action: the port input u (torque, force or
+voltage) on the actuated coordinates, ``G`` = the selected columns of I.
+See ENVIRONMENTS.md for the contract; every registered id documents its
+system's parameters in :mod:`phast_gym.systems`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from . import integrate
+from .systems import SCALAR, ParameterError, System, make_system
+
+_TWO_PI = 2.0 * math.pi
+
+
+class PortHamiltonianEnv(gym.Env):
+    """A q-only port-Hamiltonian system with a torque/force port as its action.
+
+    ## Dynamics
+    ``qdot = dH/dp``, ``pdot = -dH/dq - D(q) qdot + G u``, integrated with
+    RK4 substeps (split at kinks of the damping law), zero-order hold on u.
+
+    ## Observation
+    ``q`` (n,), angles wrapped into ``[-pi, pi)``, plus ``N(0, obs_noise_std^2)``
+    noise; ``observe="qp"`` returns ``(q, p)`` (2n,).
+
+    ## Action
+    ``Box(-max_action, max_action, (m,))``: generalized forces on
+    ``actuated_dofs`` (default: all n).  Out-of-range actions are clipped
+    (``info["action_clipped"]``); NaN/inf or wrongly shaped actions raise
+    ``ValueError`` and leave the env unchanged.
+
+    ## Reward
+    ``-(|wrap(q - target)|^2 + 0.1 |qdot|^2 + 0.001 |u|^2)``.
+
+    ## Info
+    ``state`` (true (q, p), unwrapped), ``energy`` (H), ``damping`` (diag of
+    D(q)), ``t`` (seconds since reset), ``action_clipped`` (steps only).
+
+    ## Arguments
+    system: name of the system or a :class:`System` instance; actuated_dofs;
+    max_action; obs_noise_std; observe ("q" or "qp"); dtype (float32
+    default); target; render_mode ("rgb_array"); substeps (integration
+    accuracy override); and the system's physical parameters as kwargs.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
+
+    def __init__(
+        self,
+        system: str | System,
+        *,
+        actuated_dofs: Sequence[int] | None = None,
+        max_action: float | None = None,
+        obs_noise_std: float = 0.0,
+        observe: str = "q",
+        dtype: Any = np.float32,
+        target: Sequence[float] | None = None,
+        render_mode: str | None = None,
+        substeps: int | None = None,
+        **params: Any,
+    ) -> None:
+        if isinstance(system, System):
+            if params:
+                raise ParameterError("pass physical parameters to the System, not alongside an instance")
+            self.system = system
+        else:
+            self.system = make_system(system, **params)
+        sysm = self.system
+        n = sysm.n
+        self.n = n
+        self.dt = float(sysm.dt)
+        self.metadata = {**self.metadata, "render_fps": int(round(1.0 / self.dt))}
+        if substeps is not None and (int(substeps) != substeps or substeps < 1):
+            raise ParameterError(f"substeps must be a positive integer, got {substeps!r}")
+        self.substeps = int(substeps) if substeps is not None else sysm.substeps
+
+        if actuated_dofs is None:
+            actuated_dofs = list(range(n))
+        actuated_dofs = [int(i) for i in actuated_dofs]
+        if not actuated_dofs or len(set(actuated_dofs)) != len(actuated_dofs) or any(not 0 <= i < n for i in actuated_dofs):
+            raise ParameterError(f"actuated_dofs must be distinct indices in [0, {n}), got {actuated_dofs}")
+        self.actuated_dofs = tuple(actuated_dofs)
+        self.m = len(actuated_dofs)
+        self.max_action = float(sysm.default_max_action if max_action is None else max_action)
+        if not (self.max_action > 0 and math.isfinite(self.max_action)):
+            raise ParameterError(f"max_action must be positive and finite, got {max_action!r}")
+        self.obs_noise_std = float(obs_noise_std)
+        if not (self.obs_noise_std >= 0 and math.isfinite(self.obs_noise_std)):
+            raise ParameterError(f"obs_noise_std must be >= 0, got {obs_noise_std!r}")
+        if observe not in ("q", "qp"):
+            raise ParameterError(f"observe must be 'q' or 'qp', got {observe!r}")
+        self.observe = observe
+        self.dtype = np.dtype(dtype)
+        if self.dtype not in (np.float32, np.float64):
+            raise ParameterError(f"dtype must be float32 or float64, got {self.dtype}")
+        if target is None:
+            target = [0.0] * n
+        target = [float(v) for v in np.atleast_1d(np.asarray(target, dtype=np.float64))]
+        if len(target) != n:
+            raise ParameterError(f"target must have length {n}, got {len(target)}")
+        self.target = target
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ParameterError(f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
+        self.render_mode = render_mode
+
+        self._angle = [i in sysm.angle_dims for i in range(n)]
+        self._G = np.eye(n)[:, list(self.actuated_dofs)]
+        lo = np.array([-math.pi if a else -np.inf for a in self._angle])
+        hi = np.array([math.pi if a else np.inf for a in self._angle])
+        if observe == "qp":
+            lo = np.concatenate([lo, np.full(n, -np.inf)])
+            hi = np.concatenate([hi, np.full(n, np.inf)])
+        self.observation_space = spaces.Box(lo.astype(self.dtype), hi.astype(self.dtype), dtype=self.dtype)
+        self.action_space = spaces.Box(-self.max_action, self.max_action, shape=(self.m,), dtype=self.dtype)
+        self._q: list[float] = [0.0] * n
+        self._p: list[float] = [0.0] * n
+        self._t = 0.0
+        self._last_u = np.zeros(self.m)
+
+    # ------------------------------------------------------------------ helpers
+    @property
+    def state(self) -> np.ndarray:
+        """True state (q, p), angles unwrapped, float64 (2n,)."""
+        return np.array(self._q + self._p)
+
+    def _wrap_obs(self, v: list[float]) -> list[float]:
+        return [((x + math.pi) % _TWO_PI - math.pi) if a else x for x, a in zip(v, self._angle)]
+
+    def _obs(self) -> np.ndarray:
+        q = self._q
+        if self.observe == "qp":
+            vals = q + self._p
+            if self.obs_noise_std > 0:
+                vals = list(np.add(vals, self.np_random.normal(0.0, self.obs_noise_std, 2 * self.n)))
+            vals = self._wrap_obs(vals[: self.n]) + vals[self.n :]
+        else:
+            if self.obs_noise_std > 0:
+                q = list(np.add(q, self.np_random.normal(0.0, self.obs_noise_std, self.n)))
+            vals = self._wrap_obs(q)
+        out = np.array(vals, dtype=self.dtype)
+        # float32 rounding can push pi - eps up to float32(pi); keep inside [-pi, pi)
+        return out
+
+    def _info(self) -> dict[str, Any]:
+        sysm = self.system
+        return {
+            "state": np.array(self._q + self._p),
+            "energy": float(sysm.energy(self._q, self._p, SCALAR)),
+            "damping": np.array([float(d) for d in sysm.damping(self._q, SCALAR)]),
+            "t": self._t,
+        }
+
+    # ------------------------------------------------------------------ API
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
+        super().reset(seed=seed)
+        n = self.n
+        if options and options.get("state") is not None:
+            x0 = np.asarray(options["state"], dtype=np.float64).reshape(-1)
+            if x0.shape != (2 * n,):
+                raise ValueError(f"options['state'] must have length 2n = {2 * n} (q then p), got shape {np.shape(options['state'])}")
+            if not np.all(np.isfinite(x0)):
+                raise ValueError(f"options['state'] must be finite, got {x0}")
+        else:
+            x0 = self.system.sample_initial(self.np_random, 1)[0]
+        self._q = [float(v) for v in x0[:n]]
+        self._p = [float(v) for v in x0[n:]]
+        self._t = 0.0
+        self._last_u = np.zeros(self.m)
+        return self._obs(), self._info()
+
+    def _validate_action(self, action: Any) -> tuple[np.ndarray, bool]:
+        try:
+            a = np.asarray(action, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"action must be a numeric array of shape ({self.m},): {exc}") from None
+        if a.shape != (self.m,):
+            raise ValueError(f"action must have shape ({self.m},) (actuated dofs {list(self.actuated_dofs)}), got {a.shape}")
+        if not np.isfinite(a).all():
+            raise ValueError(f"action must be finite, got {a.tolist()}")
+        c = np.clip(a, -self.max_action, self.max_action)
+        return c, bool((c != a).any())
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
+        u, clipped = self._validate_action(action)
+        sysm = self.system
+        if self.m == self.n:
+            u_full = u.tolist()
+        else:
+            u_full = (self._G @ u).tolist()
+        q, p = integrate.step(sysm, self._q, self._p, u_full, SCALAR, dt=self.dt, substeps=self.substeps)
+        q = [float(v) for v in q]
+        p = [float(v) for v in p]
+        if sysm.stochastic:
+            p = list(sysm.stochastic_kick(np.array(p), self.np_random))
+        self._q, self._p = q, p
+        self._t += self.dt
+        self._last_u = u
+        v = sysm.velocity(q, p, SCALAR)
+        err = 0.0
+        for qi, ti, ang in zip(q, self.target, self._angle):
+            e = qi - ti
+            if ang:
+                e = (e + math.pi) % _TWO_PI - math.pi
+            err += e * e
+        reward = -(err + 0.1 * sum(vi * vi for vi in v) + 0.001 * float(u @ u))
+        info = self._info()
+        info["action_clipped"] = clipped
+        return self._obs(), float(reward), False, False, info
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode != "rgb_array":
+            return None
+        from .render import render_frame
+
+        return render_frame(self.system, np.array(self._q), u=self._last_u, actuated_dofs=self.actuated_dofs)

@@ -1,0 +1,312 @@
+"""The port-Hamiltonian system interface: one place for each system's physics.
+
+Every formula (H, its gradients, M(q), D(q), the initial-state sampler) is
+written once, in *component form*: ``q`` and ``p`` are sequences of ``n``
+coordinates, each of which may be
+
+* a Python ``float`` (the single env's fast path, ``xp = SCALAR``),
+* a NumPy array of shape ``(B,)`` (the batched simulator, ``xp = NUMPY``),
+* a torch tensor of any shape (the PHAST model's KNOWN components,
+  ``xp = TORCH``; autograd flows through).
+
+Vector results are returned as tuples of components.  Use :func:`namespace`
+to pick ``xp`` from an example coordinate, and :func:`split` / :func:`stack`
+to move between a ``(..., n)`` array and component form.
+
+The dynamics are the port-Hamiltonian ones of ENVIRONMENTS.md (paper Eq. 1-3)::
+
+    qdot = dH/dp = M(q)^-1 p
+    pdot = -dH/dq - D(q) qdot + G u
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+Components = Sequence[Any]
+
+
+# --------------------------------------------------------------------------- namespaces
+class _ScalarNamespace:
+    """Array namespace over Python floats (fast path of the single env)."""
+
+    name = "scalar"
+    sin = staticmethod(math.sin)
+    cos = staticmethod(math.cos)
+    sqrt = staticmethod(math.sqrt)
+    exp = staticmethod(math.exp)
+    tanh = staticmethod(math.tanh)
+    abs = staticmethod(abs)
+
+    @staticmethod
+    def log(x: float) -> float:
+        return math.log(x)
+
+    @staticmethod
+    def sign(x: float) -> float:
+        return (x > 0) - (x < 0) + 0.0
+
+    @staticmethod
+    def clip_min(x: float, lo: float) -> float:
+        return x if x > lo else lo
+
+    @staticmethod
+    def where(c: bool, a: Any, b: Any) -> Any:
+        return a if c else b
+
+
+class _NumpyNamespace:
+    """Array namespace over NumPy arrays (batched simulator)."""
+
+    name = "numpy"
+    sin = staticmethod(np.sin)
+    cos = staticmethod(np.cos)
+    sqrt = staticmethod(np.sqrt)
+    exp = staticmethod(np.exp)
+    tanh = staticmethod(np.tanh)
+    abs = staticmethod(np.abs)
+    log = staticmethod(np.log)
+    sign = staticmethod(np.sign)
+    where = staticmethod(np.where)
+
+    @staticmethod
+    def clip_min(x: Any, lo: float) -> Any:
+        return np.maximum(x, lo)
+
+
+class _TorchNamespace:
+    """Array namespace over torch tensors (imported lazily: phast_gym is numpy-only)."""
+
+    name = "torch"
+
+    def __getattr__(self, item: str) -> Any:
+        import torch
+
+        if item == "clip_min":
+            return lambda x, lo: torch.clamp(x, min=lo)
+        return getattr(torch, item)
+
+
+SCALAR = _ScalarNamespace()
+NUMPY = _NumpyNamespace()
+TORCH = _TorchNamespace()
+
+
+def namespace(x: Any) -> Any:
+    """Pick the namespace matching one coordinate ``x`` (float, ndarray or tensor)."""
+    if isinstance(x, (float, int)):
+        return SCALAR
+    if isinstance(x, (np.ndarray, np.generic)):
+        return NUMPY
+    if type(x).__module__.startswith("torch"):
+        return TORCH
+    raise TypeError(f"unsupported coordinate type {type(x).__name__}")
+
+
+def split(x: Any) -> tuple:
+    """``(..., n)`` array or tensor -> tuple of ``n`` components."""
+    if isinstance(x, np.ndarray):
+        return tuple(x[..., i] for i in range(x.shape[-1]))
+    return tuple(x.unbind(-1))
+
+
+def stack(components: Components, like: Any = None) -> Any:
+    """Tuple of components -> ``(..., n)`` array (numpy or torch, as the components)."""
+    first = components[0]
+    if type(first).__module__.startswith("torch"):
+        import torch
+
+        shape = torch.broadcast_shapes(*[c.shape for c in components if hasattr(c, "shape")])
+        return torch.stack([c.expand(shape) if hasattr(c, "expand") else torch.full(shape, float(c)) for c in components], -1)
+    arrs = np.broadcast_arrays(*[np.asarray(c, dtype=np.float64) for c in components])
+    return np.stack(arrs, -1)
+
+
+def const_like(x: Any, c: float) -> Any:
+    """The constant ``c`` with the type and shape of coordinate ``x``."""
+    return x * 0.0 + c
+
+
+def wrap(a: Any) -> Any:
+    """Wrap angles into ``[-pi, pi)`` (paper Appendix F): ``(a + pi) mod 2 pi - pi``."""
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+# --------------------------------------------------------------------------- parameters
+class ParameterError(ValueError, TypeError):
+    """A physical parameter kwarg is unknown or out of its valid range."""
+
+
+@dataclass(frozen=True)
+class Param:
+    """A documented physical parameter: default, constraint and meaning."""
+
+    default: float | None
+    doc: str
+    constraint: str = "positive"  # "positive", "nonnegative" or "any"
+
+
+# --------------------------------------------------------------------------- system
+class System:
+    """A port-Hamiltonian system: parameters plus H, dH/dq, dH/dp, M, D, port.
+
+    Subclasses set the class attributes and implement ``potential``,
+    ``grad_potential``, ``velocity``, ``mass_matrix``, ``damping`` and
+    ``sample_initial`` (and ``dH_dq`` when M depends on q).
+    """
+
+    #: short name used in registration and the dataset cache key
+    name: ClassVar[str] = ""
+    #: number of generalized coordinates
+    n: ClassVar[int] = 1
+    #: indices of angular coordinates (wrapped in observations and metrics)
+    angle_dims: ClassVar[tuple[int, ...]] = ()
+    #: sampling interval of the env (one ``step``)
+    dt: ClassVar[float] = 0.05
+    #: RK4 substeps per ``dt`` (chosen so 50 steps match a 1e-10 ODE solve within 1e-5)
+    substeps: ClassVar[int] = 4
+    #: default bound of the port input
+    default_max_action: ClassVar[float] = 50.0
+    #: True when H = p^T M^-1 p / 2 + V(q) with M constant (leapfrog applies)
+    separable: ClassVar[bool] = True
+    #: True for port-Hamiltonian systems (False: a plain ODE such as predator-prey)
+    hamiltonian_system: ClassVar[bool] = True
+    #: names of the coordinates, for plots and docs
+    coordinate_names: ClassVar[tuple[str, ...]] = ("q",)
+    #: physical parameters (constructor kwargs) with defaults and constraints
+    PARAMS: ClassVar[dict[str, Param]] = {}
+
+    def __init__(self, **params: Any) -> None:
+        unknown = sorted(set(params) - set(self.PARAMS))
+        if unknown:
+            raise ParameterError(
+                f"{type(self).__name__}: unknown parameter(s) {unknown}; "
+                f"valid names are {sorted(self.PARAMS)}"
+            )
+        values: dict[str, float | None] = {}
+        for key, spec in self.PARAMS.items():
+            val = params.get(key, spec.default)
+            if val is not None:
+                try:
+                    val = float(val)
+                except (TypeError, ValueError):
+                    raise ParameterError(f"{type(self).__name__}: parameter {key}={val!r} is not a number") from None
+                if not math.isfinite(val):
+                    raise ParameterError(f"{type(self).__name__}: parameter {key}={val} is not finite")
+                if spec.constraint == "positive" and val <= 0:
+                    raise ParameterError(f"{type(self).__name__}: parameter {key}={val} must be > 0 ({spec.doc})")
+                if spec.constraint == "nonnegative" and val < 0:
+                    raise ParameterError(f"{type(self).__name__}: parameter {key}={val} must be >= 0 ({spec.doc})")
+            values[key] = val
+        self.params = values
+        for key, val in values.items():
+            setattr(self, key, val)
+        self._finalize()
+
+    def _finalize(self) -> None:
+        """Derived constants (e.g. default inertia); called after parameters are set."""
+
+    def __repr__(self) -> str:
+        kw = ", ".join(f"{k}={v!r}" for k, v in self.params.items())
+        return f"{type(self).__name__}({kw})"
+
+    # ---- energy ------------------------------------------------------------
+    def potential(self, q: Components, xp: Any = NUMPY) -> Any:
+        """Potential energy V(q)."""
+        raise NotImplementedError
+
+    def grad_potential(self, q: Components, xp: Any = NUMPY) -> tuple:
+        """dV/dq, as n components."""
+        raise NotImplementedError
+
+    def mass_matrix(self, q: Components, xp: Any = NUMPY) -> tuple[tuple, ...]:
+        """Mass matrix M(q) as an n x n nested tuple of components."""
+        raise NotImplementedError
+
+    def velocity(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
+        """Generalized velocity qdot = dH/dp = M(q)^-1 p."""
+        raise NotImplementedError
+
+    def kinetic(self, q: Components, p: Components, xp: Any = NUMPY) -> Any:
+        """Kinetic energy p^T M(q)^-1 p / 2."""
+        v = self.velocity(q, p, xp)
+        return 0.5 * sum(pi * vi for pi, vi in zip(p, v))
+
+    def hamiltonian(self, q: Components, p: Components, xp: Any = NUMPY) -> Any:
+        """Total energy H(q, p) = kinetic + potential."""
+        return self.kinetic(q, p, xp) + self.potential(q, xp)
+
+    def energy(self, q: Components, p: Components, xp: Any = NUMPY) -> Any:
+        """The energy reported in ``info["energy"]`` (H, or a Lyapunov function for ODEs)."""
+        return self.hamiltonian(q, p, xp)
+
+    def dH_dq(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
+        """dH/dq at fixed p; equals dV/dq when M is constant."""
+        return self.grad_potential(q, xp)
+
+    def dH_dp(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
+        """dH/dp = M(q)^-1 p."""
+        return self.velocity(q, p, xp)
+
+    # ---- dissipation and port -------------------------------------------
+    def damping(self, q: Components, xp: Any = NUMPY) -> tuple:
+        """Diagonal of D(q) (every system of the suite has a diagonal D)."""
+        return tuple(const_like(qi, 0.0) for qi in q)
+
+    def has_damping(self) -> bool:
+        """False when D is identically zero (lets integrators skip work)."""
+        return True
+
+    def switching(self, q: Components, p: Components, xp: Any = NUMPY) -> Any | None:
+        """A scalar whose sign changes where the vector field has a kink (or None).
+
+        The integrator splits a substep at such a crossing so RK4 keeps its
+        order on non-smooth damping laws such as ``|sin q|``.
+        """
+        return None
+
+    # ---- dynamics ------------------------------------------------------------
+    def rhs(self, q: Components, p: Components, u: Components | None, xp: Any = NUMPY) -> tuple[tuple, tuple]:
+        """Vector field (qdot, pdot) with the port force ``u`` = G u (n components)."""
+        v = self.velocity(q, p, xp)
+        dq = self.dH_dq(q, p, xp)
+        if self.has_damping():
+            d = self.damping(q, xp)
+            pdot = [-dqi - di * vi for dqi, di, vi in zip(dq, d, v)]
+        else:
+            pdot = [-dqi for dqi in dq]
+        if u is not None:
+            pdot = [a + b for a, b in zip(pdot, u)]
+        return tuple(v), tuple(pdot)
+
+    def power_balance(self, q: Components, p: Components, u: Components | None, xp: Any = NUMPY) -> tuple[Any, Any]:
+        """(dissipated power v^T D v, supplied power v^T G u): dH/dt = -first + second."""
+        v = self.velocity(q, p, xp)
+        d = self.damping(q, xp)
+        diss = sum(di * vi * vi for di, vi in zip(d, v))
+        supplied = sum(vi * ui for vi, ui in zip(v, u)) if u is not None else 0.0 * diss
+        return diss, supplied
+
+    def post_step(self, q: list, p: list, xp: Any = NUMPY) -> tuple[list, list]:
+        """Projection applied after every step (e.g. populations stay >= 0)."""
+        return q, p
+
+    def stochastic_kick(self, p: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Noise added to p once per step, p of shape (..., n) (default: none)."""
+        return p
+
+    # ---- initial states -------------------------------------------------
+    def sample_initial(self, rng: np.random.Generator, size: int) -> np.ndarray:
+        """Sample ``size`` initial states ``(q, p)`` from the spec's distribution -> (size, 2n)."""
+        raise NotImplementedError
+
+    # ---- helpers -------------------------------------------------------------
+    @property
+    def stochastic(self) -> bool:
+        """True when steps inject noise (Langevin temperature)."""
+        return False

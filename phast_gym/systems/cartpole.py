@@ -1,0 +1,86 @@
+"""Windy cart-pole: cart position x and pole angle theta (0 = hanging).
+
+H = p^T M(q)^-1 p / 2 + m_p g l (1 - cos theta),
+M(q) = [[m_c + m_p, m_p l cos theta], [m_p l cos theta, m_p l^2]].
+D = diag(d_cart, d0 + dd |sin theta|)  (``damping="diag"``, the main text), or
+d0 + dd |sin theta| on both coordinates (``damping="scalar"``, paper Eq. 65).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from .base import NUMPY, Components, Param, ParameterError, System, const_like
+
+
+class CartPole(System):
+    """Cart-pole with force on the cart and torque on the pole as ports."""
+
+    name = "cartpole"
+    n = 2
+    angle_dims = (1,)
+    dt = 0.02
+    substeps = 4
+    default_max_action = 50.0
+    separable = False
+    coordinate_names = ("x", "theta")
+    PARAMS = {
+        "cart_mass": Param(1.0, "cart mass m_c [kg]"),
+        "pole_mass": Param(1.0, "pole (bob) mass m_p [kg]"),
+        "length": Param(1.0, "pole length l [m]"),
+        "gravity": Param(9.81, "gravitational acceleration g [m/s^2]"),
+        "d_cart": Param(0.3, "cart friction (diag variant)", "nonnegative"),
+        "d0": Param(0.3, "base of the windy pole damping d0 + dd |sin theta|", "nonnegative"),
+        "dd": Param(0.5, "amplitude of the windy pole damping", "nonnegative"),
+    }
+
+    def __init__(self, damping: str = "diag", **params: Any) -> None:
+        if damping not in ("diag", "scalar"):
+            raise ParameterError(f"CartPole: damping must be 'diag' or 'scalar', got {damping!r}")
+        self.damping_kind = damping
+        super().__init__(**params)
+        self.params["damping"] = damping  # type: ignore[assignment]
+
+    def potential(self, q: Components, xp: Any = NUMPY) -> Any:
+        return self.pole_mass * self.gravity * self.length * (1.0 - xp.cos(q[1]))
+
+    def grad_potential(self, q: Components, xp: Any = NUMPY) -> tuple:
+        return (const_like(q[0], 0.0), self.pole_mass * self.gravity * self.length * xp.sin(q[1]))
+
+    def mass_matrix(self, q: Components, xp: Any = NUMPY) -> tuple:
+        m12 = self.pole_mass * self.length * xp.cos(q[1])
+        return (
+            (const_like(q[0], self.cart_mass + self.pole_mass), m12),
+            (m12, const_like(q[0], self.pole_mass * self.length**2)),
+        )
+
+    def velocity(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
+        mc, mp, l = self.cart_mass, self.pole_mass, self.length
+        c = xp.cos(q[1])
+        m11, m12, m22 = mc + mp, mp * l * c, mp * l * l
+        det = m11 * m22 - m12 * m12
+        return ((m22 * p[0] - m12 * p[1]) / det, (m11 * p[1] - m12 * p[0]) / det)
+
+    def dH_dq(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
+        # dH/dq|_p = dV/dq - v^T (dM/dq) v / 2, dM12/dtheta = -m_p l sin theta
+        v = self.velocity(q, p, xp)
+        s = xp.sin(q[1])
+        mpl = self.pole_mass * self.length
+        return (const_like(q[0], 0.0), mpl * s * (self.gravity + v[0] * v[1]))
+
+    def damping(self, q: Components, xp: Any = NUMPY) -> tuple:
+        pole = self.d0 + self.dd * xp.abs(xp.sin(q[1]))
+        if self.damping_kind == "scalar":
+            return (pole, pole)
+        return (const_like(q[0], self.d_cart), pole)
+
+    def switching(self, q: Components, p: Components, xp: Any = NUMPY) -> Any | None:
+        return xp.sin(q[1]) if self.dd != 0.0 else None
+
+    def sample_initial(self, rng: np.random.Generator, size: int) -> np.ndarray:
+        q = rng.uniform([-1.0, -math.pi], [1.0, math.pi], size=(size, 2))
+        p = rng.uniform(-2.0, 2.0, size=(size, 2))
+        return np.concatenate([q, p], axis=1)

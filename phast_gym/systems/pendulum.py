@@ -1,0 +1,71 @@
+"""Single pendulum family: plain, damped (gamma) and windy (d0 + dd |sin theta|).
+
+H = p^2 / (2 I) + m g l (1 - cos theta), theta from the downward vertical.
+D(theta) = gamma + d0 + dd |sin theta|  (ENVIRONMENTS.md; paper Appendix B).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from .base import NUMPY, Components, Param, System, const_like
+
+
+class Pendulum(System):
+    """Pendulum with torque port at the pivot."""
+
+    name = "pendulum"
+    n = 1
+    angle_dims = (0,)
+    dt = 0.05
+    substeps = 6
+    default_max_action = 50.0
+    coordinate_names = ("theta",)
+    PARAMS = {
+        "mass": Param(1.0, "bob mass m [kg]"),
+        "length": Param(1.0, "rod length l [m]"),
+        "gravity": Param(9.81, "gravitational acceleration g [m/s^2]"),
+        "inertia": Param(None, "moment of inertia I about the pivot [kg m^2] (default m l^2)"),
+        "gamma": Param(0.0, "constant viscous damping [N m s]", "nonnegative"),
+        "d0": Param(0.0, "base of the windy damping d0 + dd |sin theta|", "nonnegative"),
+        "dd": Param(0.0, "amplitude of the windy damping d0 + dd |sin theta|", "nonnegative"),
+        "init_p_std": Param(3.0, "std of the initial momentum p0 ~ N(0, s^2)", "nonnegative"),
+    }
+
+    def _finalize(self) -> None:
+        if self.inertia is None:
+            self.inertia = self.mass * self.length**2
+            self.params["inertia"] = None
+        self.mgl = self.mass * self.gravity * self.length
+
+    def potential(self, q: Components, xp: Any = NUMPY) -> Any:
+        return self.mgl * (1.0 - xp.cos(q[0]))
+
+    def grad_potential(self, q: Components, xp: Any = NUMPY) -> tuple:
+        return (self.mgl * xp.sin(q[0]),)
+
+    def mass_matrix(self, q: Components, xp: Any = NUMPY) -> tuple:
+        return ((const_like(q[0], self.inertia),),)
+
+    def velocity(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
+        return (p[0] / self.inertia,)
+
+    def damping(self, q: Components, xp: Any = NUMPY) -> tuple:
+        c = self.gamma + self.d0
+        if self.dd == 0.0:
+            return (const_like(q[0], c),)
+        return (c + self.dd * xp.abs(xp.sin(q[0])),)
+
+    def has_damping(self) -> bool:
+        return self.gamma + self.d0 + self.dd > 0.0
+
+    def switching(self, q: Components, p: Components, xp: Any = NUMPY) -> Any | None:
+        return xp.sin(q[0]) if self.dd != 0.0 else None
+
+    def sample_initial(self, rng: np.random.Generator, size: int) -> np.ndarray:
+        theta = rng.uniform(-math.pi, math.pi, size=(size, 1))
+        p = rng.normal(0.0, self.init_p_std, size=(size, 1))
+        return np.concatenate([theta, p], axis=1)
