@@ -1,0 +1,74 @@
+"""The contract every forecasting model (PHAST and the baselines) implements.
+
+Time alignment, shared by datasets, training and rollouts:
+
+* ``q``: (B, T, n) observed positions (angles wrapped), float32/float64 tensor;
+* ``u``: (B, T-1, m) or (B, T, m) port input, ``u[:, t]`` held over [t, t+1];
+* ``forward(q, u)`` returns (B, T, n): ``out[:, t]`` predicts ``q[:, t+1]`` from
+  ``q[:, :t+1]`` and ``u[:, :t+1]`` only (causal, teacher-forced over the whole
+  trajectory at once; the last entry predicts beyond the data).
+* ``rollout(q_burn, u, H)``: burn-in ``q_burn`` (B, K, n) of ground truth, then
+  ``H`` open-loop steps with the model's own predictions fed back
+  (autoregressive); ``u`` (B, K-1+H, m) or None.  Returns (B, H, n): the
+  predictions of ``q_K ... q_{K+H-1}``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+
+def wrap_angles(x: torch.Tensor, angle_dims: tuple[int, ...]) -> torch.Tensor:
+    """Wrap the angular coordinates (last axis) of ``x`` into [-pi, pi)."""
+    if not angle_dims:
+        return x
+    out = x.clone()
+    idx = list(angle_dims)
+    out[..., idx] = torch.remainder(x[..., idx] + math.pi, 2 * math.pi) - math.pi
+    return out
+
+
+def coordinate_error(pred: torch.Tensor, target: torch.Tensor, angle_dims: tuple[int, ...]) -> torch.Tensor:
+    """pred - target with wrapped differences on angular coordinates."""
+    return wrap_angles(pred - target, angle_dims)
+
+
+class ForecastModel(nn.Module):
+    """Base class of all next-step forecasters ``q_{0:t}, u_{0:t} -> q_{t+1}``."""
+
+    def __init__(self, n: int, m: int, angle_dims: tuple[int, ...] = ()) -> None:
+        super().__init__()
+        self.n, self.m = int(n), int(m)
+        self.angle_dims = tuple(int(i) for i in angle_dims)
+
+    def forward(self, q: torch.Tensor, u: torch.Tensor | None = None) -> torch.Tensor:  # pragma: no cover
+        raise NotImplementedError
+
+    @staticmethod
+    def pad_u(u: torch.Tensor | None, T: int) -> torch.Tensor | None:
+        """Pad/crop ``u`` along time to length ``T`` (zeros beyond the data)."""
+        if u is None:
+            return None
+        if u.shape[1] >= T:
+            return u[:, :T]
+        pad = u.new_zeros(u.shape[0], T - u.shape[1], u.shape[2])
+        return torch.cat([u, pad], dim=1)
+
+    @torch.no_grad()
+    def rollout(self, q_burn: torch.Tensor, u: torch.Tensor | None, H: int) -> torch.Tensor:
+        """Autoregressive open-loop rollout (generic O(H^2) version; models may override)."""
+        q = q_burn
+        preds = []
+        for _ in range(H):
+            out = self.forward(q, self.pad_u(u, q.shape[1]))[:, -1:]
+            out = wrap_angles(out, self.angle_dims)
+            preds.append(out)
+            q = torch.cat([q, out], dim=1)
+        return torch.cat(preds, dim=1)
+
+    def n_parameters(self) -> int:
+        """Trainable parameter count (reported in tables)."""
+        return sum(p.numel() for p in self.parameters() if p.requires_grad)
