@@ -126,7 +126,10 @@ class PortHamiltonianEnv(gym.Env):
         self._q: list[float] = [0.0] * n
         self._p: list[float] = [0.0] * n
         self._t = 0.0
-        self._last_u = np.zeros(self.m)
+        self._last_u: list[float] = [0.0] * self.m
+        self._action_shape = (self.m,)
+        self._has_damping = sysm.has_damping()
+        self._plain_obs = observe == "q" and self.obs_noise_std == 0.0
 
     # ------------------------------------------------------------------ helpers
     @property
@@ -139,6 +142,8 @@ class PortHamiltonianEnv(gym.Env):
 
     def _obs(self) -> np.ndarray:
         q = self._q
+        if self._plain_obs:  # q only, no noise: the common case, kept cheap
+            return np.array([((x + math.pi) % _TWO_PI - math.pi) if a else x for x, a in zip(q, self._angle)], dtype=self.dtype)
         if self.observe == "qp":
             vals = q + self._p
             if self.obs_noise_std > 0:
@@ -148,16 +153,19 @@ class PortHamiltonianEnv(gym.Env):
             if self.obs_noise_std > 0:
                 q = list(np.add(q, self.np_random.normal(0.0, self.obs_noise_std, self.n)))
             vals = self._wrap_obs(q)
-        out = np.array(vals, dtype=self.dtype)
-        # float32 rounding can push pi - eps up to float32(pi); keep inside [-pi, pi)
-        return out
+        return np.array(vals, dtype=self.dtype)
 
     def _info(self) -> dict[str, Any]:
         sysm = self.system
+        q = self._q
+        if self._has_damping:
+            damping = np.array(sysm.damping(q, SCALAR), dtype=np.float64)
+        else:
+            damping = np.zeros(self.n)
         return {
-            "state": np.array(self._q + self._p),
-            "energy": float(sysm.energy(self._q, self._p, SCALAR)),
-            "damping": np.array([float(d) for d in sysm.damping(self._q, SCALAR)]),
+            "state": np.array(q + self._p),
+            "energy": float(sysm.energy(q, self._p, SCALAR)),
+            "damping": damping,
             "t": self._t,
         }
 
@@ -176,33 +184,48 @@ class PortHamiltonianEnv(gym.Env):
         self._q = [float(v) for v in x0[:n]]
         self._p = [float(v) for v in x0[n:]]
         self._t = 0.0
-        self._last_u = np.zeros(self.m)
+        self._last_u = [0.0] * self.m
         return self._obs(), self._info()
 
-    def _validate_action(self, action: Any) -> tuple[np.ndarray, bool]:
-        try:
-            a = np.asarray(action, dtype=np.float64)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"action must be a numeric array of shape ({self.m},): {exc}") from None
-        if a.shape != (self.m,):
-            raise ValueError(f"action must have shape ({self.m},) (actuated dofs {list(self.actuated_dofs)}), got {a.shape}")
-        if not np.isfinite(a).all():
-            raise ValueError(f"action must be finite, got {a.tolist()}")
-        c = np.clip(a, -self.max_action, self.max_action)
-        return c, bool((c != a).any())
+    def _validate_action(self, action: Any) -> tuple[list[float], bool]:
+        """Action -> (clipped values as floats, clipped flag); ValueError on bad input (env untouched)."""
+        if type(action) is np.ndarray and action.shape == self._action_shape and action.dtype.kind == "f":
+            vals = action.tolist()  # fast path: the usual float array of the right shape
+        else:
+            try:
+                a = np.asarray(action, dtype=np.float64)
+            except (TypeError, ValueError) as exc:
+                raise ValueError(f"action must be a numeric array of shape ({self.m},): {exc}") from None
+            if a.shape != self._action_shape:
+                raise ValueError(f"action must have shape ({self.m},) (actuated dofs {list(self.actuated_dofs)}), got {a.shape}")
+            vals = a.tolist()
+        hi = self.max_action
+        out = []
+        clipped = False
+        for v in vals:
+            if not math.isfinite(v):
+                raise ValueError(f"action must be finite, got {vals}")
+            if v > hi:
+                v, clipped = hi, True
+            elif v < -hi:
+                v, clipped = -hi, True
+            out.append(float(v))
+        return out, clipped
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
         u, clipped = self._validate_action(action)
         sysm = self.system
         if self.m == self.n:
-            u_full = u.tolist()
+            u_full = u
         else:
-            u_full = (self._G @ u).tolist()
+            u_full = [0.0] * self.n
+            for i, ui in zip(self.actuated_dofs, u):
+                u_full[i] = ui
         q, p = integrate.step(sysm, self._q, self._p, u_full, SCALAR, dt=self.dt, substeps=self.substeps)
         q = [float(v) for v in q]
         p = [float(v) for v in p]
         if sysm.stochastic:
-            p = list(sysm.stochastic_kick(np.array(p), self.np_random))
+            p = [float(v) for v in sysm.stochastic_kick(np.array(p), self.np_random)]
         self._q, self._p = q, p
         self._t += self.dt
         self._last_u = u
@@ -213,7 +236,7 @@ class PortHamiltonianEnv(gym.Env):
             if ang:
                 e = (e + math.pi) % _TWO_PI - math.pi
             err += e * e
-        reward = -(err + 0.1 * sum(vi * vi for vi in v) + 0.001 * float(u @ u))
+        reward = -(err + 0.1 * sum(vi * vi for vi in v) + 0.001 * sum(ui * ui for ui in u))
         info = self._info()
         info["action_clipped"] = clipped
         return self._obs(), float(reward), False, False, info
@@ -223,4 +246,4 @@ class PortHamiltonianEnv(gym.Env):
             return None
         from .render import render_frame
 
-        return render_frame(self.system, np.array(self._q), u=self._last_u, actuated_dofs=self.actuated_dofs)
+        return render_frame(self.system, np.array(self._q), u=np.array(self._last_u), actuated_dofs=self.actuated_dofs)

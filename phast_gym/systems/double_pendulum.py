@@ -24,7 +24,7 @@ class DoublePendulum(System):
     n = 2
     angle_dims = (0, 1)
     dt = 0.01
-    substeps = 4
+    substeps = 3
     default_max_action = 50.0
     separable = False
     coordinate_names = ("theta1", "theta2")

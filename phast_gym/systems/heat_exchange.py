@@ -19,7 +19,7 @@ class HeatExchange(System):
     name = "heat_exchange"
     n = 2
     dt = 0.02
-    substeps = 2
+    substeps = 1
     default_max_action = 10.0
     coordinate_names = ("T1", "T2")
     PARAMS = {

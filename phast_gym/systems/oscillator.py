@@ -19,7 +19,7 @@ class Oscillator(System):
     name = "oscillator"
     n = 2
     dt = 0.02
-    substeps = 2
+    substeps = 1
     default_max_action = 10.0
     coordinate_names = ("q1", "q2")
     PARAMS = {

@@ -21,7 +21,7 @@ class Pendulum(System):
     n = 1
     angle_dims = (0,)
     dt = 0.05
-    substeps = 6
+    substeps = 4
     default_max_action = 50.0
     coordinate_names = ("theta",)
     PARAMS = {

@@ -19,7 +19,7 @@ class RLCCircuit(System):
     name = "rlc"
     n = 1
     dt = 0.02
-    substeps = 2
+    substeps = 1
     default_max_action = 10.0
     coordinate_names = ("charge",)
     PARAMS = {
