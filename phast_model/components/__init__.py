@@ -1,0 +1,27 @@
+"""PHAST building blocks, each a small module behind one interface.
+
+* :mod:`.observer`   -- causal velocity observer (FD + dilated TCN), Eq. 6-7.
+* :mod:`.potentials` -- potential V(q): known, templates, neural, hybrid (Eq. 80-84).
+* :mod:`.mass`       -- mass M: known M(q), constant diag + low rank (Woodbury, Eq. 79).
+* :mod:`.damping`    -- damping D(q): Householder low rank with optional cap (Eq. 10-11).
+* :mod:`.features`   -- shared input features (angles as sin/cos).
+"""
+
+from .damping import Damping, HouseholderDamping, KnownDamping
+from .features import coordinate_features, n_features
+from .mass import KnownMass, LowRankMass, Mass
+from .observer import FDTCNObserver, finite_difference
+from .potentials import (
+    HybridPotential,
+    KnownPotential,
+    NeuralPotential,
+    Potential,
+    TemplatePotential,
+    make_template,
+)
+
+__all__ = [
+    "Damping", "HouseholderDamping", "KnownDamping", "coordinate_features", "n_features", "KnownMass", "LowRankMass",
+    "Mass", "FDTCNObserver", "finite_difference", "HybridPotential", "KnownPotential", "NeuralPotential", "Potential",
+    "TemplatePotential", "make_template",
+]

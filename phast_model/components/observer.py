@@ -1,0 +1,75 @@
+"""Causal velocity observer: finite differences plus a dilated causal TCN correction.
+
+``qdot_fd_t = wrap(q_t - q_{t-1}) / dt`` (0 at t = 0), then
+``qdot_hat_t = qdot_fd_t + delta_t`` with ``delta = TCN(q_{0:t}, qdot_fd_{0:t})``
+(paper Eq. 6-7).  Causal by construction: left-padded convolutions only, so the
+estimate at t never sees q after t.  Its receptive field is finite, which lets
+rollouts re-run the observer on a short window only (:attr:`window`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+from .features import coordinate_features, n_features
+
+
+def finite_difference(q: torch.Tensor, dt: float, angle_dims: tuple[int, ...]) -> torch.Tensor:
+    """Backward difference along time of (B, T, n), wrapped on angles; 0 at t = 0 (Eq. 6)."""
+    d = q[:, 1:] - q[:, :-1]
+    if angle_dims:
+        idx = list(angle_dims)
+        d = d.clone()
+        d[..., idx] = torch.remainder(d[..., idx] + math.pi, 2 * math.pi) - math.pi
+    return torch.cat([torch.zeros_like(q[:, :1]), d / dt], dim=1)
+
+
+class CausalConv1d(nn.Conv1d):
+    """Conv1d over (B, C, T) with left padding only (output t sees inputs <= t)."""
+
+    def __init__(self, c_in: int, c_out: int, kernel_size: int, dilation: int = 1) -> None:
+        super().__init__(c_in, c_out, kernel_size, dilation=dilation)
+        self.left = (kernel_size - 1) * dilation
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return super().forward(nn.functional.pad(x, (self.left, 0)))
+
+
+class FDTCNObserver(nn.Module):
+    """q history (B, T, n) -> velocity estimates (B, T, n), causal (FD + TCN)."""
+
+    def __init__(self, n: int, dt: float, angle_dims: tuple[int, ...] = (), hidden: int = 32, layers: int = 2,
+                 kernel_size: int = 3, q_scale: torch.Tensor | float = 1.0, v_scale: torch.Tensor | float = 1.0,
+                 use_tcn: bool = True) -> None:
+        super().__init__()
+        self.n, self.dt, self.angle_dims = n, float(dt), tuple(angle_dims)
+        n_eu = n - len(self.angle_dims)
+        self.register_buffer("q_scale", torch.as_tensor(q_scale, dtype=torch.float32).expand(n_eu).clone())
+        self.register_buffer("v_scale", torch.as_tensor(v_scale, dtype=torch.float32).expand(n).clone())
+        self.use_tcn = bool(use_tcn)
+        c_in = n_features(n, self.angle_dims) + n
+        convs = []
+        for i in range(layers):
+            convs.append(CausalConv1d(c_in if i == 0 else hidden, hidden, kernel_size, dilation=2**i))
+        self.convs = nn.ModuleList(convs)
+        self.head = nn.Conv1d(hidden, n, 1)
+        nn.init.zeros_(self.head.weight)  # start as the plain finite-difference observer
+        nn.init.zeros_(self.head.bias)
+        #: receptive field of the TCN in samples; the FD needs one more sample before it
+        self.receptive_field = 1 + sum((kernel_size - 1) * 2**i for i in range(layers))
+        #: the estimate at t depends on q_{t-window+1 .. t} only
+        self.window = self.receptive_field + 1
+
+    def forward(self, q: torch.Tensor) -> torch.Tensor:
+        """(B, T, n) positions -> (B, T, n) velocity estimates qdot_hat (Eq. 7)."""
+        v_fd = finite_difference(q, self.dt, self.angle_dims)
+        if not self.use_tcn:
+            return v_fd
+        x = torch.cat([coordinate_features(q, self.angle_dims, self.q_scale), v_fd / self.v_scale], -1).transpose(1, 2)
+        for conv in self.convs:
+            x = nn.functional.silu(conv(x))
+        delta = self.head(x).transpose(1, 2) * self.v_scale
+        return v_fd + delta

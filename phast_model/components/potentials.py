@@ -1,0 +1,209 @@
+"""Potential energies V(q): known physics, templates, neural networks and hybrids.
+
+Interface (:class:`Potential`): ``energy(q) -> (...)`` and ``grad(q) -> (..., n)``
+for q of shape (..., n).  Templates are linear in their coefficients
+(``V = sum_k c_k phi_k(q)``, paper Eq. 80-81 plus the pair potentials), so
+their coefficients can be initialised by a least-squares fit of ``grad V``
+to a reference system's gradient (:meth:`TemplatePotential.fit_to`).
+"""
+
+from __future__ import annotations
+
+import math
+from itertools import combinations
+
+import numpy as np
+import torch
+from torch import nn
+
+from phast_gym.systems import TORCH, System, split, stack
+
+from .features import coordinate_features
+
+
+def autograd_grad(fn, q: torch.Tensor) -> torch.Tensor:
+    """d fn(q).sum() / dq; keeps the graph when gradients are enabled (training), detached otherwise."""
+    outer = torch.is_grad_enabled()
+    with torch.enable_grad():
+        qq = q if (outer and q.requires_grad) else q.detach().requires_grad_(True)
+        (g,) = torch.autograd.grad(fn(qq).sum(), qq, create_graph=outer)
+    return g
+
+
+class Potential(nn.Module):
+    """V(q) with its gradient."""
+
+    def energy(self, q: torch.Tensor) -> torch.Tensor:
+        raise NotImplementedError
+
+    def grad(self, q: torch.Tensor) -> torch.Tensor:
+        """dV/dq (autograd unless a subclass has an analytic form)."""
+        return autograd_grad(self.energy, q)
+
+    def forward(self, q: torch.Tensor) -> torch.Tensor:
+        return self.energy(q)
+
+
+class KnownPotential(Potential):
+    """The env's own potential (KNOWN regime): calls ``system.potential`` / ``system.grad_potential``."""
+
+    def __init__(self, system: System) -> None:
+        super().__init__()
+        self.system = system
+
+    def energy(self, q: torch.Tensor) -> torch.Tensor:
+        return self.system.potential(split(q), TORCH) + 0.0 * q[..., 0]
+
+    def grad(self, q: torch.Tensor) -> torch.Tensor:
+        return stack(self.system.grad_potential(split(q), TORCH))
+
+
+# --------------------------------------------------------------------------- templates
+def _pairs(q: torch.Tensor, n_particles: int, dim: int = 2) -> torch.Tensor:
+    """Squared pair distances (..., n_pairs) of planar particles stored as (x1, y1, x2, ...)."""
+    r2 = []
+    for i, j in combinations(range(n_particles), 2):
+        d = q[..., dim * i:dim * i + dim] - q[..., dim * j:dim * j + dim]
+        r2.append((d * d).sum(-1))
+    return torch.stack(r2, -1)
+
+
+class TemplatePotential(Potential):
+    """Structured potential ``V = sum_k c_k phi_k(q)`` with learnable coefficients c.
+
+    kinds: ``cosine`` (``sum_i a_i (1 - cos q_i)`` over ``dims``, Eq. 80),
+    ``quadratic`` (``q^T K q / 2``, K symmetric, Eq. 81), ``lennard_jones``
+    (``c1 sum r^-12 - c2 sum r^-6``), ``gravity`` (``-c sum (r^2 + eps^2)^-1/2``,
+    eps learnable).
+    """
+
+    KINDS = ("cosine", "quadratic", "lennard_jones", "gravity")
+
+    def __init__(self, kind: str, n: int, dims: tuple[int, ...] | None = None, softening: float = 0.1) -> None:
+        super().__init__()
+        if kind not in self.KINDS:
+            raise ValueError(f"unknown potential template {kind!r}; known: {self.KINDS}")
+        self.kind, self.n = kind, int(n)
+        self.dims = tuple(range(n)) if dims is None else tuple(int(i) for i in dims)
+        if kind == "cosine":
+            k = len(self.dims)
+        elif kind == "quadratic":
+            self.tri = [(i, j) for i in range(n) for j in range(i, n)]
+            k = len(self.tri)
+        elif kind == "lennard_jones":
+            k = 2
+        else:
+            k = 1
+            self.log_eps = nn.Parameter(torch.tensor(math.log(softening)))
+        self.n_particles = n // 2
+        self.coef = nn.Parameter(torch.ones(k))
+
+    def basis(self, q: torch.Tensor) -> torch.Tensor:
+        """(..., n) -> (..., K) basis functions phi_k(q)."""
+        if self.kind == "cosine":
+            return 1.0 - torch.cos(q[..., list(self.dims)])
+        if self.kind == "quadratic":
+            return torch.stack([(0.5 if i == j else 1.0) * q[..., i] * q[..., j] for i, j in self.tri], -1)
+        r2 = _pairs(q, self.n_particles)
+        if self.kind == "lennard_jones":
+            return torch.stack([(r2 ** -6).sum(-1), -(r2 ** -3).sum(-1)], -1)
+        eps2 = torch.exp(2 * self.log_eps)
+        return -(1.0 / torch.sqrt(r2 + eps2)).sum(-1, keepdim=True)
+
+    def energy(self, q: torch.Tensor) -> torch.Tensor:
+        return (self.basis(q) * self.coef).sum(-1)
+
+    def grad(self, q: torch.Tensor) -> torch.Tensor:
+        if self.kind == "cosine":  # analytic (Eq. 80)
+            g = torch.zeros_like(q)
+            g = g.index_copy(-1, torch.tensor(self.dims, device=q.device), self.coef * torch.sin(q[..., list(self.dims)]))
+            return g
+        return autograd_grad(self.energy, q)
+
+    @torch.no_grad()
+    def fit_to(self, system: System, n_samples: int = 512, seed: int = 0) -> float:
+        """Least-squares init of the coefficients from ``system.grad_potential`` on its initial-state
+        distribution (PARTIAL: the template is given, coefficients stay learnable). Returns the relative residual."""
+        rng = np.random.default_rng(seed)
+        q = torch.as_tensor(system.sample_initial(rng, n_samples)[:, : self.n], dtype=torch.float64)
+        target = stack(system.grad_potential(split(q), TORCH)).reshape(-1)
+        eps_grid = [None] if self.kind != "gravity" else list(np.logspace(-2, 0, 21))
+        best = (math.inf, None, None)
+        for eps in eps_grid:
+            if eps is not None:
+                self.log_eps.fill_(math.log(eps))
+            cols = []
+            for k in range(self.coef.numel()):
+                with torch.enable_grad():
+                    qq = q.clone().requires_grad_(True)
+                    b = self.basis(qq.to(self.coef.dtype))[..., k].sum()
+                    (gk,) = torch.autograd.grad(b, qq)
+                cols.append(gk.reshape(-1))
+            A = torch.stack(cols, -1)
+            sol = torch.linalg.lstsq(A, target.unsqueeze(-1)).solution.squeeze(-1)
+            res = float(torch.linalg.norm(A @ sol - target) / (torch.linalg.norm(target) + 1e-12))
+            if res < best[0]:
+                best = (res, sol, eps)
+        self.coef.copy_(best[1].to(self.coef.dtype))
+        if best[2] is not None:
+            self.log_eps.fill_(math.log(best[2]))
+        return best[0]
+
+
+def make_template(kind: str, n: int, dims: tuple[int, ...] | None = None) -> TemplatePotential:
+    """Template by name, including the paper's per-env aliases (pendulum, cart-pole, ...)."""
+    aliases = {"pendulum": "cosine", "cartpole": "cosine", "double_pendulum": "cosine", "circuit": "quadratic",
+               "heat": "quadratic", "spring": "quadratic", "softened_gravity": "gravity"}
+    return TemplatePotential(aliases.get(kind, kind), n, dims)
+
+
+# --------------------------------------------------------------------------- neural
+class NeuralPotential(Potential):
+    """MLP potential (3 layers, SiLU, hidden 64; Eq. 82) with Fourier features on angles (Eq. 83)."""
+
+    def __init__(self, n: int, angle_dims: tuple[int, ...] = (), hidden: int = 64, layers: int = 3,
+                 n_freq: int = 2, q_scale: torch.Tensor | float = 1.0, out_scale: float = 1.0) -> None:
+        super().__init__()
+        self.n, self.angle_dims, self.n_freq = n, tuple(angle_dims), int(n_freq)
+        n_eu = n - len(self.angle_dims)
+        self.register_buffer("q_scale", torch.as_tensor(q_scale, dtype=torch.float32).expand(n_eu).clone())
+        self.out_scale = float(out_scale)
+        width = n_eu + 2 * self.n_freq * len(self.angle_dims)
+        mods: list[nn.Module] = []
+        for i in range(layers - 1):
+            mods += [nn.Linear(width if i == 0 else hidden, hidden), nn.SiLU()]
+        mods.append(nn.Linear(hidden, 1))
+        self.net = nn.Sequential(*mods)
+
+    def features(self, q: torch.Tensor) -> torch.Tensor:
+        n_eu = self.n - len(self.angle_dims)
+        parts = []
+        if n_eu:
+            parts.append(coordinate_features(q, self.angle_dims, self.q_scale)[..., :n_eu])
+        if self.angle_dims:
+            a = q[..., list(self.angle_dims)]
+            for k in range(1, self.n_freq + 1):
+                parts += [torch.sin(k * a), torch.cos(k * a)]
+        return torch.cat(parts, -1)
+
+    def energy(self, q: torch.Tensor) -> torch.Tensor:
+        return self.out_scale * self.net(self.features(q)).squeeze(-1)
+
+
+class HybridPotential(Potential):
+    """``V = V_template + softplus(rho) * V_neural`` with a small learnable scale (Eq. 84)."""
+
+    def __init__(self, template: Potential, neural: Potential, eps_init: float = 0.01) -> None:
+        super().__init__()
+        self.template, self.neural = template, neural
+        self.rho = nn.Parameter(torch.tensor(math.log(math.expm1(eps_init))))
+
+    @property
+    def eps(self) -> torch.Tensor:
+        return nn.functional.softplus(self.rho)
+
+    def energy(self, q: torch.Tensor) -> torch.Tensor:
+        return self.template.energy(q) + self.eps * self.neural.energy(q)
+
+    def grad(self, q: torch.Tensor) -> torch.Tensor:
+        return self.template.grad(q) + self.eps * self.neural.grad(q)

@@ -1,0 +1,109 @@
+"""The PHAST core transition (paper Algorithm 1, Appendix A.2).
+
+One observation step is ``L`` substeps of the Strang splitting
+
+    Phi_h = Phi_D(h/2) o Phi_H(h) o Phi_D(h/2),     h = dt_model / L   (Eq. 78)
+
+* dissipation half-step, q fixed: ``p <- p - (h/2) D(q) M^-1 p`` (Eq. 42);
+* conservative step ``Phi_H``: leapfrog / Stormer-Verlet when H is separable
+  (constant M), implicit midpoint with fixed-point iterations for M(q);
+* the port force ``G u`` is held over the step and enters the momentum
+  updates of the conservative step.
+
+The internal step ``dt_model`` is log-parameterized and learnable by default.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+from .components.damping import Damping
+from .components.mass import Mass
+from .components.potentials import Potential
+
+
+class PHASTCore(nn.Module):
+    """``(q, p, G u) -> (q', p')`` with potential V, mass M and damping D."""
+
+    def __init__(self, potential: Potential, mass: Mass, damping: Damping | None, dt: float, substeps: int = 1,
+                 learn_dt: bool = True, integrator: str = "auto", midpoint_iters: int = 4) -> None:
+        super().__init__()
+        if integrator not in ("auto", "leapfrog", "implicit_midpoint"):
+            raise ValueError(f"integrator must be 'auto', 'leapfrog' or 'implicit_midpoint', got {integrator!r}")
+        if int(substeps) != substeps or substeps < 1:
+            raise ValueError(f"substeps must be a positive integer, got {substeps!r}")
+        self.potential, self.mass, self.damping = potential, mass, damping
+        self.substeps = int(substeps)
+        self.integrator = ("leapfrog" if mass.constant else "implicit_midpoint") if integrator == "auto" else integrator
+        self.midpoint_iters = int(midpoint_iters)
+        log_dt = torch.tensor(math.log(dt / self.substeps))
+        if learn_dt:
+            self.log_dt = nn.Parameter(log_dt)
+        else:
+            self.register_buffer("log_dt", log_dt)
+
+    @property
+    def h(self) -> torch.Tensor:
+        """Substep length dt_model / L."""
+        return torch.exp(self.log_dt)
+
+    # ---- energy --------------------------------------------------------------
+    def hamiltonian(self, q: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
+        """H(q, p) = p^T M(q)^-1 p / 2 + V(q) (Eq. 2-3)."""
+        return 0.5 * (p * self.mass.velocity(q, p)).sum(-1) + self.potential.energy(q)
+
+    def dH_dq(self, q: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
+        return self.potential.grad(q) + self.mass.kinetic_dq(q, p)
+
+    # ---- splitting pieces ------------------------------------------------------
+    def damping_half_step(self, q: torch.Tensor, p: torch.Tensor, h: torch.Tensor) -> torch.Tensor:
+        """Phi_D(h/2): p <- p - (h/2) D(q) M^-1 p (Eq. 42); energy non-increasing when
+        h lambda_max(D) / (2 lambda_min(M)) <= 2 (Eq. 44)."""
+        if self.damping is None:
+            return p
+        return p - 0.5 * h * self.damping.apply(q, self.mass.velocity(q, p))
+
+    def conservative_step(self, q: torch.Tensor, p: torch.Tensor, f: torch.Tensor | None, h: torch.Tensor,
+                          need_p: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
+        """Phi_H(h) with the port force f = G u held over the step."""
+        if self.integrator == "leapfrog":
+            force = -self.potential.grad(q) if f is None else f - self.potential.grad(q)
+            p_half = p + 0.5 * h * force
+            q1 = q + h * self.mass.velocity(q, p_half)
+            if not need_p:
+                return q1, p_half
+            force1 = -self.potential.grad(q1) if f is None else f - self.potential.grad(q1)
+            return q1, p_half + 0.5 * h * force1
+        # implicit midpoint: z1 = z0 + h J grad H((z0 + z1) / 2), solved by fixed-point iteration
+        q1, p1 = q, p
+        for _ in range(self.midpoint_iters + 1):
+            qm, pm = 0.5 * (q + q1), 0.5 * (p + p1)
+            force = -self.dH_dq(qm, pm) if f is None else f - self.dH_dq(qm, pm)
+            q1, p1 = q + h * self.mass.velocity(qm, pm), p + h * force
+        return q1, p1
+
+    def strang_step(self, q: torch.Tensor, p: torch.Tensor, f: torch.Tensor | None = None,
+                    need_p: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
+        """One observation step: L substeps of Phi_D(h/2) o Phi_H(h) o Phi_D(h/2) (Eq. 78).
+
+        ``need_p=False`` skips work that only affects the final momentum (teacher-forced training)."""
+        h = self.h
+        for s in range(self.substeps):
+            last = s == self.substeps - 1
+            p = self.damping_half_step(q, p, h)
+            q, p = self.conservative_step(q, p, f, h, need_p=need_p or not last)
+            if need_p or not last:
+                p = self.damping_half_step(q, p, h)
+        return q, p
+
+    forward = strang_step
+
+    def power(self, q: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
+        """Continuous-time dH/dt at u = 0: -v^T D(q) v <= 0 (Theorem A.1)."""
+        v = self.mass.velocity(q, p)
+        if self.damping is None:
+            return torch.zeros_like(q[..., 0])
+        return -(v * self.damping.apply(q, v)).sum(-1)

@@ -1,0 +1,450 @@
+"""The PHAST world model: observer -> canonicalizer -> Strang-splitting core.
+
+:class:`PHAST` is a :class:`~phast_model.interfaces.ForecastModel`; its parts are
+composed from a :class:`PHASTConfig` by :func:`build_from_config` (the regimes
+of :mod:`phast_model.regimes` are such configs).  :class:`LatentODEModel` is the
+structured model of the non-Hamiltonian predator-prey env (see its docstring).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from phast_gym import make_env_system, resolve_env_id
+from phast_gym.systems import NUMPY, TORCH, System, split, stack
+
+from .components import (
+    FDTCNObserver,
+    HouseholderDamping,
+    HybridPotential,
+    KnownDamping,
+    KnownMass,
+    KnownPotential,
+    LowRankMass,
+    NeuralPotential,
+    make_template,
+)
+from .components.features import coordinate_features, n_features
+from .core import PHASTCore
+from .interfaces import ForecastModel, coordinate_error, wrap_angles
+
+
+@dataclass
+class PHASTConfig:
+    """Everything needed to rebuild a PHAST model (saved as ``config.json``)."""
+
+    env_id: str
+    regime: str = "custom"
+    kind: str = "phast"  # "phast" or "latent_ode" (predator-prey)
+    potential: str = "known"  # known | template | neural | hybrid
+    template: str | None = None  # cosine | quadratic | lennard_jones | gravity
+    template_dims: list[int] | None = None
+    mass: str = "known"  # known | lowrank
+    mass_rank: int = 1
+    damping: str = "householder"  # householder | known | none
+    damping_rank: int = 2
+    damping_cap: float | None = None
+    d0: float = 0.0
+    learn_d0: bool = True
+    canonicalizer: str = "identity"  # identity | mass
+    integrator: str = "auto"
+    substeps: int = 1
+    learn_dt: bool = True
+    midpoint_iters: int = 4
+    observer_hidden: int = 32
+    observer_layers: int = 2
+    use_tcn: bool = True
+    potential_hidden: int = 64
+    potential_layers: int = 3
+    hybrid_eps: float = 0.01
+    ode_field: str = "known"  # latent_ode only: known | template | neural
+    lambda_pass: float = 0.0
+    lambda_energy: float = 0.0
+    lambda_roll: float = 0.0
+    roll_horizon: int = 10
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    actuated_dofs: list[int] | None = None
+    seed: int = 0
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> PHASTConfig:
+        names = {f.name for f in fields(cls)}
+        unknown = sorted(set(d) - names)
+        if unknown:
+            raise ValueError(f"unknown PHASTConfig field(s) {unknown}; valid: {sorted(names)}")
+        return cls(**d)
+
+
+def system_scales(system: System, n_samples: int = 512, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """RMS scale of the Euclidean coordinates and of the velocities under the env's initial distribution
+    (normalizes the neural inputs; computed from the system, not retyped)."""
+    x = system.sample_initial(np.random.default_rng(seed), n_samples)
+    n = system.n
+    q, p = x[:, :n], x[:, n:]
+    eu = [i for i in range(n) if i not in system.angle_dims]
+    q_scale = np.sqrt((q[:, eu] ** 2).mean(0)) + 1e-3 if eu else np.zeros(0)
+    v = stack(system.velocity(split(q), split(p), NUMPY))
+    v_scale = np.sqrt((np.asarray(v) ** 2).mean(0)) + 1e-3
+    return q_scale.astype(np.float32), v_scale.astype(np.float32)
+
+
+class PHAST(ForecastModel):
+    """q-only port-Hamiltonian forecaster (paper Sec. 3, Algorithm 1)."""
+
+    def __init__(self, config: PHASTConfig, observer: FDTCNObserver, core: PHASTCore, system: System,
+                 actuated_dofs: tuple[int, ...]) -> None:
+        super().__init__(system.n, len(actuated_dofs), system.angle_dims)
+        self.config = config
+        self.system = system  # the env's physics (metrics, known parts); not a parameter
+        self.dt = float(system.dt)
+        self.observer = observer
+        self.core = core
+        self.actuated_dofs = tuple(actuated_dofs)
+        self.register_buffer("G", torch.eye(self.n)[:, list(self.actuated_dofs)])
+
+    # ---- public pieces (control and mismatch reuse these) --------------------
+    @property
+    def potential(self):  # noqa: ANN201
+        return self.core.potential
+
+    @property
+    def mass(self):  # noqa: ANN201
+        return self.core.mass
+
+    @property
+    def damping(self):  # noqa: ANN201
+        return self.core.damping
+
+    def port_force(self, u: torch.Tensor | None) -> torch.Tensor | None:
+        """G u: (..., m) -> (..., n)."""
+        return None if u is None else u.to(self.G.dtype) @ self.G.T
+
+    def canonicalize(self, q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+        """(q, qdot_hat) -> p_hat: identity, or M(q) qdot_hat (``canonicalizer="mass"``)."""
+        return self.mass.momentum(q, v) if self.config.canonicalizer == "mass" else v
+
+    def hamiltonian(self, q: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
+        return self.core.hamiltonian(q, p)
+
+    def velocity(self, q: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
+        """dH/dp = M^-1 p."""
+        return self.mass.velocity(q, p)
+
+    def damping_diag(self, q: torch.Tensor) -> torch.Tensor:
+        """Diagonal of the learned D(q), (..., n)."""
+        if self.damping is None:
+            return torch.zeros_like(q)
+        return self.damping.diag(q)
+
+    def step(self, q: torch.Tensor, p: torch.Tensor, u: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """One Strang step of the core with port input u (..., m)."""
+        return self.core.strang_step(q, p, self.port_force(u))
+
+    def infer_state(self, q_hist: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(B, T, n) observed history -> the canonical state (q_T-1, p_T-1) at its last sample."""
+        v = self.observer(q_hist[:, -self.observer.window:])[:, -1]
+        q = q_hist[:, -1]
+        return q, self.canonicalize(q, v)
+
+    # ---- ForecastModel --------------------------------------------------------
+    def _prep(self, q: torch.Tensor, u: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor | None]:
+        dtype = next(self.parameters()).dtype
+        q = q.to(dtype)
+        return q, (None if u is None else self.pad_u(u.to(dtype), q.shape[1]))
+
+    def forward(self, q: torch.Tensor, u: torch.Tensor | None = None) -> torch.Tensor:
+        """Teacher-forced next-step predictions for every t at once: (B, T, n) -> (B, T, n)."""
+        q, u = self._prep(q, u)
+        v = self.observer(q)
+        p = self.canonicalize(q, v)
+        q1, _ = self.core.strang_step(q, p, self.port_force(u), need_p=False)
+        return wrap_angles(q1, self.angle_dims)
+
+    @torch.no_grad()
+    def rollout(self, q_burn: torch.Tensor, u: torch.Tensor | None, H: int) -> torch.Tensor:
+        """Autoregressive rollout; the observer is re-run on its finite window only (exactly the
+        autoregressive definition, O(H) instead of O(H^2))."""
+        q, u = self._prep(q_burn, u)
+        K, W = q.shape[1], self.observer.window
+        hist = q[:, -W:]
+        preds = []
+        for h in range(H):
+            v = self.observer(hist)[:, -1]
+            qt = hist[:, -1]
+            ut = None if u is None else (u[:, K - 1 + h] if K - 1 + h < u.shape[1] else torch.zeros_like(u[:, 0]))
+            q1, _ = self.core.strang_step(qt, self.canonicalize(qt, v), self.port_force(ut), need_p=False)
+            q1 = wrap_angles(q1, self.angle_dims)
+            preds.append(q1)
+            hist = torch.cat([hist, q1.unsqueeze(1)], 1)[:, -W:]
+        return torch.stack(preds, 1)
+
+    @torch.no_grad()
+    def rollout_takeover(self, q_burn: torch.Tensor, u: torch.Tensor | None, H: int,
+                         return_p: bool = False) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+        """Takeover rollout (Eq. 8): infer one state at the end of the burn-in, then integrate the core only."""
+        q_burn, u = self._prep(q_burn, u)
+        K = q_burn.shape[1]
+        q, p = self.infer_state(q_burn)
+        qs, ps = [], []
+        for h in range(H):
+            ut = None if u is None else (u[:, K - 1 + h] if K - 1 + h < u.shape[1] else torch.zeros_like(u[:, 0]))
+            q, p = self.core.strang_step(q, p, self.port_force(ut))
+            qs.append(wrap_angles(q, self.angle_dims))
+            ps.append(p)
+        out = torch.stack(qs, 1)
+        return (out, torch.stack(ps, 1)) if return_p else out
+
+    # ---- optional losses (paper Eq. 86-88) --------------------------------------
+    def extra_losses(self, q: torch.Tensor, u: torch.Tensor | None, pred: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Weighted L_pass, L_energy, L_roll on the model's inferred states (weights from the config; 0 by default)."""
+        cfg = self.config
+        out: dict[str, torch.Tensor] = {}
+        if cfg.lambda_pass <= 0 and cfg.lambda_energy <= 0 and cfg.lambda_roll <= 0:
+            return out
+        q, u = self._prep(q, u)
+        p = self.canonicalize(q, self.observer(q))
+        f = self.port_force(u)
+        if cfg.lambda_pass > 0 or cfg.lambda_energy > 0:
+            q1, p1 = self.core.strang_step(q[:, :-1], p[:, :-1], None if f is None else f[:, :-1])
+            H0, H1 = self.hamiltonian(q[:, :-1], p[:, :-1]), self.hamiltonian(q1, p1)
+            if cfg.lambda_pass > 0:  # Eq. 86 (u = 0 benchmarks; with u the port power is not subtracted)
+                out["pass"] = cfg.lambda_pass * torch.relu(H1 - H0).mean()
+            if cfg.lambda_energy > 0:  # Eq. 87
+                dt = self.core.h * self.core.substeps
+                out["energy"] = cfg.lambda_energy * ((H1 - H0) / dt - self.core.power(q[:, :-1], p[:, :-1])).abs().mean()
+        if cfg.lambda_roll > 0:  # Eq. 88: open-loop core rollout from a random start
+            Hr = min(cfg.roll_horizon, q.shape[1] - 1)
+            t0 = int(torch.randint(0, q.shape[1] - Hr, ()).item())
+            qq, pp = q[:, t0], p[:, t0]
+            errs = []
+            for h in range(Hr):
+                qq, pp = self.core.strang_step(qq, pp, None if f is None else f[:, t0 + h])
+                errs.append((coordinate_error(qq, q[:, t0 + h + 1], self.angle_dims) ** 2).mean())
+            out["roll"] = cfg.lambda_roll * torch.stack(errs).mean()
+        return out
+
+
+# ------------------------------------------------------------------------------ predator-prey
+class SystemField(nn.Module):
+    """Known vector field: the env's ``rhs``; latent p from the observed qdot by inverting the
+    q-equation, which is affine in p (two ``rhs`` evaluations, no retyped formula)."""
+
+    def __init__(self, system: System) -> None:
+        super().__init__()
+        self.system = system
+
+    def rhs(self, q: torch.Tensor, p: torch.Tensor, f: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
+        dq, dp = self.system.rhs(split(q), split(p), None if f is None else split(f), TORCH)
+        return stack(dq) + 0.0 * q, stack(dp) + 0.0 * p
+
+    def latent(self, q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+        a = self.rhs(q, torch.zeros_like(q), None)[0]
+        b = self.rhs(q, torch.ones_like(q), None)[0] - a
+        return (v - a) / torch.where(b.abs() > 1e-6, b, torch.full_like(b, -1e-6))
+
+
+class LVTemplateField(nn.Module):
+    """Lotka-Volterra template ``qdot = q (c1 + c2 q + c3 p)``, ``pdot = p (c4 q + c5) + G u`` with learnable c
+    (least-squares initialized from the env's ``rhs``), plus ``softplus(rho) * MLP`` on pdot."""
+
+    def __init__(self, system: System, q_scale: float, eps_init: float = 0.01) -> None:
+        super().__init__()
+        rng = np.random.default_rng(0)
+        x = system.sample_initial(rng, 512)
+        q, p = x[:, :1], x[:, 1:]
+        dq, dp = (np.asarray(a[0]) for a in system.rhs(split(q), split(p), None, NUMPY))
+        A1 = np.concatenate([q, q * q, q * p], 1)
+        c1 = np.linalg.lstsq(A1, dq, rcond=None)[0]
+        A2 = np.concatenate([p * q, p], 1)
+        c2 = np.linalg.lstsq(A2, dp, rcond=None)[0]
+        self.coef = nn.Parameter(torch.tensor(np.concatenate([c1.ravel(), c2.ravel()]), dtype=torch.float32))
+        self.scale = float(q_scale)
+        self.rho = nn.Parameter(torch.tensor(math.log(math.expm1(eps_init))))
+        self.net = nn.Sequential(nn.Linear(2, 32), nn.SiLU(), nn.Linear(32, 1))
+
+    def rhs(self, q: torch.Tensor, p: torch.Tensor, f: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
+        c = self.coef
+        dq = q * (c[0] + c[1] * q + c[2] * p)
+        corr = nn.functional.softplus(self.rho) * self.scale * self.net(torch.cat([q, p], -1) / self.scale)
+        dp = p * (c[3] * q + c[4]) + corr
+        return dq, dp if f is None else dp + f
+
+    def latent(self, q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+        c = self.coef
+        return (v / q.clamp_min(1e-3) - c[0] - c[1] * q) / c[2]
+
+
+class NeuralField(nn.Module):
+    """Neural vector field on (q, p) with a learned latent map (q, qdot_hat) -> p."""
+
+    def __init__(self, n: int, q_scale: float, v_scale: float, hidden: int = 64) -> None:
+        super().__init__()
+        self.qs, self.vs = float(q_scale), float(v_scale)
+        self.f = nn.Sequential(nn.Linear(2 * n, hidden), nn.SiLU(), nn.Linear(hidden, hidden), nn.SiLU(), nn.Linear(hidden, 2 * n))
+        self.g = nn.Sequential(nn.Linear(2 * n, hidden), nn.SiLU(), nn.Linear(hidden, n))
+        self.n = n
+
+    def rhs(self, q: torch.Tensor, p: torch.Tensor, f: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
+        out = self.f(torch.cat([q, p], -1) / self.qs) * self.vs
+        dq, dp = out[..., : self.n], out[..., self.n:]
+        return dq, dp if f is None else dp + f
+
+    def latent(self, q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+        return self.g(torch.cat([q / self.qs, v / self.vs], -1)) * self.qs
+
+
+class LatentODECore(nn.Module):
+    """RK4 on a (q, p) vector field with L substeps and a learnable log dt (predator-prey is not Hamiltonian,
+    so no symplectic/dissipative split applies)."""
+
+    def __init__(self, field_: nn.Module, dt: float, substeps: int = 1, learn_dt: bool = True) -> None:
+        super().__init__()
+        self.field, self.substeps = field_, int(substeps)
+        log_dt = torch.tensor(math.log(dt / self.substeps))
+        if learn_dt:
+            self.log_dt = nn.Parameter(log_dt)
+        else:
+            self.register_buffer("log_dt", log_dt)
+
+    @property
+    def h(self) -> torch.Tensor:
+        return torch.exp(self.log_dt)
+
+    def strang_step(self, q: torch.Tensor, p: torch.Tensor, f: torch.Tensor | None = None,
+                    need_p: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
+        h = self.h
+        F = self.field.rhs
+        for _ in range(self.substeps):
+            k1 = F(q, p, f)
+            k2 = F(q + 0.5 * h * k1[0], p + 0.5 * h * k1[1], f)
+            k3 = F(q + 0.5 * h * k2[0], p + 0.5 * h * k2[1], f)
+            k4 = F(q + h * k3[0], p + h * k3[1], f)
+            q = q + h / 6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0])
+            p = p + h / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
+        return q, p
+
+
+class LatentODEModel(PHAST):
+    """Predator-prey: observer -> latent predator density p (inverting the prey equation) -> RK4 core.
+
+    KNOWN uses the env's rhs, PARTIAL a Lotka-Volterra template with learnable coefficients plus a small
+    neural correction, UNKNOWN a neural field with a learned latent map. ``hamiltonian`` returns the env's
+    Lotka-Volterra invariant (a Lyapunov-like energy), ``damping_diag`` is zero (no dissipation structure)."""
+
+    def canonicalize(self, q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+        return self.core.field.latent(q, v)
+
+    @property
+    def potential(self):  # noqa: ANN201
+        return None
+
+    @property
+    def mass(self):  # noqa: ANN201
+        return None
+
+    @property
+    def damping(self):  # noqa: ANN201
+        return None
+
+    def hamiltonian(self, q: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
+        return self.system.energy(split(q), split(p), TORCH)
+
+    def velocity(self, q: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
+        return self.core.field.rhs(q, p, None)[0]
+
+    def extra_losses(self, q: torch.Tensor, u: torch.Tensor | None, pred: torch.Tensor) -> dict[str, torch.Tensor]:
+        return {}
+
+
+# ------------------------------------------------------------------------------ builder
+def build_from_config(cfg: PHASTConfig) -> PHAST:
+    """Compose a PHAST (or predator-prey latent ODE) model from its configuration."""
+    env_id = resolve_env_id(cfg.env_id)
+    system = make_env_system(env_id, **cfg.env_kwargs)
+    n = system.n
+    actuated = tuple(cfg.actuated_dofs) if cfg.actuated_dofs is not None else tuple(range(n))
+    torch.manual_seed(cfg.seed)
+    q_scale, v_scale = system_scales(system)
+    angle = tuple(system.angle_dims)
+    observer = FDTCNObserver(n, system.dt, angle, hidden=cfg.observer_hidden, layers=cfg.observer_layers,
+                             q_scale=torch.as_tensor(q_scale), v_scale=torch.as_tensor(v_scale), use_tcn=cfg.use_tcn)
+    if cfg.kind == "latent_ode":
+        qs, vs = float(np.mean(q_scale)) if len(q_scale) else 1.0, float(np.mean(v_scale))
+        fld: nn.Module
+        if cfg.ode_field == "known":
+            fld = SystemField(system)
+        elif cfg.ode_field == "template":
+            fld = LVTemplateField(system, qs, cfg.hybrid_eps)
+        elif cfg.ode_field == "neural":
+            fld = NeuralField(n, qs, vs)
+        else:
+            raise ValueError(f"field must be known, template or neural, got {cfg.ode_field!r}")
+        core = LatentODECore(fld, system.dt, cfg.substeps, cfg.learn_dt)
+        return LatentODEModel(cfg, observer, core, system, actuated)
+    if cfg.kind != "phast":
+        raise ValueError(f"kind must be 'phast' or 'latent_ode', got {cfg.kind!r}")
+    if not system.hamiltonian_system:
+        raise ValueError(f"{env_id} is not port-Hamiltonian; use kind='latent_ode'")
+
+    # potential
+    def template():  # noqa: ANN202
+        if cfg.template is None:
+            raise ValueError(f"potential={cfg.potential!r} needs a template name")
+        t = make_template(cfg.template, n, tuple(cfg.template_dims) if cfg.template_dims is not None else None)
+        t.fit_to(system)
+        return t
+
+    e_scale = float(np.mean(v_scale**2))
+    if cfg.potential == "known":
+        pot = KnownPotential(system)
+    elif cfg.potential == "template":
+        pot = template()
+    elif cfg.potential == "neural":
+        pot = NeuralPotential(n, angle, cfg.potential_hidden, cfg.potential_layers, q_scale=torch.as_tensor(q_scale),
+                              out_scale=e_scale)
+    elif cfg.potential == "hybrid":
+        neural = NeuralPotential(n, angle, cfg.potential_hidden, cfg.potential_layers, q_scale=torch.as_tensor(q_scale),
+                                 out_scale=e_scale)
+        pot = HybridPotential(template(), neural, cfg.hybrid_eps)
+    else:
+        raise ValueError(f"potential must be known, template, neural or hybrid, got {cfg.potential!r}")
+    # mass
+    if cfg.mass == "known":
+        mass = KnownMass(system)
+    elif cfg.mass == "lowrank":
+        diag_init = 1.0
+        if cfg.canonicalizer == "mass":  # physical gauge: start from the mean diagonal of the env's M(q)
+            x = system.sample_initial(np.random.default_rng(0), 256)[:, :n]
+            rows = system.mass_matrix(split(x), NUMPY)
+            diag_init = torch.tensor([float(np.mean(rows[i][i])) for i in range(n)])
+        mass = LowRankMass(n, cfg.mass_rank, diag_init=1.0, seed=cfg.seed)
+        if isinstance(diag_init, torch.Tensor):
+            with torch.no_grad():
+                mass.raw_d.copy_(torch.log(torch.expm1(diag_init)))
+    else:
+        raise ValueError(f"mass must be known or lowrank, got {cfg.mass!r}")
+    # damping
+    if cfg.damping == "householder":
+        damp = HouseholderDamping(n, angle, cfg.damping_rank, cap=cfg.damping_cap, d0=cfg.d0, learn_d0=cfg.learn_d0,
+                                  q_scale=torch.as_tensor(q_scale))
+    elif cfg.damping == "known":
+        damp = KnownDamping(system)
+    elif cfg.damping == "none":
+        damp = None
+    else:
+        raise ValueError(f"damping must be householder, known or none, got {cfg.damping!r}")
+    core = PHASTCore(pot, mass, damp, system.dt, cfg.substeps, cfg.learn_dt, cfg.integrator, cfg.midpoint_iters)
+    return PHAST(cfg, observer, core, system, actuated)
+
+
+__all__ = ["PHAST", "PHASTConfig", "LatentODEModel", "build_from_config", "system_scales", "n_features",
+           "coordinate_features"]

@@ -1,0 +1,88 @@
+"""KNOWN / PARTIAL / UNKNOWN default configurations for every registered env (paper Table 1, 13).
+
+* KNOWN: V and M are the env's own physics (``system.potential``, ``system.mass_matrix``), the
+  canonicalizer maps ``p = M(q) qdot``; only D is learned (Householder, r = 2, unbounded, d0 learned).
+  Configuration-dependent M(q) (cart-pole, double pendulum) uses the implicit-midpoint core.
+* PARTIAL: V = template with learnable coefficients (least-squares initialized from the env's
+  potential: the template is "given", paper Table 1) + softplus(rho) * MLP; constant learned
+  M = diag + low rank initialized at the mean diagonal of the env's M(q) with ``p = M qdot``;
+  D capped at ``beta_bar = dd`` with d0 fixed to the env's base damping on windy systems
+  (Table 13), unbounded with learned d0 otherwise.
+* UNKNOWN: neural V (MLP, Fourier features on angles), learned constant M with min(4, n) terms,
+  identity canonicalizer, unbounded D with learned d0.
+* Predator-prey (not Hamiltonian): a latent ODE on (prey, predator) whose latent predator density is
+  obtained by inverting the prey equation from the observer's qdot; KNOWN = env rhs, PARTIAL =
+  Lotka-Volterra template + neural correction, UNKNOWN = neural field + learned latent map; RK4 core.
+"""
+
+from __future__ import annotations
+
+from dataclasses import fields, replace
+from typing import Any
+
+from phast_gym import env_ids, make_env_system, resolve_env_id
+
+from .interfaces import ForecastModel
+from .model import PHASTConfig, build_from_config
+
+REGIMES = ("known", "partial", "unknown")
+
+#: potential template of each system (paper Table 1 / Appendix D)
+TEMPLATES: dict[str, tuple[str, list[int] | None]] = {
+    "pendulum": ("cosine", [0]),
+    "cartpole": ("cosine", [1]),
+    "double_pendulum": ("cosine", [0, 1]),
+    "oscillator": ("quadratic", None),
+    "rlc": ("quadratic", None),
+    "heat_exchange": ("quadratic", None),
+    "lennard_jones3": ("lennard_jones", None),
+    "nbody3": ("gravity", None),
+}
+
+
+def _windy(params: dict[str, Any]) -> tuple[float | None, float]:
+    """(cap = dd, base damping) of a windy system, or (None, 0) when it has no windy law."""
+    dd = params.get("dd") or 0.0
+    if dd > 0:
+        return float(dd), float(params.get("d0") or 0.0) + float(params.get("gamma") or 0.0) + float(params.get("b") or 0.0)
+    return None, 0.0
+
+
+def default_config(env_id: str, regime: str, **env_kwargs: Any) -> PHASTConfig:
+    """The default :class:`PHASTConfig` of ``regime`` for ``env_id``."""
+    env_id = resolve_env_id(env_id)
+    regime = regime.lower()
+    if regime not in REGIMES:
+        raise ValueError(f"regime must be one of {REGIMES}, got {regime!r}")
+    system = make_env_system(env_id, **env_kwargs)
+    base = PHASTConfig(env_id=env_id, regime=regime, env_kwargs=dict(env_kwargs))
+    if not system.hamiltonian_system:
+        return replace(base, kind="latent_ode", ode_field={"known": "known", "partial": "template", "unknown": "neural"}[regime],
+                       potential="none", mass="none", damping="none")
+    n = system.n
+    tmpl, dims = TEMPLATES[system.name]
+    if regime == "known":
+        return replace(base, potential="known", mass="known", damping="householder", damping_cap=None, d0=0.0,
+                       learn_d0=True, canonicalizer="mass")
+    if regime == "partial":
+        cap, base_d = _windy(system.params)
+        return replace(base, potential="hybrid", template=tmpl, template_dims=dims, mass="lowrank", mass_rank=min(4, n),
+                       damping_cap=cap, d0=base_d, learn_d0=cap is None, canonicalizer="mass")
+    return replace(base, potential="neural", mass="lowrank", mass_rank=min(4, n), damping_cap=None, d0=0.0,
+                   learn_d0=True, canonicalizer="identity")
+
+
+def build_model(env_id: str, regime: str, **overrides: Any) -> ForecastModel:
+    """PHAST model of ``regime`` ("known", "partial", "unknown") for ``env_id``; ``overrides`` replace
+    :class:`PHASTConfig` fields (e.g. ``damping_cap=1.0``, ``substeps=4``, ``seed=1``, ``env_kwargs={...}``)."""
+    names = {f.name for f in fields(PHASTConfig)}
+    bad = sorted(set(overrides) - names)
+    if bad:
+        raise ValueError(f"unknown override(s) {bad}; valid PHASTConfig fields: {sorted(names)}")
+    cfg = default_config(env_id, regime, **overrides.get("env_kwargs", {}))
+    return build_from_config(replace(cfg, **overrides))
+
+
+def all_defaults() -> dict[str, dict[str, PHASTConfig]]:
+    """Every env id x regime default config (documentation and tests)."""
+    return {e: {r: default_config(e, r) for r in REGIMES} for e in env_ids()}

@@ -1,0 +1,245 @@
+"""Generic trainer for any :class:`~phast_model.interfaces.ForecastModel` (PHAST and baselines).
+
+Teacher-forced next-step loss over whole trajectories at once (paper Eq. 85, wrapped on
+angles), AdamW + cosine schedule, batches of trajectories, validation every ``val_every``
+epochs and at the end, best-validation selection, resumable checkpoints with optimizer,
+scheduler and RNG state, and a NaN/inf guard that rolls back to the last good state and
+lowers the learning rate instead of saving garbage.  Models may add losses through an
+optional ``model.extra_losses(q, u, pred) -> dict[str, Tensor]`` hook (PHAST: Eq. 86-88).
+"""
+
+from __future__ import annotations
+
+import copy
+import io
+import json
+import math
+import os
+import tempfile
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from .interfaces import ForecastModel, coordinate_error
+
+CHECKPOINT = "checkpoint.pt"
+
+
+@dataclass
+class TrainConfig:
+    """Training hyper-parameters (paper Appendix E, Table 13 defaults)."""
+
+    epochs: int = 50
+    batch_size: int = 64
+    lr: float = 1e-3
+    weight_decay: float = 1e-5
+    val_every: int = 10
+    seed: int = 0
+    progress: bool = True
+    lambda_data: float = 1.0  # weight of L_data (Eq. 85); PHAST's other weights live in its config
+    grad_clip: float | None = 10.0  # max grad norm (None: off)
+    max_nan_events: int = 5  # rollbacks allowed before training stops
+    nan_lr_factor: float = 0.5  # lr multiplier after a rollback
+    checkpoint_every: int = 1  # epochs between checkpoint writes (run_dir given)
+    val_batch_size: int = 256
+    dtype: str = "float32"
+
+    def __post_init__(self) -> None:
+        for name in ("epochs", "batch_size", "val_every", "checkpoint_every", "val_batch_size"):
+            v = getattr(self, name)
+            if int(v) != v or v < 1:
+                raise ValueError(f"TrainConfig.{name} must be a positive integer, got {v!r}")
+        if not (self.lr > 0 and math.isfinite(self.lr)):
+            raise ValueError(f"TrainConfig.lr must be positive and finite, got {self.lr!r}")
+        if self.dtype not in ("float32", "float64"):
+            raise ValueError(f"TrainConfig.dtype must be float32 or float64, got {self.dtype!r}")
+
+
+@dataclass
+class FitResult:
+    """Outcome of :func:`fit`: the best-validation model and the training record."""
+
+    model: ForecastModel
+    history: list[dict[str, Any]] = field(default_factory=list)
+    wall_time_s: float = 0.0
+    best_val: float = math.inf
+    best_epoch: int = -1
+    nan_events: int = 0
+    stopped_early: bool = False
+
+
+def _tensors(ds: Any, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """Dataset -> (q (N, T, n), u (N, T-1, m) or None)."""
+    q = torch.as_tensor(np.asarray(ds.q), dtype=dtype)
+    u = getattr(ds, "u", None)
+    u = None if u is None or np.size(u) == 0 else torch.as_tensor(np.asarray(u), dtype=dtype)
+    if q.ndim != 3:
+        raise ValueError(f"dataset q must be (N, T, n), got shape {tuple(q.shape)}")
+    if not torch.isfinite(q).all():
+        raise ValueError("dataset q contains NaN/inf")
+    return q, u
+
+
+def next_step_loss(model: ForecastModel, q: torch.Tensor, u: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
+    """(L_data, predictions): mean squared next-step error, wrapped on angles (Eq. 85)."""
+    pred = model(q, u)
+    err = coordinate_error(pred[:, :-1], q[:, 1:], model.angle_dims)
+    return (err * err).mean(), pred
+
+
+@torch.no_grad()
+def validation_loss(model: ForecastModel, q: torch.Tensor, u: torch.Tensor | None, batch_size: int = 256) -> float:
+    """Teacher-forced next-step MSE over a whole split (the selection criterion)."""
+    was = model.training
+    model.eval()
+    tot, cnt = 0.0, 0
+    for i in range(0, q.shape[0], batch_size):
+        qb = q[i:i + batch_size]
+        loss, _ = next_step_loss(model, qb, None if u is None else u[i:i + batch_size])
+        tot += float(loss) * qb.shape[0]
+        cnt += qb.shape[0]
+    model.train(was)
+    return tot / max(cnt, 1)
+
+
+def _atomic_torch_save(obj: Any, path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            buf = io.BytesIO()
+            torch.save(obj, buf)
+            fh.write(buf.getvalue())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _finite_params(model: torch.nn.Module) -> bool:
+    return all(bool(torch.isfinite(p).all()) for p in model.parameters())
+
+
+def fit(model: ForecastModel, train: Any, val: Any, cfg: TrainConfig | None = None,
+        run_dir: str | Path | None = None, resume: bool = False) -> FitResult:
+    """Train ``model`` on ``train`` (a :class:`phast_gym.datasets.Dataset` or anything with ``q``/``u``),
+    select on ``val``; returns a :class:`FitResult` whose ``.model`` holds the best-validation weights.
+
+    With ``run_dir``, ``checkpoint.pt`` is written atomically after every ``checkpoint_every`` epochs
+    and ``resume=True`` continues from it (model, optimizer, scheduler, RNG, history, best state)."""
+    cfg = cfg or TrainConfig()
+    dtype = torch.float32 if cfg.dtype == "float32" else torch.float64
+    model = model.to(dtype)
+    q_tr, u_tr = _tensors(train, dtype)
+    q_va, u_va = _tensors(val, dtype)
+    if q_tr.shape[-1] != model.n:
+        raise ValueError(f"model has n={model.n} coordinates, training data has {q_tr.shape[-1]}")
+    torch.manual_seed(cfg.seed)
+    gen = torch.Generator().manual_seed(cfg.seed)
+    opt = torch.optim.AdamW([p for p in model.parameters() if p.requires_grad], lr=cfg.lr, weight_decay=cfg.weight_decay)
+    n_batches = math.ceil(q_tr.shape[0] / cfg.batch_size)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=cfg.epochs * n_batches)
+    history: list[dict[str, Any]] = []
+    best_val, best_epoch, best_state = math.inf, -1, copy.deepcopy(model.state_dict())
+    start_epoch, nan_events, elapsed0 = 0, 0, 0.0
+    ckpt_path = Path(run_dir) / CHECKPOINT if run_dir is not None else None
+    if resume and ckpt_path is not None and ckpt_path.exists():
+        try:
+            ck = torch.load(ckpt_path, map_location="cpu", weights_only=True)
+            model.load_state_dict(ck["model"])
+            opt.load_state_dict(ck["optimizer"])
+            sched.load_state_dict(ck["scheduler"])
+        except Exception as exc:  # noqa: BLE001 - any failure means an unusable checkpoint
+            raise ValueError(f"cannot resume from {ckpt_path}: {exc}") from None
+        if ck.get("train_config", {}).get("epochs") != cfg.epochs:
+            raise ValueError(f"{ckpt_path} was written for epochs={ck.get('train_config', {}).get('epochs')}, "
+                             f"resume asked for epochs={cfg.epochs}")
+        gen.set_state(ck["gen_state"])
+        torch.set_rng_state(ck["torch_rng"])
+        history = json.loads(ck["history"])
+        best_val, best_epoch, best_state = float(ck["best_val"]), int(ck["best_epoch"]), ck["best_state"]
+        start_epoch, nan_events, elapsed0 = int(ck["epoch"]), int(ck["nan_events"]), float(ck["elapsed"])
+
+    def save_ckpt(epoch: int, elapsed: float) -> None:
+        if ckpt_path is None:
+            return
+        _atomic_torch_save({
+            "model": model.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
+            "gen_state": gen.get_state(), "torch_rng": torch.get_rng_state(), "history": json.dumps(history),
+            "best_val": best_val, "best_epoch": best_epoch, "best_state": best_state, "epoch": epoch,
+            "nan_events": nan_events, "elapsed": elapsed, "train_config": asdict(cfg),
+        }, ckpt_path)
+
+    t0 = time.perf_counter() - elapsed0
+    stopped = False
+    bar = tqdm(range(start_epoch, cfg.epochs), desc=f"fit {type(model).__name__}", disable=not cfg.progress,
+               initial=start_epoch, total=cfg.epochs)
+    model.train()
+    for epoch in bar:
+        good_model = copy.deepcopy(model.state_dict())
+        good_opt = copy.deepcopy(opt.state_dict())
+        perm = torch.randperm(q_tr.shape[0], generator=gen)
+        tot, cnt = 0.0, 0
+        for b in range(n_batches):
+            idx = perm[b * cfg.batch_size:(b + 1) * cfg.batch_size]
+            qb = q_tr[idx]
+            ub = None if u_tr is None else u_tr[idx]
+            loss, pred = next_step_loss(model, qb, ub)
+            loss = cfg.lambda_data * loss
+            hook = getattr(model, "extra_losses", None)
+            if hook is not None:
+                for v in hook(qb, ub, pred).values():
+                    loss = loss + v
+            opt.zero_grad(set_to_none=True)
+            bad = not bool(torch.isfinite(loss))
+            if not bad:
+                loss.backward()
+                gnorm = torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip if cfg.grad_clip else math.inf)
+                bad = not bool(torch.isfinite(gnorm))
+            if not bad:
+                opt.step()
+                bad = not _finite_params(model)
+            if bad:  # roll back to the start of the epoch and lower the lr
+                nan_events += 1
+                model.load_state_dict(good_model)
+                opt.load_state_dict(good_opt)
+                for g in opt.param_groups:
+                    g["lr"] *= cfg.nan_lr_factor
+                sched.base_lrs = [lr * cfg.nan_lr_factor for lr in sched.base_lrs]
+                if nan_events > cfg.max_nan_events:
+                    stopped = True
+                    break
+                continue
+            sched.step()
+            tot += float(loss.detach()) * qb.shape[0]
+            cnt += qb.shape[0]
+        rec: dict[str, Any] = {"epoch": epoch + 1, "train_loss": tot / max(cnt, 1), "lr": opt.param_groups[0]["lr"],
+                               "time_s": time.perf_counter() - t0, "nan_events": nan_events}
+        if stopped:
+            history.append(rec)
+            break
+        if (epoch + 1) % cfg.val_every == 0 or epoch + 1 == cfg.epochs:
+            vl = validation_loss(model, q_va, u_va, cfg.val_batch_size)
+            rec["val_loss"] = vl
+            if math.isfinite(vl) and vl < best_val:
+                best_val, best_epoch, best_state = vl, epoch + 1, copy.deepcopy(model.state_dict())
+        history.append(rec)
+        bar.set_postfix(loss=f"{rec['train_loss']:.3g}", val=f"{best_val:.3g}")
+        if (epoch + 1) % cfg.checkpoint_every == 0 or epoch + 1 == cfg.epochs:
+            save_ckpt(epoch + 1, time.perf_counter() - t0)
+    bar.close()
+    if best_epoch < 0:  # never validated (stopped early): validate what we have if it is finite
+        if _finite_params(model):
+            vl = validation_loss(model, q_va, u_va, cfg.val_batch_size)
+            if math.isfinite(vl):
+                best_val, best_epoch, best_state = vl, len(history), copy.deepcopy(model.state_dict())
+    model.load_state_dict(best_state)
+    model.eval()
+    return FitResult(model=model, history=history, wall_time_s=time.perf_counter() - t0, best_val=best_val,
+                     best_epoch=best_epoch, nan_events=nan_events, stopped_early=stopped)
