@@ -1,0 +1,117 @@
+"""Executors behind one interface: run the same function over many run configs.
+
+* :class:`LocalExecutor` (default): a process pool over the machine's cores
+  (``spawn`` context, one torch thread per worker); ``workers=1`` runs inline.
+* :class:`RayExecutor` (``--backend ray``, extra ``ray``): one Ray task per run
+  (``num_cpus=1``) on a local or remote cluster (``address``).  Ray is imported
+  lazily, so the harness works without it.
+
+Both yield results as runs finish (``map_unordered``).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterator
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from multiprocessing import get_context
+from typing import Any
+
+
+class Executor:
+    """Interface: ``map_unordered(fn, configs, out_dir)`` yields ``fn(config, out_dir, threads)`` as they finish."""
+
+    name = "base"
+
+    def map_unordered(self, fn: Callable[..., dict], configs: list[dict], out_dir: str) -> Iterator[dict]:  # pragma: no cover
+        raise NotImplementedError
+
+    def shutdown(self) -> None:
+        """Release workers (idempotent)."""
+
+
+def _init_worker(threads: int) -> None:
+    os.environ.setdefault("OMP_NUM_THREADS", str(threads))
+    import torch
+
+    torch.set_num_threads(threads)
+
+
+class LocalExecutor(Executor):
+    """Process pool over local cores (``workers`` defaults to ``os.cpu_count()``)."""
+
+    name = "local"
+
+    def __init__(self, workers: int | None = None, threads: int = 1) -> None:
+        self.workers = max(1, int(workers or os.cpu_count() or 1))
+        self.threads = max(1, int(threads))
+        self._pool: ProcessPoolExecutor | None = None
+
+    def map_unordered(self, fn: Callable[..., dict], configs: list[dict], out_dir: str) -> Iterator[dict]:
+        if self.workers == 1 or len(configs) <= 1:
+            for cfg in configs:  # inline: no process start-up, easiest to debug
+                yield fn(cfg, out_dir, self.threads)
+            return
+        self._pool = ProcessPoolExecutor(max_workers=min(self.workers, len(configs)), mp_context=get_context("spawn"),
+                                         initializer=_init_worker, initargs=(self.threads,))
+        futures = {self._pool.submit(fn, cfg, out_dir, self.threads) for cfg in configs}
+        while futures:
+            done, futures = wait(futures, return_when=FIRST_COMPLETED)
+            for f in done:
+                yield f.result()
+
+    def shutdown(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+
+
+def _import_ray() -> Any:
+    try:
+        import ray
+    except ImportError:
+        raise ImportError("the Ray backend needs the 'ray' extra: pip install 'phast[ray]' (or pip install 'ray[default]')") from None
+    return ray
+
+
+class RayExecutor(Executor):
+    """One Ray task per run; ``address`` None starts (or joins) a local Ray instance."""
+
+    name = "ray"
+
+    def __init__(self, address: str | None = None, workers: int | None = None, threads: int = 1) -> None:
+        self.ray = _import_ray()
+        self.threads = max(1, int(threads))
+        self._started = False
+        if not self.ray.is_initialized():
+            kw: dict[str, Any] = {"ignore_reinit_error": True, "include_dashboard": False, "log_to_driver": True}
+            if address:
+                kw["address"] = address
+            elif workers:
+                kw["num_cpus"] = int(workers)
+            self.ray.init(**kw)
+            self._started = True
+        self.workers = workers
+
+    def map_unordered(self, fn: Callable[..., dict], configs: list[dict], out_dir: str) -> Iterator[dict]:
+        ray = self.ray
+        remote = ray.remote(num_cpus=self.threads)(fn)
+        pending = [remote.remote(cfg, out_dir, self.threads) for cfg in configs]
+        while pending:
+            done, pending = ray.wait(pending, num_returns=1)
+            for ref in done:
+                yield ray.get(ref)
+
+    def shutdown(self) -> None:
+        if self._started:
+            self.ray.shutdown()
+            self._started = False
+
+
+def make_executor(backend: str = "local", workers: int | None = None, address: str | None = None, threads: int = 1) -> Executor:
+    """``"local"`` or ``"ray"``; anything else is a ValueError."""
+    if backend == "local":
+        return LocalExecutor(workers, threads)
+    if backend == "ray":
+        return RayExecutor(address, workers, threads)
+    raise ValueError(f"unknown backend {backend!r}; use 'local' or 'ray'")

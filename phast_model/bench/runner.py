@@ -1,0 +1,246 @@
+"""The one run function shared by every executor, and the sweep driver.
+
+``run_one(config, out_dir)`` trains one (env, model, seed) with the shared
+:func:`phast_model.training.fit` (same optimizer, schedule, epochs and
+best-validation selection for PHAST and baselines) and scores it with
+:func:`phast_model.metrics.evaluate`; the result JSON is written atomically under
+``out_dir/runs/`` and named by the configuration hash, so a finished run is
+never redone and an interrupted sweep resumes where it stopped.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import platform
+import socket
+import tempfile
+import time
+import traceback
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .spec import RunSpec, run_key
+
+
+# --------------------------------------------------------------------------- files
+def atomic_write_text(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` via a temp file + os.replace (never a half-written file)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _jsonable(x: Any) -> Any:
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, (np.floating, float)):
+        x = float(x)
+        return x if math.isfinite(x) else None
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    if hasattr(x, "item") and getattr(x, "ndim", 1) == 0:
+        return _jsonable(x.item())
+    return x
+
+
+def run_slug(spec: RunSpec) -> str:
+    """Relative path stem of a run: ``<env>/<model>/seed<k>-<hash>``."""
+    env = spec.env_id.replace("PHAST/", "").replace("/", "_")
+    fs = "-fullstate" if spec.full_state else ""
+    return f"{env}{fs}/{spec.model}/seed{spec.seed}-{run_key(spec)}"
+
+
+def result_path(out_dir: str | Path, spec: RunSpec) -> Path:
+    return Path(out_dir) / "runs" / f"{run_slug(spec)}.json"
+
+
+def work_dir(out_dir: str | Path, spec: RunSpec) -> Path:
+    """Checkpoint directory of a run (``fit(..., resume=True)`` resumes from it)."""
+    return Path(out_dir) / "work" / run_slug(spec)
+
+
+def load_result(out_dir: str | Path, spec: RunSpec) -> dict[str, Any] | None:
+    """The stored result of ``spec`` if it exists, is complete and matches its hash; else None."""
+    path = result_path(out_dir, spec)
+    if not path.exists():
+        return None
+    try:
+        rec = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+    if rec.get("key") != run_key(spec) or not isinstance(rec.get("metrics"), dict):
+        return None
+    return rec
+
+
+# --------------------------------------------------------------------------- data + models
+def load_splits(spec: RunSpec) -> dict[str, Any]:
+    """The run's train/val/test datasets (cached on disk by phast_gym); full-state runs see (q, p)."""
+    from phast_gym.datasets import make_splits
+
+    splits = make_splits(spec.env_id, spec.n_train, spec.n_val, spec.n_test, T=spec.T, seed=spec.data_seed)
+    if spec.full_state:
+        splits = {k: full_state_view(v) for k, v in splits.items()}
+    return splits
+
+
+def full_state_view(ds: Any) -> Any:
+    """The dataset with ``q`` replaced by the full state ``(q, p)`` (paper Appendix H.1 ablation)."""
+    q = np.concatenate([ds.q, ds.p], axis=-1)
+    return dataclasses.replace(ds, q=q, q_true=np.concatenate([ds.q_true, ds.p], axis=-1))
+
+
+def build_run_model(spec: RunSpec, train: Any) -> Any:
+    """PHAST (via :func:`phast_model.regimes.build_model`) or a baseline (via :func:`make_baseline`)."""
+    if spec.model.startswith("phast-"):
+        from phast_model.regimes import build_model
+
+        return build_model(spec.env_id, spec.model.split("-", 1)[1], **spec.model_kw)
+    from phast_model.baselines import make_baseline
+
+    n, m = train.q.shape[-1], train.u.shape[-1]
+    kw = dict(spec.model_kw)
+    if spec.model == "dhnn":
+        if not spec.full_state:
+            raise ValueError("dhnn is the full-state ablation: run it with full_state=True (--full-state)")
+        kw.setdefault("dt", float(train.dt))
+    model = make_baseline(spec.model, n, m, tuple(train.angle_dims), **kw)
+    if hasattr(model, "fit_normalizer"):
+        model.fit_normalizer(train.q, train.u)
+    return model
+
+
+def make_train_config(spec: RunSpec) -> Any:
+    """``TrainConfig(epochs, seed, progress=False, **spec.train)``; unknown fields are a clear error."""
+    from phast_model.training import TrainConfig
+
+    names = {f.name for f in dataclasses.fields(TrainConfig)}
+    bad = sorted(set(spec.train) - names)
+    if bad:
+        raise ValueError(f"unknown TrainConfig field(s) {bad}; known: {sorted(names)}")
+    kw = {"epochs": spec.epochs, "seed": spec.seed, **spec.train}
+    if "progress" in names:
+        kw["progress"] = False
+    return TrainConfig(**kw)
+
+
+# --------------------------------------------------------------------------- the run function
+def run_one(config: dict[str, Any], out_dir: str, threads: int = 1) -> dict[str, Any]:
+    """Train + evaluate one run (or return its stored result).  Same function for every executor."""
+    import torch
+
+    spec = RunSpec.from_config(config)
+    cached = load_result(out_dir, spec)
+    if cached is not None:
+        return {**cached, "status": "cached"}
+    torch.set_num_threads(max(1, int(threads)))
+    from phast_model.metrics import evaluate
+    from phast_model.training import fit
+
+    t0 = time.perf_counter()
+    splits = load_splits(spec)
+    torch.manual_seed(spec.seed)
+    np.random.seed(spec.seed)
+    model = build_run_model(spec, splits["train"])
+    cfg = make_train_config(spec)
+    wdir = work_dir(out_dir, spec)
+    wdir.mkdir(parents=True, exist_ok=True)
+    fit_res = fit(model, splits["train"], splits["val"], cfg, run_dir=wdir, resume=True)
+    t_fit = time.perf_counter() - t0
+    fitted = fit_res.model
+    fitted.eval()
+    test = splits["test"]
+    if spec.full_state:  # the env's energy diagnostics read q as positions: not defined for (q, p) inputs
+        test = dataclasses.replace(test, env_id="")
+    metrics = evaluate(fitted, test, horizons=tuple(spec.horizons), burn_in=spec.burn_in)
+    # the weights the metrics came from, for figures (state_dict only: torch.load(weights_only=True))
+    tmp = wdir / ".bench_model.pt.tmp"
+    torch.save(fitted.state_dict(), tmp)
+    os.replace(tmp, wdir / "bench_model.pt")
+    rec = {
+        "key": run_key(spec), "env": spec.env_id, "model": spec.model, "seed": spec.seed,
+        "config": spec.config(), "metrics": _jsonable(metrics), "params": int(fitted.n_parameters()),
+        "best_val": _jsonable(getattr(fit_res, "best_val", None)),
+        "fit_wall_time_s": float(getattr(fit_res, "wall_time_s", t_fit)), "wall_time_s": time.perf_counter() - t0,
+        "history": _jsonable(list(getattr(fit_res, "history", []))),
+        "host": socket.gethostname(), "python": platform.python_version(), "torch": torch.__version__,
+        "threads": torch.get_num_threads(), "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+    }
+    atomic_write_text(result_path(out_dir, spec), json.dumps(rec, indent=1, sort_keys=True))
+    return {**rec, "status": "ran"}
+
+
+def safe_run_one(config: dict[str, Any], out_dir: str, threads: int = 1) -> dict[str, Any]:
+    """:func:`run_one` that reports a failure as a record instead of raising (one bad run keeps the sweep going)."""
+    try:
+        return run_one(config, out_dir, threads)
+    except Exception as exc:  # noqa: BLE001 - reported to the caller with its traceback
+        return {"status": "failed", "env": config.get("env_id"), "model": config.get("model"),
+                "seed": config.get("seed"), "config": config, "error": f"{type(exc).__name__}: {exc}",
+                "traceback": traceback.format_exc()}
+
+
+# --------------------------------------------------------------------------- sweeps
+def grid(envs: Iterable[str], models: Iterable[str], seeds: Iterable[int], **common: Any) -> list[RunSpec]:
+    """The cross product env x model x seed; DHNN runs are full-state, others q-only."""
+    out = []
+    for env in envs:
+        for model in models:
+            for seed in seeds:
+                kw = dict(common)
+                if model == "dhnn":
+                    kw["full_state"] = True
+                out.append(RunSpec(env_id=env, model=model, seed=int(seed), **kw))
+    return out
+
+
+def run_sweep(specs: list[RunSpec], out_dir: str | Path, backend: str = "local", workers: int | None = None,
+              address: str | None = None, progress: bool = True, threads: int = 1) -> list[dict[str, Any]]:
+    """Run every spec not already finished in ``out_dir``; return all records (cached, ran or failed).
+
+    Finished runs are read from disk in this process and never dispatched, so a
+    repeated call with the same grid does no work.
+    """
+    from .executors import make_executor
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    records: list[dict[str, Any]] = []
+    pending: list[RunSpec] = []
+    for spec in specs:
+        rec = load_result(out_dir, spec)
+        if rec is None:
+            pending.append(spec)
+        else:
+            records.append({**rec, "status": "cached"})
+    if pending:
+        ex = make_executor(backend, workers=workers, address=address, threads=threads)
+        try:
+            configs = [s.config() for s in pending]
+            it = ex.map_unordered(safe_run_one, configs, str(out_dir))
+            if progress:
+                from tqdm.auto import tqdm
+
+                it = tqdm(it, total=len(configs), desc=f"phast-bench ({ex.name}, {len(records)} cached)", unit="run")
+            for rec in it:
+                if rec.get("status") == "failed":
+                    print(f"[phast-bench] FAILED {rec['env']} {rec['model']} seed {rec['seed']}: {rec['error']}", flush=True)
+                records.append(rec)
+        finally:
+            ex.shutdown()
+    return records

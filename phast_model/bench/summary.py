@@ -1,0 +1,168 @@
+"""Aggregate run records into ``summary.csv`` and paper-shaped markdown tables.
+
+* ``summary.csv``: one row per (env, model, metric): mean, std (population, ddof 0),
+  n_seeds, params.
+* ``tables.md``: a Table-4-shaped suite summary (best PHAST regime vs best baseline
+  per benchmark, gain = best baseline / best PHAST, and our best PHAST / the paper's
+  PHAST number), then one Table-17-24-shaped block per benchmark (every model,
+  params, ours vs paper).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from collections import defaultdict
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .paper import PAPER, PAPER_FULL_STATE, PaperRow
+from .runner import atomic_write_text
+
+DISPLAY = {"phast-known": "PHAST (KNOWN)", "phast-partial": "PHAST (PARTIAL)", "phast-unknown": "PHAST (UNKNOWN)",
+           "gru": "GRU", "lstm": "LSTM", "transformer": "Transformer", "s5": "S5", "linoss": "LinOSS",
+           "dlinoss": "D-LinOSS", "vpt": "VPT", "dhnn": "DHNN"}
+
+
+def _group_key(rec: dict[str, Any]) -> tuple[str, str]:
+    env = rec["env"] + (" (full state)" if rec.get("config", {}).get("full_state") else "")
+    return env, rec["model"]
+
+
+def aggregate(records: list[dict[str, Any]]) -> dict[tuple[str, str], dict[str, Any]]:
+    """(env, model) -> {"metrics": {key: (mean, std, n)}, "params": int, "seeds": [...], "wall_time_s": mean}."""
+    groups: dict[tuple[str, str], list[dict]] = defaultdict(list)
+    for rec in records:
+        if rec.get("status") != "failed" and isinstance(rec.get("metrics"), dict):
+            groups[_group_key(rec)].append(rec)
+    out = {}
+    for key, recs in groups.items():
+        vals: dict[str, list[float]] = defaultdict(list)
+        for r in recs:
+            for k, v in r["metrics"].items():
+                if isinstance(v, (int, float)) and v is not None and math.isfinite(float(v)):
+                    vals[k].append(float(v))
+                elif v is None:
+                    vals[k].append(float("nan"))
+        out[key] = {
+            "metrics": {k: (float(np.mean(v)), float(np.std(v)), len(v)) for k, v in vals.items()},
+            "params": int(recs[0].get("params", 0)), "seeds": sorted(int(r["seed"]) for r in recs),
+            "wall_time_s": float(np.mean([r.get("wall_time_s", 0.0) for r in recs])),
+        }
+    return out
+
+
+def summary_rows(agg: dict[tuple[str, str], dict[str, Any]]) -> list[dict[str, Any]]:
+    rows = []
+    for (env, model), g in sorted(agg.items()):
+        for metric, (mean, std, n) in sorted(g["metrics"].items()):
+            rows.append({"env": env, "model": model, "metric": metric, "mean": mean, "std": std, "n_seeds": n,
+                         "params": g["params"]})
+    return rows
+
+
+def write_summary_csv(agg: dict[tuple[str, str], dict[str, Any]], path: str | Path) -> Path:
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=["env", "model", "metric", "mean", "std", "n_seeds", "params"])
+    w.writeheader()
+    for row in summary_rows(agg):
+        w.writerow({**row, "mean": f"{row['mean']:.6g}", "std": f"{row['std']:.6g}"})
+    path = Path(path)
+    atomic_write_text(path, buf.getvalue())
+    return path
+
+
+def fmt(x: float | None) -> str:
+    """Compact number: 3 significant digits, scientific below 1e-3."""
+    if x is None or not math.isfinite(x):
+        return "n/a"
+    if x != 0 and (abs(x) < 1e-3 or abs(x) >= 1e4):
+        return f"{x:.2e}"
+    return f"{x:.4f}" if abs(x) < 0.01 else f"{x:.3f}"
+
+
+def _ms(t: tuple[float, float, int] | tuple[float, float] | None) -> str:
+    return "—" if t is None else f"{fmt(t[0])} ± {fmt(t[1])}"
+
+
+def paper_row_for(env: str) -> PaperRow | None:
+    if env.endswith(" (full state)"):
+        return PAPER_FULL_STATE if env.startswith("PHAST/WindyPendulum-v0") else None
+    return PAPER.get(env)
+
+
+def best_of(agg: dict, env: str, metric: str, pick: Callable[[str], bool]) -> tuple[str, tuple] | None:
+    rows = [(m, g["metrics"][metric]) for (e, m), g in agg.items()
+            if e == env and pick(m) and metric in g["metrics"] and math.isfinite(g["metrics"][metric][0])]
+    return min(rows, key=lambda r: r[1][0]) if rows else None
+
+
+def metric_for(env: str) -> str:
+    """The row metric: the paper table's key; falls back to ``benchmark_metric`` for envs without a paper row."""
+    row = paper_row_for(env)
+    if row is not None:
+        return row.metric
+    from phast_model.metrics import benchmark_metric
+
+    return benchmark_metric(env.replace(" (full state)", ""))
+
+
+def markdown_tables(agg: dict[tuple[str, str], dict[str, Any]], title: str = "phast-bench results", note: str = "") -> str:
+    """Table-4-shaped summary + per-benchmark tables (markdown)."""
+    envs = list(dict.fromkeys(e for e, _ in sorted(agg, key=lambda k: (list(PAPER).index(k[0]) if k[0] in PAPER else 99, k))))
+    lines = [f"# {title}", ""]
+    if note:
+        lines += [note, ""]
+    lines += ["## Suite summary (paper Table 4 shape)", "",
+              "Gain = best baseline / best PHAST (ours). Paper PHAST = the paper's best-PHAST number; "
+              "ratio = ours / paper (<= 1 means we match or beat it). Mean ± std over the seeds shown.", "",
+              "| benchmark | metric | best PHAST (ours) | best baseline (ours) | gain | PHAST beats baselines | "
+              "paper PHAST | ours / paper | seeds |",
+              "|---|---|---|---|---|---|---|---|---|"]
+    for env in envs:
+        metric = metric_for(env)
+        bp = best_of(agg, env, metric, lambda m: m.startswith("phast-"))
+        bb = best_of(agg, env, metric, lambda m: not m.startswith("phast-"))
+        paper = paper_row_for(env)
+        pp = paper.best("phast-") if paper else None
+        gain = f"{bb[1][0] / bp[1][0]:.3g}×" if bp and bb and bp[1][0] > 0 else "—"
+        beats = "—" if not (bp and bb) else ("yes" if bp[1][0] < bb[1][0] else "**no**")
+        ratio = f"{bp[1][0] / pp[1]:.3g}" if bp and pp and pp[1] > 0 else "—"
+        seeds = sorted({n for g in (bp, bb) if g for n in [g[1][2]]})
+        name = paper.benchmark if paper else env
+        lines.append(
+            f"| {name} | `{metric}` | {_ms(bp[1]) + ' (' + DISPLAY[bp[0]] + ')' if bp else '—'} | "
+            f"{_ms(bb[1]) + ' (' + DISPLAY[bb[0]] + ')' if bb else '—'} | {gain} | {beats} | "
+            f"{fmt(pp[1]) + ' (' + DISPLAY[pp[0]] + ')' if pp else '—'} | {ratio} | {','.join(map(str, seeds)) or '—'} |")
+    for env in envs:
+        metric = metric_for(env)
+        paper = paper_row_for(env)
+        lines += ["", f"## {paper.benchmark if paper else env} — `{env}`, `{metric}`"
+                  + (f" (paper {paper.table})" if paper else ""), "",
+                  "| model | params (ours) | ours: mean ± std | n | params (paper) | paper: mean ± std | wall s/run |",
+                  "|---|---|---|---|---|---|---|"]
+        models = [m for (e, m) in agg if e == env]
+        order = list(DISPLAY)
+        for m in sorted(models, key=lambda m: order.index(m) if m in order else 99):
+            g = agg[(env, m)]
+            t = g["metrics"].get(metric)
+            pr = paper.results.get(m) if paper else None
+            pp = paper.params.get(m) if paper else None
+            lines.append(f"| {DISPLAY.get(m, m)} | {g['params']:,} | {_ms(t)} | {t[2] if t else 0} | "
+                         f"{f'{pp:,}' if pp else '—'} | {_ms(pr)} | {g['wall_time_s']:.0f} |")
+    return "\n".join(lines) + "\n"
+
+
+def write_reports(records: list[dict[str, Any]], out_dir: str | Path, title: str = "phast-bench results",
+                  note: str = "") -> dict[str, Path]:
+    """Write ``summary.csv`` and ``tables.md`` into ``out_dir``; return their paths."""
+    out_dir = Path(out_dir)
+    agg = aggregate(records)
+    csv_path = write_summary_csv(agg, out_dir / "summary.csv")
+    md_path = out_dir / "tables.md"
+    atomic_write_text(md_path, markdown_tables(agg, title, note))
+    return {"summary_csv": csv_path, "tables_md": md_path}
