@@ -1,0 +1,29 @@
+"""Energy-Casimir control of phast_gym plants through the env step API (numpy only).
+
+* :class:`EnergyCasimirController` / :class:`EnergyCasimirWrapper`: paper Eq. 28-31;
+* port (velocity) estimators behind one interface, built by name with :func:`make_estimator`
+  (``oracle``, ``fd``, ``map``, ``ekf``/``ukf``; torch ones from :mod:`phast_model.control`);
+* :mod:`.evaluation`: the closed-loop protocol of paper Sec. 4.2 (regimes, metrics).
+"""
+
+from .controller import EnergyCasimirController, EnergyCasimirWrapper, validate_gains
+from .estimators import (
+    ESTIMATORS,
+    FiniteDifferenceEstimator,
+    MAPSmootherEstimator,
+    OracleEstimator,
+    PortEstimator,
+    UKFEstimator,
+    estimator_names,
+    make_estimator,
+    map_smoother_weights,
+    register_estimator,
+)
+from .evaluation import REGIMES, ControlProtocol, Episode, evaluate, make_control_env, run_episode, sample_regime
+
+__all__ = [
+    "EnergyCasimirController", "EnergyCasimirWrapper", "validate_gains", "ESTIMATORS", "PortEstimator", "OracleEstimator",
+    "FiniteDifferenceEstimator", "MAPSmootherEstimator", "UKFEstimator", "estimator_names", "make_estimator",
+    "map_smoother_weights", "register_estimator", "REGIMES", "ControlProtocol", "Episode", "evaluate", "make_control_env",
+    "run_episode", "sample_regime",
+]

@@ -1,0 +1,290 @@
+"""Online, causal port (velocity) estimators for Energy-Casimir control.
+
+For a collocated torque port the port output is ``y_p = G^T dH/dp = qdot``
+(paper Sec. 3.5), so every estimator returns ``qdot_hat`` (n,) from the
+q-only measurement stream.  One interface (:class:`PortEstimator`):
+
+* ``reset()`` clears the history before an episode;
+* ``update(q_meas, info=None, u_prev=None) -> qdot_hat`` consumes the newest
+  measurement (angles wrapped, possibly noisy), the env's ``info`` (only the
+  oracle reads it) and the port input applied over the last interval (only
+  model-based filters use it).
+
+Estimators are built by name through :func:`make_estimator`; torch-based ones
+(``tcn``, ``phast-observer``, ``phast-model``) register themselves when
+:mod:`phast_model.control` is imported.  This module is numpy-only.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from .. import integrate
+from ..systems.base import NUMPY, SCALAR, System, wrap
+
+
+class PortEstimator:
+    """Base class: a causal map from the q-measurement stream to ``qdot_hat``."""
+
+    #: registry name
+    name: str = ""
+    #: True when the estimator reads ground truth (``info["state"]``): simulation only
+    privileged: bool = False
+
+    def __init__(self, system: System, dt: float) -> None:
+        if not (dt > 0 and math.isfinite(dt)):
+            raise ValueError(f"dt must be positive and finite, got {dt!r}")
+        self.system = system
+        self.dt = float(dt)
+        self.n = int(system.n)
+        self._angle = np.array([i in system.angle_dims for i in range(self.n)])
+
+    def reset(self) -> None:
+        """Forget the measurement history (start of an episode)."""
+
+    def update(self, q_meas: np.ndarray, info: dict | None = None, u_prev: np.ndarray | None = None) -> np.ndarray:
+        raise NotImplementedError
+
+    def _wrap_diff(self, d: np.ndarray) -> np.ndarray:
+        """Difference of two measurements, wrapped on angular coordinates."""
+        return np.where(self._angle, wrap(d), d)
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(dt={self.dt})"
+
+
+def _as_q(q_meas: Any, n: int) -> np.ndarray:
+    q = np.asarray(q_meas, dtype=np.float64).reshape(-1)
+    if q.shape != (n,):
+        raise ValueError(f"q_meas must have {n} components, got shape {np.shape(q_meas)}")
+    return q
+
+
+class OracleEstimator(PortEstimator):
+    """True ``qdot = dH/dp`` from ``info["state"]`` (simulation only, paper Table 7 'oracle')."""
+
+    name = "oracle"
+    privileged = True
+
+    def update(self, q_meas: np.ndarray, info: dict | None = None, u_prev: np.ndarray | None = None) -> np.ndarray:
+        if info is None or "state" not in info:
+            raise ValueError("the oracle estimator needs the env's info['state'] (true (q, p)); pass info to update()")
+        x = np.asarray(info["state"], dtype=np.float64)
+        n = self.n
+        return np.array([float(v) for v in self.system.velocity(list(x[:n]), list(x[n:]), SCALAR)])
+
+
+class FiniteDifferenceEstimator(PortEstimator):
+    """Backward difference ``wrap(q_t - q_{t-1}) / dt`` (0 at the first sample)."""
+
+    name = "fd"
+
+    def reset(self) -> None:
+        self._prev: np.ndarray | None = None
+
+    def __init__(self, system: System, dt: float) -> None:
+        super().__init__(system, dt)
+        self.reset()
+
+    def update(self, q_meas: np.ndarray, info: dict | None = None, u_prev: np.ndarray | None = None) -> np.ndarray:
+        q = _as_q(q_meas, self.n)
+        out = np.zeros(self.n) if self._prev is None else self._wrap_diff(q - self._prev) / self.dt
+        self._prev = q
+        return out
+
+
+def map_smoother_weights(w: int, dt: float, sigma: float, sigma_a: float) -> np.ndarray:
+    """Row vector ``c`` with ``qdot_hat = c @ q_window`` for the fixed-lag MAP smoother.
+
+    Paper Eq. 32: ``min_q sum_s |q_s - q^meas_s|^2 / sigma^2 + sum_s |q_{s+2} - 2 q_{s+1} + q_s|^2 / (dt^4 sigma_a^2)``
+    has the closed form ``q_smooth = (I + lam D2^T D2)^{-1} q^meas`` with ``lam = sigma^2 / (dt^4 sigma_a^2)``;
+    Eq. 33 takes ``(q_smooth[w-1] - q_smooth[w-2]) / dt``.  Both are linear in the window, so the whole
+    estimator is one precomputed dot product.  ``sigma = 0`` gives plain finite differences.
+    """
+    if w < 2:
+        raise ValueError(f"MAP window must be >= 2 samples, got {w}")
+    if sigma < 0 or sigma_a <= 0:
+        raise ValueError(f"MAP smoother needs sigma >= 0 and sigma_a > 0, got sigma={sigma}, sigma_a={sigma_a}")
+    lam = sigma**2 / (dt**4 * sigma_a**2)
+    d2 = np.zeros((max(w - 2, 0), w))
+    for s in range(w - 2):
+        d2[s, s : s + 3] = (1.0, -2.0, 1.0)
+    a = np.eye(w) + lam * d2.T @ d2
+    e = np.zeros(w)
+    e[-1], e[-2] = 1.0 / dt, -1.0 / dt
+    return np.linalg.solve(a, e)  # a is symmetric: c^T = e^T a^{-1}  <=>  c = a^{-1} e
+
+
+class MAPSmootherEstimator(PortEstimator):
+    """Fixed-lag MAP smoother (paper Eq. 32-33), label-free; needs the noise scale sigma.
+
+    Angles are unwrapped inside the window by integrating wrapped increments.  The weights of
+    every window length 2..w are precomputed, so ``update`` is a matrix-vector product.
+    """
+
+    name = "map"
+
+    def __init__(self, system: System, dt: float, sigma: float = 0.0, window: int = 10, sigma_a: float = 10.0) -> None:
+        super().__init__(system, dt)
+        if int(window) != window or window < 2:
+            raise ValueError(f"MAP window must be an integer >= 2, got {window!r}")
+        self.window, self.sigma, self.sigma_a = int(window), float(sigma), float(sigma_a)
+        self._weights = {L: map_smoother_weights(L, self.dt, self.sigma, self.sigma_a) for L in range(2, self.window + 1)}
+        self.reset()
+
+    def reset(self) -> None:
+        self._hist: deque[np.ndarray] = deque(maxlen=self.window)
+
+    def update(self, q_meas: np.ndarray, info: dict | None = None, u_prev: np.ndarray | None = None) -> np.ndarray:
+        self._hist.append(_as_q(q_meas, self.n))
+        L = len(self._hist)
+        if L < 2:
+            return np.zeros(self.n)
+        win = np.stack(self._hist)  # (L, n)
+        inc = self._wrap_diff(np.diff(win, axis=0))
+        unwrapped = win[0] + np.concatenate([np.zeros((1, self.n)), np.cumsum(inc, axis=0)])
+        return self._weights[L] @ unwrapped
+
+
+class UKFEstimator(PortEstimator):
+    """Unscented Kalman filter on (q, p) with the plant's own physics as process model.
+
+    Prediction integrates all 4n + 1 sigma points at once (``phast_gym.integrate.step`` with
+    numpy components) under the applied port input ``u_prev``; the measurement is the wrapped q.
+    Returns ``qdot_hat = dH/dp`` (``System.velocity``) at the posterior mean.  Model-based: it
+    assumes the physics of ``system`` (exact for the simulated plant; see the mismatch tool for
+    real hardware).
+    """
+
+    name = "ekf"
+
+    def __init__(
+        self,
+        system: System,
+        dt: float,
+        sigma: float = 0.0,
+        substeps: int | None = None,
+        p0_std: float = 10.0,
+        process_std: tuple[float, float] = (1e-5, 1e-2),
+        min_meas_std: float = 1e-3,
+        alpha: float = 1.0,
+        kappa: float = 0.0,
+        beta: float = 2.0,
+    ) -> None:
+        super().__init__(system, dt)
+        if not system.hamiltonian_system:
+            raise ValueError(f"the UKF needs a port-Hamiltonian system (q, p), got {system.name}")
+        n = self.n
+        self.substeps = int(substeps or max(1, math.ceil(system.substeps * self.dt / type(system).dt)))
+        self.r = max(float(sigma), float(min_meas_std)) ** 2
+        self.p0_std = float(p0_std)
+        qs, ps = process_std
+        self.Q = np.diag([qs**2 * self.dt] * n + [ps**2 * self.dt] * n)
+        d = 2 * n
+        lam = alpha**2 * (d + kappa) - d
+        self._gamma = math.sqrt(d + lam)
+        wm = np.full(2 * d + 1, 0.5 / (d + lam))
+        wc = wm.copy()
+        wm[0] = lam / (d + lam)
+        wc[0] = wm[0] + (1 - alpha**2 + beta)
+        self._wm, self._wc = wm, wc
+        self.reset()
+
+    def reset(self) -> None:
+        self._x: np.ndarray | None = None
+        self._P: np.ndarray | None = None
+        self._last_q: np.ndarray | None = None
+
+    def _propagate(self, X: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Integrate a batch of states (S, 2n) over one interval with held input u (n,)."""
+        n = self.n
+        q = [X[:, i].copy() for i in range(n)]
+        p = [X[:, n + i].copy() for i in range(n)]
+        qn, pn = integrate.step(self.system, q, p, [float(v) for v in u], NUMPY, dt=self.dt, substeps=self.substeps)
+        return np.stack([np.broadcast_to(np.asarray(c, dtype=np.float64), (X.shape[0],)) for c in list(qn) + list(pn)], -1)
+
+    def _sigma_points(self) -> np.ndarray:
+        P = 0.5 * (self._P + self._P.T)
+        try:
+            L = np.linalg.cholesky(P)
+        except np.linalg.LinAlgError:
+            L = np.linalg.cholesky(P + 1e-9 * np.eye(len(P)))
+        S = self._gamma * L.T
+        return np.concatenate([self._x[None], self._x[None] + S, self._x[None] - S])
+
+    def update(self, q_meas: np.ndarray, info: dict | None = None, u_prev: np.ndarray | None = None) -> np.ndarray:
+        z = _as_q(q_meas, self.n)
+        n = self.n
+        if self._x is None:
+            # first sample: q from the measurement, p unknown (broad prior)
+            self._x = np.concatenate([z, np.zeros(n)])
+            self._P = np.diag([self.r] * n + [self.p0_std**2] * n)
+        else:
+            u = np.zeros(n) if u_prev is None else np.asarray(u_prev, dtype=np.float64).reshape(n)
+            X = self._propagate(self._sigma_points(), u)
+            x = self._wm @ X
+            dX = X - x
+            P = (self._wc[:, None] * dX).T @ dX + self.Q
+            # measurement z = wrap(q): innovation wrapped, angles of the state stay unwrapped
+            Zs = X[:, :n]
+            zhat = self._wm @ Zs
+            dZ = Zs - zhat
+            S = (self._wc[:, None] * dZ).T @ dZ + self.r * np.eye(n)
+            C = (self._wc[:, None] * dX).T @ dZ
+            K = np.linalg.solve(S.T, C.T).T
+            innov = self._wrap_diff(z - zhat)
+            self._x = x + K @ innov
+            self._P = P - K @ S @ K.T
+        return np.array([float(v) for v in self.system.velocity(list(self._x[:n]), list(self._x[n:]), SCALAR)])
+
+    @property
+    def state(self) -> np.ndarray | None:
+        """Posterior mean (q, p) (angles unwrapped) or None before the first update."""
+        return None if self._x is None else self._x.copy()
+
+
+# --------------------------------------------------------------------------- registry
+#: name -> factory(system, dt, sigma=..., **kwargs) -> PortEstimator
+ESTIMATORS: dict[str, Callable[..., PortEstimator]] = {}
+#: names whose factory lives in a module imported on demand (torch-based, phast_model.control)
+_LAZY = {"tcn": "phast_model.control", "phast-observer": "phast_model.control", "phast-model": "phast_model.control"}
+
+
+def register_estimator(name: str, factory: Callable[..., PortEstimator]) -> None:
+    """Register a factory ``factory(system, dt, sigma=0.0, **kwargs) -> PortEstimator`` under ``name``."""
+    ESTIMATORS[name] = factory
+
+
+register_estimator("oracle", lambda system, dt, sigma=0.0, **kw: OracleEstimator(system, dt, **kw))
+register_estimator("fd", lambda system, dt, sigma=0.0, **kw: FiniteDifferenceEstimator(system, dt, **kw))
+register_estimator("map", lambda system, dt, sigma=0.0, **kw: MAPSmootherEstimator(system, dt, sigma=sigma, **kw))
+register_estimator("ekf", lambda system, dt, sigma=0.0, **kw: UKFEstimator(system, dt, sigma=sigma, **kw))
+register_estimator("ukf", lambda system, dt, sigma=0.0, **kw: UKFEstimator(system, dt, sigma=sigma, **kw))
+
+
+def estimator_names() -> list[str]:
+    """Every known estimator name (registered or importable on demand)."""
+    return sorted(set(ESTIMATORS) | set(_LAZY))
+
+
+def make_estimator(name: str, system: System, dt: float, sigma: float = 0.0, **kwargs: Any) -> PortEstimator:
+    """Build the estimator ``name`` for ``system`` sampled every ``dt`` with measurement noise ``sigma``.
+
+    ``sigma`` is the assumed noise scale (used by the MAP smoother, the Kalman filter and
+    noise-conditioned observers; ignored by the others).  Unknown names raise ValueError listing
+    the valid ones.
+    """
+    if name not in ESTIMATORS and name in _LAZY:
+        import importlib
+
+        importlib.import_module(_LAZY[name])
+    if name not in ESTIMATORS:
+        raise ValueError(f"unknown port estimator {name!r}; valid names are {estimator_names()}")
+    if not (sigma >= 0 and math.isfinite(sigma)):
+        raise ValueError(f"sigma must be >= 0 and finite, got {sigma!r}")
+    return ESTIMATORS[name](system, dt, sigma=sigma, **kwargs)
