@@ -13,7 +13,9 @@ ceil(log2 T) vectorized steps; the open-loop rollout steps the same recurrence.
   ``y'' = -A y + B u``, ``A = ReLU(A_hat) >= 0`` diagonal, implicit discretization
   (LinOSS Eq. 4-5): ``S = (I + dt^2 A)^-1``,
   ``[z; y]_t = [[S, -dt A S], [dt S, S]] [z; y]_{t-1} + [dt S B u; dt^2 S B u]``;
-  ``|eig| = sqrt(S) <= 1`` for any parameters.  ``x = Re(C y) + D u``.
+  ``|eig| = sqrt(S) <= 1`` for any parameters.  ``x = Re(C y) + D u``.  Deviation: A is
+  floored at 0.2 (``A = ReLU(A_hat) + 0.2``); with ReLU alone, modes pushed to A = 0
+  become double integrators whose outputs grow without bound over T = 200 steps.
 * **D-LinOSS** (Boyer, Rusch & Rus, 2025): damped oscillators
   ``y'' = -A y - G y' + B u``, implicit-explicit discretization with
   ``S = (I + dt G)^-1``: ``[z; y]_t = [[S, -dt S A], [dt S, I - dt^2 S A]] [z; y]_{t-1}
@@ -149,8 +151,12 @@ class _OscLayer(_SSMLayer):
 
 
 class LinOSSLayer(_OscLayer):
+    #: floor on the frequencies: A = 0 is a double integrator (|eig| = 1, polynomial growth of y over
+    #: 200 steps) and a small A has a DC gain 1/A; the floor keeps the teacher-forced outputs bounded
+    a_min: float = 0.2
+
     def transition(self) -> tuple[torch.Tensor, torch.Tensor]:
-        A = F.relu(self.A_hat)
+        A = F.relu(self.A_hat) + self.a_min
         dt = torch.sigmoid(self.steps)
         S = 1.0 / (1.0 + dt * dt * A)  # LinOSS-IM, Eq. 5
         M = torch.stack([torch.stack([S, -dt * A * S], -1), torch.stack([dt * S, S], -1)], -2)

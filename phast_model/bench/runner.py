@@ -88,6 +88,17 @@ def load_result(out_dir: str | Path, spec: RunSpec) -> dict[str, Any] | None:
     return rec
 
 
+def _git_commit() -> str | None:
+    """Commit of the code that produced a result (provenance only; not part of the run hash)."""
+    import subprocess
+
+    try:
+        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).resolve().parent, capture_output=True,
+                              text=True, timeout=10).stdout.strip() or None
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
 # --------------------------------------------------------------------------- data + models
 def load_splits(spec: RunSpec) -> dict[str, Any]:
     """The run's train/val/test datasets (cached on disk by phast_gym); full-state runs see (q, p)."""
@@ -178,7 +189,7 @@ def run_one(config: dict[str, Any], out_dir: str, threads: int = 1) -> dict[str,
         "best_val": _jsonable(getattr(fit_res, "best_val", None)),
         "fit_wall_time_s": float(getattr(fit_res, "wall_time_s", t_fit)), "wall_time_s": time.perf_counter() - t0,
         "history": _jsonable(list(getattr(fit_res, "history", []))),
-        "host": socket.gethostname(), "python": platform.python_version(), "torch": torch.__version__,
+        "git_commit": _git_commit(), "host": socket.gethostname(), "python": platform.python_version(), "torch": torch.__version__,
         "threads": torch.get_num_threads(), "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }
     atomic_write_text(result_path(out_dir, spec), json.dumps(rec, indent=1, sort_keys=True))
