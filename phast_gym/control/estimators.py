@@ -252,7 +252,8 @@ class UKFEstimator(PortEstimator):
 #: name -> factory(system, dt, sigma=..., **kwargs) -> PortEstimator
 ESTIMATORS: dict[str, Callable[..., PortEstimator]] = {}
 #: names whose factory lives in a module imported on demand (torch-based, phast_model.control)
-_LAZY = {"tcn": "phast_model.control", "phast-observer": "phast_model.control", "phast-model": "phast_model.control"}
+_LAZY = {"tcn": "phast_model.control", "tcn-uniform": "phast_model.control", "tcn-cond": "phast_model.control",
+         "phast-observer": "phast_model.control", "phast-model": "phast_model.control"}
 
 
 def register_estimator(name: str, factory: Callable[..., PortEstimator]) -> None:

@@ -1,0 +1,246 @@
+"""``phast-control-eval``: Energy-Casimir closed-loop evaluation over port estimators and noise levels.
+
+Runs five initial-condition regimes x ``--trials-per-regime`` trials for every (sigma, estimator)
+through the plant env's ``reset``/``step`` (paper Sec. 4.2, Tables 7-11) and writes
+
+* ``DIR/results.json``: list of rows {sigma, estimator, regime, n_trials, success_rate,
+  success_angle_rate, final_error, effort, velocity_error} (regime ``all`` = the 100-trial row);
+* ``DIR/protocol.json``: plant, gains, horizon and success criterion used;
+* ``DIR/results.md``: tables shaped like the paper's Tables 7-11;
+* ``DIR/traces_sigma<s>.png`` (angle and torque traces) and ``DIR/success_by_regime.png`` (Fig. 8).
+
+Example: ``phast-control-eval --estimators oracle,fd,map,tcn,ekf --sigma 0,0.01,0.05 --out runs/control``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from phast_gym.control import REGIMES, ControlProtocol, estimator_names, evaluate, make_estimator
+
+LABELS = {
+    "oracle": ("Oracle", "oracle"), "fd": ("Finite differences", "FD"), "map": ("MAP smoother", "MAP smoother"),
+    "tcn": ("FD+TCN observer", "FD+TCN (noise-matched)"), "tcn-uniform": ("FD+TCN observer", "FD+TCN (U[0, s_max])"),
+    "tcn-cond": ("FD+TCN observer", "FD+TCN (noise-conditioned)"), "ekf": ("UKF (plant physics)", "model-based UKF"),
+    "ukf": ("UKF (plant physics)", "model-based UKF"), "phast-observer": ("PHAST-trained observer", "PHAST observer"),
+    "phast-model": ("PHAST model-based (q, p)", "dH_hat/dp"),
+}
+
+
+def _parse_floats(text: str, what: str) -> list[float]:
+    out = []
+    for tok in text.split(","):
+        tok = tok.strip()
+        try:
+            v = math.pi if tok.lower() == "pi" else float(tok)
+        except ValueError:
+            raise ValueError(f"{what}: {tok!r} is not a number") from None
+        out.append(v)
+    return out
+
+
+def _atomic_text(path: Path, text: str) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+    with os.fdopen(fd, "w") as fh:
+        fh.write(text)
+    os.replace(tmp, path)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="phast-control-eval", description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--estimators", default="oracle,fd,map,tcn,ekf",
+                   help=f"comma-separated port estimators, from {estimator_names()}")
+    p.add_argument("--sigma", default="0,0.01,0.05", help="comma-separated measurement noise std levels (rad)")
+    p.add_argument("--trials-per-regime", type=int, default=20, help="trials per initial-condition regime (5 regimes)")
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--q-star", default="0", help="target angle: 0 (hanging) or pi (upright, needs k_c > m g l)")
+    p.add_argument("--phast-run", default=None, help="phast-train run dir for phast-observer / phast-model")
+    p.add_argument("--seed", type=int, default=0, help="seed of initial states and noise streams")
+    p.add_argument("--env", default=ControlProtocol.env_id, help="pendulum-family plant env id")
+    p.add_argument("--dt", type=float, default=ControlProtocol.dt, help="control sampling interval (s)")
+    p.add_argument("--horizon", type=int, default=ControlProtocol.horizon, help="closed-loop steps per trial")
+    p.add_argument("--k-c", type=float, default=None, help="shaping gain (default 0.7; 15 when q_star = pi)")
+    p.add_argument("--d-inj", type=float, default=ControlProtocol.d_inj, help="damping-injection gain")
+    p.add_argument("--k-xi", type=float, default=ControlProtocol.k_xi, help="xi predictor-corrector gain")
+    p.add_argument("--tol", type=float, default=ControlProtocol.tol, help="success angle tolerance (rad)")
+    p.add_argument("--u-tol", type=float, default=ControlProtocol.u_tol, help="success RMS-torque tolerance (N m) over the final window")
+    p.add_argument("--tcn-sigma-max", type=float, default=0.05, help="sigma_max of the U[0, sigma_max] TCN variants")
+    p.add_argument("--tcn-cache", default=None, help="directory of trained TCN observers (default DIR/observers)")
+    p.add_argument("--no-plots", action="store_true")
+    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+    return p
+
+
+def run(args: argparse.Namespace) -> list[dict[str, Any]]:
+    """The evaluation behind the CLI (callable from Python with a parsed namespace)."""
+    sigmas = _parse_floats(args.sigma, "--sigma")
+    if any(s < 0 or not math.isfinite(s) for s in sigmas):
+        raise ValueError(f"--sigma values must be >= 0, got {sigmas}")
+    (q_star,) = _parse_floats(args.q_star, "--q-star")
+    names = [s.strip() for s in args.estimators.split(",") if s.strip()]
+    unknown = [n for n in names if n not in estimator_names()]
+    if unknown:
+        raise ValueError(f"unknown estimator(s) {unknown}; valid names are {estimator_names()}")
+    if any(n.startswith("phast") for n in names) and not args.phast_run:
+        raise ValueError("phast-observer / phast-model need --phast-run DIR (a phast-train run directory)")
+    k_c = args.k_c if args.k_c is not None else (15.0 if abs(math.cos(q_star) + 1) < 1e-9 else ControlProtocol.k_c)
+    protocol = ControlProtocol(env_id=args.env, dt=args.dt, horizon=args.horizon, q_star=q_star, k_c=k_c, d_inj=args.d_inj,
+                               k_xi=args.k_xi, tol=args.tol, u_tol=args.u_tol)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    cache = Path(args.tcn_cache) if args.tcn_cache else out / "observers"
+    if any(n.startswith("tcn") or n.startswith("phast") for n in names):
+        import torch
+
+        torch.set_num_threads(max(1, args.threads))
+        import phast_model.control  # noqa: F401  (registers the torch estimators)
+
+    def factory(name: str, system: Any, dt: float, sigma: float) -> Any:
+        kw: dict[str, Any] = {}
+        if name.startswith("tcn"):
+            kw = {"protocol": protocol, "cache_dir": cache, "sigma_max": args.tcn_sigma_max, "progress": not args.no_progress}
+        elif name.startswith("phast"):
+            kw = {"run": args.phast_run}
+        return make_estimator(name, system, dt, sigma=sigma, **kw)
+
+    keep = (lambda s, e, r, i: r == "far_unstable" and i == 0) if not args.no_plots else None
+    rows, kept = evaluate(protocol, names, sigmas, args.trials_per_regime, seed=args.seed, factory=factory,
+                          progress=not args.no_progress, keep_episodes=keep)
+    _atomic_text(out / "results.json", json.dumps(rows, indent=1))
+    _atomic_text(out / "protocol.json", json.dumps({**protocol.to_dict(), "regimes": REGIMES, "seed": args.seed,
+                                                     "trials_per_regime": args.trials_per_regime, "command": " ".join(sys.argv)},
+                                                    indent=1))
+    _atomic_text(out / "results.md", results_markdown(rows, protocol))
+    if not args.no_plots:
+        plot_traces(kept, protocol, out)
+        plot_success_by_regime(rows, out)
+    return rows
+
+
+def _fmt(v: float, kind: str) -> str:
+    if not math.isfinite(v):
+        return "nan"
+    if kind == "err":
+        return f"{v:.2e}"
+    if kind == "eff":
+        return f"{v:.1f}"
+    return f"{v:.3f}" if kind == "vel" else f"{v:.2f}"
+
+
+def results_markdown(rows: list[dict[str, Any]], protocol: ControlProtocol) -> str:
+    """Tables shaped like paper Tables 7-11: one 'all' table per sigma, the near-stable table, and success by regime."""
+    star = "pi (upright)" if abs(protocol.q_star - math.pi) < 1e-9 else f"{protocol.q_star:g}"
+    lines = [f"# Energy-Casimir control ({protocol.env_id}, q_star = {star}, k_c = {protocol.k_c:g}, d_inj = {protocol.d_inj:g}, "
+             f"k_xi = {protocol.k_xi:g}, dt = {protocol.dt:g} s, horizon {protocol.horizon} steps)", "",
+             f"Success: |wrap(q - q_star)| < {protocol.tol:g} rad and RMS torque < {protocol.u_tol:g} N m over the last "
+             f"{protocol.settle_steps} steps (success_angle: angle criterion only). Final error: |wrap(q_T - q_star)| (true q). "
+             "Effort: sum_t u_t^2. Velocity error: mean_t |qdot_hat - qdot|.", ""]
+    sigmas = sorted({r["sigma"] for r in rows})
+    lines += ["## All regimes (100-trial rows, paper Tables 7, 8, 11)", "",
+              "| sigma | Method | Velocity estimate | Success | Success (angle only) | Final error | Effort | abs(qdot_hat - qdot) |",
+              "|---|---|---|---|---|---|---|---|"]
+    for s in sigmas:
+        for r in rows:
+            if r["sigma"] == s and r["regime"] == "all":
+                m, v = LABELS.get(r["estimator"], (r["estimator"], r["estimator"]))
+                lines.append(f"| {s:.2f} | {m} | {v} | {_fmt(r['success_rate'], 's')} | {_fmt(r['success_angle_rate'], 's')} | "
+                             f"{_fmt(r['final_error'], 'err')} | {_fmt(r['effort'], 'eff')} | {_fmt(r['velocity_error'], 'vel')} |")
+    for s in sigmas:
+        lines += ["", f"## Near-stable regime, sigma = {s:g} (paper Tables 9-10)", "",
+                  "| Method | Success | Final error | Effort | abs(qdot_hat - qdot) |", "|---|---|---|---|---|"]
+        for r in rows:
+            if r["sigma"] == s and r["regime"] == "near_stable":
+                lines.append(f"| {LABELS.get(r['estimator'], (r['estimator'],))[0]} ({r['estimator']}) | {_fmt(r['success_rate'], 's')} | "
+                             f"{_fmt(r['final_error'], 'err')} | {_fmt(r['effort'], 'eff')} | {_fmt(r['velocity_error'], 'vel')} |")
+    regs = list(REGIMES)
+    lines += ["", "## Success rate by regime (paper Fig. 8)", "", "| sigma | estimator | " + " | ".join(regs) + " |",
+              "|---|---|" + "---|" * len(regs)]
+    for s in sigmas:
+        for name in dict.fromkeys(r["estimator"] for r in rows):
+            vals = {r["regime"]: r["success_rate"] for r in rows if r["sigma"] == s and r["estimator"] == name}
+            if vals:
+                lines.append(f"| {s:.2f} | {name} | " + " | ".join(_fmt(vals.get(g, float('nan')), 's') for g in regs) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def plot_traces(kept: dict, protocol: ControlProtocol, out: Path) -> None:
+    """Angle error and torque of the first far-unstable trial, one figure per sigma."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    for s in sorted({k[0] for k in kept}):
+        fig, axes = plt.subplots(2, 1, figsize=(8, 5.5), sharex=True)
+        for (sig, name, _, _), ep in kept.items():
+            if sig != s:
+                continue
+            t = np.arange(len(ep.u)) * protocol.dt
+            err = (ep.q[:-1, 0] - protocol.q_star + math.pi) % (2 * math.pi) - math.pi
+            axes[0].plot(t, err, lw=1, label=name)
+            axes[1].plot(t, ep.u[:, 0], lw=0.6, label=name)
+        axes[0].set_ylabel("wrap(q - q*) [rad]")
+        axes[1].set_ylabel("torque u [N m]")
+        axes[1].set_xlabel("t [s]")
+        axes[0].legend(fontsize=8)
+        axes[0].set_title(f"Energy-Casimir closed loop, far-unstable trial 0, sigma = {s:g}")
+        fig.tight_layout()
+        fig.savefig(out / f"traces_sigma{s:g}.png", dpi=110)
+        plt.close(fig)
+
+
+def plot_success_by_regime(rows: list[dict[str, Any]], out: Path) -> None:
+    """Grouped bars: success rate per regime, one panel per sigma (paper Fig. 8)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    sigmas = sorted({r["sigma"] for r in rows})
+    names = list(dict.fromkeys(r["estimator"] for r in rows))
+    regs = list(REGIMES)
+    fig, axes = plt.subplots(1, len(sigmas), figsize=(4.5 * len(sigmas), 3.6), squeeze=False)
+    w = 0.8 / max(1, len(names))
+    for ax, s in zip(axes[0], sigmas):
+        for j, name in enumerate(names):
+            vals = [next((r["success_rate"] for r in rows if r["sigma"] == s and r["estimator"] == name and r["regime"] == g), np.nan)
+                    for g in regs]
+            ax.bar(np.arange(len(regs)) + j * w, vals, w, label=name)
+        ax.set_xticks(np.arange(len(regs)) + 0.4 - w / 2, [g.replace("_", "\n") for g in regs], fontsize=7)
+        ax.set_ylim(0, 1.05)
+        ax.set_title(f"sigma = {s:g}")
+    axes[0][0].set_ylabel("success rate")
+    axes[0][-1].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out / "success_by_regime.png", dpi=110)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        rows = run(args)
+    except ValueError as exc:
+        print(f"phast-control-eval: error: {exc}", file=sys.stderr)
+        return 2
+    for r in rows:
+        if r["regime"] == "all":
+            print(f"sigma={r['sigma']:g} {r['estimator']:>14s}: success {r['success_rate']:.2f} effort {r['effort']:.1f} "
+                  f"|qdot_hat-qdot| {r['velocity_error']:.3f} final {r['final_error']:.2e}")
+    print(f"wrote {Path(args.out) / 'results.json'}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

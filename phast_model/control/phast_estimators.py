@@ -1,0 +1,83 @@
+"""Port estimators built from a trained PHAST run (``phast_model.api.load_run``).
+
+* ``phast-observer``: the run's causal FD+TCN observer (trained only through next-step prediction)
+  applied to the q-measurement history.  The run was trained at its env's dt; when the control
+  plant is sampled faster by an integer factor k, the observer reads every k-th measurement
+  ending at the current one (still causal, no resampling of the network).
+* ``phast-model``: model-based port output ``dH_hat/dp (q, p)`` of the learned Hamiltonian from the
+  full state ``info["state"]`` (paper Table 8, full-state).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from phast_gym.control.estimators import PortEstimator
+from phast_gym.systems.base import System
+
+
+def _load(run: str | Path | torch.nn.Module) -> torch.nn.Module:
+    if isinstance(run, torch.nn.Module):
+        return run.eval()
+    if run is None:
+        raise ValueError("PHAST-based estimators need a trained run: pass --phast-run DIR (a phast-train run directory)")
+    from ..api import load_run
+
+    return load_run(run)
+
+
+class PHASTObserverEstimator(PortEstimator):
+    """qdot_hat from the observer of a PHAST run, fed a (possibly strided) window of q measurements."""
+
+    name = "phast-observer"
+
+    def __init__(self, system: System, dt: float, run: str | Path | torch.nn.Module) -> None:
+        super().__init__(system, dt)
+        self.model = _load(run)
+        obs = self.model.observer
+        ratio = float(obs.dt) / self.dt
+        self.stride = int(round(ratio))
+        if self.stride < 1 or abs(ratio - self.stride) > 1e-6:
+            raise ValueError(f"the PHAST observer was trained at dt = {obs.dt}; the plant dt = {self.dt} must divide it")
+        if self.model.n != system.n:
+            raise ValueError(f"the PHAST run has n = {self.model.n}, the plant n = {system.n}")
+        self.window = int(obs.window)
+        self._dtype = next(self.model.parameters()).dtype
+        self.reset()
+
+    def reset(self) -> None:
+        self._hist: deque[np.ndarray] = deque(maxlen=(self.window - 1) * self.stride + 1)
+
+    @torch.no_grad()
+    def update(self, q_meas: np.ndarray, info: dict | None = None, u_prev: np.ndarray | None = None) -> np.ndarray:
+        q_meas = np.asarray(q_meas, dtype=np.float64).reshape(self.n)
+        if not self._hist:
+            self._hist.extend([q_meas] * (self._hist.maxlen - 1))
+        self._hist.append(q_meas)
+        h = np.stack(self._hist)[:: -self.stride][::-1]  # every stride-th sample, ending now
+        v = self.model.observer(torch.as_tensor(h, dtype=self._dtype)[None])[0, -1]
+        return v.double().numpy().copy()
+
+
+class PHASTModelEstimator(PortEstimator):
+    """Model-based port output ``dH_hat/dp`` of a PHAST run at the true (q, p) (full-state, paper Table 8)."""
+
+    name = "phast-model"
+    privileged = True
+
+    def __init__(self, system: System, dt: float, run: str | Path | torch.nn.Module) -> None:
+        super().__init__(system, dt)
+        self.model = _load(run)
+        self._dtype = next(self.model.parameters()).dtype
+
+    @torch.no_grad()
+    def update(self, q_meas: np.ndarray, info: dict | None = None, u_prev: np.ndarray | None = None) -> np.ndarray:
+        if info is None or "state" not in info:
+            raise ValueError("phast-model is a full-state estimator: it needs info['state'] (q, p)")
+        x = torch.as_tensor(np.asarray(info["state"], dtype=np.float64), dtype=self._dtype)
+        n = self.n
+        return self.model.velocity(x[None, :n], x[None, n:])[0].double().numpy().copy()
