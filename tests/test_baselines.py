@@ -1,0 +1,191 @@
+"""Baselines: shapes, causality, rollout = autoregressive definition, parameter counts, learning."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from phast_model.baselines import BASELINES, DHNNBaseline, make_baseline
+from phast_model.baselines.ssm import scan_2x2, scan_diag
+from phast_model.interfaces import ForecastModel, coordinate_error
+
+SEQ = [k for k in BASELINES if k != "dhnn"]
+torch.set_num_threads(1)
+
+
+def _data(n: int, m: int, B: int = 3, T: int = 24, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    return torch.randn(B, T, n, generator=g), torch.randn(B, T - 1, m, generator=g)
+
+
+def _model(name: str, n: int = 2, m: int = 1, angle_dims: tuple[int, ...] = (0,)) -> ForecastModel:
+    torch.manual_seed(0)
+    model = make_baseline(name, n, m, angle_dims)
+    model.eval()  # dropout off (Transformer) so outputs are deterministic
+    return model
+
+
+@pytest.mark.parametrize("name", SEQ)
+def test_shapes_and_wrapping(name: str) -> None:
+    model = _model(name)
+    q, u = _data(2, 1)
+    out = model(q, u)
+    assert out.shape == q.shape and torch.isfinite(out).all()
+    assert out[..., 0].abs().max() <= torch.pi + 1e-6  # angular output wrapped
+    assert model(q, None).shape == q.shape  # no input: zeros
+    assert model(q, torch.cat([u, u[:, :1]], 1)).shape == q.shape  # u of length T
+    with pytest.raises(ValueError, match="q must have shape"):
+        model(q[..., :1], u)
+
+
+@pytest.mark.parametrize("name", SEQ)
+def test_causal(name: str) -> None:
+    """Changing q or u after time t never changes the predictions at times <= t."""
+    model = _model(name)
+    q, u = _data(2, 1)
+    t = 13
+    q2, u2 = q.clone(), u.clone()
+    q2[:, t + 1:] += torch.randn_like(q2[:, t + 1:])
+    u2[:, t + 1:] += 3.0
+    a, b = model(q, u), model(q2, u2)
+    assert torch.equal(a[:, : t + 1], b[:, : t + 1])
+    assert not torch.allclose(a[:, t + 1:], b[:, t + 1:])
+
+
+@pytest.mark.parametrize("name", SEQ)
+def test_rollout_matches_autoregressive_definition(name: str) -> None:
+    model = _model(name)
+    q, u = _data(2, 1, T=30)
+    fast = model.rollout(q[:, :8], u, 12)
+    slow = ForecastModel.rollout(model, q[:, :8], u, 12)  # the interface's step-by-step definition
+    assert fast.shape == (3, 12, 2)
+    assert torch.allclose(fast, slow, atol=2e-4, rtol=1e-3)
+    assert torch.allclose(model.rollout(q[:, :8], None, 5), ForecastModel.rollout(model, q[:, :8], None, 5), atol=2e-4)
+
+
+def _rnn_params(gate: int, f: int, n: int, d: int = 64) -> int:
+    layer1 = gate * (f * d + d * d + 2 * d)
+    layer2 = gate * (2 * d * d + 2 * d)
+    return layer1 + layer2 + d * n + n
+
+
+def test_parameter_counts() -> None:
+    """Closed-form counts for the d = 64, depth-2 architectures (features = sin/cos angles + u)."""
+    n, m, f = 2, 1, 2 + 1 + 1  # q = (angle, x): sin, cos, x, u
+    assert _model("gru", n, m).n_parameters() == _rnn_params(3, f, n)
+    assert _model("lstm", n, m).n_parameters() == _rnn_params(4, f, n)
+    d = 64
+    enc = f * d + d + d * n + n
+    per_layer = (3 * d * d + 3 * d) + (d * d + d) + (d * 4 * d + 4 * d) + (4 * d * d + d) + 4 * d
+    assert _model("transformer", n, m).n_parameters() == enc + 2 * per_layer
+    P = 32  # S5: d_state 64 as 32 conjugate pairs; Lambda (2P) + B, C complex + D + LayerNorm
+    assert _model("s5", n, m).n_parameters() == enc + 2 * (2 * P + 2 * P * d * 2 + d + 2 * d)
+    assert _model("linoss", n, m).n_parameters() == enc + 2 * (2 * P + 2 * P * d * 2 + d + 2 * d)
+    assert _model("dlinoss", n, m).n_parameters() == enc + 2 * (3 * P + 2 * P * d * 2 + d + 2 * d + d * 2 * d + 2 * d)
+    tri = d * (d - 1) // 2
+    assert _model("vpt", n, m).n_parameters() == enc + 2 * (tri + 4 * (tri + d))
+    # buffers (normalization) are not parameters
+    assert all(not b.requires_grad for b in _model("gru").buffers())
+
+
+@pytest.mark.parametrize("name", SEQ)
+def test_a_few_steps_lower_the_loss(name: str) -> None:
+    torch.manual_seed(1)
+    t = torch.arange(40) * 0.1
+    phase = torch.rand(16, 1) * 6
+    q = torch.stack([torch.remainder(torch.sin(t + phase) * 2 + torch.pi, 2 * torch.pi) - torch.pi, torch.cos(t + phase)], -1)
+    u = torch.zeros(16, 39, 1)
+    model = make_baseline(name, 2, 1, (0,))
+    model.fit_normalizer(q, u)
+    opt = torch.optim.Adam(model.parameters(), lr=3e-3)
+
+    def loss() -> torch.Tensor:
+        e = coordinate_error(model(q, u)[:, :-1], q[:, 1:], (0,))
+        return (e * e).mean()
+
+    model.train()
+    first = float(loss().detach())
+    for _ in range(15):
+        opt.zero_grad()
+        ell = loss()
+        ell.backward()
+        opt.step()
+    assert float(loss().detach()) < first
+
+
+def test_registry_and_errors() -> None:
+    assert isinstance(make_baseline("D-LinOSS", 1, 0), BASELINES["dlinoss"])
+    with pytest.raises(ValueError, match="unknown baseline"):
+        make_baseline("mamba", 1, 1)
+    with pytest.raises(ValueError, match="angle_dims"):
+        make_baseline("gru", 1, 1, (3,))
+    m = make_baseline("gru", 1, 0, (0,))  # unactuated system
+    assert m(torch.zeros(2, 5, 1), None).shape == (2, 5, 1)
+    with pytest.raises(ValueError, match="shape"):
+        m.fit_normalizer(torch.zeros(5, 1))
+
+
+def test_fit_normalizer_sets_scales() -> None:
+    m = make_baseline("s5", 2, 1, (0,))
+    q = torch.stack([torch.zeros(4, 10), 5 + 3 * torch.randn(4, 10)], -1)
+    m.fit_normalizer(q, torch.randn(4, 9, 1) * 7)
+    assert abs(float(m.q_mean[1]) - float(q[..., 1].mean())) < 1e-5
+    assert 4 < float(m.u_std[0]) < 10
+    state = m.state_dict()
+    assert "q_std" in state and "dq_scale" in state  # scales travel with the checkpoint
+
+
+def test_scans_match_recurrence() -> None:
+    g = torch.Generator().manual_seed(0)
+    a = torch.complex(torch.rand(5, generator=g) * 0.9, torch.rand(5, generator=g) * 0.3)
+    b = torch.randn(2, 37, 5, dtype=torch.complex64, generator=g)
+    x, ref = torch.zeros(2, 5, dtype=torch.complex64), []
+    for t in range(37):
+        x = a * x + b[:, t]
+        ref.append(x)
+    assert torch.allclose(scan_diag(a, b), torch.stack(ref, 1), atol=1e-5)
+    M = torch.randn(5, 2, 2, generator=g) * 0.5
+    f = torch.randn(2, 19, 5, 2, generator=g)
+    x, ref = torch.zeros(2, 5, 2), []
+    for t in range(19):
+        x = torch.einsum("pij,bpj->bpi", M, x) + f[:, t]
+        ref.append(x)
+    assert torch.allclose(scan_2x2(M, f), torch.stack(ref, 1), atol=1e-4)
+
+
+def test_oscillator_ssms_are_stable() -> None:
+    """LinOSS-IM (|eig| = sqrt(S)) and clamped D-LinOSS modes stay in the unit disk for any parameters."""
+    for name in ("linoss", "dlinoss"):
+        model = make_baseline(name, 1, 0)
+        with torch.no_grad():
+            for p in model.parameters():
+                p.mul_(50.0)
+        for layer in model.layers:
+            M, _ = layer.transition()
+            assert torch.linalg.eigvals(M).abs().max() <= 1.0 + 1e-5
+
+
+def test_dhnn_full_state() -> None:
+    torch.manual_seed(0)
+    model = make_baseline("dhnn", 2, 1, (0,), dt=0.05, hidden=32)
+    assert isinstance(model, DHNNBaseline)
+    q, u = _data(2, 1, T=12)
+    out = model(q, u)
+    assert out.shape == q.shape and torch.isfinite(out).all()
+    a, b = model(q, u), model(torch.cat([q[:, :6], q[:, 6:] + 1], 1), u)
+    assert torch.equal(a[:, :6], b[:, :6])  # Markov: causal
+    fast = model.rollout(q[:, :5], u, 6)
+    slow = ForecastModel.rollout(model, q[:, :5], u, 6)
+    assert torch.allclose(fast, slow, atol=1e-5)
+    with pytest.raises(ValueError, match="full state"):
+        make_baseline("dhnn", 3, 1)
+    # zero dissipation net, zero port: H is (nearly) conserved by RK4 over one step
+    model.eval()
+    with torch.no_grad():
+        for p in model.D.parameters():
+            p.zero_()
+    x0 = torch.tensor([[[0.3, 0.1]]])
+    f = model._feat
+    h0 = model.H(f(x0)).item()
+    h1 = model.H(f(model(x0))).item()
+    assert abs(h1 - h0) < 1e-3 * max(1.0, abs(h0))

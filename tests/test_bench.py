@@ -1,0 +1,142 @@
+"""Benchmark harness: config hashing, resume, outputs, CLI, executors (tiny budgets: seconds)."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from phast_model.bench import (
+    PAPER,
+    TABLE4_ENVS,
+    LocalExecutor,
+    RunSpec,
+    grid,
+    load_result,
+    make_executor,
+    parse_seeds,
+    result_path,
+    run_key,
+    run_sweep,
+    write_reports,
+)
+from phast_model.bench.runner import safe_run_one
+from phast_model.cli.bench import main
+
+ENV = "PHAST/WindyPendulum-v0"
+TINY = dict(epochs=1, n_train=6, n_val=3, n_test=3, T=30, horizons=(5, 10), burn_in=5, train={"batch_size": 4})
+
+
+@pytest.fixture(autouse=True)
+def _cache(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("PHAST_CACHE_DIR", str(tmp_path / "cache"))
+
+
+def test_run_key_is_stable_and_sensitive() -> None:
+    spec = RunSpec(ENV, "gru", seed=3, train={"lr": 1e-3, "batch_size": 64})
+    same = RunSpec(ENV, "gru", seed=3, train={"batch_size": 64, "lr": 1e-3})  # dict order irrelevant
+    assert run_key(spec) == run_key(same) == run_key(RunSpec.from_config(spec.config()))
+    # the same key in a fresh interpreter (no hash randomization effects)
+    code = (f"from phast_model.bench import RunSpec, run_key; "
+            f"print(run_key(RunSpec('{ENV}', 'gru', seed=3, train={{'lr': 1e-3, 'batch_size': 64}})))")
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip() == run_key(spec)
+    for change in ({"seed": 4}, {"epochs": 49}, {"model": "lstm"}, {"n_train": 999}, {"data_seed": 1}, {"horizons": (10,)},
+                   {"train": {"lr": 2e-3, "batch_size": 64}}, {"model_kw": {"d_model": 128}}, {"full_state": True}):
+        assert run_key(RunSpec(**{**spec.config(), "horizons": tuple(spec.horizons), **change})) != run_key(spec)
+
+
+def test_spec_validation_and_seed_parsing() -> None:
+    with pytest.raises(ValueError, match="unknown model"):
+        RunSpec(ENV, "mamba")
+    with pytest.raises(ValueError, match="epochs"):
+        RunSpec(ENV, "gru", epochs=0)
+    assert parse_seeds("0-4") == [0, 1, 2, 3, 4]
+    assert parse_seeds("0-1,5") == [0, 1, 5]
+    with pytest.raises(ValueError, match="seed list"):
+        parse_seeds("4-1")
+    specs = grid([ENV], ["gru", "dhnn"], [0, 1])
+    assert len(specs) == 4 and all(s.full_state == (s.model == "dhnn") for s in specs)
+
+
+def test_paper_table_matches_table4() -> None:
+    """Best paper PHAST / best baseline per row reproduce paper Table 4 (spot checks)."""
+    assert len(TABLE4_ENVS) == 13
+    windy = PAPER[ENV]
+    assert windy.best("phast-")[:2] == ("phast-partial", 0.092)
+    assert windy.best("!phast-")[:2] == ("dlinoss", 0.435)
+    assert PAPER["PHAST/WindyCartPole-v0"].best("!phast-")[:2] == ("s5", 0.431)
+    assert PAPER["PHAST/HeatExchange-v0"].best("!phast-")[:2] == ("linoss", 4.46e-4)
+    assert PAPER["PHAST/PredatorPrey-v0"].best("phast-")[:2] == ("phast-unknown", 0.0199)
+
+
+def test_tiny_sweep_resume_and_outputs(tmp_path: Path) -> None:
+    out = tmp_path / "res"
+    specs = grid([ENV], ["phast-known", "gru"], [0], **TINY)
+    recs = run_sweep(specs, out, workers=1, progress=False)
+    assert sorted(r["status"] for r in recs) == ["ran", "ran"], [r.get("error") for r in recs]
+    for spec in specs:
+        rec = json.loads(result_path(out, spec).read_text())
+        assert rec["key"] == run_key(spec) and rec["env"] == ENV and rec["seed"] == 0
+        assert rec["params"] > 0 and rec["wall_time_s"] > 0 and rec["config"]["epochs"] == 1
+        assert "rollout_theta_wrap_mse_h10" in rec["metrics"] and "mse" in rec["metrics"]
+    mtimes = {p: p.stat().st_mtime_ns for p in (out / "runs").rglob("*.json")}
+    # second call: nothing is redone
+    again = run_sweep(specs, out, workers=1, progress=False)
+    assert [r["status"] for r in again] == ["cached", "cached"]
+    assert {p: p.stat().st_mtime_ns for p in (out / "runs").rglob("*.json")} == mtimes
+    # an interrupted sweep (one result missing) and a corrupted file rerun only those runs
+    result_path(out, specs[0]).unlink()
+    result_path(out, specs[1]).write_text("{truncated")
+    assert load_result(out, specs[1]) is None
+    assert sorted(r["status"] for r in run_sweep(specs, out, workers=1, progress=False)) == ["ran", "ran"]
+
+    paths = write_reports(run_sweep(specs, out, workers=1, progress=False), out)
+    rows = list(csv.DictReader(paths["summary_csv"].open()))
+    assert {r["model"] for r in rows} == {"phast-known", "gru"}
+    assert set(rows[0]) == {"env", "model", "metric", "mean", "std", "n_seeds", "params"}
+    md = paths["tables_md"].read_text()
+    assert "Pendulum (windy)" in md and "PHAST (KNOWN)" in md and "GRU" in md and "0.092" in md
+
+
+def test_cli(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    out = str(tmp_path / "cli")
+    base = ["--envs", "WindyPendulum-v0", "--models", "gru", "--seeds", "0", "--epochs", "1", "--n-train", "6",
+            "--n-val", "3", "--n-test", "3", "--T", "30", "--horizons", "5", "--burn-in", "5", "--train", "batch_size=4",
+            "--out", out, "--workers", "1", "--no-progress"]
+    assert main(base + ["--dry-run"]) == 0
+    assert "1 runs: 0 done, 1 pending" in capsys.readouterr().out
+    assert main(base) == 0
+    assert json.loads(capsys.readouterr().out)["ran"] == 1
+    assert main(base) == 0
+    assert json.loads(capsys.readouterr().out)["cached"] == 1
+    assert main(base + ["--summarize-only"]) == 0
+    assert (Path(out) / "summary.csv").exists()
+    assert main(["--models", "mamba", "--out", out]) == 2
+    assert main(["--envs", "NoSuchEnv-v0", "--out", out]) == 2
+    assert main(base[:-5] + ["--train", "no_such_field=1", "--out", out, "--workers", "1", "--no-progress"]) == 1
+    assert "unknown TrainConfig field" in capsys.readouterr().out
+
+
+def test_executors(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="unknown backend"):
+        make_executor("slurm")
+    ex = LocalExecutor(workers=2)
+    bad = [{"env_id": ENV, "model": "nope", "seed": i} for i in range(2)]  # fails fast inside the workers
+    try:
+        recs = list(ex.map_unordered(safe_run_one, bad, str(tmp_path)))
+    finally:
+        ex.shutdown()
+    assert len(recs) == 2 and all(r["status"] == "failed" and "unknown model" in r["error"] for r in recs)
+
+
+@pytest.mark.ray
+def test_ray_two_run_sweep(tmp_path: Path) -> None:
+    pytest.importorskip("ray")
+    specs = grid([ENV], ["gru"], [0, 1], **TINY)
+    recs = run_sweep(specs, tmp_path / "ray", backend="ray", workers=2, progress=False)
+    assert sorted(r["status"] for r in recs) == ["ran", "ran"], [r.get("error") for r in recs]
+    assert [r["status"] for r in run_sweep(specs, tmp_path / "ray", backend="ray", workers=2, progress=False)] == ["cached"] * 2
