@@ -1,0 +1,54 @@
+"""phast-mismatch: locate and explain the mismatch between a simulator and recordings (MISMATCH.md).
+
+    phast-mismatch --sim PHAST/Pendulum-v0 [--sim-kwargs '{"length": 0.9}'] \\
+                   --recordings recordings.npz [--holdout-fraction 0.3] --out report_dir/
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="phast-mismatch", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--sim", required=True, help="nominal simulator: a PHAST env id, e.g. PHAST/Pendulum-v0")
+    p.add_argument("--sim-kwargs", default="{}", help="JSON dict of physical parameters overriding the env's")
+    p.add_argument("--recordings", required=True, help=".npz or .csv recordings (keys / columns of MISMATCH.md)")
+    p.add_argument("--holdout-fraction", type=float, default=0.3, help="share of trajectories (or of time, for one) held out")
+    p.add_argument("--out", required=True, help="report directory (report.json, report.md, PNG plots)")
+    p.add_argument("--threshold", type=float, default=5.0, help="significance a term must reach (|coefficient|/std)")
+    p.add_argument("--max-terms", type=int, default=3, help="most terms to add")
+    p.add_argument("--shoot-window", type=int, default=None, help="shooting window in samples (default: half a period)")
+    p.add_argument("--smoothing-window", type=int, default=None, help="Savitzky-Golay window in samples (seeds, residual map)")
+    p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    from phast_model.mismatch import Options, analyze
+
+    try:
+        try:
+            kwargs = json.loads(args.sim_kwargs)
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"--sim-kwargs is not valid JSON: {exc}") from None
+        if not isinstance(kwargs, dict):
+            raise ValueError("--sim-kwargs must be a JSON object, e.g. '{\"length\": 0.9}'")
+        opts = Options(threshold=args.threshold, max_terms=args.max_terms, shoot_window=args.shoot_window,
+                       smoothing_window=args.smoothing_window, progress=not args.quiet)
+        report = analyze(args.sim, args.recordings, sim_kwargs=kwargs, holdout_fraction=args.holdout_fraction, options=opts)
+        out = report.write(args.out, plots=not args.no_plots)
+    except ValueError as exc:
+        print(f"phast-mismatch: error: {exc}", file=sys.stderr)
+        return 2
+    print(report.summary)
+    print(f"report written to {out}/report.json")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

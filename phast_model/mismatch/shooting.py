@@ -1,0 +1,328 @@
+"""Fitting by simulation: multiple shooting of the (augmented) simulator on windows.
+
+Velocities and accelerations are never regressed on: every window of every
+recording gets its own initial state (q0, qdot0), the model is simulated with
+the system's own physics (:func:`phast_gym.integrate.step`, batched over all
+windows) and compared with the measured q.  The residual is measurement noise
+when the model is right, so least squares is the maximum-likelihood fit and the
+Gauss-Newton covariance gives honest intervals; no smoothing choice enters the
+answer (smoothing only seeds the initial states).
+
+Levenberg-Marquardt with the arrow-shaped normal equations of shooting: the
+per-window states are eliminated window by window (Schur complement), so the
+cost of a step grows linearly with the number of windows.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import savgol_filter
+
+from phast_gym.integrate import step
+from phast_gym.systems.base import NUMPY, System
+
+from .recordings import Recordings
+
+
+# --------------------------------------------------------------------------- smoothing helpers
+def estimate_noise(q: np.ndarray) -> np.ndarray:
+    """Per-coordinate white-noise std of q (N, T, n) from 4th differences (robust MAD).
+
+    For white noise e, var(Delta^4 e) = 70 sigma^2; a smooth signal contributes
+    dt^4 q'''' which is negligible at the sampling rates of encoders and cameras.
+    """
+    d4 = np.diff(q, n=4, axis=1).reshape(-1, q.shape[2])
+    mad = np.median(np.abs(d4 - np.median(d4, axis=0)), axis=0)
+    return 1.4826 * mad / math.sqrt(70.0)
+
+
+def time_scale(q: np.ndarray, dt: float) -> float:
+    """Characteristic time tau (1/omega of an oscillation): the smaller of rms(q - trend)/rms(qdot)
+    and rms(qdot)/rms(qddot), so rotating or drifting coordinates do not inflate it."""
+    win = _odd(max(7, min(q.shape[1] // 4, 31)))
+    v = savgol_filter(q, win, 3, deriv=1, delta=dt, axis=1, mode="interp")
+    a = savgol_filter(q, win, 3, deriv=2, delta=dt, axis=1, mode="interp")
+    t = np.arange(q.shape[1]) - (q.shape[1] - 1) / 2
+    slope = np.sum(q * t[None, :, None], axis=1, keepdims=True) / np.sum(t**2)
+    qc = q - q.mean(axis=1, keepdims=True) - slope * t[None, :, None]
+    rq = np.sqrt(np.mean(qc**2, axis=(0, 1)))
+    rv = np.sqrt(np.mean(v**2, axis=(0, 1)))
+    ra = np.sqrt(np.mean(a**2, axis=(0, 1)))
+    cands = [rq[i] / rv[i] for i in range(q.shape[2]) if rv[i] > 1e-12]
+    cands += [rv[i] / ra[i] for i in range(q.shape[2]) if ra[i] > 1e-12 and rv[i] > 1e-12]
+    if not cands:
+        return dt * q.shape[1] / 4
+    return float(np.clip(min(cands), 2 * dt, dt * q.shape[1]))
+
+
+def _odd(k: int) -> int:
+    k = int(k)
+    return k if k % 2 else k + 1
+
+
+def smooth(q: np.ndarray, dt: float, window: int) -> tuple[np.ndarray, np.ndarray]:
+    """Savitzky-Golay (cubic) smoothed q and qdot along time, (N, T, n) each."""
+    window = _odd(min(max(window, 5), q.shape[1] - (1 - q.shape[1] % 2)))
+    qs = savgol_filter(q, window, 3, axis=1, mode="interp")
+    vs = savgol_filter(q, window, 3, deriv=1, delta=dt, axis=1, mode="interp")
+    return qs, vs
+
+
+def momentum(system: System, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """p = M(q) qdot for (..., n) arrays, through the system's mass matrix."""
+    qc = tuple(q[..., i] for i in range(q.shape[-1]))
+    M = system.mass_matrix(qc, NUMPY)
+    n = q.shape[-1]
+    return np.stack([sum(np.broadcast_to(M[i][j], q.shape[:-1]) * v[..., j] for j in range(n)) for i in range(n)], -1)
+
+
+# --------------------------------------------------------------------------- simulation
+def substeps_for(system: System, dt: float) -> int:
+    """Enough RK4 substeps that each is no longer than the env's own substep."""
+    h_env = system.dt / max(system.substeps, 1)
+    return max(1, int(math.ceil(dt / h_env - 1e-9)))
+
+
+def simulate_qv(system: System, q0: np.ndarray, v0: np.ndarray, n_steps: int, u: np.ndarray | None,
+                dt: float, substeps: int) -> np.ndarray:
+    """Simulate a batch from (q0, qdot0) (B, n) and return measured q (B, n_steps+1, n).
+
+    The measurement map adds the model's ``sensor_offset`` (zero for a plain system).
+    """
+    B, n = q0.shape
+    p0 = momentum(system, q0, v0)
+    q = [q0[:, i].copy() for i in range(n)]
+    p = [p0[:, i].copy() for i in range(n)]
+    out = np.empty((B, n_steps + 1, n))
+    out[:, 0] = q0
+    with np.errstate(all="ignore"):
+        for t in range(n_steps):
+            ut = None if u is None else [u[:, t, i] for i in range(n)]
+            q, p = step(system, q, p, ut, NUMPY, dt=dt, substeps=substeps)
+            q = [np.broadcast_to(c, (B,)) for c in q]
+            p = [np.broadcast_to(c, (B,)) for c in p]
+            out[:, t + 1] = np.stack(q, -1)
+    off = getattr(system, "sensor_offset", None)
+    if off is not None and any(o != 0.0 for o in off):
+        out = out + np.asarray(off)[None, None, :]
+    return out
+
+
+# --------------------------------------------------------------------------- windows
+@dataclass
+class Windows:
+    """Equal-length windows cut from recordings; each gets its own initial state."""
+
+    traj: np.ndarray  # (W,) trajectory index of each window
+    start: np.ndarray  # (W,) first sample
+    length: int
+    q: np.ndarray  # (W, L, n) measured
+    u: np.ndarray | None  # (W, L-1, n)
+    angle_dims: tuple[int, ...]
+    dt: float
+
+    @classmethod
+    def cut(cls, rec: Recordings, length: int) -> Windows:
+        T = rec.T
+        length = int(min(max(length, 5), T))
+        starts = list(range(0, T - length + 1, length))
+        if starts[-1] + length < T:
+            starts.append(T - length)
+        traj = np.repeat(np.arange(rec.n_traj), len(starts))
+        start = np.tile(np.asarray(starts), rec.n_traj)
+        idx = start[:, None] + np.arange(length)[None, :]
+        q = rec.q[traj[:, None], idx]
+        u = None
+        if rec.u is not None:
+            u = rec.u[traj[:, None], idx[:, :-1]]
+        return cls(traj, start, length, q, u, rec.angle_dims, rec.dt)
+
+    @property
+    def count(self) -> int:
+        return len(self.traj)
+
+    def select(self, keep: np.ndarray) -> Windows:
+        """The windows ``keep`` (index array or mask)."""
+        return Windows(self.traj[keep], self.start[keep], self.length, self.q[keep], None if self.u is None else self.u[keep],
+                       self.angle_dims, self.dt)
+
+    def prefix(self, length: int) -> Windows:
+        """Every window cut to its first ``length`` samples."""
+        return Windows(self.traj, self.start, length, self.q[:, :length], None if self.u is None else self.u[:, : length - 1],
+                       self.angle_dims, self.dt)
+
+
+def angle_diff(a: np.ndarray, b: np.ndarray, angle_dims: tuple[int, ...]) -> np.ndarray:
+    """a - b, wrapped into [-pi, pi) on angular coordinates (paper Appendix F)."""
+    d = a - b
+    for i in angle_dims:
+        d[..., i] = (d[..., i] + math.pi) % (2 * math.pi) - math.pi
+    return d
+
+
+# --------------------------------------------------------------------------- least squares
+@dataclass
+class ShootFit:
+    """Result of a shooting fit: window states, global vector, residuals and Jacobians."""
+
+    X: np.ndarray  # (W, 2n) window initial (q, qdot)
+    g: np.ndarray  # (P,) global parameters (scaled)
+    r: np.ndarray  # (W, L*n) standardized residuals
+    JX: np.ndarray  # (W, L*n, 2n)
+    Jg: np.ndarray  # (W, L*n, P)
+    cost: float  # sum of squared standardized residuals
+    n_obs: int
+    iterations: int
+
+    @property
+    def dof(self) -> int:
+        return max(self.n_obs - self.X.size - self.g.size, 1)
+
+    @property
+    def chi2_red(self) -> float:
+        return self.cost / self.dof
+
+    def projected(self, cols: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Residual and columns (W, L*n, k) with the window-state directions projected out."""
+        JX = self.JX
+        Q = np.linalg.qr(JX)[0]  # (W, L*n, 2n) orthonormal basis per window
+        def proj(a: np.ndarray) -> np.ndarray:
+            return a - np.einsum("wla,wak->wlk", Q, np.einsum("wla,wlk->wak", Q, a))
+        r = proj(self.r[..., None])[..., 0]
+        if cols is None:
+            cols = self.Jg
+        return r, proj(cols)
+
+    def covariance(self) -> np.ndarray:
+        """Covariance of g: max of Gauss-Newton (scaled by chi2_red) and window-cluster sandwich."""
+        P = self.g.size
+        if P == 0:
+            return np.zeros((0, 0))
+        r, Jp = self.projected()
+        H = np.einsum("wlp,wlq->pq", Jp, Jp)
+        Hinv = np.linalg.pinv(H)
+        gn = Hinv * max(self.chi2_red, 1.0)
+        s = np.einsum("wlp,wl->wp", Jp, r)  # per-window scores
+        meat = s.T @ s * (self.X.shape[0] / max(self.X.shape[0] - 1, 1))
+        sand = Hinv @ meat @ Hinv
+        # per-parameter: the larger variance of the two (robust to autocorrelated misfit)
+        scale = np.sqrt(np.maximum(np.diag(sand), np.diag(gn)) / np.maximum(np.diag(gn), 1e-300))
+        return gn * np.outer(scale, scale)
+
+
+class Shooter:
+    """Standardized shooting residuals of a model family ``build(g) -> System`` on windows."""
+
+    def __init__(self, windows: Windows, sigma: np.ndarray, substeps: int, x_scale: np.ndarray) -> None:
+        self.w = windows
+        self.sigma = np.asarray(sigma, dtype=float)
+        self.substeps = substeps
+        self.x_scale = np.asarray(x_scale, dtype=float)  # (2n,) typical |q|, |qdot|
+        self.n = windows.q.shape[2]
+        self.n_sims = 0
+
+    def residual(self, system: System, X: np.ndarray) -> np.ndarray:
+        """(W, L*n) standardized residuals (huge where the simulation blew up)."""
+        n = self.n
+        self.n_sims += 1
+        sim = simulate_qv(system, X[:, :n], X[:, n:], self.w.length - 1, self.w.u, self.w.dt, self.substeps)
+        d = angle_diff(sim, self.w.q, self.w.angle_dims) / self.sigma
+        d = np.where(np.isfinite(d), d, 1e6)
+        return np.clip(d, -1e6, 1e6).reshape(d.shape[0], -1)
+
+    def jac_X(self, system: System, X: np.ndarray, r0: np.ndarray) -> np.ndarray:
+        """(W, L*n, 2n) forward-difference Jacobian w.r.t. each window's own state (all windows at once)."""
+        cols = []
+        for k in range(2 * self.n):
+            h = 1e-6 * max(self.x_scale[k], 1e-8) + 1e-9
+            Xp = X.copy()
+            Xp[:, k] += h
+            cols.append((self.residual(system, Xp) - r0) / h)
+        return np.stack(cols, -1)
+
+    def fit(self, build: Callable[[np.ndarray], System], X0: np.ndarray, g0: np.ndarray,
+            max_iter: int = 25, tol: float = 1e-7, g_step: float = 1e-4) -> ShootFit:
+        """Levenberg-Marquardt on (window states, g) with Schur elimination of the states."""
+        X, g = X0.copy(), np.asarray(g0, dtype=float).copy()
+        P = g.size
+        system = build(g)
+        r = self.residual(system, X)
+        cost = float(np.sum(r**2))
+        lam = 1e-3
+        it = 0
+        JX = Jg = None
+        for it in range(1, max_iter + 1):
+            JX = self.jac_X(system, X, r)
+            Jg = np.empty(r.shape + (P,))
+            for j in range(P):
+                gp = g.copy()
+                gp[j] += g_step
+                Jg[..., j] = (self.residual(build(gp), X) - r) / g_step
+            A = np.einsum("wla,wlb->wab", JX, JX)
+            B = np.einsum("wla,wlp->wap", JX, Jg)
+            C = np.einsum("wlp,wlq->pq", Jg, Jg)
+            gx = np.einsum("wla,wl->wa", JX, r)
+            gg = np.einsum("wlp,wl->p", Jg, r)
+            improved = False
+            for _ in range(8):
+                Ad = A + lam * (np.diagonal(A, axis1=1, axis2=2)[..., None] * np.eye(A.shape[1]) + 1e-12 * np.eye(A.shape[1]))
+                Ainv = np.linalg.inv(Ad)
+                if P:
+                    Cd = C + lam * np.diag(np.diag(C)) + 1e-12 * np.eye(P)
+                    AiB = np.einsum("wab,wbp->wap", Ainv, B)
+                    S = Cd - np.einsum("wap,waq->pq", B, AiB)
+                    rhs = -gg + np.einsum("wap,wa->p", AiB, gx)
+                    dg = np.linalg.lstsq(S, rhs, rcond=None)[0]
+                    dx = -np.einsum("wab,wb->wa", Ainv, gx + np.einsum("wbp,p->wb", B, dg))
+                else:
+                    dg = np.zeros(0)
+                    dx = -np.einsum("wab,wb->wa", Ainv, gx)
+                Xn, gn = X + dx, g + dg
+                sys_n = build(gn)
+                rn = self.residual(sys_n, Xn)
+                cn = float(np.sum(rn**2))
+                if np.isfinite(cn) and cn < cost:
+                    improved = True
+                    rel = (cost - cn) / max(cost, 1e-300)
+                    X, g, r, cost, system = Xn, gn, rn, cn, sys_n
+                    lam = max(lam / 5, 1e-9)
+                    break
+                lam *= 8
+            if not improved or rel < tol:
+                break
+        # Jacobians at the final point for statistics
+        JX = self.jac_X(system, X, r)
+        Jg = np.empty(r.shape + (P,))
+        for j in range(P):
+            gp = g.copy()
+            gp[j] += g_step
+            Jg[..., j] = (self.residual(build(gp), X) - r) / g_step
+        return ShootFit(X, g, r, JX, Jg, cost, r.size, it)
+
+    def fit_states(self, system: System, X0: np.ndarray, max_iter: int = 25) -> ShootFit:
+        """Window states only, by homotopy on the window length (short prefixes first).
+
+        Long windows have local minima (a pendulum seeded on the wrong side of the
+        separatrix); fitting the first few samples first puts every window in
+        the right basin before the whole window is used.
+        """
+        X = X0.copy()
+        L = self.w.length
+        lengths = sorted({min(L, k) for k in (6, max(6, L // 4), max(6, L // 2))} - {L})
+        full = self.w
+        for k in lengths:
+            self.w = full.prefix(k)
+            X = self.fit(lambda g: system, X, np.zeros(0), max_iter=max_iter).X
+        self.w = full
+        return self.fit(lambda g: system, X, np.zeros(0), max_iter=max_iter)
+
+    def columns(self, builds: list[Callable[[], System]], fit: ShootFit, base_r: np.ndarray, h: list[float]) -> np.ndarray:
+        """(W, L*n, K) finite-difference columns of extra candidate directions at a fit."""
+        out = np.empty(base_r.shape + (len(builds),))
+        for k, (b, hk) in enumerate(zip(builds, h)):
+            out[..., k] = (self.residual(b(), fit.X) - base_r) / hk
+        return out

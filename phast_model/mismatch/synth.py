@@ -1,0 +1,43 @@
+"""Concealed-effect "realities" from the env suite (for the benchmark, tests and examples)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from phast_gym.integrate import simulate
+from phast_gym.registry import make_env_system
+
+from .terms import AugmentedSystem, Term
+
+
+def make_reality(env_id: str, terms: list[Term] | tuple[Term, ...] = (), true_kwargs: dict[str, Any] | None = None,
+                 n_traj: int = 40, T: int = 400, noise_std: float = 0.01, seed: int = 0, u_std: float = 0.0,
+                 x0_scale: float = 1.0, coulomb_eps: float = 1e-3) -> dict[str, Any]:
+    """Recordings dict (MISMATCH.md keys) of ``env_id`` with hidden ``terms`` and parameter changes.
+
+    Initial states come from the system's own sampler (scaled by ``x0_scale``);
+    ``u_std > 0`` adds a smooth random port input on every coordinate; q gets
+    white noise of std ``noise_std``.  Coulomb friction is nearly sharp
+    (``coulomb_eps``) so the tool meets a model that is not its own.
+    """
+    rng = np.random.default_rng(seed)
+    base = make_env_system(env_id, **(true_kwargs or {}))
+    system = AugmentedSystem(base, list(terms), coulomb_eps=coulomb_eps)
+    x0 = base.sample_initial(rng, n_traj) * x0_scale
+    u = None
+    if u_std > 0:
+        # smooth input: a random sum of slow sines held over each interval
+        t = np.arange(T - 1) * base.dt
+        freqs = rng.uniform(0.2, 1.5, size=(n_traj, 3, base.n))
+        phases = rng.uniform(0, 2 * np.pi, size=(n_traj, 3, base.n))
+        u = u_std * np.sum(np.sin(2 * np.pi * freqs[:, :, None, :] * t[None, None, :, None] + phases[:, :, None, :]), axis=1) / np.sqrt(1.5)
+    sub = base.substeps * 2 if any(t.name == "coulomb_friction" for t in terms) else None
+    x = simulate(system, x0, T - 1, u=u, substeps=sub)
+    q = x[..., : base.n] + np.asarray(system.sensor_offset)[None, None, :]
+    q = q + rng.normal(0.0, noise_std, size=q.shape)
+    out: dict[str, Any] = {"q": q, "dt": base.dt, "angle_dims": np.asarray(base.angle_dims, dtype=int)}
+    if u is not None:
+        out["u"] = u
+    return out

@@ -1,0 +1,191 @@
+"""The named term vocabulary of MISMATCH.md and the augmented port-Hamiltonian model.
+
+Each term adds a force to ``pdot_i`` (or changes the port / the sensor) and sits
+in one component of the port-Hamiltonian structure:
+
+* dissipation (``viscous_damping``, ``coulomb_friction``, ``quadratic_drag``,
+  ``position_dependent_damping``): a force ``-c * f(qdot_i)`` with ``f`` odd and
+  ``c >= 0``, so ``qdot_i * force <= 0``: the augmented model stays passive
+  (paper Eq. 4, dH/dt = -v^T D v + v^T u);
+* potential (``linear_stiffness``, ``cubic_stiffness``, ``constant_force``):
+  an extra potential V_extra(q_i) added to H, force ``-dV_extra/dq_i``;
+* port (``actuator_gain``, ``actuator_deadzone``): the delivered port force;
+* sensor (``sensor_offset``): the measurement map, ``q_meas = q + c``.
+
+All formulas are written in component form over an array namespace ``xp`` so the
+augmented model runs with numpy (batched simulation) or torch, like the systems.
+The nominal physics is never retyped: :class:`AugmentedSystem` calls the base
+system for H, M, D and adds only the named terms.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from phast_gym.systems.base import NUMPY, Components, System
+
+#: term name -> (component, basis force text with c, whether c must be >= 0)
+VOCABULARY: dict[str, tuple[str, str, bool]] = {
+    "viscous_damping": ("dissipation", "-c*qdot{i}", True),
+    "coulomb_friction": ("dissipation", "-c*sign(qdot{i})", True),
+    "quadratic_drag": ("dissipation", "-c*abs(qdot{i})*qdot{i}", True),
+    "position_dependent_damping": ("dissipation", "-c*abs(sin(q{i}))*qdot{i}", True),
+    "linear_stiffness": ("potential", "-c*q{i}", False),
+    "cubic_stiffness": ("potential", "-c*q{i}**3", False),
+    "constant_force": ("potential", "c", False),
+    "actuator_gain": ("port", "(c-1)*u{i}", True),
+    "actuator_deadzone": ("port", "port delivers 0 when abs(u{i}) < c", True),
+    "sensor_offset": ("sensor", "measured q{i} = true q{i} + c", False),
+}
+FORCE_TERMS = ("viscous_damping", "coulomb_friction", "quadratic_drag", "position_dependent_damping",
+               "linear_stiffness", "cubic_stiffness", "constant_force")
+PORT_TERMS = ("actuator_gain", "actuator_deadzone")
+
+
+@dataclass(frozen=True)
+class Term:
+    """One named term on one coordinate with its coefficient (MISMATCH.md units)."""
+
+    name: str
+    coordinate: int
+    coefficient: float
+
+    @property
+    def component(self) -> str:
+        return VOCABULARY[self.name][0]
+
+    def expression(self) -> str:
+        """Human-readable force / map with the coefficient filled in."""
+        c, i = self.coefficient, self.coordinate
+        text = VOCABULARY[self.name][1].format(i=i)
+        if self.name == "actuator_gain":
+            return f"({c:.4g}-1)*u{i}"
+        if self.name == "constant_force":
+            return f"{c:+.4g}"
+        if self.name in ("actuator_deadzone", "sensor_offset"):
+            return text.replace("+ c", f"+ {c:.4g}").replace("< c", f"< {c:.4g}")
+        return text.replace("-c*", f"-{c:.4g}*")
+
+
+def default_value(name: str) -> float:
+    """The coefficient at which a term has no effect."""
+    return 1.0 if name == "actuator_gain" else 0.0
+
+
+class AugmentedSystem(System):
+    """A base system plus named terms, in the right port-Hamiltonian place.
+
+    ``coulomb_eps`` smooths ``sign(qdot)`` as ``tanh(qdot / eps)`` (MISMATCH.md
+    allows smoothing near 0); it keeps explicit RK4 stable at the env's steps.
+    """
+
+    def __init__(self, base: System, terms: list[Term] | tuple[Term, ...] = (), coulomb_eps: float = 1e-2) -> None:
+        # no System.__init__: parameters belong to the base system
+        self.base = base
+        self.terms = tuple(terms)
+        self.coulomb_eps = float(coulomb_eps)
+        self.params = dict(base.params)
+        for attr in ("name", "n", "angle_dims", "dt", "substeps", "default_max_action", "separable",
+                     "hamiltonian_system", "coordinate_names"):
+            setattr(self, attr, getattr(base, attr))
+        self.sensor_offset = [0.0] * base.n
+        for t in self.terms:
+            if t.name == "sensor_offset":
+                self.sensor_offset[t.coordinate] += t.coefficient
+
+    def __repr__(self) -> str:
+        return f"AugmentedSystem({self.base!r}, terms={list(self.terms)})"
+
+    # ---- energy: base H plus the extra potential of conservative terms ----
+    def _extra_potential(self, q: Components, xp: Any) -> Any:
+        v = 0.0 * q[0]
+        for t in self.terms:
+            qi, c = q[t.coordinate], t.coefficient
+            if t.name == "linear_stiffness":
+                v = v + 0.5 * c * qi * qi
+            elif t.name == "cubic_stiffness":
+                v = v + 0.25 * c * qi**4
+            elif t.name == "constant_force":
+                v = v - c * qi
+        return v
+
+    def _extra_grad(self, q: Components, xp: Any) -> list:
+        g = [0.0 * qi for qi in q]
+        for t in self.terms:
+            i, c = t.coordinate, t.coefficient
+            if t.name == "linear_stiffness":
+                g[i] = g[i] + c * q[i]
+            elif t.name == "cubic_stiffness":
+                g[i] = g[i] + c * q[i] ** 3
+            elif t.name == "constant_force":
+                g[i] = g[i] - c + 0.0 * q[i]
+        return g
+
+    def potential(self, q: Components, xp: Any = NUMPY) -> Any:
+        return self.base.potential(q, xp) + self._extra_potential(q, xp)
+
+    def grad_potential(self, q: Components, xp: Any = NUMPY) -> tuple:
+        return tuple(a + b for a, b in zip(self.base.grad_potential(q, xp), self._extra_grad(q, xp)))
+
+    def dH_dq(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
+        return tuple(a + b for a, b in zip(self.base.dH_dq(q, p, xp), self._extra_grad(q, xp)))
+
+    def mass_matrix(self, q: Components, xp: Any = NUMPY) -> tuple:
+        return self.base.mass_matrix(q, xp)
+
+    def velocity(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
+        return self.base.velocity(q, p, xp)
+
+    def damping(self, q: Components, xp: Any = NUMPY) -> tuple:
+        return self.base.damping(q, xp)
+
+    def has_damping(self) -> bool:
+        return self.base.has_damping()
+
+    def switching(self, q: Components, p: Components, xp: Any = NUMPY) -> Any | None:
+        return self.base.switching(q, p, xp)
+
+    def sample_initial(self, rng: Any, size: int) -> Any:
+        return self.base.sample_initial(rng, size)
+
+    # ---- port and dissipation -------------------------------------------------
+    def port(self, u: Components | None, xp: Any) -> Components | None:
+        """The port force actually delivered (actuator gain and deadzone)."""
+        if u is None:
+            return None
+        u = list(u)
+        for t in self.terms:
+            i, c = t.coordinate, t.coefficient
+            if t.name == "actuator_gain":
+                u[i] = c * u[i]
+            elif t.name == "actuator_deadzone":
+                u[i] = xp.where(xp.abs(u[i]) < c, 0.0 * u[i], u[i])
+        return u
+
+    def extra_dissipation(self, q: Components, v: Components, xp: Any) -> list:
+        """Passive friction forces -c f(v_i), f odd, c >= 0 (enters pdot like -D v)."""
+        f = [0.0 * vi for vi in v]
+        for t in self.terms:
+            i, c = t.coordinate, t.coefficient
+            if t.name == "viscous_damping":
+                f[i] = f[i] - c * v[i]
+            elif t.name == "coulomb_friction":
+                f[i] = f[i] - c * xp.tanh(v[i] / self.coulomb_eps)
+            elif t.name == "quadratic_drag":
+                f[i] = f[i] - c * xp.abs(v[i]) * v[i]
+            elif t.name == "position_dependent_damping":
+                f[i] = f[i] - c * xp.abs(xp.sin(q[i])) * v[i]
+        return f
+
+    def rhs(self, q: Components, p: Components, u: Components | None, xp: Any = NUMPY) -> tuple[tuple, tuple]:
+        qdot, pdot = self.base.rhs(q, p, self.port(u, xp), xp)
+        g = self._extra_grad(q, xp)
+        f = self.extra_dissipation(q, qdot, xp)
+        return tuple(qdot), tuple(a - b + c for a, b, c in zip(pdot, g, f))
+
+    def power_balance(self, q: Components, p: Components, u: Components | None, xp: Any = NUMPY) -> tuple[Any, Any]:
+        diss, supplied = self.base.power_balance(q, p, self.port(u, xp), xp)
+        v = self.velocity(q, p, xp)
+        extra = sum(-fi * vi for fi, vi in zip(self.extra_dissipation(q, v, xp), v))
+        return diss + extra, supplied
