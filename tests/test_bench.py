@@ -101,6 +101,12 @@ def test_tiny_sweep_resume_and_outputs(tmp_path: Path) -> None:
     md = paths["tables_md"].read_text()
     assert "Pendulum (windy)" in md and "PHAST (KNOWN)" in md and "GRU" in md and "0.092" in md
 
+    from phast_model.bench.figures import make_figures
+
+    figs = make_figures(out, specs, n_traj=1, H=10)
+    assert sorted(p.name for p in figs) == ["WindyPendulum-v0_damping_energy.png", "WindyPendulum-v0_rollout.png"]
+    assert all(p.stat().st_size > 1000 for p in figs)
+
 
 def test_cli(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     out = str(tmp_path / "cli")
