@@ -99,7 +99,7 @@ def test_tiny_sweep_resume_and_outputs(tmp_path: Path) -> None:
     assert {r["model"] for r in rows} == {"phast-known", "gru"}
     assert set(rows[0]) == {"env", "model", "metric", "mean", "std", "n_seeds", "params"}
     md = paths["tables_md"].read_text()
-    assert "Pendulum (windy)" in md and "PHAST (KNOWN)" in md and "GRU" in md and "0.092" in md
+    assert "Pendulum (windy)" in md and "PHAST (KNOWN)" in md and "GRU" in md and "rollout_theta_wrap_mse_h10" in md
 
     from phast_model.bench.figures import make_figures
 

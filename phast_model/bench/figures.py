@@ -21,7 +21,7 @@ import numpy as np
 
 from .runner import build_run_model, load_result, load_splits, work_dir
 from .spec import RunSpec
-from .summary import DISPLAY, aggregate, metric_for
+from .summary import DISPLAY, aggregate, env_metric
 
 
 def _wrap(x: np.ndarray) -> np.ndarray:
@@ -63,7 +63,7 @@ def load_model(out_dir: str | Path, spec: RunSpec, train: Any) -> Any:
 
 def _pick(records: list[dict], env: str, phast: bool) -> dict | None:
     agg = aggregate(records)
-    metric = metric_for(env)
+    metric = env_metric(agg, env)
     best = None
     for (e, m), g in agg.items():
         if e != env or m.startswith("phast-") != phast or metric not in g["metrics"]:

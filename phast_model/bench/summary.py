@@ -111,6 +111,21 @@ def metric_for(env: str) -> str:
     return benchmark_metric(env.replace(" (full state)", ""))
 
 
+def resolve_metric(metric: str, available: set[str]) -> str:
+    """``metric`` if measured, else the same rollout metric at the largest measured horizon (reduced grids)."""
+    if metric in available or "_h" not in metric:
+        return metric
+    stem = metric.rsplit("_h", 1)[0]
+    hs = [int(k.rsplit("_h", 1)[1]) for k in available if k.startswith(stem + "_h") and k.rsplit("_h", 1)[1].isdigit()]
+    return f"{stem}_h{max(hs)}" if hs else metric
+
+
+def env_metric(agg: dict, env: str) -> str:
+    """The row metric of ``env`` as measured in ``agg`` (see :func:`resolve_metric`)."""
+    keys = {k for (e, _), g in agg.items() if e == env for k in g["metrics"]}
+    return resolve_metric(metric_for(env), keys)
+
+
 def markdown_tables(agg: dict[tuple[str, str], dict[str, Any]], title: str = "phast-bench results", note: str = "") -> str:
     """Table-4-shaped summary + per-benchmark tables (markdown)."""
     envs = list(dict.fromkeys(e for e, _ in sorted(agg, key=lambda k: (list(PAPER).index(k[0]) if k[0] in PAPER else 99, k))))
@@ -124,14 +139,15 @@ def markdown_tables(agg: dict[tuple[str, str], dict[str, Any]], title: str = "ph
               "paper PHAST | ours / paper | seeds |",
               "|---|---|---|---|---|---|---|---|---|"]
     for env in envs:
-        metric = metric_for(env)
+        metric = env_metric(agg, env)
         bp = best_of(agg, env, metric, lambda m: m.startswith("phast-"))
         bb = best_of(agg, env, metric, lambda m: not m.startswith("phast-"))
         paper = paper_row_for(env)
         pp = paper.best("phast-") if paper else None
         gain = f"{bb[1][0] / bp[1][0]:.3g}×" if bp and bb and bp[1][0] > 0 else "—"
         beats = "—" if not (bp and bb) else ("yes" if bp[1][0] < bb[1][0] else "**no**")
-        ratio = f"{bp[1][0] / pp[1]:.3g}" if bp and pp and pp[1] > 0 else "—"
+        comparable = paper is not None and metric == paper.metric
+        ratio = f"{bp[1][0] / pp[1]:.3g}" if bp and pp and pp[1] > 0 and comparable else "—"
         seeds = sorted({n for g in (bp, bb) if g for n in [g[1][2]]})
         name = paper.benchmark if paper else env
         lines.append(
@@ -139,8 +155,10 @@ def markdown_tables(agg: dict[tuple[str, str], dict[str, Any]], title: str = "ph
             f"{_ms(bb[1]) + ' (' + DISPLAY[bb[0]] + ')' if bb else '—'} | {gain} | {beats} | "
             f"{fmt(pp[1]) + ' (' + DISPLAY[pp[0]] + ')' if pp else '—'} | {ratio} | {','.join(map(str, seeds)) or '—'} |")
     for env in envs:
-        metric = metric_for(env)
+        metric = env_metric(agg, env)
         paper = paper_row_for(env)
+        if paper is not None and metric != paper.metric:
+            paper = None  # another metric than the paper's (e.g. shorter horizons): no paper comparison
         lines += ["", f"## {paper.benchmark if paper else env} — `{env}`, `{metric}`"
                   + (f" (paper {paper.table})" if paper else ""), "",
                   "| model | params (ours) | ours: mean ± std | n | params (paper) | paper: mean ± std | wall s/run |",
