@@ -165,7 +165,7 @@ class EnergyCasimirController:
         return h + 0.5 * self.k_c * float(np.sum(self.shaping_error() ** 2))
 
 
-class EnergyCasimirWrapper(gym.Wrapper):
+class EnergyCasimirWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """The wrapped env's action becomes the external input ``v_ext`` of the closed loop.
 
     ``env = EnergyCasimirWrapper(gym.make("PHAST/Pendulum-v0"), estimator="map", k_c=5, d_inj=2)``:
@@ -185,7 +185,9 @@ class EnergyCasimirWrapper(gym.Wrapper):
         k_xi: float = 5.0,
         estimator_kwargs: dict[str, Any] | None = None,
     ) -> None:
-        super().__init__(env)
+        gym.utils.RecordConstructorArgs.__init__(self, estimator=estimator, q_star=q_star, k_c=k_c, d_inj=d_inj, k_xi=k_xi,
+                                                 estimator_kwargs=estimator_kwargs)
+        gym.Wrapper.__init__(self, env)
         base = env.unwrapped
         system = getattr(base, "system", None)
         if not isinstance(system, System):

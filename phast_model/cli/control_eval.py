@@ -27,6 +27,9 @@ import numpy as np
 
 from phast_gym.control import REGIMES, ControlProtocol, estimator_names, evaluate, make_estimator
 
+#: upright (q_star = pi) defaults: k_c > m g l = 9.81 with margin, stronger damping injection
+UPRIGHT_K_C, UPRIGHT_D_INJ = 20.0, 3.0
+
 LABELS = {
     "oracle": ("Oracle", "oracle"), "fd": ("Finite differences", "FD"), "map": ("MAP smoother", "MAP smoother"),
     "tcn": ("FD+TCN observer", "FD+TCN (noise-matched)"), "tcn-uniform": ("FD+TCN observer", "FD+TCN (U[0, s_max])"),
@@ -69,8 +72,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--env", default=ControlProtocol.env_id, help="pendulum-family plant env id")
     p.add_argument("--dt", type=float, default=ControlProtocol.dt, help="control sampling interval (s)")
     p.add_argument("--horizon", type=int, default=ControlProtocol.horizon, help="closed-loop steps per trial")
-    p.add_argument("--k-c", type=float, default=None, help="shaping gain (default 0.7; 15 when q_star = pi)")
-    p.add_argument("--d-inj", type=float, default=ControlProtocol.d_inj, help="damping-injection gain")
+    p.add_argument("--k-c", type=float, default=None, help="shaping gain (default 0.7; 20 when q_star = pi, which needs k_c > m g l)")
+    p.add_argument("--d-inj", type=float, default=None, help="damping-injection gain (default 0.11; 3 when q_star = pi)")
     p.add_argument("--k-xi", type=float, default=ControlProtocol.k_xi, help="xi predictor-corrector gain")
     p.add_argument("--tol", type=float, default=ControlProtocol.tol, help="success angle tolerance (rad)")
     p.add_argument("--u-tol", type=float, default=ControlProtocol.u_tol, help="success RMS-torque tolerance (N m) over the final window")
@@ -94,8 +97,10 @@ def run(args: argparse.Namespace) -> list[dict[str, Any]]:
         raise ValueError(f"unknown estimator(s) {unknown}; valid names are {estimator_names()}")
     if any(n.startswith("phast") for n in names) and not args.phast_run:
         raise ValueError("phast-observer / phast-model need --phast-run DIR (a phast-train run directory)")
-    k_c = args.k_c if args.k_c is not None else (15.0 if abs(math.cos(q_star) + 1) < 1e-9 else ControlProtocol.k_c)
-    protocol = ControlProtocol(env_id=args.env, dt=args.dt, horizon=args.horizon, q_star=q_star, k_c=k_c, d_inj=args.d_inj,
+    upright = abs(math.cos(q_star) + 1) < 1e-9
+    k_c = args.k_c if args.k_c is not None else (UPRIGHT_K_C if upright else ControlProtocol.k_c)
+    d_inj = args.d_inj if args.d_inj is not None else (UPRIGHT_D_INJ if upright else ControlProtocol.d_inj)
+    protocol = ControlProtocol(env_id=args.env, dt=args.dt, horizon=args.horizon, q_star=q_star, k_c=k_c, d_inj=d_inj,
                                k_xi=args.k_xi, tol=args.tol, u_tol=args.u_tol)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

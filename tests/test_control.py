@@ -1,0 +1,192 @@
+"""Fast tests of Energy-Casimir control: passivity, Casimir, estimators, wrapper, CLI, errors."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import phast_gym  # noqa: F401  (registers the ids)
+from phast_gym.control import (
+    ControlProtocol,
+    EnergyCasimirController,
+    EnergyCasimirWrapper,
+    MAPSmootherEstimator,
+    evaluate,
+    make_control_env,
+    make_estimator,
+    map_smoother_weights,
+    run_episode,
+)
+
+
+def _loop(env_id: str, k_xi: float, steps: int = 300, x0=(2.5, 1.0), sigma: float = 0.0, estimator: str = "oracle",
+          k_c: float = 2.0, d_inj: float = 0.5):
+    protocol = ControlProtocol(env_id=env_id, horizon=steps, k_c=k_c, d_inj=d_inj, k_xi=k_xi, settle_steps=10)
+    env = make_control_env(protocol, sigma)
+    system = env.unwrapped.system
+    ctrl = EnergyCasimirController(make_estimator(estimator, system, protocol.dt, sigma=sigma), 0.0, k_c, d_inj, k_xi,
+                                   dt=protocol.dt, max_action=50.0, system=system)
+    return run_episode(env, ctrl, np.array(x0), seed=3, protocol=protocol), protocol
+
+
+@pytest.mark.parametrize("env_id", ["PHAST/Pendulum-v0", "PHAST/DampedPendulum-v0"])
+def test_closed_loop_storage_non_increasing_with_oracle(env_id: str) -> None:
+    # Eq. 27 with v_ext = 0 and y_hat = y_p: dH_cl/dt = -(D + d_inj) qdot^2 <= 0; the discrete loop
+    # (zero-order-hold torque, Euler xi) may only add O(dt^2) per step.
+    ep, _ = _loop(env_id, k_xi=0.0)
+    h = ep.storage
+    inc = np.diff(h)
+    assert inc.max() < 1e-3 * h[0], f"storage increased by {inc.max():.3g} (H_cl0 = {h[0]:.3g})"
+    assert h[-1] < 0.5 * h[0]  # and it actually dissipates
+
+
+def test_casimir_invariant_without_correction() -> None:
+    # k_xi = 0, exact port: xi integrates qdot, so C = q - xi stays constant up to the Euler error
+    # of xi (bounded by dt * |delta qdot| / 2 over the run).
+    ep, protocol = _loop("PHAST/Pendulum-v0", k_xi=0.0, d_inj=0.0, steps=200)
+    c = ep.q[:, 0] - ep.xi[:, 0]
+    drift = np.abs(c - c[0]).max()
+    bound = protocol.dt * (np.abs(ep.qdot).max() + 1.0)
+    assert drift < bound, (drift, bound)
+
+
+def test_casimir_broken_by_correction_but_tracks() -> None:
+    ep, _ = _loop("PHAST/DampedPendulum-v0", k_xi=5.0, steps=400)
+    assert abs(ep.q[-1, 0] - ep.xi[-1, 0]) < 1e-2  # k_xi pulls xi onto q
+
+
+def test_map_smoother_exact_on_polynomials() -> None:
+    dt = 0.01
+    t = np.arange(40) * dt
+    system = phast_gym.make_env_system("PHAST/Pendulum-v0")
+    # linear: the acceleration prior is inactive, the MAP solution is the data -> exact slope, any sigma
+    est = MAPSmootherEstimator(system, dt, sigma=0.05, window=10)
+    out = [est.update(np.array([0.3 + 1.7 * ti])) for ti in t]
+    np.testing.assert_allclose(np.array(out)[1:, 0], 1.7, atol=1e-9)
+    # noiseless (sigma = 0): exact backward difference of a quadratic, = derivative at t - dt/2
+    est0 = MAPSmootherEstimator(system, dt, sigma=0.0, window=10)
+    qq = 0.5 * t**2
+    out0 = np.array([est0.update(np.array([v])) for v in qq])[:, 0]
+    np.testing.assert_allclose(out0[1:], t[1:] - dt / 2, atol=1e-9)
+    # the closed form is one dot product whose weights annihilate constants and read slopes exactly
+    c = map_smoother_weights(10, dt, 0.05, 10.0)
+    assert abs(c.sum()) < 1e-9 and abs(c @ np.arange(10) * dt - 1.0) < 1e-9
+
+
+def test_map_smoother_unwraps_inside_window() -> None:
+    dt = 0.01
+    system = phast_gym.make_env_system("PHAST/Pendulum-v0")
+    est = MAPSmootherEstimator(system, dt, sigma=0.01, window=8)
+    q = np.pi - 0.2 + 3.0 * np.arange(30) * dt  # crosses +pi
+    out = [est.update(np.array([phast_gym.wrap(v)])) for v in q]
+    np.testing.assert_allclose(np.array(out)[1:, 0], 3.0, atol=1e-8)
+
+
+def test_finite_difference_wrap_aware() -> None:
+    system = phast_gym.make_env_system("PHAST/Pendulum-v0")
+    fd = make_estimator("fd", system, 0.01)
+    fd.update(np.array([math.pi - 0.01]))
+    assert fd.update(np.array([-math.pi + 0.01]))[0] == pytest.approx(2.0, abs=1e-9)
+
+
+def test_ukf_tracks_velocity_under_noise() -> None:
+    ep, _ = _loop("PHAST/DampedPendulum-v0", k_xi=5.0, steps=300, sigma=0.05, estimator="ekf")
+    assert np.mean(np.abs(ep.y_hat[50:, 0] - ep.qdot[50:, 0])) < 0.1
+
+
+def test_fd_noise_vs_ekf_in_evaluation() -> None:
+    protocol = ControlProtocol(horizon=600, settle_steps=100)
+    rows, _ = evaluate(protocol, ["fd", "ekf"], [0.05], trials_per_regime=1, progress=False)
+    by = {(r["estimator"], r["regime"]): r for r in rows}
+    assert len(rows) == 12 and by[("fd", "all")]["n_trials"] == 5
+    assert by[("fd", "all")]["velocity_error"] > 10 * by[("ekf", "all")]["velocity_error"]
+    assert by[("fd", "all")]["effort"] > by[("ekf", "all")]["effort"]
+
+
+def test_wrapper_passes_env_checker_and_runs() -> None:
+    from gymnasium.utils.env_checker import check_env
+
+    env = EnergyCasimirWrapper(gym.make("PHAST/DampedPendulum-v0", obs_noise_std=0.01), estimator="map", k_c=2.0, d_inj=0.5)
+    check_env(env, skip_render_check=True)
+    obs, info = env.reset(seed=0, options={"state": np.array([1.0, 0.0])})
+    for _ in range(200):
+        obs, _, _, _, info = env.step(np.zeros(1, dtype=np.float32))
+    assert {"u", "xi", "y_hat", "v_ext"} <= set(info)
+    assert abs(phast_gym.wrap(info["state"][0])) < 1.0
+
+
+def test_bad_gains_and_targets_are_refused() -> None:
+    system = phast_gym.make_env_system("PHAST/Pendulum-v0")
+    est = make_estimator("oracle", system, 0.01)
+    with pytest.raises(ValueError, match="negative"):
+        EnergyCasimirController(est, 0.0, k_c=-1.0, d_inj=0.5)
+    with pytest.raises(ValueError, match="negative"):
+        EnergyCasimirController(est, 0.0, k_c=1.0, d_inj=-0.5)
+    with pytest.raises(ValueError, match="m g l"):
+        EnergyCasimirController(est, math.pi, k_c=5.0, d_inj=0.5)  # m g l = 9.81
+    EnergyCasimirController(est, math.pi, k_c=15.0, d_inj=0.5)  # upright is fine above m g l
+    with pytest.raises(ValueError, match="not an equilibrium"):
+        EnergyCasimirController(est, 1.0, k_c=5.0, d_inj=0.5)
+    with pytest.raises(ValueError, match="k_xi"):
+        EnergyCasimirController(est, 0.0, k_c=1.0, d_inj=0.5, k_xi=500.0)
+    with pytest.raises(ValueError, match="finite"):
+        EnergyCasimirController(est, 0.0, k_c=float("nan"), d_inj=0.5)
+
+
+def test_unknown_estimator_and_missing_info() -> None:
+    system = phast_gym.make_env_system("PHAST/Pendulum-v0")
+    with pytest.raises(ValueError, match="unknown port estimator 'kalman'.*valid names"):
+        make_estimator("kalman", system, 0.01)
+    with pytest.raises(ValueError, match="info"):
+        make_estimator("oracle", system, 0.01).update(np.zeros(1), None)
+    with pytest.raises(ValueError, match="sigma"):
+        make_estimator("map", system, 0.01, sigma=-1.0)
+    with pytest.raises(ValueError, match="unknown port estimator 'nope'"):
+        EnergyCasimirWrapper(gym.make("PHAST/Pendulum-v0"), estimator="nope")
+    with pytest.raises(gym.error.ResetNeeded):
+        EnergyCasimirWrapper(gym.make("PHAST/Pendulum-v0"), estimator="fd").step(np.zeros(1, dtype=np.float32))
+
+
+def test_upright_stabilisation() -> None:
+    protocol = ControlProtocol(env_id="PHAST/DampedPendulum-v0", horizon=1000, q_star=math.pi, k_c=20.0, d_inj=3.0,
+                               settle_steps=100)
+    rows, _ = evaluate(protocol, ["oracle"], [0.0], trials_per_regime=1, progress=False)
+    assert next(r for r in rows if r["regime"] == "all")["success_rate"] == 1.0
+
+
+def test_tcn_numpy_inference_matches_torch() -> None:
+    torch = pytest.importorskip("torch")
+    from phast_model.control import TCNEstimator, TCNObserverConfig, train_tcn_observer
+
+    protocol = ControlProtocol()
+    cfg = TCNObserverConfig(noise_mode="conditioned", n_traj=5, traj_steps=200, crop=80, iters=3, batch_size=4)
+    model, report = train_tcn_observer(protocol, cfg)
+    assert math.isfinite(report["final_loss"])
+    system = make_control_env(protocol).unwrapped.system
+    est = TCNEstimator(system, protocol.dt, model, sigma=0.02)
+    q = phast_gym.wrap(np.cumsum(np.random.default_rng(0).normal(0, 0.05, (70, 1)), 0) + 3.0)
+    out = np.array([est.update(v) for v in q])
+    with torch.no_grad():
+        ref = model(torch.as_tensor(q)[None], torch.tensor([0.02], dtype=torch.float64))[0].numpy()
+    w = model.window
+    np.testing.assert_allclose(out[w:], ref[w:], atol=1e-9)
+
+
+def test_cli_writes_results(tmp_path) -> None:
+    from phast_model.cli.control_eval import main
+
+    out = tmp_path / "ce"
+    rc = main(["--estimators", "oracle,fd", "--sigma", "0,0.05", "--trials-per-regime", "1", "--horizon", "300",
+               "--out", str(out), "--no-progress"])
+    assert rc == 0
+    rows = json.loads((out / "results.json").read_text())
+    assert len(rows) == 2 * 2 * 6
+    assert {"sigma", "estimator", "regime", "n_trials", "success_rate", "final_error", "effort", "velocity_error"} <= set(rows[0])
+    assert (out / "results.md").read_text().count("| 0.05 |") >= 2
+    assert (out / "success_by_regime.png").is_file() and (out / "traces_sigma0.05.png").is_file()
+    assert main(["--estimators", "oracle,bogus", "--out", str(out)]) == 2
+    assert main(["--estimators", "oracle", "--sigma", "-1", "--out", str(out)]) == 2
