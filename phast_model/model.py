@@ -60,6 +60,7 @@ class PHASTConfig:
     observer_hidden: int = 32
     observer_layers: int = 2
     use_tcn: bool = True
+    observer_fd_order: int = 4
     potential_hidden: int = 64
     potential_layers: int = 3
     hybrid_eps: float = 0.01
@@ -110,6 +111,8 @@ class PHAST(ForecastModel):
         self.core = core
         self.actuated_dofs = tuple(actuated_dofs)
         self.register_buffer("G", torch.eye(self.n)[:, list(self.actuated_dofs)])
+        #: training leaves out predictions made before the backward difference has all its samples
+        self.loss_skip = int(getattr(observer, "fd_order", 1))
 
     # ---- public pieces (control and mismatch reuse these) --------------------
     @property
@@ -169,6 +172,15 @@ class PHAST(ForecastModel):
         q1, _ = self.core.strang_step(q, p, self.port_force(u), need_p=False)
         return wrap_angles(q1, self.angle_dims)
 
+    def predict_next(self, hist: torch.Tensor, u_t: torch.Tensor | None = None) -> torch.Tensor:
+        """One autoregressive step: history (B, >=1, n) (only the observer window is used) and u_t (B, m)
+        held over [t, t+1] -> q_{t+1} (B, n), angles wrapped."""
+        hist = hist[:, -self.observer.window:]
+        v = self.observer(hist)[:, -1]
+        qt = hist[:, -1]
+        q1, _ = self.core.strang_step(qt, self.canonicalize(qt, v), self.port_force(u_t), need_p=False)
+        return wrap_angles(q1, self.angle_dims)
+
     @torch.no_grad()
     def rollout(self, q_burn: torch.Tensor, u: torch.Tensor | None, H: int) -> torch.Tensor:
         """Autoregressive rollout; the observer is re-run on its finite window only (exactly the
@@ -178,11 +190,8 @@ class PHAST(ForecastModel):
         hist = q[:, -W:]
         preds = []
         for h in range(H):
-            v = self.observer(hist)[:, -1]
-            qt = hist[:, -1]
             ut = None if u is None else (u[:, K - 1 + h] if K - 1 + h < u.shape[1] else torch.zeros_like(u[:, 0]))
-            q1, _ = self.core.strang_step(qt, self.canonicalize(qt, v), self.port_force(ut), need_p=False)
-            q1 = wrap_angles(q1, self.angle_dims)
+            q1 = self.predict_next(hist, ut)
             preds.append(q1)
             hist = torch.cat([hist, q1.unsqueeze(1)], 1)[:, -W:]
         return torch.stack(preds, 1)
@@ -376,7 +385,8 @@ def build_from_config(cfg: PHASTConfig) -> PHAST:
     q_scale, v_scale = system_scales(system)
     angle = tuple(system.angle_dims)
     observer = FDTCNObserver(n, system.dt, angle, hidden=cfg.observer_hidden, layers=cfg.observer_layers,
-                             q_scale=torch.as_tensor(q_scale), v_scale=torch.as_tensor(v_scale), use_tcn=cfg.use_tcn)
+                             q_scale=torch.as_tensor(q_scale), v_scale=torch.as_tensor(v_scale), use_tcn=cfg.use_tcn,
+                             fd_order=cfg.observer_fd_order)
     if cfg.kind == "latent_ode":
         qs, vs = float(np.mean(q_scale)) if len(q_scale) else 1.0, float(np.mean(v_scale))
         fld: nn.Module

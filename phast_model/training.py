@@ -42,6 +42,7 @@ class TrainConfig:
     seed: int = 0
     progress: bool = True
     lambda_data: float = 1.0  # weight of L_data (Eq. 85); PHAST's other weights live in its config
+    skip_first: int | None = None  # predictions t < skip_first left out of the loss (None: model.loss_skip or 0)
     grad_clip: float | None = 10.0  # max grad norm (None: off)
     max_nan_events: int = 5  # rollbacks allowed before training stops
     nan_lr_factor: float = 0.5  # lr multiplier after a rollback
@@ -85,22 +86,28 @@ def _tensors(ds: Any, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor | 
     return q, u
 
 
-def next_step_loss(model: ForecastModel, q: torch.Tensor, u: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
-    """(L_data, predictions): mean squared next-step error, wrapped on angles (Eq. 85)."""
+def next_step_loss(model: ForecastModel, q: torch.Tensor, u: torch.Tensor | None,
+                   skip_first: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
+    """(L_data, predictions): mean squared next-step error, wrapped on angles (Eq. 85).
+
+    ``skip_first`` leaves out predictions made from fewer than ``skip_first + 1`` samples (a q-only model
+    cannot know the velocity at t = 0; fitting those steps only biases the dynamics)."""
     pred = model(q, u)
-    err = coordinate_error(pred[:, :-1], q[:, 1:], model.angle_dims)
+    s = min(int(skip_first), q.shape[1] - 2)
+    err = coordinate_error(pred[:, s:-1], q[:, s + 1:], model.angle_dims)
     return (err * err).mean(), pred
 
 
 @torch.no_grad()
-def validation_loss(model: ForecastModel, q: torch.Tensor, u: torch.Tensor | None, batch_size: int = 256) -> float:
+def validation_loss(model: ForecastModel, q: torch.Tensor, u: torch.Tensor | None, batch_size: int = 256,
+                    skip_first: int = 0) -> float:
     """Teacher-forced next-step MSE over a whole split (the selection criterion)."""
     was = model.training
     model.eval()
     tot, cnt = 0.0, 0
     for i in range(0, q.shape[0], batch_size):
         qb = q[i:i + batch_size]
-        loss, _ = next_step_loss(model, qb, None if u is None else u[i:i + batch_size])
+        loss, _ = next_step_loss(model, qb, None if u is None else u[i:i + batch_size], skip_first)
         tot += float(loss) * qb.shape[0]
         cnt += qb.shape[0]
     model.train(was)
@@ -140,6 +147,7 @@ def fit(model: ForecastModel, train: Any, val: Any, cfg: TrainConfig | None = No
     q_va, u_va = _tensors(val, dtype)
     if q_tr.shape[-1] != model.n:
         raise ValueError(f"model has n={model.n} coordinates, training data has {q_tr.shape[-1]}")
+    skip = int(cfg.skip_first if cfg.skip_first is not None else getattr(model, "loss_skip", 0))
     torch.manual_seed(cfg.seed)
     gen = torch.Generator().manual_seed(cfg.seed)
     opt = torch.optim.AdamW([p for p in model.parameters() if p.requires_grad], lr=cfg.lr, weight_decay=cfg.weight_decay)
@@ -190,7 +198,7 @@ def fit(model: ForecastModel, train: Any, val: Any, cfg: TrainConfig | None = No
             idx = perm[b * cfg.batch_size:(b + 1) * cfg.batch_size]
             qb = q_tr[idx]
             ub = None if u_tr is None else u_tr[idx]
-            loss, pred = next_step_loss(model, qb, ub)
+            loss, pred = next_step_loss(model, qb, ub, skip)
             loss = cfg.lambda_data * loss
             hook = getattr(model, "extra_losses", None)
             if hook is not None:
@@ -225,7 +233,7 @@ def fit(model: ForecastModel, train: Any, val: Any, cfg: TrainConfig | None = No
             history.append(rec)
             break
         if (epoch + 1) % cfg.val_every == 0 or epoch + 1 == cfg.epochs:
-            vl = validation_loss(model, q_va, u_va, cfg.val_batch_size)
+            vl = validation_loss(model, q_va, u_va, cfg.val_batch_size, skip)
             rec["val_loss"] = vl
             if math.isfinite(vl) and vl < best_val:
                 best_val, best_epoch, best_state = vl, epoch + 1, copy.deepcopy(model.state_dict())
@@ -236,7 +244,7 @@ def fit(model: ForecastModel, train: Any, val: Any, cfg: TrainConfig | None = No
     bar.close()
     if best_epoch < 0:  # never validated (stopped early): validate what we have if it is finite
         if _finite_params(model):
-            vl = validation_loss(model, q_va, u_va, cfg.val_batch_size)
+            vl = validation_loss(model, q_va, u_va, cfg.val_batch_size, skip)
             if math.isfinite(vl):
                 best_val, best_epoch, best_state = vl, len(history), copy.deepcopy(model.state_dict())
     model.load_state_dict(best_state)

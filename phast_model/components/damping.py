@@ -56,7 +56,7 @@ class HouseholderDamping(Damping):
                 last.bias[self.rank * n:] = math.log(math.expm1(beta_init))
         self.learn_d0 = bool(learn_d0)
         if self.learn_d0:
-            self.raw_d0 = nn.Parameter(torch.tensor(math.log(math.expm1(max(d0, 1e-3)))))
+            self.raw_d0 = nn.Parameter(torch.tensor(math.log(math.expm1(max(d0, 0.1)))))  # softplus must stay responsive
         else:
             self.register_buffer("fixed_d0", torch.tensor(float(d0)))
 

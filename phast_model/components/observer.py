@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -27,11 +28,22 @@ def finite_difference(q: torch.Tensor, dt: float, angle_dims: tuple[int, ...]) -
     return torch.cat([torch.zeros_like(q[:, :1]), d / dt], dim=1)
 
 
+def backward_difference_weights(order: int) -> np.ndarray:
+    """Weights w_k with qdot_t ~= sum_k w_k qdot_fd_{t-k} (k = 0..order-1): the backward-difference
+    formula of the given order, rewritten on first differences."""
+    nodes = -np.arange(order + 1, dtype=np.float64)
+    V = np.stack([nodes**m for m in range(order + 1)])
+    rhs = np.zeros(order + 1)
+    rhs[1] = 1.0
+    c = np.linalg.solve(V, rhs)  # qdot_t ~= sum_j c_j q_{t-j} / dt
+    return -np.array([c[k + 1:].sum() for k in range(order)])
+
+
 class CausalConv1d(nn.Conv1d):
     """Conv1d over (B, C, T) with left padding only (output t sees inputs <= t)."""
 
-    def __init__(self, c_in: int, c_out: int, kernel_size: int, dilation: int = 1) -> None:
-        super().__init__(c_in, c_out, kernel_size, dilation=dilation)
+    def __init__(self, c_in: int, c_out: int, kernel_size: int, dilation: int = 1, groups: int = 1, bias: bool = True) -> None:
+        super().__init__(c_in, c_out, kernel_size, dilation=dilation, groups=groups, bias=bias)
         self.left = (kernel_size - 1) * dilation
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -43,7 +55,7 @@ class FDTCNObserver(nn.Module):
 
     def __init__(self, n: int, dt: float, angle_dims: tuple[int, ...] = (), hidden: int = 32, layers: int = 2,
                  kernel_size: int = 3, q_scale: torch.Tensor | float = 1.0, v_scale: torch.Tensor | float = 1.0,
-                 use_tcn: bool = True) -> None:
+                 use_tcn: bool = True, fd_order: int = 4) -> None:
         super().__init__()
         self.n, self.dt, self.angle_dims = n, float(dt), tuple(angle_dims)
         n_eu = n - len(self.angle_dims)
@@ -55,13 +67,24 @@ class FDTCNObserver(nn.Module):
         for i in range(layers):
             convs.append(CausalConv1d(c_in if i == 0 else hidden, hidden, kernel_size, dilation=2**i))
         self.convs = nn.ModuleList(convs)
-        self.head = nn.Conv1d(hidden, n, 1)
-        nn.init.zeros_(self.head.weight)  # start as the plain finite-difference observer
-        nn.init.zeros_(self.head.bias)
         #: receptive field of the TCN in samples; the FD needs one more sample before it
         self.receptive_field = 1 + sum((kernel_size - 1) * 2**i for i in range(layers))
         #: the estimate at t depends on q_{t-window+1 .. t} only
         self.window = self.receptive_field + 1
+        self.head = nn.Conv1d(hidden, n, 1)
+        nn.init.zeros_(self.head.weight)  # start as the plain finite-difference observer
+        nn.init.zeros_(self.head.bias)
+        # linear skip path of the TCN over qdot_fd (a learnable causal FIR filter), initialized so that
+        # qdot_fd + skip is the backward-difference formula of order ``fd_order`` (order 2:
+        # (3 q_t - 4 q_{t-1} + q_{t-2}) / (2 dt)); order 1 = plain FD
+        self.fd_order = int(fd_order)
+        if not 1 <= self.fd_order <= self.receptive_field:
+            raise ValueError(f"fd_order must be in [1, {self.receptive_field}], got {fd_order!r}")
+        self.skip = CausalConv1d(n, n, self.fd_order, groups=n, bias=False)
+        with torch.no_grad():
+            w = torch.as_tensor(backward_difference_weights(self.fd_order), dtype=torch.float32)
+            w[0] -= 1.0  # the plain FD is already added
+            self.skip.weight.copy_(w.flip(0).expand(n, 1, self.fd_order))
 
     def forward(self, q: torch.Tensor) -> torch.Tensor:
         """(B, T, n) positions -> (B, T, n) velocity estimates qdot_hat (Eq. 7)."""
@@ -69,7 +92,8 @@ class FDTCNObserver(nn.Module):
         if not self.use_tcn:
             return v_fd
         x = torch.cat([coordinate_features(q, self.angle_dims, self.q_scale), v_fd / self.v_scale], -1).transpose(1, 2)
+        skip = self.skip(v_fd.transpose(1, 2))
         for conv in self.convs:
             x = nn.functional.silu(conv(x))
-        delta = self.head(x).transpose(1, 2) * self.v_scale
+        delta = (self.head(x) * self.v_scale.unsqueeze(-1) + skip).transpose(1, 2)
         return v_fd + delta

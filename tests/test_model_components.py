@@ -1,0 +1,169 @@
+"""PHAST components: PSD/SPD guarantees, Woodbury, passivity, causality, KNOWN == env physics."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from phast_gym import env_ids, make_env_system
+from phast_gym.integrate import simulate
+from phast_model.components import FDTCNObserver, HouseholderDamping, LowRankMass, NeuralPotential
+from phast_model.components.observer import backward_difference_weights
+from phast_model.core import PHASTCore
+from phast_model.regimes import REGIMES, build_model
+
+torch.set_num_threads(1)
+FAST = settings(max_examples=15, deadline=None)
+
+
+@FAST
+@given(n=st.integers(1, 5), rank=st.integers(1, 3), seed=st.integers(0, 10_000),
+       cap=st.one_of(st.none(), st.floats(0.05, 3.0)), d0=st.floats(0.0, 1.0))
+def test_damping_psd_and_cap(n, rank, seed, cap, d0):
+    torch.manual_seed(seed)
+    damp = HouseholderDamping(n, rank=rank, cap=cap, d0=d0, learn_d0=cap is None).double()
+    for p in damp.net.parameters():  # random, large parameters
+        p.data.normal_(0, 2.0)
+    q = torch.randn(64, n, dtype=torch.float64) * 3
+    D = damp.matrix(q)
+    eig = torch.linalg.eigvalsh(D)
+    assert eig.min() >= -1e-9
+    assert torch.allclose(D, D.transpose(-1, -2))
+    beta, k = damp.terms(q)
+    assert torch.allclose(k.norm(dim=-1), torch.ones_like(beta), atol=1e-6)
+    if cap is not None:
+        assert float(beta.sum(-1).max().detach()) <= cap + 1e-9
+        assert float(eig.max().detach()) <= float(damp.d0.detach()) + cap + 1e-9  # certified lambda_max bound (Eq. 11)
+    v = torch.randn(64, n, dtype=torch.float64)
+    assert torch.allclose(damp.apply(q, v), (D @ v.unsqueeze(-1)).squeeze(-1), atol=1e-10)  # O(n r) == dense
+    assert torch.allclose(damp.diag(q), torch.diagonal(D, dim1=-2, dim2=-1), atol=1e-10)
+
+
+@FAST
+@given(n=st.integers(1, 6), rank=st.integers(1, 4), seed=st.integers(0, 10_000))
+def test_mass_spd_and_woodbury(n, rank, seed):
+    torch.manual_seed(seed)
+    mass = LowRankMass(n, rank, seed=seed).double()
+    mass.raw_d.data.normal_(0, 1.0)
+    mass.U.data.normal_(0, 1.0)
+    M = mass.matrix()
+    assert float(torch.linalg.eigvalsh(M).min()) > 0
+    p = torch.randn(7, 3, n, dtype=torch.float64)
+    dense = torch.linalg.solve(M, p.reshape(-1, n).T).T.reshape(p.shape)
+    assert torch.allclose(mass.velocity(None, p), dense, atol=1e-9, rtol=1e-9)
+    assert torch.allclose(mass.momentum(None, mass.velocity(None, p)), p, atol=1e-9)
+
+
+@FAST
+@given(n=st.integers(1, 4), seed=st.integers(0, 10_000))
+def test_continuous_time_passivity(n, seed):
+    """dH/dt = grad_q H . qdot + grad_p H . pdot = -v^T D v <= 0 for random parameters, u = 0 (Thm. A.1)."""
+    torch.manual_seed(seed)
+    pot = NeuralPotential(n).double()
+    mass = LowRankMass(n, 2, seed=seed).double()
+    mass.U.data.normal_(0, 1.0)
+    damp = HouseholderDamping(n, rank=2).double()
+    for p in damp.net.parameters():
+        p.data.normal_(0, 1.0)
+    core = PHASTCore(pot, mass, damp, dt=0.05).double()
+    q = torch.randn(32, n, dtype=torch.float64, requires_grad=True)
+    p = torch.randn(32, n, dtype=torch.float64, requires_grad=True)
+    H = core.hamiltonian(q, p)
+    gq, gp = torch.autograd.grad(H.sum(), (q, p))
+    qdot = gp
+    pdot = -gq - damp.apply(q, gp)
+    dHdt = (gq * qdot).sum(-1) + (gp * pdot).sum(-1)
+    assert float(dHdt.max()) <= 1e-9
+    assert torch.allclose(dHdt, core.power(q, p), atol=1e-8)
+
+
+@FAST
+@given(n=st.integers(1, 4), seed=st.integers(0, 10_000), cap=st.floats(0.1, 5.0))
+def test_damping_half_step_energy_nonincreasing(n, seed, cap):
+    """Phi_D(h/2) does not increase the kinetic energy when h lambda_max(D) / (2 lambda_min(M)) <= 2 (Eq. 44)."""
+    torch.manual_seed(seed)
+    mass = LowRankMass(n, 2, seed=seed).double()
+    damp = HouseholderDamping(n, rank=2, cap=cap, d0=0.1, learn_d0=False).double()
+    for p in damp.net.parameters():
+        p.data.normal_(0, 1.0)
+    core = PHASTCore(NeuralPotential(n).double(), mass, damp, dt=0.05).double()
+    lam_min = float(torch.linalg.eigvalsh(mass.matrix()).min())
+    h = torch.tensor(0.999 * 4.0 * lam_min / (0.1 + cap))  # (almost) the largest step the condition allows
+    q = torch.randn(64, n, dtype=torch.float64)
+    p = torch.randn(64, n, dtype=torch.float64)
+    p1 = core.damping_half_step(q, p, h)
+    H0, H1 = core.hamiltonian(q, p), core.hamiltonian(q, p1)
+    assert bool((H1 <= H0 + 1e-9 * (1 + H0.abs())).all())
+
+
+def test_observer_causal():
+    obs = FDTCNObserver(2, 0.05, angle_dims=(1,))
+    for p in obs.parameters():
+        p.data.normal_(0, 0.5)
+    q = torch.randn(3, 40, 2)
+    base = obs(q)
+    q2 = q.clone()
+    q2[:, 25:] += torch.randn(3, 15, 2) * 5
+    out = obs(q2)
+    assert torch.allclose(base[:, :25], out[:, :25])
+    assert not torch.allclose(base[:, 25:], out[:, 25:])
+    # finite receptive field: the last estimate only depends on the last `window` samples
+    assert torch.allclose(obs(q)[:, -1], obs(q[:, -obs.window:])[:, -1], atol=1e-6)
+
+
+def test_backward_difference_exact_on_polynomials():
+    for order in (1, 2, 4):
+        w = backward_difference_weights(order)
+        t = np.arange(-order, 1) * 0.1
+        q = 0.3 * t**order + t  # degree `order` polynomial: BDF of that order is exact
+        d = np.diff(q)[::-1] / 0.1  # d_k = (q_{t-k} - q_{t-k-1}) / dt
+        assert np.isclose((w * d).sum(), 1.0 + (0.3 * order * 0.0 if order > 1 else 0.3), atol=1e-9)
+
+
+def test_known_model_reproduces_env():
+    """KNOWN V, M and the env's true damping, true p, small substeps: the core matches the env's RK4."""
+    env = "PHAST/WindyCartPole-v0"
+    system = make_env_system(env)
+    x0 = system.sample_initial(np.random.default_rng(0), 8)
+    traj = simulate(system, x0, 20)
+    model = build_model(env, "known", damping="known", substeps=40, learn_dt=False, midpoint_iters=8).double()
+    n = system.n
+    q = torch.as_tensor(traj[:, 0, :n])
+    p = torch.as_tensor(traj[:, 0, n:])
+    for _t in range(20):
+        q, p = model.step(q, p)
+    assert np.allclose(q.numpy(), traj[:, 20, :n], atol=2e-4)
+    assert np.allclose(p.numpy(), traj[:, 20, n:], atol=2e-4)
+
+
+@pytest.mark.parametrize("env_id", env_ids())
+def test_every_regime_builds_and_is_finite(env_id):
+    for regime in REGIMES:
+        model = build_model(env_id, regime)
+        q = torch.randn(2, 16, model.n).abs() + 0.5
+        out = model(q)
+        assert out.shape == q.shape and bool(torch.isfinite(out).all())
+        roll = model.rollout(q[:, :10], None, 3)
+        assert roll.shape == (2, 3, model.n)
+
+
+def test_fast_rollout_equals_generic_definition():
+    model = build_model("PHAST/WindyPendulum-v0", "partial").double()
+    for p in model.observer.parameters():
+        p.data.normal_(0, 0.3)
+    q = torch.rand(3, 10, 1, dtype=torch.float64) * 2 - 1
+    fast = model.rollout(q, None, 15)
+    slow = super(type(model), model).rollout(q, None, 15)  # ForecastModel's O(H^2) reference
+    assert torch.allclose(fast, slow, atol=1e-9)
+
+
+def test_bad_config_values_raise():
+    with pytest.raises(ValueError, match="regime"):
+        build_model("PHAST/WindyPendulum-v0", "magic")
+    with pytest.raises(ValueError, match="override"):
+        build_model("PHAST/WindyPendulum-v0", "known", not_a_field=1)
+    with pytest.raises(ValueError, match="cap"):
+        HouseholderDamping(2, cap=-1.0)
