@@ -79,7 +79,7 @@ class PHASTWorldModelEnv(gym.Env):
         qb = self._burn_in_window(options)
         self._hist = torch.as_tensor(qb[None, -self.model.observer.window:], dtype=self._dtype)
         self._t = 0
-        return self._obs(), {"burn_in": qb}
+        return self._obs(), {"burn_in": np.array(qb, copy=True)}
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
         if self._hist is None:

@@ -1,0 +1,188 @@
+"""fit / evaluate / checkpoints / load_run / world-model env / phast-train, on tiny data (fast)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from phast_gym import make_splits
+from phast_model.api import load_run, predict
+from phast_model.checkpoint import save_run
+from phast_model.metrics import benchmark_metric, evaluate
+from phast_model.regimes import build_model
+from phast_model.training import TrainConfig, fit, next_step_loss
+
+torch.set_num_threads(1)
+ENV = "PHAST/WindyPendulum-v0"
+
+
+@pytest.fixture(scope="module")
+def splits():
+    return make_splits(ENV, 48, 16, 16, T=60, seed=3)
+
+
+def _loss(model, ds):
+    with torch.no_grad():
+        return float(next_step_loss(model, torch.as_tensor(ds.q, dtype=torch.float32), None, 4)[0])
+
+
+def test_short_training_lowers_loss_and_keeps_best(splits):
+    model = build_model(ENV, "unknown", seed=1)
+    before = _loss(model, splits["val"])
+    res = fit(model, splits["train"], splits["val"], TrainConfig(epochs=6, batch_size=16, val_every=2, lr=3e-3, progress=False))
+    after = _loss(res.model, splits["val"])
+    assert after < 0.5 * before
+    vals = [h["val_loss"] for h in res.history if "val_loss" in h]
+    assert len(vals) == 3 and math.isclose(res.best_val, min(vals))
+    assert res.wall_time_s > 0 and res.nan_events == 0
+
+
+def test_evaluate_keys(splits):
+    model = build_model(ENV, "known")
+    m = evaluate(model, splits["test"], horizons=(10, 50))
+    for k in ("theta_wrap_mse", "mse", "rollout_theta_wrap_mse_h10", "rollout_theta_wrap_mse_h50", "rollout_takeover_mse_h10",
+              "damping_r2", "damping_mae", "rollout_energy_budget_resid_h50", "rollout_passivity_violations_h50", "n_parameters"):
+        assert k in m and np.isfinite(m[k]), k
+    assert 0.0 <= m["rollout_passivity_violations_h50"] <= 1.0
+    assert benchmark_metric(ENV) == "rollout_theta_wrap_mse_h100"
+    assert benchmark_metric("PHAST/WindyCartPole-v0") == "rollout_mixed_mse_h100"
+
+
+def test_resume_matches_uninterrupted(splits, tmp_path):
+    cfg = TrainConfig(epochs=4, batch_size=16, val_every=2, progress=False)
+    full = fit(build_model(ENV, "partial"), splits["train"], splits["val"], cfg, run_dir=tmp_path / "a")
+    half = TrainConfig(**{**cfg.__dict__})
+    # interrupt: run 2 epochs by stopping through a checkpoint of an identical 4-epoch schedule
+    model = build_model(ENV, "partial")
+    fit(model, splits["train"], splits["val"], cfg, run_dir=tmp_path / "b")  # writes checkpoint at epoch 4
+    ck = torch.load(tmp_path / "b" / "checkpoint.pt", weights_only=True)
+    assert ck["epoch"] == 4
+    resumed = fit(build_model(ENV, "partial"), splits["train"], splits["val"], half, run_dir=tmp_path / "b", resume=True)
+    assert len(resumed.history) == 4  # nothing left to do: history restored, no extra epochs
+    for a, b in zip(full.model.state_dict().values(), resumed.model.state_dict().values()):
+        assert torch.allclose(a, b)
+
+
+def test_resume_mid_run_is_exact(splits, tmp_path):
+    cfg = TrainConfig(epochs=4, batch_size=16, val_every=2, progress=False)
+    ref = fit(build_model(ENV, "known"), splits["train"], splits["val"], cfg)
+    # run 2 epochs of the same 4-epoch schedule, "crash", then resume
+    run = tmp_path / "r"
+    model = build_model(ENV, "known")
+
+    class Crash(Exception):
+        pass
+
+    orig = torch.optim.lr_scheduler.CosineAnnealingLR.step
+    calls = {"n": 0}
+    n_batches = math.ceil(48 / 16)
+
+    def crashing_step(self, *a, **k):
+        calls["n"] += 1
+        if calls["n"] > 2 * n_batches:
+            raise Crash
+        return orig(self, *a, **k)
+
+    torch.optim.lr_scheduler.CosineAnnealingLR.step = crashing_step
+    try:
+        with pytest.raises(Crash):
+            fit(model, splits["train"], splits["val"], cfg, run_dir=run)
+    finally:
+        torch.optim.lr_scheduler.CosineAnnealingLR.step = orig
+    res = fit(build_model(ENV, "known"), splits["train"], splits["val"], cfg, run_dir=run, resume=True)
+    assert [h["epoch"] for h in res.history] == [1, 2, 3, 4]
+    for a, b in zip(ref.model.state_dict().values(), res.model.state_dict().values()):
+        assert torch.allclose(a, b, atol=1e-6)
+
+
+def test_nan_guard_rolls_back(splits):
+    model = build_model(ENV, "unknown")
+    orig = model.forward
+    calls = {"n": 0}
+
+    def flaky(q, u=None):
+        calls["n"] += 1
+        out = orig(q, u)
+        return out * float("nan") if calls["n"] == 2 else out
+
+    model.forward = flaky
+    res = fit(model, splits["train"], splits["val"], TrainConfig(epochs=2, batch_size=16, val_every=1, progress=False))
+    assert res.nan_events == 1
+    assert all(bool(torch.isfinite(p).all()) for p in res.model.parameters())
+    assert res.history[-1]["lr"] >= 0 and math.isfinite(res.best_val)
+
+
+def test_save_load_round_trip_and_predict(tmp_path, splits):
+    model = build_model(ENV, "partial", seed=2)
+    save_run(model, tmp_path)
+    loaded = load_run(tmp_path)
+    q = torch.as_tensor(splits["test"].q[:3], dtype=torch.float32)
+    assert torch.allclose(model(q), loaded(q))
+    out = predict(tmp_path, splits["test"].q[0, :10], H=5)
+    assert out.shape == (5, 1)
+    out_u = predict(loaded, splits["test"].q[:2, :10], u_seq=np.zeros((7, 1)))
+    assert out_u.shape == (2, 7, 1)
+    with pytest.raises(ValueError, match="q_history"):
+        predict(loaded, np.zeros((10, 3)), H=2)
+
+
+def test_corrupted_and_foreign_checkpoints(tmp_path):
+    model = build_model(ENV, "known")
+    save_run(model, tmp_path / "ok")
+    with pytest.raises(ValueError, match="missing"):
+        load_run(tmp_path / "nowhere")
+    bad = tmp_path / "bad"
+    save_run(model, bad)
+    (bad / "model.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(ValueError, match="corrupted"):
+        load_run(bad)
+    foreign = tmp_path / "foreign"
+    save_run(build_model("PHAST/WindyCartPole-v0", "known"), foreign)
+    (foreign / "config.json").write_text((tmp_path / "ok" / "config.json").read_text())
+    with pytest.raises(ValueError, match="does not match"):
+        load_run(foreign)
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "config.json").write_text(json.dumps({"format": "something-else"}))
+    with pytest.raises(ValueError, match="not a PHAST run"):
+        load_run(other)
+    (other / "config.json").write_text("{trunc")
+    with pytest.raises(ValueError, match="corrupted"):
+        load_run(other)
+
+
+def test_world_model_env_passes_check_env(splits):
+    from gymnasium.utils.env_checker import check_env
+
+    from phast_model.world_env import PHASTWorldModelEnv
+
+    env = PHASTWorldModelEnv(build_model(ENV, "known"), dataset=splits["test"], max_episode_steps=20)
+    check_env(env, skip_render_check=True)
+    obs, info = env.reset(seed=0, options={"q_burn": splits["test"].q[1, :10]})
+    assert env.observation_space.contains(obs)
+    obs, r, term, trunc, info = env.step(env.action_space.sample())
+    assert np.isfinite(r) and env.observation_space.contains(obs)
+    env2 = PHASTWorldModelEnv(build_model(ENV, "known"), max_episode_steps=5)  # burn-in from the real env
+    env2.reset(seed=1)
+    with pytest.raises(ValueError):
+        env2.step(np.array([np.nan], dtype=np.float32))
+
+
+def test_phast_train_cli(tmp_path):
+    from phast_model.cli.train import main
+
+    out = tmp_path / "run"
+    rc = main(["--env", ENV, "--regime", "partial", "--epochs", "1", "--n-train", "16", "--n-val", "8", "--n-test", "8",
+               "--T", "120", "--out", str(out), "--no-progress"])
+    assert rc == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert "rollout_theta_wrap_mse_h100" in metrics and "train_wall_time_s" in metrics
+    for f in ("model.pt", "config.json", "rollout.png", "phase.png", "damping.png", "energy.png", "checkpoint.pt"):
+        assert (out / f).exists(), f
+    assert load_run(out).n == 1
+    assert main(["--env", ENV, "--out", str(tmp_path / "x"), "--set", "bogus=1", "--epochs", "1", "--n-train", "8",
+                 "--n-val", "4", "--n-test", "4", "--T", "40", "--no-progress", "--no-plots"]) == 2
