@@ -190,3 +190,30 @@ def test_cli_writes_results(tmp_path) -> None:
     assert (out / "success_by_regime.png").is_file() and (out / "traces_sigma0.05.png").is_file()
     assert main(["--estimators", "oracle,bogus", "--out", str(out)]) == 2
     assert main(["--estimators", "oracle", "--sigma", "-1", "--out", str(out)]) == 2
+
+
+def test_phast_estimators_with_untrained_model() -> None:
+    torch = pytest.importorskip("torch")
+    from phast_model.control import PHASTModelEstimator, PHASTObserverEstimator
+    from phast_model.regimes import build_model
+
+    model = build_model("PHAST/DampedPendulum-v0", "known").eval()
+    system = make_control_env(ControlProtocol()).unwrapped.system
+    obs_est = PHASTObserverEstimator(system, 0.01, model)
+    assert obs_est.stride == round(model.observer.dt / 0.01)
+    q = 0.5 + 1.2 * np.arange(60) * 0.01
+    outs = np.array([obs_est.update(np.array([v])) for v in q])
+    assert np.all(np.isfinite(outs))
+    with torch.no_grad():
+        ref = model.observer(torch.as_tensor(q[::-obs_est.stride][::-1].copy(), dtype=next(model.parameters()).dtype)[None, :, None])
+    np.testing.assert_allclose(outs[-1, 0], float(ref[0, -1, 0]), rtol=1e-5, atol=1e-6)
+    full = PHASTModelEstimator(system, 0.01, model)
+    v = full.update(np.zeros(1), {"state": np.array([0.3, 1.5])})
+    with torch.no_grad():
+        dt_ = next(model.parameters()).dtype
+        v_ref = model.velocity(torch.tensor([[0.3]], dtype=dt_), torch.tensor([[1.5]], dtype=dt_))
+    np.testing.assert_allclose(v, v_ref[0].double().numpy(), rtol=1e-6)
+    with pytest.raises(ValueError, match="divide"):
+        PHASTObserverEstimator(make_control_env(ControlProtocol(dt=0.03)).unwrapped.system, 0.03, model)
+    with pytest.raises(ValueError, match="phast-run"):
+        make_estimator("phast-model", system, 0.01)
