@@ -99,6 +99,10 @@ def _git_commit() -> str | None:
         return None
 
 
+#: HEAD when this module was imported (the code a long-lived worker actually runs)
+_CODE_COMMIT = _git_commit()
+
+
 # --------------------------------------------------------------------------- data + models
 def load_splits(spec: RunSpec) -> dict[str, Any]:
     """The run's train/val/test datasets (cached on disk by phast_gym); full-state runs see (q, p)."""
@@ -189,7 +193,7 @@ def run_one(config: dict[str, Any], out_dir: str, threads: int = 1) -> dict[str,
         "best_val": _jsonable(getattr(fit_res, "best_val", None)),
         "fit_wall_time_s": float(getattr(fit_res, "wall_time_s", t_fit)), "wall_time_s": time.perf_counter() - t0,
         "history": _jsonable(list(getattr(fit_res, "history", []))),
-        "git_commit": _git_commit(), "host": socket.gethostname(), "python": platform.python_version(), "torch": torch.__version__,
+        "git_commit": _CODE_COMMIT, "host": socket.gethostname(), "python": platform.python_version(), "torch": torch.__version__,
         "threads": torch.get_num_threads(), "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }
     atomic_write_text(result_path(out_dir, spec), json.dumps(rec, indent=1, sort_keys=True))
@@ -233,6 +237,7 @@ def run_sweep(specs: list[RunSpec], out_dir: str | Path, backend: str = "local",
     out_dir.mkdir(parents=True, exist_ok=True)
     records: list[dict[str, Any]] = []
     pending: list[RunSpec] = []
+    specs = list({run_key(s): s for s in specs}.values())  # a run asked for twice runs once
     for spec in specs:
         rec = load_result(out_dir, spec)
         if rec is None:
