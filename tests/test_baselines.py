@@ -151,6 +151,12 @@ def test_scans_match_recurrence() -> None:
         x = torch.einsum("pij,bpj->bpi", M, x) + f[:, t]
         ref.append(x)
     assert torch.allclose(scan_2x2(M, f), torch.stack(ref, 1), atol=1e-4)
+    fc = torch.complex(f, torch.randn(f.shape, generator=g))  # complex forcing, real transition (LinOSS)
+    x, ref = torch.zeros(2, 5, 2, dtype=fc.dtype), []
+    for t in range(19):
+        x = torch.einsum("pij,bpj->bpi", M.to(fc.dtype), x) + fc[:, t]
+        ref.append(x)
+    assert torch.allclose(scan_2x2(M, fc), torch.stack(ref, 1), atol=1e-4)
 
 
 def test_oscillator_ssms_are_stable() -> None:
