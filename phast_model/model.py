@@ -49,6 +49,7 @@ class PHASTConfig:
     mass_rank: int = 1
     damping: str = "householder"  # householder | known | none
     damping_rank: int = 2
+    damping_hidden: int = 32
     damping_cap: float | None = None
     d0: float = 0.0
     learn_d0: bool = True
@@ -61,6 +62,8 @@ class PHASTConfig:
     observer_layers: int = 2
     use_tcn: bool = True
     observer_fd_order: int = 4
+    observer_trainable: bool = True  # False: the observer stays the backward-difference formula it starts as
+    damping_lr_mult: float = 1.0  # learning-rate multiplier of the damping parameters (see param_groups)
     potential_hidden: int = 64
     potential_layers: int = 3
     hybrid_eps: float = 0.01
@@ -212,6 +215,17 @@ class PHAST(ForecastModel):
         out = torch.stack(qs, 1)
         return (out, torch.stack(ps, 1)) if return_p else out
 
+    def param_groups(self, lr: float) -> list[dict[str, Any]]:
+        """Optimizer parameter groups (the trainer uses this hook when present): the damping
+        parameters get ``damping_lr_mult * lr``."""
+        damp = {id(p) for p in self.damping.parameters()} if self.damping is not None else set()
+        rest = [p for p in self.parameters() if p.requires_grad and id(p) not in damp]
+        groups = [{"params": rest, "lr": lr}] if rest else []
+        dp = [p for p in self.parameters() if p.requires_grad and id(p) in damp]
+        if dp:
+            groups.append({"params": dp, "lr": lr * self.config.damping_lr_mult})
+        return groups
+
     # ---- optional losses (paper Eq. 86-88) --------------------------------------
     def extra_losses(self, q: torch.Tensor, u: torch.Tensor | None, pred: torch.Tensor) -> dict[str, torch.Tensor]:
         """Weighted L_pass, L_energy, L_roll on the model's inferred states (weights from the config; 0 by default)."""
@@ -231,8 +245,8 @@ class PHAST(ForecastModel):
                 dt = self.core.h * self.core.substeps
                 out["energy"] = cfg.lambda_energy * ((H1 - H0) / dt - self.core.power(q[:, :-1], p[:, :-1])).abs().mean()
         if cfg.lambda_roll > 0:  # Eq. 88: open-loop core rollout from a random start
-            Hr = min(cfg.roll_horizon, q.shape[1] - 1)
-            t0 = int(torch.randint(0, q.shape[1] - Hr, ()).item())
+            Hr = min(cfg.roll_horizon, q.shape[1] - 1 - self.loss_skip)
+            t0 = int(torch.randint(self.loss_skip, q.shape[1] - Hr, ()).item())  # observer warm-up excluded
             qq, pp = q[:, t0], p[:, t0]
             errs = []
             for h in range(Hr):
@@ -444,7 +458,8 @@ def build_from_config(cfg: PHASTConfig) -> PHAST:
         raise ValueError(f"mass must be known or lowrank, got {cfg.mass!r}")
     # damping
     if cfg.damping == "householder":
-        damp = HouseholderDamping(n, angle, cfg.damping_rank, cap=cfg.damping_cap, d0=cfg.d0, learn_d0=cfg.learn_d0,
+        damp = HouseholderDamping(n, angle, cfg.damping_rank, hidden=cfg.damping_hidden, cap=cfg.damping_cap, d0=cfg.d0,
+                                  learn_d0=cfg.learn_d0,
                                   q_scale=torch.as_tensor(q_scale))
     elif cfg.damping == "known":
         damp = KnownDamping(system)
@@ -453,6 +468,8 @@ def build_from_config(cfg: PHASTConfig) -> PHAST:
     else:
         raise ValueError(f"damping must be householder, known or none, got {cfg.damping!r}")
     core = PHASTCore(pot, mass, damp, system.dt, cfg.substeps, cfg.learn_dt, cfg.integrator, cfg.midpoint_iters)
+    if not cfg.observer_trainable:
+        observer.requires_grad_(False)
     return PHAST(cfg, observer, core, system, actuated)
 
 

@@ -150,7 +150,9 @@ def fit(model: ForecastModel, train: Any, val: Any, cfg: TrainConfig | None = No
     skip = int(cfg.skip_first if cfg.skip_first is not None else getattr(model, "loss_skip", 0))
     torch.manual_seed(cfg.seed)
     gen = torch.Generator().manual_seed(cfg.seed)
-    opt = torch.optim.AdamW([p for p in model.parameters() if p.requires_grad], lr=cfg.lr, weight_decay=cfg.weight_decay)
+    groups = model.param_groups(cfg.lr) if hasattr(model, "param_groups") else [
+        {"params": [p for p in model.parameters() if p.requires_grad], "lr": cfg.lr}]
+    opt = torch.optim.AdamW(groups, lr=cfg.lr, weight_decay=cfg.weight_decay)
     n_batches = math.ceil(q_tr.shape[0] / cfg.batch_size)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=cfg.epochs * n_batches)
     history: list[dict[str, Any]] = []

@@ -1,0 +1,104 @@
+"""Acceptance benchmark of the PHAST world model (paper protocol, CPU).
+
+    .venv/bin/python benchmarks/phast_windy.py --seeds 0 1 2 3 4 --out docs/results/phast_windy.json
+
+Windy pendulum (1000 / 200 / 200 trajectories, T = 200, dataset seed 42, 50 epochs) in the
+KNOWN / PARTIAL / UNKNOWN regimes, plus the damped pendulum and the windy cart-pole, each
+seed a full ``phast-train`` run.  Acceptance (windy pendulum): KNOWN damping R^2 >= 0.99,
+PARTIAL rollout wrap-MSE(H=100) <= 0.092, UNKNOWN <= 0.298, wall time per 50-epoch run <= 180 s.
+The JSON is rewritten after every run (a partial sweep is never lost).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from phast_model.checkpoint import atomic_write_json
+from phast_model.cli.train import train_run
+from phast_model.metrics import benchmark_metric
+
+DEFAULT_RUNS = [
+    ("PHAST/WindyPendulum-v0", "known"),
+    ("PHAST/WindyPendulum-v0", "partial"),
+    ("PHAST/WindyPendulum-v0", "unknown"),
+    ("PHAST/DampedPendulum-v0", "known"),
+    ("PHAST/WindyCartPole-v0", "known"),
+]
+ACCEPT = {  # (env, regime) -> (metric, comparison, threshold)
+    ("PHAST/WindyPendulum-v0", "known"): ("damping_r2", ">=", 0.99),
+    ("PHAST/WindyPendulum-v0", "partial"): ("rollout_theta_wrap_mse_h100", "<=", 0.092),
+    ("PHAST/WindyPendulum-v0", "unknown"): ("rollout_theta_wrap_mse_h100", "<=", 0.298),
+}
+MAX_WALL_S = 180.0
+
+
+def summarize(runs: list[dict]) -> dict:
+    """mean / std over seeds of the headline keys, per (env, regime), with acceptance checks."""
+    out = {}
+    keys = ("rollout_theta_wrap_mse_h100", "rollout_mixed_mse_h100", "rollout_mse_h100", "theta_wrap_mse", "mse",
+            "damping_r2", "damping_mae", "rollout_energy_budget_resid_h100", "rollout_passivity_violations_h100",
+            "train_wall_time_s", "n_parameters")
+    for env, regime in sorted({(r["env_id"], r["regime"]) for r in runs}):
+        rs = [r for r in runs if r["env_id"] == env and r["regime"] == regime]
+        s = {"seeds": [r["seed"] for r in rs], "benchmark_metric": benchmark_metric(env)}
+        for k in keys:
+            vals = [r[k] for r in rs if k in r]
+            if vals:
+                s[k] = {"mean": float(np.mean(vals)), "std": float(np.std(vals)), "values": vals}
+        crit = ACCEPT.get((env, regime))
+        if crit:
+            metric, op, thr = crit
+            m = s[metric]["mean"]
+            s["accept"] = {"metric": metric, "threshold": thr, "op": op, "mean": m,
+                           "pass": bool(m >= thr if op == ">=" else m <= thr)}
+        if env == "PHAST/WindyPendulum-v0":
+            w = max(s["train_wall_time_s"]["values"])
+            s["accept_wall_time"] = {"max_s": w, "threshold_s": MAX_WALL_S, "pass": bool(w <= MAX_WALL_S)}
+        out[f"{env}|{regime}"] = s
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0])
+    ap.add_argument("--runs", nargs="*", default=None, metavar="ENV:REGIME",
+                    help="subset, e.g. WindyPendulum-v0:partial (default: the five of the protocol)")
+    ap.add_argument("--epochs", type=int, default=50)
+    ap.add_argument("--n-train", type=int, default=1000)
+    ap.add_argument("--runs-dir", default=None, help="keep run directories here (default: a temp dir)")
+    ap.add_argument("--out", default="docs/results/phast_windy.json")
+    args = ap.parse_args(argv)
+    torch.set_num_threads(1)
+    todo = DEFAULT_RUNS if not args.runs else [
+        (e if e.startswith("PHAST/") else f"PHAST/{e}", r) for e, r in (x.split(":") for x in args.runs)]
+    runs_dir = Path(args.runs_dir) if args.runs_dir else Path(tempfile.mkdtemp(prefix="phast_windy_"))
+    out = Path(args.out)
+    results: list[dict] = []
+    t0 = time.time()
+    jobs = [(e, r, s) for e, r in todo for s in args.seeds]
+    for env, regime, seed in tqdm(jobs, desc="phast_windy"):
+        rd = runs_dir / f"{env.split('/')[-1]}_{regime}_s{seed}"
+        m = train_run(env, regime, rd, epochs=args.epochs, seed=seed, n_train=args.n_train, plots=False, progress=False)
+        results.append({"env_id": env, "regime": regime, "seed": seed, **m})
+        atomic_write_json(out, {
+            "command": "benchmarks/phast_windy.py " + " ".join(argv if argv is not None else __import__("sys").argv[1:]),
+            "protocol": {"n_train": args.n_train, "n_val": 200, "n_test": 200, "T": 200, "data_seed": 42,
+                         "epochs": args.epochs, "torch_threads": 1},
+            "machine": {"platform": platform.platform(), "processor": platform.processor()},
+            "elapsed_s": time.time() - t0, "summary": summarize(results), "runs": results})
+    print(json.dumps({k: {kk: v.get(kk) for kk in ("accept", "accept_wall_time")} for k, v in summarize(results).items()},
+                     indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
