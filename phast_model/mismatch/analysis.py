@@ -37,9 +37,10 @@ class Options:
     shoot_window: int | None = None  # shooting window [samples] (default: one oscillation period)
     threshold: float = 5.0  # a term must reach |coefficient| / std > threshold (and the chi^2 gain threshold^2)
     max_terms: int = 3
-    coulomb_eps_rel: float = 0.02  # tanh smoothing of sign(qdot), relative to the rms velocity
-    max_windows: int = 400  # cap on shooting windows (subsampled evenly beyond it)
-    max_iter: int = 25
+    coulomb_eps_rel: float = 0.005  # tanh smoothing of sign(qdot), relative to the rms velocity
+    max_windows: int = 200  # cap on shooting windows (subsampled evenly beyond it)
+    max_residuals: int = 9000  # cap on windows x samples x coordinates (time per case)
+    max_iter: int = 15
     progress: bool = False
     terms: tuple[str, ...] | None = None  # restrict the candidate vocabulary
 
@@ -175,7 +176,7 @@ def evaluate_models(models: dict[str, System], rec: Recordings, sigma: np.ndarra
     rollouts: dict[str, np.ndarray] = {}
     for name, system in models.items():
         sub = substeps_for(system, dt)
-        factory = lambda r: Shooter(Windows.cut(r, r.T), sigma, sub, x_scale)  # noqa: E731
+        factory = lambda r, sub=sub: Shooter(Windows.cut(r, r.T), sigma, sub, x_scale)  # noqa: E731
         X = _initial_states(factory, system, rec, min(K, rec.T), qs, vs)
         q_roll = simulate_qv(system, X[:, :n], X[:, n:], rec.T - 1, rec.u, dt, sub)
         d = angle_diff(q_roll, rec.q, rec.angle_dims) / scale
@@ -336,8 +337,9 @@ def analyze(sim: str, recordings: str | Path | Mapping[str, Any] | Recordings, s
     x_scale = np.concatenate([np.sqrt(np.mean(qs**2, axis=(0, 1))) + 1e-9, v_rms])
     eps = float(opts.coulomb_eps_rel * np.median(v_rms))
     win = Windows.cut(train, L)
-    if win.count > opts.max_windows:
-        keep = np.unique(np.linspace(0, win.count - 1, opts.max_windows).round().astype(int))
+    max_w = int(min(opts.max_windows, max(40, opts.max_residuals // (win.length * n))))
+    if win.count > max_w:
+        keep = np.unique(np.linspace(0, win.count - 1, max_w).round().astype(int))
         win = Windows(win.traj[keep], win.start[keep], win.length, win.q[keep], None if win.u is None else win.u[keep],
                       win.angle_dims, win.dt)
     sub = substeps_for(sys0, dt)
@@ -400,7 +402,7 @@ def analyze(sim: str, recordings: str | Path | Mapping[str, Any] | Recordings, s
         sel_cols.append(c)
     famC = fam0.with_(params=selected)
     fitC = shooter.fit(famC.build, fitN.X, np.zeros(len(selected)), max_iter=opts.max_iter)
-    _progress(opts, f"calibrated {[k for k, _ in selected]}: chi2/dof = {fitC.chi2_red:.3g}", t0)
+    _progress(opts, f"calibrated {[k for k, _ in selected]}: chi2/dof = {fitC.chi2_red:.3g} ({fitC.iterations} it)", t0)
 
     # ---- 2/3. candidate terms, screened on the linearized shooting problem, then refit
     sysC = famC.build(fitC.g)
@@ -433,18 +435,22 @@ def analyze(sim: str, recordings: str | Path | Mapping[str, Any] | Recordings, s
                 cands.append((name, i, float(np.median(np.abs(train.u[..., i]))), 0.3))
             elif name == "sensor_offset":
                 cands.append((name, i, float(sigma[i] * 10 + 1e-3 * q_std[i]), h))
-    param_idx = list(range(len(selected)))
-    zC = fitC.g
-    builds = []
-    for name, i, s, hk in cands:
-        builds.append(lambda name=name, i=i, s=s, hk=hk: famC.with_(terms=[(name, i, s)]).build(np.concatenate([zC, [hk]])))
-    colsT = shooter.columns(builds, fitC, fitC.r, [c[3] for c in cands])
-    rP, colsTP = fitC.projected(colsT)
-    _, JgP = fitC.projected()
-    rP = rP.reshape(-1)
-    Gp = _flat(JgP) if param_idx else None
-    colsTP = _flat(colsTP)
-    colsTPo = _orth_against(colsTP, Gp)
+    def candidate_columns(fit: ShootFit, fam: Family, ks: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Residual and candidate columns at ``fit`` with window states and current globals projected out."""
+        zc = fit.g
+        builds = [(lambda name=cands[k][0], i=cands[k][1], s=cands[k][2], hk=cands[k][3]:
+                   fam.with_(terms=fam.terms + [(name, i, s)]).build(np.concatenate([zc, [hk]]))) for k in ks]
+        cols = shooter.columns(builds, fit, fit.r, [cands[k][3] for k in ks])
+        r_p, cols_p = fit.projected(cols)
+        _, jg_p = fit.projected()
+        G = _flat(jg_p) if fit.g.size else None
+        r_p = r_p.reshape(-1)
+        cols_p = _flat(cols_p)
+        if G is not None:
+            r_p = r_p - G @ np.linalg.lstsq(G, r_p, rcond=None)[0]
+        return r_p, cols_p, _orth_against(cols_p, G)
+
+    rP, colsTP, colsTPo = candidate_columns(fitC, famC, list(range(len(cands))))
     absorbed = {}
     usable = []
     for k, (name, i, _, _) in enumerate(cands):
@@ -455,65 +461,97 @@ def analyze(sim: str, recordings: str | Path | Mapping[str, Any] | Recordings, s
             absorbed[f"{name}[{i}]"] = f"indistinguishable from the calibrated parameter(s) {[p for p, _ in selected]}"
             continue
         usable.append(k)
-    rP = rP - (Gp @ np.linalg.lstsq(Gp, rP, rcond=None)[0] if Gp is not None else 0.0)
     dofC = fitC.dof
+    rss0 = fitC.cost
+    thr2 = opts.threshold**2
+    P0 = len(selected)
+
+    def term_ok(fit: ShootFit, cov: np.ndarray, j: int, k: int) -> bool:
+        name, _, s_k, _ = cands[k]
+        z, sd = fit.g[P0 + j], math.sqrt(max(cov[P0 + j, P0 + j], 1e-300))
+        c = default_value(name) + s_k * z
+        wrong_sign = VOCABULARY[name][2] and name != "actuator_gain" and c <= 0
+        return abs(z) / sd >= opts.threshold and not wrong_sign
+
+    # ---- greedy forward selection: rank on the linearized problem, confirm the best few by nonlinear refits.
+    # Round 1 also ranks at the nominal fit: calibrated parameters may have absorbed part of a missing term.
+    nominal_rank: list[int] = []
+    if selected and usable:
+        zN = np.zeros(len(selected))
+        bN = [(lambda name=cands[k][0], i=cands[k][1], s=cands[k][2], hk=cands[k][3]:
+               famC.with_(terms=[(name, i, s)]).build(np.concatenate([zN, [hk]]))) for k in usable]
+        colsN = _flat(fitN.projected(shooter.columns(bN, fitN, fitN.r, [cands[k][3] for k in usable]))[1])
+        rN = fitN.projected()[0].reshape(-1) if fitN.g.size else _flat(fitN.projected(np.zeros(fitN.r.shape + (1,)))[0]).reshape(-1)
+        Pm = np.stack(sel_cols, 1)
+        rN = rN - Pm @ np.linalg.lstsq(Pm, rN, rcond=None)[0]
+        colsNo = _orth_against(colsN, Pm)
+        gN = [(float(colsNo[:, j] @ rN) ** 2 / max(float(colsNo[:, j] @ colsNo[:, j]), 1e-300), k) for j, k in enumerate(usable)]
+        nominal_rank = [k for _, k in sorted(gN, reverse=True)[:2]]
     chosen: list[int] = []
     gains: dict[int, float] = {}
-    rss = float(rP @ rP)
-    rss0 = rss
-    thr2 = opts.threshold**2
-    while len(chosen) < opts.max_terms:
+    cur_fit, cur_fam, cov = fitC, famC, None
+    r_o, cols_o, pool = rP, colsTPo, list(usable)
+    col_of = {k: j for j, k in enumerate(pool)}
+    while len(chosen) < opts.max_terms and pool:
+        s2 = cur_fit.cost / cur_fit.dof
+        ranked = []
+        for k in pool:
+            c = cols_o[:, col_of[k]]
+            cc = float(c @ c)
+            if cc <= 0:
+                continue
+            z = -float(c @ r_o) / cc
+            name = cands[k][0]
+            if VOCABULARY[name][2] and name != "actuator_gain" and z <= 0:
+                continue  # a friction coefficient must be positive (passivity)
+            ranked.append((float(c @ r_o) ** 2 / cc / s2, k, z))
+        ranked.sort(reverse=True)
+        if opts.progress:
+            _progress(opts, "screening gains (chi^2): " + ", ".join(f"{cands[k][0]}[{cands[k][1]}] {g:.3g}" for g, k, _ in ranked[:6]), t0)
+        shortlist = [(k, z) for g, k, z in ranked[:2] if g >= thr2]
+        if not chosen:
+            zmap = {k: z for _, k, z in ranked}
+            shortlist += [(k, zmap.get(k, 0.0)) for k in nominal_rank if k not in [kk for kk, _ in shortlist] and k in col_of]
+        if not shortlist:
+            break
         best = None
-        s2 = rss / max(dofC - len(chosen), 1)
-        for k in usable:
-            if k in chosen:
-                continue
-            A = colsTPo[:, chosen + [k]]
-            z = np.linalg.lstsq(A, -rP, rcond=None)[0]
-            new = float(np.sum((rP + A @ z) ** 2))
-            ok = all(not (VOCABULARY[cands[kk][0]][2] and default_value(cands[kk][0]) + cands[kk][2] * zz <= default_value(cands[kk][0])
-                          and cands[kk][0] != "actuator_gain") for kk, zz in zip(chosen + [k], z))
-            if not ok:
-                continue
-            gain = (rss - new) / s2
-            if best is None or gain > best[1]:
-                best = (k, gain, new)
-        if best is None or best[1] < thr2:
+        for k, z0 in shortlist:
+            fam_new = cur_fam.with_(terms=cur_fam.terms + [cands[k][:3]])
+            fit_new = shooter.fit(fam_new.build, cur_fit.X, np.concatenate([cur_fit.g, [z0]]), max_iter=6)
+            cov_new = fit_new.covariance()
+            gain = (cur_fit.cost - fit_new.cost) / s2
+            ok = term_ok(fit_new, cov_new, len(chosen), k) and gain >= thr2
+            _progress(opts, f"  refit with {cands[k][0]}[{cands[k][1]}]: chi^2 gain {gain:.3g}{'' if ok else ' (rejected)'}", t0)
+            if ok and (best is None or gain > best[0]):
+                best = (gain, k, fit_new, fam_new, cov_new)
+        if best is None:
             break
-        chosen.append(best[0])
-        gains[best[0]] = rss - best[2]
-        rss = best[2]
-    _progress(opts, f"screened {len(usable)} candidates: {[cands[k][:2] for k in chosen]}", t0)
-
-    # ---- nonlinear refit; drop terms that are not significant or not passive
-    final_fit, famA = fitC, famC
-    terms_final: list[int] = list(chosen)
-    cov = None
-    for _ in range(4):
-        famA = famC.with_(terms=[cands[k][:3] for k in terms_final])
-        if not terms_final:
-            final_fit = fitC
-            break
-        A = colsTPo[:, terms_final]
-        z0 = np.linalg.lstsq(A, -rP, rcond=None)[0] * np.array([cands[k][3] / cands[k][3] for k in terms_final])
-        final_fit = shooter.fit(famA.build, fitC.X, np.concatenate([fitC.g, z0]), max_iter=opts.max_iter)
-        cov = final_fit.covariance()
-        P0 = len(selected)
-        drop = []
-        for j, k in enumerate(terms_final):
-            name, i, s, _ = cands[k]
-            z, sd = final_fit.g[P0 + j], math.sqrt(max(cov[P0 + j, P0 + j], 1e-300))
-            c = default_value(name) + s * z
-            wrong_sign = VOCABULARY[name][2] and name != "actuator_gain" and c <= 0
-            if abs(z) / sd < opts.threshold or wrong_sign:
-                drop.append(k)
-        if not drop:
-            break
-        terms_final = [k for k in terms_final if k not in drop]
-    _progress(opts, f"augmented: chi2/dof = {final_fit.chi2_red:.3g}", t0)
+        _, k, fit_new, fam_new, cov_new = best
+        if fit_new.iterations >= 6:  # finish the winner's refit
+            fit_new = shooter.fit(fam_new.build, fit_new.X, fit_new.g, max_iter=opts.max_iter)
+            cov_new = fit_new.covariance()
+        gains[k] = cur_fit.cost - fit_new.cost
+        chosen.append(k)
+        cur_fit, cur_fam, cov = fit_new, fam_new, cov_new
+        _progress(opts, f"added {cands[k][:2]}: chi2/dof = {cur_fit.chi2_red:.3g} ({cur_fit.iterations} it)", t0)
+        rest = [kk for kk in pool if kk not in chosen]
+        if len(chosen) < opts.max_terms and rest:
+            r_o, cols_o, _ = candidate_columns(cur_fit, cur_fam, rest)
+            col_of = {kk: j for j, kk in enumerate(rest)}
+        pool = rest
+    # earlier terms must stay significant once later ones are in
+    if len(chosen) > 1:
+        keep_idx = [j for j, k in enumerate(chosen) if term_ok(cur_fit, cov, j, k)]
+        if len(keep_idx) < len(chosen):
+            chosen = [chosen[j] for j in keep_idx]
+            cur_fam = famC.with_(terms=[cands[k][:3] for k in chosen])
+            g0 = np.concatenate([cur_fit.g[:P0], cur_fit.g[P0:][keep_idx]])
+            cur_fit = shooter.fit(cur_fam.build, cur_fit.X, g0, max_iter=opts.max_iter)
+            cov = cur_fit.covariance()
+    final_fit, famA, terms_final = cur_fit, cur_fam, chosen
+    _progress(opts, f"augmented with {[cands[k][:2] for k in chosen]}: chi2/dof = {final_fit.chi2_red:.3g}", t0)
 
     # ---- statistics for the report
-    P0 = len(selected)
     covC = fitC.covariance()
     calibrated = {}
     for j, (k, nom) in enumerate(selected):
@@ -585,7 +623,8 @@ def analyze(sim: str, recordings: str | Path | Mapping[str, Any] | Recordings, s
         details={"method": "multiple shooting of the simulator on windows (fit by simulation); Levenberg-Marquardt; "
                            "forward selection on the linearized problem with a chi^2 gain > threshold^2, then nonlinear refit; "
                            "95% intervals from the larger of Gauss-Newton and window-cluster sandwich covariance",
-                 "shoot_window_samples": int(win.length), "n_windows": int(win.count), "n_windows_dropped_as_outliers": n_dropped, "smoothing_window_samples": int(sg),
+                 "shoot_window_samples": int(win.length), "n_windows": int(win.count),
+                 "n_windows_dropped_as_outliers": n_dropped, "smoothing_window_samples": int(sg),
                  "coulomb_sign_smoothing": f"tanh(qdot/{eps:.3g})", "threshold": opts.threshold,
                  "chi2_per_dof": {"nominal": fitN.chi2_red, "calibrated": fitC.chi2_red, "augmented": final_fit.chi2_red},
                  "absorbed_candidates": absorbed, "n_simulations": shooter.n_sims, "wall_time_s": time.time() - t0,

@@ -255,7 +255,7 @@ class Shooter:
         lam = 1e-3
         it = 0
         JX = Jg = None
-        for it in range(1, max_iter + 1):
+        for it in range(1, max_iter + 1):  # noqa: B007
             JX = self.jac_X(system, X, r)
             Jg = np.empty(r.shape + (P,))
             for j in range(P):
@@ -287,7 +287,8 @@ class Shooter:
                 cn = float(np.sum(rn**2))
                 if np.isfinite(cn) and cn < cost:
                     improved = True
-                    rel = (cost - cn) / max(cost, 1e-300)
+                    # converged when the gain is negligible in chi^2 units (or relatively)
+                    rel = 0.0 if cost - cn < 0.02 else (cost - cn) / max(cost, 1e-300)
                     X, g, r, cost, system = Xn, gn, rn, cn, sys_n
                     lam = max(lam / 5, 1e-9)
                     break

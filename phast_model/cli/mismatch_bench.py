@@ -1,0 +1,229 @@
+"""phast-mismatch-bench: concealed-effect "realities" from the env suite, the mismatch tool vs a PySINDy peer.
+
+Each case simulates 40 trajectories x 400 steps of an env with hidden terms of
+the vocabulary and/or changed parameters, adds q-noise, and hands the tool only
+the nominal env id.  A case is right when the found term set (names and
+coordinates) equals the hidden one, every coefficient is within 30%, clean and
+parameter-only cases report nothing, a changed parameter is recovered within 5%,
+and the augmented model's held-out rollout RMSE is <= 0.7x the calibrated one.
+
+The PySINDy peer gets the same q-only data: pysindy's SmoothedFiniteDifference
+for qdot and qddot, the residual force M(q) qddot - F_nominal, and STLSQ on a
+library of the same named force / port terms (columns standardized).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+@dataclass
+class Case:
+    """One concealed-effect reality."""
+
+    name: str
+    env_id: str
+    terms: list[tuple[str, int, float]] = field(default_factory=list)
+    params: dict[str, float] = field(default_factory=dict)  # true values of changed parameters
+    noise: float = 0.01
+    u_std: float = 0.0
+    x0_scale: float = 1.0
+    kind: str = "effect"  # effect | clean | param
+
+
+CASES: list[Case] = [
+    Case("pendulum_clean", "PHAST/Pendulum-v0", kind="clean"),
+    Case("damped_pendulum_clean", "PHAST/DampedPendulum-v0", kind="clean"),
+    Case("oscillator_u_clean", "PHAST/DampedOscillator-v0", u_std=1.0, kind="clean"),
+    Case("cartpole_clean", "PHAST/WindyCartPole-v0", kind="clean"),
+    Case("damped_pendulum_gamma", "PHAST/DampedPendulum-v0", params={"gamma": 0.44}, kind="param"),
+    Case("oscillator_omega", "PHAST/DampedOscillator-v0", params={"omega": 1.06}, kind="param"),
+    Case("rlc_capacitance", "PHAST/RLCCircuit-v0", params={"capacitance": 0.92}, kind="param"),
+    Case("windy_pendulum_dd", "PHAST/WindyPendulum-v0", params={"dd": 0.6}, kind="param"),
+    Case("pendulum_viscous", "PHAST/Pendulum-v0", [("viscous_damping", 0, 0.05)]),
+    Case("pendulum_coulomb", "PHAST/Pendulum-v0", [("coulomb_friction", 0, 0.08)]),
+    Case("damped_pendulum_coulomb", "PHAST/DampedPendulum-v0", [("coulomb_friction", 0, 0.1)]),
+    Case("pendulum_quadratic_drag", "PHAST/Pendulum-v0", [("quadratic_drag", 0, 0.02)]),
+    Case("pendulum_position_damping", "PHAST/Pendulum-v0", [("position_dependent_damping", 0, 0.1)]),
+    Case("damped_pendulum_linear_stiffness", "PHAST/DampedPendulum-v0", [("linear_stiffness", 0, 0.3)]),
+    Case("oscillator_cubic_stiffness", "PHAST/DampedOscillator-v0", [("cubic_stiffness", 0, 0.03)]),
+    Case("damped_pendulum_constant_force", "PHAST/DampedPendulum-v0", [("constant_force", 0, 0.2)]),
+    Case("oscillator_actuator_gain", "PHAST/DampedOscillator-v0", [("actuator_gain", 1, 0.85)], u_std=1.0),
+    Case("rlc_actuator_deadzone", "PHAST/RLCCircuit-v0", [("actuator_deadzone", 0, 0.4)], u_std=1.0),
+    Case("damped_pendulum_sensor_offset", "PHAST/DampedPendulum-v0", [("sensor_offset", 0, 0.05)]),
+    Case("oscillator_coulomb_q1", "PHAST/DampedOscillator-v0", [("coulomb_friction", 1, 0.03)]),
+    Case("cartpole_cart_coulomb", "PHAST/WindyCartPole-v0", [("coulomb_friction", 0, 0.3)]),
+    Case("two_effects_pendulum", "PHAST/DampedPendulum-v0", [("coulomb_friction", 0, 0.1), ("constant_force", 0, 0.2)]),
+]
+
+
+def _hidden_key(terms: list[tuple[str, int, float]]) -> set[tuple[str, int]]:
+    return {(n, i) for n, i, _ in terms}
+
+
+def run_tool(case: Case, rec: dict[str, Any], holdout: float) -> dict[str, Any]:
+    """The mismatch tool on one case, scored against the hidden truth."""
+    from phast_model.mismatch import analyze
+
+    t0, c0 = time.time(), time.process_time()
+    rep = analyze(case.env_id, rec, holdout_fraction=holdout)
+    wall, cpu = time.time() - t0, time.process_time() - c0
+    found = {(m["term"], m["coordinate"]): m["coefficient"] for m in rep.missing_physics}
+    hidden = {(n, i): c for n, i, c in case.terms}
+    coef_err = {f"{k[0]}[{k[1]}]": abs(found[k] - c) / abs(c) for k, c in hidden.items() if k in found}
+    ok_terms = set(found) == set(hidden)
+    ok_coef = ok_terms and all(v <= 0.3 for v in coef_err.values())
+    fit = rep.fit
+    ratio = fit["augmented"]["rollout_rmse"] / max(fit["calibrated"]["rollout_rmse"], 1e-300)
+    param_err = {}
+    for p, true in case.params.items():
+        cal = rep.sim["calibrated"].get(p)
+        param_err[p] = abs(cal["fitted"] - true) / abs(true) if cal and cal.get("ci95") else float("inf")
+    if case.kind == "effect":
+        ok = ok_coef and ratio <= 0.7
+    elif case.kind == "param":
+        ok = not found and all(v <= 0.05 for v in param_err.values())
+    else:
+        ok = not found
+    return {"found": sorted(f"{k[0]}[{k[1]}]={v:.4g}" for k, v in found.items()), "coef_rel_err": coef_err,
+            "param_rel_err": param_err, "rollout_calibrated": fit["calibrated"]["rollout_rmse"],
+            "rollout_augmented": fit["augmented"]["rollout_rmse"], "rollout_nominal": fit["nominal"]["rollout_rmse"],
+            "ratio": ratio, "time_s": wall, "cpu_s": cpu, "correct": bool(ok), "summary": rep.summary}
+
+
+def run_sindy(case: Case, rec: dict[str, Any], threshold: float = 0.05) -> dict[str, Any]:
+    """PySINDy peer: own differentiation + STLSQ on the same named terms, residual to the nominal model."""
+    import pysindy as ps
+
+    from phast_gym.registry import make_env_system
+    from phast_gym.systems.base import NUMPY
+    from phast_model.mismatch.shooting import momentum
+
+    t0 = time.time()
+    sys0 = make_env_system(case.env_id)
+    q = np.asarray(rec["q"], dtype=float)
+    N, T, n = q.shape
+    dt = float(rec["dt"])
+    t = np.arange(T) * dt
+    diff = ps.SmoothedFiniteDifference()
+    v = np.stack([diff(q[k], t) for k in range(N)])
+    a = np.stack([diff(v[k], t) for k in range(N)])
+    u = None
+    if "u" in rec:
+        u = np.concatenate([rec["u"], rec["u"][:, -1:]], axis=1)
+    p = momentum(sys0, q, v)
+    if sys0.separable:  # constant M: pdot = M qddot
+        pdot = momentum(sys0, q, a)
+    else:  # d/dt (M(q) qdot) by differentiating p
+        pdot = np.stack([diff(p[k], t) for k in range(N)])
+    qc = tuple(q[..., i] for i in range(n))
+    pc = tuple(p[..., i] for i in range(n))
+    F = np.stack([np.broadcast_to(f, q.shape[:-1]) for f in sys0.rhs(qc, pc, None if u is None else tuple(u[..., i] for i in range(n)),
+                                                                      NUMPY)[1]], -1)
+    r = (pdot - F)[:, 5:-5].reshape(-1, n)
+    found: dict[tuple[str, int], float] = {}
+    for i in range(n):
+        qi, vi = q[:, 5:-5, i].reshape(-1), v[:, 5:-5, i].reshape(-1)
+        lib = {"viscous_damping": -vi, "coulomb_friction": -np.sign(vi), "quadratic_drag": -np.abs(vi) * vi,
+               "position_dependent_damping": -np.abs(np.sin(qi)) * vi, "linear_stiffness": -qi, "cubic_stiffness": -qi**3,
+               "constant_force": np.ones_like(qi)}
+        if u is not None and np.any(u[..., i] != 0):
+            lib["actuator_gain"] = u[:, 5:-5, i].reshape(-1)
+        names = list(lib)
+        Theta = np.stack([lib[k] for k in names], 1)
+        scale = np.sqrt(np.mean(Theta**2, 0)) + 1e-12
+        ri = r[:, i]
+        rs = np.sqrt(np.mean(ri**2)) + 1e-12
+        opt = ps.STLSQ(threshold=threshold, alpha=1e-6)
+        opt.fit(Theta / scale, (ri / rs)[:, None])
+        coef = np.asarray(opt.coef_).reshape(-1) * rs / scale
+        for k, c in zip(names, coef):
+            if c != 0:
+                found[(k, i)] = float(c + 1.0) if k == "actuator_gain" else float(c)
+    hidden = {(nm, i): c for nm, i, c in case.terms}
+    coef_err = {f"{k[0]}[{k[1]}]": abs(found[k] - c) / abs(c) for k, c in hidden.items() if k in found}
+    ok = set(found) == set(hidden) and all(e <= 0.3 for e in coef_err.values())
+    return {"found": sorted(f"{k[0]}[{k[1]}]={v:.4g}" for k, v in found.items()), "coef_rel_err": coef_err,
+            "correct": bool(ok), "time_s": time.time() - t0}
+
+
+def make_case_data(case: Case, n_traj: int, T: int, seed: int) -> dict[str, Any]:
+    from phast_model.mismatch import Term, make_reality
+
+    return make_reality(case.env_id, [Term(*t) for t in case.terms], true_kwargs=case.params, n_traj=n_traj, T=T,
+                        noise_std=case.noise, seed=seed, u_std=case.u_std, x0_scale=case.x0_scale)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="phast-mismatch-bench", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--cases", nargs="*", default=None, help=f"case names (default: all): {[c.name for c in CASES]}")
+    ap.add_argument("--n-traj", type=int, default=40)
+    ap.add_argument("--T", type=int, default=400)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--holdout-fraction", type=float, default=0.3)
+    ap.add_argument("--no-sindy", action="store_true", help="skip the PySINDy peer")
+    ap.add_argument("--out", default=None, help="write the results as JSON here")
+    args = ap.parse_args(argv)
+    from tqdm import tqdm
+
+    names = {c.name for c in CASES}
+    bad = sorted(set(args.cases or []) - names)
+    if bad:
+        print(f"phast-mismatch-bench: error: unknown case(s) {bad}; known: {sorted(names)}", file=sys.stderr)
+        return 2
+    cases = [c for c in CASES if not args.cases or c.name in args.cases]
+    rows = []
+    for k, case in enumerate(tqdm(cases, desc="mismatch bench", file=sys.stderr)):
+        rec = make_case_data(case, args.n_traj, args.T, args.seed + k)
+        row = {"case": case.name, "env_id": case.env_id, "kind": case.kind,
+               "hidden": sorted(f"{n}[{i}]={c:g}" for n, i, c in case.terms) + sorted(f"{p}={v:g}" for p, v in case.params.items()),
+               "tool": run_tool(case, rec, args.holdout_fraction)}
+        if not args.no_sindy:
+            row["sindy"] = run_sindy(case, rec)
+        rows.append(row)
+    hdr = (f"{'case':34s} {'hidden':38s} {'found (tool)':40s} {'coef err':>8s} {'calib':>7s} {'augm':>7s} {'ratio':>5s} "
+           f"{'wall':>6s} {'cpu':>6s} ok")
+    if not args.no_sindy:
+        hdr += f" | {'found (PySINDy)':44s} ok"
+    print(hdr)
+    for r in rows:
+        tl = r["tool"]
+        ce = max(list(tl["coef_rel_err"].values()) + list(tl["param_rel_err"].values()) or [0.0])
+        line = (f"{r['case']:34s} {', '.join(r['hidden']) or '-':38.38s} {', '.join(tl['found']) or '-':40.40s} "
+                f"{ce:8.3f} {tl['rollout_calibrated']:7.4f} {tl['rollout_augmented']:7.4f} {tl['ratio']:5.2f} "
+                f"{tl['time_s']:6.1f} {tl['cpu_s']:6.1f} "
+                f"{'Y' if tl['correct'] else 'N'}")
+        if "sindy" in r:
+            line += f" | {', '.join(r['sindy']['found']) or '-':44.44s} {'Y' if r['sindy']['correct'] else 'N'}"
+        print(line)
+    n_ok = sum(r["tool"]["correct"] for r in rows)
+    print(f"tool: {n_ok}/{len(rows)} cases right ({n_ok / max(len(rows), 1):.0%}); "
+          f"max time per case {max(r['tool']['time_s'] for r in rows):.1f} s wall, {max(r['tool']['cpu_s'] for r in rows):.1f} s CPU")
+    if not args.no_sindy:
+        n_s = sum(r["sindy"]["correct"] for r in rows)
+        print(f"PySINDy peer: {n_s}/{len(rows)} cases right ({n_s / max(len(rows), 1):.0%})")
+    if args.out:
+        out = Path(args.out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=out.parent, prefix=f".{out.name}.tmp-")
+        with os.fdopen(fd, "w") as fh:
+            json.dump({"command": " ".join(["phast-mismatch-bench"] + (argv if argv is not None else sys.argv[1:])),
+                       "n_traj": args.n_traj, "T": args.T, "seed": args.seed, "rows": rows}, fh, indent=1,
+                      default=lambda x: None if isinstance(x, float) and not math.isfinite(x) else str(x))
+        os.replace(tmp, out)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
