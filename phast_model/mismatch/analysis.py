@@ -43,6 +43,7 @@ class Options:
     max_iter: int = 15
     progress: bool = False
     terms: tuple[str, ...] | None = None  # restrict the candidate vocabulary
+    decimate: int | None = None  # keep every k-th sample (default: auto, ~20 samples per time scale, never with u)
 
 
 @dataclass
@@ -83,6 +84,7 @@ class Family:
     params: list[tuple[str, float]]  # (name, nominal value); value = nominal * exp(z)
     terms: list[tuple[str, int, float]]  # (name, coordinate, scale); coefficient = default + scale * z
     eps: float
+    deadzone_width: float = 0.0
 
     def kwargs_of(self, g: np.ndarray) -> dict[str, Any]:
         kw = dict(self.kwargs)
@@ -100,11 +102,11 @@ class Family:
         return out
 
     def build(self, g: np.ndarray) -> AugmentedSystem:
-        return AugmentedSystem(make_env_system(self.env_id, **self.kwargs_of(g)), self.terms_of(g), self.eps)
+        return AugmentedSystem(make_env_system(self.env_id, **self.kwargs_of(g)), self.terms_of(g), self.eps, self.deadzone_width)
 
     def with_(self, params: list[tuple[str, float]] | None = None, terms: list[tuple[str, int, float]] | None = None) -> Family:
         return Family(self.env_id, self.kwargs, self.params if params is None else params,
-                      self.terms if terms is None else terms, self.eps)
+                      self.terms if terms is None else terms, self.eps, self.deadzone_width)
 
 
 # --------------------------------------------------------------------------- helpers
@@ -318,6 +320,15 @@ def analyze(sim: str, recordings: str | Path | Mapping[str, Any] | Recordings, s
     else:
         raw, src = load_raw(recordings)
         rec = validate(raw, sys0.n, tuple(sys0.angle_dims), src)
+    n_traj_orig, T_orig, dt_orig = rec.n_traj, rec.T, rec.dt
+    dec = opts.decimate
+    if dec is None:
+        dec = 1 if rec.u is not None else max(1, int(time_scale(rec.q, rec.dt) / (20 * rec.dt)))
+        dec = min(dec, max(1, rec.T // 200))
+    if dec > 1:
+        if rec.u is not None:
+            raise ValueError("decimation with a port input u is not supported (u is held per recorded interval)")
+        rec = Recordings(rec.q[:, ::dec], rec.dt * dec, None, rec.angle_dims, rec.source, rec.meta)
     n, dt = rec.n, rec.dt
     train, hold, evaluated_on = _split(rec, holdout_fraction)
     _progress(opts, f"{env_id}: {rec.n_traj} recordings x {rec.T} samples, dt={dt}", t0)
@@ -345,7 +356,8 @@ def analyze(sim: str, recordings: str | Path | Mapping[str, Any] | Recordings, s
     sub = substeps_for(sys0, dt)
     shooter = Shooter(win, sigma, sub, x_scale)
     X0 = np.concatenate([qs[win.traj, win.start], vs[win.traj, win.start]], axis=1)
-    fam0 = Family(env_id, kwargs, [], [], eps)
+    u_med = float(np.median(np.abs(train.u[train.u != 0]))) if train.u is not None and np.any(train.u != 0) else 1.0
+    fam0 = Family(env_id, kwargs, [], [], eps, 0.05 * u_med)
 
     # ---- 0. nominal: window states only
     fitN = shooter.fit_states(fam0.build(np.zeros(0)), X0, max_iter=opts.max_iter)
@@ -476,16 +488,24 @@ def analyze(sim: str, recordings: str | Path | Mapping[str, Any] | Recordings, s
     # ---- greedy forward selection: rank on the linearized problem, confirm the best few by nonlinear refits.
     # Round 1 also ranks at the nominal fit: calibrated parameters may have absorbed part of a missing term.
     nominal_rank: list[int] = []
+    nominal_start: dict[int, np.ndarray] = {}
     if selected and usable:
         zN = np.zeros(len(selected))
         bN = [(lambda name=cands[k][0], i=cands[k][1], s=cands[k][2], hk=cands[k][3]:
                famC.with_(terms=[(name, i, s)]).build(np.concatenate([zN, [hk]]))) for k in usable]
         colsN = _flat(fitN.projected(shooter.columns(bN, fitN, fitN.r, [cands[k][3] for k in usable]))[1])
-        rN = fitN.projected()[0].reshape(-1) if fitN.g.size else _flat(fitN.projected(np.zeros(fitN.r.shape + (1,)))[0]).reshape(-1)
+        rN = _flat(fitN.projected(np.zeros(fitN.r.shape + (1,)))[0]).reshape(-1)
         Pm = np.stack(sel_cols, 1)
-        rN = rN - Pm @ np.linalg.lstsq(Pm, rN, rcond=None)[0]
+        rN0 = rN - Pm @ np.linalg.lstsq(Pm, rN, rcond=None)[0]
         colsNo = _orth_against(colsN, Pm)
-        gN = [(float(colsNo[:, j] @ rN) ** 2 / max(float(colsNo[:, j] @ colsNo[:, j]), 1e-300), k) for j, k in enumerate(usable)]
+        gN = []
+        for j, k in enumerate(usable):
+            cc = float(colsNo[:, j] @ colsNo[:, j])
+            if cc <= 0:
+                continue
+            gN.append((float(colsNo[:, j] @ rN0) ** 2 / cc, k))
+            # joint linear start (parameters and the term) from the nominal point
+            nominal_start[k] = np.linalg.lstsq(np.concatenate([Pm, colsN[:, [j]]], 1), -rN, rcond=None)[0]
         nominal_rank = [k for _, k in sorted(gN, reverse=True)[:2]]
     chosen: list[int] = []
     gains: dict[int, float] = {}
@@ -508,20 +528,28 @@ def analyze(sim: str, recordings: str | Path | Mapping[str, Any] | Recordings, s
         ranked.sort(reverse=True)
         if opts.progress:
             _progress(opts, "screening gains (chi^2): " + ", ".join(f"{cands[k][0]}[{cands[k][1]}] {g:.3g}" for g, k, _ in ranked[:6]), t0)
-        shortlist = [(k, z) for g, k, z in ranked[:2] if g >= thr2]
+        shortlist = [(k, np.concatenate([cur_fit.g, [z]]), cur_fit.X) for g, k, z in ranked[:2] if g >= thr2]
         if not chosen:
-            zmap = {k: z for _, k, z in ranked}
-            shortlist += [(k, zmap.get(k, 0.0)) for k in nominal_rank if k not in [kk for kk, _ in shortlist] and k in col_of]
+            shortlist += [(k, nominal_start[k], fitN.X) for k in nominal_rank if k not in [kk for kk, _, _ in shortlist] and k in col_of]
         if not shortlist:
             break
         best = None
-        for k, z0 in shortlist:
+        for k, g0, X_start in shortlist:
             fam_new = cur_fam.with_(terms=cur_fam.terms + [cands[k][:3]])
-            fit_new = shooter.fit(fam_new.build, cur_fit.X, np.concatenate([cur_fit.g, [z0]]), max_iter=6)
+            if cands[k][0] == "actuator_deadzone":  # threshold: start from the best of a coarse grid (zero slope at c = 0)
+                grid = np.linspace(0.1, 1.5, 15)
+                costs = [float(np.sum(shooter.residual(fam_new.build(np.concatenate([g0[:-1], [zz]])), X_start) ** 2)) for zz in grid]
+                g0 = np.concatenate([g0[:-1], [grid[int(np.argmin(costs))]]])
+            fit_new = shooter.fit(fam_new.build, X_start, g0, max_iter=6)
             cov_new = fit_new.covariance()
             gain = (cur_fit.cost - fit_new.cost) / s2
             ok = term_ok(fit_new, cov_new, len(chosen), k) and gain >= thr2
-            _progress(opts, f"  refit with {cands[k][0]}[{cands[k][1]}]: chi^2 gain {gain:.3g}{'' if ok else ' (rejected)'}", t0)
+            if opts.progress:
+                j = P0 + len(chosen)
+                zz, sd = fit_new.g[j], math.sqrt(max(cov_new[j, j], 1e-300))
+                coef = default_value(cands[k][0]) + cands[k][2] * zz
+                _progress(opts, f"  refit with {cands[k][0]}[{cands[k][1]}]: chi^2 gain {gain:.3g}, coefficient "
+                                f"{coef:.4g}, |t| = {abs(zz) / sd:.3g}{'' if ok else ' (rejected)'}", t0)
             if ok and (best is None or gain > best[0]):
                 best = (gain, k, fit_new, fam_new, cov_new)
         if best is None:
@@ -616,7 +644,7 @@ def analyze(sim: str, recordings: str | Path | Mapping[str, Any] | Recordings, s
     summary = _summary(env_id, calibrated, missing, located, fitres, fitC, final_fit, sigma_raw)
     report = Report(
         sim={"env_id": env_id, "kwargs": kwargs, "calibrated": calibrated},
-        data={"n_traj": rec.n_traj, "T": rec.T, "dt": dt, "noise_std": float(np.sqrt(np.mean(sigma_raw**2))),
+        data={"n_traj": n_traj_orig, "T": T_orig, "dt": dt_orig, "decimated_by": dec, "noise_std": float(np.sqrt(np.mean(sigma_raw**2))),
               "noise_std_per_coordinate": [float(s) for s in sigma_raw], "source": rec.source,
               "angle_dims": list(rec.angle_dims), "has_input": rec.u is not None},
         located=located, missing_physics=missing, fit=fitres, summary=summary,

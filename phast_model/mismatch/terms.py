@@ -78,13 +78,16 @@ class AugmentedSystem(System):
 
     ``coulomb_eps`` smooths ``sign(qdot)`` as ``tanh(qdot / eps)`` (MISMATCH.md
     allows smoothing near 0); it keeps explicit RK4 stable at the env's steps.
+    ``deadzone_width > 0`` smooths the deadzone edge so its threshold can be fitted.
     """
 
-    def __init__(self, base: System, terms: list[Term] | tuple[Term, ...] = (), coulomb_eps: float = 1e-2) -> None:
+    def __init__(self, base: System, terms: list[Term] | tuple[Term, ...] = (), coulomb_eps: float = 1e-2,
+                 deadzone_width: float = 0.0) -> None:
         # no System.__init__: parameters belong to the base system
         self.base = base
         self.terms = tuple(terms)
         self.coulomb_eps = float(coulomb_eps)
+        self.deadzone_width = float(deadzone_width)
         self.params = dict(base.params)
         for attr in ("name", "n", "angle_dims", "dt", "substeps", "default_max_action", "separable",
                      "hamiltonian_system", "coordinate_names"):
@@ -160,7 +163,10 @@ class AugmentedSystem(System):
             if t.name == "actuator_gain":
                 u[i] = c * u[i]
             elif t.name == "actuator_deadzone":
-                u[i] = xp.where(xp.abs(u[i]) < c, 0.0 * u[i], u[i])
+                if self.deadzone_width > 0:  # smooth edge (differentiable in the threshold c) for fitting
+                    u[i] = u[i] * (0.5 + 0.5 * xp.tanh((xp.abs(u[i]) - c) / self.deadzone_width))
+                else:
+                    u[i] = xp.where(xp.abs(u[i]) < c, 0.0 * u[i], u[i])
         return u
 
     def extra_dissipation(self, q: Components, v: Components, xp: Any) -> list:
