@@ -76,6 +76,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--n-train", type=int, default=1000)
     ap.add_argument("--runs-dir", default=None, help="keep run directories here (default: a temp dir)")
     ap.add_argument("--out", default="docs/results/phast_windy.json")
+    ap.add_argument("--append", action="store_true",
+                    help="keep the runs already in --out (same protocol) and skip those (env, regime, seed)")
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
     todo = DEFAULT_RUNS if not args.runs else [
@@ -83,8 +85,14 @@ def main(argv: list[str] | None = None) -> int:
     runs_dir = Path(args.runs_dir) if args.runs_dir else Path(tempfile.mkdtemp(prefix="phast_windy_"))
     out = Path(args.out)
     results: list[dict] = []
+    if args.append and out.exists():
+        prev = json.loads(out.read_text())
+        if prev.get("protocol", {}).get("epochs") != args.epochs or prev.get("protocol", {}).get("n_train") != args.n_train:
+            raise SystemExit(f"{out} holds another protocol; drop --append or use another --out")
+        results = list(prev.get("runs", []))
+    done = {(r["env_id"], r["regime"], r["seed"]) for r in results}
     t0 = time.time()
-    jobs = [(e, r, s) for e, r in todo for s in args.seeds]
+    jobs = [(e, r, s) for e, r in todo for s in args.seeds if (e, r, s) not in done]
     for env, regime, seed in tqdm(jobs, desc="phast_windy"):
         rd = runs_dir / f"{env.split('/')[-1]}_{regime}_s{seed}"
         m = train_run(env, regime, rd, epochs=args.epochs, seed=seed, n_train=args.n_train, plots=False, progress=False)
