@@ -168,3 +168,12 @@ def test_bad_config_values_raise():
         build_model("PHAST/WindyPendulum-v0", "known", not_a_field=1)
     with pytest.raises(ValueError, match="cap"):
         HouseholderDamping(2, cap=-1.0)
+
+
+def test_predator_prey_latent_inversion_recovers_predators():
+    """KNOWN predator-prey: the latent predator density is recovered exactly from the prey velocity."""
+    model = build_model("PHAST/PredatorPrey-v0", "known").double()
+    x = make_env_system("PHAST/PredatorPrey-v0").sample_initial(np.random.default_rng(0), 32)
+    q, p = torch.as_tensor(x[:, :1]), torch.as_tensor(x[:, 1:])
+    qdot, _ = model.core.field.rhs(q, p, None)
+    assert torch.allclose(model.canonicalize(q, qdot), p, atol=1e-9)
