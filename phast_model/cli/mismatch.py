@@ -19,7 +19,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--holdout-fraction", type=float, default=0.3, help="share of trajectories (or of time, for one) held out")
     p.add_argument("--out", required=True, help="report directory (report.json, report.md, PNG plots)")
     p.add_argument("--threshold", type=float, default=5.0, help="significance a term must reach (|coefficient|/std)")
-    p.add_argument("--max-terms", type=int, default=3, help="most terms to add")
+    p.add_argument("--max-terms", type=int, default=5, help="most terms to add")
     p.add_argument("--shoot-window", type=int, default=None, help="shooting window in samples (default: half a period)")
     p.add_argument("--smoothing-window", type=int, default=None, help="Savitzky-Golay window in samples (seeds, residual map)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")

@@ -36,7 +36,7 @@ class Options:
     smoothing_window: int | None = None  # Savitzky-Golay window [samples] for seeds and the residual map
     shoot_window: int | None = None  # shooting window [samples] (default: one oscillation period)
     threshold: float = 5.0  # a term must reach |coefficient| / std > threshold (and the chi^2 gain threshold^2)
-    max_terms: int = 3
+    max_terms: int = 5
     coulomb_eps_rel: float = 0.005  # tanh smoothing of sign(qdot), relative to the rms velocity
     max_windows: int = 200  # cap on shooting windows (subsampled evenly beyond it)
     max_residuals: int = 9000  # cap on windows x samples x coordinates (time per case)
@@ -163,8 +163,8 @@ def _initial_states(shooter_factory: Callable[[Recordings], Shooter], system: Sy
     """Fit each trajectory's initial (q, qdot) to its first K samples with ``system``."""
     sub = rec.time_slice(0, K)
     sh = shooter_factory(sub)
-    off = np.asarray(getattr(system, "sensor_offset", np.zeros(rec.n)))
-    X0 = np.concatenate([qs[:, 0] - off, vs[:, 0]], axis=1)
+    unmeasure = getattr(system, "unmeasure", lambda y: y)
+    X0 = np.concatenate([unmeasure(qs[:, 0]), vs[:, 0]], axis=1)
     fit = sh.fit(lambda g: system, X0, np.zeros(0), max_iter=15)
     return fit.X
 
@@ -184,8 +184,8 @@ def evaluate_models(models: dict[str, System], rec: Recordings, sigma: np.ndarra
         d = angle_diff(q_roll, rec.q, rec.angle_dims) / scale
         rollout_rmse = float(np.sqrt(np.mean(np.where(np.isfinite(d), d, 1e6) ** 2)))
         # one step from every smoothed state
-        off = np.asarray(getattr(system, "sensor_offset", np.zeros(n)))
-        q0 = (qs[:, :-1] - off).reshape(-1, n)
+        unmeasure = getattr(system, "unmeasure", lambda y: y)
+        q0 = unmeasure(qs[:, :-1]).reshape(-1, n)
         v0 = vs[:, :-1].reshape(-1, n)
         u1 = None if rec.u is None else rec.u.reshape(-1, 1, n)
         q1 = simulate_qv(system, q0, v0, 1, u1, dt, sub)[:, 1]
@@ -206,8 +206,7 @@ def locate(system: System, rec: Recordings, sg_window: int, eps: float, share_fl
     dt, n = rec.dt, rec.n
     w = _odd(min(max(sg_window, 5), rec.T - 1 + rec.T % 2 - 1))
     qs, vs = smooth(rec.q, dt, w)
-    off = np.asarray(getattr(system, "sensor_offset", np.zeros(n)))
-    qs = qs - off
+    qs = getattr(system, "unmeasure", lambda y: y)(qs)
     p = momentum(system, qs, vs)
     dp = savgol_filter(p, w, 3, deriv=1, delta=dt, axis=1, mode="interp")
     qc = tuple(qs[..., i] for i in range(n))
@@ -446,6 +445,10 @@ def analyze(sim: str, recordings: str | Path | Mapping[str, Any] | Recordings, s
             elif name == "actuator_deadzone" and has_u[i]:
                 cands.append((name, i, float(np.median(np.abs(train.u[..., i]))), 0.3))
             elif name == "sensor_offset":
+                cands.append((name, i, float(sigma[i] * 10 + 1e-3 * q_std[i]), h))
+            elif name == "sensor_gain":
+                cands.append((name, i, 0.01, h))
+            elif name == "sensor_eccentricity" and i in train.angle_dims:
                 cands.append((name, i, float(sigma[i] * 10 + 1e-3 * q_std[i]), h))
     def candidate_columns(fit: ShootFit, fam: Family, ks: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Residual and candidate columns at ``fit`` with window states and current globals projected out."""

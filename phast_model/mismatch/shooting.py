@@ -91,7 +91,7 @@ def simulate_qv(system: System, q0: np.ndarray, v0: np.ndarray, n_steps: int, u:
                 dt: float, substeps: int) -> np.ndarray:
     """Simulate a batch from (q0, qdot0) (B, n) and return measured q (B, n_steps+1, n).
 
-    The measurement map adds the model's ``sensor_offset`` (zero for a plain system).
+    The model's measurement map (``measure``: sensor terms) is applied to the output.
     """
     B, n = q0.shape
     p0 = momentum(system, q0, v0)
@@ -106,10 +106,8 @@ def simulate_qv(system: System, q0: np.ndarray, v0: np.ndarray, n_steps: int, u:
             q = [np.broadcast_to(c, (B,)) for c in q]
             p = [np.broadcast_to(c, (B,)) for c in p]
             out[:, t + 1] = np.stack(q, -1)
-    off = getattr(system, "sensor_offset", None)
-    if off is not None and any(o != 0.0 for o in off):
-        out = out + np.asarray(off)[None, None, :]
-    return out
+    measure = getattr(system, "measure", None)
+    return measure(out) if measure is not None else out
 
 
 # --------------------------------------------------------------------------- windows

@@ -35,7 +35,7 @@ def make_reality(env_id: str, terms: list[Term] | tuple[Term, ...] = (), true_kw
         u = u_std * np.sum(np.sin(2 * np.pi * freqs[:, :, None, :] * t[None, None, :, None] + phases[:, :, None, :]), axis=1) / np.sqrt(1.5)
     sub = base.substeps * 2 if any(t.name == "coulomb_friction" for t in terms) else None
     x = simulate(system, x0, T - 1, u=u, substeps=sub)
-    q = x[..., : base.n] + np.asarray(system.sensor_offset)[None, None, :]
+    q = system.measure(x[..., : base.n])
     q = q + rng.normal(0.0, noise_std, size=q.shape)
     out: dict[str, Any] = {"q": q, "dt": base.dt, "angle_dims": np.asarray(base.angle_dims, dtype=int)}
     if u is not None:

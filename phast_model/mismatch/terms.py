@@ -10,7 +10,10 @@ in one component of the port-Hamiltonian structure:
 * potential (``linear_stiffness``, ``cubic_stiffness``, ``constant_force``):
   an extra potential V_extra(q_i) added to H, force ``-dV_extra/dq_i``;
 * port (``actuator_gain``, ``actuator_deadzone``): the delivered port force;
-* sensor (``sensor_offset``): the measurement map, ``q_meas = q + c``.
+* sensor (``sensor_offset``, and two additions documented the same way:
+  ``sensor_gain`` ``q_meas = c q`` and ``sensor_eccentricity``
+  ``q_meas = q + c (1 - cos q)``, the even part of an off-centre encoder): the
+  measurement map.
 
 All formulas are written in component form over an array namespace ``xp`` so the
 augmented model runs with numpy (batched simulation) or torch, like the systems.
@@ -37,7 +40,11 @@ VOCABULARY: dict[str, tuple[str, str, bool]] = {
     "actuator_gain": ("port", "(c-1)*u{i}", True),
     "actuator_deadzone": ("port", "port delivers 0 when abs(u{i}) < c", True),
     "sensor_offset": ("sensor", "measured q{i} = true q{i} + c", False),
+    # additions to the MISMATCH.md vocabulary, documented the same way (sensor component):
+    "sensor_gain": ("sensor", "measured q{i} = c * true q{i}", False),
+    "sensor_eccentricity": ("sensor", "measured q{i} = true q{i} + c*(1 - cos(true q{i})) (angles only)", False),
 }
+SENSOR_TERMS = ("sensor_offset", "sensor_gain", "sensor_eccentricity")
 FORCE_TERMS = ("viscous_damping", "coulomb_friction", "quadratic_drag", "position_dependent_damping",
                "linear_stiffness", "cubic_stiffness", "constant_force")
 PORT_TERMS = ("actuator_gain", "actuator_deadzone")
@@ -63,14 +70,14 @@ class Term:
             return f"({c:.4g}-1)*u{i}"
         if self.name == "constant_force":
             return f"{c:+.4g}"
-        if self.name in ("actuator_deadzone", "sensor_offset"):
-            return text.replace("+ c", f"+ {c:.4g}").replace("< c", f"< {c:.4g}")
+        if self.name in ("actuator_deadzone", "sensor_offset", "sensor_gain", "sensor_eccentricity"):
+            return text.replace("+ c", f"+ {c:.4g}").replace("< c", f"< {c:.4g}").replace("= c *", f"= {c:.4g} *")
         return text.replace("-c*", f"-{c:.4g}*")
 
 
 def default_value(name: str) -> float:
     """The coefficient at which a term has no effect."""
-    return 1.0 if name == "actuator_gain" else 0.0
+    return 1.0 if name in ("actuator_gain", "sensor_gain") else 0.0
 
 
 class AugmentedSystem(System):
@@ -93,9 +100,44 @@ class AugmentedSystem(System):
                      "hamiltonian_system", "coordinate_names"):
             setattr(self, attr, getattr(base, attr))
         self.sensor_offset = [0.0] * base.n
+        self.sensor_gain = [1.0] * base.n
+        self.sensor_ecc = [0.0] * base.n
         for t in self.terms:
             if t.name == "sensor_offset":
                 self.sensor_offset[t.coordinate] += t.coefficient
+            elif t.name == "sensor_gain":
+                self.sensor_gain[t.coordinate] *= t.coefficient
+            elif t.name == "sensor_eccentricity":
+                self.sensor_ecc[t.coordinate] += t.coefficient
+
+    @property
+    def has_sensor_terms(self) -> bool:
+        return any(t.name in SENSOR_TERMS for t in self.terms)
+
+    def measure(self, q: Any) -> Any:
+        """The measurement map: (..., n) true coordinates -> what the sensor reports."""
+        if not self.has_sensor_terms:
+            return q
+        import numpy as np
+
+        q = np.asarray(q, dtype=float)
+        out = q * np.asarray(self.sensor_gain) + np.asarray(self.sensor_offset)
+        ecc = np.asarray(self.sensor_ecc)
+        if np.any(ecc != 0):
+            out = out + ecc * (1.0 - np.cos(q))
+        return out
+
+    def unmeasure(self, y: Any) -> Any:
+        """Approximate inverse of :meth:`measure` (two fixed-point steps; the effects are small)."""
+        if not self.has_sensor_terms:
+            return y
+        import numpy as np
+
+        y = np.asarray(y, dtype=float)
+        q = (y - np.asarray(self.sensor_offset)) / np.asarray(self.sensor_gain)
+        for _ in range(2):
+            q = q - (self.measure(q) - y) / np.asarray(self.sensor_gain)
+        return q
 
     def __repr__(self) -> str:
         return f"AugmentedSystem({self.base!r}, terms={list(self.terms)})"
