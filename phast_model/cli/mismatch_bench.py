@@ -104,7 +104,11 @@ def run_tool(case: Case, rec: dict[str, Any], holdout: float) -> dict[str, Any]:
 
 def run_sindy(case: Case, rec: dict[str, Any], threshold: float = 0.05) -> dict[str, Any]:
     """PySINDy peer: own differentiation + STLSQ on the same named terms, residual to the nominal model."""
+    import warnings
+
     import pysindy as ps
+
+    warnings.filterwarnings("ignore", category=UserWarning, module="pysindy")
 
     from phast_gym.registry import make_env_system
     from phast_gym.systems.base import NUMPY
