@@ -158,6 +158,9 @@ def write_report(report: Report, out_dir: str | Path, plots: bool = True) -> Pat
     out = Path(out_dir)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o777 & ~umask)  # mkdtemp creates 0700; a report directory is an ordinary one
     try:
         (tmp / "report.json").write_text(json.dumps(_jsonable(report.to_dict()), indent=2) + "\n")
         (tmp / "report.md").write_text(markdown(report))
