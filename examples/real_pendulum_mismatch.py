@@ -41,13 +41,25 @@ def load(path: Path, n_seg: int = 6, max_T: int | None = None) -> tuple[dict[str
     return rec, kwargs
 
 
-def run(data: Path = DEFAULT_DATA, out: Path | None = None, max_T: int | None = None, progress: bool = True) -> dict[str, Any]:
+def decrements(path: Path) -> list[tuple[float, float]]:
+    """(amplitude, decrement to the next peak) of every swing of the whole recording (peaks of q - pi)."""
+    from scipy.signal import find_peaks
+
+    with np.load(path) as z:
+        q = z["q"][..., 0] - math.pi
+    peaks = np.concatenate([seg[find_peaks(seg, distance=300)[0]] for seg in q])
+    return [(float(a), float(a - b)) for a, b in zip(peaks[:-1], peaks[1:])]
+
+
+def run(data: Path = DEFAULT_DATA, out: Path | None = None, max_T: int | None = None, progress: bool = True,
+        shoot_window: int | None = None) -> dict[str, Any]:
     """Analyze the recording; returns headline numbers (and writes the report to ``out``)."""
     from phast_model.mismatch import analyze
 
     rec, kwargs = load(Path(data), max_T=max_T)
     # 6 segments, hold out the last 2 (segments 5-6): holdout_fraction 2/6
-    report = analyze("PHAST/Pendulum-v0", rec, sim_kwargs=kwargs, holdout_fraction=2 / 6, progress=progress)
+    report = analyze("PHAST/Pendulum-v0", rec, sim_kwargs=kwargs, holdout_fraction=2 / 6, progress=progress,
+                     shoot_window=shoot_window)
     if out is not None:
         report.write(out)
     f = report.fit
@@ -68,9 +80,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--data", type=Path, default=DEFAULT_DATA, help="path to multiarm_single_pendulum.npz")
     ap.add_argument("--out", type=Path, default=Path("real_pendulum_report"), help="report directory")
     ap.add_argument("--max-T", type=int, default=None, help="use only the first samples of each segment (faster)")
+    ap.add_argument("--shoot-window", type=int, default=None, help="shooting window in (decimated) samples")
+    ap.add_argument("--decrements", action="store_true", help="only print the swing-peak decrements of the recording")
     args = ap.parse_args(argv)
     try:
-        res = run(args.data, args.out, args.max_T)
+        if args.decrements:
+            for a, d in decrements(args.data)[::6]:
+                print(f"amplitude {a:.4f} rad  decrement {d:.5f} rad  ratio {d / a:.4f}")
+            return 0
+        res = run(args.data, args.out, args.max_T, shoot_window=args.shoot_window)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
