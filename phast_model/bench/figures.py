@@ -14,6 +14,7 @@ weights and rolled out open loop on test trajectories:
 from __future__ import annotations
 
 import math
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -107,12 +108,19 @@ def make_figures(out_dir: str | Path, specs: list[RunSpec], n_traj: int = 3, H: 
         preds, models = {}, {}
         for rec in chosen:
             spec = RunSpec.from_config(rec["config"])
-            model = load_model(out_dir, spec, train)
+            try:
+                model = load_model(out_dir, spec, train)
+            except (RuntimeError, OSError, KeyError) as exc:  # weights from another version of the model code
+                warnings.warn(f"figures: skipping {env} {rec['model']} seed {rec['seed']}: saved weights do not load "
+                              f"into the current code ({str(exc).splitlines()[0]}); rerun that run to draw it", stacklevel=2)
+                continue
             dtype = next(model.parameters()).dtype
             with torch.no_grad():
                 roll = model.rollout(torch.as_tensor(q[:, :K], dtype=dtype), torch.as_tensor(u, dtype=dtype), Hh).numpy()
             preds[rec["model"]] = roll
             models[rec["model"]] = model
+        if not preds:
+            continue
         t = np.arange(q.shape[1]) * test.dt
         tr = t[K:K + Hh]
         n = q.shape[-1]
