@@ -185,3 +185,12 @@ def test_angle_offset_convention():
     a = validate(d, 1, (0,))
     b = validate(shifted, 1, (0,))
     np.testing.assert_allclose(np.sin(a.q), np.sin(b.q), atol=1e-12)
+
+
+def test_unexplained_residual_is_located_when_no_term_fits():
+    """A bias torque with only friction terms allowed: nothing passes, the residual is located as a potential force."""
+    rec = make_reality("PHAST/DampedPendulum-v0", [Term("constant_force", 0, 0.4)], n_traj=10, T=250, noise_std=0.01, seed=8)
+    rep = analyze("PHAST/DampedPendulum-v0", rec, terms=("viscous_damping", "coulomb_friction"))
+    assert rep.missing_physics == []
+    assert "Unexplained residual" in rep.summary
+    assert rep.located and rep.located[0]["coordinate"] == 0 and rep.located[0]["component"] == "potential"
