@@ -246,4 +246,5 @@ class PortHamiltonianEnv(gym.Env):
             return None
         from .render import render_frame
 
-        return render_frame(self.system, np.array(self._q), u=np.array(self._last_u), actuated_dofs=self.actuated_dofs)
+        return render_frame(self.system, np.array(self._q), u=np.array(self._last_u), actuated_dofs=self.actuated_dofs,
+                            p=np.array(self._p))
