@@ -1,0 +1,123 @@
+"""Batched dataset generation: shapes, determinism, agreement with the env, cache integrity."""
+
+from __future__ import annotations
+
+import os
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import phast_gym
+from phast_gym import datasets
+from phast_gym.datasets import cache_dir, make_dataset, make_splits
+
+
+def test_shapes_and_contents() -> None:
+    ds = make_dataset("PHAST/WindyCartPole-v0", 8, T=30, seed=1, cache=False)
+    assert ds.q.shape == ds.q_true.shape == ds.p.shape == ds.damping.shape == (8, 30, 2)
+    assert ds.u.shape == (8, 29, 2) and ds.dt == 0.02 and ds.angle_dims == (1,)
+    assert np.all(ds.q[..., 1] >= -np.pi) and np.all(ds.q[..., 1] < np.pi)
+    assert np.allclose(ds.q[..., 0], ds.q_true[..., 0])
+    s = phast_gym.make_env_system("PHAST/WindyCartPole-v0")
+    assert np.allclose(ds.damping[..., 1], 0.3 + 0.5 * np.abs(np.sin(ds.q_true[..., 1])))
+    assert np.allclose(ds.damping[..., 0], s.d_cart)
+
+
+def test_deterministic_in_seed() -> None:
+    a = make_dataset("PHAST/WindyPendulum-v0", 5, T=20, seed=3, cache=False, obs_noise_std=0.01)
+    b = make_dataset("PHAST/WindyPendulum-v0", 5, T=20, seed=3, cache=False, obs_noise_std=0.01)
+    c = make_dataset("PHAST/WindyPendulum-v0", 5, T=20, seed=4, cache=False, obs_noise_std=0.01)
+    assert np.array_equal(a.q, b.q) and np.array_equal(a.p, b.p)
+    assert not np.array_equal(a.q, c.q)
+    assert 0.005 < np.std(a.q - np.angle(np.exp(1j * a.q_true))) < 0.02
+
+
+@pytest.mark.parametrize("env_id", ["PHAST/WindyPendulum-v0", "PHAST/WindyCartPole-v0", "PHAST/LennardJones3-v0",
+                                    "PHAST/PredatorPrey-v0", "PHAST/NBody3-v0"])
+def test_batched_simulator_equals_single_env(env_id: str) -> None:
+    rng = np.random.default_rng(0)
+    n = phast_gym.make_env_system(env_id).n
+    u = rng.uniform(-1, 1, (4, 25, n))
+    ds = make_dataset(env_id, 4, T=26, seed=5, u=u, cache=False)
+    env = gym.make(env_id, dtype=np.float64).unwrapped
+    for i in range(4):
+        env.reset(options={"state": np.concatenate([ds.q_true[i, 0], ds.p[i, 0]])})
+        for t in range(25):
+            obs, _, _, _, info = env.step(u[i, t])
+            assert np.allclose(info["state"], np.concatenate([ds.q_true[i, t + 1], ds.p[i, t + 1]]), rtol=0, atol=1e-12)
+            assert np.allclose(obs, ds.q[i, t + 1], atol=1e-12)
+
+
+def test_actuated_dofs_and_u_validation() -> None:
+    ds = make_dataset("PHAST/WindyCartPole-v0", 3, T=10, u=np.ones((3, 9, 1)), actuated_dofs=[1], cache=False)
+    assert ds.u.shape == (3, 9, 1) and ds.actuated_dofs == (1,)
+    with pytest.raises(ValueError, match="u must broadcast"):
+        make_dataset("PHAST/WindyCartPole-v0", 3, T=10, u=np.ones((3, 5, 2)), cache=False)
+    with pytest.raises(ValueError, match="finite"):
+        make_dataset("PHAST/Pendulum-v0", 2, T=5, u=np.full((2, 4, 1), np.nan), cache=False)
+    with pytest.raises(ValueError, match="n_traj"):
+        make_dataset("PHAST/Pendulum-v0", 0, T=5, cache=False)
+    with pytest.raises(ValueError, match="env kwarg"):
+        make_dataset("PHAST/Pendulum-v0", 2, T=5, render_mode="rgb_array", cache=False)
+    with pytest.raises(gym.error.Error):
+        make_dataset("PHAST/NoSuchEnv-v0", 2, T=5)
+
+
+def test_paper_split_sizes() -> None:
+    splits = make_splits("PHAST/Pendulum-v0", T=20)
+    assert [len(splits[k]) for k in ("train", "val", "test")] == [1000, 200, 200]
+    assert splits["train"].config["seed"] == 42
+    full = make_dataset("PHAST/Pendulum-v0", 1400, T=20)
+    assert np.array_equal(splits["test"].q, full.q[1200:])
+
+
+def test_cache_hit_skips_simulation(monkeypatch) -> None:
+    a = make_dataset("PHAST/DampedPendulum-v0", 6, T=15, seed=9)
+    files = list(cache_dir().glob("PHAST_DampedPendulum-v0-*.npz"))
+    assert len(files) == 1
+
+    def boom(*args, **kwargs):
+        raise AssertionError("simulate called on a cache hit")
+
+    original = datasets.simulate
+    monkeypatch.setattr(datasets, "simulate", boom)
+    b = make_dataset("PHAST/DampedPendulum-v0", 6, T=15, seed=9)
+    assert np.array_equal(a.q, b.q) and b.config == a.config
+    # any change of configuration is a different key
+    monkeypatch.setattr(datasets, "simulate", original)
+    make_dataset("PHAST/DampedPendulum-v0", 6, T=15, seed=9, gamma=0.6)
+    assert len(list(cache_dir().glob("PHAST_DampedPendulum-v0-*.npz"))) == 2
+
+
+@pytest.mark.parametrize("damage", ["truncate", "garble", "flip"])
+def test_corrupted_cache_is_detected_and_regenerated(damage: str) -> None:
+    a = make_dataset("PHAST/RLCCircuit-v0", 4, T=12, seed=11)
+    (path,) = list(cache_dir().glob("PHAST_RLCCircuit-v0-*.npz"))
+    raw = bytearray(path.read_bytes())
+    if damage == "truncate":
+        raw = raw[: len(raw) // 2]
+    elif damage == "garble":
+        raw[:64] = b"\0" * 64
+    else:  # a single flipped byte inside the array payload: caught by the checksum
+        z = np.load(path)
+        q = z["q"].copy()
+        q[0, 3, 0] += 1e-3
+        np.savez(path, **{k: z[k] for k in z.files if k != "q"}, q=q)
+        raw = bytearray(path.read_bytes())
+    path.write_bytes(bytes(raw))
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        b = make_dataset("PHAST/RLCCircuit-v0", 4, T=12, seed=11)
+    assert any("regenerating" in str(x.message) for x in w)
+    assert np.array_equal(a.q, b.q)
+    # the regenerated file is healthy again
+    c = make_dataset("PHAST/RLCCircuit-v0", 4, T=12, seed=11)
+    assert np.array_equal(a.q, c.q)
+
+
+def test_cache_writes_are_atomic() -> None:
+    make_dataset("PHAST/HeatExchange-v0", 3, T=10, seed=2)
+    leftovers = [f for f in os.listdir(cache_dir()) if ".tmp" in f]
+    assert leftovers == []
