@@ -13,6 +13,7 @@ excitation ``v_ext``), simulated batched with :func:`phast_gym.integrate.step`; 
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import time
@@ -214,7 +215,8 @@ def get_tcn_observer(protocol: ControlProtocol, cfg: TCNObserverConfig, cache_di
     """Load the observer for (protocol, cfg) from ``cache_dir`` or train and cache it."""
     system = control_system(protocol)
     if cache_dir is not None:
-        key = f"tcn_{cfg.noise_mode}_s{cfg.sigma:g}_m{cfg.sigma_max:g}_seed{cfg.seed}_dt{protocol.dt:g}_{protocol.env_id.replace('/', '_')}"
+        digest = hashlib.sha1(json.dumps([asdict(cfg), protocol.to_dict()], sort_keys=True).encode()).hexdigest()[:10]
+        key = f"tcn_{cfg.noise_mode}_s{cfg.sigma:g}_m{cfg.sigma_max:g}_{protocol.env_id.replace('/', '_')}_{digest}"
         path = Path(cache_dir) / f"{key}.pt"
         if path.is_file():
             meta = json.loads(path.with_suffix(".json").read_text())
