@@ -212,7 +212,7 @@ def _double_pendulum(cv: Canvas, system: Any, q: np.ndarray, p: np.ndarray | Non
 def _particles(cv: Canvas, system: Any, q: np.ndarray, p: np.ndarray | None, u: np.ndarray) -> None:
     xy = q.reshape(-1, 2)
     if system.name == "nbody3":
-        extent, radius = 2.0 * float(system.radius), max(0.5 * float(system.softening), 0.08)
+        extent, radius = 2.0 * float(system.radius), 0.25  # bodies are points: draw them large enough to see
     else:
         extent, radius = 1.6 * float(system.sigma), 0.5 * float(system.sigma)
     cv.cx, cv.cy = (float(v) for v in xy.mean(axis=0))  # keep the cluster in view
