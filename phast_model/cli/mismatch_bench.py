@@ -242,6 +242,9 @@ def main(argv: list[str] | None = None) -> int:
             json.dump({"command": " ".join(["phast-mismatch-bench"] + (argv if argv is not None else sys.argv[1:])),
                        "n_traj": args.n_traj, "T": args.T, "seed": args.seed, "rows": rows}, fh, indent=1,
                       default=lambda x: None if isinstance(x, float) and not math.isfinite(x) else str(x))
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600
         os.replace(tmp, out)
     return 0
 

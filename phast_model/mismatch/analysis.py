@@ -554,9 +554,9 @@ def analyze(sim: str, recordings: str | Path | Mapping[str, Any] | Recordings, s
                 _progress(opts, f"  refit with {cands[k][0]}[{cands[k][1]}]: chi^2 gain {gain:.3g}, coefficient "
                                 f"{coef:.4g}, |t| = {abs(zz) / sd:.3g}{'' if ok else ' (rejected)'}", t0)
             if ok:
-                # indistinguishable gains (within 1%): prefer the term listed first in the vocabulary (spec terms first)
+                # statistically indistinguishable gains (chi^2 within 2): prefer the term listed first in the vocabulary
                 order = list(VOCABULARY).index(cands[k][0])
-                if best is None or gain > 1.01 * best[0] or (gain >= 0.99 * best[0] and order < list(VOCABULARY).index(cands[best[1]][0])):
+                if best is None or gain > best[0] + 2.0 or (gain >= best[0] - 2.0 and order < list(VOCABULARY).index(cands[best[1]][0])):
                     best = (gain, k, fit_new, fam_new, cov_new)
         if best is None:
             break
