@@ -129,6 +129,7 @@ class PortHamiltonianEnv(gym.Env):
         self._last_u: list[float] = [0.0] * self.m
         self._action_shape = (self.m,)
         self._has_damping = sysm.has_damping()
+        self._stochastic = sysm.stochastic
         self._plain_obs = observe == "q" and self.obs_noise_std == 0.0
 
     # ------------------------------------------------------------------ helpers
@@ -221,10 +222,9 @@ class PortHamiltonianEnv(gym.Env):
             u_full = [0.0] * self.n
             for i, ui in zip(self.actuated_dofs, u):
                 u_full[i] = ui
+        # the scalar integrator returns lists of Python floats (inputs are floats): no conversion needed
         q, p = integrate.step(sysm, self._q, self._p, u_full, SCALAR, dt=self.dt, substeps=self.substeps)
-        q = [float(v) for v in q]
-        p = [float(v) for v in p]
-        if sysm.stochastic:
+        if self._stochastic:
             p = [float(v) for v in sysm.stochastic_kick(np.array(p), self.np_random)]
         self._q, self._p = q, p
         self._t += self.dt
