@@ -213,3 +213,37 @@ def test_render_rgb_array(env_id: str) -> None:
     frame = env.render()
     assert frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[2] == 3
     assert frame.std() > 0  # something is drawn
+
+
+def test_render_shows_the_port_and_follows_the_state() -> None:
+    from phast_gym.render import render_frame
+
+    system = phast_gym.make_env_system("PHAST/Pendulum-v0")
+    still = render_frame(system, [0.5])
+    pushed = render_frame(system, [0.5], u=[20.0])
+    moved = render_frame(system, [2.0])
+    assert not np.array_equal(still, pushed)  # the torque arc is drawn
+    assert not np.array_equal(still, moved)
+    assert np.array_equal(still, render_frame(system, [0.5]))  # deterministic
+    with pytest.raises(ValueError, match="q must have"):
+        render_frame(system, [0.1, 0.2])
+    with pytest.raises(ValueError, match="u must have"):
+        render_frame(system, [0.1], u=[1.0, 2.0])
+
+
+def test_render_fps_follows_dt() -> None:
+    for env_id in ("PHAST/Pendulum-v0", "PHAST/DoublePendulum-v0"):
+        env = gym.make(env_id)
+        assert env.metadata["render_fps"] == round(1.0 / env.unwrapped.dt)
+
+
+def test_demo_runner_skips_a_missing_stage(tmp_path) -> None:
+    import importlib.util
+    import pathlib
+
+    path = pathlib.Path(__file__).resolve().parents[1] / "examples" / "demo.py"
+    spec = importlib.util.spec_from_file_location("phast_demo_runner", path)
+    demo = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(demo)
+    result = demo.run_stage("no_such_stage", tmp_path)
+    assert result["status"] == "skipped" and "demo_no_such_stage.py" in result["reason"]
