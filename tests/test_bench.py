@@ -146,3 +146,12 @@ def test_ray_two_run_sweep(tmp_path: Path) -> None:
     recs = run_sweep(specs, tmp_path / "ray", backend="ray", workers=2, progress=False)
     assert sorted(r["status"] for r in recs) == ["ran", "ran"], [r.get("error") for r in recs]
     assert [r["status"] for r in run_sweep(specs, tmp_path / "ray", backend="ray", workers=2, progress=False)] == ["cached"] * 2
+
+
+def test_paper_table_metrics_agree_with_benchmark_metric() -> None:
+    """The harness's paper rows and phast_model.metrics.benchmark_metric name the same Table 4 metric."""
+    from phast_model.bench.paper import PAPER
+    from phast_model.metrics import benchmark_metric
+
+    for env_id, row in PAPER.items():
+        assert row.metric == benchmark_metric(env_id), env_id
