@@ -124,7 +124,8 @@ def run(args: argparse.Namespace) -> list[dict[str, Any]]:
                           progress=not args.no_progress, keep_episodes=keep)
     _atomic_text(out / "results.json", json.dumps(rows, indent=1))
     _atomic_text(out / "protocol.json", json.dumps({**protocol.to_dict(), "regimes": REGIMES, "seed": args.seed,
-                                                     "trials_per_regime": args.trials_per_regime, "command": " ".join(sys.argv)},
+                                                     "trials_per_regime": args.trials_per_regime,
+                                                     "command": "phast-control-eval " + " ".join(sys.argv[1:])},
                                                     indent=1))
     _atomic_text(out / "results.md", results_markdown(rows, protocol))
     if not args.no_plots:
@@ -152,7 +153,8 @@ def results_markdown(rows: list[dict[str, Any]], protocol: ControlProtocol) -> s
              f"{protocol.settle_steps} steps (success_angle: angle criterion only). Final error: |wrap(q_T - q_star)| (true q). "
              "Effort: sum_t u_t^2. Velocity error: mean_t |qdot_hat - qdot|.", ""]
     sigmas = sorted({r["sigma"] for r in rows})
-    lines += ["## All regimes (100-trial rows, paper Tables 7, 8, 11)", "",
+    per = rows[0]["n_trials"] if rows else 0
+    lines += [f"## All regimes ({per} trials per regime, pooled; paper Tables 7, 8, 11)", "",
               "| sigma | Method | Velocity estimate | Success | Success (angle only) | Final error | Effort | abs(qdot_hat - qdot) |",
               "|---|---|---|---|---|---|---|---|"]
     for s in sigmas:
