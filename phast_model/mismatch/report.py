@@ -57,8 +57,9 @@ def markdown(report: Report) -> str:
                   "|---|---|---|---|---|---|---|---|"]
         for m in d["missing_physics"]:
             alts = ", ".join(a.get("term", a.get("parameter", "")) for a in m.get("alternatives", [])) or "-"
+            expl = "-" if m["explains"] is None else format(m["explains"], ".2f")
             lines.append(f"| {m['term']} | {m['coordinate']} | {m['component']} | {m['coefficient']:.4g} | "
-                         f"[{m['ci95'][0]:.4g}, {m['ci95'][1]:.4g}] | `{m['expression']}` | {m['explains']:.2f} | {alts} |")
+                         f"[{m['ci95'][0]:.4g}, {m['ci95'][1]:.4g}] | `{m['expression']}` | {expl} | {alts} |")
     else:
         lines.append("None found.")
     f = d["fit"]
