@@ -194,3 +194,39 @@ def test_unexplained_residual_is_located_when_no_term_fits():
     assert rep.missing_physics == []
     assert "Unexplained residual" in rep.summary
     assert rep.located and rep.located[0]["coordinate"] == 0 and rep.located[0]["component"] == "potential"
+
+
+def test_energy_balance_recovers_dissipation_despite_sensor_errors():
+    """The weak-form energy balance picks Coulomb + quadratic drag (right coefficients) under an encoder offset and eccentricity."""
+    from phast_model.mismatch.energy import energy_balance
+
+    truth = [Term("coulomb_friction", 0, 0.05), Term("quadratic_drag", 0, 0.005), Term("sensor_eccentricity", 0, 0.02),
+             Term("sensor_offset", 0, 0.02)]
+    raw = make_reality("PHAST/Pendulum-v0", truth, n_traj=8, T=600, noise_std=1e-3, seed=1, x0_scale=0.7)
+    eb = energy_balance(make_env_system("PHAST/Pendulum-v0"), validate(raw, 1, (0,)), 7, 0.01)
+    found = {t["term"]: t for t in eb.terms}
+    assert set(found) == {"coulomb_friction", "quadratic_drag"}
+    assert abs(found["coulomb_friction"]["coefficient"] - 0.05) / 0.05 < 0.1
+    assert abs(found["quadratic_drag"]["coefficient"] - 0.005) / 0.005 < 0.1
+    for t in eb.terms:
+        assert t["ci95"][0] > 0
+
+
+def test_energy_balance_finds_nothing_when_dissipation_is_right():
+    from phast_model.mismatch.energy import energy_balance
+
+    raw = make_reality("PHAST/DampedPendulum-v0", [Term("sensor_offset", 0, 0.03)], n_traj=8, T=600, noise_std=1e-3, seed=2, x0_scale=0.7)
+    eb = energy_balance(make_env_system("PHAST/DampedPendulum-v0"), validate(raw, 1, (0,)), 7, 0.01)
+    assert eb.terms == []
+    assert abs(eb.damping_scale - 1.0) < 0.01
+
+
+def test_systematic_regime_uses_energy_balance(coulomb_data):
+    """Forcing the model-error regime: dissipation comes from the energy balance and stays right."""
+    rep = analyze("PHAST/Pendulum-v0", coulomb_data, systematic_chi2=0.0)
+    assert rep.details["energy_balance"]["used"]
+    assert [m["term"] for m in rep.missing_physics] == ["coulomb_friction"]
+    m = rep.missing_physics[0]
+    assert abs(m["coefficient"] - 0.1) / 0.1 < 0.1 and m["ci95"][0] > 0
+    assert rep.fit["augmented"]["rollout_rmse"] < 0.5 * rep.fit["calibrated"]["rollout_rmse"]
+    assert rep.fit["rollout_window_samples"] == coulomb_data["q"].shape[1]

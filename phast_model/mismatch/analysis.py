@@ -647,6 +647,8 @@ def analyze(sim: str, recordings: str | Path | Mapping[str, Any] | Recordings, s
     fitres, rollouts = evaluate_models({"nominal": sys_nom, "calibrated": sys_cal, "augmented": sys_aug}, hold, sigma,
                                        x_scale, K, sg_h, scale)
     fitres["evaluated_on"] = evaluated_on
+    fitres["rollout_window_samples"] = int(hold.T)  # one open-loop window per held-out trajectory (same for all three models)
+    fitres["rollout_window_s"] = float((hold.T - 1) * dt)
     fitres["rollout"] = (f"per held-out trajectory: initial state fitted to its first {K} samples, open-loop simulation over all "
                          f"{hold.T} samples with the recorded u; RMSE of q" + (" scaled per coordinate by its std" if mixed else "")
                          + (" (angles wrapped)" if rec.angle_dims else ""))
@@ -762,15 +764,21 @@ def _systematic_regime(opts: Options, t0: float, env_id: str, fam0: Family, famC
             continue
         nom0 = calibrated.get(k, {}).get("nominal", sys0.params[k])
         lo, hi = eb.damping_scale_ci95
-        calibrated[k] = {"nominal": nom0, "fitted": kwE[k], "ci95": [max(kwC[k] * lo, 0.0), kwC[k] * hi],
-                         "relative_change": kwE[k] / nom0 - 1.0 if nom0 else 0.0,
-                         "note": f"scaled by the energy balance (x{eb.damping_scale:.3g} of the shooting calibration)"}
+        if eb.damping_scale > 0:
+            calibrated[k] = {"nominal": nom0, "fitted": kwE[k], "ci95": [max(kwC[k] * lo, 0.0), kwC[k] * hi],
+                             "relative_change": kwE[k] / nom0 - 1.0 if nom0 else 0.0,
+                             "note": f"scaled by the energy balance (x{eb.damping_scale:.3g} of the shooting calibration)"}
+        else:
+            calibrated[k] = {"nominal": nom0, "fitted": 0.0, "ci95": None, "relative_change": -1.0,
+                             "note": "set to 0 by the energy balance: with the found terms its unconstrained estimate is negative "
+                                     "(a passive model cannot have it), so the model's own dissipation is dropped"}
     missing.clear()
     for t in eb.terms:
         term = Term(t["term"], t["coordinate"], t["coefficient"])
         missing.append({"term": t["term"], "coordinate": t["coordinate"], "component": VOCABULARY[t["term"]][0],
                         "coefficient": t["coefficient"], "ci95": t["ci95"], "expression": term.expression(),
-                        "explains": None, "alternatives": [],
+                        "explains": None, "alternatives": [{"term": alt.lstrip("+"), "note": "energy-balance BIC within 6 of the chosen"}
+                                                           for alt in eb.near if t["term"] not in alt],
                         "evidence": f"energy balance over {eb.n_intervals} half-cycles, |t| = {t['t']:.3g}"})
     for j, (name, i, s) in enumerate(extra):
         z, sd = cur_fit.g[P + j], math.sqrt(max(cov[P + j, P + j], 0.0))

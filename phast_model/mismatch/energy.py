@@ -56,10 +56,12 @@ class EnergyBalance:
     residual_std: float  # empirical std of the per-half-cycle energy residual [energy units]
     bic: dict[str, float] = field(default_factory=dict)
     screened: dict[str, float] = field(default_factory=dict)  # |t| of each candidate when added alone
+    near: list[str] = field(default_factory=list)  # other subsets within 6 BIC units of the chosen one (weakly distinguishable)
 
     def to_dict(self) -> dict[str, Any]:
         return {"terms": self.terms, "model_damping_scale": self.damping_scale, "model_damping_scale_ci95": self.damping_scale_ci95,
-                "n_half_cycles": self.n_intervals, "residual_std": self.residual_std, "bic": self.bic, "screened_abs_t": self.screened}
+                "n_half_cycles": self.n_intervals, "residual_std": self.residual_std, "bic": self.bic, "screened_abs_t": self.screened,
+                "nearly_as_good": self.near}
 
 
 def _intervals(v: np.ndarray, margin: int, min_len: int) -> list[tuple[int, int]]:
@@ -70,7 +72,7 @@ def _intervals(v: np.ndarray, margin: int, min_len: int) -> list[tuple[int, int]
 
 
 def energy_balance(system: System, rec: Recordings, sg_window: int, eps: float, threshold: float = 3.0,
-                   candidates: tuple[str, ...] = DISSIPATIVE, min_intervals: int = 12) -> EnergyBalance | None:
+                   candidates: tuple[str, ...] = DISSIPATIVE, min_intervals: int = 12, max_terms: int = 3) -> EnergyBalance | None:
     """Select and fit dissipative terms from the per-half-cycle energy balance of free recordings.
 
     Returns None when the balance cannot be formed (input u present, too few half-cycles).
@@ -123,26 +125,24 @@ def energy_balance(system: System, rec: Recordings, sg_window: int, eps: float, 
         t = c[cols.index(k)] / math.sqrt(max(cov[cols.index(k), cols.index(k)], 1e-300))
         return float(t)
 
-    chosen: list[int] = []
-    cur = bic(base)
-    bics = {"model only": cur}
+    # best subset (the candidate list is short): lowest BIC among subsets whose terms are all positive and significant
+    import itertools
+
+    bics = {"model only": bic(base)}
     screened = {f"{cand[k - 1][0]}[{cand[k - 1][1]}]": abs(ok(base + [k], k)) for k in range(1, 1 + len(cand))}
-    while True:
-        best = None
-        for k in range(1, 1 + len(cand)):
-            if k in chosen:
-                continue
-            cols = base + chosen + [k]
-            b = bic(cols)
+    chosen: list[int] = []
+    cur = bics["model only"]
+    ks = list(range(1, 1 + len(cand)))
+    for size in range(1, min(len(ks), max_terms) + 1):
+        for sub in itertools.combinations(ks, size):
+            cols = base + list(sub)
             c = fit(cols)[0]
-            if all(c[cols.index(m)] > 0 for m in chosen + [k]) and ok(cols, k) >= threshold and b < cur - 2.0:
-                if best is None or b < best[0]:
-                    best = (b, k)
-        if best is None:
-            break
-        cur = best[0]
-        chosen.append(best[1])
-        bics["+" + "+".join(cand[m - 1][0] for m in chosen)] = cur
+            if not all(c[cols.index(m)] > 0 and ok(cols, m) >= threshold for m in sub):
+                continue
+            b = bic(cols)
+            bics["+" + "+".join(f"{cand[m - 1][0]}[{cand[m - 1][1]}]" for m in sub)] = b
+            if b < cur - 2.0 * (len(sub) - len(chosen)):
+                cur, chosen = b, list(sub)
     # earlier terms must stay significant
     chosen = [k for k in chosen if ok(base + chosen, k) >= threshold]
     cols = base + chosen
@@ -161,4 +161,9 @@ def energy_balance(system: System, rec: Recordings, sg_window: int, eps: float, 
         sd = math.sqrt(max(cov[m, m], 0.0))
         terms.append({"term": cand[k - 1][0], "coordinate": cand[k - 1][1], "coefficient": float(c[m]),
                       "ci95": [float(c[m] - 1.959964 * sd), float(c[m] + 1.959964 * sd)], "t": float(c[m] / max(sd, 1e-300))})
-    return EnergyBalance(terms, scale, [float(x) for x in scale_ci], N, math.sqrt(rss / max(N - len(cols), 1)), bics, screened)
+    best_bics = dict(sorted(bics.items(), key=lambda kv: kv[1])[:8])  # the 8 best subsets, for the report
+    chosen_key = "+" + "+".join(f"{cand[m - 1][0]}[{cand[m - 1][1]}]" for m in chosen) if chosen else "model only"
+    near = [k for k, b in best_bics.items() if k != chosen_key and b < bics.get(chosen_key, cur) + 6.0]
+    best_bics.setdefault("model only", bics["model only"])
+    return EnergyBalance(terms, scale, [float(x) for x in scale_ci], N, math.sqrt(rss / max(N - len(cols), 1)), best_bics, screened,
+                         near)
