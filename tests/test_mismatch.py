@@ -222,9 +222,12 @@ def test_energy_balance_finds_nothing_when_dissipation_is_right():
 
 
 def test_systematic_regime_uses_energy_balance(coulomb_data):
-    """Forcing the model-error regime: dissipation comes from the energy balance and stays right."""
+    """Forcing the model-error regime: the energy balance finds the same friction, the better open-loop model is kept."""
     rep = analyze("PHAST/Pendulum-v0", coulomb_data, systematic_chi2=0.0)
-    assert rep.details["energy_balance"]["used"]
+    eb = rep.details["energy_balance"]
+    assert [t["term"] for t in eb["terms"]] == ["coulomb_friction"]
+    assert abs(eb["terms"][0]["coefficient"] - 0.1) / 0.1 < 0.1
+    assert set(eb["training_rollout_rmse"]) >= {"energy-balance model", "shooting selection"}
     assert [m["term"] for m in rep.missing_physics] == ["coulomb_friction"]
     m = rep.missing_physics[0]
     assert abs(m["coefficient"] - 0.1) / 0.1 < 0.1 and m["ci95"][0] > 0

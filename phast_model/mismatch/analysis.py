@@ -641,7 +641,7 @@ def analyze(sim: str, recordings: str | Path | Mapping[str, Any] | Recordings, s
     if final_fit.chi2_red > opts.systematic_chi2 and train.u is None:
         sysE = _systematic_regime(opts, t0, env_id, fam0, famC, fitC, selected, sys0, shooter, train, sg, eps, cands,
                                   [k for k in terms_final], sigma, x_scale, K, sg_h, scale, calibrated, missing, energy_info,
-                                  final_fit.chi2_red)
+                                  final_fit.chi2_red, sys_aug)
         if sysE is not None:
             sys_aug, final_fit = sysE
     fitres, rollouts = evaluate_models({"nominal": sys_nom, "calibrated": sys_cal, "augmented": sys_aug}, hold, sigma,
@@ -707,7 +707,8 @@ def _damping_params(env_id: str, kwargs: dict, q: np.ndarray) -> list[str]:
 def _systematic_regime(opts: Options, t0: float, env_id: str, fam0: Family, famC: Family, fitC: ShootFit,
                        selected: list[tuple[str, float]], sys0: System, shooter: Shooter, train: Recordings, sg: int, eps: float,
                        cands: list, chosen: list[int], sigma: np.ndarray, x_scale: np.ndarray, K: int, sg_h: int, scale: np.ndarray,
-                       calibrated: dict, missing: list, info: dict, chi2_aug: float) -> tuple[System, ShootFit] | None:
+                       calibrated: dict, missing: list, info: dict, chi2_aug: float,
+                       sys_shoot: System) -> tuple[System, ShootFit] | None:
     """When chi^2/dof >> 1 the shooting gains measure model error, not evidence: choose dissipation by the
     energy balance (:mod:`.energy`, empirical variance) and accept any other term only when it lowers the
     open-loop rollout error of the training recordings.  Updates ``calibrated`` / ``missing`` in place."""
@@ -752,6 +753,13 @@ def _systematic_regime(opts: Options, t0: float, env_id: str, fam0: Family, famC
         if r2 < 0.98 * base_rmse:
             extra.append(cands[k][:3])
             cur_fit, cur_build, base_rmse = f2, b2, r2
+    # the shooting selection stays when its model follows the training recordings open loop at least as well
+    shoot_rmse = evaluate_models({"s": sys_shoot}, train, sigma, x_scale, K, sg_h, scale)[0]["s"]["rollout_rmse"]
+    info["training_rollout_rmse"]["shooting selection"] = shoot_rmse
+    if shoot_rmse <= base_rmse:
+        info["used"] = False
+        info["reason"] += "; kept the shooting selection (its training rollout error is not larger)"
+        return None
     cov = cur_fit.covariance()
     # report: calibrated parameters, energy terms, accepted extra terms
     for j, (k, nom) in enumerate(paramsE):
