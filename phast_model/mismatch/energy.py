@@ -72,9 +72,11 @@ def _intervals(v: np.ndarray, margin: int, min_len: int) -> list[tuple[int, int]
 
 
 def energy_balance(system: System, rec: Recordings, sg_window: int, eps: float, threshold: float = 3.0,
-                   candidates: tuple[str, ...] = DISSIPATIVE, min_intervals: int = 12, max_terms: int = 3) -> EnergyBalance | None:
+                   candidates: tuple[str, ...] = DISSIPATIVE, min_intervals: int = 12, max_terms: int = 3,
+                   select: bool = True) -> EnergyBalance | None:
     """Select and fit dissipative terms from the per-half-cycle energy balance of free recordings.
 
+    ``select=False`` fits all ``candidates`` without selection (a diagnostic, e.g. per recording).
     Returns None when the balance cannot be formed (input u present, too few half-cycles).
     """
     if rec.u is not None and np.any(rec.u != 0):
@@ -143,8 +145,10 @@ def energy_balance(system: System, rec: Recordings, sg_window: int, eps: float, 
             bics["+" + "+".join(f"{cand[m - 1][0]}[{cand[m - 1][1]}]" for m in sub)] = b
             if b < cur - 2.0 * (len(sub) - len(chosen)):
                 cur, chosen = b, list(sub)
-    # earlier terms must stay significant
-    chosen = [k for k in chosen if ok(base + chosen, k) >= threshold]
+    if select:  # earlier terms must stay significant
+        chosen = [k for k in chosen if ok(base + chosen, k) >= threshold]
+    else:
+        chosen = ks
     cols = base + chosen
     c, cov, rss = fit(cols)
     scale, scale_ci = 1.0, [1.0, 1.0]
