@@ -233,3 +233,22 @@ def test_systematic_regime_uses_energy_balance(coulomb_data):
     assert abs(m["coefficient"] - 0.1) / 0.1 < 0.1 and m["ci95"][0] > 0
     assert rep.fit["augmented"]["rollout_rmse"] < 0.5 * rep.fit["calibrated"]["rollout_rmse"]
     assert rep.fit["rollout_window_samples"] == coulomb_data["q"].shape[1]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("with_eccentricity", [False, True])
+def test_encoder_grade_noise_friction_and_drag(with_eccentricity):
+    """Encoder-grade noise (2e-5): Coulomb + quadratic drag (+ eccentricity) are found by the shooting selection,
+    and forcing the model-error regime keeps that answer (its training rollout is not worse)."""
+    terms = [Term("coulomb_friction", 0, 0.02), Term("quadratic_drag", 0, 0.002)]
+    if with_eccentricity:
+        terms.append(Term("sensor_eccentricity", 0, 0.01))
+    d = make_reality("PHAST/DampedPendulum-v0", terms, n_traj=40, T=400, noise_std=2e-5, seed=0)
+    want = {t.name for t in terms}
+    for forced in (False, True):
+        rep = analyze("PHAST/DampedPendulum-v0", d, **({"systematic_chi2": 0.0} if forced else {}))
+        assert {m["term"] for m in rep.missing_physics} == want
+        assert not rep.details["energy_balance"]["used"]
+        for m in rep.missing_physics:
+            true = next(t.coefficient for t in terms if t.name == m["term"])
+            assert abs(m["coefficient"] - true) / true < 0.15

@@ -649,6 +649,7 @@ def analyze(sim: str, recordings: str | Path | Mapping[str, Any] | Recordings, s
     fitres["evaluated_on"] = evaluated_on
     fitres["rollout_window_samples"] = int(hold.T)  # one open-loop window per held-out trajectory (same for all three models)
     fitres["rollout_window_s"] = float((hold.T - 1) * dt)
+    fitres["rollout_init_samples"] = K
     fitres["rollout"] = (f"per held-out trajectory: initial state fitted to its first {K} samples, open-loop simulation over all "
                          f"{hold.T} samples with the recorded u; RMSE of q" + (" scaled per coordinate by its std" if mixed else "")
                          + (" (angles wrapped)" if rec.angle_dims else ""))
@@ -717,7 +718,7 @@ def _systematic_regime(opts: Options, t0: float, env_id: str, fam0: Family, famC
     if eb is None or not eb.terms:
         info["reason"] = "energy balance: no dissipative term selected" if eb is not None else "energy balance not formed"
         return None
-    info.update({"used": True, "reason": f"augmented chi^2/dof {chi2_aug:.3g} > {opts.systematic_chi2}: residual is model error, "
+    info.update({"used": True, "reason": f"shooting-augmented chi^2/dof {chi2_aug:.3g} > {opts.systematic_chi2}: residual is model error, "
                                          "not noise", **eb.to_dict()})
     _progress(opts, f"energy balance: {eb.terms}, model damping x {eb.damping_scale:.3g}", t0)
     kwC = {**{k: v for k, v in sysC.base.params.items() if k in type(sysC.base).PARAMS}, **famC.kwargs_of(fitC.g)}
