@@ -100,14 +100,14 @@ def heldout_law_diagnostic(report: Any) -> float | None:
 
 
 def run(data: Path = DEFAULT_DATA, out: Path | None = None, max_T: int | None = None, progress: bool = True,
-        shoot_window: int | None = None) -> dict[str, Any]:
+        shoot_window: int | None = None, rollout_window: float | None = None) -> dict[str, Any]:
     """Analyze the recording; returns headline numbers (and writes the report to ``out``)."""
     from phast_model.mismatch import analyze
 
     rec, kwargs = load(Path(data), max_T=max_T)
     # 6 segments, hold out the last 2 (segments 5-6): holdout_fraction 2/6
     report = analyze("PHAST/Pendulum-v0", rec, sim_kwargs=kwargs, holdout_fraction=2 / 6, progress=progress,
-                     shoot_window=shoot_window)
+                     shoot_window=shoot_window, rollout_window=rollout_window)
     if out is not None:
         report.write(out)
     f = report.fit
@@ -133,6 +133,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=Path("real_pendulum_report"), help="report directory")
     ap.add_argument("--max-T", type=int, default=None, help="use only the first samples of each segment (faster)")
     ap.add_argument("--shoot-window", type=int, default=None, help="shooting window in (decimated) samples")
+    ap.add_argument("--rollout-window", type=float, default=None,
+                    help="held-out open-loop window [s] (default: each held-out segment whole, 9.2 s)")
     ap.add_argument("--json", type=Path, default=None, help="also write the printed headline numbers to this JSON file")
     ap.add_argument("--decrements", action="store_true", help="only print the swing-peak decrements of the recording")
     args = ap.parse_args(argv)
@@ -141,7 +143,7 @@ def main(argv: list[str] | None = None) -> int:
             for a, d in decrements(args.data)[::6]:
                 print(f"amplitude {a:.4f} rad  decrement {d:.5f} rad  ratio {d / a:.4f}")
             return 0
-        res = run(args.data, args.out, args.max_T, shoot_window=args.shoot_window)
+        res = run(args.data, args.out, args.max_T, shoot_window=args.shoot_window, rollout_window=args.rollout_window)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -252,3 +252,13 @@ def test_encoder_grade_noise_friction_and_drag(with_eccentricity):
         for m in rep.missing_physics:
             true = next(t.coefficient for t in terms if t.name == m["term"])
             assert abs(m["coefficient"] - true) / true < 0.15
+
+
+def test_rollout_window_cuts_heldout_into_consecutive_windows(coulomb_data):
+    rep = analyze("PHAST/Pendulum-v0", coulomb_data, rollout_window=4.0)  # dt 0.05: 81-sample windows, 3 per 300-sample trajectory
+    assert rep.fit["rollout_window_samples"] == 81
+    assert rep.fit["rollout_n_windows"] == 4 * 3
+    assert "consecutive windows" in rep.fit["rollout"]
+    assert rep.fit["augmented"]["rollout_rmse"] < rep.fit["calibrated"]["rollout_rmse"]
+    with pytest.raises(ValueError, match="rollout_window"):
+        analyze("PHAST/Pendulum-v0", coulomb_data, rollout_window=0.1)
