@@ -22,6 +22,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-terms", type=int, default=5, help="most terms to add")
     p.add_argument("--shoot-window", type=int, default=None, help="shooting window in samples (default: half a period)")
     p.add_argument("--smoothing-window", type=int, default=None, help="Savitzky-Golay window in samples (seeds, residual map)")
+    p.add_argument("--rollout-window", type=float, default=None,
+                   help="held-out open-loop window in seconds (default: each held-out trajectory whole)")
+    p.add_argument("--systematic-chi2", type=float, default=30.0,
+                   help="augmented chi^2/dof above which dissipation is chosen by the energy balance (model error >> noise)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     return p
@@ -39,7 +43,8 @@ def main(argv: list[str] | None = None) -> int:
         if not isinstance(kwargs, dict):
             raise ValueError("--sim-kwargs must be a JSON object, e.g. '{\"length\": 0.9}'")
         opts = Options(threshold=args.threshold, max_terms=args.max_terms, shoot_window=args.shoot_window,
-                       smoothing_window=args.smoothing_window, progress=not args.quiet)
+                       smoothing_window=args.smoothing_window, progress=not args.quiet, rollout_window=args.rollout_window,
+                       systematic_chi2=args.systematic_chi2)
         report = analyze(args.sim, args.recordings, sim_kwargs=kwargs, holdout_fraction=args.holdout_fraction, options=opts)
         out = report.write(args.out, plots=not args.no_plots)
     except ValueError as exc:
