@@ -13,9 +13,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import multiprocessing as mp
 import platform
 import tempfile
 import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
@@ -67,6 +69,24 @@ def summarize(runs: list[dict]) -> dict:
     return out
 
 
+def _one(env: str, regime: str, seed: int, runs_dir: str, epochs: int, n_train: int) -> dict:
+    """One ``phast-train`` run (1 torch thread; also the worker of ``--jobs``)."""
+    torch.set_num_threads(1)
+    rd = Path(runs_dir) / f"{env.split('/')[-1]}_{regime}_s{seed}"
+    m = train_run(env, regime, rd, epochs=epochs, seed=seed, n_train=n_train, plots=False, progress=False)
+    return {"env_id": env, "regime": regime, "seed": seed, **m}
+
+
+class _call:
+    """Run now, expose the result like a future (``--jobs 1``: runs stay sequential and lazy)."""
+
+    def __init__(self, fn, *args) -> None:  # noqa: ANN001
+        self.fn, self.args = fn, args
+
+    def result(self) -> dict:
+        return self.fn(*self.args)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
@@ -75,6 +95,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--epochs", type=int, default=50)
     ap.add_argument("--n-train", type=int, default=1000)
     ap.add_argument("--runs-dir", default=None, help="keep run directories here (default: a temp dir)")
+    ap.add_argument("--jobs", type=int, default=1,
+                    help="runs in parallel processes (1 torch thread each; wall times then include contention)")
     ap.add_argument("--out", default="docs/results/phast_windy.json")
     ap.add_argument("--append", action="store_true",
                     help="keep the runs already in --out (same protocol) and skip those (env, regime, seed)")
@@ -93,16 +115,22 @@ def main(argv: list[str] | None = None) -> int:
     done = {(r["env_id"], r["regime"], r["seed"]) for r in results}
     t0 = time.time()
     jobs = [(e, r, s) for e, r in todo for s in args.seeds if (e, r, s) not in done]
-    for env, regime, seed in tqdm(jobs, desc="phast_windy"):
-        rd = runs_dir / f"{env.split('/')[-1]}_{regime}_s{seed}"
-        m = train_run(env, regime, rd, epochs=args.epochs, seed=seed, n_train=args.n_train, plots=False, progress=False)
-        results.append({"env_id": env, "regime": regime, "seed": seed, **m})
+    if args.jobs < 1:
+        raise SystemExit(f"--jobs must be >= 1, got {args.jobs}")
+    pool = ProcessPoolExecutor(args.jobs, mp_context=mp.get_context("spawn")) if args.jobs > 1 else None
+    futs = [(pool.submit if pool else _call)(_one, env, regime, seed, str(runs_dir), args.epochs, args.n_train)
+            for env, regime, seed in jobs]
+    for fut in tqdm(as_completed(futs) if pool else futs, total=len(futs), desc="phast_windy"):
+        results.append(fut.result())
+        results.sort(key=lambda r: (r["env_id"], r["regime"], r["seed"]))
         atomic_write_json(out, {
             "command": "benchmarks/phast_windy.py " + " ".join(argv if argv is not None else __import__("sys").argv[1:]),
             "protocol": {"n_train": args.n_train, "n_val": 200, "n_test": 200, "T": 200, "data_seed": 42,
                          "epochs": args.epochs, "torch_threads": 1},
             "machine": {"platform": platform.platform(), "processor": platform.processor()},
             "elapsed_s": time.time() - t0, "summary": summarize(results), "runs": results})
+    if pool:
+        pool.shutdown()
     print(json.dumps({k: {kk: v.get(kk) for kk in ("accept", "accept_wall_time")} for k, v in summarize(results).items()},
                      indent=1))
     return 0

@@ -42,6 +42,15 @@ TEMPLATES: dict[str, tuple[str, list[int] | None]] = {
 }
 
 
+#: trainer defaults of KNOWN (see :func:`build_model`; a TrainConfig value overrides them).  With V, M and the
+#: observer fixed the one-step loss is ~1e-6..1e-9 and its gradients ~1e-7..1e-12, below AdamW's default
+#: eps = 1e-8: Adam then degenerates to plain SGD with step lr * g / eps (badly conditioned, and the reason an
+#: earlier version needed lr x 100 *and* was still seed-sensitive).  eps = 1e-15 restores Adam's scale-free
+#: steps; the 1-epoch linear warm-up keeps the first steps at lr x 100 (0.1 on the damping net) from overshooting
+#: while Adam's second-moment estimate is still empty.
+KNOWN_TRAIN_DEFAULTS: dict[str, float] = {"adam_eps": 1e-15, "warmup_epochs": 1.0}
+
+
 def _windy(params: dict[str, Any]) -> tuple[float | None, float]:
     """(cap = dd, base damping) of a windy system, or (None, 0) when it has no windy law."""
     dd = params.get("dd") or 0.0
@@ -88,7 +97,12 @@ def build_model(env_id: str, regime: str, **overrides: Any) -> ForecastModel:
     if bad:
         raise ValueError(f"unknown override(s) {bad}; valid PHASTConfig fields: {sorted(names)}")
     cfg = default_config(env_id, regime, **overrides.get("env_kwargs", {}))
-    return build_from_config(replace(cfg, **overrides))
+    cfg = replace(cfg, **overrides)
+    model = build_from_config(cfg)
+    if cfg.regime == "known" and cfg.kind == "phast" and cfg.damping == "householder":
+        # read by :func:`phast_model.training.fit` where its TrainConfig leaves these None
+        model.train_defaults = dict(KNOWN_TRAIN_DEFAULTS)
+    return model
 
 
 def all_defaults() -> dict[str, dict[str, PHASTConfig]]:

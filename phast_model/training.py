@@ -44,6 +44,8 @@ class TrainConfig:
     lambda_data: float = 1.0  # weight of L_data (Eq. 85); PHAST's other weights live in its config
     skip_first: int | None = None  # predictions t < skip_first left out of the loss (None: model.loss_skip or 0)
     grad_clip: float | None = 10.0  # max grad norm (None: off)
+    warmup_epochs: float | None = None  # linear lr warm-up before the cosine decay (None: model default, else 0)
+    adam_eps: float | None = None  # AdamW eps (None: model default, else 1e-8); see resolved()
     max_nan_events: int = 5  # rollbacks allowed before training stops
     nan_lr_factor: float = 0.5  # lr multiplier after a rollback
     checkpoint_every: int = 1  # epochs between checkpoint writes (run_dir given)
@@ -129,6 +131,28 @@ def _atomic_torch_save(obj: Any, path: Path) -> None:
         raise
 
 
+def _resolved(cfg: TrainConfig, model: Any, name: str, default: float) -> float:
+    """A TrainConfig value, else the model's own default (``model.train_defaults[name]``, set e.g. by
+    :func:`phast_model.regimes.build_model` for KNOWN), else ``default``."""
+    v = getattr(cfg, name)
+    if v is None:
+        v = (getattr(model, "train_defaults", None) or {}).get(name, default)
+    return float(v)
+
+
+class _warmup_cosine:
+    """lr factor: linear warm-up from 1/(n_warm + 1) over ``n_warm`` steps, then cosine decay to 0 at ``n_total``
+    (a picklable callable, so the scheduler state stays checkpointable)."""
+
+    def __init__(self, n_warm: int, n_total: int) -> None:
+        self.n_warm, self.n_total = int(n_warm), max(int(n_total), 1)
+
+    def __call__(self, step: int) -> float:
+        if step < self.n_warm:
+            return (step + 1) / (self.n_warm + 1)
+        return 0.5 * (1.0 + math.cos(math.pi * min(step, self.n_total) / self.n_total))
+
+
 def _finite_params(model: torch.nn.Module) -> bool:
     return all(bool(torch.isfinite(p).all()) for p in model.parameters())
 
@@ -152,9 +176,17 @@ def fit(model: ForecastModel, train: Any, val: Any, cfg: TrainConfig | None = No
     gen = torch.Generator().manual_seed(cfg.seed)
     groups = model.param_groups(cfg.lr) if hasattr(model, "param_groups") else [
         {"params": [p for p in model.parameters() if p.requires_grad], "lr": cfg.lr}]
-    opt = torch.optim.AdamW(groups, lr=cfg.lr, weight_decay=cfg.weight_decay)
     n_batches = math.ceil(q_tr.shape[0] / cfg.batch_size)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=cfg.epochs * n_batches)
+    warm, eps = (_resolved(cfg, model, k, d) for k, d in (("warmup_epochs", 0.0), ("adam_eps", 1e-8)))
+    if warm < 0 or not math.isfinite(warm):
+        raise ValueError(f"warmup_epochs must be >= 0 and finite, got {warm!r}")
+    if not (eps > 0 and math.isfinite(eps)):
+        raise ValueError(f"adam_eps must be positive and finite, got {eps!r}")
+    opt = torch.optim.AdamW(groups, lr=cfg.lr, weight_decay=cfg.weight_decay, eps=eps)
+    if warm > 0:  # linear warm-up over ``warm`` epochs, then the same cosine decay to 0
+        sched = torch.optim.lr_scheduler.LambdaLR(opt, _warmup_cosine(round(warm * n_batches), cfg.epochs * n_batches))
+    else:
+        sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=cfg.epochs * n_batches)
     history: list[dict[str, Any]] = []
     best_val, best_epoch, best_state = math.inf, -1, copy.deepcopy(model.state_dict())
     start_epoch, nan_events, elapsed0 = 0, 0, 0.0

@@ -77,7 +77,7 @@ def test_resume_mid_run_is_exact(splits, tmp_path):
     class Crash(Exception):
         pass
 
-    orig = torch.optim.lr_scheduler.CosineAnnealingLR.step
+    orig = torch.optim.lr_scheduler.LRScheduler.step  # KNOWN: warm-up + cosine (LambdaLR)
     calls = {"n": 0}
     n_batches = math.ceil(48 / 16)
 
@@ -87,12 +87,12 @@ def test_resume_mid_run_is_exact(splits, tmp_path):
             raise Crash
         return orig(self, *a, **k)
 
-    torch.optim.lr_scheduler.CosineAnnealingLR.step = crashing_step
+    torch.optim.lr_scheduler.LRScheduler.step = crashing_step
     try:
         with pytest.raises(Crash):
             fit(model, splits["train"], splits["val"], cfg, run_dir=run)
     finally:
-        torch.optim.lr_scheduler.CosineAnnealingLR.step = orig
+        torch.optim.lr_scheduler.LRScheduler.step = orig
     res = fit(build_model(ENV, "known"), splits["train"], splits["val"], cfg, run_dir=run, resume=True)
     assert [h["epoch"] for h in res.history] == [1, 2, 3, 4]
     for a, b in zip(ref.model.state_dict().values(), res.model.state_dict().values()):
@@ -186,3 +186,19 @@ def test_phast_train_cli(tmp_path):
     assert load_run(out).n == 1
     assert main(["--env", ENV, "--out", str(tmp_path / "x"), "--set", "bogus=1", "--epochs", "1", "--n-train", "8",
                  "--n-val", "4", "--n-test", "4", "--T", "40", "--no-progress", "--no-plots"]) == 2
+
+
+def test_known_trainer_defaults_and_warmup(splits, tmp_path):
+    model = build_model(ENV, "known")
+    assert model.train_defaults == {"adam_eps": 1e-15, "warmup_epochs": 1.0}
+    assert not hasattr(build_model(ENV, "partial"), "train_defaults")  # other regimes keep the trainer's defaults
+    # 48 trajectories / 16 = 3 steps per epoch: 2 warm-up epochs = 6 steps, then cosine over 12 steps
+    cfg = TrainConfig(epochs=4, batch_size=16, val_every=2, progress=False, warmup_epochs=2.0)
+    res = fit(model, splits["train"], splits["val"], cfg, run_dir=tmp_path / "w")
+    base = cfg.lr * model.config.damping_lr_mult
+    assert math.isclose(res.history[0]["lr"], base * 4 / 7, rel_tol=1e-6)  # linear ramp, step 3 of 6
+    assert math.isclose(res.history[1]["lr"], base * 0.5, rel_tol=1e-6)  # cosine at 6 / 12
+    ck = torch.load(tmp_path / "w" / "checkpoint.pt", weights_only=True)  # LambdaLR state stays loadable
+    assert ck["epoch"] == 4
+    with pytest.raises(ValueError, match="adam_eps"):
+        fit(build_model(ENV, "known"), splits["train"], splits["val"], TrainConfig(epochs=1, progress=False, adam_eps=0.0))
