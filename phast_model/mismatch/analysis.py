@@ -690,7 +690,11 @@ def analyze(sim: str, recordings: str | Path | Mapping[str, Any] | Recordings, s
         located=located, missing_physics=missing, fit=fitres, summary=summary,
         details={"method": "multiple shooting of the simulator on windows (fit by simulation); Levenberg-Marquardt; "
                            "forward selection on the linearized problem with a chi^2 gain > threshold^2, then nonlinear refit; "
-                           "95% intervals from the larger of Gauss-Newton and window-cluster sandwich covariance",
+                           "95% intervals from the larger of Gauss-Newton and window-cluster sandwich covariance"
+                           + ("; model error >> noise, so dissipative terms were chosen and fitted by the per-half-cycle energy "
+                              "balance (best subset by BIC with the empirical residual variance, |t| >= "
+                              f"{opts.energy_threshold:g}; their 95% intervals from that regression) and other terms kept only where "
+                              "they lower the open-loop rollout error of the training recordings" if energy_info.get("used") else ""),
                  "shoot_window_samples": int(win.length), "n_windows": int(win.count),
                  "n_windows_dropped_as_outliers": n_dropped, "smoothing_window_samples": int(sg),
                  "coulomb_sign_smoothing": f"tanh(qdot/{eps:.3g})", "threshold": opts.threshold,
