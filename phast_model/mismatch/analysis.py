@@ -742,6 +742,7 @@ def _systematic_regime(opts: Options, t0: float, env_id: str, fam0: Family, famC
     if eb is None or not eb.terms:
         info["reason"] = "energy balance: no dissipative term selected" if eb is not None else "energy balance not formed"
         return None
+    info["shooting_selection"] = [f"{cands[k][0]}[{cands[k][1]}]" for k in chosen]
     info.update({"used": True, "reason": f"shooting-augmented chi^2/dof {chi2_aug:.3g} > {opts.systematic_chi2}: residual is model error, "
                                          "not noise", **eb.to_dict()})
     _progress(opts, f"energy balance: {eb.terms}, model damping x {eb.damping_scale:.3g}", t0)
