@@ -93,7 +93,7 @@ def energy_balance(system: System, rec: Recordings, sg_window: int, eps: float, 
     j = int(np.argmax(np.sqrt(np.mean(vs**2, axis=(0, 1)))))  # the coordinate whose turning points cut the record
     cand = [(name, i) for i in range(n) for name in candidates
             if not (name == "viscous_damping" and float(np.max(np.abs(P_model))) > 0)]  # own viscous: scaled below
-    rows, ys = [], []
+    rows, ys, groups = [], [], []
     for tr in range(rec.n_traj):
         for a, b in _intervals(vs[tr, :, j], max(3, sg_window // 2), 4):
             sl = slice(a, b + 1)
@@ -102,9 +102,10 @@ def energy_balance(system: System, rec: Recordings, sg_window: int, eps: float, 
             ecc = [gradV[tr, a, i] * (1 - np.cos(qs[tr, a, i])) - gradV[tr, b, i] * (1 - np.cos(qs[tr, b, i])) for i in rec.angle_dims]
             rows.append([np.trapezoid(P_model[tr, sl], dx=dt)] + integ + list(gradV[tr, a] - gradV[tr, b]) + ecc)
             ys.append(H[tr, a] - H[tr, b])
+            groups.append(tr)
     if len(ys) < min_intervals:
         return None
-    A, y = np.asarray(rows, float), np.asarray(ys, float)
+    A, y, grp = np.asarray(rows, float), np.asarray(ys, float), np.asarray(groups)
     N = len(y)
     has_model = bool(np.any(A[:, 0] != 0))
     base = ([0] if has_model else []) + list(range(1 + len(cand), A.shape[1]))
@@ -116,7 +117,14 @@ def energy_balance(system: System, rec: Recordings, sg_window: int, eps: float, 
         r = y - X @ c
         rss = float(r @ r)
         s2 = rss / max(N - len(cols), 1)
-        cov = s2 * np.linalg.pinv(X.T @ X)
+        XtXi = np.linalg.pinv(X.T @ X)
+        cov = s2 * XtXi
+        G = np.unique(grp)
+        if len(G) >= 3:  # recording-cluster sandwich: half-cycles of one recording share its drifts; keep the wider
+            meat = sum(np.outer(X[grp == g].T @ r[grp == g], X[grp == g].T @ r[grp == g]) for g in G)
+            cov_cl = len(G) / (len(G) - 1) * XtXi @ meat @ XtXi
+            ratio = np.diag(cov_cl) / np.maximum(np.diag(cov), 1e-300)
+            cov = cov * max(1.0, float(np.max(ratio)))
         return c, cov, rss
 
     def bic(cols: list[int]) -> float:
