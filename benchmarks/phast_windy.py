@@ -60,13 +60,42 @@ def summarize(runs: list[dict]) -> dict:
         if crit:
             metric, op, thr = crit
             m = s[metric]["mean"]
+            vals = s[metric]["values"]
             s["accept"] = {"metric": metric, "threshold": thr, "op": op, "mean": m,
-                           "pass": bool(m >= thr if op == ">=" else m <= thr)}
+                           "pass": bool(m >= thr if op == ">=" else m <= thr),
+                           "every_seed_pass": bool(min(vals) >= thr if op == ">=" else max(vals) <= thr)}
         if env == "PHAST/WindyPendulum-v0":
             w = max(s["train_wall_time_s"]["values"])
             s["accept_wall_time"] = {"max_s": w, "threshold_s": MAX_WALL_S, "pass": bool(w <= MAX_WALL_S)}
         out[f"{env}|{regime}"] = s
     return out
+
+
+def markdown_table(doc: dict) -> str:
+    """The docs table (docs/phast_model.md) of a results JSON: one row per (env, regime), mean +- std over seeds."""
+    lines = ["| env | regime | seeds | headline metric (mean +- std) | damping R^2 (per seed) | damping MAE |"
+             " wall time per run [s] (max) | params | acceptance |", "|---|---|---|---|---|---|---|---|---|"]
+    for key, s in summarize(doc["runs"]).items():  # recomputed: tables always match the runs
+        env, regime = key.split("|")
+        bm = s["benchmark_metric"]
+
+        def ms(k: str, f: str = ".3f", s: dict = s) -> str:
+            return f"{s[k]['mean']:{f}} +- {s[k]['std']:{f}}" if k in s else "-"
+
+        r2 = ms("damping_r2") + (" (" + ", ".join(f"{v:.4f}" for v in s["damping_r2"]["values"]) + ")"
+                                  if "damping_r2" in s and ACCEPT.get((env, regime), ("",))[0] == "damping_r2" else "")
+        acc = []
+        if "accept" in s:
+            a = s["accept"]
+            acc.append(f"{a['metric']} {a['op']} {a['threshold']}: {'PASS' if a['pass'] else 'FAIL'} ({a['mean']:.4f})"
+                       + ("" if "every_seed_pass" not in a else f", every seed: {'PASS' if a['every_seed_pass'] else 'FAIL'}"))
+        if "accept_wall_time" in s:
+            acc.append(f"wall <= {MAX_WALL_S:.0f} s: {'PASS' if s['accept_wall_time']['pass'] else 'FAIL'}")
+        wall = s["train_wall_time_s"]
+        lines.append(f"| {env.split('/')[-1]} | {regime} | {len(s['seeds'])} | {bm} = {ms(bm, '.4f')} | {r2} | "
+                     f"{ms('damping_mae')} | {wall['mean']:.0f} ({max(wall['values']):.0f}) | "
+                     f"{s['n_parameters']['values'][0]:.0f} | {'; '.join(acc)} |")
+    return "\n".join(lines)
 
 
 def _one(env: str, regime: str, seed: int, runs_dir: str, epochs: int, n_train: int) -> dict:
@@ -95,12 +124,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--epochs", type=int, default=50)
     ap.add_argument("--n-train", type=int, default=1000)
     ap.add_argument("--runs-dir", default=None, help="keep run directories here (default: a temp dir)")
+    ap.add_argument("--table", action="store_true", help="print the markdown table of --out and exit")
+    ap.add_argument("--replace", action="store_true", help="with --append: drop and rerun the selected runs")
     ap.add_argument("--jobs", type=int, default=1,
                     help="runs in parallel processes (1 torch thread each; wall times then include contention)")
     ap.add_argument("--out", default="docs/results/phast_windy.json")
     ap.add_argument("--append", action="store_true",
                     help="keep the runs already in --out (same protocol) and skip those (env, regime, seed)")
     args = ap.parse_args(argv)
+    if args.table:
+        print(markdown_table(json.loads(Path(args.out).read_text())))
+        return 0
     torch.set_num_threads(1)
     todo = DEFAULT_RUNS if not args.runs else [
         (e if e.startswith("PHAST/") else f"PHAST/{e}", r) for e, r in (x.split(":") for x in args.runs)]
@@ -112,6 +146,9 @@ def main(argv: list[str] | None = None) -> int:
         if prev.get("protocol", {}).get("epochs") != args.epochs or prev.get("protocol", {}).get("n_train") != args.n_train:
             raise SystemExit(f"{out} holds another protocol; drop --append or use another --out")
         results = list(prev.get("runs", []))
+        if args.replace:  # rerun the selected (env, regime, seed) with the current code
+            sel = {(e, r, sd) for e, r in todo for sd in args.seeds}
+            results = [r for r in results if (r["env_id"], r["regime"], r["seed"]) not in sel]
     done = {(r["env_id"], r["regime"], r["seed"]) for r in results}
     t0 = time.time()
     jobs = [(e, r, s) for e, r in todo for s in args.seeds if (e, r, s) not in done]
