@@ -8,14 +8,15 @@ from __future__ import annotations
 
 import io
 import json
-import os
 import pickle
-import tempfile
 import zipfile
 from pathlib import Path
 from typing import Any
 
 import torch
+
+from phast_gym.fileio import atomic_write_bytes
+from phast_gym.fileio import atomic_write_json as _atomic_write_json
 
 from .model import PHAST, PHASTConfig, build_from_config
 
@@ -24,23 +25,9 @@ VERSION = 1
 MODEL_FILE, CONFIG_FILE = "model.pt", "config.json"
 
 
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` atomically (temp file + os.replace)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
 def atomic_write_json(path: Path, obj: Any) -> None:
-    atomic_write_bytes(Path(path), (json.dumps(obj, indent=2, sort_keys=True, default=str) + "\n").encode())
+    """config.json / metrics.json writer: sorted keys, atomic."""
+    _atomic_write_json(path, obj, indent=2, sort_keys=True)
 
 
 def save_run(model: PHAST, run_dir: str | Path, extra: dict[str, Any] | None = None) -> Path:

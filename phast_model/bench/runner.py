@@ -12,11 +12,9 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import os
 import platform
 import socket
-import tempfile
 import time
 import traceback
 from collections.abc import Iterable
@@ -25,37 +23,10 @@ from typing import Any
 
 import numpy as np
 
+from phast_gym.fileio import atomic_write_text
+from phast_gym.fileio import jsonable as _jsonable
+
 from .spec import RunSpec, run_key
-
-
-# --------------------------------------------------------------------------- files
-def atomic_write_text(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` via a temp file + os.replace (never a half-written file)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, (np.floating, float)):
-        x = float(x)
-        return x if math.isfinite(x) else None
-    if isinstance(x, (np.integer,)):
-        return int(x)
-    if hasattr(x, "item") and getattr(x, "ndim", 1) == 0:
-        return _jsonable(x.item())
-    return x
 
 
 def run_slug(spec: RunSpec) -> str:

@@ -17,15 +17,14 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import sys
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from phast_gym.control import REGIMES, ControlProtocol, estimator_names, evaluate, make_estimator
+from phast_gym.fileio import atomic_write_text
 
 #: upright (q_star = pi) defaults: k_c > m g l = 9.81 with margin, stronger damping injection
 UPRIGHT_K_C, UPRIGHT_D_INJ = 20.0, 3.0
@@ -49,14 +48,6 @@ def _parse_floats(text: str, what: str) -> list[float]:
             raise ValueError(f"{what}: {tok!r} is not a number") from None
         out.append(v)
     return out
-
-
-def _atomic_text(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-    with os.fdopen(fd, "w") as fh:
-        fh.write(text)
-    os.chmod(tmp, 0o644)  # mkstemp creates 0600
-    os.replace(tmp, path)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -123,12 +114,12 @@ def run(args: argparse.Namespace) -> list[dict[str, Any]]:
     keep = (lambda s, e, r, i: r == "far_unstable" and i == 0) if not args.no_plots else None
     rows, kept = evaluate(protocol, names, sigmas, args.trials_per_regime, seed=args.seed, factory=factory,
                           progress=not args.no_progress, keep_episodes=keep)
-    _atomic_text(out / "results.json", json.dumps(rows, indent=1))
-    _atomic_text(out / "protocol.json", json.dumps({**protocol.to_dict(), "regimes": REGIMES, "seed": args.seed,
+    atomic_write_text(out / "results.json", json.dumps(rows, indent=1))
+    atomic_write_text(out / "protocol.json", json.dumps({**protocol.to_dict(), "regimes": REGIMES, "seed": args.seed,
                                                      "trials_per_regime": args.trials_per_regime,
                                                      "command": "phast-control-eval " + " ".join(sys.argv[1:])},
                                                     indent=1))
-    _atomic_text(out / "results.md", results_markdown(rows, protocol))
+    atomic_write_text(out / "results.md", results_markdown(rows, protocol))
     if not args.no_plots:
         plot_traces(kept, protocol, out)
         plot_success_by_regime(rows, out)
