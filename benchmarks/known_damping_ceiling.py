@@ -84,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
             model.core.damping = KnownDamping(make_env_system(ENV))
             true_loss = float(next_step_loss(model, q, None, model.loss_skip)[0])
         r2 = float(1 - ((dh - d) ** 2).sum() / ((d - d.mean()) ** 2).sum())
-        print(json.dumps({"substeps": L, "init_loss": float(loss0), "init_mean_abs_grad": grads, "K": args.K,
+        print(json.dumps({"substeps": L, "init_loss": float(loss0.detach()), "init_mean_abs_grad": grads, "K": args.K,
                           "ceiling_damping_r2": r2, "ceiling_damping_mae": float(np.abs(dh - d).mean()),
                           "fourier_fit_loss": fit_loss, "true_D_loss": true_loss}))
     return 0
