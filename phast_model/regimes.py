@@ -77,11 +77,11 @@ def default_config(env_id: str, regime: str, **env_kwargs: Any) -> PHASTConfig:
         # identification settings (measured, docs/phast_model.md): with V and M known the only unknowns are D and
         # the observer; a trainable observer can absorb D under the one-step loss (gauge: only v_hat (1 - dt/2 D)
         # enters q_{t+1} when L = 1), and the L = 1 splitting error is O(dt) relative to D v.  KNOWN therefore keeps
-        # the observer at its 4th-order backward-difference init, uses L = 4 substeps, the env dt, and a 100x
-        # learning rate on the damping network (the only physics left to learn).
+        # the observer at its 4th-order backward-difference init, uses L >= 4 substeps, the env dt, a 100x
+        # learning rate on the damping network (the only physics left to learn) and KNOWN_TRAIN_DEFAULTS.
         # L = 8 on the cheap explicit (separable, Strang) core: halving the splitting error moved the windy pendulum's
         # best-achievable R^2 (Fourier-basis least squares under the same loss) from 0.994 to 0.996 and seed 4 from
-        # 0.985 to 0.995; configuration-dependent M(q) (implicit midpoint, ~4x costlier per substep) keeps L = 4.
+        # 0.985 to 0.995; configuration-dependent M(q) (implicit midpoint, costlier per substep) keeps L = 4.
         return replace(base, potential="known", mass="known", damping="householder", damping_cap=None, d0=0.0,
                        learn_d0=True, canonicalizer="mass", substeps=8 if system.separable else 4,
                        observer_trainable=False, learn_dt=False,

@@ -1,7 +1,8 @@
 """Generic trainer for any :class:`~phast_model.interfaces.ForecastModel` (PHAST and baselines).
 
 Teacher-forced next-step loss over whole trajectories at once (paper Eq. 85, wrapped on
-angles), AdamW + cosine schedule, batches of trajectories, validation every ``val_every``
+angles), AdamW + cosine schedule (optional linear warm-up; eps and warm-up may default from the
+model's ``train_defaults``), batches of trajectories, validation every ``val_every``
 epochs and at the end, best-validation selection, resumable checkpoints with optimizer,
 scheduler and RNG state, and a NaN/inf guard that rolls back to the last good state and
 lowers the learning rate instead of saving garbage.  Models may add losses through an
