@@ -15,10 +15,10 @@ Time alignment, shared by datasets, training and rollouts:
 
 from __future__ import annotations
 
-import math
-
 import torch
 from torch import nn
+
+from phast_gym.systems import wrap
 
 
 def wrap_angles(x: torch.Tensor, angle_dims: tuple[int, ...]) -> torch.Tensor:
@@ -27,7 +27,7 @@ def wrap_angles(x: torch.Tensor, angle_dims: tuple[int, ...]) -> torch.Tensor:
         return x
     out = x.clone()
     idx = list(angle_dims)
-    out[..., idx] = torch.remainder(x[..., idx] + math.pi, 2 * math.pi) - math.pi
+    out[..., idx] = wrap(x[..., idx])
     return out
 
 

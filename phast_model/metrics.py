@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 from phast_gym import make_env_system, resolve_env_id
-from phast_gym.systems import NUMPY, split
+from phast_gym.systems import NUMPY, split, wrap
 
 from .interfaces import ForecastModel
 from .rollout import batched_predict, batched_rollout
@@ -40,15 +40,12 @@ def benchmark_metric(env_id: str) -> str:
     return _HEADLINE.get(env_id, "rollout_theta_wrap_mse_h100")
 
 
-def _wrap(x: np.ndarray) -> np.ndarray:
-    return (x + np.pi) % (2 * np.pi) - np.pi
-
 
 def _sq_err(pred: np.ndarray, target: np.ndarray, angle_dims: tuple[int, ...]) -> np.ndarray:
     e = pred - target
     if angle_dims:
         e = e.copy()
-        e[..., list(angle_dims)] = _wrap(e[..., list(angle_dims)])
+        e[..., list(angle_dims)] = wrap(e[..., list(angle_dims)])
     return e * e
 
 
@@ -71,7 +68,7 @@ def energy_diagnostics(env_id: str, q_roll: np.ndarray, dt: float, angle_dims: t
     system = make_env_system(env_id, **(env_kwargs or {}))
     v = q_roll[:, 1:] - q_roll[:, :-1]
     if angle_dims:
-        v[..., list(angle_dims)] = _wrap(v[..., list(angle_dims)])
+        v[..., list(angle_dims)] = wrap(v[..., list(angle_dims)])
     v = v / dt  # v_h ~ (q_{h+1} - q_h) / dt, h = 0..H-1
     qn = q_roll[:, 1:]
     qs = split(qn)

@@ -11,7 +11,6 @@ Reward mirrors :class:`phast_gym.PortHamiltonianEnv`:
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +19,7 @@ import numpy as np
 import torch
 
 import phast_gym  # noqa: F401  (registers the ids)
+from phast_gym.systems import wrap
 
 from .api import load_run
 from .model import PHAST
@@ -98,7 +98,7 @@ class PHASTWorldModelEnv(gym.Env):
         finite = bool(np.isfinite(q).all() and np.isfinite(v).all())
         e = q - self.target
         for i in self.model.angle_dims:
-            e[i] = (e[i] + math.pi) % (2 * math.pi) - math.pi
+            e[i] = wrap(e[i])
         reward = -(float(e @ e) + 0.1 * float(v @ v) + 0.001 * float(a @ a)) if finite else -1e3
         truncated = self._t >= self.max_episode_steps
         info = {"t": self._t * self.model.dt, "velocity": v}

@@ -20,20 +20,18 @@ from typing import Any
 
 import numpy as np
 
+from phast_gym.systems import wrap
+
 from .runner import build_run_model, load_result, load_splits, work_dir
 from .spec import RunSpec
 from .summary import DISPLAY, aggregate, env_metric
-
-
-def _wrap(x: np.ndarray) -> np.ndarray:
-    return (x + np.pi) % (2 * np.pi) - np.pi
 
 
 def fd_velocity(q: np.ndarray, dt: float, angle_dims: tuple[int, ...]) -> np.ndarray:
     """(..., T, n) -> (..., T-1, n) finite-difference velocities, wrapped on angles."""
     v = q[..., 1:, :] - q[..., :-1, :]
     if angle_dims:
-        v[..., list(angle_dims)] = _wrap(v[..., list(angle_dims)])
+        v[..., list(angle_dims)] = wrap(v[..., list(angle_dims)])
     return v / dt
 
 

@@ -25,6 +25,7 @@ import numpy as np
 
 from phast_gym.control import REGIMES, ControlProtocol, estimator_names, evaluate, make_estimator
 from phast_gym.fileio import atomic_write_text
+from phast_gym.systems import wrap
 
 #: upright (q_star = pi) defaults: k_c > m g l = 9.81 with margin, stronger damping injection
 UPRIGHT_K_C, UPRIGHT_D_INJ = 20.0, 3.0
@@ -186,7 +187,7 @@ def plot_traces(kept: dict, protocol: ControlProtocol, out: Path) -> None:
             if sig != s:
                 continue
             t = np.arange(len(ep.u)) * protocol.dt
-            err = (ep.q[:-1, 0] - protocol.q_star + math.pi) % (2 * math.pi) - math.pi
+            err = wrap(ep.q[:-1, 0] - protocol.q_star)
             axes[0].plot(t, err, lw=1, label=name)
             axes[1].plot(t, ep.u[:, 0], lw=0.6, label=name)
         axes[0].set_ylabel("wrap(q - q*) [rad]")

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from phast_gym import env_ids, make_splits, resolve_env_id
+from phast_gym.systems import wrap
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -126,7 +127,7 @@ def make_plots(model: Any, test: Any, out: Path, burn_in: int = 10, H: int = 100
     def fd(x: np.ndarray) -> np.ndarray:
         d = np.diff(x, axis=1)
         for a in model.angle_dims:
-            d[..., a] = (d[..., a] + np.pi) % (2 * np.pi) - np.pi
+            d[..., a] = wrap(d[..., a])
         return d / test.dt
 
     fig, ax = plt.subplots(figsize=(5, 4))

@@ -9,11 +9,11 @@ rollouts re-run the observer on a short window only (:attr:`window`).
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import torch
 from torch import nn
+
+from phast_gym.systems import wrap
 
 from .features import coordinate_features, n_features
 
@@ -24,7 +24,7 @@ def finite_difference(q: torch.Tensor, dt: float, angle_dims: tuple[int, ...]) -
     if angle_dims:
         idx = list(angle_dims)
         d = d.clone()
-        d[..., idx] = torch.remainder(d[..., idx] + math.pi, 2 * math.pi) - math.pi
+        d[..., idx] = wrap(d[..., idx])
     return torch.cat([torch.zeros_like(q[:, :1]), d / dt], dim=1)
 
 

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 import time
 from collections import deque
 from dataclasses import asdict, dataclass
@@ -165,7 +164,7 @@ def train_tcn_observer(protocol: ControlProtocol, cfg: TCNObserverConfig, progre
             sig = torch.as_tensor(rng.uniform(0.0, cfg.sigma_max, cfg.batch_size))
         qn = qb + sig[:, None, None] * torch.randn_like(qb)
         if angle:
-            qn[..., angle] = torch.remainder(qn[..., angle] + math.pi, 2 * math.pi) - math.pi
+            qn[..., angle] = wrap(qn[..., angle])
         pred = model(qn, sig)
         w = model.window
         loss = ((pred[:, w:] - vb[:, w:]) / v_scale).pow(2).mean()

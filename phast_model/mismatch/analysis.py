@@ -20,6 +20,7 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from phast_gym.registry import make_env_system, resolve_env_id
+from phast_gym.systems import wrap
 from phast_gym.systems.base import NUMPY, System
 
 from .energy import DISSIPATIVE, energy_balance
@@ -245,7 +246,7 @@ def locate(system: System, rec: Recordings, sg_window: int, eps: float, share_fl
         ri = r[..., i].reshape(-1)
         qi = qv[..., i].reshape(-1)
         if i in rec.angle_dims:
-            qi = (qi + math.pi) % (2 * math.pi) - math.pi
+            qi = wrap(qi)
         vi = vv[..., i].reshape(-1)
         share_i = float(np.sum(ri**2)) / total
         if share_i < share_floor:

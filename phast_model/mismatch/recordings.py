@@ -16,6 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from phast_gym.systems import wrap
+
 #: fewest samples per trajectory the analysis accepts (windows + holdout need room)
 MIN_SAMPLES = 40
 
@@ -160,7 +162,7 @@ def validate(raw: Mapping[str, Any], n: int, env_angle_dims: tuple[int, ...], so
         q = q + off.reshape(-1)[None, None, :] * np.ones(n)
     for i in angle_dims:
         # convention: wrap then unwrap along time (continuous angle near the env's range)
-        w = (q[..., i] + math.pi) % (2 * math.pi) - math.pi
+        w = wrap(q[..., i])
         q[..., i] = np.unwrap(w, axis=1)
     # ---- port input
     u = None

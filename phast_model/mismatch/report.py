@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import math
 import os
 import shutil
 import tempfile
@@ -13,6 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from phast_gym.fileio import jsonable as _jsonable
+from phast_gym.systems import wrap
 
 if TYPE_CHECKING:
     from .analysis import Report
@@ -72,7 +72,7 @@ def plot(report: Report, out: Path) -> list[str]:
         ax = axes[0, i]
         q, v, r = rm["q"][..., i].reshape(-1), rm["v"][..., i].reshape(-1), rm["r"][..., i].reshape(-1)
         if i in pd["train"].angle_dims:
-            q = (q + math.pi) % (2 * math.pi) - math.pi
+            q = wrap(q)
         H, xe, ye = np.histogram2d(q, v, bins=40, weights=r)
         C, _, _ = np.histogram2d(q, v, bins=[xe, ye])
         M = np.where(C > 0, H / np.maximum(C, 1), np.nan)
@@ -102,7 +102,7 @@ def plot(report: Report, out: Path) -> list[str]:
         for name, style in (("nominal", ":"), ("calibrated", "--"), ("augmented", "-")):
             e = roll[name][0, :, i] - hold.q[0, :, i]
             if i in hold.angle_dims:
-                e = (e + math.pi) % (2 * math.pi) - math.pi
+                e = wrap(e)
             ax.plot(t, e, style, lw=1, label=name)
         ax.set_ylabel("error")
         ax.set_xlabel("t [s]")

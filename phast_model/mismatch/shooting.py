@@ -23,6 +23,7 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from phast_gym.integrate import step
+from phast_gym.systems import wrap
 from phast_gym.systems.base import NUMPY, System
 
 from .recordings import Recordings
@@ -158,7 +159,7 @@ def angle_diff(a: np.ndarray, b: np.ndarray, angle_dims: tuple[int, ...]) -> np.
     """a - b, wrapped into [-pi, pi) on angular coordinates (paper Appendix F)."""
     d = a - b
     for i in angle_dims:
-        d[..., i] = (d[..., i] + math.pi) % (2 * math.pi) - math.pi
+        d[..., i] = wrap(d[..., i])
     return d
 
 
@@ -242,6 +243,15 @@ class Shooter:
             cols.append((self.residual(system, Xp) - r0) / h)
         return np.stack(cols, -1)
 
+    def _jac_params(self, build: Callable[[np.ndarray], System], g: np.ndarray, X: np.ndarray, r: np.ndarray, g_step: float) -> np.ndarray:
+        """Forward-difference Jacobian of the residual w.r.t. the global parameters g: (..., P)."""
+        Jg = np.empty(r.shape + (g.size,))
+        for j in range(g.size):
+            gp = g.copy()
+            gp[j] += g_step
+            Jg[..., j] = (self.residual(build(gp), X) - r) / g_step
+        return Jg
+
     def fit(self, build: Callable[[np.ndarray], System], X0: np.ndarray, g0: np.ndarray,
             max_iter: int = 25, tol: float = 1e-7, g_step: float = 1e-4) -> ShootFit:
         """Levenberg-Marquardt on (window states, g) with Schur elimination of the states."""
@@ -255,11 +265,7 @@ class Shooter:
         JX = Jg = None
         for it in range(1, max_iter + 1):  # noqa: B007
             JX = self.jac_X(system, X, r)
-            Jg = np.empty(r.shape + (P,))
-            for j in range(P):
-                gp = g.copy()
-                gp[j] += g_step
-                Jg[..., j] = (self.residual(build(gp), X) - r) / g_step
+            Jg = self._jac_params(build, g, X, r, g_step)
             A = np.einsum("wla,wlb->wab", JX, JX)
             B = np.einsum("wla,wlp->wap", JX, Jg)
             C = np.einsum("wlp,wlq->pq", Jg, Jg)
@@ -295,11 +301,7 @@ class Shooter:
                 break
         # Jacobians at the final point for statistics
         JX = self.jac_X(system, X, r)
-        Jg = np.empty(r.shape + (P,))
-        for j in range(P):
-            gp = g.copy()
-            gp[j] += g_step
-            Jg[..., j] = (self.residual(build(gp), X) - r) / g_step
+        Jg = self._jac_params(build, g, X, r, g_step)
         return ShootFit(X, g, r, JX, Jg, cost, r.size, it)
 
     def fit_states(self, system: System, X0: np.ndarray, max_iter: int = 25) -> ShootFit:
