@@ -114,6 +114,21 @@ def test_observer_causal():
     assert torch.allclose(obs(q)[:, -1], obs(q[:, -obs.window:])[:, -1], atol=1e-6)
 
 
+def test_observer_startup_uses_available_order():
+    """At t < fd_order the observer uses the backward difference of order t (exact for degree-t polynomials),
+    not the order-4 formula with missing history read as zero velocity."""
+    dt = 0.1
+    obs = FDTCNObserver(1, dt, fd_order=4).double()
+    t = torch.arange(12, dtype=torch.float64) * dt
+    for deg in (1, 2, 3):
+        q = (t**deg + 0.7 * t).reshape(1, -1, 1)
+        v = obs(q)[0, :, 0]
+        exact = deg * t ** (deg - 1) + 0.7
+        assert float(v[0]) == 0.0  # one sample: no velocity information
+        for k in range(deg, 12):  # order min(k, 4) >= deg: exact
+            assert abs(float(v[k] - exact[k])) < 1e-5, (deg, k)  # float32-initialized weights
+
+
 def test_backward_difference_exact_on_polynomials():
     for order in (1, 2, 4):
         w = backward_difference_weights(order)
