@@ -53,24 +53,31 @@ def decrements(path: Path) -> list[tuple[float, float]]:
 
 
 def per_segment(report: Any) -> list[dict[str, Any]]:
-    """The found dissipative terms refitted by the energy balance on each segment alone (is the law the same in all six?)."""
+    """Is the friction law the same in all six segments?  Per segment, the energy balance with every found dissipative
+    term but Coulomb friction held at its training value, and one Coulomb coefficient fitted on that segment alone
+    (an effective constant friction torque, comparable across amplitudes)."""
     from phast_model.mismatch.energy import DISSIPATIVE, energy_balance
 
-    names = tuple(m["term"] for m in report.missing_physics if m["term"] in DISSIPATIVE)
-    if not names:
+    found = [m for m in report.missing_physics if m["term"] in DISSIPATIVE]
+    if not any(m["term"] == "coulomb_friction" for m in found):
         return []
+    held = tuple((m["term"], m["coordinate"], m["coefficient"], *([m["stribeck_velocity"]] if "stribeck_velocity" in m else []))
+                 for m in found if m["term"] != "coulomb_friction")
     aug = report.augmented_system()
     train, hold = report.plot_data["train"], report.plot_data["hold"]
     sg = int(report.details["smoothing_window_samples"])
     out = []
     for j, (r, k) in enumerate([(train, k) for k in range(train.n_traj)] + [(hold, k) for k in range(hold.n_traj)]):
-        eb = energy_balance(aug.base, r.subset(slice(k, k + 1)), sg, aug.coulomb_eps, candidates=names, min_intervals=4, select=False)
+        eb = energy_balance(aug.base, r.subset(slice(k, k + 1)), sg, aug.coulomb_eps, candidates=("coulomb_friction",),
+                            min_intervals=4, select=False, fixed=held)
         if eb is None:
             continue
         q = r.q[k, :, 0]
-        amp = [float(np.abs(q[-200:]).max()), float(np.abs(q[:200]).max())]
-        out.append({"segment": j + 1, "held_out": r is hold, "amplitude_range_rad": amp,
-                    **{t["term"]: {"coefficient": t["coefficient"], "ci95": t["ci95"]} for t in eb.terms}})
+        t = eb.terms[0]
+        out.append({"segment": j + 1, "held_out": r is hold,
+                    "amplitude_range_rad": [float(np.abs(q[-200:]).max()), float(np.abs(q[:200]).max())],
+                    "held_at_training_value": [h[0] for h in held],
+                    "effective_coulomb": {"coefficient": t["coefficient"], "ci95": t["ci95"]}})
     return out
 
 

@@ -102,7 +102,8 @@ def test_report_schema_and_files(coulomb_report, tmp_path):
 def test_augmented_system_stays_passive():
     base = make_env_system("PHAST/Pendulum-v0")
     aug = AugmentedSystem(base, [Term("coulomb_friction", 0, 0.2), Term("quadratic_drag", 0, 0.1),
-                                 Term("position_dependent_damping", 0, 0.3), Term("linear_stiffness", 0, 0.5)])
+                                 Term("position_dependent_damping", 0, 0.3), Term("linear_stiffness", 0, 0.5),
+                                 Term("stribeck_friction", 0, 0.1, velocity=0.3)])
     rng = np.random.default_rng(0)
     q, p = rng.normal(size=(1, 500)), rng.normal(size=(1, 500)) * 3
     diss, _ = aug.power_balance((q[0],), (p[0],), None)
@@ -210,6 +211,40 @@ def test_energy_balance_recovers_dissipation_despite_sensor_errors():
     assert abs(found["quadratic_drag"]["coefficient"] - 0.005) / 0.005 < 0.1
     for t in eb.terms:
         assert t["ci95"][0] > 0
+
+
+def test_stribeck_term_needs_its_velocity():
+    with pytest.raises(ValueError, match="Stribeck velocity"):
+        Term("stribeck_friction", 0, 0.1)
+    assert "exp(-(qdot0/0.3)**2)" in Term("stribeck_friction", 0, 0.1, velocity=0.3).expression()
+
+
+def test_energy_balance_finds_stribeck_friction():
+    """Extra static friction near velocity reversals is told apart from plain Coulomb friction, with its v_s profiled."""
+    from phast_model.mismatch.energy import energy_balance
+
+    truth = [Term("coulomb_friction", 0, 0.03), Term("stribeck_friction", 0, 0.06, velocity=0.4)]
+    raw = make_reality("PHAST/Pendulum-v0", truth, n_traj=8, T=600, noise_std=1e-3, seed=1, x0_scale=0.7)
+    eb = energy_balance(make_env_system("PHAST/Pendulum-v0"), validate(raw, 1, (0,)), 7, 0.01)
+    found = {t["term"]: t for t in eb.terms}
+    assert set(found) == {"coulomb_friction", "stribeck_friction"}
+    assert abs(found["coulomb_friction"]["coefficient"] - 0.03) / 0.03 < 0.1
+    assert abs(found["stribeck_friction"]["coefficient"] - 0.06) / 0.06 < 0.3
+    assert 0.4 / 1.5 < found["stribeck_friction"]["velocity"] < 0.4 * 1.5
+
+
+def test_energy_check_measures_missing_dissipation():
+    """measured / predicted energy loss is 1 for the true model and 1/0.8 when its friction is 80% of the truth."""
+    from phast_model.mismatch.energy import energy_check
+
+    truth = [Term("coulomb_friction", 0, 0.03), Term("quadratic_drag", 0, 0.005)]
+    rec = validate(make_reality("PHAST/Pendulum-v0", truth, n_traj=6, T=600, noise_std=1e-3, seed=4, x0_scale=0.7), 1, (0,))
+    base = make_env_system("PHAST/Pendulum-v0")
+    exact = energy_check(AugmentedSystem(base, truth, 0.01), rec, 7)
+    low = energy_check(AugmentedSystem(base, [Term(t.name, 0, 0.8 * t.coefficient) for t in truth], 0.01), rec, 7)
+    assert abs(exact["measured_over_predicted"] - 1.0) < 0.01 and exact["ci95"][0] < 1.0 < exact["ci95"][1] + 0.005
+    assert abs(low["measured_over_predicted"] - 1.25) < 0.015 and low["ci95"][0] > 1.2
+    assert energy_check(base, rec, 7) is None  # the undamped model dissipates nothing: no ratio
 
 
 def test_energy_balance_finds_nothing_when_dissipation_is_right():

@@ -23,7 +23,7 @@ from phast_gym.registry import make_env_system, resolve_env_id
 from phast_gym.systems import wrap
 from phast_gym.systems.base import NUMPY, System
 
-from .energy import DISSIPATIVE, energy_balance
+from .energy import DISSIPATIVE, energy_balance, energy_check
 from .recordings import Recordings, load_raw, validate
 from .shooting import Shooter, ShootFit, Windows, _odd, angle_diff, estimate_noise, momentum, simulate_qv, smooth, substeps_for, time_scale
 from .terms import FORCE_TERMS, VOCABULARY, AugmentedSystem, Term, default_value
@@ -87,7 +87,7 @@ class Family:
     env_id: str
     kwargs: dict[str, Any]
     params: list[tuple[str, float]]  # (name, nominal value); value = nominal * exp(z)
-    terms: list[tuple[str, int, float]]  # (name, coordinate, scale); coefficient = default + scale * z
+    terms: list[tuple]  # (name, coordinate, scale[, Stribeck velocity]); coefficient = default + scale * z
     eps: float
     deadzone_width: float = 0.0
 
@@ -99,11 +99,12 @@ class Family:
 
     def terms_of(self, g: np.ndarray) -> list[Term]:
         out = []
-        for (name, i, s), z in zip(self.terms, g[len(self.params):]):
+        for t, z in zip(self.terms, g[len(self.params):]):
+            name, i, s = t[:3]
             c = default_value(name) + s * float(z)
             if name == "actuator_deadzone":
                 c = abs(c)
-            out.append(Term(name, i, c))
+            out.append(Term(name, i, c, *t[3:4]))
         return out
 
     def build(self, g: np.ndarray) -> AugmentedSystem:
@@ -648,6 +649,7 @@ def analyze(sim: str, recordings: str | Path | Mapping[str, Any] | Recordings, s
     sys_aug = famA.build(final_fit.g)
     mixed = len(set(rec.angle_dims)) not in (0, n)
     scale = hold.q.reshape(-1, n).std(0) if mixed else np.ones(n)
+    hold_full = hold
     if opts.rollout_window is not None:
         W = int(round(opts.rollout_window / dt)) + 1
         if W < 20:
@@ -675,6 +677,10 @@ def analyze(sim: str, recordings: str | Path | Mapping[str, Any] | Recordings, s
                          f"simulation over all {hold.T} samples with the recorded u; RMSE of q"
                          + (" scaled per coordinate by its std" if mixed else "") + (" (angles wrapped)" if rec.angle_dims else ""))
     _progress(opts, f"held-out: {fitres}", t0)
+    # ---- does the found dissipation carry over?  energy lost vs dissipated, training and held-out (a check, no fitting)
+    if train.u is None and any(VOCABULARY[m["term"]][0] == "dissipation" for m in missing):
+        fitres["energy_check"] = {"model": "augmented", "training": energy_check(sys_aug, train, sg),
+                                  "held_out": energy_check(sys_aug, hold_full, min(sg, _odd(hold_full.T // 2 - 1)))}
     # ---- locate (training data, calibrated model)
     excess_red = fitC.chi2_red
     located, resid_map = locate(sys_cal, train, sg, eps)
@@ -754,7 +760,7 @@ def _systematic_regime(opts: Options, t0: float, env_id: str, fam0: Family, famC
     for k in damp:
         kwE[k] = kwC[k] * eb.damping_scale
     paramsE = [(k, kwC[k]) for k, _ in selected if k not in damp]
-    fixed = [(t["term"], t["coordinate"], t["coefficient"]) for t in eb.terms]
+    fixed = [(t["term"], t["coordinate"], t["coefficient"], *([t["velocity"]] if "velocity" in t else [])) for t in eb.terms]
     P, F = len(paramsE), len(fixed)
 
     def family(extra: list[tuple[str, int, float]]) -> tuple[Family, Callable[[np.ndarray], System]]:
@@ -809,9 +815,10 @@ def _systematic_regime(opts: Options, t0: float, env_id: str, fam0: Family, famC
                                      "(a passive model cannot have it), so the model's own dissipation is dropped"}
     missing.clear()
     for t in eb.terms:
-        term = Term(t["term"], t["coordinate"], t["coefficient"])
+        term = Term(t["term"], t["coordinate"], t["coefficient"], t.get("velocity", 0.0))
         missing.append({"term": t["term"], "coordinate": t["coordinate"], "component": VOCABULARY[t["term"]][0],
                         "coefficient": t["coefficient"], "ci95": t["ci95"], "expression": term.expression(),
+                        **({"stribeck_velocity": t["velocity"]} if "velocity" in t else {}),
                         "explains": None, "alternatives": [{"term": alt.lstrip("+"), "note": "energy-balance BIC within 6 of the chosen"}
                                                            for alt in eb.near if t["term"] not in alt],
                         "evidence": f"energy balance over {eb.n_intervals} half-cycles, |t| = {t['t']:.3g}"})
@@ -852,4 +859,14 @@ def _summary(env_id: str, calibrated: dict, missing: list[dict], located: list[d
     b, c, a = fitres["nominal"], fitres["calibrated"], fitres["augmented"]
     parts.append(f"On {fitres['evaluated_on']}: rollout RMSE nominal {b['rollout_rmse']:.4g}, calibrated {c['rollout_rmse']:.4g}, "
                  f"augmented {a['rollout_rmse']:.4g}.")
+    ec = fitres.get("energy_check") or {}
+    tr, ho = ec.get("training"), ec.get("held_out")
+    if ho is not None:
+        r, (lo, hi) = ho["measured_over_predicted"], ho["ci95"]
+        rt = tr["measured_over_predicted"] if tr is not None else 1.0
+        if (lo > 1.0 or hi < 1.0) and abs(r - 1.0) > 0.1 and abs(rt - 1.0) < 0.5 * abs(r - 1.0):
+            parts.append(f"Held-out check: the recordings not used for fitting lose {r:.3g}x [95% CI {lo:.3g}, {hi:.3g}] the energy the "
+                         f"augmented model dissipates (training recordings: {rt:.3g}x), so the dissipation law found on the training "
+                         "recordings does not carry over to them: it changes with amplitude, time or conditions in a way the "
+                         "vocabulary does not describe.")
     return " ".join(parts)

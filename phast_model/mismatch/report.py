@@ -51,7 +51,20 @@ def markdown(report: Report) -> str:
     lines += ["", f"## Fit on {f['evaluated_on']}", "", "| model | one-step MSE | rollout RMSE |", "|---|---|---|"]
     for name in ("nominal", "calibrated", "augmented"):
         lines.append(f"| {name} | {f[name]['one_step_mse']:.4g} | {f[name]['rollout_rmse']:.4g} |")
-    lines += ["", f"Rollout: {f.get('rollout', '')}", "", "Plots: residual_map.png, heldout_fit.png, decay.png", "",
+    lines += ["", f"Rollout: {f.get('rollout', '')}", ""]
+    ec = f.get("energy_check") or {}
+    if any(ec.get(k) for k in ("training", "held_out")):
+        lines += ["Energy check (measured energy loss / energy the augmented model dissipates, per half-cycle between turning "
+                  "points; 1 = the found dissipation accounts for all of it):", "",
+                  "| recordings | measured / predicted | 95% CI | per recording |", "|---|---|---|---|"]
+        for k in ("training", "held_out"):
+            e = ec.get(k)
+            if e:
+                per = ", ".join("-" if x is None else f"{x:.3g}" for x in e["per_recording"])
+                lo, hi = e["ci95"]
+                lines.append(f"| {k.replace('_', '-')} | {e['measured_over_predicted']:.3g} | [{lo:.3g}, {hi:.3g}] | {per} |")
+        lines.append("")
+    lines += ["Plots: residual_map.png, heldout_fit.png, decay.png", "",
               "## Method", "", str(d["details"].get("method", "")), ""]
     return "\n".join(lines)
 

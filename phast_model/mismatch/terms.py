@@ -4,7 +4,10 @@ Each term adds a force to ``pdot_i`` (or changes the port / the sensor) and sits
 in one component of the port-Hamiltonian structure:
 
 * dissipation (``viscous_damping``, ``coulomb_friction``, ``quadratic_drag``,
-  ``position_dependent_damping``): a force ``-c * f(qdot_i)`` with ``f`` odd and
+  ``position_dependent_damping``, and one addition documented the same way:
+  ``stribeck_friction`` ``-c * sign(qdot_i) * exp(-(qdot_i / v_s)**2)``, the extra
+  static friction a bearing shows near velocity reversals, with its Stribeck velocity
+  ``v_s`` carried by the term): a force ``-c * f(qdot_i)`` with ``f`` odd and
   ``c >= 0``, so ``qdot_i * force <= 0``: the augmented model stays passive
   (paper Eq. 4, dH/dt = -v^T D v + v^T u);
 * potential (``linear_stiffness``, ``cubic_stiffness``, ``constant_force``):
@@ -34,6 +37,8 @@ VOCABULARY: dict[str, tuple[str, str, bool]] = {
     "coulomb_friction": ("dissipation", "-c*sign(qdot{i})", True),
     "quadratic_drag": ("dissipation", "-c*abs(qdot{i})*qdot{i}", True),
     "position_dependent_damping": ("dissipation", "-c*abs(sin(q{i}))*qdot{i}", True),
+    # addition (dissipation): Stribeck friction, v_s = the term's ``velocity`` (qdot units)
+    "stribeck_friction": ("dissipation", "-c*sign(qdot{i})*exp(-(qdot{i}/v_s)**2)", True),
     "linear_stiffness": ("potential", "-c*q{i}", False),
     "cubic_stiffness": ("potential", "-c*q{i}**3", False),
     "constant_force": ("potential", "c", False),
@@ -46,17 +51,24 @@ VOCABULARY: dict[str, tuple[str, str, bool]] = {
 }
 SENSOR_TERMS = ("sensor_offset", "sensor_gain", "sensor_eccentricity")
 FORCE_TERMS = ("viscous_damping", "coulomb_friction", "quadratic_drag", "position_dependent_damping",
-               "linear_stiffness", "cubic_stiffness", "constant_force")
+               "linear_stiffness", "cubic_stiffness", "constant_force")  # stribeck_friction: energy balance only (needs v_s)
 PORT_TERMS = ("actuator_gain", "actuator_deadzone")
 
 
 @dataclass(frozen=True)
 class Term:
-    """One named term on one coordinate with its coefficient (MISMATCH.md units)."""
+    """One named term on one coordinate with its coefficient (MISMATCH.md units).
+
+    ``velocity`` is the Stribeck velocity v_s of ``stribeck_friction`` (unused by other terms)."""
 
     name: str
     coordinate: int
     coefficient: float
+    velocity: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.name == "stribeck_friction" and not self.velocity > 0:
+            raise ValueError(f"stribeck_friction needs a Stribeck velocity > 0, got {self.velocity!r}")
 
     @property
     def component(self) -> str:
@@ -70,6 +82,8 @@ class Term:
             return f"({c:.4g}-1)*u{i}"
         if self.name == "constant_force":
             return f"{c:+.4g}"
+        if self.name == "stribeck_friction":
+            return text.replace("-c*", f"-{c:.4g}*").replace("v_s", f"{self.velocity:.4g}")
         if self.name in ("actuator_deadzone", "sensor_offset", "sensor_gain", "sensor_eccentricity"):
             return text.replace("+ c", f"+ {c:.4g}").replace("< c", f"< {c:.4g}").replace("= c *", f"= {c:.4g} *")
         return text.replace("-c*", f"-{c:.4g}*")
@@ -224,6 +238,8 @@ class AugmentedSystem(System):
                 f[i] = f[i] - c * xp.abs(v[i]) * v[i]
             elif t.name == "position_dependent_damping":
                 f[i] = f[i] - c * xp.abs(xp.sin(q[i])) * v[i]
+            elif t.name == "stribeck_friction":
+                f[i] = f[i] - c * xp.tanh(v[i] / self.coulomb_eps) * xp.exp(-((v[i] / t.velocity) ** 2))
         return f
 
     def rhs(self, q: Components, p: Components, u: Components | None, xp: Any = NUMPY) -> tuple[tuple, tuple]:
