@@ -355,6 +355,8 @@ class LatentODECore(nn.Module):
             p = p + h / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
         return q, p
 
+    forward = strang_step
+
 
 class LatentODEModel(PHAST):
     """Predator-prey: observer -> latent predator density p (inverting the prey equation) -> RK4 core.
@@ -363,8 +365,37 @@ class LatentODEModel(PHAST):
     neural correction, UNKNOWN a neural field with a learned latent map. ``hamiltonian`` returns the env's
     Lotka-Volterra invariant (a Lyapunov-like energy), ``damping_diag`` is zero (no dissipation structure)."""
 
+    #: learning-rate multiplier of the latent prior (one scalar per latent, trained on the t = 0 step only)
+    prior_lr_mult = 100.0
+
+    def init_prior(self, q_typical: torch.Tensor, scale: float) -> None:
+        """Latent prior used where the history holds one sample (t = 0: no velocity information).  Unlike the
+        mechanical envs, whose initial momenta have zero mean, populations have a nonzero mean latent state, so
+        the first prediction is learnable: ``p_prior = scale * raw``, initialized at the latent of qdot = 0."""
+        with torch.no_grad():
+            p0 = self.canonicalize(q_typical, torch.zeros_like(q_typical)).mean(0)
+        self.prior_scale = float(scale)
+        self.prior_raw = nn.Parameter((p0 / self.prior_scale).float())
+
+    def prior_latent(self) -> torch.Tensor:
+        return self.prior_scale * self.prior_raw
+
     def canonicalize(self, q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
         return self.core.field.latent(q, v)
+
+    def forward(self, q: torch.Tensor, u: torch.Tensor | None = None) -> torch.Tensor:
+        """Teacher-forced next-step predictions; the first sample of the sequence uses the learned latent prior."""
+        q, u = self._prep(q, u)
+        p = self.canonicalize(q, self.observer(q))
+        if hasattr(self, "prior_raw"):
+            p = torch.cat([self.prior_latent().to(p.dtype).expand_as(p[:, :1]), p[:, 1:]], 1)
+        q1, _ = self.core.strang_step(q, p, self.port_force(u), need_p=False)
+        return q1
+
+    def param_groups(self, lr: float) -> list[dict[str, Any]]:
+        prior = [self.prior_raw] if hasattr(self, "prior_raw") else []
+        rest = [p for p in self.parameters() if p.requires_grad and all(p is not x for x in prior)]
+        return [g for g in ({"params": rest, "lr": lr}, {"params": prior, "lr": lr * self.prior_lr_mult}) if g["params"]]
 
     @property
     def potential(self):  # noqa: ANN201
@@ -385,7 +416,17 @@ class LatentODEModel(PHAST):
         return self.core.field.rhs(q, p, None)[0]
 
     def extra_losses(self, q: torch.Tensor, u: torch.Tensor | None, pred: torch.Tensor) -> dict[str, torch.Tensor]:
-        return {}
+        """The t = 0 step (left out of L_data, see ``loss_skip``) trains the latent prior only: the core runs with
+        detached parameters, so the irreducible first-step error (the unseen initial latent) cannot bias the field."""
+        if not hasattr(self, "prior_raw") or q.shape[1] < 2:
+            return {}
+        q, u = self._prep(q, u)
+        f = self.port_force(u)
+        params = {k: v.detach() for k, v in self.core.named_parameters()}
+        p0 = self.prior_latent().to(q.dtype).expand_as(q[:, 0])
+        q1, _ = torch.func.functional_call(self.core, params, (q[:, 0], p0, None if f is None else f[:, 0]),
+                                           {"need_p": False})
+        return {"prior": ((q1 - q[:, 1]) ** 2).mean()}
 
 
 # ------------------------------------------------------------------------------ builder
@@ -413,7 +454,10 @@ def build_from_config(cfg: PHASTConfig) -> PHAST:
         else:
             raise ValueError(f"field must be known, template or neural, got {cfg.ode_field!r}")
         core = LatentODECore(fld, system.dt, cfg.substeps, cfg.learn_dt)
-        return LatentODEModel(cfg, observer, core, system, actuated)
+        model = LatentODEModel(cfg, observer, core, system, actuated)
+        q_typ = torch.as_tensor(system.sample_initial(np.random.default_rng(0), 256)[:, :n], dtype=torch.float32)
+        model.init_prior(q_typ, qs)
+        return model
     if cfg.kind != "phast":
         raise ValueError(f"kind must be 'phast' or 'latent_ode', got {cfg.kind!r}")
     if not system.hamiltonian_system:
