@@ -202,3 +202,19 @@ def test_known_trainer_defaults_and_warmup(splits, tmp_path):
     assert ck["epoch"] == 4
     with pytest.raises(ValueError, match="adam_eps"):
         fit(build_model(ENV, "known"), splits["train"], splits["val"], TrainConfig(epochs=1, progress=False, adam_eps=0.0))
+
+
+def test_latent_prior_trains_only_on_first_step():
+    """Predator-prey: the t = 0 prior loss moves only the latent prior (the core sees detached parameters),
+    and forward uses the prior for the first prediction only."""
+    model = build_model("PHAST/PredatorPrey-v0", "partial")
+    q = torch.as_tensor(make_splits("PHAST/PredatorPrey-v0", 4, 1, 1, T=20, seed=3)["train"].q, dtype=torch.float32)
+    loss = model.extra_losses(q, None, model(q))["prior"]
+    loss.backward()
+    grads = {k: p.grad for k, p in model.named_parameters() if p.grad is not None and bool(p.grad.abs().sum() > 0)}
+    assert set(grads) == {"prior_raw"}
+    base = model(q)
+    with torch.no_grad():
+        model.prior_raw.add_(1.0)
+    moved = model(q)
+    assert not torch.allclose(base[:, 0], moved[:, 0]) and torch.allclose(base[:, 1:], moved[:, 1:])
