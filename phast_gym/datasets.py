@@ -26,7 +26,7 @@ from .integrate import simulate
 from .registry import ENV_KWARGS, make_env_system, resolve_env_id
 from .systems import NUMPY, wrap
 
-CACHE_VERSION = 1
+CACHE_VERSION = 2  # 2: Hermite-located kink crossings, vectorized sin/cos in the batched simulator
 _ARRAYS = ("q", "q_true", "p", "u", "damping")
 
 

@@ -18,14 +18,18 @@ from typing import Any
 
 import numpy as np
 
-from .systems.base import NUMPY, SCALAR, System
+from .systems.base import NUMPY_FAST, SCALAR, System
 
 
-def rk4(system: System, q: Sequence, p: Sequence, u: Sequence | None, h: Any, xp: Any) -> tuple[list, list]:
-    """One classical RK4 step of length ``h`` (float or per-sample array)."""
+def rk4(system: System, q: Sequence, p: Sequence, u: Sequence | None, h: Any, xp: Any,
+        k1: tuple | None = None) -> tuple[list, list]:
+    """One classical RK4 step of length ``h`` (float or per-sample array).
+
+    ``k1``: the vector field at ``(q, p)`` when the caller already has it (it does not depend on ``h``).
+    """
     f = system.rhs
     h2 = 0.5 * h
-    k1q, k1p = f(q, p, u, xp)
+    k1q, k1p = f(q, p, u, xp) if k1 is None else k1
     k2q, k2p = f([a + h2 * b for a, b in zip(q, k1q)], [a + h2 * b for a, b in zip(p, k1p)], u, xp)
     k3q, k3p = f([a + h2 * b for a, b in zip(q, k2q)], [a + h2 * b for a, b in zip(p, k2p)], u, xp)
     k4q, k4p = f([a + h * b for a, b in zip(q, k3q)], [a + h * b for a, b in zip(p, k3p)], u, xp)
@@ -41,43 +45,87 @@ def _any(c: Any) -> bool:
 
 def substep(system: System, q: Sequence, p: Sequence, u: Sequence | None, h: float, xp: Any) -> tuple[list, list]:
     """RK4 substep that splits at a crossing of the system's switching surface."""
-    s0 = system.switching(q, p, xp)
-    qn, pn = rk4(system, q, p, u, h, xp)
+    q, p, _ = _substep(system, q, p, u, h, xp, system.switching(q, p, xp))
+    return q, p
+
+
+def _substep(system: System, q: Sequence, p: Sequence, u: Sequence | None, h: float, xp: Any,
+             s0: Any) -> tuple[list, list, Any]:
+    """:func:`substep` given the switching value ``s0`` at the start; also returns it at the end
+    (the next substep's ``s0``, so each state's switching value is computed once)."""
+    k1 = system.rhs(q, p, u, xp)
+    qn, pn = rk4(system, q, p, u, h, xp, k1)
     if s0 is None:
-        return qn, pn
+        return qn, pn, None
     s1 = system.switching(qn, pn, xp)
     cross = s0 * s1 < 0
     if not _any(cross):
-        return qn, pn
-    if xp is NUMPY:
+        return qn, pn, s1
+    if xp is SCALAR:
+        qn, pn = _split_at_crossing(system, q, p, u, h, k1, qn, pn, s0, s1, xp)
+        return qn, pn, system.switching(qn, pn, xp)
+    if isinstance(s0, np.ndarray):
         # refine only the samples that cross; the rest keep their plain RK4 step
-        idx = np.nonzero(np.broadcast_to(cross, np.shape(s0)))[0]
+        shape = np.shape(s0)
+        idx = np.nonzero(cross)[0]
         sel = lambda c: c[idx] if np.ndim(c) else c  # noqa: E731
-        qc, pc = _split_at_crossing(system, [sel(c) for c in q], [sel(c) for c in p],
-                                    None if u is None else [sel(c) for c in u], h, s0[idx], s1[idx], xp)
-        qn = [np.array(np.broadcast_to(c, np.shape(s0)), dtype=float) for c in qn]
-        pn = [np.array(np.broadcast_to(c, np.shape(s0)), dtype=float) for c in pn]
+        qs, ps, qns, pns = ([sel(c) for c in comps] for comps in (q, p, qn, pn))
+        k1s = ([sel(c) for c in k1[0]], [sel(c) for c in k1[1]])
+        qc, pc = _split_at_crossing(system, qs, ps, None if u is None else [sel(c) for c in u], h, k1s,
+                                    qns, pns, s0[idx], s1[idx], xp)
+        # rk4 returned fresh arrays: overwrite the crossing samples in place (copy only broadcast scalars)
+        qn, pn = ([c if np.shape(c) == shape else np.array(np.broadcast_to(c, shape), dtype=float) for c in comps]
+                  for comps in (qn, pn))
         for dst, src_ in zip(qn + pn, qc + pc):
             dst[idx] = src_
-        return qn, pn
-    return _split_at_crossing(system, q, p, u, h, s0, s1, xp)
+        s1 = np.array(s1, dtype=float)  # the system's array: do not write into it
+        s1[idx] = system.switching(qc, pc, xp)
+        return qn, pn, s1
+    # torch: every sample takes two pieces; non-crossing ones split at tau = h (second piece of length 0)
+    qc, pc = _split_at_crossing(system, q, p, u, h, k1, qn, pn, xp.where(cross, s0, -1.0), xp.where(cross, s1, 1.0), xp,
+                                mask=cross)
+    return qc, pc, system.switching(qc, pc, xp)
 
 
-def _split_at_crossing(system: System, q: Sequence, p: Sequence, u: Sequence | None, h: float,
-                       s0: Any, s1: Any, xp: Any) -> tuple[list, list]:
-    """Integrate a substep known to cross the switching surface in two smooth pieces."""
+#: Illinois iterations locating a crossing on the substep's cubic interpolant
+CROSSING_ITERATIONS = 4
+
+
+def _split_at_crossing(system: System, q: Sequence, p: Sequence, u: Sequence | None, h: float, k1: tuple,
+                       qn: Sequence, pn: Sequence, s0: Any, s1: Any, xp: Any, mask: Any = None) -> tuple[list, list]:
+    """Integrate a substep known to cross the switching surface in two smooth pieces.
+
+    The crossing time is located on the cubic Hermite interpolant of q over the plain RK4 substep
+    ((q, qdot) at both ends), which costs no extra RK4 evaluations: the interpolant is
+    O(h^4) accurate and a split that misses the kink by dt leaves an O(dt^2) error.  The first
+    piece reuses ``k1`` (the field at the start does not depend on the step length).  ``mask``:
+    samples that really cross (the others take the whole substep as the first piece).
+    """
     where = xp.where
-    # regula falsi (Illinois) on the crossing time tau in [a, b]
-    a, sa, b, sb = 0.0 * s0, s0, h + 0.0 * s0, s1
-    for _ in range(3):
-        tau = a + (b - a) * sa / (sa - sb)
-        qt, pt = rk4(system, q, p, u, tau, xp)
-        st = system.switching(qt, pt, xp)
+    v0 = k1[0]
+    v1 = system.velocity(qn, pn, xp)
+    # q(th) = q + th (c1 + th (c2 + th c3)) on th = t / h in [0, 1] (cubic Hermite)
+    coef = []
+    for a, b, va, vb in zip(q, qn, v0, v1):
+        d, c1, hv1 = b - a, h * va, h * vb
+        coef.append((a, c1, 3.0 * d - 2.0 * c1 - hv1, c1 + hv1 - 2.0 * d))
+
+    def s_at(th: Any) -> Any:
+        # D = D(q) (ENVIRONMENTS.md): switching functions depend on q; p is passed for the signature
+        return system.switching([a + th * (c1 + th * (c2 + th * c3)) for a, c1, c2, c3 in coef], p, xp)
+
+    # regula falsi (Illinois) on th in [a, b]
+    a, sa, b, sb = 0.0 * s0, s0, 1.0 + 0.0 * s0, s1
+    for _ in range(CROSSING_ITERATIONS):
+        th = a + (b - a) * sa / (sa - sb)
+        st = s_at(th)
         left = sa * st < 0
-        b, sb = where(left, tau, b), where(left, st, sb * 0.5)
-        a, sa = where(left, a, tau), where(left, sa * 0.5, st)
-    tau = a + (b - a) * sa / (sa - sb)
-    q1, p1 = rk4(system, q, p, u, tau, xp)
+        b, sb = where(left, th, b), where(left, st, sb * 0.5)
+        a, sa = where(left, a, th), where(left, sa * 0.5, st)
+    tau = h * (a + (b - a) * sa / (sa - sb))
+    if mask is not None:
+        tau = where(mask, tau, h)
+    q1, p1 = rk4(system, q, p, u, tau, xp, k1)
     return rk4(system, q1, p1, u, h - tau, xp)
 
 
@@ -94,7 +142,8 @@ def step(
     dt = system.dt if dt is None else dt
     k = system.substeps if substeps is None else substeps
     h = dt / k
-    if xp is SCALAR and system.switching(q, p, xp) is None:
+    s = system.switching(q, p, xp)
+    if xp is SCALAR and s is None:
         # fast path of the single env: smooth field, Python floats, no switching test per substep
         if system.n == 1:
             f = system.rhs
@@ -105,7 +154,7 @@ def step(
                 q, p = rk4(system, q, p, u, h, xp)
         return system.post_step(q, p, xp)
     for _ in range(k):
-        q, p = substep(system, q, p, u, h, xp)
+        q, p, s = _substep(system, q, p, u, h, xp, s)
     return system.post_step(q, p, xp)
 
 
@@ -158,12 +207,22 @@ def simulate(
     out[:, 0] = x0
     q = [x0[:, i].copy() for i in range(n)]
     p = [x0[:, n + i].copy() for i in range(n)]
+    xp = NUMPY_FAST
+    k = system.substeps if substeps is None else substeps
+    h = system.dt / k
+    s = system.switching(q, p, xp)
+    # the switching value is carried from substep to substep unless the step ends with a projection or noise
+    fresh_s = s is not None and (system.stochastic or type(system).post_step is not System.post_step)
     for t in range(n_steps):
         ut = None if u is None else [u[:, t, i] for i in range(n)]
-        q, p = step(system, q, p, ut, NUMPY, substeps=substeps)
+        for _ in range(k):
+            q, p, s = _substep(system, q, p, ut, h, xp, s)
+        q, p = system.post_step(q, p, xp)
         if system.stochastic:
             pk = system.stochastic_kick(np.stack(p, -1), rng)
             p = [pk[:, i] for i in range(n)]
+        if fresh_s:
+            s = system.switching(q, p, xp)
         for i in range(n):
             out[:, t + 1, i] = q[i]
             out[:, t + 1, n + i] = p[i]

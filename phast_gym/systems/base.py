@@ -92,9 +92,48 @@ class _TorchNamespace:
         return getattr(torch, item)
 
 
+def _vectorized_trig(name: str, min_size: int = 256) -> Any:
+    """``np.sin`` / ``np.cos`` computed by torch's vectorized kernels for float64 arrays of ``min_size`` or more.
+
+    NumPy's float64 sin/cos are not SIMD here (~9 ns per element); torch's are ~3 ns.  The results
+    agree with NumPy's to 1 ulp.  Falls back to NumPy when torch is unavailable.
+    """
+    np_fn = getattr(np, name)
+    kernel: list = []  # [(torch function, torch.from_numpy)] once torch is imported
+
+    def fn(x: Any) -> Any:
+        if type(x) is not np.ndarray or x.size < min_size or x.dtype != np.float64 or not x.flags.c_contiguous:
+            return np_fn(x)
+        if not kernel:
+            try:
+                import torch
+            except ImportError:  # pragma: no cover - torch is a dependency
+                return np_fn(x)
+            kernel.append((getattr(torch, name), torch.from_numpy))
+        t_fn, from_numpy = kernel[0]
+        return t_fn(from_numpy(x)).numpy()
+
+    fn.__name__ = name
+    fn.__doc__ = f"{name} of a float64 array (torch's vectorized kernel for large arrays)"
+    return fn
+
+
+class _FastNumpyNamespace(_NumpyNamespace):
+    """:data:`NUMPY` with sin/cos on torch's vectorized kernels (the batched simulator's hot path).
+
+    Same arithmetic as ``NUMPY``; only sin/cos of large arrays may differ from NumPy's by 1 ulp.
+    """
+
+    name = "numpy-fast"
+    sin = staticmethod(_vectorized_trig("sin"))
+    cos = staticmethod(_vectorized_trig("cos"))
+
+
 SCALAR = _ScalarNamespace()
 NUMPY = _NumpyNamespace()
 TORCH = _TorchNamespace()
+#: NumPy arrays, vectorized sin/cos (used by :func:`phast_gym.integrate.simulate`)
+NUMPY_FAST = _FastNumpyNamespace()
 
 
 def namespace(x: Any) -> Any:
@@ -208,6 +247,7 @@ class System:
             setattr(self, key, val)
         self._finalize()
         self._damped = self.has_damping()  # cached: rhs runs once per RK4 stage
+        self._const_d = self.constant_damping()  # floats: rhs skips building constant arrays
 
     def _finalize(self) -> None:
         """Derived constants (e.g. default inertia); called after parameters are set."""
@@ -263,6 +303,14 @@ class System:
         """False when D is identically zero (lets integrators skip work)."""
         return True
 
+    def constant_damping(self) -> tuple[float, ...] | None:
+        """Diagonal of D as n floats when D does not depend on q, else None.
+
+        Systems with a constant D define ``damping`` through this method (one formula); ``rhs``
+        then multiplies by floats instead of building constant arrays every RK4 stage.
+        """
+        return None
+
     def switching(self, q: Components, p: Components, xp: Any = NUMPY) -> Any | None:
         """A scalar whose sign changes where the vector field has a kink (or None).
 
@@ -281,7 +329,7 @@ class System:
         # separable H: dH/dq = dV/dq (skip the dH_dq indirection)
         dq = self.grad_potential(q, xp) if self.separable else self.dH_dq(q, p, xp)
         if self._damped:
-            d = self.damping(q, xp)
+            d = self._const_d if self._const_d is not None else self.damping(q, xp)
             if u is None:
                 return tuple(v), tuple([-a - b * c for a, b, c in zip(dq, d, v)])
             return tuple(v), tuple([f - a - b * c for a, b, c, f in zip(dq, d, v, u)])

@@ -9,6 +9,7 @@ d0 + dd |sin theta| on both coordinates (``damping="scalar"``, paper Eq. 65).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -47,8 +48,13 @@ class CartPole(System):
     def potential(self, q: Components, xp: Any = NUMPY) -> Any:
         return self.pole_mass * self.gravity * self.length * (1.0 - xp.cos(q[1]))
 
+    # Each formula below is written once; the public methods and the fused ``rhs`` share them.
+    def _dV_theta(self, s: Any) -> Any:
+        """dV/dtheta from s = sin(theta) (dV/dx = 0)."""
+        return self.pole_mass * self.gravity * self.length * s
+
     def grad_potential(self, q: Components, xp: Any = NUMPY) -> tuple:
-        return (const_like(q[0], 0.0), self.pole_mass * self.gravity * self.length * xp.sin(q[1]))
+        return (const_like(q[0], 0.0), self._dV_theta(xp.sin(q[1])))
 
     def mass_matrix(self, q: Components, xp: Any = NUMPY) -> tuple:
         m12 = self.pole_mass * self.length * xp.cos(q[1])
@@ -57,25 +63,46 @@ class CartPole(System):
             (m12, const_like(q[0], self.pole_mass * self.length**2)),
         )
 
-    def velocity(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
+    def _velocity(self, c: Any, p: Components) -> tuple:
+        """M(q)^-1 p from c = cos(theta)."""
         mc, mp, l = self.cart_mass, self.pole_mass, self.length
-        c = xp.cos(q[1])
         m11, m12, m22 = mc + mp, mp * l * c, mp * l * l
         det = m11 * m22 - m12 * m12
         return ((m22 * p[0] - m12 * p[1]) / det, (m11 * p[1] - m12 * p[0]) / det)
 
-    def dH_dq(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
-        # dH/dq|_p = dV/dq - v^T (dM/dq) v / 2, dM12/dtheta = -m_p l sin theta
-        v = self.velocity(q, p, xp)
-        s = xp.sin(q[1])
+    def velocity(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
+        return self._velocity(xp.cos(q[1]), p)
+
+    def _dH_dtheta(self, s: Any, v: Sequence) -> Any:
+        """dH/dtheta|_p = dV/dtheta - v^T (dM/dtheta) v / 2, dM12/dtheta = -m_p l sin theta (dH/dx = 0)."""
         mpl = self.pole_mass * self.length
-        return (const_like(q[0], 0.0), mpl * s * (self.gravity + v[0] * v[1]))
+        return mpl * s * (self.gravity + v[0] * v[1])
+
+    def dH_dq(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
+        return (const_like(q[0], 0.0), self._dH_dtheta(xp.sin(q[1]), self.velocity(q, p, xp)))
+
+    def _pole_damping(self, s: Any, xp: Any) -> Any:
+        """d0 + dd |sin theta| from s = sin(theta)."""
+        return self.d0 + self.dd * xp.abs(s)
 
     def damping(self, q: Components, xp: Any = NUMPY) -> tuple:
-        pole = self.d0 + self.dd * xp.abs(xp.sin(q[1]))
+        pole = self._pole_damping(xp.sin(q[1]), xp)
         if self.damping_kind == "scalar":
             return (pole, pole)
         return (const_like(q[0], self.d_cart), pole)
+
+    def rhs(self, q: Components, p: Components, u: Components | None, xp: Any = NUMPY) -> tuple[tuple, tuple]:
+        """:meth:`System.rhs` (Eq. 1-3) with cos/sin(theta) evaluated once per call.
+
+        dH/dx = 0, so pdot_x = u_x - d_x v_x (the same value as ``u_x - 0 - d_x v_x``)."""
+        c, s = xp.cos(q[1]), xp.sin(q[1])
+        v0, v1 = v = self._velocity(c, p)
+        a1 = self._dH_dtheta(s, v)
+        pole = self._pole_damping(s, xp)
+        d0 = pole if self.damping_kind == "scalar" else self.d_cart
+        if u is None:
+            return (v0, v1), (-(d0 * v0), -a1 - pole * v1)
+        return (v0, v1), (u[0] - d0 * v0, u[1] - a1 - pole * v1)
 
     def switching(self, q: Components, p: Components, xp: Any = NUMPY) -> Any | None:
         return xp.sin(q[1]) if self.dd != 0.0 else None

@@ -10,6 +10,7 @@ windy d0 + dd |sin t_i| for the figures' windy variant.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -43,37 +44,69 @@ class DoublePendulum(System):
         m1, m2, l1, l2, g = self.mass1, self.mass2, self.length1, self.length2, self.gravity
         return -(m1 + m2) * g * l1 * xp.cos(q[0]) - m2 * g * l2 * xp.cos(q[1])
 
-    def grad_potential(self, q: Components, xp: Any = NUMPY) -> tuple:
+    # Each formula below is written once; the public methods and the fused ``rhs`` share them.
+    def _dV(self, s1: Any, s2: Any) -> tuple:
+        """dV/dq from s_i = sin(theta_i)."""
         m1, m2, l1, l2, g = self.mass1, self.mass2, self.length1, self.length2, self.gravity
-        return ((m1 + m2) * g * l1 * xp.sin(q[0]), m2 * g * l2 * xp.sin(q[1]))
+        return ((m1 + m2) * g * l1 * s1, m2 * g * l2 * s2)
+
+    def grad_potential(self, q: Components, xp: Any = NUMPY) -> tuple:
+        return self._dV(xp.sin(q[0]), xp.sin(q[1]))
 
     def mass_matrix(self, q: Components, xp: Any = NUMPY) -> tuple:
         m1, m2, l1, l2 = self.mass1, self.mass2, self.length1, self.length2
         m12 = m2 * l1 * l2 * xp.cos(q[0] - q[1])
         return ((const_like(q[0], (m1 + m2) * l1 * l1), m12), (m12, const_like(q[0], m2 * l2 * l2)))
 
-    def velocity(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
+    def _velocity(self, c12: Any, p: Components) -> tuple:
+        """M(q)^-1 p from c12 = cos(theta1 - theta2)."""
         m1, m2, l1, l2 = self.mass1, self.mass2, self.length1, self.length2
         m11, m22 = (m1 + m2) * l1 * l1, m2 * l2 * l2
-        m12 = m2 * l1 * l2 * xp.cos(q[0] - q[1])
+        m12 = m2 * l1 * l2 * c12
         det = m11 * m22 - m12 * m12
         return ((m22 * p[0] - m12 * p[1]) / det, (m11 * p[1] - m12 * p[0]) / det)
 
+    def velocity(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
+        return self._velocity(xp.cos(q[0] - q[1]), p)
+
+    def _dH_dq(self, g: tuple, s12: Any, v: Sequence) -> tuple:
+        """dH/dq|_p = dV/dq - v^T (dM/dq) v / 2 with dM12/dt1 = -dM12/dt2 = -m2 l1 l2 sin(t1 - t2);
+        g = dV/dq, s12 = sin(theta1 - theta2)."""
+        cross = self.mass2 * self.length1 * self.length2 * s12 * v[0] * v[1]
+        return (g[0] + cross, g[1] - cross)
+
     def dH_dq(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
-        # dH/dq|_p = dV/dq - v^T (dM/dq) v / 2 with dM12/dt1 = -dM12/dt2 = -m2 l1 l2 sin(t1 - t2)
-        v = self.velocity(q, p, xp)
-        g1, g2 = self.grad_potential(q, xp)
-        cross = self.mass2 * self.length1 * self.length2 * xp.sin(q[0] - q[1]) * v[0] * v[1]
-        return (g1 + cross, g2 - cross)
+        return self._dH_dq(self.grad_potential(q, xp), xp.sin(q[0] - q[1]), self.velocity(q, p, xp))
+
+    def _wind(self, s: Any, xp: Any) -> Any:
+        """b + d0 + dd |sin theta_i| from s = sin(theta_i) (dd > 0)."""
+        return self.b + self.d0 + self.dd * xp.abs(s)
 
     def damping(self, q: Components, xp: Any = NUMPY) -> tuple:
-        c = self.b + self.d0
         if self.dd == 0.0:
-            return tuple(const_like(qi, c) for qi in q)
-        return tuple(c + self.dd * xp.abs(xp.sin(qi)) for qi in q)
+            return tuple(const_like(qi, c) for qi, c in zip(q, self.constant_damping()))
+        return tuple(self._wind(xp.sin(qi), xp) for qi in q)
+
+    def constant_damping(self) -> tuple[float, ...] | None:
+        return (self.b + self.d0,) * 2 if self.dd == 0.0 else None
 
     def has_damping(self) -> bool:
         return self.b + self.d0 + self.dd > 0.0
+
+    def rhs(self, q: Components, p: Components, u: Components | None, xp: Any = NUMPY) -> tuple[tuple, tuple]:
+        """:meth:`System.rhs` (Eq. 1-3) with each sin/cos evaluated once per call."""
+        d12 = q[0] - q[1]
+        s1, s2 = xp.sin(q[0]), xp.sin(q[1])
+        v = self._velocity(xp.cos(d12), p)
+        a = self._dH_dq(self._dV(s1, s2), xp.sin(d12), v)
+        if not self._damped:
+            if u is None:
+                return v, (-a[0], -a[1])
+            return v, (u[0] - a[0], u[1] - a[1])
+        d = self._const_d if self._const_d is not None else (self._wind(s1, xp), self._wind(s2, xp))
+        if u is None:
+            return v, (-a[0] - d[0] * v[0], -a[1] - d[1] * v[1])
+        return v, (u[0] - a[0] - d[0] * v[0], u[1] - a[1] - d[1] * v[1])
 
     def switching(self, q: Components, p: Components, xp: Any = NUMPY) -> Any | None:
         return xp.sin(q[0]) * xp.sin(q[1]) if self.dd != 0.0 else None

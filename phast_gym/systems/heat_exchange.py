@@ -46,7 +46,10 @@ class HeatExchange(System):
         return tuple(pi / self.tau for pi in p)
 
     def damping(self, q: Components, xp: Any = NUMPY) -> tuple:
-        return tuple(const_like(qi, self.kloss) for qi in q)
+        return tuple(const_like(qi, c) for qi, c in zip(q, self.constant_damping()))
+
+    def constant_damping(self) -> tuple[float, ...]:
+        return (self.kloss,) * self.n
 
     def has_damping(self) -> bool:
         return self.kloss > 0.0

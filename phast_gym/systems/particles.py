@@ -61,7 +61,10 @@ class PairParticles(System):
         return tuple(pi / self.mass for pi in p)
 
     def damping(self, q: Components, xp: Any = NUMPY) -> tuple:
-        return tuple(const_like(qi, self.gamma) for qi in q)
+        return tuple(const_like(qi, c) for qi, c in zip(q, self.constant_damping()))
+
+    def constant_damping(self) -> tuple[float, ...]:
+        return (self.gamma,) * self.n
 
     def has_damping(self) -> bool:
         return self.gamma > 0.0

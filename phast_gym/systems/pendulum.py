@@ -41,11 +41,16 @@ class Pendulum(System):
             self.params["inertia"] = None
         self.mgl = self.mass * self.gravity * self.length
 
+    # Each formula below is written once; the public methods and the fused ``rhs`` share them.
     def potential(self, q: Components, xp: Any = NUMPY) -> Any:
         return self.mgl * (1.0 - xp.cos(q[0]))
 
+    def _dV(self, s: Any) -> Any:
+        """dV/dtheta from s = sin(theta)."""
+        return self.mgl * s
+
     def grad_potential(self, q: Components, xp: Any = NUMPY) -> tuple:
-        return (self.mgl * xp.sin(q[0]),)
+        return (self._dV(xp.sin(q[0])),)
 
     def mass_matrix(self, q: Components, xp: Any = NUMPY) -> tuple:
         return ((const_like(q[0], self.inertia),),)
@@ -53,14 +58,30 @@ class Pendulum(System):
     def velocity(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
         return (p[0] / self.inertia,)
 
+    def _wind(self, s: Any, xp: Any) -> Any:
+        """D(theta) from s = sin(theta) when dd > 0 (the kinked wind law)."""
+        return self.gamma + self.d0 + self.dd * xp.abs(s)
+
     def damping(self, q: Components, xp: Any = NUMPY) -> tuple:
-        c = self.gamma + self.d0
         if self.dd == 0.0:
-            return (const_like(q[0], c),)
-        return (c + self.dd * xp.abs(xp.sin(q[0])),)
+            return (const_like(q[0], self.constant_damping()[0]),)
+        return (self._wind(xp.sin(q[0]), xp),)
+
+    def constant_damping(self) -> tuple[float, ...] | None:
+        return (self.gamma + self.d0,) if self.dd == 0.0 else None
 
     def has_damping(self) -> bool:
         return self.gamma + self.d0 + self.dd > 0.0
+
+    def rhs(self, q: Components, p: Components, u: Components | None, xp: Any = NUMPY) -> tuple[tuple, tuple]:
+        """:meth:`System.rhs` (Eq. 1-3) with sin(theta) evaluated once for dV/dq and D(q)."""
+        s = xp.sin(q[0])
+        (v,) = self.velocity(q, p, xp)
+        a = self._dV(s)
+        if self._damped:
+            d = self._const_d[0] if self._const_d is not None else self._wind(s, xp)
+            return (v,), ((-a - d * v) if u is None else (u[0] - a - d * v),)
+        return (v,), ((-a) if u is None else (u[0] - a),)
 
     def switching(self, q: Components, p: Components, xp: Any = NUMPY) -> Any | None:
         return xp.sin(q[0]) if self.dd != 0.0 else None

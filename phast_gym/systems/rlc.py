@@ -41,7 +41,10 @@ class RLCCircuit(System):
         return (p[0] / self.inductance,)
 
     def damping(self, q: Components, xp: Any = NUMPY) -> tuple:
-        return (const_like(q[0], self.resistance),)
+        return (const_like(q[0], self.constant_damping()[0]),)
+
+    def constant_damping(self) -> tuple[float, ...]:
+        return (self.resistance,)
 
     def has_damping(self) -> bool:
         return self.resistance > 0.0
