@@ -44,14 +44,16 @@ class PairParticles(System):
         return sum(self.pair_energy(r2, xp) for *_, r2 in self._pairs(q))
 
     def grad_potential(self, q: Components, xp: Any = NUMPY) -> tuple:
-        g = [const_like(qi, 0.0) for qi in q]
+        # accumulators start as the float 0.0 (0.0 + x == x): no constant arrays per RK4 stage
+        g: list = [0.0] * self.n
         for i, j, dx, dy, r2 in self._pairs(q):
             f = 2.0 * self.pair_denergy(r2, xp)  # dphi/dr2 * d r2/dx = 2 dx dphi/dr2
-            g[2 * i] = g[2 * i] + f * dx
-            g[2 * i + 1] = g[2 * i + 1] + f * dy
-            g[2 * j] = g[2 * j] - f * dx
-            g[2 * j + 1] = g[2 * j + 1] - f * dy
-        return tuple(g)
+            fx, fy = f * dx, f * dy
+            g[2 * i] = g[2 * i] + fx
+            g[2 * i + 1] = g[2 * i + 1] + fy
+            g[2 * j] = g[2 * j] - fx
+            g[2 * j + 1] = g[2 * j + 1] - fy
+        return tuple(gi if not isinstance(gi, float) else const_like(qi, gi) for gi, qi in zip(g, q))
 
     def mass_matrix(self, q: Components, xp: Any = NUMPY) -> tuple:
         z, m = const_like(q[0], 0.0), const_like(q[0], self.mass)
@@ -101,12 +103,17 @@ class LennardJones3(PairParticles):
         "temperature": Param(0.0, "Langevin temperature T (noise sqrt(2 gamma T dt) per step)", "nonnegative"),
     }
 
+    def _s6(self, r2: Any) -> Any:
+        """(s / r)^6 from r^2 (x * x * x: a float power is ~5x slower on arrays)."""
+        x = self.sigma * self.sigma / r2
+        return x * x * x
+
     def pair_energy(self, r2: Any, xp: Any) -> Any:
-        s6 = (self.sigma * self.sigma / r2) ** 3
+        s6 = self._s6(r2)
         return 4.0 * self.epsilon * (s6 * s6 - s6)
 
     def pair_denergy(self, r2: Any, xp: Any) -> Any:
-        s6 = (self.sigma * self.sigma / r2) ** 3
+        s6 = self._s6(r2)
         return 4.0 * self.epsilon * (-6.0 * s6 * s6 + 3.0 * s6) / r2
 
     def triangle_radius(self) -> float:
