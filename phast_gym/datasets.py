@@ -153,6 +153,8 @@ def make_dataset(
     system = make_env_system(env_id, **env_kwargs)
     n = system.n
     actuated = tuple(int(i) for i in env_kwargs.get("actuated_dofs", range(n)))
+    if not actuated or len(set(actuated)) != len(actuated) or any(not 0 <= i < n for i in actuated):
+        raise ValueError(f"actuated_dofs must be distinct indices in [0, {n}), got {list(actuated)}")
     m = len(actuated)
     if u is None:
         u_arr = np.zeros((n_traj, T - 1, m))
@@ -181,8 +183,11 @@ def make_dataset(
     ss = np.random.SeedSequence(int(seed))
     rng_init, rng_noise, rng_sim = (np.random.default_rng(s) for s in ss.spawn(3))
     x0 = system.sample_initial(rng_init, int(n_traj))
-    G = np.eye(n)[:, list(actuated)]
-    traj = simulate(system, x0, T - 1, u=u_arr @ G.T, rng=rng_sim, substeps=env_kwargs.get("substeps"))
+    # generalized force G u (G = the identity's actuated columns), as a scatter: the same values as
+    # u_arr @ G.T for finite u, ~10x faster for the 6-dof particle systems
+    u_full = np.zeros((int(n_traj), T - 1, n))
+    u_full[..., list(actuated)] = u_arr
+    traj = simulate(system, x0, T - 1, u=u_full, rng=rng_sim, substeps=env_kwargs.get("substeps"))
     q_true, p = traj[..., :n], traj[..., n:]
     q = q_true + (rng_noise.normal(0.0, noise, q_true.shape) if noise > 0 else 0.0)
     for i in system.angle_dims:

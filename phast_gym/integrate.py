@@ -213,8 +213,9 @@ def simulate(
     s = system.switching(q, p, xp)
     # the switching value is carried from substep to substep unless the step ends with a projection or noise
     fresh_s = s is not None and (system.stochastic or type(system).post_step is not System.post_step)
+    u_t = None if u is None else np.ascontiguousarray(u.transpose(1, 2, 0))  # (n_steps, n, B): contiguous rows
     for t in range(n_steps):
-        ut = None if u is None else [u[:, t, i] for i in range(n)]
+        ut = None if u_t is None else list(u_t[t])
         for _ in range(k):
             q, p, s = _substep(system, q, p, ut, h, xp, s)
         q, p = system.post_step(q, p, xp)
