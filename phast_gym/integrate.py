@@ -28,6 +28,8 @@ def rk4(system: System, q: Sequence, p: Sequence, u: Sequence | None, h: Any, xp
     ``k1``: the vector field at ``(q, p)`` when the caller already has it (it does not depend on ``h``).
     """
     f = system.rhs
+    if len(q) == 1:
+        return _rk4_1(f, q, p, u, h, xp, k1)
     h2 = 0.5 * h
     k1q, k1p = f(q, p, u, xp) if k1 is None else k1
     k2q, k2p = f([a + h2 * b for a, b in zip(q, k1q)], [a + h2 * b for a, b in zip(p, k1p)], u, xp)
@@ -148,7 +150,7 @@ def step(
         if system.n == 1:
             f = system.rhs
             for _ in range(k):
-                q, p = _rk4_scalar1(f, q, p, u, h)
+                q, p = _rk4_1(f, q, p, u, h)
         else:
             for _ in range(k):
                 q, p = rk4(system, q, p, u, h, xp)
@@ -158,13 +160,13 @@ def step(
     return system.post_step(q, p, xp)
 
 
-def _rk4_scalar1(f: Any, q: Sequence, p: Sequence, u: Sequence | None, h: float) -> tuple[list, list]:
-    """:func:`rk4` for one coordinate of Python floats: the same operations in the same order
-    (so the result is bitwise equal to the batched path), without the per-component loops."""
+def _rk4_1(f: Any, q: Sequence, p: Sequence, u: Sequence | None, h: Any, xp: Any = SCALAR,
+           k1: tuple | None = None) -> tuple[list, list]:
+    """:func:`rk4` for one coordinate (floats or arrays): the same operations in the same order
+    (so the single env and the batched path agree), without the per-component loops."""
     h2 = 0.5 * h
     q0, p0 = q[0], p[0]
-    xp = SCALAR
-    (a1,), (b1,) = f(q, p, u, xp)
+    (a1,), (b1,) = f(q, p, u, xp) if k1 is None else k1
     (a2,), (b2,) = f([q0 + h2 * a1], [p0 + h2 * b1], u, xp)
     (a3,), (b3,) = f([q0 + h2 * a2], [p0 + h2 * b2], u, xp)
     (a4,), (b4,) = f([q0 + h * a3], [p0 + h * b3], u, xp)
