@@ -233,6 +233,19 @@ def test_energy_balance_finds_stribeck_friction():
     assert 0.4 / 1.5 < found["stribeck_friction"]["velocity"] < 0.4 * 1.5
 
 
+def test_stribeck_friction_found_by_shooting():
+    """Noise-dominated regime (shooting selection): Coulomb plus Stribeck friction, v_s refined from the grid."""
+    raw = make_reality("PHAST/DampedOscillator-v0", [Term("coulomb_friction", 0, 0.02), Term("stribeck_friction", 0, 0.04, 0.5)],
+                       n_traj=24, T=400, noise_std=0.01, seed=1)
+    rep = analyze("PHAST/DampedOscillator-v0", raw)
+    found = {m["term"]: m for m in rep.missing_physics}
+    assert set(found) == {"coulomb_friction", "stribeck_friction"}
+    assert abs(found["coulomb_friction"]["coefficient"] - 0.02) / 0.02 < 0.3
+    assert abs(found["stribeck_friction"]["coefficient"] - 0.04) / 0.04 < 0.3
+    assert 0.5 / 1.3 < found["stribeck_friction"]["stribeck_velocity"] < 0.5 * 1.3
+    assert "exp(-(qdot0/" in found["stribeck_friction"]["expression"]
+
+
 def test_energy_check_measures_missing_dissipation():
     """measured / predicted energy loss is 1 for the true model and 1/0.8 when its friction is 80% of the truth."""
     from phast_model.mismatch.energy import energy_check

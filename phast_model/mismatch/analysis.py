@@ -23,7 +23,7 @@ from phast_gym.registry import make_env_system, resolve_env_id
 from phast_gym.systems import wrap
 from phast_gym.systems.base import NUMPY, System
 
-from .energy import DISSIPATIVE, energy_balance, energy_check
+from .energy import DISSIPATIVE, STRIBECK_GRID, energy_balance, energy_check
 from .recordings import Recordings, load_raw, validate
 from .shooting import Shooter, ShootFit, Windows, _odd, angle_diff, estimate_noise, momentum, simulate_qv, smooth, substeps_for, time_scale
 from .terms import FORCE_TERMS, VOCABULARY, AugmentedSystem, Term, default_value
@@ -116,6 +116,15 @@ class Family:
 
 
 # --------------------------------------------------------------------------- helpers
+def _fterm(cand: tuple) -> tuple:
+    """Candidate (name, coordinate, scale, fd step[, Stribeck velocity]) -> Family term (name, coordinate, scale[, velocity])."""
+    return tuple(cand[:3]) + tuple(cand[4:5])
+
+
+def _label(cand: tuple) -> str:
+    return f"{cand[0]}[{cand[1]}]" + (f"(v_s={cand[4]:.3g})" if len(cand) > 4 else "")
+
+
 def _flat(a: np.ndarray) -> np.ndarray:
     return a.reshape(-1, a.shape[-1]) if a.ndim == 3 else a.reshape(-1)
 
@@ -445,9 +454,10 @@ def analyze(sim: str, recordings: str | Path | Mapping[str, Any] | Recordings, s
     unknown = sorted(set(vocab) - set(VOCABULARY))
     if unknown:
         raise ValueError(f"unknown term(s) {unknown}; the vocabulary is {sorted(VOCABULARY)}")
-    cands: list[tuple[str, int, float, float]] = []  # name, coord, scale, fd step
+    cands: list[tuple] = []  # name, coord, scale, fd step[, Stribeck velocity]
     for i in range(n):
         qi, vi = qs[..., i], vs[..., i]
+        vi_rms = float(np.sqrt(np.mean(vi**2)))
         basis_rms = {
             "viscous_damping": np.sqrt(np.mean(vi**2)), "coulomb_friction": 1.0,
             "quadratic_drag": np.sqrt(np.mean(vi**4)), "position_dependent_damping": np.sqrt(np.mean((np.abs(np.sin(qi)) * vi) ** 2)),
@@ -458,6 +468,12 @@ def analyze(sim: str, recordings: str | Path | Mapping[str, Any] | Recordings, s
                 b = float(basis_rms[name])
                 if b > 1e-12:
                     cands.append((name, i, float(force_rms[i] / b), h))
+            elif name == "stribeck_friction":  # one candidate per Stribeck velocity of a coarse grid
+                for f in STRIBECK_GRID[::2]:
+                    w = float(f * vi_rms)
+                    b = float(np.sqrt(np.mean((np.tanh(vi / eps) * np.exp(-((vi / w) ** 2))) ** 2)))
+                    if b > 1e-12:
+                        cands.append((name, i, float(force_rms[i] / b), h, w))
             elif name == "actuator_gain" and has_u[i]:
                 cands.append((name, i, 0.1, h))
             elif name == "actuator_deadzone" and has_u[i]:
@@ -471,8 +487,7 @@ def analyze(sim: str, recordings: str | Path | Mapping[str, Any] | Recordings, s
     def candidate_columns(fit: ShootFit, fam: Family, ks: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Residual and candidate columns at ``fit`` with window states and current globals projected out."""
         zc = fit.g
-        builds = [(lambda name=cands[k][0], i=cands[k][1], s=cands[k][2], hk=cands[k][3]:
-                   fam.with_(terms=fam.terms + [(name, i, s)]).build(np.concatenate([zc, [hk]]))) for k in ks]
+        builds = [(lambda c=cands[k]: fam.with_(terms=fam.terms + [_fterm(c)]).build(np.concatenate([zc, [c[3]]]))) for k in ks]
         cols = shooter.columns(builds, fit, fit.r, [cands[k][3] for k in ks])
         r_p, cols_p = fit.projected(cols)
         _, jg_p = fit.projected()
@@ -486,12 +501,13 @@ def analyze(sim: str, recordings: str | Path | Mapping[str, Any] | Recordings, s
     rP, colsTP, colsTPo = candidate_columns(fitC, famC, list(range(len(cands))))
     absorbed = {}
     usable = []
-    for k, (name, i, _, _) in enumerate(cands):
+    for k, cand in enumerate(cands):
+        name, i = cand[:2]
         n0 = float(np.linalg.norm(colsTP[:, k]))
         if n0 == 0 or not np.all(np.isfinite(colsTP[:, k])):
             continue
         if float(np.linalg.norm(colsTPo[:, k])) / n0 < 0.05:
-            absorbed[f"{name}[{i}]"] = f"indistinguishable from the calibrated parameter(s) {[p for p, _ in selected]}"
+            absorbed[_label(cand)] = f"indistinguishable from the calibrated parameter(s) {[p for p, _ in selected]}"
             continue
         usable.append(k)
     dofC = fitC.dof
@@ -500,7 +516,7 @@ def analyze(sim: str, recordings: str | Path | Mapping[str, Any] | Recordings, s
     P0 = len(selected)
 
     def term_ok(fit: ShootFit, cov: np.ndarray, j: int, k: int) -> bool:
-        name, _, s_k, _ = cands[k]
+        name, s_k = cands[k][0], cands[k][2]
         z, sd = fit.g[P0 + j], math.sqrt(max(cov[P0 + j, P0 + j], 1e-300))
         c = default_value(name) + s_k * z
         wrong_sign = VOCABULARY[name][2] and name != "actuator_gain" and c <= 0
@@ -512,8 +528,7 @@ def analyze(sim: str, recordings: str | Path | Mapping[str, Any] | Recordings, s
     nominal_start: dict[int, np.ndarray] = {}
     if selected and usable:
         zN = np.zeros(len(selected))
-        bN = [(lambda name=cands[k][0], i=cands[k][1], s=cands[k][2], hk=cands[k][3]:
-               famC.with_(terms=[(name, i, s)]).build(np.concatenate([zN, [hk]]))) for k in usable]
+        bN = [(lambda c=cands[k]: famC.with_(terms=[_fterm(c)]).build(np.concatenate([zN, [c[3]]]))) for k in usable]
         colsN = _flat(fitN.projected(shooter.columns(bN, fitN, fitN.r, [cands[k][3] for k in usable]))[1])
         rN = _flat(fitN.projected(np.zeros(fitN.r.shape + (1,)))[0]).reshape(-1)
         Pm = np.stack(sel_cols, 1)
@@ -548,7 +563,7 @@ def analyze(sim: str, recordings: str | Path | Mapping[str, Any] | Recordings, s
             ranked.append((float(c @ r_o) ** 2 / cc / s2, k, z))
         ranked.sort(reverse=True)
         if opts.progress:
-            _progress(opts, "screening gains (chi^2): " + ", ".join(f"{cands[k][0]}[{cands[k][1]}] {g:.3g}" for g, k, _ in ranked[:6]), t0)
+            _progress(opts, "screening gains (chi^2): " + ", ".join(f"{_label(cands[k])} {g:.3g}" for g, k, _ in ranked[:6]), t0)
         shortlist = [(k, np.concatenate([cur_fit.g, [z]]), cur_fit.X) for g, k, z in ranked[:2] if g >= thr2]
         if not chosen:
             shortlist += [(k, nominal_start[k], fitN.X) for k in nominal_rank if k not in [kk for kk, _, _ in shortlist] and k in col_of]
@@ -556,7 +571,7 @@ def analyze(sim: str, recordings: str | Path | Mapping[str, Any] | Recordings, s
             break
         best = None
         for k, g0, X_start in shortlist:
-            fam_new = cur_fam.with_(terms=cur_fam.terms + [cands[k][:3]])
+            fam_new = cur_fam.with_(terms=cur_fam.terms + [_fterm(cands[k])])
             if cands[k][0] == "actuator_deadzone":  # threshold: start from the best of a coarse grid (zero slope at c = 0)
                 grid = np.linspace(0.1, 1.5, 15)
                 costs = [float(np.sum(shooter.residual(fam_new.build(np.concatenate([g0[:-1], [zz]])), X_start) ** 2)) for zz in grid]
@@ -569,7 +584,7 @@ def analyze(sim: str, recordings: str | Path | Mapping[str, Any] | Recordings, s
                 j = P0 + len(chosen)
                 zz, sd = fit_new.g[j], math.sqrt(max(cov_new[j, j], 1e-300))
                 coef = default_value(cands[k][0]) + cands[k][2] * zz
-                _progress(opts, f"  refit with {cands[k][0]}[{cands[k][1]}]: chi^2 gain {gain:.3g}, coefficient "
+                _progress(opts, f"  refit with {_label(cands[k])}: chi^2 gain {gain:.3g}, coefficient "
                                 f"{coef:.4g}, |t| = {abs(zz) / sd:.3g}{'' if ok else ' (rejected)'}", t0)
             if ok:
                 # statistically indistinguishable gains (chi^2 within 2): prefer the term listed first in the vocabulary
@@ -585,7 +600,7 @@ def analyze(sim: str, recordings: str | Path | Mapping[str, Any] | Recordings, s
         gains[k] = cur_fit.cost - fit_new.cost
         chosen.append(k)
         cur_fit, cur_fam, cov = fit_new, fam_new, cov_new
-        _progress(opts, f"added {cands[k][:2]}: chi2/dof = {cur_fit.chi2_red:.3g} ({cur_fit.iterations} it)", t0)
+        _progress(opts, f"added {_label(cands[k])}: chi2/dof = {cur_fit.chi2_red:.3g} ({cur_fit.iterations} it)", t0)
         rest = [kk for kk in pool if kk not in chosen]
         if len(chosen) < opts.max_terms and rest:
             r_o, cols_o, _ = candidate_columns(cur_fit, cur_fam, rest)
@@ -596,12 +611,27 @@ def analyze(sim: str, recordings: str | Path | Mapping[str, Any] | Recordings, s
         keep_idx = [j for j, k in enumerate(chosen) if term_ok(cur_fit, cov, j, k)]
         if len(keep_idx) < len(chosen):
             chosen = [chosen[j] for j in keep_idx]
-            cur_fam = famC.with_(terms=[cands[k][:3] for k in chosen])
+            cur_fam = famC.with_(terms=[_fterm(cands[k]) for k in chosen])
             g0 = np.concatenate([cur_fit.g[:P0], cur_fit.g[P0:][keep_idx]])
             cur_fit = shooter.fit(cur_fam.build, cur_fit.X, g0, max_iter=opts.max_iter)
             cov = cur_fit.covariance()
+    # a chosen Stribeck term: refine its velocity v_s around the grid value (profile of the refit cost, quarter octaves)
+    for j, k in enumerate(chosen):
+        if cands[k][0] != "stribeck_friction":
+            continue
+        for step in (2**0.5, 2**0.25, 2**0.125):
+            best_v = (cur_fit.cost, cands[k], cur_fit, cur_fam)
+            for f in (1 / step, step):
+                c_new = cands[k][:4] + (cands[k][4] * f,)
+                fam_v = cur_fam.with_(terms=[_fterm(c_new) if jj == j else t for jj, t in enumerate(cur_fam.terms)])
+                fit_v = shooter.fit(fam_v.build, cur_fit.X, cur_fit.g, max_iter=6)
+                if fit_v.cost < best_v[0]:
+                    best_v = (fit_v.cost, c_new, fit_v, fam_v)
+            _, cands[k], cur_fit, cur_fam = best_v
+        cov = cur_fit.covariance()
+        _progress(opts, f"Stribeck velocity refined: {_label(cands[k])}, chi2/dof = {cur_fit.chi2_red:.3g}", t0)
     final_fit, famA, terms_final = cur_fit, cur_fam, chosen
-    _progress(opts, f"augmented with {[cands[k][:2] for k in chosen]}: chi2/dof = {final_fit.chi2_red:.3g}", t0)
+    _progress(opts, f"augmented with {[_label(cands[k]) for k in chosen]}: chi2/dof = {final_fit.chi2_red:.3g}", t0)
 
     # ---- statistics for the report
     covC = fitC.covariance()
@@ -617,30 +647,31 @@ def analyze(sim: str, recordings: str | Path | Mapping[str, Any] | Recordings, s
     excess0 = max(rss0 - dofC, 1e-300)
     missing = []
     for j, k in enumerate(terms_final):
-        name, i, s, _ = cands[k]
+        name, i, s = cands[k][:3]
         z = final_fit.g[P0 + j]
         sd = math.sqrt(max(cov[P0 + j, P0 + j], 0.0))
         c = default_value(name) + s * z
         lo, hi = sorted([default_value(name) + s * (z - Z95 * sd), default_value(name) + s * (z + Z95 * sd)])
         if name == "actuator_deadzone":
             c = abs(c)
-        term = Term(name, i, c)
+        term = Term(name, i, c, *cands[k][4:5])
         # non-identifiable alternatives: candidates / parameters with (nearly) the same signature
         alts = []
         ck = colsTPo[:, k]
         for kk in usable + [None]:
-            if kk == k or kk is None:
+            if kk == k or kk is None or cands[kk][:2] == cands[k][:2]:  # (the same term at another Stribeck velocity)
                 continue
             ca = colsTPo[:, kk]
             cos = float(ck @ ca) / (np.linalg.norm(ck) * np.linalg.norm(ca) + 1e-300)
             if abs(cos) > 0.97:
                 za = z * float(ca @ ck) / float(ca @ ca)
-                an, ai, as_, _ = cands[kk]
+                an, ai, as_ = cands[kk][:3]
                 alts.append({"term": an, "coordinate": ai, "coefficient": default_value(an) + as_ * za, "similarity": round(abs(cos), 4)})
         for p, note in notes.items():
             if "actuator_gain" in note and name == "actuator_gain":
                 alts.append({"parameter": p, "note": f"a {p} change is exactly equivalent with u (scale {p} by about {1.0 / c:.4g})"})
         missing.append({"term": name, "coordinate": i, "component": VOCABULARY[name][0], "coefficient": c, "ci95": [lo, hi],
+                        **({"stribeck_velocity": term.velocity} if name == "stribeck_friction" else {}),
                         "expression": term.expression(), "explains": float(min(1.0, gains.get(k, 0.0) / excess0)),
                         "alternatives": alts})
     # ---- held-out fit
@@ -749,7 +780,7 @@ def _systematic_regime(opts: Options, t0: float, env_id: str, fam0: Family, famC
     if eb is None or not eb.terms:
         info["reason"] = "energy balance: no dissipative term selected" if eb is not None else "energy balance not formed"
         return None
-    info["shooting_selection"] = [f"{cands[k][0]}[{cands[k][1]}]" for k in chosen]
+    info["shooting_selection"] = [_label(cands[k]) for k in chosen]
     info.update({"used": True, "reason": f"shooting-augmented chi^2/dof {chi2_aug:.3g} > {opts.systematic_chi2}: residual is model error, "
                                          "not noise", **eb.to_dict()})
     _progress(opts, f"energy balance: {eb.terms}, model damping x {eb.damping_scale:.3g}", t0)
@@ -778,13 +809,13 @@ def _systematic_regime(opts: Options, t0: float, env_id: str, fam0: Family, famC
         name = cands[k][0]
         if name in DISSIPATIVE:
             continue
-        _, b2 = family(extra + [cands[k][:3]])
+        _, b2 = family(extra + [_fterm(cands[k])])
         f2 = shooter.fit(b2, cur_fit.X, np.concatenate([cur_fit.g, [0.0]]), max_iter=opts.max_iter)
         r2 = evaluate_models({"x": b2(f2.g)}, train, sigma, x_scale, K, sg_h, scale)[0]["x"]["rollout_rmse"]
-        info["training_rollout_rmse"][f"+{name}[{cands[k][1]}]"] = r2
+        info["training_rollout_rmse"]["+" + _label(cands[k])] = r2
         _progress(opts, f"  rollout check {name}: {base_rmse:.4g} -> {r2:.4g}", t0)
         if r2 < 0.98 * base_rmse:
-            extra.append(cands[k][:3])
+            extra.append(_fterm(cands[k]))
             cur_fit, cur_build, base_rmse = f2, b2, r2
     # the shooting selection stays when its model follows the training recordings open loop at least as well
     shoot_rmse = evaluate_models({"s": sys_shoot}, train, sigma, x_scale, K, sg_h, scale)[0]["s"]["rollout_rmse"]
