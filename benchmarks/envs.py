@@ -6,14 +6,22 @@ Everything is measured side by side in one run, so the ratios are meaningful on 
 
 Targets (issue "phast_gym"): PHAST/Pendulum-v0 >= 0.5x Pendulum-v1 steps/s; every full 1400 x 200
 dataset <= 2 s (LennardJones3 <= 10 s); batched throughput >= 100x single-env; peak memory < 1 GB.
+
+Everything runs on one core (``torch.set_num_threads(1)``: the batched simulator's sin/cos use torch's
+kernels, and the single env is single-threaded).  ``--profile`` adds, per env, where the batched
+generation spends its time (cProfile: share in sin/cos kernels and in the kink-crossing refinement)
+and the cost of single numpy/torch operations at the dataset's batch size, which bound the batched
+throughput from below.
 """
 
 from __future__ import annotations
 
 import argparse
+import cProfile
 import json
 import os
 import platform
+import pstats
 import resource
 import sys
 import tempfile
@@ -23,6 +31,7 @@ from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
+import torch
 from tqdm import tqdm
 
 import phast_gym
@@ -66,6 +75,40 @@ def dataset_cost(env_id: str, n_traj: int = 1400, T: int = 200) -> tuple[float, 
     return wall, peak / 2**20
 
 
+def per_op_costs(batch: int = 1400, repeats: int = 20000) -> dict[str, float]:
+    """Microseconds per call of single operations on float64 arrays of the dataset's batch size."""
+    from phast_gym.systems.base import NUMPY_FAST
+
+    x = np.random.default_rng(0).uniform(-3.0, 3.0, batch)
+    y = x + 1.0
+    ops = {"numpy add": lambda: x + y, "numpy multiply by float": lambda: 0.5 * x, "numpy sin": lambda: np.sin(x),
+           "torch sin (NUMPY_FAST.sin, incl. conversion)": lambda: NUMPY_FAST.sin(x)}
+    out = {}
+    for name, fn in ops.items():
+        fn()
+        t0 = time.perf_counter()
+        for _ in range(repeats):
+            fn()
+        out[name] = (time.perf_counter() - t0) / repeats * 1e6
+    return out
+
+
+_TRIG = ("sin", "cos")
+
+
+def profile_dataset(env_id: str, n_traj: int = 1400, T: int = 200) -> dict[str, float]:
+    """cProfile shares of the batched generation: sin/cos kernels and the kink-crossing refinement."""
+    make_dataset(env_id, 4, T=5, cache=False)
+    prof = cProfile.Profile()
+    prof.runcall(make_dataset, env_id, n_traj, T=T, seed=42, cache=False)
+    stats = pstats.Stats(prof).stats  # (file, line, name) -> (cc, nc, tottime, cumtime, callers)
+    total = max(v[3] for k, v in stats.items() if k[2] == "make_dataset")
+    trig = sum(v[2] for k, v in stats.items() if k[2].split(" ")[-1].strip("<>'").split(".")[-1] in _TRIG)
+    split = sum(v[3] for k, v in stats.items() if k[2] == "_split_at_crossing")
+    n_rhs = sum(v[1] for k, v in stats.items() if k[2] == "rhs" and "systems" in k[0])
+    return {"profiled_s": total, "trig_share": trig / total, "crossing_split_share": split / total, "rhs_calls": n_rhs}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--steps", type=int, default=5000, help="single-env steps per timing repeat")
@@ -73,8 +116,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--T", type=int, default=200)
     ap.add_argument("--envs", default="all", help="comma-separated ids or 'all'")
     ap.add_argument("--out", default=None, help="write the JSON results here")
+    ap.add_argument("--profile", action="store_true", help="add per-env cProfile shares and per-operation costs")
     args = ap.parse_args(argv)
     os.environ.setdefault("PHAST_CACHE_DIR", tempfile.mkdtemp())
+    torch.set_num_threads(1)
+    load_before = os.getloadavg()
     ids = phast_gym.env_ids() if args.envs == "all" else [phast_gym.resolve_env_id(e) for e in args.envs.split(",")]
 
     ref = steps_per_second("Pendulum-v1", args.steps)
@@ -89,6 +135,8 @@ def main(argv: list[str] | None = None) -> int:
             "dataset_wall_s": wall, "dataset_limit_s": limit, "dataset_peak_mb": peak,
             "batched_steps_per_s": batched_sps, "batched_vs_single": batched_sps / sps,
         })
+        if args.profile:
+            rows[-1]["profile"] = profile_dataset(env_id, args.n_traj, args.T)
     ru = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KB -> MB on Linux
     pend = next((r for r in rows if r["env_id"] == "PHAST/Pendulum-v0"), None)
     targets = {
@@ -100,15 +148,25 @@ def main(argv: list[str] | None = None) -> int:
     result = {
         "command": "python benchmarks/envs.py " + " ".join(argv if argv is not None else sys.argv[1:]),
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "numpy": np.__version__,
-                    "gymnasium": gym.__version__, "platform": platform.platform()},
+                    "torch": torch.__version__, "torch_threads": torch.get_num_threads(),
+                    "gymnasium": gym.__version__, "platform": platform.platform(),
+                    "loadavg_1min_before_after": [load_before[0], os.getloadavg()[0]]},
         "pendulum_v1_steps_per_s": ref, "process_peak_rss_mb": ru, "rows": rows, "targets_met": targets,
     }
+    if args.profile:
+        result["per_op_us_at_batch"] = {"batch": args.n_traj, **per_op_costs(args.n_traj)}
     print(f"Gymnasium Pendulum-v1: {ref:,.0f} steps/s (reference, same run)")
     print(f"{'env':32s} {'steps/s':>9s} {'x Pend-v1':>9s} {'dataset s':>9s} {'peak MB':>8s} {'batch/single':>12s}")
     for r in rows:
         print(f"{r['env_id']:32s} {r['steps_per_s']:9,.0f} {r['ratio_vs_pendulum_v1']:9.2f} {r['dataset_wall_s']:9.2f} "
               f"{r['dataset_peak_mb']:8.0f} {r['batched_vs_single']:12.0f}")
-    print(f"process peak RSS {ru:.0f} MB; targets: {targets}")
+    print(f"process peak RSS {ru:.0f} MB; targets: {targets}; load average {result['machine']['loadavg_1min_before_after']}")
+    if args.profile:
+        print(f"{'env':32s} {'sin/cos share':>13s} {'crossing share':>14s} {'rhs calls':>9s}")
+        for r in rows:
+            pr = r["profile"]
+            print(f"{r['env_id']:32s} {pr['trig_share']:13.0%} {pr['crossing_split_share']:14.0%} {pr['rhs_calls']:9d}")
+        print("per-op cost [us] at batch", {k: round(v, 2) for k, v in result["per_op_us_at_batch"].items()})
     if args.out:
         out = Path(args.out)
         out.parent.mkdir(parents=True, exist_ok=True)
