@@ -109,6 +109,45 @@ def profile_dataset(env_id: str, n_traj: int = 1400, T: int = 200) -> dict[str, 
     return {"profiled_s": total, "trig_share": trig / total, "crossing_split_share": split / total, "rhs_calls": n_rhs}
 
 
+def compiled_probe(env_id: str = "PHAST/Pendulum-v0", n_traj: int = 1400, T: int = 200) -> dict[str, float]:
+    """What a fused kernel would give: ``torch.compile`` of one env step (the same ``integrate.rk4`` and
+    system physics on torch tensors) for a smooth system.  Not used by the library: the compile costs
+    tens of seconds per system and batch shape, far above the 2 s dataset budget."""
+    from phast_gym.integrate import rk4, simulate
+    from phast_gym.systems import SCALAR, TORCH
+
+    system = phast_gym.make_env_system(env_id)
+    if system.switching([0.0] * system.n, [0.0] * system.n, SCALAR) is not None:
+        raise ValueError(f"{env_id}: the probe covers smooth systems only")
+    k = system.substeps
+    h = system.dt / k
+
+    def one_step(q: torch.Tensor, p: torch.Tensor, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        qs, ps, us = list(q.unbind(0)), list(p.unbind(0)), list(u.unbind(0))
+        for _ in range(k):
+            qs, ps = rk4(system, qs, ps, us, h, TORCH)
+        return torch.stack(qs), torch.stack(ps)
+
+    x0 = system.sample_initial(np.random.default_rng(42), n_traj)
+    n = system.n
+    q0, p0 = torch.from_numpy(x0[:, :n].T.copy()), torch.from_numpy(x0[:, n:].T.copy())
+    u = torch.zeros(n, n_traj, dtype=torch.float64)
+    fn = torch.compile(one_step, dynamic=False)
+    t0 = time.perf_counter()
+    fn(q0, p0, u)
+    compile_s = time.perf_counter() - t0
+    best = float("inf")
+    for _ in range(2):
+        q, p = q0, p0
+        t0 = time.perf_counter()
+        for _ in range(T - 1):
+            q, p = fn(q, p, u)
+        best = min(best, time.perf_counter() - t0)
+    ref = simulate(system, x0, T - 1)[:, -1, :n]
+    return {"env_id": env_id, "compile_s": compile_s, "wall_s": best, "batched_steps_per_s": n_traj * (T - 1) / best,
+            "max_abs_diff_vs_simulate": float(np.abs(q.numpy().T - ref).max())}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--steps", type=int, default=5000, help="single-env steps per timing repeat")
@@ -117,6 +156,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--envs", default="all", help="comma-separated ids or 'all'")
     ap.add_argument("--out", default=None, help="write the JSON results here")
     ap.add_argument("--profile", action="store_true", help="add per-env cProfile shares and per-operation costs")
+    ap.add_argument("--compiled-probe", action="store_true",
+                    help="also time a torch.compile'd Pendulum-v0 step (compiles for tens of seconds)")
     args = ap.parse_args(argv)
     os.environ.setdefault("PHAST_CACHE_DIR", tempfile.mkdtemp())
     torch.set_num_threads(1)
@@ -155,6 +196,11 @@ def main(argv: list[str] | None = None) -> int:
     }
     if args.profile:
         result["per_op_us_at_batch"] = {"batch": args.n_traj, **per_op_costs(args.n_traj)}
+    if args.compiled_probe:
+        probe = compiled_probe(n_traj=args.n_traj, T=args.T)
+        if pend is not None:
+            probe["vs_single"] = probe["batched_steps_per_s"] / pend["steps_per_s"]
+        result["compiled_probe"] = probe
     print(f"Gymnasium Pendulum-v1: {ref:,.0f} steps/s (reference, same run)")
     print(f"{'env':32s} {'steps/s':>9s} {'x Pend-v1':>9s} {'dataset s':>9s} {'peak MB':>8s} {'batch/single':>12s}")
     for r in rows:
@@ -167,6 +213,8 @@ def main(argv: list[str] | None = None) -> int:
             pr = r["profile"]
             print(f"{r['env_id']:32s} {pr['trig_share']:13.0%} {pr['crossing_split_share']:14.0%} {pr['rhs_calls']:9d}")
         print("per-op cost [us] at batch", {k: round(v, 2) for k, v in result["per_op_us_at_batch"].items()})
+    if args.compiled_probe:
+        print("torch.compile probe:", {k: (round(v, 4) if isinstance(v, float) else v) for k, v in result["compiled_probe"].items()})
     if args.out:
         out = Path(args.out)
         out.parent.mkdir(parents=True, exist_ok=True)
