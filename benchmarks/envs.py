@@ -148,6 +148,39 @@ def compiled_probe(env_id: str = "PHAST/Pendulum-v0", n_traj: int = 1400, T: int
             "max_abs_diff_vs_simulate": float(np.abs(q.numpy().T - ref).max())}
 
 
+def markdown(result: dict) -> str:
+    """The docs/envs.md tables of a result JSON (so the docs quote the JSON exactly)."""
+    prof = all("profile" in r for r in result["rows"])
+    head = "| id | steps/s (gym.make) | x Pendulum-v1 | dataset 1400 x 200 [s] (target) | traced peak [MB] | batched / single |"
+    sep = "|---|---|---|---|---|---|"
+    if prof:
+        head += " sin/cos kernels | crossing refinement |"
+        sep += "---|---|"
+    load = result["machine"].get("loadavg_1min_before_after")
+    lines = [f"Gymnasium `Pendulum-v1` in the same run: {result['pendulum_v1_steps_per_s']:,.0f} steps/s. "
+             f"Process peak RSS: {result['process_peak_rss_mb']:.0f} MB (target < 1 GB). "
+             f"1-min load average before / after: {' / '.join(f'{x:.1f}' for x in load) if load else 'not recorded'}.",
+             "", head, sep]
+    for r in result["rows"]:
+        line = (f"| `{r['env_id']}` | {r['steps_per_s']:,.0f} | {r['ratio_vs_pendulum_v1']:.2f} | "
+                f"{r['dataset_wall_s']:.2f} (<= {r['dataset_limit_s']:.0f}) | {r['dataset_peak_mb']:.0f} | {r['batched_vs_single']:.0f} |")
+        if prof:
+            line += f" {r['profile']['trig_share']:.0%} | {r['profile']['crossing_split_share']:.0%} |"
+        lines.append(line)
+    lines += ["", "Targets met in this run: " + ", ".join(f"`{k}`: {v}" for k, v in result["targets_met"].items())]
+    if "per_op_us_at_batch" in result:
+        ops = result["per_op_us_at_batch"]
+        lines += ["", f"Cost of one operation on a float64 array of {ops['batch']} samples [us]: "
+                  + ", ".join(f"{k} {v:.2f}" for k, v in ops.items() if k != "batch") + "."]
+    if "compiled_probe" in result:
+        c = result["compiled_probe"]
+        lines += ["", f"`torch.compile` probe ({c['env_id']}): compile {c['compile_s']:.1f} s, then "
+                  f"{c['wall_s'] * 1e3:.0f} ms for the 1400 x 199 steps = {c['batched_steps_per_s']:,.0f} steps/s"
+                  + (f" = {c['vs_single']:.0f}x the single env" if "vs_single" in c else "")
+                  + f"; max |difference| to `simulate`: {c['max_abs_diff_vs_simulate']:.1e}."]
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--steps", type=int, default=5000, help="single-env steps per timing repeat")
@@ -158,7 +191,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--profile", action="store_true", help="add per-env cProfile shares and per-operation costs")
     ap.add_argument("--compiled-probe", action="store_true",
                     help="also time a torch.compile'd Pendulum-v0 step (compiles for tens of seconds)")
+    ap.add_argument("--table", default=None, metavar="JSON", help="print the docs tables of a result file and exit")
     args = ap.parse_args(argv)
+    if args.table:
+        print(markdown(json.loads(Path(args.table).read_text())))
+        return 0
     os.environ.setdefault("PHAST_CACHE_DIR", tempfile.mkdtemp())
     torch.set_num_threads(1)
     load_before = os.getloadavg()
