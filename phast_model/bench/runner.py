@@ -96,7 +96,12 @@ def build_run_model(spec: RunSpec, train: Any) -> Any:
     if spec.model.startswith("phast-"):
         from phast_model.regimes import build_model
 
-        return build_model(spec.env_id, spec.model.split("-", 1)[1], **spec.model_kw)
+        model = build_model(spec.env_id, spec.model.split("-", 1)[1], **spec.model_kw)
+        if spec.full_state:  # p observed: the core on (q, p), no observer (paper Table 25)
+            from phast_model.fullstate import FullStatePHAST
+
+            model = FullStatePHAST(model)
+        return model
     from phast_model.baselines import make_baseline
 
     n, m = train.q.shape[-1], train.u.shape[-1]

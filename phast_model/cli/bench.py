@@ -66,6 +66,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--data-seed", type=int, default=42)
     p.add_argument("--horizons", default="10,50,100")
     p.add_argument("--burn-in", type=int, default=10)
+    p.add_argument("--full-state", action="store_true",
+                   help="every run sees the full state (q, p) (paper Table 25: PHAST regimes vs DHNN; dhnn is always full-state)")
     p.add_argument("--train", action="append", metavar="KEY=VALUE", help="TrainConfig override (repeatable), e.g. batch_size=32")
     p.add_argument("--model-kw", action="append", metavar="KEY=VALUE", help="model constructor override (repeatable)")
     p.add_argument("--out", default="results", help="output directory (default results/)")
@@ -97,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
         horizons = tuple(int(h) for h in args.horizons.split(",") if h.strip())
         specs = grid(envs, models, seeds, epochs=args.epochs, n_train=args.n_train, n_val=args.n_val,
                      n_test=args.n_test, T=args.T, data_seed=args.data_seed, horizons=horizons, burn_in=args.burn_in,
-                     train=_parse_kv(args.train), model_kw=_parse_kv(args.model_kw))
+                     train=_parse_kv(args.train), model_kw=_parse_kv(args.model_kw), full_state=args.full_state)
     except Exception as exc:  # noqa: BLE001 - bad input: one clear line, nothing written
         print(f"phast-bench: error: {exc}", file=sys.stderr)
         return 2
