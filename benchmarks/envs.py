@@ -58,13 +58,13 @@ def steps_per_second(env_id: str, n_steps: int, repeats: int = 3) -> float:
     return best
 
 
-def dataset_cost(env_id: str, n_traj: int = 1400, T: int = 200) -> tuple[float, float]:
-    """(best wall seconds of two runs, peak traced MB) to generate the full dataset, cache off.
+def dataset_cost(env_id: str, n_traj: int = 1400, T: int = 200, repeats: int = 3) -> tuple[float, float]:
+    """(best wall seconds of ``repeats`` runs, peak traced MB) to generate the full dataset, cache off.
 
     Memory is traced in a separate run: tracemalloc slows Python-level code several-fold."""
     make_dataset(env_id, 4, T=5, cache=False)  # warm imports
     wall = float("inf")
-    for _ in range(2):
+    for _ in range(repeats):
         t0 = time.perf_counter()
         make_dataset(env_id, n_traj, T=T, seed=42, cache=False)
         wall = min(wall, time.perf_counter() - t0)
@@ -187,6 +187,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--n-traj", type=int, default=1400)
     ap.add_argument("--T", type=int, default=200)
     ap.add_argument("--envs", default="all", help="comma-separated ids or 'all'")
+    ap.add_argument("--repeats", type=int, default=3, help="best of this many timings (single env and dataset)")
     ap.add_argument("--out", default=None, help="write the JSON results here")
     ap.add_argument("--profile", action="store_true", help="add per-env cProfile shares and per-operation costs")
     ap.add_argument("--compiled-probe", action="store_true",
@@ -201,11 +202,11 @@ def main(argv: list[str] | None = None) -> int:
     load_before = os.getloadavg()
     ids = phast_gym.env_ids() if args.envs == "all" else [phast_gym.resolve_env_id(e) for e in args.envs.split(",")]
 
-    ref = steps_per_second("Pendulum-v1", args.steps)
+    ref = steps_per_second("Pendulum-v1", args.steps, args.repeats)
     rows = []
     for env_id in tqdm(ids, desc="envs", file=sys.stderr):
-        sps = steps_per_second(env_id, args.steps)
-        wall, peak = dataset_cost(env_id, args.n_traj, args.T)
+        sps = steps_per_second(env_id, args.steps, args.repeats)
+        wall, peak = dataset_cost(env_id, args.n_traj, args.T, args.repeats)
         batched_sps = args.n_traj * (args.T - 1) / wall
         limit = 10.0 if "LennardJones" in env_id else 2.0
         rows.append({
