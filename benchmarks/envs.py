@@ -153,6 +153,10 @@ def markdown(result: dict) -> str:
     prof = all("profile" in r for r in result["rows"])
     head = "| id | steps/s (gym.make) | x Pendulum-v1 | dataset 1400 x 200 [s] (target) | traced peak [MB] | batched / single |"
     sep = "|---|---|---|---|---|---|"
+    base = result.get("baseline")
+    if base:
+        head += f" speed-up vs `{base['ref']}`: dataset / single env |"
+        sep += "---|"
     if prof:
         head += " sin/cos kernels | crossing refinement |"
         sep += "---|---|"
@@ -164,6 +168,9 @@ def markdown(result: dict) -> str:
     for r in result["rows"]:
         line = (f"| `{r['env_id']}` | {r['steps_per_s']:,.0f} | {r['ratio_vs_pendulum_v1']:.2f} | "
                 f"{r['dataset_wall_s']:.2f} (<= {r['dataset_limit_s']:.0f}) | {r['dataset_peak_mb']:.0f} | {r['batched_vs_single']:.0f} |")
+        if base:
+            b = base["datasets"][r["env_id"]]
+            line += f" {b['dataset_speedup']:.2f}x / {b['single_env_speedup']:.2f}x |"
         if prof:
             line += f" {r['profile']['trig_share']:.0%} | {r['profile']['crossing_split_share']:.0%} |"
         lines.append(line)
@@ -181,6 +188,42 @@ def markdown(result: dict) -> str:
     return "\n".join(lines)
 
 
+def baseline_speedups(ref: str, ids: list[str], n_traj: int, T: int, repeats: int) -> dict[str, dict[str, float]]:
+    """Dataset wall time of ``phast_gym`` at git revision ``ref`` vs the working tree, timed interleaved in
+    this process (best of ``repeats`` each), so load changes on a shared machine hit both alike."""
+    import importlib
+    import subprocess
+
+    root = Path(__file__).resolve().parents[1]
+    tmp = Path(tempfile.mkdtemp())
+    archive = subprocess.run(["git", "archive", ref, "phast_gym"], cwd=root, check=True, capture_output=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(tmp)], input=archive, check=True)
+    (tmp / "phast_gym").rename(tmp / "phast_gym_baseline")  # the package uses relative imports only
+    sys.path.insert(0, str(tmp))
+    old = importlib.import_module("phast_gym_baseline.datasets")
+    old_env = importlib.import_module("phast_gym_baseline.env").PortHamiltonianEnv
+    out = {}
+    for env_id in tqdm(ids, desc=f"vs {ref}", file=sys.stderr):
+        # the baseline's env, registered under another id with the same kwargs and wrappers
+        spec = gym.spec(env_id)
+        old_id = env_id.replace("PHAST/", "PHASTBaseline/")
+        if old_id not in gym.registry:
+            gym.register(id=old_id, entry_point=old_env, kwargs=dict(spec.kwargs), max_episode_steps=spec.max_episode_steps)
+        best = {"baseline_s": float("inf"), "current_s": float("inf"), "baseline_steps_per_s": 0.0, "current_steps_per_s": 0.0}
+        for fn in (old.make_dataset, make_dataset):  # warm imports
+            fn(env_id, 4, T=5, cache=False)
+        for _ in range(repeats):
+            for key, fn in (("baseline_s", old.make_dataset), ("current_s", make_dataset)):
+                t0 = time.perf_counter()
+                fn(env_id, n_traj, T=T, seed=42, cache=False)
+                best[key] = min(best[key], time.perf_counter() - t0)
+            for key, eid in (("baseline_steps_per_s", old_id), ("current_steps_per_s", env_id)):
+                best[key] = max(best[key], steps_per_second(eid, 2000, 1))
+        out[env_id] = {**best, "dataset_speedup": best["baseline_s"] / best["current_s"],
+                       "single_env_speedup": best["current_steps_per_s"] / best["baseline_steps_per_s"]}
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--steps", type=int, default=5000, help="single-env steps per timing repeat")
@@ -192,6 +235,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--profile", action="store_true", help="add per-env cProfile shares and per-operation costs")
     ap.add_argument("--compiled-probe", action="store_true",
                     help="also time a torch.compile'd Pendulum-v0 step (compiles for tens of seconds)")
+    ap.add_argument("--baseline", default=None, metavar="GIT_REF",
+                    help="also time every dataset against phast_gym at this git revision (interleaved)")
     ap.add_argument("--table", default=None, metavar="JSON", help="print the docs tables of a result file and exit")
     args = ap.parse_args(argv)
     if args.table:
@@ -234,6 +279,9 @@ def main(argv: list[str] | None = None) -> int:
     }
     if args.profile:
         result["per_op_us_at_batch"] = {"batch": args.n_traj, **per_op_costs(args.n_traj)}
+    if args.baseline:
+        result["baseline"] = {"ref": args.baseline,
+                              "datasets": baseline_speedups(args.baseline, ids, args.n_traj, args.T, args.repeats)}
     if args.compiled_probe:
         probe = compiled_probe(n_traj=args.n_traj, T=args.T)
         if pend is not None:
