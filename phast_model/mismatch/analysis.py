@@ -839,11 +839,13 @@ def _systematic_regime(opts: Options, t0: float, env_id: str, fam0: Family, famC
         if eb.damping_scale > 0:
             calibrated[k] = {"nominal": nom0, "fitted": kwE[k], "ci95": [max(kwC[k] * lo, 0.0), kwC[k] * hi],
                              "relative_change": kwE[k] / nom0 - 1.0 if nom0 else 0.0,
-                             "note": f"scaled by the energy balance (x{eb.damping_scale:.3g} of the shooting calibration)"}
+                             "note": f"scaled by the energy balance (x{eb.damping_scale:.3g} of the shooting calibration, {kwC[k]:.4g}, "
+                                     "which the 'calibrated' row of the fit uses)"}
         else:
             calibrated[k] = {"nominal": nom0, "fitted": 0.0, "ci95": None, "relative_change": -1.0,
                              "note": "set to 0 by the energy balance: with the found terms its unconstrained estimate is negative "
-                                     "(a passive model cannot have it), so the model's own dissipation is dropped"}
+                                     "(a passive model cannot have it), so the model's own dissipation is dropped; the calibrated "
+                                     f"model without the found terms (the 'calibrated' row of the fit) has {kwC[k]:.4g}"}
     missing.clear()
     for t in eb.terms:
         term = Term(t["term"], t["coordinate"], t["coefficient"], t.get("velocity", 0.0))
