@@ -81,8 +81,9 @@ def per_op_costs(batch: int = 1400, repeats: int = 20000) -> dict[str, float]:
 
     x = np.random.default_rng(0).uniform(-3.0, 3.0, batch)
     y = x + 1.0
+    xt, yt = torch.from_numpy(x), torch.from_numpy(y)
     ops = {"numpy add": lambda: x + y, "numpy multiply by float": lambda: 0.5 * x, "numpy sin": lambda: np.sin(x),
-           "torch sin (NUMPY_FAST.sin, incl. conversion)": lambda: NUMPY_FAST.sin(x)}
+           "torch sin (NUMPY_FAST.sin, incl. conversion)": lambda: NUMPY_FAST.sin(x), "torch add (eager)": lambda: xt + yt}
     out = {}
     for name, fn in ops.items():
         fn()
