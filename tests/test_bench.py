@@ -173,3 +173,15 @@ def test_first_step_floor_is_below_persistence() -> None:
     assert 0.0 < r["floor_mse"] < 2.0 * persistence
     with pytest.raises(ValueError, match="draws"):
         mod.first_step_floor("PHAST/NBody3-v0", n_train=4, n_val=2, n_test=8, T=20, draws=1)
+
+
+def test_env_energy_rejects_non_hamiltonian_env() -> None:
+    """Figures: predator-prey has no mechanical energy; env_energy says so (the figure code catches ValueError)."""
+    import numpy as np
+
+    from phast_model.bench.figures import env_energy
+
+    q = np.ones((1, 5, 1))
+    with pytest.raises(ValueError, match="not port-Hamiltonian"):
+        env_energy("PHAST/PredatorPrey-v0", q, 0.1, ())
+    assert env_energy("PHAST/RLCCircuit-v0", q, 0.1, ()).shape == (1, 4)

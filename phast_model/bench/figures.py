@@ -41,6 +41,8 @@ def env_energy(env_id: str, q: np.ndarray, dt: float, angle_dims: tuple[int, ...
     from phast_gym.systems import NUMPY, split
 
     system = make_env_system(env_id)
+    if not system.hamiltonian_system:  # e.g. predator-prey: no M(q), its invariant needs the unobserved latent
+        raise ValueError(f"{env_id} is not port-Hamiltonian: no energy H(q, M(q) qdot)")
     v = fd_velocity(q, dt, angle_dims)
     qs = split(q[..., 1:, :])
     rows = system.mass_matrix(qs, NUMPY)
