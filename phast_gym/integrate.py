@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from .systems.base import NUMPY_FAST, SCALAR, System
+from .systems.base import NUMPY_FAST, SCALAR, System, _NumpyNamespace
 
 
 def rk4(system: System, q: Sequence, p: Sequence, u: Sequence | None, h: Any, xp: Any,
@@ -184,6 +184,7 @@ def simulate(
     u: np.ndarray | None = None,
     rng: np.random.Generator | None = None,
     substeps: int | None = None,
+    xp: Any = NUMPY_FAST,
 ) -> np.ndarray:
     """Integrate a batch of trajectories at once.
 
@@ -193,6 +194,11 @@ def simulate(
     n_steps : number of sampling intervals; the result has ``n_steps + 1`` samples.
     u : optional (B, n_steps, n) generalized port force ``G u`` held over each interval.
     rng : generator for stochastic systems (Langevin temperature).
+    substeps : RK4 substeps per step (default: the system's).
+    xp : ``NUMPY_FAST`` (default: sin/cos of batches of 256 or more from torch's vectorized
+        kernels, loading torch lazily; NumPy's when torch is not installed) or ``NUMPY`` (NumPy
+        only, never loads torch, bitwise equal to the single env; NumPy's sin/cos cost about 1.7x
+        torch's per call here, see ``benchmarks/envs.py --profile``).
 
     Returns
     -------
@@ -208,11 +214,12 @@ def simulate(
             raise ValueError(f"u must have shape {(x0.shape[0], n_steps, n)}, got {u.shape}")
     if system.stochastic and rng is None:
         raise ValueError(f"{system.name} is stochastic (temperature > 0): pass rng")
+    if not isinstance(xp, _NumpyNamespace):
+        raise ValueError(f"simulate integrates NumPy arrays: xp must be NUMPY or NUMPY_FAST, got {getattr(xp, 'name', xp)!r}")
     out = np.empty((x0.shape[0], n_steps + 1, 2 * n))
     out[:, 0] = x0
     q = [x0[:, i].copy() for i in range(n)]
     p = [x0[:, n + i].copy() for i in range(n)]
-    xp = NUMPY_FAST
     k = system.substeps if substeps is None else substeps
     h = system.dt / k
     s = system.switching(q, p, xp)
