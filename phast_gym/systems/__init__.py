@@ -2,6 +2,7 @@
 
 from .base import (
     NUMPY,
+    NUMPY_FAST,
     SCALAR,
     TORCH,
     Param,
@@ -38,7 +39,7 @@ def make_system(name: str, **params: object) -> System:
 
 
 __all__ = [
-    "NUMPY", "SCALAR", "TORCH", "Param", "ParameterError", "System", "const_like", "namespace", "split",
+    "NUMPY", "NUMPY_FAST", "SCALAR", "TORCH", "Param", "ParameterError", "System", "const_like", "namespace", "split",
     "stack", "wrap", "CartPole", "DoublePendulum", "HeatExchange", "Oscillator", "LennardJones3", "NBody3",
     "PairParticles", "Pendulum", "PredatorPrey", "RLCCircuit", "SYSTEMS", "make_system",
 ]
