@@ -272,7 +272,11 @@ class SystemField(nn.Module):
     def latent(self, q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
         a = self.rhs(q, torch.zeros_like(q), None)[0]
         b = self.rhs(q, torch.ones_like(q), None)[0] - a
-        return (v - a) / torch.where(b.abs() > 1e-6, b, torch.full_like(b, -1e-6))
+        p = (v - a) / torch.where(b.abs() > 1e-6, b, torch.full_like(b, -1e-6))
+        # the env's own state projection (populations >= 0): as the prey density collapses the inversion divides by
+        # it, and an unphysical negative latent made autoregressive rollouts grow without bound
+        _, ps = self.system.post_step(list(split(q)), list(split(p)), TORCH)
+        return stack(ps) + 0.0 * p
 
 
 class LVTemplateField(nn.Module):
