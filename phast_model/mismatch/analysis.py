@@ -23,7 +23,7 @@ from phast_gym.registry import make_env_system, resolve_env_id
 from phast_gym.systems import wrap
 from phast_gym.systems.base import NUMPY, System
 
-from .energy import DISSIPATIVE, STRIBECK_GRID, energy_balance, energy_check
+from .energy import DISSIPATIVE, STRIBECK_GRID, dissipative_basis, energy_balance, energy_check
 from .recordings import Recordings, load_raw, validate
 from .shooting import Shooter, ShootFit, Windows, _odd, angle_diff, estimate_noise, momentum, simulate_qv, smooth, substeps_for, time_scale
 from .terms import FORCE_TERMS, VOCABULARY, AugmentedSystem, Term, default_value
@@ -471,7 +471,7 @@ def analyze(sim: str, recordings: str | Path | Mapping[str, Any] | Recordings, s
             elif name == "stribeck_friction":  # one candidate per Stribeck velocity of a coarse grid
                 for f in STRIBECK_GRID[::2]:
                     w = float(f * vi_rms)
-                    b = float(np.sqrt(np.mean((np.tanh(vi / eps) * np.exp(-((vi / w) ** 2))) ** 2)))
+                    b = float(np.sqrt(np.mean(dissipative_basis(name, qi, vi, eps, w) ** 2)))
                     if b > 1e-12:
                         cands.append((name, i, float(force_rms[i] / b), h, w))
             elif name == "actuator_gain" and has_u[i]:

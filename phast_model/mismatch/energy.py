@@ -37,7 +37,7 @@ DISSIPATIVE = ("viscous_damping", "coulomb_friction", "quadratic_drag", "positio
 STRIBECK_GRID = tuple(0.05 * 2 ** (k / 2) for k in range(7))  # 0.05 ... 0.4, steps of sqrt(2)
 
 
-def _basis(name: str, q: np.ndarray, v: np.ndarray, eps: float, vs: float = 0.0) -> np.ndarray:
+def dissipative_basis(name: str, q: np.ndarray, v: np.ndarray, eps: float, vs: float = 0.0) -> np.ndarray:
     """f(q, v) of a dissipative vocabulary term (force = -c f), same smoothing as the model."""
     if name == "stribeck_friction":
         return np.tanh(v / eps) * np.exp(-((v / vs) ** 2))
@@ -117,12 +117,12 @@ def energy_balance(system: System, rec: Recordings, sg_window: int, eps: float, 
     for tr in range(rec.n_traj):
         for a, b in _intervals(vs[tr, :, j], max(3, sg_window // 2), 4):
             sl = slice(a, b + 1)
-            integ = [np.trapezoid(_basis(nm, qs[tr, sl, i], vs[tr, sl, i], eps, w) * vs[tr, sl, i], dx=dt) for nm, i, w in cand]
+            integ = [np.trapezoid(dissipative_basis(nm, qs[tr, sl, i], vs[tr, sl, i], eps, w) * vs[tr, sl, i], dx=dt) for nm, i, w in cand]
             # nuisance: encoder offset (and, on angles, the even eccentricity term c (1 - cos q)) shift H at turning points
             ecc = [gradV[tr, a, i] * (1 - np.cos(qs[tr, a, i])) - gradV[tr, b, i] * (1 - np.cos(qs[tr, b, i])) for i in rec.angle_dims]
             rows.append([np.trapezoid(P_model[tr, sl], dx=dt)] + integ + list(gradV[tr, a] - gradV[tr, b]) + ecc)
-            known = sum(t[2] * np.trapezoid(_basis(t[0], qs[tr, sl, t[1]], vs[tr, sl, t[1]], eps, *t[3:4]) * vs[tr, sl, t[1]], dx=dt)
-                        for t in fixed)
+            known = sum(c * np.trapezoid(dissipative_basis(nm, qs[tr, sl, i], vs[tr, sl, i], eps, *w) * vs[tr, sl, i], dx=dt)
+                        for nm, i, c, *w in fixed)
             if fixed:
                 known += rows[-1][0]
                 rows[-1][0] = 0.0
