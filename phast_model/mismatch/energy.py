@@ -31,6 +31,7 @@ from phast_gym.systems.base import NUMPY, System
 
 from .recordings import Recordings
 from .shooting import momentum, smooth
+from .terms import friction_basis
 
 DISSIPATIVE = ("viscous_damping", "coulomb_friction", "quadratic_drag", "position_dependent_damping", "stribeck_friction")
 #: Stribeck velocities tried, as fractions of the coordinate's rms velocity
@@ -38,18 +39,8 @@ STRIBECK_GRID = tuple(0.05 * 2 ** (k / 2) for k in range(7))  # 0.05 ... 0.4, st
 
 
 def dissipative_basis(name: str, q: np.ndarray, v: np.ndarray, eps: float, vs: float = 0.0) -> np.ndarray:
-    """f(q, v) of a dissipative vocabulary term (force = -c f), same smoothing as the model."""
-    if name == "stribeck_friction":
-        return np.tanh(v / eps) * np.exp(-((v / vs) ** 2))
-    if name == "viscous_damping":
-        return v
-    if name == "coulomb_friction":
-        return np.tanh(v / eps)
-    if name == "quadratic_drag":
-        return np.abs(v) * v
-    if name == "position_dependent_damping":
-        return np.abs(np.sin(q)) * v
-    raise ValueError(f"{name!r} is not a dissipative term")
+    """f(q, v) of a dissipative vocabulary term (force = -c f), the model's own law (:func:`.terms.friction_basis`)."""
+    return np.asarray(friction_basis(name, q, v, eps, vs, NUMPY))
 
 
 @dataclass

@@ -89,6 +89,23 @@ class Term:
         return text.replace("-c*", f"-{c:.4g}*")
 
 
+def friction_basis(name: str, q: Any, v: Any, eps: float, velocity: float = 0.0, xp: Any = NUMPY) -> Any:
+    """f(q_i, qdot_i) of a dissipative term (the force is -c f, f odd in qdot): the one place the friction laws are written.
+
+    ``eps`` smooths sign(qdot) as tanh(qdot / eps); ``velocity`` is the Stribeck velocity v_s."""
+    if name == "viscous_damping":
+        return v
+    if name == "coulomb_friction":
+        return xp.tanh(v / eps)
+    if name == "quadratic_drag":
+        return xp.abs(v) * v
+    if name == "position_dependent_damping":
+        return xp.abs(xp.sin(q)) * v
+    if name == "stribeck_friction":
+        return xp.tanh(v / eps) * xp.exp(-((v / velocity) ** 2))
+    raise ValueError(f"{name!r} is not a dissipative term")
+
+
 def default_value(name: str) -> float:
     """The coefficient at which a term has no effect."""
     return 1.0 if name in ("actuator_gain", "sensor_gain") else 0.0
@@ -229,17 +246,9 @@ class AugmentedSystem(System):
         """Passive friction forces -c f(v_i), f odd, c >= 0 (enters pdot like -D v)."""
         f = [0.0 * vi for vi in v]
         for t in self.terms:
-            i, c = t.coordinate, t.coefficient
-            if t.name == "viscous_damping":
-                f[i] = f[i] - c * v[i]
-            elif t.name == "coulomb_friction":
-                f[i] = f[i] - c * xp.tanh(v[i] / self.coulomb_eps)
-            elif t.name == "quadratic_drag":
-                f[i] = f[i] - c * xp.abs(v[i]) * v[i]
-            elif t.name == "position_dependent_damping":
-                f[i] = f[i] - c * xp.abs(xp.sin(q[i])) * v[i]
-            elif t.name == "stribeck_friction":
-                f[i] = f[i] - c * xp.tanh(v[i] / self.coulomb_eps) * xp.exp(-((v[i] / t.velocity) ** 2))
+            if t.component == "dissipation":
+                i = t.coordinate
+                f[i] = f[i] - t.coefficient * friction_basis(t.name, q[i], v[i], self.coulomb_eps, t.velocity, xp)
         return f
 
     def rhs(self, q: Components, p: Components, u: Components | None, xp: Any = NUMPY) -> tuple[tuple, tuple]:
