@@ -15,14 +15,9 @@ library of the same named force / port terms (columns standardized).
 from __future__ import annotations
 
 import argparse
-import json
-import math
-import os
 import sys
-import tempfile
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -217,13 +212,6 @@ def markdown_table(rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines) + "\n\n" + foot + "\n"
 
 
-def _write_atomic(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="phast-mismatch-bench", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--cases", nargs="*", default=None, help=f"case names (default: all): {[c.name for c in CASES]}")
@@ -236,6 +224,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--markdown", default=None, help="write the results table as markdown here (the table of docs/mismatch.md)")
     args = ap.parse_args(argv)
     from tqdm import tqdm
+
+    from phast_gym.fileio import atomic_write_json, atomic_write_text
 
     names = {c.name for c in CASES}
     bad = sorted(set(args.cases or []) - names)
@@ -276,19 +266,10 @@ def main(argv: list[str] | None = None) -> int:
         n_s = sum(r["sindy"]["correct"] for r in rows)
         print(f"PySINDy peer: {n_s}/{len(rows)} cases right ({n_s / max(len(rows), 1):.0%})")
     if args.markdown:
-        _write_atomic(Path(args.markdown), markdown_table(rows))
+        atomic_write_text(args.markdown, markdown_table(rows))
     if args.out:
-        out = Path(args.out)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=out.parent, prefix=f".{out.name}.tmp-")
-        with os.fdopen(fd, "w") as fh:
-            json.dump({"command": " ".join(["phast-mismatch-bench"] + (argv if argv is not None else sys.argv[1:])),
-                       "n_traj": args.n_traj, "T": args.T, "seed": args.seed, "rows": rows}, fh, indent=1,
-                      default=lambda x: None if isinstance(x, float) and not math.isfinite(x) else str(x))
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600
-        os.replace(tmp, out)
+        atomic_write_json(args.out, {"command": " ".join(["phast-mismatch-bench"] + (argv if argv is not None else sys.argv[1:])),
+                                     "n_traj": args.n_traj, "T": args.T, "seed": args.seed, "rows": rows}, indent=1)
     return 0
 
 
