@@ -11,7 +11,8 @@ Everything runs on one core (``torch.set_num_threads(1)``: the batched simulator
 kernels, and the single env is single-threaded).  ``--profile`` adds, per env, where the batched
 generation spends its time (cProfile: share in sin/cos kernels and in the kink-crossing refinement)
 and the cost of single numpy/torch operations at the dataset's batch size, which bound the batched
-throughput from below.
+throughput from below.  ``--compiled`` times the same datasets with ``backend="compiled"``
+(:mod:`phast_gym.compiled`), including the first call's compilation (cold unless ``--warm-cache``).
 """
 
 from __future__ import annotations
@@ -110,43 +111,21 @@ def profile_dataset(env_id: str, n_traj: int = 1400, T: int = 200) -> dict[str, 
     return {"profiled_s": total, "trig_share": trig / total, "crossing_split_share": split / total, "rhs_calls": n_rhs}
 
 
-def compiled_probe(env_id: str = "PHAST/Pendulum-v0", n_traj: int = 1400, T: int = 200) -> dict[str, float]:
-    """What a fused kernel would give: ``torch.compile`` of one env step (the same ``integrate.rk4`` and
-    system physics on torch tensors) for a smooth system.  Not used by the library: the compile costs
-    tens of seconds per system and batch shape, far above the 2 s dataset budget."""
-    from phast_gym.integrate import rk4, simulate
-    from phast_gym.systems import SCALAR, TORCH
-
-    system = phast_gym.make_env_system(env_id)
-    if system.switching([0.0] * system.n, [0.0] * system.n, SCALAR) is not None:
-        raise ValueError(f"{env_id}: the probe covers smooth systems only")
-    k = system.substeps
-    h = system.dt / k
-
-    def one_step(q: torch.Tensor, p: torch.Tensor, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        qs, ps, us = list(q.unbind(0)), list(p.unbind(0)), list(u.unbind(0))
-        for _ in range(k):
-            qs, ps = rk4(system, qs, ps, us, h, TORCH)
-        return torch.stack(qs), torch.stack(ps)
-
-    x0 = system.sample_initial(np.random.default_rng(42), n_traj)
-    n = system.n
-    q0, p0 = torch.from_numpy(x0[:, :n].T.copy()), torch.from_numpy(x0[:, n:].T.copy())
-    u = torch.zeros(n, n_traj, dtype=torch.float64)
-    fn = torch.compile(one_step, dynamic=False)
+def compiled_cost(env_id: str, n_traj: int = 1400, T: int = 200, repeats: int = 3) -> dict[str, float]:
+    """The same dataset with ``backend="compiled"`` (:mod:`phast_gym.compiled`): the first call's wall time
+    (it includes the compilation), the best of ``repeats`` later calls, and the largest difference to the
+    NumPy backend's states."""
     t0 = time.perf_counter()
-    fn(q0, p0, u)
-    compile_s = time.perf_counter() - t0
-    best = float("inf")
-    for _ in range(2):
-        q, p = q0, p0
+    first = make_dataset(env_id, n_traj, T=T, seed=42, cache=False, backend="compiled")
+    first_s = time.perf_counter() - t0
+    wall = float("inf")
+    for _ in range(repeats):
         t0 = time.perf_counter()
-        for _ in range(T - 1):
-            q, p = fn(q, p, u)
-        best = min(best, time.perf_counter() - t0)
-    ref = simulate(system, x0, T - 1)[:, -1, :n]
-    return {"env_id": env_id, "compile_s": compile_s, "wall_s": best, "batched_steps_per_s": n_traj * (T - 1) / best,
-            "max_abs_diff_vs_simulate": float(np.abs(q.numpy().T - ref).max())}
+        make_dataset(env_id, n_traj, T=T, seed=42, cache=False, backend="compiled")
+        wall = min(wall, time.perf_counter() - t0)
+    ref = make_dataset(env_id, n_traj, T=T, seed=42, cache=False)
+    diff = max(float(np.abs(first.q_true - ref.q_true).max()), float(np.abs(first.p - ref.p).max()))
+    return {"first_call_s": first_s, "wall_s": wall, "max_abs_diff_vs_numpy": diff}
 
 
 def markdown(result: dict) -> str:
@@ -180,12 +159,15 @@ def markdown(result: dict) -> str:
         ops = result["per_op_us_at_batch"]
         lines += ["", f"Cost of one operation on a float64 array of {ops['batch']} samples [us]: "
                   + ", ".join(f"{k} {v:.2f}" for k, v in ops.items() if k != "batch") + "."]
-    if "compiled_probe" in result:
-        c = result["compiled_probe"]
-        lines += ["", f"`torch.compile` probe ({c['env_id']}): compile {c['compile_s']:.1f} s, then "
-                  f"{c['wall_s'] * 1e3:.0f} ms for the 1400 x 199 steps = {c['batched_steps_per_s']:,.0f} steps/s"
-                  + (f" = {c['vs_single']:.0f}x the single env" if "vs_single" in c else "")
-                  + f"; max |difference| to `simulate`: {c['max_abs_diff_vs_simulate']:.1e}."]
+    if all("compiled" in r for r in result["rows"]):
+        lines += ["", "Compiled backend (`make_dataset(..., backend=\"compiled\")`, TorchInductor cache "
+                  f"{result.get('inductor_cache', 'unknown')} at the start):", "",
+                  "| id | first call incl. compile [s] | dataset 1400 x 200 [s] | batched / single | speed-up vs NumPy backend "
+                  "| max abs diff vs NumPy |", "|---|---|---|---|---|---|"]
+        for r in result["rows"]:
+            c = r["compiled"]
+            lines.append(f"| `{r['env_id']}` | {c['first_call_s']:.1f} | {c['wall_s']:.3f} | {c['batched_vs_single']:.0f} | "
+                         f"{r['dataset_wall_s'] / c['wall_s']:.1f}x | {c['max_abs_diff_vs_numpy']:.1e} |")
     return "\n".join(lines)
 
 
@@ -234,8 +216,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, default=3, help="best of this many timings (single env and dataset)")
     ap.add_argument("--out", default=None, help="write the JSON results here")
     ap.add_argument("--profile", action="store_true", help="add per-env cProfile shares and per-operation costs")
-    ap.add_argument("--compiled-probe", action="store_true",
-                    help="also time a torch.compile'd Pendulum-v0 step (compiles for tens of seconds)")
+    ap.add_argument("--compiled", action="store_true",
+                    help="also time every dataset with backend='compiled' (torch.compile; compiles for seconds to a "
+                         "minute per env unless TorchInductor's on-disk cache is warm)")
+    ap.add_argument("--warm-cache", action="store_true",
+                    help="with --compiled: use TorchInductor's usual on-disk cache instead of a fresh one (cold compile)")
     ap.add_argument("--baseline", default=None, metavar="GIT_REF",
                     help="also time every dataset against phast_gym at this git revision (interleaved)")
     ap.add_argument("--table", default=None, metavar="JSON", help="print the docs tables of a result file and exit")
@@ -244,6 +229,8 @@ def main(argv: list[str] | None = None) -> int:
         print(markdown(json.loads(Path(args.table).read_text())))
         return 0
     os.environ.setdefault("PHAST_CACHE_DIR", tempfile.mkdtemp())
+    if args.compiled and not args.warm_cache:
+        os.environ["TORCHINDUCTOR_CACHE_DIR"] = tempfile.mkdtemp()  # before torch compiles anything: a cold compile
     torch.set_num_threads(1)
     load_before = os.getloadavg()
     ids = phast_gym.env_ids() if args.envs == "all" else [phast_gym.resolve_env_id(e) for e in args.envs.split(",")]
@@ -262,12 +249,18 @@ def main(argv: list[str] | None = None) -> int:
         })
         if args.profile:
             rows[-1]["profile"] = profile_dataset(env_id, args.n_traj, args.T)
+        if args.compiled:
+            c = compiled_cost(env_id, args.n_traj, args.T, args.repeats)
+            c["batched_steps_per_s"] = args.n_traj * (args.T - 1) / c["wall_s"]
+            c["batched_vs_single"] = c["batched_steps_per_s"] / sps
+            rows[-1]["compiled"] = c
     ru = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KB -> MB on Linux
     pend = next((r for r in rows if r["env_id"] == "PHAST/Pendulum-v0"), None)
     targets = {
         "pendulum_ratio>=0.5": None if pend is None else pend["ratio_vs_pendulum_v1"] >= 0.5,
         "datasets_within_limit": all(r["dataset_wall_s"] <= r["dataset_limit_s"] for r in rows),
         "batched>=100x": all(r["batched_vs_single"] >= 100 for r in rows),
+        **({"batched_compiled>=100x": all(r["compiled"]["batched_vs_single"] >= 100 for r in rows)} if args.compiled else {}),
         "peak_memory<1GB": ru < 1024,
     }
     result = {
@@ -283,11 +276,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.baseline:
         result["baseline"] = {"ref": args.baseline,
                               "datasets": baseline_speedups(args.baseline, ids, args.n_traj, args.T, args.repeats)}
-    if args.compiled_probe:
-        probe = compiled_probe(n_traj=args.n_traj, T=args.T)
-        if pend is not None:
-            probe["vs_single"] = probe["batched_steps_per_s"] / pend["steps_per_s"]
-        result["compiled_probe"] = probe
+    if args.compiled:
+        result["inductor_cache"] = "warm (reused)" if args.warm_cache else "cold (fresh directory)"
     print(f"Gymnasium Pendulum-v1: {ref:,.0f} steps/s (reference, same run)")
     print(f"{'env':32s} {'steps/s':>9s} {'x Pend-v1':>9s} {'dataset s':>9s} {'peak MB':>8s} {'batch/single':>12s}")
     for r in rows:
@@ -300,8 +290,12 @@ def main(argv: list[str] | None = None) -> int:
             pr = r["profile"]
             print(f"{r['env_id']:32s} {pr['trig_share']:13.0%} {pr['crossing_split_share']:14.0%} {pr['rhs_calls']:9d}")
         print("per-op cost [us] at batch", {k: round(v, 2) for k, v in result["per_op_us_at_batch"].items()})
-    if args.compiled_probe:
-        print("torch.compile probe:", {k: (round(v, 4) if isinstance(v, float) else v) for k, v in result["compiled_probe"].items()})
+    if args.compiled:
+        print(f"{'env':32s} {'first call s':>12s} {'compiled s':>10s} {'batch/single':>12s} {'max diff':>9s}")
+        for r in rows:
+            c = r["compiled"]
+            print(f"{r['env_id']:32s} {c['first_call_s']:12.1f} {c['wall_s']:10.3f} {c['batched_vs_single']:12.0f} "
+                  f"{c['max_abs_diff_vs_numpy']:9.1e}")
     if args.out:
         out = Path(args.out)
         out.parent.mkdir(parents=True, exist_ok=True)

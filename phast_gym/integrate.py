@@ -177,6 +177,25 @@ def _rk4_1(f: Any, q: Sequence, p: Sequence, u: Sequence | None, h: Any, xp: Any
     return [q0 + h6 * (a1 + 2.0 * (a2 + a3) + a4)], [p0 + h6 * (b1 + 2.0 * (b2 + b3) + b4)]
 
 
+def check_batch(system: System, x0: Any, n_steps: int, u: Any, rng: Any) -> tuple[np.ndarray, np.ndarray | None]:
+    """Validate a batched simulator's inputs (shared by :func:`simulate` and the compiled backend)."""
+    x0 = np.asarray(x0, dtype=np.float64)
+    n = system.n
+    if x0.ndim != 2 or x0.shape[1] != 2 * n:
+        raise ValueError(f"x0 must have shape (B, {2 * n}), got {x0.shape}")
+    if not np.isfinite(x0).all():
+        raise ValueError("x0 must be finite")
+    if int(n_steps) != n_steps or n_steps < 0:
+        raise ValueError(f"n_steps must be a non-negative integer, got {n_steps!r}")
+    if u is not None:
+        u = np.asarray(u, dtype=np.float64)
+        if u.shape != (x0.shape[0], n_steps, n):
+            raise ValueError(f"u must have shape {(x0.shape[0], n_steps, n)}, got {u.shape}")
+    if system.stochastic and rng is None:
+        raise ValueError(f"{system.name} is stochastic (temperature > 0): pass rng")
+    return x0, u
+
+
 def simulate(
     system: System,
     x0: np.ndarray,
@@ -204,16 +223,8 @@ def simulate(
     -------
     (B, n_steps + 1, 2n) float64 array of states.
     """
-    x0 = np.asarray(x0, dtype=np.float64)
+    x0, u = check_batch(system, x0, n_steps, u, rng)
     n = system.n
-    if x0.ndim != 2 or x0.shape[1] != 2 * n:
-        raise ValueError(f"x0 must have shape (B, {2 * n}), got {x0.shape}")
-    if u is not None:
-        u = np.asarray(u, dtype=np.float64)
-        if u.shape != (x0.shape[0], n_steps, n):
-            raise ValueError(f"u must have shape {(x0.shape[0], n_steps, n)}, got {u.shape}")
-    if system.stochastic and rng is None:
-        raise ValueError(f"{system.name} is stochastic (temperature > 0): pass rng")
     if not isinstance(xp, _NumpyNamespace):
         raise ValueError(f"simulate integrates NumPy arrays: xp must be NUMPY or NUMPY_FAST, got {getattr(xp, 'name', xp)!r}")
     out = np.empty((x0.shape[0], n_steps + 1, 2 * n))
