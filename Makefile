@@ -28,7 +28,7 @@ format: install
 	$(PY) -m ruff format phast_gym phast_model tests examples benchmarks
 
 bench-envs: install
-	$(PY) benchmarks/envs.py --profile --compiled-probe --baseline 9a77c20 --out docs/envs_benchmark.json
+	$(PY) benchmarks/envs.py --profile --compiled --out docs/envs_benchmark.json
 
 clean:
 	rm -rf $(VENV) demo_out .pytest_cache .ruff_cache
