@@ -52,6 +52,68 @@ def decrements(path: Path) -> list[tuple[float, float]]:
     return [(float(a), float(a - b)) for a, b in zip(peaks[:-1], peaks[1:])]
 
 
+#: velocity-power friction laws F = c |qdot|^n sign(qdot) compared by :func:`decay_laws`
+DECAY_LAWS = {"coulomb": 0, "viscous": 1, "quadratic_drag": 2, "cubic_drag": 3}
+
+
+def decay_laws(path: Path, n_fit: int = 4) -> dict[str, Any]:
+    """Can segments 1..n_fit tell which friction law holds at the held-out amplitudes?  Model-free check on the
+    swing peaks: the energy lost per full swing (E = 1 - cos A in units of m g a, consecutive positive peaks A)
+    is regressed (non-negative least squares) on each combination of velocity-power laws, whose loss over a
+    swing of amplitude A is proportional to the integral of (cos th - cos A)^(n/2) over th in [-A, A] (the
+    energy-conserving velocity profile).  For each combination: fit residual and BIC on segments 1..n_fit, and
+    the measured / predicted loss on each later segment."""
+    from itertools import combinations
+
+    from scipy.integrate import quad
+    from scipy.optimize import nnls
+    from scipy.signal import find_peaks
+
+    with np.load(path) as z:
+        q = z["q"][..., 0] - math.pi
+    amp, seg = [], []
+    for s, x in enumerate(q):
+        for j in find_peaks(x, distance=300)[0]:
+            if 0 < j < len(x) - 1:  # parabolic refinement of the sampled peak
+                y0, y1, y2 = x[j - 1], x[j], x[j + 1]
+                den = y0 - 2 * y1 + y2
+                amp.append(y1 - 0.125 * (y0 - y2) ** 2 / den if den != 0 else y1)
+                seg.append(s)
+    amp_a, seg_a = np.array(amp), np.array(seg)
+    same = seg_a[:-1] == seg_a[1:]
+    a0, a1, sg = amp_a[:-1][same], amp_a[1:][same], seg_a[1:][same]
+    loss = np.cos(a1) - np.cos(a0)
+    am = 0.5 * (a0 + a1)
+
+    def swing_integral(a: float, n: int) -> float:
+        return 2.0 * quad(lambda th: max(math.cos(th) - math.cos(a), 0.0) ** (n / 2), -a, a, limit=200)[0]
+
+    basis = np.array([[swing_integral(a, n) for n in DECAY_LAWS.values()] for a in am])
+    fit = sg < n_fit
+    names = list(DECAY_LAWS)
+    rows = []
+    for k in (1, 2, 3):
+        for combo in combinations(range(len(names)), k):
+            X = basis[:, combo]
+            scale = X[fit].std(0) + 1e-300
+            c, _ = nnls(X[fit] / scale, loss[fit])
+            pred = (X / scale) @ c
+            rss = float(np.sum((loss - pred)[fit] ** 2))
+            m = int(fit.sum())
+            rows.append({"laws": [names[i] for i in combo], "fit_rms": math.sqrt(rss / m),
+                         "bic": m * math.log(rss / m) + len(combo) * math.log(m),
+                         "measured_over_predicted": {f"segment {s + 1}": float(loss[sg == s].sum() / pred[sg == s].sum())
+                                                     for s in range(n_fit, int(sg.max()) + 1)}})
+    rows.sort(key=lambda r: r["bic"])
+    best = rows[0]["bic"]
+    tied = [r for r in rows if r["bic"] - best < 2.0]  # not distinguishable on the fitted segments
+    spread = {key: [min(r["measured_over_predicted"][key] for r in tied), max(r["measured_over_predicted"][key] for r in tied)]
+              for key in rows[0]["measured_over_predicted"]}
+    return {"n_swings_fitted": int(fit.sum()), "n_swings_held_out": int((~fit).sum()), "combinations": rows,
+            "indistinguishable_on_fitted_segments": [r["laws"] for r in tied],
+            "their_held_out_measured_over_predicted_range": spread}
+
+
 def per_segment(report: Any) -> list[dict[str, Any]]:
     """Is the friction law the same in all six segments?  Per segment, the energy balance with every found dissipative
     term but Coulomb friction held at its training value, and one Coulomb coefficient fitted on that segment alone
@@ -126,6 +188,7 @@ def run(data: Path = DEFAULT_DATA, out: Path | None = None, max_T: int | None = 
         "energy_balance_used": report.details.get("energy_balance", {}).get("used", False),
         "per_segment_energy_balance": per_segment(report),
         "diagnostic_heldout_rmse_with_law_fitted_on_heldout": heldout_law_diagnostic(report),
+        "decay_law_identifiability": decay_laws(Path(data)),
         "improvement_vs_published": f["nominal"]["rollout_rmse"] / max(f["augmented"]["rollout_rmse"], 1e-300),
         "every_ci_excludes_zero": all(m["ci95"][0] * m["ci95"][1] > 0 for m in report.missing_physics),
         "noise_std_rad": report.data["noise_std"],
@@ -144,11 +207,16 @@ def main(argv: list[str] | None = None) -> int:
                     help="held-out open-loop window [s] (default: each held-out segment whole, 9.2 s)")
     ap.add_argument("--json", type=Path, default=None, help="also write the printed headline numbers to this JSON file")
     ap.add_argument("--decrements", action="store_true", help="only print the swing-peak decrements of the recording")
+    ap.add_argument("--decay-laws", action="store_true",
+                    help="only run the swing-peak check of which friction laws segments 1-4 can tell apart (JSON)")
     args = ap.parse_args(argv)
     try:
         if args.decrements:
             for a, d in decrements(args.data)[::6]:
                 print(f"amplitude {a:.4f} rad  decrement {d:.5f} rad  ratio {d / a:.4f}")
+            return 0
+        if args.decay_laws:
+            print(json.dumps(decay_laws(args.data), indent=1))
             return 0
         res = run(args.data, args.out, args.max_T, shoot_window=args.shoot_window, rollout_window=args.rollout_window)
     except ValueError as exc:
