@@ -66,7 +66,8 @@ def _gathered_substep(system: System, q: list, p: list, u: list | None, h: float
 
 
 def _interval_fn(system: System, k: int, with_u: bool) -> Any:
-    """The compiled map (q, p, u) -> (q, p, overflow) over one sampling interval, as (n, B) tensors."""
+    """The compiled map (q, p, u) -> (q, p, x, overflow) over one sampling interval: q, p as (n, B) tensors and
+    the same state as (B, 2n) rows ``x``."""
     import torch
 
     key = (type(system).__name__, system.name, repr(sorted(system.params.items())), k, with_u)
@@ -89,8 +90,9 @@ def _interval_fn(system: System, k: int, with_u: bool) -> Any:
                 overflow = overflow | over
         qs, ps = system.post_step(qs, ps, TORCH)
         shape = q.shape[1:]
-        return (torch.stack([torch.broadcast_to(torch.as_tensor(c, dtype=q.dtype), shape) for c in qs]),
-                torch.stack([torch.broadcast_to(torch.as_tensor(c, dtype=q.dtype), shape) for c in ps]), overflow)
+        comps = [torch.broadcast_to(torch.as_tensor(c, dtype=q.dtype), shape) for c in qs + ps]
+        # the state twice: (n, B) blocks for the next interval, (B, 2n) rows for the output's layout
+        return torch.stack(comps[: len(qs)]), torch.stack(comps[len(qs):]), torch.stack(comps, dim=1), overflow
 
     fn = torch.compile(interval, dynamic=False, fullgraph=True)
     _COMPILED[key] = fn
@@ -122,17 +124,22 @@ def simulate_compiled(
     q = torch.from_numpy(np.ascontiguousarray(x0[:, :n].T))
     p = torch.from_numpy(np.ascontiguousarray(x0[:, n:].T))
     u_t = None if u is None else torch.from_numpy(np.ascontiguousarray(u.transpose(1, 2, 0)))  # (n_steps, n, B)
-    buf = torch.empty((n_steps + 1, 2 * n, x0.shape[0]), dtype=torch.float64)  # contiguous rows, one transpose at the end
-    buf[0, :n], buf[0, n:] = q, p
+    out = np.empty((x0.shape[0], n_steps + 1, 2 * n))
+    out[:, 0] = x0
     with torch._dynamo.config.patch(recompile_limit=RECOMPILE_LIMIT, accumulated_recompile_limit=RECOMPILE_LIMIT):
         for t in range(n_steps):
             q0, p0, ut = q, p, None if u_t is None else u_t[t]
-            q, p, overflow = fn(q0, p0, ut)
+            q, p, x, overflow = fn(q0, p0, ut)
             if overflow:  # more kink crossings than the gather holds: this interval on the NumPy path
                 qs, ps = step(system, list(q0.numpy()), list(p0.numpy()), None if ut is None else list(ut.numpy()), NUMPY_FAST,
                               substeps=k)
                 q, p = (torch.from_numpy(np.stack(np.broadcast_arrays(*c, subok=False))) for c in (qs, ps))
+                x = None
             if system.stochastic:
                 p = torch.from_numpy(np.ascontiguousarray(system.stochastic_kick(p.numpy().T, rng).T))
-            buf[t + 1, :n], buf[t + 1, n:] = q, p
-    return np.ascontiguousarray(buf.numpy().transpose(2, 0, 1))
+                x = None
+            if x is None:
+                out[:, t + 1, :n], out[:, t + 1, n:] = q.numpy().T, p.numpy().T
+            else:
+                out[:, t + 1] = x.numpy()
+    return out

@@ -209,7 +209,12 @@ def make_dataset(
     for i in system.angle_dims:
         q[..., i] = wrap(q[..., i])
     qs = tuple(q_true[..., i] for i in range(n))
-    damping = np.stack(np.broadcast_arrays(*system.damping(qs, NUMPY)), -1).astype(np.float64)
+    const_d = system.constant_damping()
+    if const_d is not None:  # one fill instead of n full-size arrays stacked
+        damping = np.empty(q_true.shape)
+        damping[...] = np.asarray(const_d, dtype=np.float64)
+    else:
+        damping = np.stack(np.broadcast_arrays(*system.damping(qs, NUMPY)), -1).astype(np.float64)
     ds = Dataset(env_id, q=q, q_true=q_true, p=p, u=u_arr, damping=damping, dt=float(system.dt),
                  angle_dims=tuple(system.angle_dims), actuated_dofs=actuated, config=config)
     if cache:
