@@ -129,7 +129,15 @@ def simulate_compiled(
     with torch._dynamo.config.patch(recompile_limit=RECOMPILE_LIMIT, accumulated_recompile_limit=RECOMPILE_LIMIT):
         for t in range(n_steps):
             q0, p0, ut = q, p, None if u_t is None else u_t[t]
-            q, p, x, overflow = fn(q0, p0, ut)
+            try:
+                q, p, x, overflow = fn(q0, p0, ut)
+            except Exception as exc:
+                if t > 0:
+                    raise
+                # the first call compiles: TorchInductor's CPU backend needs a working C++ compiler
+                first = (str(exc).strip().splitlines() or [""])[0][:300]
+                raise RuntimeError(f"backend='compiled' could not compile {system.name} ({type(exc).__name__}: {first}); "
+                                   "it needs torch.compile's CPU backend (a C++ compiler); backend='numpy' needs neither") from exc
             if overflow:  # more kink crossings than the gather holds: this interval on the NumPy path
                 qs, ps = step(system, list(q0.numpy()), list(p0.numpy()), None if ut is None else list(ut.numpy()), NUMPY_FAST,
                               substeps=k)

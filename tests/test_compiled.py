@@ -67,3 +67,13 @@ def test_langevin_kick_draws_match_numpy_simulate() -> None:
     got = compiled.simulate_compiled(system, x0, 10, rng=np.random.default_rng(7))
     ref = simulate(system, x0, 10, rng=np.random.default_rng(7))
     np.testing.assert_allclose(got, ref, rtol=0, atol=1e-11)
+
+
+def test_a_failing_compile_names_the_backend_and_the_way_out(monkeypatch: pytest.MonkeyPatch) -> None:
+    def broken(*_a, **_k):
+        raise OSError("g++: command not found")
+
+    system = phast_gym.make_env_system("PHAST/DampedPendulum-v0")
+    monkeypatch.setattr(compiled, "_interval_fn", lambda *a, **k: broken)
+    with pytest.raises(RuntimeError, match="backend='numpy' needs neither"):
+        compiled.simulate_compiled(system, np.zeros((3, 2)), 4)
