@@ -24,7 +24,7 @@ import numpy as np
 
 from .integrate import simulate
 from .registry import ENV_KWARGS, make_env_system, resolve_env_id
-from .systems import NUMPY, wrap
+from .systems import NUMPY_FAST, wrap
 
 CACHE_VERSION = 2  # 2: Hermite-located kink crossings, vectorized sin/cos in the batched simulator
 _ARRAYS = ("q", "q_true", "p", "u", "damping")
@@ -208,13 +208,14 @@ def make_dataset(
     q = q_true + (rng_noise.normal(0.0, noise, q_true.shape) if noise > 0 else 0.0)
     for i in system.angle_dims:
         q[..., i] = wrap(q[..., i])
-    qs = tuple(q_true[..., i] for i in range(n))
     const_d = system.constant_damping()
     if const_d is not None:  # one fill instead of n full-size arrays stacked
         damping = np.empty(q_true.shape)
         damping[...] = np.asarray(const_d, dtype=np.float64)
     else:
-        damping = np.stack(np.broadcast_arrays(*system.damping(qs, NUMPY)), -1).astype(np.float64)
+        # contiguous coordinates, so the batched simulator's vectorized sin/cos apply (NUMPY's are scalar here)
+        qs = tuple(np.ascontiguousarray(q_true[..., i]) for i in range(n))
+        damping = np.stack(np.broadcast_arrays(*system.damping(qs, NUMPY_FAST)), -1).astype(np.float64)
     ds = Dataset(env_id, q=q, q_true=q_true, p=p, u=u_arr, damping=damping, dt=float(system.dt),
                  angle_dims=tuple(system.angle_dims), actuated_dofs=actuated, config=config)
     if cache:
