@@ -1,0 +1,121 @@
+"""The nominal simulator the mismatch tool compares with the recordings.
+
+A simulator is a :class:`phast_gym.systems.System` subclass (H, M(q), D(q), port:
+the interface every env of the suite is built from) plus the keyword arguments
+of its constructor.  It is named in one of three ways:
+
+* a registered env id, ``PHAST/Pendulum-v0`` (its registered kwargs apply);
+* an importable class, ``my_package.my_module:MyRig``;
+* a class in a Python file, ``path/to/rig.py:MyRig``.
+
+:func:`load_simulator` resolves the name once; the pipeline then builds every
+calibrated / augmented variant through :meth:`Simulator.build`, so a user's rig
+and a suite env are handled by the same code.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import math
+import sys
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from phast_gym.registry import ENV_KWARGS, make_env_system, resolve_env_id
+from phast_gym.systems.base import System
+
+
+@dataclass(frozen=True)
+class Simulator:
+    """A nominal simulator: ``build(**overrides)`` -> a fresh :class:`System`."""
+
+    name: str  # env id or "module:Class" / "file.py:Class", as the user gave it
+    factory: Callable[..., System] = field(repr=False)
+    kwargs: dict[str, Any] = field(default_factory=dict)  # the user's kwargs (before calibration)
+
+    def build(self, **overrides: Any) -> System:
+        """The system with the user's kwargs, overridden by ``overrides`` (e.g. calibrated values)."""
+        return self.factory(**{**self.kwargs, **overrides})
+
+    def numeric_params(self, system: System | None = None) -> dict[str, float]:
+        """The finite float parameters of ``system`` (default: the nominal one): the calibration candidates."""
+        s = system if system is not None else self.build()
+        out = {}
+        for k, v in s.params.items():
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                continue
+            out[k] = float(v)
+        return out
+
+
+def _load_class(spec: str) -> type:
+    """``module.path:Class`` or ``path/to/file.py:Class`` -> the class object."""
+    target, _, cls_name = spec.rpartition(":")
+    if not target or not cls_name:
+        raise ValueError(f"simulator {spec!r}: expected an env id, 'package.module:Class' or 'path/to/file.py:Class'")
+    if target.endswith(".py"):
+        path = Path(target).expanduser()
+        if not path.is_file():
+            raise ValueError(f"simulator {spec!r}: file {str(path)!r} not found")
+        mod_name = f"_phast_user_sim_{abs(hash(str(path.resolve())))}"
+        loader_spec = importlib.util.spec_from_file_location(mod_name, path)
+        if loader_spec is None or loader_spec.loader is None:
+            raise ValueError(f"simulator {spec!r}: cannot load {str(path)!r} as a Python module")
+        module = importlib.util.module_from_spec(loader_spec)
+        sys.modules[mod_name] = module
+        try:
+            loader_spec.loader.exec_module(module)
+        except Exception as exc:
+            sys.modules.pop(mod_name, None)
+            raise ValueError(f"simulator {spec!r}: importing {str(path)!r} failed: {type(exc).__name__}: {exc}") from None
+    else:
+        try:
+            module = importlib.import_module(target)
+        except Exception as exc:
+            raise ValueError(f"simulator {spec!r}: cannot import module {target!r}: {type(exc).__name__}: {exc}") from None
+    cls = getattr(module, cls_name, None)
+    if cls is None:
+        raise ValueError(f"simulator {spec!r}: {target!r} has no attribute {cls_name!r}")
+    return cls
+
+
+def _check_system_class(cls: Any, name: str) -> type[System]:
+    if not isinstance(cls, type) or not issubclass(cls, System):
+        raise ValueError(f"simulator {name!r} is not a phast_gym.systems.System subclass (got {cls!r}); "
+                         "see docs/describe_your_rig.md")
+    return cls
+
+
+def load_simulator(sim: str | type[System] | Simulator, kwargs: Mapping[str, Any] | None = None) -> Simulator:
+    """Resolve ``sim`` (env id, ``module:Class``, ``file.py:Class``, a System subclass or a Simulator) and check that
+    it builds with ``kwargs`` into a port-Hamiltonian system.  Every problem raises a ValueError naming it."""
+    kw = dict(kwargs or {})
+    if isinstance(sim, Simulator):
+        out = Simulator(sim.name, sim.factory, {**sim.kwargs, **kw})
+    elif isinstance(sim, type):
+        cls = _check_system_class(sim, getattr(sim, "__name__", repr(sim)))
+        out = Simulator(f"{cls.__module__}:{cls.__qualname__}", cls, kw)
+    elif not isinstance(sim, str) or not sim.strip():
+        raise ValueError(f"simulator must be an env id or 'module:Class' / 'file.py:Class', got {sim!r}")
+    elif ":" in sim and not sim.startswith("phast_gym:"):
+        cls = _check_system_class(_load_class(sim), sim)
+        out = Simulator(sim, cls, kw)
+    else:
+        try:
+            env_id = resolve_env_id(sim)
+        except Exception as exc:  # gymnasium's UnregisteredEnv
+            raise ValueError(f"unknown simulator {sim!r}: {exc}") from None
+        phys = {k: v for k, v in kw.items() if k not in ENV_KWARGS}
+        out = Simulator(env_id, lambda **k: make_env_system(env_id, **k), phys)
+    try:
+        system = out.build()
+    except Exception as exc:
+        raise ValueError(f"simulator {out.name!r} failed to build with kwargs {out.kwargs}: {type(exc).__name__}: {exc}") from None
+    if not isinstance(system, System):
+        raise ValueError(f"simulator {out.name!r} built {type(system).__name__}, not a phast_gym System")
+    if not system.hamiltonian_system:
+        raise ValueError(f"{out.name} is not a port-Hamiltonian system (no H, M, D to augment); the mismatch tool needs one")
+    return out
