@@ -48,16 +48,17 @@ def _any(c: Any) -> bool:
     return bool(c) if isinstance(c, (bool, np.bool_)) else bool(c.any())  # ndarray or tensor
 
 
-def substep(system: System, q: Sequence, p: Sequence, u: Sequence | None, h: float, xp: Any) -> tuple[list, list]:
+def substep(system: System, q: Sequence, p: Sequence, u: Sequence | None, h: Any, xp: Any) -> tuple[list, list]:
     """RK4 substep that splits at a crossing of the system's switching surface."""
     q, p, _ = _substep(system, q, p, u, h, xp, system.switching(q, p, xp))
     return q, p
 
 
-def _substep(system: System, q: Sequence, p: Sequence, u: Sequence | None, h: float, xp: Any,
+def _substep(system: System, q: Sequence, p: Sequence, u: Sequence | None, h: Any, xp: Any,
              s0: Any) -> tuple[list, list, Any]:
     """:func:`substep` given the switching value ``s0`` at the start; also returns it at the end
-    (the next substep's ``s0``, so each state's switching value is computed once)."""
+    (the next substep's ``s0``, so each state's switching value is computed once).  ``h``: a float or,
+    with NumPy arrays, a per-sample (B,) array of substep lengths."""
     k1 = system.rhs(q, p, u, xp)
     qn, pn = rk4(system, q, p, u, h, xp, k1)
     if s0 is None:
@@ -76,7 +77,7 @@ def _substep(system: System, q: Sequence, p: Sequence, u: Sequence | None, h: fl
         sel = lambda c: c[idx] if np.ndim(c) else c  # noqa: E731
         qs, ps, qns, pns = ([sel(c) for c in comps] for comps in (q, p, qn, pn))
         k1s = ([sel(c) for c in k1[0]], [sel(c) for c in k1[1]])
-        qc, pc = _split_at_crossing(system, qs, ps, None if u is None else [sel(c) for c in u], h, k1s,
+        qc, pc = _split_at_crossing(system, qs, ps, None if u is None else [sel(c) for c in u], sel(h), k1s,
                                     qns, pns, s0[idx], s1[idx], xp)
         # rk4 returned fresh arrays: overwrite the crossing samples in place (copy only broadcast scalars)
         qn, pn = ([c if np.shape(c) == shape else np.array(np.broadcast_to(c, shape), dtype=float) for c in comps]
@@ -143,7 +144,10 @@ def step(
     dt: float | None = None,
     substeps: int | None = None,
 ) -> tuple[list, list]:
-    """Advance (q, p) by one sampling interval ``dt`` with ``u`` held (zero-order hold)."""
+    """Advance (q, p) by one sampling interval ``dt`` with ``u`` held (zero-order hold).
+
+    ``dt``: a float or, for batched NumPy states, a per-sample (B,) array of interval lengths.
+    """
     dt = system.dt if dt is None else dt
     k = system.substeps if substeps is None else substeps
     h = dt / k

@@ -1,8 +1,11 @@
 """Loading and validating measured recordings (MISMATCH.md "Recordings").
 
-A recording set is q (N, T, n) sampled uniformly at dt, an optional port input
-u (N, T-1 or T, m), the indices of angular coordinates and an angle offset
-(q_env = q_recorded + angle_offset).  Every problem gets a ValueError naming it.
+A recording set is q (N, T, n) sampled at dt or at recorded times t ((T,) or
+(N, T), strictly increasing, not necessarily uniform: real loggers jitter and
+the tool simulates between the recorded times), an optional port input
+u (N, T-1 or T, m) held over each interval, the indices of angular coordinates
+and an angle offset (q_env = q_recorded + angle_offset).  Every problem gets a
+ValueError naming it.
 """
 
 from __future__ import annotations
@@ -22,9 +25,18 @@ from phast_gym.systems import wrap
 MIN_SAMPLES = 40
 
 
+#: steps within this fraction of dt count as uniform sampling
+UNIFORM_RTOL = 1e-3
+
+
 @dataclass
 class Recordings:
-    """Validated recordings in the env's convention (angles unwrapped along time)."""
+    """Validated recordings in the env's convention (angles unwrapped along time).
+
+    ``dt`` is the (median) sampling step, used for time scales and filters; ``t``
+    (N, T) the recorded sample times when given (absolute, not necessarily
+    uniform: the simulation runs between them, see :attr:`steps` and :attr:`sim_dt`).
+    """
 
     q: np.ndarray  # (N, T, n) float64, angle dims unwrapped, offset applied
     dt: float
@@ -32,6 +44,16 @@ class Recordings:
     angle_dims: tuple[int, ...] = ()
     source: str = "<arrays>"
     meta: dict[str, Any] = field(default_factory=dict)
+    t: np.ndarray | None = None  # (N, T) recorded sample times in seconds, or None (uniform at dt)
+
+    def __post_init__(self) -> None:
+        if self.t is not None:
+            t = np.asarray(self.t, dtype=np.float64)
+            if t.ndim == 1:
+                t = np.broadcast_to(t, self.q.shape[:2])
+            if t.shape != self.q.shape[:2]:
+                raise ValueError(f"{self.source}: 't' must have shape (T,) or (N, T) = {self.q.shape[:2]}, got {np.shape(self.t)}")
+            self.t = t
 
     @property
     def n_traj(self) -> int:
@@ -45,14 +67,108 @@ class Recordings:
     def n(self) -> int:
         return self.q.shape[2]
 
+    @property
+    def steps(self) -> np.ndarray:
+        """(N, T-1) length of every sampling interval in seconds (dt everywhere when t is None)."""
+        if self.t is None:
+            return np.full((self.n_traj, self.T - 1), float(self.dt))
+        return np.diff(self.t, axis=1)
+
+    @property
+    def uniform(self) -> bool:
+        """Whether every interval is dt (within UNIFORM_RTOL): then the scalar dt is the time base."""
+        if self.t is None or self.T < 2:
+            return True
+        return bool(np.max(np.abs(np.diff(self.t, axis=1) - self.dt)) <= UNIFORM_RTOL * self.dt)
+
+    @property
+    def sim_dt(self) -> float | np.ndarray:
+        """What to pass as ``dt`` to the simulation of whole trajectories: the scalar dt when the sampling is
+        uniform (so uniform recordings simulate exactly as before), else the (N, T-1) recorded steps."""
+        return float(self.dt) if self.uniform else self.steps
+
+    def times(self) -> np.ndarray:
+        """(N, T) sample times (from 0 at dt when no times were recorded)."""
+        if self.t is None:
+            return np.broadcast_to(np.arange(self.T) * float(self.dt), self.q.shape[:2])
+        return self.t
+
+    def _with(self, q: np.ndarray, dt: float, u: np.ndarray | None, t: np.ndarray | None) -> Recordings:
+        return Recordings(q, dt, u, self.angle_dims, self.source, self.meta, t)
+
     def subset(self, idx: Any) -> Recordings:
         """Trajectories ``idx`` (an index array or slice)."""
-        return Recordings(self.q[idx], self.dt, None if self.u is None else self.u[idx], self.angle_dims, self.source, self.meta)
+        return self._with(self.q[idx], self.dt, None if self.u is None else self.u[idx], None if self.t is None else self.t[idx])
 
     def time_slice(self, start: int, stop: int) -> Recordings:
-        """Samples ``start:stop`` of every trajectory (u follows the intervals)."""
+        """Samples ``start:stop`` of every trajectory (u follows the intervals; t keeps absolute times)."""
         u = None if self.u is None else self.u[:, start:stop - 1]
-        return Recordings(self.q[:, start:stop], self.dt, u, self.angle_dims, self.source, self.meta)
+        return self._with(self.q[:, start:stop], self.dt, u, None if self.t is None else self.t[:, start:stop])
+
+    def decimate(self, k: int) -> Recordings:
+        """Every ``k``-th sample (dt becomes k dt, or the median of the new steps when t is not uniform).
+
+        Not with a port input: u is held per recorded interval and averaging it over k intervals would
+        change the physics; keep the recorded rate and compare every k-th sample instead
+        (``Windows.cut(rec, length, stride=k)``).
+        """
+        k = int(k)
+        if k < 1:
+            raise ValueError(f"decimate: k must be a positive integer, got {k}")
+        if k == 1:
+            return self
+        if self.u is not None:
+            raise ValueError("decimation with a port input u is not supported (u is held per recorded interval); "
+                             "compare every k-th sample instead: Windows.cut(rec, length, stride=k)")
+        if self.T < 2 * k:
+            raise ValueError(f"decimate: T={self.T} samples is too short to keep every {k}-th")
+        t = None if self.t is None else self.t[:, ::k]
+        if t is None or self.uniform:
+            dt = self.dt * k
+        else:
+            dt = float(np.median(np.diff(t, axis=1)))
+        return self._with(self.q[:, ::k], dt, None, t)
+
+    def windows(self, W: int) -> Recordings:
+        """Consecutive non-overlapping windows of ``W`` samples of every trajectory as trajectories
+        (trajectory-major: trajectory 0's windows first; the remainder of each trajectory is dropped;
+        u and t carried, t keeps absolute times).  Unchanged when a trajectory holds fewer than two windows."""
+        W = int(W)
+        if W < 2:
+            raise ValueError(f"windows: W must be at least 2 samples, got {W}")
+        k = self.T // W
+        if k <= 1:
+            return self
+        N = self.n_traj
+        q = self.q[:, : k * W].reshape(N * k, W, self.n)
+        u = None
+        if self.u is not None:
+            u = np.stack([self.u[:, j * W: j * W + W - 1] for j in range(k)], 1).reshape(N * k, W - 1, -1)
+        t = None if self.t is None else self.t[:, : k * W].reshape(N * k, W)
+        return self._with(q, self.dt, u, t)
+
+    def resampled(self) -> Recordings:
+        """The recordings interpolated onto a uniform grid of step dt from each trajectory's first time
+        (q by cubic spline, u zero-order hold; as many samples as fit in the shortest trajectory).
+
+        For filters that assume uniform sampling (Savitzky-Golay derivatives, local force residuals) only:
+        fits simulate between the recorded times instead.  Returns ``self`` when the sampling is uniform.
+        """
+        if self.uniform:
+            return self
+        from scipy.interpolate import CubicSpline
+
+        t = self.t
+        span = float(np.min(t[:, -1] - t[:, 0]))
+        T2 = int(math.floor(span / self.dt + 1e-9)) + 1
+        grid = t[:, :1] + np.arange(T2)[None, :] * self.dt  # (N, T2)
+        grid = np.minimum(grid, t[:, -1:])
+        q = np.stack([CubicSpline(t[i], self.q[i], axis=0)(grid[i]) for i in range(self.n_traj)])
+        u = None
+        if self.u is not None:
+            j = np.stack([np.clip(np.searchsorted(t[i], grid[i, :-1], side="right") - 1, 0, self.T - 2) for i in range(self.n_traj)])
+            u = np.take_along_axis(self.u, j[..., None], axis=1)
+        return self._with(q, self.dt, u, grid)
 
 
 def _read_csv(path: Path) -> dict[str, Any]:
@@ -88,10 +204,8 @@ def _read_csv(path: Path) -> dict[str, Any]:
     lengths = {len(t) for t in ts}
     if len(lengths) != 1:
         raise ValueError(f"{path}: trajectories have different lengths {sorted(lengths)}; all must have the same T")
-    out: dict[str, Any] = {"q": np.stack(qs), "t": ts[0]}
-    for t in ts[1:]:
-        if not np.allclose(t, ts[0]):
-            raise ValueError(f"{path}: trajectories use different time stamps; give one uniform grid")
+    # each trajectory keeps its own time stamps (jittered loggers: they need not agree, nor be uniform)
+    out: dict[str, Any] = {"q": np.stack(qs), "t": np.stack(ts)}
     if ucols:
         out["u"] = np.stack(us)
     return out
@@ -115,7 +229,7 @@ def load_raw(source: str | Path | Mapping[str, Any]) -> tuple[dict[str, Any], st
 
 def validate(raw: Mapping[str, Any], n: int, env_angle_dims: tuple[int, ...], source: str = "<arrays>",
              min_samples: int = MIN_SAMPLES, actuated_dofs: tuple[int, ...] | None = None) -> Recordings:
-    """Check shapes, finiteness and uniform sampling; convert to the env's convention."""
+    """Check shapes, finiteness and the time base (strictly increasing t); convert to the env's convention."""
     if "q" not in raw:
         raise ValueError(f"{source}: recordings are missing key 'q' (measured coordinates, (N, T, n) or (T, n)); "
                          f"keys present: {sorted(raw)}")
@@ -140,14 +254,29 @@ def validate(raw: Mapping[str, Any], n: int, env_angle_dims: tuple[int, ...], so
         raise ValueError(f"{source}: 'q' contains NaN/inf (first at trajectory {bad[0]}, sample {bad[1]}, coordinate {bad[2]})")
     T = q.shape[1]
     # ---- time base
-    if "dt" in raw and np.size(raw["dt"]) == 1:
-        dt = float(np.asarray(raw["dt"]).reshape(()))
-        if "t" in raw:
-            _check_t(np.asarray(raw["t"], dtype=np.float64), T, source, dt)
-    elif "t" in raw:
-        dt = _check_t(np.asarray(raw["t"], dtype=np.float64), T, source, None)
+    t = None
+    if "t" in raw and raw["t"] is not None:
+        t = _check_t(np.asarray(raw["t"], dtype=np.float64), q.shape[0], T, source)
+    if "dt" in raw and raw["dt"] is not None and np.size(raw["dt"]) == 1:
+        try:
+            dt = float(np.asarray(raw["dt"], dtype=np.float64).reshape(()))
+        except (TypeError, ValueError):
+            raise ValueError(f"{source}: 'dt' is not a number") from None
+        if not (math.isfinite(dt) and dt > 0):
+            raise ValueError(f"{source}: dt must be a positive finite number, got {dt}")
+        if t is not None:
+            step = float(np.median(np.diff(t, axis=1)))
+            uniform = np.max(np.abs(np.diff(t, axis=1) - step)) <= UNIFORM_RTOL * step
+            # uniform t must match dt closely; jittered t only roughly (its median step is the nominal rate)
+            tol = UNIFORM_RTOL if uniform else 0.05
+            if abs(step - dt) > tol * dt:
+                raise ValueError(f"{source}: 'dt'={dt} disagrees with the median step of 't' ({step:.6g} s)")
+    elif "dt" in raw and raw["dt"] is not None:
+        raise ValueError(f"{source}: 'dt' must be a scalar, got shape {np.shape(raw['dt'])}; give per-sample times as 't'")
+    elif t is not None:
+        dt = float(np.median(np.diff(t, axis=1)))
     else:
-        raise ValueError(f"{source}: recordings are missing the time base: give 'dt' (scalar) or 't' (T,)")
+        raise ValueError(f"{source}: recordings are missing the time base: give 'dt' (scalar) or 't' ((T,) or (N, T) seconds)")
     if not (math.isfinite(dt) and dt > 0):
         raise ValueError(f"{source}: dt must be a positive finite number, got {dt}")
     # ---- angles
@@ -183,21 +312,22 @@ def validate(raw: Mapping[str, Any], n: int, env_angle_dims: tuple[int, ...], so
             raise ValueError(f"{source}: 'u' has m={m} inputs; give 'actuated_dofs' (m indices into n={n} coordinates)")
         u = np.zeros(u_raw.shape[:2] + (n,))
         u[..., list(dofs)] = u_raw
-    return Recordings(q=q, dt=dt, u=u, angle_dims=angle_dims, source=source)
+    return Recordings(q=q, dt=dt, u=u, angle_dims=angle_dims, source=source, t=t)
 
 
-def _check_t(t: np.ndarray, T: int, source: str, dt: float | None) -> float:
-    if t.ndim != 1 or t.shape[0] != T:
-        raise ValueError(f"{source}: 't' must have shape (T,) = ({T},), got {t.shape}")
+def _check_t(t: np.ndarray, N: int, T: int, source: str) -> np.ndarray:
+    """Recorded sample times (T,) or (N, T) -> (N, T), finite and strictly increasing (jitter and gaps are fine)."""
+    if t.ndim == 1 and t.shape[0] == T:
+        t = np.broadcast_to(t, (N, T))
+    if t.ndim == 2 and t.shape == (1, T) and N > 1:
+        t = np.broadcast_to(t, (N, T))
+    if t.shape != (N, T):
+        raise ValueError(f"{source}: 't' must have shape (T,) = ({T},) or (N, T) = ({N}, {T}), got {t.shape}")
     if not np.all(np.isfinite(t)):
-        raise ValueError(f"{source}: 't' contains NaN/inf")
-    d = np.diff(t)
-    step = float(np.median(d))
-    if step <= 0:
-        raise ValueError(f"{source}: 't' is not increasing")
-    if np.max(np.abs(d - step)) > 1e-3 * step + 1e-12:
-        i = int(np.argmax(np.abs(d - step)))
-        raise ValueError(f"{source}: 't' is not uniformly spaced (step {d[i]:.6g} at index {i} vs median {step:.6g}); resample first")
-    if dt is not None and abs(step - dt) > 1e-3 * dt:
-        raise ValueError(f"{source}: 'dt'={dt} disagrees with the spacing of 't' ({step})")
-    return step
+        bad = np.argwhere(~np.isfinite(t))[0]
+        raise ValueError(f"{source}: 't' contains NaN/inf (first at trajectory {bad[0]}, index {bad[1]})")
+    d = np.diff(t, axis=1)
+    if np.any(d <= 0):
+        i, j = np.argwhere(d <= 0)[0]
+        raise ValueError(f"{source}: t is not strictly increasing at trajectory {i}, index {j} (t={t[i, j]!r}, next={t[i, j + 1]!r})")
+    return np.array(t)

@@ -82,16 +82,37 @@ def momentum(system: System, q: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- simulation
-def substeps_for(system: System, dt: float) -> int:
-    """Enough RK4 substeps that each is no longer than the env's own substep."""
+def substeps_for(system: System, dt: float | np.ndarray) -> int | np.ndarray:
+    """Enough RK4 substeps that each is no longer than the env's own substep.
+
+    ``dt`` scalar: one count (int).  ``dt`` (B, n_steps) per-sample steps: one count per interval,
+    common to the batch (from the interval's longest step), an (n_steps,) int array for :func:`simulate_qv`.
+    """
     h_env = system.dt / max(system.substeps, 1)
-    return max(1, int(math.ceil(dt / h_env - 1e-9)))
+    if np.ndim(dt) == 0:
+        return max(1, int(math.ceil(float(dt) / h_env - 1e-9)))
+    d = np.asarray(dt, dtype=float)
+    longest = d.reshape(-1, d.shape[-1]).max(axis=0) if d.ndim >= 2 else d
+    return np.maximum(1, np.ceil(longest / h_env - 1e-9)).astype(int)
+
+
+def _interval_counts(substeps: int | np.ndarray, n_steps: int) -> np.ndarray:
+    k = np.broadcast_to(np.asarray(substeps), (n_steps,)).astype(int)
+    if np.any(k < 1):
+        raise ValueError(f"substeps must be positive, got {substeps}")
+    return k
 
 
 def simulate_qv(system: System, q0: np.ndarray, v0: np.ndarray, n_steps: int, u: np.ndarray | None,
-                dt: float, substeps: int) -> np.ndarray:
+                dt: float | np.ndarray, substeps: int | np.ndarray) -> np.ndarray:
     """Simulate a batch from (q0, qdot0) (B, n) and return measured q (B, n_steps+1, n).
 
+    ``dt``: the sampling step (scalar), or the per-sample length of every interval, (B, n_steps) or
+    (n_steps,) (recorded, jittered times: e.g. ``Recordings.steps`` or ``Recordings.sim_dt``); u (B, n_steps, n)
+    is held over each interval.  ``substeps``: RK4 substeps per interval, an int (every interval of every
+    sample: substep h = dt / substeps) or an (n_steps,) int array, one count per interval common to the batch
+    (``substeps_for(system, dt)`` gives counts that keep every substep within the env's).  A scalar dt runs
+    exactly as before; an array filled with the same value gives the same numbers.
     The model's measurement map (``measure``: sensor terms) is applied to the output.
     """
     B, n = q0.shape
@@ -100,21 +121,48 @@ def simulate_qv(system: System, q0: np.ndarray, v0: np.ndarray, n_steps: int, u:
     p = [p0[:, i].copy() for i in range(n)]
     out = np.empty((B, n_steps + 1, n))
     out[:, 0] = q0
-    with np.errstate(all="ignore"):
-        for t in range(n_steps):
-            ut = None if u is None else [u[:, t, i] for i in range(n)]
-            q, p = step(system, q, p, ut, NUMPY, dt=dt, substeps=substeps)
-            q = [np.broadcast_to(c, (B,)) for c in q]
-            p = [np.broadcast_to(c, (B,)) for c in p]
-            out[:, t + 1] = np.stack(q, -1)
+    if np.ndim(dt) == 0 and np.ndim(substeps) == 0:
+        with np.errstate(all="ignore"):
+            for t in range(n_steps):
+                ut = None if u is None else [u[:, t, i] for i in range(n)]
+                q, p = step(system, q, p, ut, NUMPY, dt=dt, substeps=substeps)
+                q = [np.broadcast_to(c, (B,)) for c in q]
+                p = [np.broadcast_to(c, (B,)) for c in p]
+                out[:, t + 1] = np.stack(q, -1)
+    else:
+        d = np.asarray(dt, dtype=float)
+        if d.ndim == 0 or d.shape == (n_steps,):
+            d = np.broadcast_to(d, (B, n_steps))
+        if d.shape != (B, n_steps):
+            raise ValueError(f"dt must be a scalar or per-sample steps (B, n_steps) = ({B}, {n_steps}), got {d.shape}")
+        dT = np.ascontiguousarray(d.T)  # (n_steps, B): contiguous rows
+        k = _interval_counts(substeps, n_steps)
+        with np.errstate(all="ignore"):
+            for t in range(n_steps):
+                ut = None if u is None else [u[:, t, i] for i in range(n)]
+                q, p = step(system, q, p, ut, NUMPY, dt=dT[t], substeps=int(k[t]))
+                q = [np.broadcast_to(c, (B,)) for c in q]
+                p = [np.broadcast_to(c, (B,)) for c in p]
+                out[:, t + 1] = np.stack(q, -1)
     measure = getattr(system, "measure", None)
     return measure(out) if measure is not None else out
 
 
 # --------------------------------------------------------------------------- windows
+def compared_samples(length: int, stride: int) -> np.ndarray:
+    """Indices of a window's samples that enter the residual: 0, stride, 2 stride, ... and the last."""
+    idx = np.arange(0, length, max(int(stride), 1))
+    return idx if idx[-1] == length - 1 else np.append(idx, length - 1)
+
+
 @dataclass
 class Windows:
-    """Equal-length windows cut from recordings; each gets its own initial state."""
+    """Equal-length windows cut from recordings; each gets its own initial state.
+
+    The model is simulated over every recorded interval of a window (u held per interval, ``steps``
+    the recorded interval lengths when the sampling is not uniform) and compared with the measured q
+    at :attr:`obs` (every ``stride``-th sample, the first and the last).
+    """
 
     traj: np.ndarray  # (W,) trajectory index of each window
     start: np.ndarray  # (W,) first sample
@@ -122,10 +170,17 @@ class Windows:
     q: np.ndarray  # (W, L, n) measured
     u: np.ndarray | None  # (W, L-1, n)
     angle_dims: tuple[int, ...]
-    dt: float
+    dt: float  # (median) sampling step
+    steps: np.ndarray | None = None  # (W, L-1) recorded interval lengths, None when uniform at dt
+    stride: int = 1  # compare every stride-th sample
 
     @classmethod
-    def cut(cls, rec: Recordings, length: int) -> Windows:
+    def cut(cls, rec: Recordings, length: int, stride: int = 1) -> Windows:
+        """Windows of ``length`` samples (the last one flush with the end); the residual compares every
+        ``stride``-th sample of a window (and its last), the simulation still runs over every recorded interval."""
+        stride = int(stride)
+        if stride < 1:
+            raise ValueError(f"stride must be a positive integer, got {stride}")
         T = rec.T
         length = int(min(max(length, 5), T))
         starts = list(range(0, T - length + 1, length))
@@ -138,21 +193,34 @@ class Windows:
         u = None
         if rec.u is not None:
             u = rec.u[traj[:, None], idx[:, :-1]]
-        return cls(traj, start, length, q, u, rec.angle_dims, rec.dt)
+        steps = None
+        if not getattr(rec, "uniform", True):
+            steps = rec.steps[traj[:, None], idx[:, :-1]]
+        return cls(traj, start, length, q, u, rec.angle_dims, rec.dt, steps, stride)
 
     @property
     def count(self) -> int:
         return len(self.traj)
 
+    @property
+    def obs(self) -> np.ndarray:
+        """Indices of the compared samples of every window."""
+        return compared_samples(self.length, self.stride)
+
+    @property
+    def sim_dt(self) -> float | np.ndarray:
+        """``dt`` for :func:`simulate_qv`: the scalar step, or the (W, L-1) recorded steps."""
+        return self.dt if self.steps is None else self.steps
+
     def select(self, keep: np.ndarray) -> Windows:
         """The windows ``keep`` (index array or mask)."""
         return Windows(self.traj[keep], self.start[keep], self.length, self.q[keep], None if self.u is None else self.u[keep],
-                       self.angle_dims, self.dt)
+                       self.angle_dims, self.dt, None if self.steps is None else self.steps[keep], self.stride)
 
     def prefix(self, length: int) -> Windows:
         """Every window cut to its first ``length`` samples."""
         return Windows(self.traj, self.start, length, self.q[:, :length], None if self.u is None else self.u[:, : length - 1],
-                       self.angle_dims, self.dt)
+                       self.angle_dims, self.dt, None if self.steps is None else self.steps[:, : length - 1], self.stride)
 
 
 def angle_diff(a: np.ndarray, b: np.ndarray, angle_dims: tuple[int, ...]) -> np.ndarray:
@@ -170,7 +238,7 @@ class ShootFit:
 
     X: np.ndarray  # (W, 2n) window initial (q, qdot)
     g: np.ndarray  # (P,) global parameters (scaled)
-    r: np.ndarray  # (W, L*n) standardized residuals
+    r: np.ndarray  # (W, L*n) standardized residuals (L: compared samples per window, Windows.obs)
     JX: np.ndarray  # (W, L*n, 2n)
     Jg: np.ndarray  # (W, L*n, P)
     cost: float  # sum of squared standardized residuals
@@ -223,13 +291,32 @@ class Shooter:
         self.x_scale = np.asarray(x_scale, dtype=float)  # (2n,) typical |q|, |qdot|
         self.n = windows.q.shape[2]
         self.n_sims = 0
+        self._tb_w: Windows | None = None  # windows the cached time base belongs to
+        self._tb: tuple = ()
+
+    def _time_base(self) -> tuple[float | np.ndarray, int | np.ndarray]:
+        """(dt, substeps) for simulate_qv: the scalar ones when the windows are uniform, else the recorded
+        steps with per-interval counts that keep every substep within dt / substeps (a gap gets more)."""
+        w = self.w
+        if w.steps is None:
+            return w.dt, self.substeps
+        if self._tb_w is not w:
+            longest = w.steps.max(axis=0) if w.count else np.full(w.length - 1, w.dt)
+            k = np.maximum(1, np.ceil(self.substeps * longest / w.dt - 1e-9)).astype(int)
+            self._tb_w, self._tb = w, (w.steps, k)
+        return self._tb
 
     def residual(self, system: System, X: np.ndarray) -> np.ndarray:
-        """(W, L*n) standardized residuals (huge where the simulation blew up)."""
+        """(W, n_obs*n) standardized residuals at the compared samples (huge where the simulation blew up)."""
         n = self.n
         self.n_sims += 1
-        sim = simulate_qv(system, X[:, :n], X[:, n:], self.w.length - 1, self.w.u, self.w.dt, self.substeps)
-        d = angle_diff(sim, self.w.q, self.w.angle_dims) / self.sigma
+        dt, sub = self._time_base()
+        sim = simulate_qv(system, X[:, :n], X[:, n:], self.w.length - 1, self.w.u, dt, sub)
+        if self.w.stride == 1:
+            d = angle_diff(sim, self.w.q, self.w.angle_dims) / self.sigma
+        else:
+            obs = self.w.obs
+            d = angle_diff(sim[:, obs], self.w.q[:, obs], self.w.angle_dims) / self.sigma
         d = np.where(np.isfinite(d), d, 1e6)
         return np.clip(d, -1e6, 1e6).reshape(d.shape[0], -1)
 
@@ -313,7 +400,9 @@ class Shooter:
         """
         X = X0.copy()
         L = self.w.length
-        lengths = sorted({min(L, k) for k in (6, max(6, L // 4), max(6, L // 2))} - {L})
+        s = self.w.stride
+        n_obs = len(self.w.obs)  # prefixes in compared samples (= samples at stride 1)
+        lengths = sorted({min(L, 1 + s * (k - 1)) for k in (6, max(6, n_obs // 4), max(6, n_obs // 2))} - {L})
         full = self.w
         for k in lengths:
             self.w = full.prefix(k)
