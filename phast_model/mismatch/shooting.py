@@ -65,11 +65,34 @@ def _odd(k: int) -> int:
     return k if k % 2 else k + 1
 
 
-def smooth(q: np.ndarray, dt: float, window: int) -> tuple[np.ndarray, np.ndarray]:
-    """Savitzky-Golay (cubic) smoothed q and qdot along time, (N, T, n) each."""
+def smooth(q: np.ndarray, dt: float, window: int, t: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Savitzky-Golay (cubic) smoothed q and qdot along time, (N, T, n) each.
+
+    ``t`` (N, T): recorded sample times when they are not uniform; q is then interpolated (cubic spline)
+    onto the uniform grid of step dt for the filter and the results are interpolated back to the recorded times.
+    """
+    if t is not None:
+        d = np.diff(t, axis=1)
+        if np.max(np.abs(d - dt)) > 1e-3 * dt:
+            return _smooth_jittered(q, dt, window, np.asarray(t, dtype=float))
     window = _odd(min(max(window, 5), q.shape[1] - (1 - q.shape[1] % 2)))
     qs = savgol_filter(q, window, 3, axis=1, mode="interp")
     vs = savgol_filter(q, window, 3, deriv=1, delta=dt, axis=1, mode="interp")
+    return qs, vs
+
+
+def _smooth_jittered(q: np.ndarray, dt: float, window: int, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    from scipy.interpolate import CubicSpline
+
+    qs, vs = np.empty_like(q), np.empty_like(q)
+    for i in range(q.shape[0]):
+        ti = t[i]
+        grid = ti[0] + np.arange(int(np.floor((ti[-1] - ti[0]) / dt + 1e-9)) + 1) * dt
+        qg = CubicSpline(ti, q[i], axis=0)(grid)[None]
+        a, b = smooth(qg, dt, window)
+        # back to the recorded times (the grid ends up to one step before the last recorded time: extrapolate)
+        qs[i] = CubicSpline(grid, a[0], axis=0)(ti)
+        vs[i] = CubicSpline(grid, b[0], axis=0)(ti)
     return qs, vs
 
 
