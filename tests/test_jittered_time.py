@@ -10,7 +10,16 @@ from scipy.integrate import solve_ivp
 from phast_gym.registry import make_env_system
 from phast_gym.systems.base import NUMPY
 from phast_model.mismatch.recordings import Recordings, validate
-from phast_model.mismatch.shooting import Shooter, Windows, angle_diff, compared_samples, simulate_qv, smooth, substeps_for
+from phast_model.mismatch.shooting import (
+    Shooter,
+    Windows,
+    angle_diff,
+    compared_samples,
+    estimate_noise,
+    simulate_qv,
+    smooth,
+    substeps_for,
+)
 
 ENV = "PHAST/DampedPendulum-v0"
 N, T, DT, NOISE = 3, 150, 0.05, 1e-4
@@ -246,3 +255,29 @@ def test_helpers_carry_t():
     res = rec.resampled()
     assert res.uniform and abs(res.dt - rec.dt) < 1e-15
     np.testing.assert_allclose(res.q[..., 0], np.sin(res.t - res.t[:, :1] + t[:, :1]), atol=1e-4)
+
+
+def test_noise_estimate_at_jittered_times():
+    rng = np.random.default_rng(0)
+    n_traj, n_t, dt = 4, 3000, 0.002
+    steps = dt * rng.uniform(0.6, 1.8, (n_traj, n_t - 1))
+    t = np.c_[np.zeros(n_traj), np.cumsum(steps, 1)]
+    q = 1.5 * np.sin(8 * t)[..., None] + rng.normal(0, 1e-4, (n_traj, n_t, 1))
+    assert estimate_noise(q)[0] > 1e-3  # plain 4th differences count the jitter as noise
+    assert abs(estimate_noise(q, t)[0] - 1e-4) < 1e-5
+    tu = np.broadcast_to(np.arange(n_t) * dt, (n_traj, n_t))
+    qu = 1.5 * np.sin(8 * tu)[..., None] + rng.normal(0, 1e-4, (n_traj, n_t, 1))
+    np.testing.assert_array_equal(estimate_noise(qu, tu), estimate_noise(qu))  # uniform t: the plain estimate
+
+
+def test_smoothing_at_jittered_times():
+    rng = np.random.default_rng(1)
+    steps = 0.01 * rng.uniform(0.6, 1.8, (2, 399))
+    t = np.c_[np.zeros(2), np.cumsum(steps, 1)]
+    q = np.sin(2 * t)[..., None] + rng.normal(0, 1e-4, (2, 400, 1))
+    qs, vs = smooth(q, float(np.median(steps)), 15, t)
+    inner = slice(10, -10)
+    assert np.max(np.abs(qs[:, inner, 0] - np.sin(2 * t[:, inner]))) < 3e-4
+    assert np.max(np.abs(vs[:, inner, 0] - 2 * np.cos(2 * t[:, inner]))) < 5e-3
+    _, v_plain = smooth(q, float(np.median(steps)), 15)  # ignoring the times is far worse
+    assert np.max(np.abs(v_plain[:, inner, 0] - 2 * np.cos(2 * t[:, inner]))) > 0.1
