@@ -196,11 +196,23 @@ class ParameterError(ValueError, TypeError):
 
 @dataclass(frozen=True)
 class Param:
-    """A documented physical parameter: default, constraint and meaning."""
+    """A documented physical parameter: default, constraint and meaning.
 
-    default: float | None
+    A parameter with ``choices`` is a string option (e.g. a coordinate convention) instead of a
+    number; its value must be one of them.  ``extension`` marks a parameter added after the
+    benchmark datasets were fixed: while at its default it is left out of :meth:`System.key_params`,
+    so the dataset cache keys of the benchmark envs do not change.
+    """
+
+    default: float | str | None
     doc: str
-    constraint: str = "positive"  # "positive", "nonnegative" or "any"
+    constraint: str = "positive"  # "positive", "nonnegative" or "any" (numbers only)
+    choices: tuple[str, ...] = ()
+    extension: bool = False
+
+    def __post_init__(self) -> None:
+        if self.choices and self.default not in self.choices:
+            raise ValueError(f"Param default {self.default!r} is not one of its choices {self.choices}")
 
 
 # --------------------------------------------------------------------------- system
@@ -240,10 +252,15 @@ class System:
                 f"{type(self).__name__}: unknown parameter(s) {unknown}; "
                 f"valid names are {sorted(self.PARAMS)}"
             )
-        values: dict[str, float | None] = {}
+        values: dict[str, float | str | None] = {}
         for key, spec in self.PARAMS.items():
             val = params.get(key, spec.default)
-            if val is not None:
+            if spec.choices:
+                if not isinstance(val, str) or val not in spec.choices:
+                    raise ParameterError(
+                        f"{type(self).__name__}: parameter {key}={val!r} must be one of {list(spec.choices)} ({spec.doc})"
+                    )
+            elif val is not None:
                 try:
                     val = float(val)
                 except (TypeError, ValueError):
@@ -264,6 +281,12 @@ class System:
 
     def _finalize(self) -> None:
         """Derived constants (e.g. default inertia); called after parameters are set."""
+
+    def key_params(self) -> dict[str, float | str | None]:
+        """The parameters that identify this system in cache keys: :attr:`params` without the
+        ``extension`` parameters that are at their default (so adding one keeps old keys valid)."""
+        return {k: v for k, v in self.params.items()
+                if not (k in self.PARAMS and self.PARAMS[k].extension and v == self.PARAMS[k].default)}
 
     def __repr__(self) -> str:
         kw = ", ".join(f"{k}={v!r}" for k, v in self.params.items())
