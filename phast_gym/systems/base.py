@@ -175,6 +175,33 @@ def const_like(x: Any, c: float) -> Any:
     return x * 0.0 + c
 
 
+def solve_spd(M: Sequence[Components], b: Components) -> tuple:
+    """Solve ``M x = b`` for a symmetric positive definite ``n x n`` M in component form (nested tuple).
+
+    Gaussian elimination without pivoting (stable for SPD matrices) using only arithmetic, so it
+    runs on floats, NumPy arrays and torch tensors alike (autograd flows through); meant for the
+    small n (1..6) of the suite, where it beats stacking into a batched ``linalg.solve``.
+    """
+    n = len(b)
+    if n == 1:
+        return (b[0] / M[0][0],)
+    a = [list(row) for row in M]
+    y = list(b)
+    for k in range(n - 1):
+        for i in range(k + 1, n):
+            f = a[i][k] / a[k][k]
+            for j in range(k + 1, n):
+                a[i][j] = a[i][j] - f * a[k][j]
+            y[i] = y[i] - f * y[k]
+    x: list = [None] * n
+    for i in range(n - 1, -1, -1):
+        r = y[i]
+        for j in range(i + 1, n):
+            r = r - a[i][j] * x[j]
+        x[i] = r / a[i][i]
+    return tuple(x)
+
+
 def wrap(a: Any) -> Any:
     """Wrap angles into ``[-pi, pi)`` (paper Appendix F): ``(a + pi) mod 2 pi - pi``."""
     if type(a) is np.ndarray and a.ndim and a.dtype.kind == "f":
