@@ -63,6 +63,8 @@ class DoublePendulum(System):
         i2 = m2 * c2 * c2 if self.inertia2 is None else self.inertia2
         self.c1, self.c2, self.i1, self.i2 = c1, c2, i1, i2
         self.relative = self.coordinates == "relative"
+        if self.relative:
+            self.coordinate_names = ("theta1", "theta2_rel")  # joint angles: link 2 relative to link 1
         if self.com1 is None and self.inertia1 is None:  # point mass: the benchmark's formulas, operation for operation
             self._m11, self._g1 = (m1 + m2) * l1 * l1, (m1 + m2) * g * l1
         else:
