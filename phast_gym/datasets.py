@@ -177,7 +177,7 @@ def make_dataset(
     noise = float(env_kwargs.get("obs_noise_std", 0.0))
     config = {
         "version": CACHE_VERSION, "env_id": env_id, "n_traj": int(n_traj), "T": int(T), "seed": int(seed),
-        "system": system.name, "params": system.params, "obs_noise_std": noise, "actuated_dofs": list(actuated),
+        "system": system.name, "params": system.key_params(), "obs_noise_std": noise, "actuated_dofs": list(actuated),
         "substeps": env_kwargs.get("substeps", system.substeps),
         "u": None if u is None else _checksum(u_arr),
     }

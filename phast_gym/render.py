@@ -197,6 +197,8 @@ def _double_pendulum(cv: Canvas, system: Any, q: np.ndarray, p: np.ndarray | Non
     l1, l2 = float(system.length1), float(system.length2)
     cv.scale = 0.45 * min(cv.h, cv.w) / (l1 + l2)
     t1, t2 = float(q[0]), float(q[1])
+    if getattr(system, "coordinates", "absolute") == "relative":  # q2 is link 2's angle relative to link 1
+        t2 += t1
     j1 = (l1 * math.sin(t1), -l1 * math.cos(t1))
     j2 = (j1[0] + l2 * math.sin(t2), j1[1] - l2 * math.cos(t2))
     cv.line((0, 0), j1, 5, ROD)

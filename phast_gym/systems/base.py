@@ -175,6 +175,33 @@ def const_like(x: Any, c: float) -> Any:
     return x * 0.0 + c
 
 
+def solve_spd(M: Sequence[Components], b: Components) -> tuple:
+    """Solve ``M x = b`` for a symmetric positive definite ``n x n`` M in component form (nested tuple).
+
+    Gaussian elimination without pivoting (stable for SPD matrices) using only arithmetic, so it
+    runs on floats, NumPy arrays and torch tensors alike (autograd flows through); meant for the
+    small n (1..6) of the suite, where it beats stacking into a batched ``linalg.solve``.
+    """
+    n = len(b)
+    if n == 1:
+        return (b[0] / M[0][0],)
+    a = [list(row) for row in M]
+    y = list(b)
+    for k in range(n - 1):
+        for i in range(k + 1, n):
+            f = a[i][k] / a[k][k]
+            for j in range(k + 1, n):
+                a[i][j] = a[i][j] - f * a[k][j]
+            y[i] = y[i] - f * y[k]
+    x: list = [None] * n
+    for i in range(n - 1, -1, -1):
+        r = y[i]
+        for j in range(i + 1, n):
+            r = r - a[i][j] * x[j]
+        x[i] = r / a[i][i]
+    return tuple(x)
+
+
 def wrap(a: Any) -> Any:
     """Wrap angles into ``[-pi, pi)`` (paper Appendix F): ``(a + pi) mod 2 pi - pi``."""
     if type(a) is np.ndarray and a.ndim and a.dtype.kind == "f":
@@ -196,11 +223,23 @@ class ParameterError(ValueError, TypeError):
 
 @dataclass(frozen=True)
 class Param:
-    """A documented physical parameter: default, constraint and meaning."""
+    """A documented physical parameter: default, constraint and meaning.
 
-    default: float | None
+    A parameter with ``choices`` is a string option (e.g. a coordinate convention) instead of a
+    number; its value must be one of them.  ``extension`` marks a parameter added after the
+    benchmark datasets were fixed: while at its default it is left out of :meth:`System.key_params`,
+    so the dataset cache keys of the benchmark envs do not change.
+    """
+
+    default: float | str | None
     doc: str
-    constraint: str = "positive"  # "positive", "nonnegative" or "any"
+    constraint: str = "positive"  # "positive", "nonnegative" or "any" (numbers only)
+    choices: tuple[str, ...] = ()
+    extension: bool = False
+
+    def __post_init__(self) -> None:
+        if self.choices and self.default not in self.choices:
+            raise ValueError(f"Param default {self.default!r} is not one of its choices {self.choices}")
 
 
 # --------------------------------------------------------------------------- system
@@ -240,10 +279,15 @@ class System:
                 f"{type(self).__name__}: unknown parameter(s) {unknown}; "
                 f"valid names are {sorted(self.PARAMS)}"
             )
-        values: dict[str, float | None] = {}
+        values: dict[str, float | str | None] = {}
         for key, spec in self.PARAMS.items():
             val = params.get(key, spec.default)
-            if val is not None:
+            if spec.choices:
+                if not isinstance(val, str) or val not in spec.choices:
+                    raise ParameterError(
+                        f"{type(self).__name__}: parameter {key}={val!r} must be one of {list(spec.choices)} ({spec.doc})"
+                    )
+            elif val is not None:
                 try:
                     val = float(val)
                 except (TypeError, ValueError):
@@ -264,6 +308,12 @@ class System:
 
     def _finalize(self) -> None:
         """Derived constants (e.g. default inertia); called after parameters are set."""
+
+    def key_params(self) -> dict[str, float | str | None]:
+        """The parameters that identify this system in cache keys: :attr:`params` without the
+        ``extension`` parameters that are at their default (so adding one keeps old keys valid)."""
+        return {k: v for k, v in self.params.items()
+                if not (k in self.PARAMS and self.PARAMS[k].extension and v == self.PARAMS[k].default)}
 
     def __repr__(self) -> str:
         kw = ", ".join(f"{k}={v!r}" for k, v in self.params.items())

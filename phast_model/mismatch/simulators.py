@@ -24,8 +24,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from phast_gym.registry import ENV_KWARGS, make_env_system, resolve_env_id
-from phast_gym.systems.base import System
+from phast_gym.systems.base import NUMPY, System
 
 
 @dataclass(frozen=True)
@@ -76,9 +78,13 @@ def _load_class(spec: str) -> type:
             module = importlib.import_module(target)
         except Exception as exc:
             raise ValueError(f"simulator {spec!r}: cannot import module {target!r}: {type(exc).__name__}: {exc}") from None
-    cls = getattr(module, cls_name, None)
-    if cls is None:
-        raise ValueError(f"simulator {spec!r}: {target!r} has no attribute {cls_name!r}")
+    cls: Any = module
+    for part in cls_name.split("."):  # a nested class: module:Outer.Inner
+        cls = getattr(cls, part, None)
+        if cls is None:
+            public = sorted(k for k, v in vars(module).items() if isinstance(v, type) and issubclass(v, System) and v is not System)
+            raise ValueError(f"simulator {spec!r}: {target!r} has no attribute {cls_name!r} "
+                             f"(System subclasses there: {public or 'none'})")
     return cls
 
 
@@ -87,6 +93,42 @@ def _check_system_class(cls: Any, name: str) -> type[System]:
         raise ValueError(f"simulator {name!r} is not a phast_gym.systems.System subclass (got {cls!r}); "
                          "see docs/describe_your_rig.md")
     return cls
+
+
+def _check_interface(system: System, name: str) -> None:
+    """Call every method the tool uses once, on two sampled states, so a missing or malformed method is reported
+    here (naming it) and not deep inside a fit."""
+    n = system.n
+    where = f"simulator {name!r}"
+
+    def call(method: str, *args: Any) -> Any:
+        try:
+            return getattr(system, method)(*args)
+        except Exception as exc:
+            raise ValueError(f"{where}: {type(system).__name__}.{method} failed: {type(exc).__name__}: {exc}") from None
+
+    def vector(method: str, value: Any) -> None:
+        if not isinstance(value, (tuple, list)) or len(value) != n:
+            raise ValueError(f"{where}: {type(system).__name__}.{method} must return a tuple of n={n} components, got {value!r}")
+        if not all(np.all(np.isfinite(np.asarray(c, dtype=np.float64))) for c in value):
+            raise ValueError(f"{where}: {type(system).__name__}.{method} returned NaN/inf at a sampled state")
+
+    x = np.asarray(call("sample_initial", np.random.default_rng(0), 2), dtype=np.float64)
+    if x.shape != (2, 2 * n):
+        raise ValueError(f"{where}: sample_initial(rng, 2) must return an array of shape (2, 2n) = (2, {2 * n}), got {x.shape}")
+    q, p = tuple(x[:, i] for i in range(n)), tuple(x[:, n + i] for i in range(n))
+    if not np.all(np.isfinite(np.asarray(call("potential", q, NUMPY), dtype=np.float64))):
+        raise ValueError(f"{where}: {type(system).__name__}.potential returned NaN/inf at a sampled state")
+    for method in ("grad_potential", "damping"):
+        vector(method, call(method, q, NUMPY))
+    M = call("mass_matrix", q, NUMPY)
+    if not isinstance(M, (tuple, list)) or len(M) != n or any(not isinstance(r, (tuple, list)) or len(r) != n for r in M):
+        raise ValueError(f"{where}: {type(system).__name__}.mass_matrix must return an n x n nested tuple (n={n})")
+    for method in ("velocity", "dH_dq"):
+        vector(method, call(method, q, p, NUMPY))
+    qdot, pdot = call("rhs", q, p, tuple(np.zeros(2) for _ in range(n)), NUMPY)
+    vector("rhs (qdot)", qdot)
+    vector("rhs (pdot)", pdot)
 
 
 def load_simulator(sim: str | type[System] | Simulator, kwargs: Mapping[str, Any] | None = None) -> Simulator:
@@ -118,4 +160,5 @@ def load_simulator(sim: str | type[System] | Simulator, kwargs: Mapping[str, Any
         raise ValueError(f"simulator {out.name!r} built {type(system).__name__}, not a phast_gym System")
     if not system.hamiltonian_system:
         raise ValueError(f"{out.name} is not a port-Hamiltonian system (no H, M, D to augment); the mismatch tool needs one")
+    _check_interface(system, out.name)
     return out

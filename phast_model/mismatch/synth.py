@@ -25,7 +25,7 @@ def make_reality(env_id: str, terms: list[Term] | tuple[Term, ...] = (), true_kw
     rng = np.random.default_rng(seed)
     base = make_env_system(env_id, **(true_kwargs or {}))
     system = AugmentedSystem(base, list(terms), coulomb_eps=coulomb_eps)
-    x0 = base.sample_initial(rng, n_traj) * x0_scale
+    x0 = system.sample_initial(rng, n_traj) * x0_scale  # the base's draws; with armature, the same rates
     u = None
     if u_std > 0:
         # smooth input: a random sum of slow sines held over each interval

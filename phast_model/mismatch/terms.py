@@ -13,6 +13,9 @@ in one component of the port-Hamiltonian structure:
 * potential (``linear_stiffness``, ``cubic_stiffness``, ``constant_force``):
   an extra potential V_extra(q_i) added to H, force ``-dV_extra/dq_i``;
 * port (``actuator_gain``, ``actuator_deadzone``): the delivered port force;
+* inertia (``armature``): the reflected rotor inertia ``c`` of the motor behind joint i,
+  added to ``M_ii``; its kinetic energy is part of H, so the model stays passive, and
+  ``c >= 0`` keeps ``M + A`` positive definite;
 * sensor (``sensor_offset``, and two additions documented the same way:
   ``sensor_gain`` ``q_meas = c q`` and ``sensor_eccentricity``
   ``q_meas = q + c (1 - cos q)``, the even part of an off-centre encoder): the
@@ -29,7 +32,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from phast_gym.systems.base import NUMPY, Components, System
+from phast_gym.systems.base import NUMPY, Components, System, solve_spd
 
 #: term name -> (component, basis force text with c, whether c must be >= 0)
 VOCABULARY: dict[str, tuple[str, str, bool]] = {
@@ -42,6 +45,7 @@ VOCABULARY: dict[str, tuple[str, str, bool]] = {
     "linear_stiffness": ("potential", "-c*q{i}", False),
     "cubic_stiffness": ("potential", "-c*q{i}**3", False),
     "constant_force": ("potential", "c", False),
+    "armature": ("inertia", "M{i}{i} += c (reflected rotor inertia)", True),
     "actuator_gain": ("port", "(c-1)*u{i}", True),
     "actuator_deadzone": ("port", "port delivers 0 when abs(u{i}) < c", True),
     "sensor_offset": ("sensor", "measured q{i} = true q{i} + c", False),
@@ -67,8 +71,12 @@ class Term:
     velocity: float = 0.0
 
     def __post_init__(self) -> None:
+        if self.name not in VOCABULARY:
+            raise ValueError(f"unknown term {self.name!r}; the vocabulary is {sorted(VOCABULARY)}")
         if self.name == "stribeck_friction" and not self.velocity > 0:
             raise ValueError(f"stribeck_friction needs a Stribeck velocity > 0, got {self.velocity!r}")
+        if self.name == "armature" and not self.coefficient >= 0:  # (also rejects NaN)
+            raise ValueError(f"armature is a rotor inertia added to M_ii: its coefficient must be >= 0, got {self.coefficient!r}")
 
     @property
     def component(self) -> str:
@@ -82,6 +90,8 @@ class Term:
             return f"({c:.4g}-1)*u{i}"
         if self.name == "constant_force":
             return f"{c:+.4g}"
+        if self.name == "armature":
+            return text.replace("+= c", f"+= {c:.4g}")
         if self.name == "stribeck_friction":
             return text.replace("-c*", f"-{c:.4g}*").replace("v_s", f"{self.velocity:.4g}")
         if self.name in ("actuator_deadzone", "sensor_offset", "sensor_gain", "sensor_eccentricity"):
@@ -133,13 +143,19 @@ class AugmentedSystem(System):
         self.sensor_offset = [0.0] * base.n
         self.sensor_gain = [1.0] * base.n
         self.sensor_ecc = [0.0] * base.n
+        self.armature = [0.0] * base.n  # A = diag(armature): H = p^T (M(q) + A)^-1 p / 2 + V
         for t in self.terms:
-            if t.name == "sensor_offset":
+            if not 0 <= t.coordinate < base.n:
+                raise ValueError(f"term {t.name} on coordinate {t.coordinate}: {base.name} has coordinates 0..{base.n - 1}")
+            if t.name == "armature":
+                self.armature[t.coordinate] += t.coefficient
+            elif t.name == "sensor_offset":
                 self.sensor_offset[t.coordinate] += t.coefficient
             elif t.name == "sensor_gain":
                 self.sensor_gain[t.coordinate] *= t.coefficient
             elif t.name == "sensor_eccentricity":
                 self.sensor_ecc[t.coordinate] += t.coefficient
+        self.has_armature = any(a != 0.0 for a in self.armature)
 
     @property
     def has_sensor_terms(self) -> bool:
@@ -204,14 +220,27 @@ class AugmentedSystem(System):
     def grad_potential(self, q: Components, xp: Any = NUMPY) -> tuple:
         return tuple(a + b for a, b in zip(self.base.grad_potential(q, xp), self._extra_grad(q, xp)))
 
-    def dH_dq(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
+    def _dH_dq_at(self, q: Components, p: Components, v: Components, xp: Any) -> tuple:
+        """dH/dq|_p given v = dH/dp.  With armature A (constant): dH/dq|_p = dV/dq - v^T (dM/dq) v / 2, which is the
+        base's dH/dq at the base momentum p' = M(q) v (same v, same dM/dq), plus the extra potential's gradient."""
+        if self.has_armature:
+            M = self.base.mass_matrix(q, xp)
+            p = tuple(sum(mij * vj for mij, vj in zip(row, v)) for row in M)
         return tuple(a + b for a, b in zip(self.base.dH_dq(q, p, xp), self._extra_grad(q, xp)))
 
+    def dH_dq(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
+        return self._dH_dq_at(q, p, self.velocity(q, p, xp) if self.has_armature else None, xp)
+
     def mass_matrix(self, q: Components, xp: Any = NUMPY) -> tuple:
-        return self.base.mass_matrix(q, xp)
+        M = self.base.mass_matrix(q, xp)
+        if not self.has_armature:
+            return M
+        return tuple(tuple(mij + self.armature[i] if i == j else mij for j, mij in enumerate(row)) for i, row in enumerate(M))
 
     def velocity(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
-        return self.base.velocity(q, p, xp)
+        if not self.has_armature:
+            return self.base.velocity(q, p, xp)
+        return solve_spd(self.mass_matrix(q, xp), p)
 
     def damping(self, q: Components, xp: Any = NUMPY) -> tuple:
         return self.base.damping(q, xp)
@@ -223,7 +252,16 @@ class AugmentedSystem(System):
         return self.base.switching(q, p, xp)
 
     def sample_initial(self, rng: Any, size: int) -> Any:
-        return self.base.sample_initial(rng, size)
+        """The base's states with the same rates qdot: p = (M(q) + A) qdot."""
+        x = self.base.sample_initial(rng, size)
+        if not self.has_armature:
+            return x
+        n = self.n
+        q, p = tuple(x[:, i] for i in range(n)), tuple(x[:, n + i] for i in range(n))
+        v = self.base.velocity(q, p, NUMPY)
+        for i, a in enumerate(self.armature):
+            x[:, n + i] = p[i] + a * v[i]
+        return x
 
     # ---- port and dissipation -------------------------------------------------
     def port(self, u: Components | None, xp: Any) -> Components | None:
@@ -252,13 +290,22 @@ class AugmentedSystem(System):
         return f
 
     def rhs(self, q: Components, p: Components, u: Components | None, xp: Any = NUMPY) -> tuple[tuple, tuple]:
-        qdot, pdot = self.base.rhs(q, p, self.port(u, xp), xp)
-        g = self._extra_grad(q, xp)
+        uu = self.port(u, xp)
+        if self.has_armature:  # the base's (fused) vector field assumes its own M: the generic Eq. 1-3 instead
+            qdot = self.velocity(q, p, xp)
+            dh = self._dH_dq_at(q, p, qdot, xp)
+            pdot = tuple(-a - di * vi for a, di, vi in zip(dh, self.base.damping(q, xp), qdot))
+            if uu is not None:
+                pdot = tuple(ui + a for ui, a in zip(uu, pdot))
+        else:
+            qdot, pdot = self.base.rhs(q, p, uu, xp)
+            pdot = tuple(a - b for a, b in zip(pdot, self._extra_grad(q, xp)))
         f = self.extra_dissipation(q, qdot, xp)
-        return tuple(qdot), tuple(a - b + c for a, b, c in zip(pdot, g, f))
+        return tuple(qdot), tuple(a + c for a, c in zip(pdot, f))
 
     def power_balance(self, q: Components, p: Components, u: Components | None, xp: Any = NUMPY) -> tuple[Any, Any]:
-        diss, supplied = self.base.power_balance(q, p, self.port(u, xp), xp)
+        """(v^T D v + the terms' friction power, v^T u delivered) with v = (M + A)^-1 p."""
+        diss, supplied = super().power_balance(q, p, self.port(u, xp), xp)
         v = self.velocity(q, p, xp)
         extra = sum(-fi * vi for fi, vi in zip(self.extra_dissipation(q, v, xp), v))
         return diss + extra, supplied
