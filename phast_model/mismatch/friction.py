@@ -20,9 +20,10 @@ diagonal, as in the vocabulary).
   (a negative coefficient is allowed when the total stays passive; it is named).
 * :func:`check_against_curve`: band by band, is the law inside the curve's interval?
 * :func:`select_law`: candidate laws (subsets of up to 3 terms per coordinate), each fitted on all training
-  recordings but one and scored on the left-out one by short open-loop windows (initial state re-fitted per window,
-  :func:`.analysis.evaluate_models`), with a one-standard-error parsimony rule over the folds.  Laws that are not
-  passive over the observed speeds, or with a coefficient whose interval contains zero, are not chosen.
+  recordings but one and scored on the left-out one (default: by how well it predicts the left-out recording's
+  friction curve; rollout criteria are available), with a paired one-standard-error parsimony rule over the folds.
+  Laws that are not passive over the observed speeds, or with a coefficient not distinguishable from zero, are not
+  chosen.
 """
 
 from __future__ import annotations
@@ -287,6 +288,7 @@ class LawTerm:
     coefficient: float
     ci95: tuple[float, float]
     velocity: float = 0.0  # Stribeck v_s
+    t_quantile: float = 1.959964  # the quantile the 95% interval was built with
 
     def to_term(self) -> Term:
         return Term(self.term, self.coordinate, self.coefficient, self.velocity)
@@ -294,6 +296,11 @@ class LawTerm:
     @property
     def excludes_zero(self) -> bool:
         return self.ci95[0] * self.ci95[1] > 0
+
+    @property
+    def t(self) -> float:
+        """coefficient / standard error (from the 95% interval's half width and its t quantile)."""
+        return self.coefficient / max((self.ci95[1] - self.ci95[0]) / 2 / self.t_quantile, 1e-300)
 
 
 @dataclass
@@ -309,6 +316,7 @@ class FrictionLaw:
     n_obs: int = 0
     interval: str = ""
     own_samples: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list, repr=False)
+    own_terms: list[Term] = field(default_factory=list, repr=False)  # friction terms the system already has (AugmentedSystem)
 
     @property
     def name(self) -> str:
@@ -354,9 +362,11 @@ def _own_samples(system: System, wf: WeakForm, k: int = 64) -> list[tuple[np.nda
     for i in range(wf.n):
         di = np.broadcast_to(np.asarray(d[i], dtype=float), (len(q),)).copy()
         own.append((q[:, i].copy(), di))
-    if isinstance(system, AugmentedSystem):  # the model's own friction terms count as part of its dissipation
-        own = [(qq, dd) for qq, dd in own]
     return own
+
+
+def _own_terms(system: System) -> list[Term]:
+    return [t for t in getattr(system, "terms", ()) if t.component == "dissipation"] if isinstance(system, AugmentedSystem) else []
 
 
 def _cluster_cov(X: np.ndarray, r: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, int]:
@@ -383,7 +393,8 @@ def _design(wf: WeakForm, specs: Sequence[Spec], cache: dict | None = None) -> n
     return np.stack(cols, -1) if cols else np.zeros(wf.qs.shape[:2] + (0,))
 
 
-def _fit(wf: WeakForm, specs: Sequence[Spec], rows: np.ndarray | None, cache: dict | None) -> tuple[np.ndarray, np.ndarray, float, int, int]:
+def _fit(wf: WeakForm, specs: Sequence[Spec], rows: np.ndarray | None,
+         cache: dict | None) -> tuple[np.ndarray, np.ndarray, float, int, int]:
     """(coefficients, covariance, rss, n_obs, clusters) of a fixed-v_s law; ``rows`` (N,) recordings used."""
     coef, cov, rss, nobs, G = [], [], 0.0, 0, 0
     specs = list(specs)
@@ -420,7 +431,7 @@ def _vs_grid(wf: WeakForm, i: int) -> list[float]:
 
 
 def _fit_law(wf: WeakForm, specs: Sequence[Spec], rows: np.ndarray | None = None, cache: dict | None = None,
-             own: list | None = None) -> FrictionLaw:
+             own: list | None = None, own_terms: Sequence[Term] = ()) -> FrictionLaw:
     """Fit, profiling any Stribeck velocity left None over the grid (lowest weak-form rss)."""
     specs = [tuple(s) for s in specs]
     free = [k for k, s in enumerate(specs) if s[0] == "stribeck_friction" and (len(s) < 3 or s[2] is None)]
@@ -439,10 +450,10 @@ def _fit_law(wf: WeakForm, specs: Sequence[Spec], rows: np.ndarray | None = None
     for k, s in enumerate(sp):
         sd = math.sqrt(max(V[k, k], 0.0))
         terms.append(LawTerm(s[0], int(s[1]), float(C[k]), (float(C[k] - tq * sd), float(C[k] + tq * sd)),
-                             float(s[2]) if len(s) > 2 and s[2] is not None else 0.0))
+                             float(s[2]) if len(s) > 2 and s[2] is not None else 0.0, tq))
     interval = (f"cluster-robust (CR1) over {G} clusters (time blocks within recordings), t({G - 1}) quantile"
                 + ("; conditional on the profiled Stribeck velocity" if free else ""))
-    return FrictionLaw(terms, wf.eps, wf.n, rss, nobs, interval, own or [])
+    return FrictionLaw(terms, wf.eps, wf.n, rss, nobs, interval, own or [], list(own_terms or []))
 
 
 def _parse_terms(terms: Sequence[Any], n: int) -> list[Spec]:
@@ -470,7 +481,7 @@ def fit_law(system: System, rec: Recordings, terms: Sequence[Any], window: int |
     model's own dissipation: a negative viscous coefficient lowers the model's damping.  95% intervals are
     cluster-robust over time blocks within recordings (see :func:`weak_form`)."""
     wf = weak or weak_form(system, rec, window, eps, block)
-    return _fit_law(wf, _parse_terms(terms, rec.n), cache={}, own=_own_samples(system, wf))
+    return _fit_law(wf, _parse_terms(terms, rec.n), cache={}, own=_own_samples(system, wf), own_terms=_own_terms(system))
 
 
 # --------------------------------------------------------------------------- passivity and the curve check
@@ -505,6 +516,9 @@ def is_passive(law: FrictionLaw, speeds: float | Sequence[float] | FrictionCurve
             qi, di = np.array([0.0, math.pi / 2]), np.zeros(2)
         Q, Vv = np.meshgrid(qi, v, indexing="ij")
         total = di[:, None] * Vv + law.force(i, Q, Vv)
+        for t in law.own_terms:
+            if t.coordinate == i:
+                total = total + t.coefficient * np.asarray(friction_basis(t.name, Q, Vv, law.eps, t.velocity, NUMPY))
         power = total * np.sign(Vv)  # force along the motion's opposite direction
         k = np.unravel_index(int(np.argmin(power)), power.shape)
         ok = bool(power[k] >= -tol)
@@ -575,7 +589,8 @@ def plot_friction_curve(curve: FrictionCurve, laws: dict[str, FrictionLaw] | Seq
             if name in law_vals:
                 ax.plot(x, [law_vals[name][j] for j in idx], "s", color=col, ms=5, mfc="none")
             own = lw.own_samples[i][1].mean() if lw.own_samples else 0.0
-            ax.plot(vg, own * vg + lw.force(i, np.full_like(vg, math.pi / 2 if False else 0.0), vg), "-", color=col, lw=1.2, label=name)
+            qline = np.full_like(vg, math.pi / 2)  # |sin q| = 1: position-dependent damping at its largest
+            ax.plot(vg, own * vg + lw.force(i, qline, vg), "-", color=col, lw=1.2, label=name)
         ax.set_xlabel(f"|qdot{i}|")
         ax.set_ylabel("friction force (opposing motion)")
         ax.set_title(f"coordinate {i}: total dissipative force vs speed")
@@ -638,21 +653,23 @@ def rollout_score(system: System, rec: Recordings, window: int | None, init_samp
     return float(np.mean(per)), per
 
 
-def _curve_score(law: FrictionLaw, wf: WeakForm, edges: list[np.ndarray], min_count: int) -> float:
-    """rms over speed bands of (law - curve) / curve on a left-out weak form: how well the law predicts the left-out
-    recording's friction curve (bands with fewer than ``min_count`` samples skipped; every band weighs the same)."""
+def _curve_score(law: FrictionLaw, wf: WeakForm, edges: list[np.ndarray], min_count: int, ref: list[np.ndarray]) -> float:
+    """rms over speed bands of (law - curve) / ref on a left-out weak form: how well the law predicts the left-out
+    recording's friction curve.  ``ref`` per coordinate and band: |curve| of all training recordings pooled (a
+    denominator that is the same for every candidate and fold); bands with fewer than ``min_count`` samples skipped;
+    every band weighs the same."""
     errs = []
     for i in range(wf.n):
         s = np.sign(wf.vs[..., i])
         sp = np.abs(wf.vs[..., i])
         f_law = wf.filt(law.force(i, wf.q_raw[..., i], wf.v_raw[..., i])) + wf.own[..., i]
-        for a, b in zip(edges[i][:-1], edges[i][1:]):
+        for k, (a, b) in enumerate(zip(edges[i][:-1], edges[i][1:])):
             m = (sp >= a) & (sp < b)
             if m.sum() < min_count:
                 continue
             cv = float(np.mean((wf.total[..., i] * s)[m]))
             lv = float(np.mean((f_law * s)[m]))
-            errs.append((lv - cv) / max(abs(cv), 1e-300))
+            errs.append((lv - cv) / ref[i][k])
     return float(np.sqrt(np.mean(np.square(errs)))) if errs else float("nan")
 
 
@@ -705,26 +722,35 @@ def _folds(rec: Recordings, n_blocks: int) -> tuple[list[tuple[Recordings, Recor
     return out, f"one recording: {n_blocks} contiguous time blocks, each held out in turn"
 
 
-def select_law(system: System, rec: Recordings, candidates: Sequence[Sequence[Any]] | None = None, window: int | None = None,
-               eps: float | None = None, block: int | None = None, criterion: str = "curve",
+def select_law(system: System, rec: Recordings, candidates: Sequence[Sequence[Any]] | None = None,
+               window: int | None = None, eps: float | None = None, block: int | None = None, criterion: str = "curve",
                rollout_window: float | None = None, init_samples: int | None = None, n_time_blocks: int = 4,
-               max_terms: int = 3, require_significant: bool = True, relative: bool | None = None, bands: str = "quantile", n_bands: int = 8,
+               max_terms: int = 3, require_significant: bool = True, min_t: float = 3.0, min_share: float = 0.01,
+               relative: bool | None = None, bands: str = "quantile", n_bands: int = 8,
                progress: bool = False) -> Selection:
     """Choose a friction law by prediction on data not used for its fit.
 
     Each candidate (a list of terms as in :func:`fit_law`; default :func:`candidate_laws`) is fitted by the weak form on
-    all training recordings but one and scored on the left-out one (one recording: time blocks).  ``criterion``:
+    all training recordings but one and scored on the left-out one (one recording: ``n_time_blocks`` time blocks).
+    ``criterion``:
 
-    * ``"window_rollout"`` (default): open-loop rollouts over consecutive windows of ``rollout_window`` seconds
-      (default: 3 oscillation periods) of the left-out recording, initial state re-fitted per window, RMSE per window
-      relative to the window's amplitude, averaged (every speed range counts, phase drift of one large swing cannot
-      dominate);
-    * ``"rollout"``: the same over each left-out recording whole (the tool's held-out metric, absolute RMSE);
-    * ``"weak_form"``: rms of the left-out filtered force residual (no simulation; fast).
+    * ``"curve"`` (default): how well the law predicts the left-out recording's friction curve: rms over speed bands
+      (quantile bands of the pooled |qdot|, or ``bands="log"``) of (law - curve) / |pooled curve|, law and curve through
+      the same filter.  Every speed range weighs the same; no simulation, so phase drift cannot enter.  On the real
+      pendulum this is the criterion whose ranking follows the held-out rollout improvement;
+    * ``"window_rollout"``: open-loop rollouts over consecutive windows of ``rollout_window`` seconds (default 3
+      periods) of the left-out recording, initial state re-fitted per window (:func:`.analysis.evaluate_models`), RMSE
+      relative to each window's amplitude.  Short windows barely see the friction law (they favour the shooting-
+      calibrated model);
+    * ``"rollout"``: each left-out recording whole, absolute RMSE (the tool's held-out metric): dominated by the phase
+      drift of large swings, noisy with few recordings;
+    * ``"weak_form"``: rms of the left-out filtered force residual: dominated by non-dissipative model error.
 
-    Rule: among passive laws (total force opposes motion up to the largest observed speed) whose coefficients, fitted
-    on all training recordings, have 95% intervals excluding zero (``require_significant``), the one with the fewest
-    parameters whose mean fold score is within one standard error of the best (ties: lower mean)."""
+    Rule: among laws that are passive over the observed speeds (:func:`is_passive` of the total force, fitted on all
+    training recordings) and, with ``require_significant``, whose every coefficient has |t| >= ``min_t`` (its 95%
+    interval excludes zero) and an rms force >= ``min_share`` of the rms total friction force, the one with the fewest
+    parameters (a Stribeck term counts 2) whose mean fold score is
+    within one *paired* standard error (of its fold-wise difference to the best) of the best mean; ties: lower mean."""
     wf_all = weak_form(system, rec, window, eps, block)
     window = wf_all.window
     eps = wf_all.eps
@@ -739,27 +765,35 @@ def select_law(system: System, rec: Recordings, candidates: Sequence[Sequence[An
     sigma = estimate_noise(rec.q)
     edges = [_edges(np.abs(wf_all.vs[..., i]).reshape(-1), bands, n_bands) for i in range(rec.n)]
     min_count = max(10, 2 * window)
+    ref = []
+    for i in range(rec.n):  # pooled |curve| per band: the common denominator of the curve score
+        sp, sg_ = np.abs(wf_all.vs[..., i]), np.sign(wf_all.vs[..., i])
+        vals = [abs(float(np.mean((wf_all.total[..., i] * sg_)[(sp >= a) & (sp < b)]))) if np.any((sp >= a) & (sp < b)) else 0.0
+                for a, b in zip(edges[i][:-1], edges[i][1:])]
+        floor = 0.05 * max(vals + [1e-300])
+        ref.append(np.maximum(np.asarray(vals), floor))
     caches = [({}, {}) for _ in folds]
     cache_all: dict = {}
     own = _own_samples(system, wf_all)
     scores: list[CandidateScore] = []
     for c_idx, specs in enumerate(specs_list):
-        full = _fit_law(wf_all, specs, cache=cache_all, own=own)
+        full = _fit_law(wf_all, specs, cache=cache_all, own=own, own_terms=_own_terms(system))
         passive = is_passive(full, [float(np.max(np.abs(wf_all.vs[..., i]))) for i in range(rec.n)]).passive
-        sig = all(t.excludes_zero for t in full.terms)
+        tot_rms = [float(np.sqrt(np.mean(wf_all.total[..., i] ** 2))) + 1e-300 for i in range(rec.n)]
+        share = [float(np.sqrt(np.mean((t.coefficient * _design(wf_all, [(t.term, t.coordinate, t.velocity)], cache_all)) ** 2)))
+                 / tot_rms[t.coordinate] for t in full.terms]
+        sig = all(t.excludes_zero and abs(t.t) >= min_t and sh >= min_share for t, sh in zip(full.terms, share))
         fs, wfs = [], []
         for (wtr, wte, te), (ctr, cte) in zip(fold_wf, caches):
-            law = _fit_law(wtr, specs, cache=ctr, own=own)
+            law = _fit_law(wtr, specs, cache=ctr, own=own, own_terms=_own_terms(system))
             # fixed v_s from this fold's profile: predict the left-out weak form
             fixed = [(t.term, t.coordinate) + ((t.velocity,) if t.term == "stribeck_friction" else ()) for t in law.terms]
             X = _design(wte, fixed, cte)
-            pred = np.einsum("ntk,k->nt", X, np.array([t.coefficient for t in law.terms])) if law.terms else 0.0
             res = []
             for i in range(rec.n):
                 idx = [k for k, t in enumerate(law.terms) if t.coordinate == i]
                 pi = np.einsum("ntk,k->nt", X[..., idx], np.array([law.terms[k].coefficient for k in idx])) if idx else 0.0
                 res.append((wte.total[..., i] - wte.own[..., i] - pi).reshape(-1))
-            del pred
             wfs.append(float(np.sqrt(np.mean(np.concatenate(res) ** 2))))
             if criterion == "weak_form":
                 fs.append(wfs[-1])
@@ -768,7 +802,7 @@ def select_law(system: System, rec: Recordings, candidates: Sequence[Sequence[An
                 rel = (criterion == "window_rollout") if relative is None else relative
                 fs.append(rollout_score(m, te, W if criterion == "window_rollout" else None, K, window, sigma, relative=rel)[0])
             elif criterion == "curve":
-                fs.append(_curve_score(law, wte, edges, min_count))
+                fs.append(_curve_score(law, wte, edges, min_count, ref))
             else:
                 raise ValueError(f"unknown criterion {criterion!r}")
         mean = float(np.mean(fs))
@@ -788,7 +822,9 @@ def select_law(system: System, rec: Recordings, candidates: Sequence[Sequence[An
         s.diff_se = float(np.std(d, ddof=1) / math.sqrt(len(d))) if len(d) > 1 else 0.0
     within = [s for s in ok if s.mean - best.mean <= s.diff_se]
     pick = min(within, key=lambda s: (s.n_params, s.mean))
-    rule = ("passive over observed speeds" + (", every 95% interval excludes zero" if require_significant else "")
+    sig_txt = (f", every coefficient |t| >= {min_t:g} (95% interval excludes zero) and its rms force >= {min_share:g} of the "
+               "rms total friction force" if require_significant else "")
+    rule = ("passive over observed speeds" + sig_txt
             + "; fewest parameters (a Stribeck term counts 2) among those whose mean fold score is within one paired standard "
               "error (of the fold-wise difference) of the best; ties: lower mean")
     return Selection(pick.fitted, pick.law, criterion, scores, fold_txt, rule)
