@@ -1,0 +1,91 @@
+"""Tests of the weak-form friction curve, law fits, passivity of the total force and law selection (synthetic, fast)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from phast_gym.registry import make_env_system
+from phast_model.mismatch import Term, make_reality
+from phast_model.mismatch.friction import (
+    FrictionLaw,
+    LawTerm,
+    check_against_curve,
+    fit_law,
+    friction_curve,
+    is_passive,
+    plot_friction_curve,
+    select_law,
+)
+from phast_model.mismatch.recordings import Recordings
+
+ENV = "PHAST/Pendulum-v0"
+TRUE = {"coulomb_friction": 0.03, "viscous_damping": 0.02}
+
+
+@pytest.fixture(scope="module")
+def rec() -> Recordings:
+    """Encoder-grade recordings of a pendulum with hidden Coulomb 0.03 + viscous 0.02 (the nominal model has none)."""
+    d = make_reality(ENV, [Term(k, 0, v) for k, v in TRUE.items()], n_traj=8, T=400, noise_std=1e-4, seed=1)
+    return Recordings(d["q"], d["dt"], None, tuple(d["angle_dims"]))
+
+
+@pytest.fixture(scope="module")
+def system():
+    return make_env_system(ENV)
+
+
+def test_friction_curve_contains_the_known_law(rec, system, tmp_path):
+    curve = friction_curve(system, rec, bands=6)
+    assert len(curve.coordinate(0)) == 6 and curve.max_speed[0] > 1.0
+    assert all(b.model_force == 0.0 for b in curve.bands)  # the nominal model has no dissipation of its own
+    true = FrictionLaw([LawTerm(k, 0, v, (v, v)) for k, v in TRUE.items()], curve.filter["coulomb_eps"], 1)
+    rows = check_against_curve(true, curve)
+    assert all(r["inside"] for r in rows)
+    # intervals are informative: every band excludes zero friction
+    assert all(b.ci95[0] > 0 for b in curve.bands)
+    d = curve.to_dict()
+    assert d["bands"][0]["ci95"][0] <= d["bands"][0]["force"] <= d["bands"][0]["ci95"][1]
+    assert plot_friction_curve(curve, [true], str(tmp_path / "curve.png"))
+    assert (tmp_path / "curve.png").stat().st_size > 0
+
+
+def test_weak_form_fit_recovers_coefficients(rec, system):
+    law = fit_law(system, rec, [("coulomb_friction", 0), ("viscous_damping", 0)])
+    for t in law.terms:
+        assert abs(t.coefficient - TRUE[t.term]) / TRUE[t.term] < 0.10
+        assert t.ci95[0] < t.coefficient < t.ci95[1] and t.excludes_zero
+
+
+def test_total_force_passivity(system):
+    own = [(np.array([0.0, 1.0]), np.array([0.05, 0.05]))]  # the model's own viscous damping 0.05
+    # negative viscous coefficient, yet Coulomb 0.03 + (0.05 - 0.06) v > 0 up to v = 3: passive over observed speeds, flagged
+    law = FrictionLaw([LawTerm("coulomb_friction", 0, 0.03, (0.02, 0.04)), LawTerm("viscous_damping", 0, -0.06, (-0.07, -0.05))],
+                      0.01, 1, own_samples=own)
+    p = is_passive(law, 2.5)
+    assert p.passive and p.per_coordinate[0]["negative_terms"] == ["viscous[0]"]
+    # the same law is not passive once the speeds reach beyond 3
+    p = is_passive(law, 5.0)
+    assert not p.passive and p.per_coordinate[0]["worst_speed"] > 3.0
+    # a negative Coulomb coefficient pushes at low speed: never passive
+    bad = FrictionLaw([LawTerm("coulomb_friction", 0, -0.01, (-0.02, 0.0))], 0.01, 1, own_samples=own)
+    assert not is_passive(bad, 1.0).passive
+
+
+def test_selection_picks_the_true_law(rec, system):
+    sel = select_law(system, rec, candidates=[[], ["viscous_damping"], ["coulomb_friction"], ["coulomb_friction", "viscous_damping"],
+                                              ["coulomb_friction", "viscous_damping", "quadratic_drag"],
+                                              ["coulomb_friction", "quadratic_drag"]])
+    assert sorted(t.term for t in sel.chosen.terms) == sorted(TRUE)
+    assert sel.to_dict()["chosen"]["every_ci_excludes_zero"]
+
+
+def test_clean_damped_pendulum_gives_no_extra_friction():
+    d = make_reality("PHAST/DampedPendulum-v0", [], n_traj=8, T=400, noise_std=1e-4, seed=2)
+    r = Recordings(d["q"], d["dt"], None, tuple(d["angle_dims"]))
+    system = make_env_system("PHAST/DampedPendulum-v0")
+    curve = friction_curve(system, r, bands=5)
+    none = FrictionLaw([], curve.filter["coulomb_eps"], 1)
+    assert all(row["inside"] for row in check_against_curve(none, curve))  # the model's own damping explains the curve
+    sel = select_law(system, r, candidates=[[], ["coulomb_friction"], ["viscous_damping"], ["coulomb_friction", "viscous_damping"]])
+    assert sel.chosen.terms == []
