@@ -130,7 +130,7 @@ def _coordinate_scales(problem: Problem, system: System) -> tuple[np.ndarray, np
         force_rms = force_rms + np.sqrt(np.mean(train.u**2, axis=(0, 1)))
     force_rms = np.where(force_rms > 0, force_rms, 1.0)
     mass_rms = np.ones(n)
-    if "armature" in (problem.opts.terms or VOCABULARY):
+    if "armature" in VOCABULARY and "armature" in (problem.opts.terms or VOCABULARY):
         M = system.base.mass_matrix(qc, NUMPY)
         mass_rms = np.array([float(np.sqrt(np.mean(np.broadcast_to(np.asarray(M[i][i], float), qs.shape[:-1]) ** 2)))
                              for i in range(n)])
@@ -163,7 +163,7 @@ def candidates(problem: Problem, system: System) -> list[Candidate]:
                     b = float(np.sqrt(np.mean(dissipative_basis(name, qi, vi, eps, w) ** 2)))
                     if b > 1e-12:
                         out.append(Candidate(name, i, float(force_rms[i] / b), h, w))
-            elif name == "armature":  # c added to M_ii (c >= 0): z = 1 is 5% of the coordinate's inertia
+            elif name == "armature" and name in VOCABULARY:  # c added to M_ii (c >= 0): z = 1 is 5% of the coordinate's inertia
                 out.append(Candidate(name, i, 0.05 * float(mass_rms[i]), h))
             elif name == "actuator_gain" and problem.has_u[i]:
                 out.append(Candidate(name, i, 0.1, h))
