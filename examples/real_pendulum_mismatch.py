@@ -147,8 +147,8 @@ def heldout_law_diagnostic(report: Any) -> float | None:
     """DIAGNOSTIC ONLY (uses the held-out segments, so it is not a result): the held-out rollout RMSE of the augmented
     model when its dissipative coefficients are refitted by the energy balance on the held-out segments themselves.
     It bounds what any stationary law of the same form fitted on segments 1-4 could reach."""
-    from phast_model.mismatch.analysis import evaluate_models
     from phast_model.mismatch.energy import DISSIPATIVE, energy_balance
+    from phast_model.mismatch.evaluate import evaluate_models
     from phast_model.mismatch.shooting import smooth
     from phast_model.mismatch.terms import AugmentedSystem, Term
 

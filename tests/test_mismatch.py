@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 
 import numpy as np
 import pytest
@@ -309,3 +310,145 @@ def test_rollout_window_cuts_heldout_into_consecutive_windows(coulomb_data):
     assert rep.fit["augmented"]["rollout_rmse"] < rep.fit["calibrated"]["rollout_rmse"]
     with pytest.raises(ValueError, match="rollout_window"):
         analyze("PHAST/Pendulum-v0", coulomb_data, rollout_window=0.1)
+
+
+# --------------------------------------------------------------------------- held-out trajectories
+@pytest.mark.parametrize("holdout, match", [
+    ([3], "out of range"),
+    ([-1], "out of range"),
+    ([1, 1], "duplicates"),
+    ([0, 1, 2], "all 3 trajectories"),
+    ([1.5], "integers"),
+    (["1"], "integers"),
+    ([True], "integers"),
+    ([], "empty"),
+    ("12", "sequence"),
+])
+def test_holdout_trajectories_are_validated_before_any_work(holdout, match, monkeypatch):
+    import phast_model.mismatch.analysis as analysis
+
+    monkeypatch.setattr(analysis, "prepare", lambda *a, **k: pytest.fail("fitting started before validation"))
+    with pytest.raises(ValueError, match=match):
+        analyze("PHAST/Pendulum-v0", _ok(), holdout_trajectories=holdout)
+
+
+def test_split_by_given_trajectories():
+    from phast_model.mismatch.evaluate import split
+
+    rec = validate(make_reality("PHAST/Pendulum-v0", [], n_traj=4, T=60, noise_std=0.01, seed=1), 1, (0,))
+    train, hold, on = split(rec, 0.9, [2, 0])
+    np.testing.assert_array_equal(train.q, rec.q[[1, 3]])
+    np.testing.assert_array_equal(hold.q, rec.q[[0, 2]])
+    assert on == "held-out recordings (trajectories [0, 2])"
+
+
+def test_holdout_trajectories_equal_to_the_fraction_split_give_the_same_report(coulomb_data, coulomb_report):
+    rep = analyze("PHAST/Pendulum-v0", coulomb_data, holdout_trajectories=[8, 9, 10, 11])  # what holdout_fraction 0.3 holds out of 12
+    assert rep.fit == coulomb_report.fit
+    assert rep.missing_physics == coulomb_report.missing_physics
+
+
+def test_cli_holdout_trajectories_and_out_fail_fast(tmp_path, capsys, monkeypatch):
+    import phast_model.mismatch as mm
+    from phast_model.cli.mismatch import main
+
+    monkeypatch.setattr(mm, "analyze", lambda *a, **k: pytest.fail("analysis started"))
+    np.savez(tmp_path / "rec.npz", **_ok())
+    base = ["--sim", "PHAST/Pendulum-v0", "--recordings", str(tmp_path / "rec.npz"), "--quiet"]
+    assert main(base + ["--out", str(tmp_path / "out"), "--holdout-trajectories", "1,x"]) == 2
+    assert "'x' is not an integer" in capsys.readouterr().err
+    assert main(base + ["--out", str(tmp_path / "rec.npz")]) == 2  # an existing file: refused before the analysis
+    assert "not a directory" in capsys.readouterr().err
+    assert main(base + ["--out", str(tmp_path)]) == 2  # a directory holding the user's recording
+    assert "not a phast-mismatch report" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.npz"]
+
+
+# --------------------------------------------------------------------------- writing reports
+def test_write_refuses_what_it_did_not_write(coulomb_report, tmp_path):
+    user = tmp_path / "mine"
+    user.mkdir()
+    (user / "recordings.npz").write_bytes(b"precious")
+    with pytest.raises(ValueError, match="not a phast-mismatch report"):
+        coulomb_report.write(user, plots=False)
+    assert (user / "recordings.npz").read_bytes() == b"precious" and sorted(p.name for p in user.iterdir()) == ["recordings.npz"]
+    f = tmp_path / "file.txt"
+    f.write_text("keep")
+    with pytest.raises(ValueError, match="not a directory"):
+        coulomb_report.write(f, plots=False)
+    assert f.read_text() == "keep"
+    fake = tmp_path / "fake"  # a report.json without the marker
+    fake.mkdir()
+    (fake / "report.json").write_text('{"summary": "x"}')
+    with pytest.raises(ValueError, match="not a phast-mismatch report"):
+        coulomb_report.write(fake, plots=False)
+    with pytest.raises(ValueError, match="not a directory"):  # the parent is a file
+        coulomb_report.write(f / "sub", plots=False)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fake", "file.txt", "mine"]
+
+
+def test_write_replaces_only_a_previous_report(coulomb_report, tmp_path):
+    out = coulomb_report.write(tmp_path / "rep", plots=False)
+    assert json.loads((out / "report.json").read_text())["tool"] == "phast-mismatch"
+    assert sorted(p.name for p in out.iterdir()) == ["report.html", "report.json", "report.md"]
+    coulomb_report.write(out, plots=False)  # a previous report: replaced
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rep"]
+    (out / "notes.txt").write_text("mine")  # a user file inside: no longer only a report
+    with pytest.raises(ValueError, match="not a phast-mismatch report"):
+        coulomb_report.write(out, plots=False)
+    assert (out / "notes.txt").read_text() == "mine"
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert (coulomb_report.write(empty, plots=False) / "report.md").exists()
+
+
+@pytest.mark.skipif(not hasattr(os, "geteuid") or os.geteuid() == 0, reason="root writes anywhere")
+def test_check_writable_read_only_parent(tmp_path):
+    from phast_model.mismatch.report import check_writable
+
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    try:
+        with pytest.raises(ValueError, match="not writable"):
+            check_writable(ro / "out")
+    finally:
+        ro.chmod(0o700)
+
+
+def test_report_html_is_self_contained(coulomb_report, tmp_path):
+    out = coulomb_report.write(tmp_path / "rep")
+    page = (out / "report.html").read_text()
+    assert page.startswith("<!DOCTYPE html>") and page.count("<table>") >= 3
+    assert page.count('src="data:image/png;base64,') == 3
+    assert "http://" not in page and "https://" not in page and "|---|" not in page
+    assert "<td>coulomb_friction</td>" in page
+
+
+def test_markdown_to_html_subset():
+    from phast_model.mismatch.report import markdown_to_html
+
+    page = markdown_to_html("# T\n\nline one\nline `a<b`\n\n| x | y |\n|---|---|\n| 1 | - |\n")
+    assert page == ("<h1>T</h1>\n<p>line one line <code>a&lt;b</code></p>\n<table>\n<thead><tr><th>x</th><th>y</th></tr></thead>\n"
+                    "<tbody>\n<tr><td>1</td><td>-</td></tr>\n</tbody>\n</table>")
+
+
+# --------------------------------------------------------------------------- candidates
+def test_armature_candidate_when_in_the_vocabulary(monkeypatch):
+    """An inertia term (c added to M_ii) gets a candidate scaled to 5% of the rms of M_ii once the vocabulary has it."""
+    from phast_model.mismatch import terms
+    from phast_model.mismatch.candidates import candidates
+    from phast_model.mismatch.options import Options, Progress
+    from phast_model.mismatch.problem import prepare
+    from phast_model.mismatch.simulators import load_simulator
+
+    sim = load_simulator("PHAST/Pendulum-v0")
+    sys0 = sim.build()
+    rec = validate(make_reality("PHAST/Pendulum-v0", [], n_traj=3, T=100, noise_std=0.01, seed=1), 1, (0,))
+    problem = prepare(sim, sys0, rec, Options(terms=("armature", "viscous_damping")), Progress())
+    system = problem.fam0.build(np.zeros(0))
+    assert [c.term for c in candidates(problem, system)] == ["viscous_damping"]  # not in the vocabulary: no candidate
+    monkeypatch.setitem(terms.VOCABULARY, "armature", ("inertia", "c added to M{i}{i}", True))
+    (arm,) = [c for c in candidates(problem, system) if c.term == "armature"]
+    M = float(np.asarray(sys0.mass_matrix((rec.q[..., 0],))[0][0]).mean())
+    assert arm.coordinate == 0 and arm.must_be_positive and abs(arm.scale - 0.05 * M) < 1e-12 * M

@@ -1,7 +1,10 @@
 """phast-mismatch: locate and explain the mismatch between a simulator and recordings (MISMATCH.md).
 
     phast-mismatch --sim PHAST/Pendulum-v0 [--sim-kwargs '{"length": 0.9}'] \\
-                   --recordings recordings.npz [--holdout-fraction 0.3] --out report_dir/
+                   --recordings recordings.npz [--holdout-fraction 0.3 | --holdout-trajectories 4,5] --out report_dir/
+
+--out must be a new or empty directory, or a previous phast-mismatch report (which is replaced); anything else is
+refused, so the tool never deletes files it did not write.
 """
 
 from __future__ import annotations
@@ -13,11 +16,15 @@ import sys
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="phast-mismatch", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--sim", required=True, help="nominal simulator: a PHAST env id, e.g. PHAST/Pendulum-v0")
-    p.add_argument("--sim-kwargs", default="{}", help="JSON dict of physical parameters overriding the env's")
+    p.add_argument("--sim", required=True,
+                   help="nominal simulator: an env id (PHAST/Pendulum-v0), my_pkg.mod:MyRig or path/to/rig.py:MyRig "
+                        "(a phast_gym.systems.System subclass)")
+    p.add_argument("--sim-kwargs", default="{}", help="JSON dict of physical parameters overriding the simulator's")
     p.add_argument("--recordings", required=True, help=".npz or .csv recordings (keys / columns of MISMATCH.md)")
     p.add_argument("--holdout-fraction", type=float, default=0.3, help="share of trajectories (or of time, for one) held out")
-    p.add_argument("--out", required=True, help="report directory (report.json, report.md, PNG plots)")
+    p.add_argument("--holdout-trajectories", default=None,
+                   help="comma-separated 0-based trajectory indices to hold out, e.g. 4,5 (overrides --holdout-fraction)")
+    p.add_argument("--out", required=True, help="report directory (report.json, report.md, report.html, PNG plots)")
     p.add_argument("--threshold", type=float, default=5.0, help="significance a term must reach (|coefficient|/std)")
     p.add_argument("--max-terms", type=int, default=5, help="most terms to add")
     p.add_argument("--shoot-window", type=int, default=None, help="shooting window in samples (default: half a period)")
@@ -31,11 +38,29 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def parse_indices(text: str | None) -> list[int] | None:
+    """``"4,5"`` -> [4, 5]; anything but comma-separated integers is a ValueError naming the bad item."""
+    if text is None:
+        return None
+    items = [s.strip() for s in text.split(",")]
+    out = []
+    for item in items:
+        try:
+            out.append(int(item))
+        except ValueError:
+            raise ValueError(f"--holdout-trajectories: {item!r} is not an integer (give 0-based indices, e.g. 4,5)") from None
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     from phast_model.mismatch import Options, analyze
+    from phast_model.mismatch.evaluate import check_holdout_indices
+    from phast_model.mismatch.report import check_writable
 
     try:
+        holdout = check_holdout_indices(parse_indices(args.holdout_trajectories))
+        check_writable(args.out)
         try:
             kwargs = json.loads(args.sim_kwargs)
         except json.JSONDecodeError as exc:
@@ -45,7 +70,8 @@ def main(argv: list[str] | None = None) -> int:
         opts = Options(threshold=args.threshold, max_terms=args.max_terms, shoot_window=args.shoot_window,
                        smoothing_window=args.smoothing_window, progress=not args.quiet, rollout_window=args.rollout_window,
                        systematic_chi2=args.systematic_chi2)
-        report = analyze(args.sim, args.recordings, sim_kwargs=kwargs, holdout_fraction=args.holdout_fraction, options=opts)
+        report = analyze(args.sim, args.recordings, sim_kwargs=kwargs, holdout_fraction=args.holdout_fraction, options=opts,
+                         holdout_trajectories=holdout)
         out = report.write(args.out, plots=not args.no_plots)
     except ValueError as exc:
         print(f"phast-mismatch: error: {exc}", file=sys.stderr)

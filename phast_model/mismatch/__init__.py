@@ -1,11 +1,13 @@
 """Simulation vs. reality: locate the mismatch, name the missing physics, model it, show the fit improve.
 
 ``analyze(sim, recordings, sim_kwargs=None, holdout_fraction=0.3) -> Report`` implements
-MISMATCH.md; ``Report.write(out_dir)`` writes report.json / report.md / plots.
+MISMATCH.md; ``Report.write(out_dir)`` writes report.json / report.md / report.html / plots.
 """
 
-from .analysis import Options, Report, analyze
+from .analysis import analyze
+from .options import Options
 from .recordings import Recordings, load_raw, validate
+from .report import Report
 from .synth import make_reality
 from .terms import VOCABULARY, AugmentedSystem, Term
 

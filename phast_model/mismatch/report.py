@@ -1,23 +1,120 @@
-"""Writing a mismatch report: report.json (MISMATCH.md schema), report.md and PNG plots, atomically."""
+"""The mismatch report: the :class:`Report` data, its text (summary, markdown, HTML), plots, and writing it safely.
+
+``Report.write(out)`` writes report.json (MISMATCH.md schema plus ``"tool":
+"phast-mismatch"``), report.md, report.html (self-contained: tables as HTML,
+plots embedded as data URIs) and the PNG plots.  It never deletes what it did
+not write: ``out`` must be new, empty, or a previous phast-mismatch report
+(recognised by that marker and by holding nothing but report files), which is
+then replaced atomically.
+"""
 
 from __future__ import annotations
 
+import base64
+import html as _html
 import json
 import os
+import re
 import shutil
 import tempfile
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
 
 from phast_gym.fileio import jsonable as _jsonable
 from phast_gym.systems import wrap
 
-if TYPE_CHECKING:
-    from .analysis import Report
+from .terms import AugmentedSystem
+
+#: report.json's marker of a directory this tool wrote
+TOOL = "phast-mismatch"
+PLOTS = ("residual_map.png", "heldout_fit.png", "decay.png")
+#: every file a report directory holds (nothing else may be there for it to be replaced)
+REPORT_FILES = ("report.json", "report.md", "report.html") + PLOTS
+PLOTS_PREFIX = "Plots: "
+_MODELS = (("nominal", ":"), ("calibrated", "--"), ("augmented", "-"))
 
 
+@dataclass
+class Report:
+    """The report of MISMATCH.md (``to_dict`` is the report.json schema) plus plot data."""
+
+    sim: dict[str, Any]
+    data: dict[str, Any]
+    located: list[dict[str, Any]]
+    missing_physics: list[dict[str, Any]]
+    fit: dict[str, Any]
+    summary: str
+    details: dict[str, Any] = field(default_factory=dict)
+    plot_data: dict[str, Any] = field(default_factory=dict, repr=False)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"sim": self.sim, "data": self.data, "located": self.located, "missing_physics": self.missing_physics,
+                "fit": self.fit, "summary": self.summary, "details": self.details}
+
+    def augmented_system(self) -> AugmentedSystem:
+        """The augmented simulator (calibrated kwargs + found terms)."""
+        return self.plot_data["augmented_system"]
+
+    def write(self, out_dir: str | Path, plots: bool = True) -> Path:
+        """report.json, report.md, report.html and PNG plots into ``out_dir`` (atomically; see :func:`write_report`)."""
+        return write_report(self, out_dir, plots=plots)
+
+
+# --------------------------------------------------------------------------- summary
+def _fmt_ci(ci: list[float] | None) -> str:
+    return "" if not ci else f" [95% CI {ci[0]:.4g}, {ci[1]:.4g}]"
+
+
+def _energy_check_sentence(fitres: dict[str, Any]) -> str | None:
+    """The held-out energy check, when the held-out recordings lose clearly more (or less) energy than predicted."""
+    ec = fitres.get("energy_check") or {}
+    tr, ho = ec.get("training"), ec.get("held_out")
+    if ho is None:
+        return None
+    r, (lo, hi) = ho["measured_over_predicted"], ho["ci95"]
+    rt = tr["measured_over_predicted"] if tr is not None else 1.0
+    if (lo > 1.0 or hi < 1.0) and abs(r - 1.0) > 0.1 and abs(rt - 1.0) < 0.5 * abs(r - 1.0):
+        return (f"Held-out check: the recordings not used for fitting lose {r:.3g}x [95% CI {lo:.3g}, {hi:.3g}] the energy the "
+                f"augmented model dissipates (training recordings: {rt:.3g}x), so the dissipation law found on the training "
+                "recordings does not carry over to them: it changes with amplitude, time or conditions in a way the "
+                "vocabulary does not describe.")
+    return None
+
+
+def summary_text(name: str, calibrated: dict, missing: list[dict], located: list[dict], fitres: dict, chi2_calibrated: float,
+                 chi2_augmented: float, sigma: np.ndarray) -> str:
+    """The report's plain-language summary (the chi^2/dof of the calibrated and augmented shooting fits decide what is said)."""
+    parts = [f"Compared {name} with the recordings (estimated measurement noise {float(np.sqrt(np.mean(sigma**2))):.3g})."]
+    cal = [f"{k} {v['nominal']:.4g} -> {v['fitted']:.4g}{_fmt_ci(v.get('ci95'))}" for k, v in calibrated.items() if v.get("ci95")]
+    if cal:
+        parts.append("Calibrated parameters: " + "; ".join(cal) + ".")
+    if missing:
+        items = [f"{m['term']} on coordinate {m['coordinate']} ({m['component']}), coefficient {m['coefficient']:.4g}{_fmt_ci(m['ci95'])}"
+                 for m in missing]
+        parts.append("Missing physics: " + "; ".join(items) + ".")
+        for m in missing:
+            if m["alternatives"]:
+                names = ", ".join(a.get("term", a.get("parameter", "?")) for a in m["alternatives"])
+                parts.append(f"The data cannot tell {m['term']} apart from: {names}.")
+    elif chi2_calibrated < 1.5:
+        parts.append("No missing physics: the calibrated simulator agrees with the recordings within the noise.")
+    if located and chi2_augmented >= 1.5:
+        loc = located[0]
+        parts.append(f"Unexplained residual, located at coordinate {loc['coordinate']} ({loc['component']}), where {loc['where']}, "
+                     f"{loc['when']}; no term of the vocabulary explains it.")
+    b, c, a = fitres["nominal"], fitres["calibrated"], fitres["augmented"]
+    parts.append(f"On {fitres['evaluated_on']}: rollout RMSE nominal {b['rollout_rmse']:.4g}, calibrated {c['rollout_rmse']:.4g}, "
+                 f"augmented {a['rollout_rmse']:.4g}.")
+    sentence = _energy_check_sentence(fitres)
+    if sentence:
+        parts.append(sentence)
+    return " ".join(parts)
+
+
+# --------------------------------------------------------------------------- markdown and HTML
 def markdown(report: Report) -> str:
     """A human-readable version of the report."""
     d = report.to_dict()
@@ -64,20 +161,92 @@ def markdown(report: Report) -> str:
                 lo, hi = e["ci95"]
                 lines.append(f"| {k.replace('_', '-')} | {e['measured_over_predicted']:.3g} | [{lo:.3g}, {hi:.3g}] | {per} |")
         lines.append("")
-    lines += ["Plots: residual_map.png, heldout_fit.png, decay.png", "",
+    lines += [PLOTS_PREFIX + ", ".join(PLOTS), "",
               "## Method", "", str(d["details"].get("method", "")), ""]
     return "\n".join(lines)
 
 
-def plot(report: Report, out: Path) -> list[str]:
-    """residual_map.png, heldout_fit.png and decay.png."""
-    import matplotlib
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
+_INLINE_CODE = re.compile(r"`([^`]*)`")
+
+
+def _inline(text: str) -> str:
+    """Escaped text with `code` spans."""
+    return _INLINE_CODE.sub(lambda m: f"<code>{m.group(1)}</code>", _html.escape(text, quote=False))
+
+
+def _cells(line: str) -> list[str]:
+    return [c.strip() for c in line.strip().strip("|").split("|")]
+
+
+def _is_rule(line: str) -> bool:
+    """A table's header rule: only |, -, : and spaces."""
+    return "-" in line and not line.strip().strip("|-: ")
+
+
+def _table(rows: list[str]) -> str:
+    """A markdown pipe table (header, ``|---|`` rule, body) as an HTML table."""
+    head, body = rows[0], rows[2:] if len(rows) > 1 and _is_rule(rows[1]) else rows[1:]
+    out = ["<table>", "<thead><tr>" + "".join(f"<th>{_inline(c)}</th>" for c in _cells(head)) + "</tr></thead>", "<tbody>"]
+    out += ["<tr>" + "".join(f"<td>{_inline(c)}</td>" for c in _cells(r)) + "</tr>" for r in body]
+    return "\n".join(out + ["</tbody>", "</table>"])
+
+
+def _figures(images: dict[str, str]) -> str:
+    return "\n".join(f'<figure><img alt="{name}" src="{uri}"><figcaption>{name}</figcaption></figure>' for name, uri in images.items())
+
+
+def markdown_to_html(text: str, images: dict[str, str] | None = None) -> str:
+    """The subset of markdown :func:`markdown` writes (# / ## headings, pipe tables, paragraphs, `code`) as HTML body
+    elements; the ``Plots:`` paragraph becomes the embedded ``images`` (name -> data URI) when given."""
+    blocks: list[str] = []
+    lines = text.splitlines()
+    i = 0
+    while i < len(lines):
+        line = lines[i]
+        if not line.strip():
+            i += 1
+        elif line.startswith("#"):
+            level = min(len(line) - len(line.lstrip("#")), 6)
+            blocks.append(f"<h{level}>{_inline(line[level:].strip())}</h{level}>")
+            i += 1
+        elif line.lstrip().startswith("|"):
+            j = i
+            while j < len(lines) and lines[j].lstrip().startswith("|"):
+                j += 1
+            blocks.append(_table(lines[i:j]))
+            i = j
+        else:
+            j = i
+            while j < len(lines) and lines[j].strip() and not lines[j].startswith("#") and not lines[j].lstrip().startswith("|"):
+                j += 1
+            para = " ".join(s.strip() for s in lines[i:j])
+            blocks.append(_figures(images) if images and para.startswith(PLOTS_PREFIX) else f"<p>{_inline(para)}</p>")
+            i = j
+    return "\n".join(blocks)
+
+
+_CSS = ("body{font-family:system-ui,sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;line-height:1.45}"
+        "table{border-collapse:collapse;margin:1em 0}th,td{border:1px solid #bbb;padding:.25em .6em;text-align:left}"
+        "th{background:#eee}code{background:#f4f4f4;padding:0 .2em}figure{margin:1em 0}img{max-width:100%}")
+
+
+def html_page(report: Report, images: dict[str, str] | None = None) -> str:
+    """report.html: one self-contained page (no external resources)."""
+    title = _html.escape(f"Mismatch report: {report.sim.get('env_id', '')}")
+    return (f"<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n<title>{title}</title>\n"
+            f"<style>{_CSS}</style>\n</head>\n<body>\n{markdown_to_html(markdown(report), images)}\n</body>\n</html>\n")
+
+
+def _data_uri(path: Path) -> str:
+    return "data:image/png;base64," + base64.b64encode(path.read_bytes()).decode("ascii")
+
+
+# --------------------------------------------------------------------------- plots
+def _residual_map(plt: Any, report: Report, out: Path) -> None:
+    """residual_map.png: the calibrated model's residual force over (q_i, qdot_i), per coordinate."""
     pd = report.plot_data
-    written = []
     rm = pd["resid_map"]
     n = rm["r"].shape[-1]
     fig, axes = plt.subplots(1, n, figsize=(5 * n, 4), squeeze=False)
@@ -98,21 +267,24 @@ def plot(report: Report, out: Path) -> list[str]:
     fig.tight_layout()
     fig.savefig(out / "residual_map.png", dpi=90)
     plt.close(fig)
-    written.append("residual_map.png")
 
-    hold, roll = pd["hold"], pd["rollouts"]
+
+def _heldout_fit(plt: Any, report: Report, out: Path) -> None:
+    """heldout_fit.png: the first held-out recording and the three models' rollouts, with their errors."""
+    hold, roll = report.plot_data["hold"], report.plot_data["rollouts"]
+    n = hold.n
     t = np.arange(hold.T) * hold.dt
     fig, axes = plt.subplots(2, n, figsize=(6 * n, 6), squeeze=False, sharex=True)
     for i in range(n):
         ax = axes[0, i]
         ax.plot(t, hold.q[0, :, i], "k.", ms=2, label="measured")
-        for name, style in (("nominal", ":"), ("calibrated", "--"), ("augmented", "-")):
+        for name, style in _MODELS:
             ax.plot(t, roll[name][0, :, i], style, lw=1, label=name)
         ax.set_ylabel(f"q{i}")
         ax.set_title(f"held-out recording 0, coordinate {i}")
         ax.legend(fontsize=7)
         ax = axes[1, i]
-        for name, style in (("nominal", ":"), ("calibrated", "--"), ("augmented", "-")):
+        for name, style in _MODELS:
             e = roll[name][0, :, i] - hold.q[0, :, i]
             if i in hold.angle_dims:
                 e = wrap(e)
@@ -122,12 +294,16 @@ def plot(report: Report, out: Path) -> list[str]:
     fig.tight_layout()
     fig.savefig(out / "heldout_fit.png", dpi=90)
     plt.close(fig)
-    written.append("heldout_fit.png")
 
-    # energy decay of the held-out recordings (energy of the calibrated H along smoothed states vs the models' rollouts)
+
+def _decay(plt: Any, report: Report, out: Path) -> None:
+    """decay.png: energy of the calibrated H along the smoothed held-out states vs along the models' rollouts."""
     from .shooting import momentum, smooth
 
-    sysC = pd["calibrated_system"]
+    pd = report.plot_data
+    hold, roll, sysC = pd["hold"], pd["rollouts"], pd["calibrated_system"]
+    n = hold.n
+    t = np.arange(hold.T) * hold.dt
     w = min(int(report.details.get("smoothing_window_samples", 7)), hold.T - 1 - (hold.T % 2 == 0))
     qs, vs = smooth(hold.q, hold.dt, max(w, 5))
 
@@ -137,7 +313,7 @@ def plot(report: Report, out: Path) -> list[str]:
 
     fig, ax = plt.subplots(figsize=(7, 4))
     ax.plot(t, energy(qs, vs).mean(0), "k", lw=2, label="measured (smoothed)")
-    for name, style in (("nominal", ":"), ("calibrated", "--"), ("augmented", "-")):
+    for name, style in _MODELS:
         qr = roll[name]
         vr = np.gradient(qr, hold.dt, axis=1)
         ax.plot(t, energy(qr, vr).mean(0), style, label=name)
@@ -148,31 +324,102 @@ def plot(report: Report, out: Path) -> list[str]:
     fig.tight_layout()
     fig.savefig(out / "decay.png", dpi=90)
     plt.close(fig)
-    written.append("decay.png")
-    return written
+
+
+def plot(report: Report, out: Path) -> list[str]:
+    """residual_map.png, heldout_fit.png and decay.png into ``out``; returns the names written."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    _residual_map(plt, report, out)
+    _heldout_fit(plt, report, out)
+    _decay(plt, report, out)
+    return list(PLOTS)
+
+
+# --------------------------------------------------------------------------- writing
+def is_report_dir(path: Path) -> bool:
+    """A directory this tool wrote: report.json with ``"tool": "phast-mismatch"`` and only report files."""
+    entries = list(path.iterdir())
+    if not all(p.name in REPORT_FILES and p.is_file() and not p.is_symlink() for p in entries):
+        return False
+    if not (path / "report.json").is_file():
+        return False
+    try:
+        d = json.loads((path / "report.json").read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(d, dict) and d.get("tool") == TOOL
+
+
+def _check_replaceable(out: Path) -> None:
+    if out.is_symlink() or (out.exists() and not out.is_dir()):
+        raise ValueError(f"refusing to overwrite {out}: it exists and is not a directory (give a new or report directory as --out)")
+    if out.is_dir() and any(out.iterdir()) and not is_report_dir(out):
+        raise ValueError(f"refusing to overwrite {out}: it is a non-empty directory that is not a phast-mismatch report "
+                         f"(a report directory holds only {', '.join(REPORT_FILES)}); give a new or empty directory")
+
+
+def check_writable(out_dir: str | Path) -> Path:
+    """Fail fast (before any analysis) when the report could not be written to ``out_dir``: it is a file, a non-empty
+    directory other than a previous report, or its nearest existing ancestor is not a writable directory."""
+    out = Path(out_dir)
+    _check_replaceable(out)
+    parent = out.absolute().parent
+    while not parent.exists() and not parent.is_symlink() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        raise ValueError(f"cannot write the report to {out}: {parent} is not a directory")
+    try:  # os.access is not enough (root, read-only mounts): create and remove a probe directory
+        os.rmdir(tempfile.mkdtemp(prefix=f".{out.name}.probe-", dir=parent))
+    except OSError as exc:
+        raise ValueError(f"cannot write the report to {out}: {parent} is not writable ({exc.strerror or exc})") from None
+    return out
+
+
+def _write_files(report: Report, tmp: Path, plots: bool) -> None:
+    (tmp / "report.json").write_text(json.dumps(_jsonable({"tool": TOOL, **report.to_dict()}), indent=2) + "\n")
+    (tmp / "report.md").write_text(markdown(report))
+    images = {name: _data_uri(tmp / name) for name in plot(report, tmp)} if plots else {}
+    (tmp / "report.html").write_text(html_page(report, images))
+
+
+def _swap(tmp: Path, out: Path) -> None:
+    """Move ``tmp`` to ``out``; a previous report there is moved aside first and then only its own files are removed."""
+    _check_replaceable(out)
+    if not out.exists():
+        os.replace(tmp, out)
+        return
+    old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent))
+    os.rmdir(old)
+    os.replace(out, old)
+    try:
+        os.replace(tmp, out)
+    except BaseException:
+        os.replace(old, out)
+        raise
+    for name in REPORT_FILES:
+        (old / name).unlink(missing_ok=True)
+    try:
+        old.rmdir()
+    except OSError:  # something else appeared in it meanwhile: leave it
+        pass
 
 
 def write_report(report: Report, out_dir: str | Path, plots: bool = True) -> Path:
-    """Write into a temporary sibling directory, then rename: no half-written report is ever left."""
-    out = Path(out_dir)
+    """Write into a temporary sibling directory, then swap it in: no half-written report is ever left, and nothing the
+    tool did not write is deleted (see :func:`check_writable`)."""
+    out = check_writable(out_dir)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
     umask = os.umask(0)
     os.umask(umask)
     os.chmod(tmp, 0o777 & ~umask)  # mkdtemp creates 0700; a report directory is an ordinary one
     try:
-        (tmp / "report.json").write_text(json.dumps(_jsonable(report.to_dict()), indent=2) + "\n")
-        (tmp / "report.md").write_text(markdown(report))
-        if plots:
-            plot(report, tmp)
-        if out.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent))
-            os.rmdir(old)
-            os.replace(out, old)
-            os.replace(tmp, out)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, out)
+        _write_files(report, tmp, plots)
+        _swap(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

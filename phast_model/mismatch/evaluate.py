@@ -1,0 +1,175 @@
+"""Held-out evaluation (MISMATCH.md "fit"): the split, rollout windows, one-step MSE and open-loop rollout RMSE."""
+
+from __future__ import annotations
+
+import numbers
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from phast_gym.systems.base import System
+
+from .recordings import Recordings
+from .shooting import Shooter, Windows, _odd, angle_diff, simulate_qv, smooth, substeps_for
+
+#: fewest samples of a held-out rollout window
+MIN_ROLLOUT_SAMPLES = 20
+
+
+# --------------------------------------------------------------------------- split
+def check_holdout_indices(indices: Sequence[int] | None) -> list[int] | None:
+    """Type and duplicate checks of ``holdout_trajectories`` (before anything is loaded); the range is checked by
+    :func:`split`."""
+    if indices is None:
+        return None
+    if isinstance(indices, (str, bytes)) or not isinstance(indices, Sequence | np.ndarray):
+        raise ValueError(f"holdout_trajectories must be a sequence of trajectory indices, got {indices!r}")
+    bad = [k for k in indices if isinstance(k, bool) or not isinstance(k, numbers.Integral)]
+    if bad:
+        raise ValueError(f"holdout_trajectories must be integers (0-based trajectory indices), got {bad}")
+    out = [int(k) for k in indices]
+    if not out:
+        raise ValueError("holdout_trajectories is empty; give at least one trajectory index (or use holdout_fraction)")
+    dup = sorted({k for k in out if out.count(k) > 1})
+    if dup:
+        raise ValueError(f"holdout_trajectories has duplicates: {dup}")
+    neg = [k for k in out if k < 0]
+    if neg:
+        raise ValueError(f"holdout_trajectories out of range: {neg} (0-based indices, must be >= 0)")
+    return out
+
+
+def check_holdout_range(indices: list[int], n_traj: int) -> None:
+    """Every index names a recorded trajectory and at least one trajectory is left for fitting."""
+    over = [k for k in indices if k >= n_traj]
+    if over:
+        raise ValueError(f"holdout_trajectories out of range: {over} (the recordings have {n_traj} trajectories, indices 0..{n_traj - 1})")
+    if len(set(indices)) >= n_traj:
+        raise ValueError(f"holdout_trajectories {sorted(indices)} holds out all {n_traj} trajectories; none is left for fitting")
+
+
+def split(rec: Recordings, frac: float, indices: list[int] | None = None) -> tuple[Recordings, Recordings, str]:
+    """(training, held-out, description): the given trajectories, else the last ``frac`` of the trajectories (of time for one)."""
+    N, T = rec.n_traj, rec.T
+    if indices is not None:
+        check_holdout_range(indices, N)
+        hold = sorted(indices)
+        train = [k for k in range(N) if k not in hold]
+        return rec.subset(train), rec.subset(hold), f"held-out recordings (trajectories {hold})"
+    if not 0.0 < frac < 1.0:
+        raise ValueError(f"holdout_fraction must be in (0, 1), got {frac}")
+    if N >= 2:
+        k = min(max(1, int(round(N * frac))), N - 1)
+        return rec.subset(slice(0, N - k)), rec.subset(slice(N - k, N)), f"held-out recordings (trajectories {list(range(N - k, N))})"
+    cut = int(round(T * (1 - frac)))
+    if cut < 20 or T - cut < 20:
+        raise ValueError(f"recording too short to hold out {frac:.0%} in time (T={T})")
+    return rec.time_slice(0, cut), rec.time_slice(cut, T), f"held-out last {frac:.0%} of the recording in time (samples {cut}..{T - 1})"
+
+
+def windows_of(rec: Recordings, W: int) -> Recordings:
+    """Consecutive non-overlapping windows of W samples of every trajectory, as trajectories (remainder dropped)."""
+    k = rec.T // W
+    if k <= 1:
+        return rec
+    q = rec.q[:, : k * W].reshape(rec.n_traj * k, W, rec.n)
+    u = None
+    if rec.u is not None:
+        u = np.stack([rec.u[:, j * W: j * W + W - 1] for j in range(k)], 1).reshape(rec.n_traj * k, W - 1, -1)
+    return Recordings(q, rec.dt, u, rec.angle_dims, rec.source, rec.meta)
+
+
+# --------------------------------------------------------------------------- metrics
+def _initial_states(shooter_factory: Callable[[Recordings], Shooter], system: System, rec: Recordings, K: int,
+                    qs: np.ndarray, vs: np.ndarray) -> np.ndarray:
+    """Fit each trajectory's initial (q, qdot) to its first K samples with ``system``."""
+    sub = rec.time_slice(0, K)
+    sh = shooter_factory(sub)
+    unmeasure = getattr(system, "unmeasure", lambda y: y)
+    X0 = np.concatenate([unmeasure(qs[:, 0]), vs[:, 0]], axis=1)
+    fit = sh.fit(lambda g: system, X0, np.zeros(0), max_iter=15)
+    return fit.X
+
+
+def evaluate_models(models: dict[str, System], rec: Recordings, sigma: np.ndarray, x_scale: np.ndarray, K: int,
+                    sg_window: int, scale: np.ndarray) -> tuple[dict[str, dict[str, float]], dict[str, np.ndarray]]:
+    """one_step_mse and rollout_rmse (MISMATCH.md) of each model on held-out recordings."""
+    n, dt = rec.n, rec.dt
+    qs, vs = smooth(rec.q, dt, sg_window)
+    out: dict[str, dict[str, float]] = {}
+    rollouts: dict[str, np.ndarray] = {}
+    for name, system in models.items():
+        sub = substeps_for(system, dt)
+        factory = lambda r, sub=sub: Shooter(Windows.cut(r, r.T), sigma, sub, x_scale)  # noqa: E731
+        X = _initial_states(factory, system, rec, min(K, rec.T), qs, vs)
+        q_roll = simulate_qv(system, X[:, :n], X[:, n:], rec.T - 1, rec.u, dt, sub)
+        d = angle_diff(q_roll, rec.q, rec.angle_dims) / scale
+        rollout_rmse = float(np.sqrt(np.mean(np.where(np.isfinite(d), d, 1e6) ** 2)))
+        # one step from every smoothed state
+        unmeasure = getattr(system, "unmeasure", lambda y: y)
+        q0 = unmeasure(qs[:, :-1]).reshape(-1, n)
+        v0 = vs[:, :-1].reshape(-1, n)
+        u1 = None if rec.u is None else rec.u.reshape(-1, 1, n)
+        q1 = simulate_qv(system, q0, v0, 1, u1, dt, sub)[:, 1]
+        e = angle_diff(q1, rec.q[:, 1:].reshape(-1, n), rec.angle_dims) / scale
+        out[name] = {"one_step_mse": float(np.mean(np.where(np.isfinite(e), e, 1e6) ** 2)), "rollout_rmse": rollout_rmse}
+        rollouts[name] = q_roll
+    return out, rollouts
+
+
+# --------------------------------------------------------------------------- the held-out comparison
+@dataclass
+class HeldOut:
+    """How models are compared on the held-out recordings (and, for the systematic regime, on the training ones)."""
+
+    rec: Recordings  # what rollouts are scored on: the held-out trajectories, or their consecutive windows
+    full: Recordings  # the held-out trajectories whole
+    evaluated_on: str
+    sigma: np.ndarray
+    x_scale: np.ndarray
+    scale: np.ndarray  # per-coordinate RMSE scale (std of q when angles and lengths mix, else 1)
+    K: int  # samples each initial state is fitted to
+    sg: int  # smoothing window of the one-step seeds
+    mixed: bool
+    windowed: bool
+
+    def evaluate(self, models: dict[str, System], rec: Recordings | None = None) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+        return evaluate_models(models, self.rec if rec is None else rec, self.sigma, self.x_scale, self.K, self.sg, self.scale)
+
+    def rollout_rmse(self, system: System, rec: Recordings) -> float:
+        return self.evaluate({"m": system}, rec)[0]["m"]["rollout_rmse"]
+
+    def fit_table(self, models: dict[str, System]) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+        """report.fit: the metrics of each model plus what they were computed on; and the rollouts (plots)."""
+        hold, K = self.rec, self.K
+        fitres, rollouts = self.evaluate(models)
+        fitres["evaluated_on"] = self.evaluated_on
+        fitres["rollout_window_samples"] = int(hold.T)  # open-loop window (the same for all models)
+        fitres["rollout_n_windows"] = int(hold.n_traj)
+        fitres["rollout_window_s"] = float((hold.T - 1) * hold.dt)
+        fitres["rollout_init_samples"] = K
+        win_txt = f"held-out recordings cut into {hold.n_traj} consecutive windows of {hold.T} samples; " if self.windowed else ""
+        fitres["rollout"] = (win_txt + f"per held-out trajectory / window: initial state fitted to its first {K} samples, open-loop "
+                             f"simulation over all {hold.T} samples with the recorded u; RMSE of q"
+                             + (" scaled per coordinate by its std" if self.mixed else "")
+                             + (" (angles wrapped)" if hold.angle_dims else ""))
+        return fitres, rollouts
+
+
+def held_out(hold: Recordings, evaluated_on: str, sigma: np.ndarray, x_scale: np.ndarray, shoot_window: int, sg: int,
+             rollout_window: float | None) -> HeldOut:
+    """The held-out comparison: rollout windows of ``rollout_window`` seconds (default: whole trajectories), initial
+    states fitted to a quarter shooting window."""
+    n, dt = hold.n, hold.dt
+    mixed = len(set(hold.angle_dims)) not in (0, n)
+    scale = hold.q.reshape(-1, n).std(0) if mixed else np.ones(n)
+    rec = hold
+    if rollout_window is not None:
+        W = int(round(rollout_window / dt)) + 1
+        if W < MIN_ROLLOUT_SAMPLES:
+            raise ValueError(f"rollout_window {rollout_window} s is shorter than {MIN_ROLLOUT_SAMPLES} samples (dt={dt})")
+        rec = windows_of(hold, W)
+    K = int(min(rec.T, max(10, shoot_window // 4)))
+    return HeldOut(rec, hold, evaluated_on, sigma, x_scale, scale, K, min(sg, _odd(rec.T // 2 - 1)), mixed, rollout_window is not None)
