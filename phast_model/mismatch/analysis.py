@@ -72,16 +72,13 @@ def _recordings(recordings: str | Path | Mapping[str, Any] | Recordings, sys0: S
 
 
 def _decimate(rec: Recordings, opts: Options) -> tuple[Recordings, int]:
-    """Every k-th sample, k ~ a twentieth of the time scale (never with u); and k."""
+    """Every k-th sample, k ~ a twentieth of the time scale, and k.  Never with u (held per recorded interval): then
+    shooting simulates every interval and compares every k-th sample instead (:func:`.problem.comparison_stride`)."""
     dec = opts.decimate
     if dec is None:
-        dec = 1 if rec.u is not None else max(1, int(time_scale(rec.q, rec.dt) / (20 * rec.dt)))
+        dec = 1 if rec.u is not None else max(1, int(time_scale(rec.resampled().q, rec.dt) / (20 * rec.dt)))
         dec = min(dec, max(1, rec.T // 200))
-    if dec > 1:
-        if rec.u is not None:
-            raise ValueError("decimation with a port input u is not supported (u is held per recorded interval)")
-        rec = Recordings(rec.q[:, ::dec], rec.dt * dec, None, rec.angle_dims, rec.source, rec.meta)
-    return rec, dec
+    return (rec.decimate(dec) if dec > 1 else rec), dec
 
 
 def _data(rec: Recordings, dec: int, sigma_raw: np.ndarray) -> dict[str, Any]:
@@ -157,7 +154,7 @@ def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mappin
     if train.u is None and any(VOCABULARY[m["term"]][0] == "dissipation" for m in missing):  # a check, no fitting
         fitres["energy_check"] = {"model": "augmented", "training": energy_check(models["augmented"], train, problem.sg),
                                   "held_out": energy_check(models["augmented"], hold, min(problem.sg, _odd(hold.T // 2 - 1)))}
-    located, resid_map = locate(models["calibrated"], train, problem.sg, problem.eps)
+    located, resid_map = locate(models["calibrated"], train.resampled(), problem.sg, problem.eps)
     if not missing and cal.fit.chi2_red < 1.5:  # within the noise
         located = []
     summary = summary_text(simulator.name, calibrated, missing, located, fitres, cal.fit.chi2_red, final_fit.chi2_red,

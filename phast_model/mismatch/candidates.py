@@ -42,9 +42,10 @@ class ScaledTerm:
         return default_value(self.term) + self.scale * z
 
     def at(self, z: float) -> Term:
-        """The :class:`Term` at scaled coefficient ``z`` (a deadzone threshold is |c|)."""
+        """The :class:`Term` at scaled coefficient ``z`` (a deadzone threshold and an armature are |c|: an iterate may
+        step past zero; a fitted negative armature is rejected by the sign rule)."""
         c = self.coefficient(float(z))
-        if self.term == "actuator_deadzone":
+        if self.term in ("actuator_deadzone", "armature"):
             c = abs(c)
         return Term(self.term, self.coordinate, c, *([] if self.velocity is None else [self.velocity]))
 

@@ -69,18 +69,6 @@ def split(rec: Recordings, frac: float, indices: list[int] | None = None) -> tup
     return rec.time_slice(0, cut), rec.time_slice(cut, T), f"held-out last {frac:.0%} of the recording in time (samples {cut}..{T - 1})"
 
 
-def windows_of(rec: Recordings, W: int) -> Recordings:
-    """Consecutive non-overlapping windows of W samples of every trajectory, as trajectories (remainder dropped)."""
-    k = rec.T // W
-    if k <= 1:
-        return rec
-    q = rec.q[:, : k * W].reshape(rec.n_traj * k, W, rec.n)
-    u = None
-    if rec.u is not None:
-        u = np.stack([rec.u[:, j * W: j * W + W - 1] for j in range(k)], 1).reshape(rec.n_traj * k, W - 1, -1)
-    return Recordings(q, rec.dt, u, rec.angle_dims, rec.source, rec.meta)
-
-
 # --------------------------------------------------------------------------- metrics
 def _initial_states(shooter_factory: Callable[[Recordings], Shooter], system: System, rec: Recordings, K: int,
                     qs: np.ndarray, vs: np.ndarray) -> np.ndarray:
@@ -97,14 +85,14 @@ def evaluate_models(models: dict[str, System], rec: Recordings, sigma: np.ndarra
                     sg_window: int, scale: np.ndarray) -> tuple[dict[str, dict[str, float]], dict[str, np.ndarray]]:
     """one_step_mse and rollout_rmse (MISMATCH.md) of each model on held-out recordings."""
     n, dt = rec.n, rec.dt
-    qs, vs = smooth(rec.q, dt, sg_window)
+    qs, vs = smooth(rec.q, dt, sg_window, rec.t)
     out: dict[str, dict[str, float]] = {}
     rollouts: dict[str, np.ndarray] = {}
     for name, system in models.items():
         sub = substeps_for(system, dt)
         factory = lambda r, sub=sub: Shooter(Windows.cut(r, r.T), sigma, sub, x_scale)  # noqa: E731
         X = _initial_states(factory, system, rec, min(K, rec.T), qs, vs)
-        q_roll = simulate_qv(system, X[:, :n], X[:, n:], rec.T - 1, rec.u, dt, sub)
+        q_roll = simulate_qv(system, X[:, :n], X[:, n:], rec.T - 1, rec.u, rec.sim_dt, substeps_for(system, rec.sim_dt))
         d = angle_diff(q_roll, rec.q, rec.angle_dims) / scale
         rollout_rmse = float(np.sqrt(np.mean(np.where(np.isfinite(d), d, 1e6) ** 2)))
         # one step from every smoothed state
@@ -112,7 +100,8 @@ def evaluate_models(models: dict[str, System], rec: Recordings, sigma: np.ndarra
         q0 = unmeasure(qs[:, :-1]).reshape(-1, n)
         v0 = vs[:, :-1].reshape(-1, n)
         u1 = None if rec.u is None else rec.u.reshape(-1, 1, n)
-        q1 = simulate_qv(system, q0, v0, 1, u1, dt, sub)[:, 1]
+        d1 = dt if rec.uniform else rec.steps.reshape(-1, 1)
+        q1 = simulate_qv(system, q0, v0, 1, u1, d1, substeps_for(system, d1))[:, 1]
         e = angle_diff(q1, rec.q[:, 1:].reshape(-1, n), rec.angle_dims) / scale
         out[name] = {"one_step_mse": float(np.mean(np.where(np.isfinite(e), e, 1e6) ** 2)), "rollout_rmse": rollout_rmse}
         rollouts[name] = q_roll
@@ -148,7 +137,7 @@ class HeldOut:
         fitres["evaluated_on"] = self.evaluated_on
         fitres["rollout_window_samples"] = int(hold.T)  # open-loop window (the same for all models)
         fitres["rollout_n_windows"] = int(hold.n_traj)
-        fitres["rollout_window_s"] = float((hold.T - 1) * hold.dt)
+        fitres["rollout_window_s"] = float(np.median(hold.times()[:, -1] - hold.times()[:, 0]))
         fitres["rollout_init_samples"] = K
         win_txt = f"held-out recordings cut into {hold.n_traj} consecutive windows of {hold.T} samples; " if self.windowed else ""
         fitres["rollout"] = (win_txt + f"per held-out trajectory / window: initial state fitted to its first {K} samples, open-loop "
@@ -170,6 +159,6 @@ def held_out(hold: Recordings, evaluated_on: str, sigma: np.ndarray, x_scale: np
         W = int(round(rollout_window / dt)) + 1
         if W < MIN_ROLLOUT_SAMPLES:
             raise ValueError(f"rollout_window {rollout_window} s is shorter than {MIN_ROLLOUT_SAMPLES} samples (dt={dt})")
-        rec = windows_of(hold, W)
+        rec = hold.windows(W)
     K = int(min(rec.T, max(10, shoot_window // 4)))
     return HeldOut(rec, hold, evaluated_on, sigma, x_scale, scale, K, min(sg, _odd(rec.T // 2 - 1)), mixed, rollout_window is not None)

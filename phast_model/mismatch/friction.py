@@ -641,7 +641,7 @@ def rollout_score(system: System, rec: Recordings, window: int | None, init_samp
     initial state re-fitted on each window's first ``init_samples`` samples (:func:`.analysis.evaluate_models`).
     ``relative``: each window's RMSE divided by that window's rms |q - mean| (so small swings count as much as large
     ones); returns (mean over windows, per-window values)."""
-    from .analysis import evaluate_models  # may move to evaluate.py
+    from .evaluate import evaluate_models
 
     recw = _cut_windows(rec, window) if window else rec
     sigma = estimate_noise(rec.q) if sigma is None else sigma

@@ -53,33 +53,38 @@ class Problem:
         return train.q.reshape(-1, train.n)[:: max(1, train.q.shape[0] * train.T // 200)]
 
 
-def _windows(train: Recordings, L: int, opts: Options) -> Windows:
-    """Shooting windows of L samples, subsampled evenly to the caps of ``opts``."""
-    win = Windows.cut(train, L)
-    max_w = int(min(opts.max_windows, max(40, opts.max_residuals // (win.length * train.n))))
+def _windows(train: Recordings, L: int, stride: int, opts: Options) -> Windows:
+    """Shooting windows of L samples (every ``stride``-th compared), subsampled evenly to the caps of ``opts``."""
+    win = Windows.cut(train, L, stride=stride)
+    max_w = int(min(opts.max_windows, max(40, opts.max_residuals // (len(win.obs) * train.n))))
     if win.count > max_w:
-        keep = np.unique(np.linspace(0, win.count - 1, max_w).round().astype(int))
-        win = Windows(win.traj[keep], win.start[keep], win.length, win.q[keep], None if win.u is None else win.u[keep],
-                      win.angle_dims, win.dt)
+        win = win.select(np.unique(np.linspace(0, win.count - 1, max_w).round().astype(int)))
     return win
+
+
+def comparison_stride(train: Recordings, period: float) -> int:
+    """Compare every k-th sample in shooting when u forbids decimation: ~20 samples per time scale (1 when not oversampled)."""
+    if train.u is None:
+        return 1
+    return max(1, int(period / (2 * math.pi) / (20 * train.dt)))
 
 
 def prepare(sim: Simulator, sys0: System, train: Recordings, opts: Options, log: Progress) -> Problem:
     """Noise, time scales (smoothing and shooting windows: fractions of one oscillation period), seeds."""
     n, dt = train.n, train.dt
-    sigma_raw = estimate_noise(train.q)
+    sigma_raw = estimate_noise(train.q, train.t)
     q_std = train.q.reshape(-1, n).std(0) + 1e-12
     sigma = np.maximum(sigma_raw, 1e-6 * q_std)
-    period = 2 * math.pi * time_scale(train.q, dt)
+    period = 2 * math.pi * time_scale(train.resampled().q, dt)
     sg = _odd(opts.smoothing_window or max(7, int(round(0.15 * period / dt))))
     sg = min(sg, _odd(train.T // 2 - 1))
     L = int(opts.shoot_window or int(np.clip(round(0.5 * period / dt), 20, train.T)))
     L = min(L, train.T)
-    qs, vs = smooth(train.q, dt, sg)
+    qs, vs = smooth(train.q, dt, sg, train.t)
     v_rms = np.sqrt(np.mean(vs**2, axis=(0, 1))) + 1e-12
     x_scale = np.concatenate([np.sqrt(np.mean(qs**2, axis=(0, 1))) + 1e-9, v_rms])
     eps = float(opts.coulomb_eps_rel * np.median(v_rms))
-    win = _windows(train, L, opts)
+    win = _windows(train, L, comparison_stride(train, period), opts)
     X0 = np.concatenate([qs[win.traj, win.start], vs[win.traj, win.start]], axis=1)
     u = train.u
     u_med = float(np.median(np.abs(u[u != 0]))) if u is not None and np.any(u != 0) else 1.0
