@@ -31,8 +31,10 @@ from .terms import AugmentedSystem
 #: report.json's marker of a directory this tool wrote
 TOOL = "phast-mismatch"
 PLOTS = ("residual_map.png", "heldout_fit.png", "decay.png")
+#: written when the report carries a friction curve
+CURVE_PLOT = "friction_curve.png"
 #: every file a report directory holds (nothing else may be there for it to be replaced)
-REPORT_FILES = ("report.json", "report.md", "report.html") + PLOTS
+REPORT_FILES = ("report.json", "report.md", "report.html") + PLOTS + (CURVE_PLOT,)
 PLOTS_PREFIX = "Plots: "
 _MODELS = (("nominal", ":"), ("calibrated", "--"), ("augmented", "-"))
 
@@ -146,7 +148,7 @@ def markdown(report: Report) -> str:
         lines.append("None found.")
     f = d["fit"]
     lines += ["", f"## Fit on {f['evaluated_on']}", "", "| model | one-step MSE | rollout RMSE |", "|---|---|---|"]
-    for name in ("nominal", "calibrated", "augmented"):
+    for name in [k for k, v in f.items() if isinstance(v, dict) and "rollout_rmse" in v]:  # ours, then any compared models
         lines.append(f"| {name} | {f[name]['one_step_mse']:.4g} | {f[name]['rollout_rmse']:.4g} |")
     lines += ["", f"Rollout: {f.get('rollout', '')}", ""]
     ec = f.get("energy_check") or {}
@@ -161,11 +163,35 @@ def markdown(report: Report) -> str:
                 lo, hi = e["ci95"]
                 lines.append(f"| {k.replace('_', '-')} | {e['measured_over_predicted']:.3g} | [{lo:.3g}, {hi:.3g}] | {per} |")
         lines.append("")
-    lines += [PLOTS_PREFIX + ", ".join(PLOTS), "",
+    lines += _friction_lines(d["details"].get("friction") or {})
+    plots = list(PLOTS) + ([CURVE_PLOT] if report.plot_data.get("friction_curve") is not None else [])
+    lines += [PLOTS_PREFIX + ", ".join(plots), "",
               "## Method", "", str(d["details"].get("method", "")), ""]
     return "\n".join(lines)
 
 
+
+
+def _friction_lines(fr: dict[str, Any]) -> list[str]:
+    """The friction section: the curve from the training recordings, the chosen law band by band, passivity."""
+    if not fr.get("used"):
+        return []
+    law, passive = fr["law"], fr["passivity"]
+    lines = ["## Friction from the training recordings", "",
+             f"Chosen law: **{law['law']}** ({fr['selection'][0]['folds']}; score: how well a law fitted on the other recordings "
+             "predicts the left-out recording's friction curve). Total friction force passive at every observed speed: "
+             f"{'yes' if passive['passive'] else 'NO'}"
+             + "".join(f"; coordinate {p['coordinate']} has negative {', '.join(p['negative_terms'])} (the total stays passive)"
+                       for p in passive["per_coordinate"] if p["negative_terms"] and p["passive"]) + ".", "",
+             "Non-parametric friction curve (total dissipative force opposing motion, mean per speed band with a "
+             "block-bootstrap 95% interval) and the chosen law through the same filter:", "",
+             "| coordinate | \|qdot\| band | curve | 95% CI | law | inside |", "|---|---|---|---|---|---|"]
+    for r in fr["law_vs_curve"]:
+        if r["direction"] != "both":
+            continue
+        lines.append(f"| {r['coordinate']} | {r['band'][0]:.3g}-{r['band'][1]:.3g} | {r['curve']:.4g} | "
+                     f"[{r['ci95'][0]:.4g}, {r['ci95'][1]:.4g}] | {r['law']:.4g} | {'yes' if r['inside'] else 'no'} |")
+    return lines + [""]
 
 
 _INLINE_CODE = re.compile(r"`([^`]*)`")
@@ -336,7 +362,13 @@ def plot(report: Report, out: Path) -> list[str]:
     _residual_map(plt, report, out)
     _heldout_fit(plt, report, out)
     _decay(plt, report, out)
-    return list(PLOTS)
+    curve = report.plot_data.get("friction_curve")
+    if curve is None:
+        return list(PLOTS)
+    from .friction import plot_friction_curve
+
+    plot_friction_curve(curve, report.plot_data.get("friction_laws"), str(out / CURVE_PLOT))
+    return [*PLOTS, CURVE_PLOT]
 
 
 # --------------------------------------------------------------------------- writing

@@ -1,35 +1,44 @@
 """Stage 2b, the systematic regime: when model error, not noise, dominates the shooting residual.
 
-With chi^2/dof >> 1 the shooting gains and |t| values measure misfit, not
-evidence.  Dissipation is then chosen and fitted by the per-half-cycle energy
-balance (:mod:`.energy`, empirical variance; paper Eq. 4), the calibrated
-parameters other than the model's own damping are refitted by shooting with
-those terms fixed, and every other term the shooting selection chose is kept
-only where it lowers the open-loop rollout error of the training recordings by
-2%.  The energy-balance model replaces the shooting answer only when its
-training rollout error is lower.
+With chi^2/dof >> 1 (a real encoder's noise is tiny next to any model error) the
+shooting chi^2 gains and |t| values measure misfit, not evidence, and a law
+chosen by them (or by how well a model follows the training recordings open
+loop, which large swings' phase drift dominates) need not predict anything.
+So the dissipation is chosen from time-resolved, local evidence instead
+(:mod:`.friction`):
+
+* the weak-form momentum balance (one filter on both sides) under the model
+  with the shooting selection's non-dissipative terms (sensor map, potential,
+  inertia, port) held at their shooting values;
+* a non-parametric friction curve (total dissipative force by speed band, with
+  block-bootstrap intervals) from the training recordings;
+* per coordinate, the candidate laws (up to 3 dissipative vocabulary terms,
+  coefficients sign free) fitted on all training recordings but one and scored
+  by how well they predict the left-out recording's friction curve; passivity
+  is required of the total force at every observed speed, every coefficient's
+  95% interval must exclude zero, and the fewest parameters within one paired
+  standard error of the best score win.
 """
 
 from __future__ import annotations
 
-import math
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from phast_gym.systems.base import NUMPY, System
+from phast_gym.systems.base import System
 
-from .calibrate import Calibration, param_in_mass
-from .candidates import Candidate, Family, ScaledTerm
-from .energy import DISSIPATIVE, EnergyBalance, energy_balance
+from .calibrate import Calibration
+from .candidates import Candidate
 from .evaluate import HeldOut
-from .options import Z95
+from .friction import FrictionCurve, FrictionLaw, Selection, check_against_curve, friction_curve, is_passive, select_friction
 from .problem import Problem
 from .shooting import ShootFit
-from .simulators import Simulator
-from .terms import VOCABULARY, Term
+from .terms import VOCABULARY, AugmentedSystem, Term
+
+#: laws whose fold score is within this many paired standard errors of the chosen one are named as alternatives
+NEAR_SE = 1.0
 
 
 @dataclass
@@ -41,176 +50,92 @@ class SystematicContext:
     chosen: list[Candidate]  # the shooting selection
     shooting_system: System  # the shooting-augmented model
     chi2_aug: float  # its chi^2/dof
-    held: HeldOut  # rollout settings (applied to the training recordings here)
+    held: HeldOut  # rollout settings
     calibrated: dict[str, dict[str, Any]]  # report rows of the shooting answer
+    missing: list[dict[str, Any]]  # missing-physics rows of the shooting answer
 
 
 @dataclass
 class SystematicResult:
-    """``info`` is details.energy_balance of the report; the rest is set only when the energy-balance model wins."""
+    """``info`` is details.friction of the report; the rest is set only when the regime applies."""
 
     info: dict[str, Any]
     system: System | None = None
     fit: ShootFit | None = None
     calibrated: dict[str, dict[str, Any]] = field(default_factory=dict)
     missing: list[dict[str, Any]] = field(default_factory=list)
+    curve: FrictionCurve | None = None
+    laws: dict[str, FrictionLaw] = field(default_factory=dict)  # for the friction-curve plot
 
     @property
     def replaces(self) -> bool:
         return self.system is not None
 
 
-@dataclass
-class _EnergyModel:
-    """The calibrated model with the energy-balance terms fixed (g = 1) and its own damping scaled."""
-
-    kw_cal: dict[str, Any]  # kwargs of the shooting calibration
-    kw: dict[str, Any]  # with the damping parameters scaled
-    damp: list[str]  # the model's own damping parameters
-    params: list[tuple[str, float]]  # parameters refitted by shooting
-    fixed: list[ScaledTerm]  # the energy-balance terms
-    eps: float
-    deadzone_width: float
-    sim: Simulator
-
-    def family(self, extra: list[ScaledTerm]) -> tuple[Family, Callable[[np.ndarray], System]]:
-        """(family, build of g = [params, extra terms]) with the fixed terms at their energy-balance coefficients."""
-        fam = Family(self.sim, self.kw, self.params, self.fixed + extra, self.eps, self.deadzone_width)
-        P, F = len(self.params), len(self.fixed)
-        return fam, lambda g: fam.build(np.concatenate([g[:P], np.ones(F), g[P:]]))
+def without_dissipation(system: System) -> System:
+    """``system`` with the dissipative vocabulary terms of an AugmentedSystem removed (its own D(q) is kept)."""
+    if not isinstance(system, AugmentedSystem):
+        return system
+    keep = [t for t in system.terms if t.component != "dissipation"]
+    return AugmentedSystem(system.base, keep, system.coulomb_eps, system.deadzone_width)
 
 
-def damping_params(sim: Simulator, kwargs: dict, q: np.ndarray) -> list[str]:
-    """Parameters that change D(q) but neither the potential nor M(q) (the model's own dissipation)."""
-    a = sim.build(**kwargs)
-    qc = tuple(q[:, i] for i in range(q.shape[1]))
-    out = []
-    for k, v in a.params.items():
-        if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
-            continue
-        kw = dict(kwargs)
-        kw[k] = v * 1.01 + 1e-3
-        try:
-            b = sim.build(**kw)
-        except (ValueError, TypeError):
-            continue
-        dD = any(not np.allclose(np.asarray(x), np.asarray(y)) for x, y in zip(a.damping(qc, NUMPY), b.damping(qc, NUMPY)))
-        dV = not np.allclose(np.asarray(a.potential(qc, NUMPY)), np.asarray(b.potential(qc, NUMPY)))
-        if dD and not dV and not param_in_mass(sim, kwargs, k, q):
-            out.append(k)
-    return out
-
-
-def _energy_model(ctx: SystematicContext, eb: EnergyBalance) -> _EnergyModel:
-    problem, cal = ctx.problem, ctx.cal
-    sysC = cal.system
-    kwC = {**{k: v for k, v in sysC.base.params.items() if k in type(sysC.base).PARAMS}, **cal.family.kwargs_of(cal.fit.g)}
-    damp = damping_params(problem.sim, kwC, problem.q_sample())
-    kwE = dict(kwC)
-    for k in damp:
-        kwE[k] = kwC[k] * eb.damping_scale
-    params = [(k, kwC[k]) for k, _ in cal.selected if k not in damp]
-    fixed = [ScaledTerm(t["term"], t["coordinate"], t["coefficient"], t.get("velocity")) for t in eb.terms]
-    fam0 = problem.fam0
-    return _EnergyModel(kwC, kwE, damp, params, fixed, fam0.eps, fam0.deadzone_width, problem.sim)
-
-
-def _rollout_checks(ctx: SystematicContext, model: _EnergyModel,
-                    info: dict[str, Any]) -> tuple[list[ScaledTerm], ShootFit, Callable[[np.ndarray], System], float]:
-    """Fit the energy-balance model, then add each non-dissipative term of the shooting selection that lowers the
-    training rollout RMSE by 2%.  Returns (accepted terms, fit, build, training rollout RMSE)."""
-    problem, shooter, train = ctx.problem, ctx.cal.shooter, ctx.problem.train
-    max_iter = problem.opts.max_iter
-    _, build = model.family([])
-    fit = shooter.fit(build, ctx.cal.fit.X, np.zeros(len(model.params)), max_iter=max_iter)
-    base_rmse = ctx.held.rollout_rmse(build(fit.g), train)
-    info["training_rollout_rmse"] = {"energy-balance model": base_rmse}
-    extra: list[ScaledTerm] = []
-    for cand in ctx.chosen:
-        if cand.term in DISSIPATIVE:
-            continue
-        _, b2 = model.family(extra + [cand.family_term])
-        f2 = shooter.fit(b2, fit.X, np.concatenate([fit.g, [0.0]]), max_iter=max_iter)
-        r2 = ctx.held.rollout_rmse(b2(f2.g), train)
-        info["training_rollout_rmse"]["+" + cand.label] = r2
-        problem.log(f"  rollout check {cand.term}: {base_rmse:.4g} -> {r2:.4g}")
-        if r2 < 0.98 * base_rmse:
-            extra.append(cand.family_term)
-            fit, build, base_rmse = f2, b2, r2
-    return extra, fit, build, base_rmse
-
-
-def _calibrated_rows(ctx: SystematicContext, model: _EnergyModel, eb: EnergyBalance, fit: ShootFit,
-                     cov: np.ndarray) -> dict[str, dict[str, Any]]:
-    """The shooting answer's parameter rows with the refitted parameters and the scaled damping."""
-    rows = {k: dict(v) for k, v in ctx.calibrated.items()}
-    kwC, kwE = model.kw_cal, model.kw
-    for j, (k, nom) in enumerate(model.params):
-        z, sd = fit.g[j], math.sqrt(max(cov[j, j], 0.0))
-        nom0 = rows[k]["nominal"]
-        rows[k].update({"fitted": nom * math.exp(z), "ci95": [nom * math.exp(z - Z95 * sd), nom * math.exp(z + Z95 * sd)],
-                        "relative_change": nom * math.exp(z) / nom0 - 1.0})
-    for k in model.damp:
-        if kwC[k] == 0:
-            continue
-        nom0 = rows.get(k, {}).get("nominal", ctx.problem.sys0.params[k])
-        lo, hi = eb.damping_scale_ci95
-        if eb.damping_scale > 0:
-            rows[k] = {"nominal": nom0, "fitted": kwE[k], "ci95": [max(kwC[k] * lo, 0.0), kwC[k] * hi],
-                       "relative_change": kwE[k] / nom0 - 1.0 if nom0 else 0.0,
-                       "note": f"scaled by the energy balance (x{eb.damping_scale:.3g} of the shooting calibration, {kwC[k]:.4g}, "
-                               "which the 'calibrated' row of the fit uses)"}
-        else:
-            rows[k] = {"nominal": nom0, "fitted": 0.0, "ci95": None, "relative_change": -1.0,
-                       "note": "set to 0 by the energy balance: with the found terms its unconstrained estimate is negative "
-                               "(a passive model cannot have it), so the model's own dissipation is dropped; the calibrated "
-                               f"model without the found terms (the 'calibrated' row of the fit) has {kwC[k]:.4g}"}
+def _law_rows(law: FrictionLaw, sels: list[Selection], passive: dict[str, Any], own: dict[int, float]) -> list[dict[str, Any]]:
+    """report.missing_physics rows of the chosen law: coefficient, 95% interval, the evidence, near alternatives."""
+    rows = []
+    for t in law.terms:
+        sel = sels[t.coordinate]
+        term = Term(t.term, t.coordinate, t.coefficient, t.velocity)
+        best = next(s for s in sel.scores if s.law == sel.chosen_name)
+        near = [s.law for s in sel.scores if s.law != sel.chosen_name and s.passive and s.every_ci_excludes_zero
+                and s.mean - best.mean <= NEAR_SE * max(s.diff_se, 1e-300)]
+        note = ""
+        if t.coefficient < 0:
+            total = own.get(t.coordinate, 0.0) + t.coefficient if t.term == "viscous_damping" else None
+            note = ("negative coefficient: the *total* friction force stays passive at every observed speed "
+                    f"(min {passive['per_coordinate'][t.coordinate]['min_force']:.3g} >= 0)"
+                    + (f"; total viscous coefficient with the model's own damping {total:.4g}" if total is not None else ""))
+        rows.append({"term": t.term, "coordinate": t.coordinate, "component": VOCABULARY[t.term][0],
+                     "coefficient": t.coefficient, "ci95": list(t.ci95), "expression": term.expression(),
+                     **({"stribeck_velocity": t.velocity} if t.term == "stribeck_friction" else {}),
+                     "explains": None, "alternatives": [{"law": n, "note": "as good at predicting left-out friction curves"}
+                                                        for n in near[:3]],
+                     "evidence": f"weak-form force balance; law chosen by {sel.folds}, score: left-out friction curve; "
+                                 f"|t| = {abs(t.t):.3g}" + (f"; {note}" if note else "")})
     return rows
 
 
-def _missing_rows(eb: EnergyBalance, extra: list[ScaledTerm], fit: ShootFit, cov: np.ndarray, P: int) -> list[dict[str, Any]]:
-    """The energy-balance terms, then the accepted shooting terms (coefficients and 95% intervals)."""
-    out = []
-    for t in eb.terms:
-        term = Term(t["term"], t["coordinate"], t["coefficient"], t.get("velocity", 0.0))
-        out.append({"term": t["term"], "coordinate": t["coordinate"], "component": VOCABULARY[t["term"]][0],
-                    "coefficient": t["coefficient"], "ci95": t["ci95"], "expression": term.expression(),
-                    **({"stribeck_velocity": t["velocity"]} if "velocity" in t else {}),
-                    "explains": None, "alternatives": [{"term": alt.lstrip("+"), "note": "energy-balance BIC within 6 of the chosen"}
-                                                       for alt in eb.near if t["term"] not in alt],
-                    "evidence": f"energy balance over {eb.n_intervals} half-cycles, |t| = {t['t']:.3g}"})
-    for j, st in enumerate(extra):
-        z, sd = fit.g[P + j], math.sqrt(max(cov[P + j, P + j], 0.0))
-        c = st.coefficient(z)
-        lo, hi = sorted([st.coefficient(z - Z95 * sd), st.coefficient(z + Z95 * sd)])
-        out.append({"term": st.term, "coordinate": st.coordinate, "component": VOCABULARY[st.term][0], "coefficient": c,
-                    "ci95": [lo, hi], "expression": Term(st.term, st.coordinate, c).expression(), "explains": None,
-                    "alternatives": [],
-                    "evidence": "shooting fit; accepted because it lowers the open-loop rollout error of the training recordings"})
-    return out
+def _own_viscous(system: System, rec_q: np.ndarray) -> dict[int, float]:
+    """The model's own damping D_ii at the recorded states (mean), per coordinate."""
+    base = system.base if isinstance(system, AugmentedSystem) else system
+    d = base.damping(tuple(rec_q[:, i] for i in range(rec_q.shape[1])))
+    return {i: float(np.mean(np.asarray(d[i], dtype=float))) for i in range(rec_q.shape[1])}
 
 
 def systematic(ctx: SystematicContext) -> SystematicResult:
-    """The energy-balance answer when it follows the training recordings open loop better than the shooting one."""
-    problem, opts = ctx.problem, ctx.problem.opts
-    info: dict[str, Any] = {"used": False}
-    eb = energy_balance(ctx.cal.system, problem.train, problem.sg, problem.eps, threshold=opts.energy_threshold)
-    if eb is None or not eb.terms:
-        info["reason"] = "energy balance: no dissipative term selected" if eb is not None else "energy balance not formed"
-        return SystematicResult(info)
-    info["shooting_selection"] = [c.label for c in ctx.chosen]
-    info.update({"used": True, "reason": f"shooting-augmented chi^2/dof {ctx.chi2_aug:.3g} > {opts.systematic_chi2}: residual is "
-                                         "model error, not noise", **eb.to_dict()})
-    problem.log(f"energy balance: {eb.terms}, model damping x {eb.damping_scale:.3g}")
-    model = _energy_model(ctx, eb)
-    extra, fit, build, base_rmse = _rollout_checks(ctx, model, info)
-    # the shooting selection stays when its model follows the training recordings open loop at least as well
-    shoot_rmse = ctx.held.rollout_rmse(ctx.shooting_system, problem.train)
-    info["training_rollout_rmse"]["shooting selection"] = shoot_rmse
-    if shoot_rmse <= base_rmse:
-        info["used"] = False
-        info["reason"] += "; kept the shooting selection (its training rollout error is not larger)"
-        return SystematicResult(info)
-    cov = fit.covariance()
-    return SystematicResult(info, build(fit.g), fit, _calibrated_rows(ctx, model, eb, fit, cov),
-                            _missing_rows(eb, extra, fit, cov, len(model.params)))
+    """The friction answer of the module docstring, with the shooting selection's other terms kept."""
+    problem = ctx.problem
+    base = without_dissipation(ctx.shooting_system)
+    train = problem.train.resampled()  # the filters need uniform samples; shooting keeps the recorded times
+    window = problem.sg
+    problem.log(f"model error dominates (chi2/dof {ctx.chi2_aug:.3g}): friction law from the weak form, window {window} samples")
+    law, sels = select_friction(base, train, window=window, eps=problem.eps)
+    curve = friction_curve(base, train, window=window, eps=problem.eps)
+    passive = is_passive(law, curve).to_dict()
+    augmented = law.augmented(base)
+    problem.log(f"friction law: {law.name}")
+    fit = ctx.cal.shooter.fit_states(augmented, ctx.cal.fit.X, max_iter=problem.opts.max_iter)
+    kept = [m for m in ctx.missing if m["component"] != "dissipation"]
+    for m in kept:
+        m.setdefault("evidence", "shooting selection (held fixed while the friction law was chosen)")
+    missing = _law_rows(law, sels, passive, _own_viscous(base, problem.q_sample())) + kept
+    info = {"used": True,
+            "reason": f"shooting-augmented chi^2/dof {ctx.chi2_aug:.3g} > {problem.opts.systematic_chi2}: the residual is model "
+                      "error, not noise, so the dissipation law was chosen from local evidence (weak form, left-out friction curves)",
+            "shooting_selection": [c.label for c in ctx.chosen], "window_samples": int(window),
+            "law": law.to_dict(), "passivity": passive, "selection": [s.to_dict() for s in sels],
+            "curve": curve.to_dict(), "law_vs_curve": check_against_curve(law, curve),
+            "chi2_per_dof_augmented": fit.chi2_red}
+    laws = {f"chosen: {law.name}": law}
+    return SystematicResult(info, augmented, fit, {k: dict(v) for k, v in ctx.calibrated.items()}, missing, curve, laws)
+
