@@ -758,8 +758,9 @@ def select_law(system: System, rec: Recordings, candidates: Sequence[Sequence[An
     Rule: among laws that are passive over the observed speeds (:func:`is_passive` of the total force, fitted on all
     training recordings) and, with ``require_significant``, whose every coefficient has |t| >= ``min_t`` (its 95%
     interval excludes zero) and an rms force >= ``min_share`` of the rms total friction force, the one with the fewest
-    parameters (a Stribeck term counts 2) whose mean fold score is
-    within one *paired* standard error (of its fold-wise difference to the best) of the best mean; ties: lower mean."""
+    parameters (a Stribeck term counts 2) that is not significantly worse than the best (one-sided paired t-test of the
+    fold-wise differences at 5%); ties: lower mean.  (A plain one-standard-error rule lets a noisy candidate through
+    while excluding one that tracks the best closely.)"""
     wf_all = weak_form(system, rec, window, eps, block)
     window = wf_all.window
     eps = wf_all.eps
@@ -835,13 +836,15 @@ def select_law(system: System, rec: Recordings, candidates: Sequence[Sequence[An
     for s in scores:  # paired standard error of the fold-wise difference to the best candidate
         d = np.asarray(s.fold_scores) - np.asarray(best.fold_scores)
         s.diff_se = float(np.std(d, ddof=1) / math.sqrt(len(d))) if len(d) > 1 else 0.0
-    within = [s for s in ok if s.mean - best.mean <= s.diff_se]
+    # not significantly worse than the best: one-sided paired t-test at 5% over the folds
+    t_margin = float(student_t.ppf(0.95, max(len(best.fold_scores) - 1, 1)))
+    within = [s for s in ok if s.mean - best.mean <= t_margin * s.diff_se]
     pick = min(within, key=lambda s: (s.n_params, s.mean))
     sig_txt = (f", every coefficient |t| >= {min_t:g} (95% interval excludes zero) and its rms force >= {min_share:g} of the "
                "rms total friction force" if require_significant else "")
     rule = ("passive over observed speeds" + sig_txt
-            + "; fewest parameters (a Stribeck term counts 2) among those whose mean fold score is within one paired standard "
-              "error (of the fold-wise difference) of the best; ties: lower mean")
+            + f"; fewest parameters (a Stribeck term counts 2) among those not significantly worse than the best (one-sided "
+              f"paired t-test over the folds at 5%: mean difference <= {t_margin:.3g} x its standard error); ties: lower mean")
     return Selection(pick.fitted, pick.law, criterion, scores, fold_txt, rule)
 
 

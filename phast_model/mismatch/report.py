@@ -185,7 +185,7 @@ def _friction_lines(fr: dict[str, Any]) -> list[str]:
                        for p in passive["per_coordinate"] if p["negative_terms"] and p["passive"]) + ".", "",
              "Non-parametric friction curve (total dissipative force opposing motion, mean per speed band with a "
              "block-bootstrap 95% interval) and the chosen law through the same filter:", "",
-             "| coordinate | \|qdot\| band | curve | 95% CI | law | inside |", "|---|---|---|---|---|---|"]
+             "| coordinate | \\|qdot\\| band | curve | 95% CI | law | inside |", "|---|---|---|---|---|---|"]
     for r in fr["law_vs_curve"]:
         if r["direction"] != "both":
             continue

@@ -36,6 +36,7 @@ from .friction import FrictionCurve, FrictionLaw, Selection, check_against_curve
 from .problem import Problem
 from .shooting import ShootFit
 from .terms import VOCABULARY, AugmentedSystem, Term
+from .weakid import WeakFit, WeakModel, identify
 
 #: laws whose fold score is within this many paired standard errors of the chosen one are named as alternatives
 NEAR_SE = 1.0
@@ -112,30 +113,68 @@ def _own_viscous(system: System, rec_q: np.ndarray) -> dict[int, float]:
     return {i: float(np.mean(np.asarray(d[i], dtype=float))) for i in range(rec_q.shape[1])}
 
 
+def _weak_model(ctx: SystematicContext, window: int) -> WeakModel:
+    """Start at the user's nominal values (a shooting calibration made before any friction term may have absorbed
+    friction); the shooting selection's sensor / potential / port terms held; armature estimated where u drives."""
+    problem = ctx.problem
+    shoot = ctx.shooting_system
+    vocab = problem.opts.terms or tuple(VOCABULARY)
+    arm = [i for i in range(problem.n) if problem.has_u[i]] if "armature" in vocab else []
+    fixed = [t for t in getattr(shoot, "terms", ()) if t.component not in ("dissipation", "inertia" if arm else "-")]
+    return WeakModel(problem.sim, {}, [k for k, _ in ctx.cal.selected], fixed, arm, problem.eps,
+                     problem.fam0.deadzone_width, window)
+
+
+def _calibrated_rows(ctx: SystematicContext, fit: WeakFit) -> dict[str, dict[str, Any]]:
+    rows = {k: dict(v) for k, v in ctx.calibrated.items()}
+    for k, row in fit.params.items():
+        rows[k] = {**row, "note": "weak-form fit jointly with the friction law and armature"}
+    for k in fit.no_signal:
+        rows[k] = {**rows.get(k, {}), "nominal": rows.get(k, {}).get("nominal", ctx.problem.sys0.params[k]),
+                   "fitted": ctx.problem.sys0.params[k], "ci95": None,
+                   "note": "held at nominal: the friction law (added to the model's own dissipation) covers it"}
+    return rows
+
+
+def _armature_rows(fit: WeakFit) -> list[dict[str, Any]]:
+    return [{"term": "armature", "coordinate": t.coordinate, "component": "inertia", "coefficient": t.coefficient,
+             "ci95": list(t.ci95), "expression": t.to_term().expression(), "explains": None, "alternatives": [],
+             "evidence": f"weak-form fit jointly with the parameters and the friction law, |t| = {abs(t.t):.3g}"}
+            for t in fit.armature if t.coefficient > 0 and t.excludes_zero]
+
+
+#: a generous law for the first joint fit, so that parameters cannot absorb friction while the law is not yet chosen
+PROVISIONAL_LAW = ("viscous_damping", "coulomb_friction")
+
+
 def systematic(ctx: SystematicContext) -> SystematicResult:
     """The friction answer of the module docstring, with the shooting selection's other terms kept."""
     problem = ctx.problem
-    base = without_dissipation(ctx.shooting_system)
     train = problem.train.resampled()  # the filters need uniform samples; shooting keeps the recorded times
     window = problem.sg
-    problem.log(f"model error dominates (chi2/dof {ctx.chi2_aug:.3g}): friction law from the weak form, window {window} samples")
+    problem.log(f"model error dominates (chi2/dof {ctx.chi2_aug:.3g}): weak-form identification, window {window} samples")
+    model = _weak_model(ctx, window)
+    first = identify(model, train, [(nm, i) for i in range(problem.n) for nm in PROVISIONAL_LAW])
+    base = model.build(first.kwargs, first.armature_terms())
     law, sels = select_friction(base, train, window=window, eps=problem.eps)
-    curve = friction_curve(base, train, window=window, eps=problem.eps)
-    passive = is_passive(law, curve).to_dict()
-    augmented = law.augmented(base)
-    problem.log(f"friction law: {law.name}")
+    problem.log(f"friction law: {law.name}; parameters {first.kwargs}")
+    specs = [(t.term, t.coordinate) + ((t.velocity,) if t.term == "stribeck_friction" else ()) for t in law.terms]
+    final = identify(WeakModel(model.sim, first.kwargs, model.params, model.fixed_terms, model.armature, model.eps,
+                               model.deadzone_width, window), train, specs)
+    augmented = final.system(model)
+    curve = friction_curve(model.build(final.kwargs, final.armature_terms()), train, window=window, eps=problem.eps)
+    passive = is_passive(final.law, curve).to_dict()
     fit = ctx.cal.shooter.fit_states(augmented, ctx.cal.fit.X, max_iter=problem.opts.max_iter)
-    kept = [m for m in ctx.missing if m["component"] != "dissipation"]
-    for m in kept:
-        m.setdefault("evidence", "shooting selection (held fixed while the friction law was chosen)")
-    missing = _law_rows(law, sels, passive, _own_viscous(base, problem.q_sample())) + kept
+    kept = [dict(m, evidence="shooting selection (held fixed in the weak-form fit)") for m in ctx.missing
+            if m["component"] not in ("dissipation", "inertia" if model.armature else "-")]
+    missing = (_law_rows(final.law, sels, passive, _own_viscous(augmented, problem.q_sample())) + _armature_rows(final) + kept)
     info = {"used": True,
             "reason": f"shooting-augmented chi^2/dof {ctx.chi2_aug:.3g} > {problem.opts.systematic_chi2}: the residual is model "
-                      "error, not noise, so the dissipation law was chosen from local evidence (weak form, left-out friction curves)",
+                      "error, not noise, so parameters, armature and the dissipation law were identified from local evidence "
+                      "(weak form; the law chosen by left-out friction curves)",
             "shooting_selection": [c.label for c in ctx.chosen], "window_samples": int(window),
-            "law": law.to_dict(), "passivity": passive, "selection": [s.to_dict() for s in sels],
-            "curve": curve.to_dict(), "law_vs_curve": check_against_curve(law, curve),
+            "law": final.law.to_dict(), "passivity": passive, "selection": [s.to_dict() for s in sels],
+            "armature": [{"coordinate": a.coordinate, "coefficient": a.coefficient, "ci95": list(a.ci95)} for a in final.armature],
+            "curve": curve.to_dict(), "law_vs_curve": check_against_curve(final.law, curve),
             "chi2_per_dof_augmented": fit.chi2_red}
-    laws = {f"chosen: {law.name}": law}
-    return SystematicResult(info, augmented, fit, {k: dict(v) for k, v in ctx.calibrated.items()}, missing, curve, laws)
-
+    return SystematicResult(info, augmented, fit, _calibrated_rows(ctx, final), missing, curve, {f"chosen: {law.name}": final.law})

@@ -1,0 +1,166 @@
+"""Weak-form identification: the simulator's parameters, the reflected rotor inertia and a friction law in one
+least-squares problem.
+
+The filtered momentum balance of :mod:`.friction` (one Savitzky-Golay filter S on both sides),
+
+    f~(theta) = S * (F_cons(theta) + u) - d/dt S * (M(q; theta) qdot),
+
+is the total dissipative force the data ask of a model with parameters theta.  With the missing physics added,
+d/dt ((M + A) qdot) = F_cons + u - f_law, so
+
+    f~(theta0) - J dz = sum_k c_k S * basis_k + A_ii d/dt S * qdot_i,    J = d f~ / dz,  theta = theta0 exp(z),
+
+which is linear in (dz, c, A) once J is taken by finite differences (Gauss-Newton: re-linearized a few times).
+This is the classic linear-in-parameters identification of robot dynamics, in weak form so that no noisy
+acceleration enters alone.  It keeps a wrong parameter from absorbing unmodelled friction (and the reverse),
+which a shooting calibration made before any friction term is considered cannot.  Intervals are cluster-robust
+over time blocks within recordings (every coordinate of a block in one cluster).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.signal import savgol_filter
+from scipy.stats import t as student_t
+
+from phast_gym.systems.base import System
+
+from .friction import FrictionLaw, LawTerm, Spec, WeakForm, _cluster_cov, _own_samples, _own_terms, weak_form
+from .recordings import Recordings
+from .simulators import Simulator
+from .terms import AugmentedSystem, Term
+
+#: log-relative finite-difference step of a parameter column
+PARAM_STEP = 1e-3
+#: a parameter whose column is below this fraction of the largest one has no weak-form signal (e.g. the model's own
+#: damping, which the total dissipative force f~ does not depend on)
+NO_SIGNAL = 1e-9
+
+
+@dataclass
+class WeakModel:
+    """What is identified: start values, the parameters to fit, fixed terms, the coordinates with an armature column."""
+
+    sim: Simulator
+    kwargs: dict[str, Any]  # start values (overrides of the simulator's kwargs)
+    params: list[str]  # parameter names fitted (log-relative)
+    fixed_terms: list[Term]  # non-dissipative terms held at their values (sensor map, potential, port)
+    armature: list[int]  # coordinates whose reflected inertia is estimated
+    eps: float  # tanh smoothing of sign(qdot)
+    deadzone_width: float
+    window: int  # weak-form filter window [samples]
+
+    def build(self, kwargs: dict[str, Any], extra: list[Term] = ()) -> System:
+        terms = list(self.fixed_terms) + list(extra)
+        base = self.sim.build(**kwargs)
+        return AugmentedSystem(base, terms, self.eps, self.deadzone_width) if terms else base
+
+
+@dataclass
+class WeakFit:
+    """The identified model: parameter values with intervals, armature and friction terms."""
+
+    kwargs: dict[str, Any]
+    params: dict[str, dict[str, Any]]  # name -> nominal, fitted, ci95, relative_change
+    armature: list[LawTerm]
+    law: FrictionLaw
+    no_signal: list[str] = field(default_factory=list)  # parameters the weak form cannot see (held)
+    interval: str = ""
+
+    def armature_terms(self, significant_only: bool = True) -> list[Term]:
+        """Positive armature terms (whose interval excludes zero, by default)."""
+        return [Term("armature", a.coordinate, a.coefficient) for a in self.armature
+                if a.coefficient > 0 and (a.excludes_zero or not significant_only)]
+
+    def system(self, model: WeakModel) -> System:
+        """The identified simulator: parameters, fixed terms, armature and the friction law."""
+        return self.law.augmented(model.build(self.kwargs, self.armature_terms()))
+
+
+def _accel(wf: WeakForm, i: int) -> np.ndarray:
+    """d/dt S * qdot_i (the armature column: the force a missing inertia A_ii needs), trimmed like the weak form."""
+    a = savgol_filter(wf.v_raw[..., i], wf.window, 3, deriv=1, delta=wf.dt, axis=1, mode="interp")
+    return a[:, wf.trim: wf.v_raw.shape[1] - wf.trim]
+
+
+def _on(i: int, col: np.ndarray, n: int) -> np.ndarray:
+    """(N, T', n) with ``col`` on coordinate i and zero elsewhere."""
+    out = np.zeros(col.shape + (n,))
+    out[..., i] = col
+    return out
+
+
+def _columns(model: WeakModel, kwargs: dict[str, Any], rec: Recordings,
+             law: list[Spec]) -> tuple[WeakForm, list[str], list[np.ndarray], list[str]]:
+    """The weak form at ``kwargs`` and the design columns: -d f~/dz per parameter, each law term, each armature."""
+    system = model.build(kwargs)
+    wf = weak_form(system, rec, model.window, model.eps)
+    names, cols, none = [], [], []
+    for k in model.params:
+        kw = dict(kwargs)
+        kw[k] = float(system.base.params[k] if isinstance(system, AugmentedSystem) else system.params[k]) * math.exp(PARAM_STEP)
+        col = -(weak_form(model.build(kw), rec, model.window, model.eps).total - wf.total) / PARAM_STEP
+        names.append(f"param:{k}")
+        cols.append(col)
+    for s in law:
+        names.append(f"law:{s[0]}:{s[1]}")
+        cols.append(_on(s[1], wf.basis(s[0], s[1], s[2] if len(s) > 2 and s[2] is not None else 0.0), rec.n))
+    for i in model.armature:
+        names.append(f"armature:{i}")
+        cols.append(_on(i, _accel(wf, i), rec.n))
+    norms = np.array([float(np.linalg.norm(c)) for c in cols]) if cols else np.zeros(0)
+    big = float(norms.max()) if norms.size else 0.0
+    keep = [j for j in range(len(cols)) if norms[j] > NO_SIGNAL * big]
+    none = [names[j].split(":", 1)[1] for j in range(len(cols)) if j not in keep and names[j].startswith("param:")]
+    return wf, [names[j] for j in keep], [cols[j] for j in keep], none
+
+
+def _solve(wf: WeakForm, cols: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, int, float]:
+    """Least squares of f~ - own on the columns (stacked over coordinates): coefficients, cluster covariance, clusters,
+    residual sum of squares."""
+    y = (wf.total - wf.own).reshape(-1)
+    X = np.stack([c.reshape(-1) for c in cols], 1) if cols else np.zeros((y.size, 0))
+    g = np.repeat(wf.blocks.reshape(-1), wf.n)
+    sc = np.linalg.norm(X, axis=0) + 1e-300
+    coef = np.linalg.lstsq(X / sc, y, rcond=None)[0] / sc
+    r = y - X @ coef
+    V, G = _cluster_cov(X, r, g)
+    return coef, V, G, float(r @ r)
+
+
+def identify(model: WeakModel, rec: Recordings, law: list[Spec], iterations: int = 3) -> WeakFit:
+    """Parameters, armature and the friction law ``law`` (specs with Stribeck velocities fixed) by Gauss-Newton on the
+    weak form, starting at ``model.kwargs``; ``rec`` must be uniformly sampled."""
+    nominal = model.sim.build(**model.kwargs)
+    kw = {k: float(nominal.params[k]) for k in model.params}
+    for _ in range(iterations):
+        wf, names, cols, none = _columns(model, {**model.kwargs, **kw}, rec, law)
+        coef, V, G, rss = _solve(wf, cols)
+        step = {nm.split(":", 1)[1]: float(c) for nm, c in zip(names, coef) if nm.startswith("param:")}
+        kw = {k: v * math.exp(float(np.clip(step.get(k, 0.0), -1.0, 1.0))) for k, v in kw.items()}
+    tq = float(student_t.ppf(0.975, max(G - 1, 1)))
+    sd = np.sqrt(np.maximum(np.diag(V), 0.0))
+    params, arm, terms = {}, [], []
+    for j, nm in enumerate(names):
+        kind, rest = nm.split(":", 1)
+        if kind == "param":
+            nom = float(nominal.params[rest])
+            z = math.log(kw[rest] / nom)  # the last step's interval, about the converged value
+            params[rest] = {"nominal": nom, "fitted": kw[rest], "ci95": [nom * math.exp(z - tq * sd[j]), nom * math.exp(z + tq * sd[j])],
+                            "relative_change": kw[rest] / nom - 1.0}
+        elif kind == "armature":
+            arm.append(LawTerm("armature", int(rest), float(coef[j]), (float(coef[j] - tq * sd[j]), float(coef[j] + tq * sd[j])), 0.0, tq))
+        else:
+            name, i = rest.split(":")
+            s = next(s for s in law if s[0] == name and s[1] == int(i))
+            v = float(s[2]) if len(s) > 2 and s[2] is not None else 0.0
+            terms.append(LawTerm(name, int(i), float(coef[j]), (float(coef[j] - tq * sd[j]), float(coef[j] + tq * sd[j])), v, tq))
+    interval = f"cluster-robust (CR1) over {G} clusters (time blocks within recordings), t({G - 1}) quantile"
+    final = model.build({**model.kwargs, **kw})
+    wf_final = weak_form(final, rec, model.window, model.eps)
+    fl = FrictionLaw(terms, model.eps, rec.n, rss, int(wf.total.size), interval, _own_samples(final, wf_final), _own_terms(final))
+    return WeakFit({**model.kwargs, **kw}, params, arm, fl, none, interval)
