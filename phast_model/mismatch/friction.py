@@ -693,6 +693,7 @@ class CandidateScore:
     every_ci_excludes_zero: bool
     weak_form_loro: float  # mean over folds of the left-out weak-form force RMSE
     diff_se: float = 0.0  # paired standard error of (fold scores - the best candidate's fold scores)
+    curve_agreement: float = 1.0  # share of the training curve's speed bands whose 95% interval holds the law
     fitted: FrictionLaw | None = field(default=None, repr=False)  # fitted on all training recordings
 
     def to_dict(self) -> dict[str, Any]:
@@ -736,7 +737,7 @@ def select_law(system: System, rec: Recordings, candidates: Sequence[Sequence[An
                rollout_window: float | None = None, init_samples: int | None = None, n_time_blocks: int = 4,
                max_terms: int = 3, require_significant: bool = True, min_t: float = 3.0, min_share: float = 0.01,
                relative: bool | None = None, bands: str = "quantile", n_bands: int = 8,
-               progress: bool = False, coordinate: int | None = None) -> Selection:
+               progress: bool = False, coordinate: int | None = None, min_agreement: float = 0.75) -> Selection:
     """Choose a friction law by prediction on data not used for its fit.
 
     Each candidate (a list of terms as in :func:`fit_law`; default :func:`candidate_laws`) is fitted by the weak form on
@@ -756,11 +757,13 @@ def select_law(system: System, rec: Recordings, candidates: Sequence[Sequence[An
     * ``"weak_form"``: rms of the left-out filtered force residual: dominated by non-dissipative model error.
 
     Rule: among laws that are passive over the observed speeds (:func:`is_passive` of the total force, fitted on all
-    training recordings) and, with ``require_significant``, whose every coefficient has |t| >= ``min_t`` (its 95%
-    interval excludes zero) and an rms force >= ``min_share`` of the rms total friction force, the one with the fewest
-    parameters (a Stribeck term counts 2) that is not significantly worse than the best (one-sided paired t-test of the
-    fold-wise differences at 5%); ties: lower mean.  (A plain one-standard-error rule lets a noisy candidate through
-    while excluding one that tracks the best closely.)"""
+    training recordings), inside the training friction curve's 95% interval in at least ``min_agreement`` of its
+    speed bands (:func:`check_against_curve`: a law the curve rejects is not chosen) and, with
+    ``require_significant``, whose every coefficient has |t| >= ``min_t`` (its 95% interval excludes zero) and an rms
+    force >= ``min_share`` of the rms total friction force: the one with the fewest parameters (a Stribeck term counts
+    2) that is not significantly worse than the best (one-sided paired t-test of the fold-wise differences at 5%);
+    ties: lower mean.  (A plain one-standard-error rule lets a noisy candidate through while excluding one that tracks
+    the best closely.)"""
     wf_all = weak_form(system, rec, window, eps, block)
     window = wf_all.window
     eps = wf_all.eps
@@ -779,6 +782,7 @@ def select_law(system: System, rec: Recordings, candidates: Sequence[Sequence[An
     for tr, te in folds:
         fold_wf.append((weak_form(system, tr, window, eps, block), weak_form(system, te, window, eps, block), te))
     sigma = estimate_noise(rec.q)
+    curve = friction_curve(system, rec, window, bands=bands, n_bands=n_bands, eps=eps, block=block)  # the band-by-band check
     edges = [_edges(np.abs(wf_all.vs[..., i]).reshape(-1), bands, n_bands) for i in range(rec.n)]
     min_count = max(10, 2 * window)
     ref = []
@@ -823,13 +827,17 @@ def select_law(system: System, rec: Recordings, candidates: Sequence[Sequence[An
                 raise ValueError(f"unknown criterion {criterion!r}")
         mean = float(np.mean(fs))
         se = float(np.std(fs, ddof=1) / math.sqrt(len(fs))) if len(fs) > 1 else 0.0
+        inside = [r["inside"] for r in check_against_curve(full, curve) if scored is None or r["coordinate"] in scored]
         scores.append(CandidateScore(full.name, full.n_params, [float(x) for x in fs], mean, se, passive, sig,
-                                     float(np.mean(wfs)), fitted=full))
+                                     float(np.mean(wfs)), curve_agreement=float(np.mean(inside)) if inside else 1.0, fitted=full))
         if progress:
             print(f"[select_law {c_idx + 1}/{len(specs_list)}] {full.name}: {mean:.4g} +- {se:.2g} passive={passive} sig={sig}",
                   flush=True)
     scores.sort(key=lambda s: s.mean)
-    ok = [s for s in scores if s.passive and (s.every_ci_excludes_zero or not require_significant)]
+    ok = [s for s in scores if s.passive and (s.every_ci_excludes_zero or not require_significant)
+          and s.curve_agreement >= min_agreement]
+    if not ok:
+        ok = [s for s in scores if s.passive and (s.every_ci_excludes_zero or not require_significant)]
     if not ok:
         ok = [s for s in scores if s.passive] or scores
     best = min(ok, key=lambda s: s.mean)
@@ -842,7 +850,8 @@ def select_law(system: System, rec: Recordings, candidates: Sequence[Sequence[An
     pick = min(within, key=lambda s: (s.n_params, s.mean))
     sig_txt = (f", every coefficient |t| >= {min_t:g} (95% interval excludes zero) and its rms force >= {min_share:g} of the "
                "rms total friction force" if require_significant else "")
-    rule = ("passive over observed speeds" + sig_txt
+    rule = ("passive over observed speeds" + sig_txt + f", inside the training friction curve's 95% interval in >= {min_agreement:.0%} "
+            "of its speed bands"
             + f"; fewest parameters (a Stribeck term counts 2) among those not significantly worse than the best (one-sided "
               f"paired t-test over the folds at 5%: mean difference <= {t_margin:.3g} x its standard error); ties: lower mean")
     return Selection(pick.fitted, pick.law, criterion, scores, fold_txt, rule)

@@ -86,6 +86,21 @@ def _energy_check_sentence(fitres: dict[str, Any]) -> str | None:
     return None
 
 
+def _alternative_sentences(missing: list[dict]) -> list[str]:
+    """Terms the data cannot tell apart (shooting), and friction laws nearly as predictive (weak form), said once each."""
+    out, laws_said = [], set()
+    for m in missing:
+        terms = [a.get("term", a.get("parameter")) for a in m["alternatives"] if "law" not in a]
+        if terms:
+            out.append(f"The data cannot tell {m['term']} apart from: {', '.join(str(t) for t in terms)}.")
+        laws = [a["law"] for a in m["alternatives"] if "law" in a]
+        if laws and m["coordinate"] not in laws_said:
+            laws_said.add(m["coordinate"])
+            out.append(f"On coordinate {m['coordinate']}, these friction laws predict the left-out recordings' friction curves "
+                       f"nearly as well: {'; '.join(laws)}.")
+    return out
+
+
 def summary_text(name: str, calibrated: dict, missing: list[dict], located: list[dict], fitres: dict, chi2_calibrated: float,
                  chi2_augmented: float, sigma: np.ndarray) -> str:
     """The report's plain-language summary (the chi^2/dof of the calibrated and augmented shooting fits decide what is said)."""
@@ -97,10 +112,7 @@ def summary_text(name: str, calibrated: dict, missing: list[dict], located: list
         items = [f"{m['term']} on coordinate {m['coordinate']} ({m['component']}), coefficient {m['coefficient']:.4g}{_fmt_ci(m['ci95'])}"
                  for m in missing]
         parts.append("Missing physics: " + "; ".join(items) + ".")
-        for m in missing:
-            if m["alternatives"]:
-                names = ", ".join(a.get("term", a.get("parameter", "?")) for a in m["alternatives"])
-                parts.append(f"The data cannot tell {m['term']} apart from: {names}.")
+        parts += _alternative_sentences(missing)
     elif chi2_calibrated < 1.5:
         parts.append("No missing physics: the calibrated simulator agrees with the recordings within the noise.")
     if located and chi2_augmented >= 1.5:
@@ -140,7 +152,7 @@ def markdown(report: Report) -> str:
         lines += ["| term | coordinate | component | coefficient | 95% CI | expression | explains | alternatives |",
                   "|---|---|---|---|---|---|---|---|"]
         for m in d["missing_physics"]:
-            alts = ", ".join(a.get("term", a.get("parameter", "")) for a in m.get("alternatives", [])) or "-"
+            alts = ", ".join(a.get("term", a.get("parameter", a.get("law", ""))) for a in m.get("alternatives", [])) or "-"
             expl = "-" if m["explains"] is None else format(m["explains"], ".2f")
             lines.append(f"| {m['term']} | {m['coordinate']} | {m['component']} | {m['coefficient']:.4g} | "
                          f"[{m['ci95'][0]:.4g}, {m['ci95'][1]:.4g}] | `{m['expression']}` | {expl} | {alts} |")

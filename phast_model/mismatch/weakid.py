@@ -134,9 +134,11 @@ def _solve(wf: WeakForm, cols: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray
 
 def identify(model: WeakModel, rec: Recordings, law: list[Spec], iterations: int = 3) -> WeakFit:
     """Parameters, armature and the friction law ``law`` (specs with Stribeck velocities fixed) by Gauss-Newton on the
-    weak form, starting at ``model.kwargs``; ``rec`` must be uniformly sampled."""
-    nominal = model.sim.build(**model.kwargs)
-    kw = {k: float(nominal.params[k]) for k in model.params}
+    weak form, starting at ``model.kwargs`` (reported against the simulator's own values); ``rec`` must be uniformly
+    sampled."""
+    nominal = model.sim.build()  # the user's values: intervals and relative changes are reported against them
+    start = model.sim.build(**model.kwargs)
+    kw = {k: float(start.params[k]) for k in model.params}
     for _ in range(iterations):
         wf, names, cols, none = _columns(model, {**model.kwargs, **kw}, rec, law)
         coef, V, G, rss = _solve(wf, cols)
