@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from .integrate import _split_at_crossing, check_batch, rk4, step
-from .systems.base import NUMPY_FAST, SCALAR, TORCH, System
+from .systems.base import NUMPY, SCALAR, TORCH, System
 
 #: compiled one-interval functions, keyed by the system's identity and the integration settings
 _COMPILED: dict[tuple, Any] = {}
@@ -140,7 +140,7 @@ def simulate_compiled(
                 raise RuntimeError(f"backend='compiled' could not compile {system.name} ({type(exc).__name__}: {first}); "
                                    "it needs torch.compile's CPU backend (a C++ compiler); backend='numpy' needs neither") from exc
             if overflow:  # more kink crossings than the gather holds: this interval on the NumPy path
-                qs, ps = step(system, list(q0.numpy()), list(p0.numpy()), None if ut is None else list(ut.numpy()), NUMPY_FAST,
+                qs, ps = step(system, list(q0.numpy()), list(p0.numpy()), None if ut is None else list(ut.numpy()), NUMPY,
                               substeps=k)
                 q, p = (torch.from_numpy(np.stack(np.broadcast_arrays(*c, subok=False))) for c in (qs, ps))
                 x = None

@@ -1,9 +1,10 @@
 """Fixed-step integrators over component-form state, scalar or batched.
 
 One code path serves the single env (Python floats, ``xp = SCALAR``) and the
-batched simulator (NumPy arrays of shape ``(B,)``, ``xp = NUMPY_FAST``: NumPy
-arithmetic, torch's vectorized sin/cos on large arrays, 1 ulp from libm's).
-Both run the same per-sample algorithm, so they agree to ~1e-15.
+batched simulator (NumPy arrays of shape ``(B,)``, ``xp = NUMPY``).  Both run the
+same per-sample algorithm, so they agree to ~1e-15 (bitwise where NumPy's float64
+sin/cos are libm's).  NumPy only: nothing here loads torch (the torch-fused
+variant is :mod:`phast_gym.compiled`, opt-in).
 
 RK4 loses its order where the vector field has a kink (``|sin q|`` wind
 damping at ``q = k pi``).  When a system declares a switching function, a
@@ -21,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from .systems.base import NUMPY_FAST, SCALAR, System, _NumpyNamespace
+from .systems.base import NUMPY, SCALAR, System, _NumpyNamespace
 
 
 def rk4(system: System, q: Sequence, p: Sequence, u: Sequence | None, h: Any, xp: Any,
@@ -207,7 +208,7 @@ def simulate(
     u: np.ndarray | None = None,
     rng: np.random.Generator | None = None,
     substeps: int | None = None,
-    xp: Any = NUMPY_FAST,
+    xp: Any = NUMPY,
 ) -> np.ndarray:
     """Integrate a batch of trajectories at once.
 
@@ -218,10 +219,8 @@ def simulate(
     u : optional (B, n_steps, n) generalized port force ``G u`` held over each interval.
     rng : generator for stochastic systems (Langevin temperature).
     substeps : RK4 substeps per step (default: the system's).
-    xp : ``NUMPY_FAST`` (default: sin/cos of batches of 256 or more from torch's vectorized
-        kernels, loading torch lazily; NumPy's when torch is not installed) or ``NUMPY`` (NumPy
-        only, never loads torch, bitwise equal to the single env; NumPy's sin/cos cost about 1.7x
-        torch's per call here, see ``benchmarks/envs.py --profile``).
+    xp : a NumPy namespace (default ``NUMPY``: NumPy arithmetic and libm sin/cos, the same as the
+        single env's, never loads torch).
 
     Returns
     -------
@@ -230,7 +229,7 @@ def simulate(
     x0, u = check_batch(system, x0, n_steps, u, rng)
     n = system.n
     if not isinstance(xp, _NumpyNamespace):
-        raise ValueError(f"simulate integrates NumPy arrays: xp must be NUMPY or NUMPY_FAST, got {getattr(xp, 'name', xp)!r}")
+        raise ValueError(f"simulate integrates NumPy arrays: xp must be a NumPy namespace such as NUMPY, got {getattr(xp, 'name', xp)!r}")
     out = np.empty((x0.shape[0], n_steps + 1, 2 * n))
     out[:, 0] = x0
     q = [x0[:, i].copy() for i in range(n)]

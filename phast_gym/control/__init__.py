@@ -2,7 +2,8 @@
 
 * :class:`EnergyCasimirController` / :class:`EnergyCasimirWrapper`: paper Eq. 28-31;
 * port (velocity) estimators behind one interface, built by name with :func:`make_estimator`
-  (``oracle``, ``fd``, ``map``, ``ekf``/``ukf``; torch ones from :mod:`phast_model.control`);
+  (``oracle``, ``fd``, ``map``, ``ekf``/``ukf``; packages above this one register their own,
+  see :func:`register_estimator_provider`);
 * :mod:`.evaluation`: the closed-loop protocol of paper Sec. 4.2 (regimes, metrics).
 """
 
@@ -18,12 +19,13 @@ from .estimators import (
     make_estimator,
     map_smoother_weights,
     register_estimator,
+    register_estimator_provider,
 )
 from .evaluation import REGIMES, ControlProtocol, Episode, evaluate, make_control_env, run_episode, sample_regime
 
 __all__ = [
     "EnergyCasimirController", "EnergyCasimirWrapper", "validate_gains", "ESTIMATORS", "PortEstimator", "OracleEstimator",
     "FiniteDifferenceEstimator", "MAPSmootherEstimator", "UKFEstimator", "estimator_names", "make_estimator",
-    "map_smoother_weights", "register_estimator", "REGIMES", "ControlProtocol", "Episode", "evaluate", "make_control_env",
-    "run_episode", "sample_regime",
+    "map_smoother_weights", "register_estimator", "register_estimator_provider", "REGIMES", "ControlProtocol", "Episode",
+    "evaluate", "make_control_env", "run_episode", "sample_regime",
 ]

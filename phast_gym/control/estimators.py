@@ -10,16 +10,19 @@ q-only measurement stream.  One interface (:class:`PortEstimator`):
   oracle reads it) and the port input applied over the last interval (only
   model-based filters use it).
 
-Estimators are built by name through :func:`make_estimator`; torch-based ones
-(``tcn``, ``phast-observer``, ``phast-model``) register themselves when
-:mod:`phast_model.control` is imported.  This module is numpy-only.
+Estimators are built by name through :func:`make_estimator`.  This module is numpy-only and
+knows no package above it: torch-based estimators live in a package that depends on this one,
+which registers them with :func:`register_estimator` when imported, and may declare them
+beforehand with :func:`register_estimator_provider` (names plus the module that registers them)
+so that :func:`estimator_names` lists them and :func:`make_estimator` imports that module on
+first use.
 """
 
 from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 import numpy as np
@@ -251,14 +254,27 @@ class UKFEstimator(PortEstimator):
 # --------------------------------------------------------------------------- registry
 #: name -> factory(system, dt, sigma=..., **kwargs) -> PortEstimator
 ESTIMATORS: dict[str, Callable[..., PortEstimator]] = {}
-#: names whose factory lives in a module imported on demand (torch-based, phast_model.control)
-_LAZY = {"tcn": "phast_model.control", "tcn-uniform": "phast_model.control", "tcn-cond": "phast_model.control",
-         "phast-observer": "phast_model.control", "phast-model": "phast_model.control"}
+#: name -> module whose import registers it (declared by the providing package, see register_estimator_provider)
+PROVIDERS: dict[str, str] = {}
 
 
 def register_estimator(name: str, factory: Callable[..., PortEstimator]) -> None:
     """Register a factory ``factory(system, dt, sigma=0.0, **kwargs) -> PortEstimator`` under ``name``."""
     ESTIMATORS[name] = factory
+
+
+def register_estimator_provider(module: str, names: Iterable[str]) -> None:
+    """Declare that importing ``module`` registers the estimators ``names``.
+
+    For packages above this one whose estimators are costly to import (torch): they call this from
+    their light top-level ``__init__``; :func:`estimator_names` then lists the names and
+    :func:`make_estimator` imports ``module`` the first time one of them is built.  The dependency
+    points one way: this package never names the providers itself.
+    """
+    if isinstance(names, str):
+        raise TypeError("names must be an iterable of estimator names, not one string")
+    for name in names:
+        PROVIDERS[str(name)] = str(module)
 
 
 register_estimator("oracle", lambda system, dt, sigma=0.0, **kw: OracleEstimator(system, dt, **kw))
@@ -269,8 +285,8 @@ register_estimator("ukf", lambda system, dt, sigma=0.0, **kw: UKFEstimator(syste
 
 
 def estimator_names() -> list[str]:
-    """Every known estimator name (registered or importable on demand)."""
-    return sorted(set(ESTIMATORS) | set(_LAZY))
+    """Every known estimator name (registered, or declared by a provider and imported on demand)."""
+    return sorted(set(ESTIMATORS) | set(PROVIDERS))
 
 
 def make_estimator(name: str, system: System, dt: float, sigma: float = 0.0, **kwargs: Any) -> PortEstimator:
@@ -280,10 +296,10 @@ def make_estimator(name: str, system: System, dt: float, sigma: float = 0.0, **k
     noise-conditioned observers; ignored by the others).  Unknown names raise ValueError listing
     the valid ones.
     """
-    if name not in ESTIMATORS and name in _LAZY:
+    if name not in ESTIMATORS and name in PROVIDERS:
         import importlib
 
-        importlib.import_module(_LAZY[name])
+        importlib.import_module(PROVIDERS[name])
     if name not in ESTIMATORS:
         raise ValueError(f"unknown port estimator {name!r}; valid names are {estimator_names()}")
     if not (sigma >= 0 and math.isfinite(sigma)):

@@ -2,7 +2,6 @@
 
 from .base import (
     NUMPY,
-    NUMPY_FAST,
     SCALAR,
     TORCH,
     Param,
@@ -40,7 +39,7 @@ def make_system(name: str, **params: object) -> System:
 
 
 __all__ = [
-    "NUMPY", "NUMPY_FAST", "SCALAR", "TORCH", "Param", "ParameterError", "System", "const_like", "namespace", "solve_spd", "split",
+    "NUMPY", "SCALAR", "TORCH", "Param", "ParameterError", "System", "const_like", "namespace", "solve_spd", "split",
     "stack", "wrap", "CartPole", "DoublePendulum", "HeatExchange", "Oscillator", "LennardJones3", "NBody3",
     "PairParticles", "Pendulum", "PredatorPrey", "RLCCircuit", "SYSTEMS", "make_system",
 ]

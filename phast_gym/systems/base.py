@@ -92,48 +92,9 @@ class _TorchNamespace:
         return getattr(torch, item)
 
 
-def _vectorized_trig(name: str, min_size: int = 256) -> Any:
-    """``np.sin`` / ``np.cos`` computed by torch's vectorized kernels for float64 arrays of ``min_size`` or more.
-
-    NumPy's float64 sin/cos are not SIMD here (~9 ns per element); torch's are ~3 ns.  The results
-    agree with NumPy's to 1 ulp.  Falls back to NumPy when torch is unavailable.
-    """
-    np_fn = getattr(np, name)
-    kernel: list = []  # [(torch function, torch.from_numpy)] once torch is imported
-
-    def fn(x: Any) -> Any:
-        if type(x) is not np.ndarray or x.size < min_size or x.dtype != np.float64 or not x.flags.c_contiguous:
-            return np_fn(x)
-        if not kernel:
-            try:
-                import torch
-            except ImportError:  # pragma: no cover - torch is a dependency
-                return np_fn(x)
-            kernel.append((getattr(torch, name), torch.from_numpy))
-        t_fn, from_numpy = kernel[0]
-        return t_fn(from_numpy(x)).numpy()
-
-    fn.__name__ = name
-    fn.__doc__ = f"{name} of a float64 array (torch's vectorized kernel for large arrays)"
-    return fn
-
-
-class _FastNumpyNamespace(_NumpyNamespace):
-    """:data:`NUMPY` with sin/cos on torch's vectorized kernels (the batched simulator's hot path).
-
-    Same arithmetic as ``NUMPY``; only sin/cos of large arrays may differ from NumPy's by 1 ulp.
-    """
-
-    name = "numpy-fast"
-    sin = staticmethod(_vectorized_trig("sin"))
-    cos = staticmethod(_vectorized_trig("cos"))
-
-
 SCALAR = _ScalarNamespace()
 NUMPY = _NumpyNamespace()
 TORCH = _TorchNamespace()
-#: NumPy arrays, vectorized sin/cos (used by :func:`phast_gym.integrate.simulate`)
-NUMPY_FAST = _FastNumpyNamespace()
 
 
 def namespace(x: Any) -> Any:
