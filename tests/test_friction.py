@@ -89,3 +89,23 @@ def test_clean_damped_pendulum_gives_no_extra_friction():
     assert all(row["inside"] for row in check_against_curve(none, curve))  # the model's own damping explains the curve
     sel = select_law(system, r, candidates=[[], ["coulomb_friction"], ["viscous_damping"], ["coulomb_friction", "viscous_damping"]])
     assert sel.chosen.terms == []
+
+
+def test_selection_accepts_a_passive_negative_coefficient_and_rejects_a_non_passive_law():
+    """The model's own damping (gamma 0.5) is too large for the rig (0.3, plus Coulomb 0.05): the law that corrects it
+    has a negative viscous coefficient, yet the *total* force stays passive, so it is chosen and flagged; the Coulomb-only
+    law, whose fit goes negative (pushing at low speed), is not passive and is never chosen."""
+    d = make_reality("PHAST/DampedPendulum-v0", [Term("coulomb_friction", 0, 0.05)], true_kwargs={"gamma": 0.3}, n_traj=8, T=400,
+                     noise_std=1e-4, seed=1)
+    r = Recordings(d["q"], d["dt"], None, tuple(d["angle_dims"]))
+    system = make_env_system("PHAST/DampedPendulum-v0")
+    sel = select_law(system, r, candidates=[[], ["coulomb_friction"], ["viscous_damping"], ["coulomb_friction", "viscous_damping"]])
+    law = {t.term: t for t in sel.chosen.terms}
+    assert set(law) == {"coulomb_friction", "viscous_damping"}
+    assert abs(law["coulomb_friction"].coefficient - 0.05) / 0.05 < 0.05
+    assert abs(law["viscous_damping"].coefficient + 0.2) / 0.2 < 0.05 and law["viscous_damping"].ci95[1] < 0
+    p = is_passive(sel.chosen, 3.0)
+    assert p.passive and p.per_coordinate[0]["negative_terms"] == ["viscous[0]"]
+    scores = {s.law: s for s in sel.scores}
+    assert not scores["coulomb[0]"].passive and scores["coulomb[0]"].fitted.terms[0].coefficient < 0
+    assert all(s.passive for s in sel.scores if s.law == sel.chosen_name)
