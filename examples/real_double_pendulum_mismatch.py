@@ -67,15 +67,17 @@ class PublishedIdentifiedArm(DoublePendulum):
         return True
 
 
-def load(path: Path) -> tuple[dict[str, Any], dict[str, Any], dict[str, float]]:
-    """Recordings dict (MISMATCH.md keys: q, t, u, angle_dims), the nominal env kwargs, and the identified parameters."""
+def load(path: Path, max_T: int | None = None) -> tuple[dict[str, Any], dict[str, Any], dict[str, float]]:
+    """Recordings dict (MISMATCH.md keys: q, t, u, angle_dims; the first ``max_T`` samples of each run), the nominal env
+    kwargs, and the identified parameters."""
     if not path.exists():
         raise ValueError(f"real double-pendulum data not found at {path}; pass --data")
     with np.load(path, allow_pickle=False) as z:
         names = [str(s) for s in z["published_names"]]
         nominal = dict(zip(names, (float(v) for v in z["published_nominal"])))
         identified = dict(zip(names, (float(v) for v in z["published_identified"])))
-        rec = {"q": z["q"], "t": z["t"], "u": z["u"], "angle_dims": z["angle_dims"]}
+        cut = slice(0, max_T)
+        rec = {"q": z["q"][:, cut], "t": z["t"][:, cut], "u": z["u"][:, cut], "angle_dims": z["angle_dims"]}
         coords = str(z["coordinates"])
     if coords != "relative":
         raise ValueError(f"{path}: expected joint ('relative') coordinates, the file says {coords!r}")
@@ -96,11 +98,11 @@ def identified_system(p: dict[str, float]) -> PublishedIdentifiedArm:
 
 
 def run(data: Path = DEFAULT_DATA, out: Path | None = None, holdout: tuple[int, ...] = DEFAULT_HOLDOUT,
-        rollout_window: float = ROLLOUT_WINDOW_S, progress: bool = True) -> dict[str, Any]:
+        rollout_window: float = ROLLOUT_WINDOW_S, progress: bool = True, max_T: int | None = None) -> dict[str, Any]:
     """Analyze the runs; returns headline numbers (and writes the report to ``out``)."""
     from phast_model.mismatch import analyze
 
-    rec, kwargs, ident = load(Path(data))
+    rec, kwargs, ident = load(Path(data), max_T)
     report = analyze("PHAST/DoublePendulum-v0", rec, sim_kwargs=kwargs, holdout_trajectories=list(holdout),
                      rollout_window=rollout_window, progress=progress,
                      compare={"published identified": identified_system(ident)})
@@ -136,11 +138,12 @@ def main(argv: list[str] | None = None) -> int:
                     help="held-out runs, 0-based indices (default: one of each excitation)")
     ap.add_argument("--rollout-window", type=float, default=ROLLOUT_WINDOW_S, help="held-out open-loop window [s]")
     ap.add_argument("--json", type=Path, default=None, help="also write the printed headline numbers to this JSON file")
+    ap.add_argument("--max-T", type=int, default=None, help="use only the first samples of each run (faster)")
     ap.add_argument("--quiet", action="store_true", help="no progress lines")
     args = ap.parse_args(argv)
     try:
         holdout = tuple(int(s) for s in args.holdout_trajectories.split(",") if s.strip())
-        res = run(args.data, args.out, holdout, args.rollout_window, progress=not args.quiet)
+        res = run(args.data, args.out, holdout, args.rollout_window, progress=not args.quiet, max_T=args.max_T)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

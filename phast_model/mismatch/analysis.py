@@ -25,7 +25,7 @@ from phast_gym.systems.base import System
 from .calibrate import Calibration, calibrate
 from .candidates import candidates
 from .energy import energy_check
-from .evaluate import HeldOut, check_holdout_indices, check_holdout_range, held_out, split
+from .evaluate import check_holdout_indices, check_holdout_range, held_out, split
 from .locate import locate
 from .options import Options, Progress
 from .problem import Problem, prepare
@@ -122,13 +122,12 @@ def _details(problem: Problem, cal: Calibration, sel: Selection, sysE: Systemati
             "wall_time_s": problem.log.elapsed(), "calibrated_kwargs": dict(augmented.params)}
 
 
-def _systematic(problem: Problem, cal: Calibration, sel: Selection, held: HeldOut, calibrated: dict,
-                missing: list[dict]) -> SystematicResult:
+def _systematic(problem: Problem, cal: Calibration, sel: Selection, calibrated: dict) -> SystematicResult:
     """Stage 2b when the shooting-augmented chi^2/dof says model error, not noise, dominates."""
     if not sel.fit.chi2_red > problem.opts.systematic_chi2:
         return SystematicResult({"used": False, "reason": f"shooting-augmented chi^2/dof {sel.fit.chi2_red:.3g} <= "
                                                           f"{problem.opts.systematic_chi2}: the shooting selection stands"})
-    return systematic(SystematicContext(problem, cal, sel.terms, sel.system, sel.fit.chi2_red, held, calibrated, missing))
+    return systematic(SystematicContext(problem, cal, sel.terms, sel.fit.chi2_red, calibrated))
 
 
 def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mapping[str, Any] | Recordings,
@@ -162,7 +161,7 @@ def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mappin
     calibrated, missing = calibrated_rows(problem, cal, sel), missing_rows(cal, sel)
     models = {"nominal": problem.fam0.build(np.zeros(0)), "calibrated": cal.system, "augmented": sel.system}
     final_fit = sel.fit
-    sysE = _systematic(problem, cal, sel, held, calibrated, missing)
+    sysE = _systematic(problem, cal, sel, calibrated)
     if sysE.replaces:
         models["augmented"], final_fit, calibrated, missing = sysE.system, sysE.fit, sysE.calibrated, sysE.missing
 

@@ -25,8 +25,7 @@ class Options:
     terms: tuple[str, ...] | None = None  # restrict the candidate vocabulary
     rollout_window: float | None = None  # held-out rollout window [s] (default: each held-out trajectory whole)
     decimate: int | None = None  # keep every k-th sample (default: auto, ~20 samples per time scale, never with u)
-    systematic_chi2: float = 30.0  # augmented chi^2/dof above this: model error >> noise; energy balance + rollout checks
-    energy_threshold: float = 3.0  # |t| (empirical variance) a term needs in the energy balance
+    systematic_chi2: float = 30.0  # shooting chi^2/dof above this: model error >> noise; weak-form identification (systematic.py)
 
 
 @dataclass

@@ -30,6 +30,7 @@ from scipy.stats import t as student_t
 from phast_gym.systems.base import System
 
 from .friction import FrictionLaw, LawTerm, Spec, WeakForm, _cluster_cov, _own_samples, _own_terms, weak_form
+from .linear import rel_resid
 from .recordings import Recordings
 from .simulators import Simulator
 from .terms import AugmentedSystem, Term
@@ -39,6 +40,8 @@ PARAM_STEP = 1e-3
 #: a parameter whose column is below this fraction of the largest one has no weak-form signal (e.g. the model's own
 #: damping, which the total dissipative force f~ does not depend on)
 NO_SIGNAL = 1e-9
+#: an armature column whose part independent of the parameter columns is below this share is absorbed by them
+ABSORBED = 0.05
 
 
 @dataclass
@@ -68,7 +71,7 @@ class WeakFit:
     params: dict[str, dict[str, Any]]  # name -> nominal, fitted, ci95, relative_change
     armature: list[LawTerm]
     law: FrictionLaw
-    no_signal: list[str] = field(default_factory=list)  # parameters the weak form cannot see (held)
+    no_signal: list[str] = field(default_factory=list)  # parameters the weak form cannot see (held); "armature:i" absorbed
     interval: str = ""
 
     def armature_terms(self, significant_only: bool = True) -> list[Term]:
@@ -116,6 +119,12 @@ def _columns(model: WeakModel, kwargs: dict[str, Any], rec: Recordings,
     big = float(norms.max()) if norms.size else 0.0
     keep = [j for j in range(len(cols)) if norms[j] > NO_SIGNAL * big]
     none = [names[j].split(":", 1)[1] for j in range(len(cols)) if j not in keep and names[j].startswith("param:")]
+    P = [j for j in keep if names[j].startswith("param:")]
+    if P:  # an armature the fitted parameters can represent exactly (e.g. inertia1 on joint 1) is theirs, not a new term
+        basis = np.stack([cols[j].reshape(-1) for j in P], 1)
+        absorbed = [j for j in keep if names[j].startswith("armature:") and rel_resid(cols[j].reshape(-1), basis) < ABSORBED]
+        none += [names[j] for j in absorbed]
+        keep = [j for j in keep if j not in absorbed]
     return wf, [names[j] for j in keep], [cols[j] for j in keep], none
 
 
