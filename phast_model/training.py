@@ -15,8 +15,6 @@ import copy
 import io
 import json
 import math
-import os
-import tempfile
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -25,6 +23,8 @@ from typing import Any
 import numpy as np
 import torch
 from tqdm.auto import tqdm
+
+from phast_gym.fileio import atomic_write_bytes
 
 from .interfaces import ForecastModel, coordinate_error
 
@@ -118,18 +118,11 @@ def validation_loss(model: ForecastModel, q: torch.Tensor, u: torch.Tensor | Non
 
 
 def _atomic_torch_save(obj: Any, path: Path) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            buf = io.BytesIO()
-            torch.save(obj, buf)
-            fh.write(buf.getvalue())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    """Serialize in memory, then one atomic write (a killed writer leaves no partial checkpoint; its temp file is
+    removed by the next write, see :func:`phast_gym.fileio.remove_stale_temps`)."""
+    buf = io.BytesIO()
+    torch.save(obj, buf)
+    atomic_write_bytes(path, buf.getvalue())
 
 
 def _resolved(cfg: TrainConfig, model: Any, name: str, default: float) -> float:
