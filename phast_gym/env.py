@@ -223,7 +223,8 @@ class PortHamiltonianEnv(gym.Env):
         q, p = [float(v) for v in x0[:n]], [float(v) for v in x0[n:]]
         try:
             with np.errstate(all="raise"):
-                vals = [sysm.energy(q, p, SCALAR), *sysm.dH_dq(q, p, SCALAR), *sysm.dH_dp(q, p, SCALAR)]
+                qdot, pdot = sysm.rhs(q, p, None, SCALAR)
+                vals = [sysm.energy(q, p, SCALAR), *qdot, *pdot]
                 if self._has_damping:
                     vals += list(sysm.damping(q, SCALAR))
             finite = all(math.isfinite(float(v)) for v in vals)
