@@ -11,9 +11,10 @@ truncated or corrupted cache file is detected and regenerated.
 from __future__ import annotations
 
 import hashlib
+import io
 import json
+import math
 import os
-import tempfile
 import warnings
 import zipfile
 from dataclasses import dataclass, field
@@ -22,6 +23,8 @@ from typing import Any
 
 import numpy as np
 
+from .env import parse_actuated_dofs
+from .fileio import atomic_write_bytes
 from .integrate import simulate
 from .registry import ENV_KWARGS, make_env_system, resolve_env_id
 from .systems import NUMPY, wrap
@@ -95,16 +98,9 @@ def _save(path: Path, ds: Dataset) -> None:
     meta = {"env_id": ds.env_id, "dt": ds.dt, "angle_dims": list(ds.angle_dims),
             "actuated_dofs": list(ds.actuated_dofs), "config": ds.config,
             "checksums": {k: _checksum(getattr(ds, k)) for k in _ARRAYS}}
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp.npz")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            np.savez(fh, meta=np.array(json.dumps(meta)), **{k: getattr(ds, k) for k in _ARRAYS})
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    buf = io.BytesIO()
+    np.savez(buf, meta=np.array(json.dumps(meta)), **{k: getattr(ds, k) for k in _ARRAYS})
+    atomic_write_bytes(path, buf.getvalue())
 
 
 def _load(path: Path, config: dict[str, Any]) -> Dataset:
@@ -122,6 +118,16 @@ def _load(path: Path, config: dict[str, Any]) -> Dataset:
             raise ValueError(f"checksum mismatch for '{k}' in {path}")
     return Dataset(meta["env_id"], dt=float(meta["dt"]), angle_dims=tuple(meta["angle_dims"]),
                    actuated_dofs=tuple(meta["actuated_dofs"]), config=meta["config"], **arrays)
+
+
+def _check_noise(value: Any) -> float:
+    """``obs_noise_std`` as the env takes it: a real number >= 0 and finite, else ValueError (nothing generated or cached)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"obs_noise_std must be a real number >= 0, got {value!r}")
+    noise = float(value)
+    if not (noise >= 0 and math.isfinite(noise)):
+        raise ValueError(f"obs_noise_std must be >= 0 and finite, got {value!r}")
+    return noise
 
 
 def make_dataset(
@@ -162,11 +168,10 @@ def make_dataset(
     bad = [k for k in env_kwargs if k in ENV_KWARGS and k not in allowed]
     if bad:
         raise ValueError(f"make_dataset does not take env kwarg(s) {bad}")
+    noise = _check_noise(env_kwargs.get("obs_noise_std", 0.0))
     system = make_env_system(env_id, **env_kwargs)
     n = system.n
-    actuated = tuple(int(i) for i in env_kwargs.get("actuated_dofs", range(n)))
-    if not actuated or len(set(actuated)) != len(actuated) or any(not 0 <= i < n for i in actuated):
-        raise ValueError(f"actuated_dofs must be distinct indices in [0, {n}), got {list(actuated)}")
+    actuated = parse_actuated_dofs(env_kwargs.get("actuated_dofs"), n)
     m = len(actuated)
     if u is None:
         u_arr = np.zeros((n_traj, T - 1, m))
@@ -178,7 +183,6 @@ def make_dataset(
             raise ValueError(f"u must broadcast to (n_traj, T-1, m) = {(n_traj, T - 1, m)}, got {np.shape(u)}") from None
         if not np.isfinite(u_arr).all():
             raise ValueError("u must be finite")
-    noise = float(env_kwargs.get("obs_noise_std", 0.0))
     config = {
         "version": CACHE_VERSION, "env_id": env_id, "n_traj": int(n_traj), "T": int(T), "seed": int(seed),
         "system": system.name, "params": system.key_params(), "obs_noise_std": noise, "actuated_dofs": list(actuated),

@@ -23,6 +23,35 @@ from .systems import SCALAR, ParameterError, System, make_system
 _TWO_PI = 2.0 * math.pi
 
 
+def _real_array(x: Any, what: str, err: type[Exception]) -> np.ndarray:
+    """``x`` as a float64 array if it holds real numbers (bool, int, float); complex values (whose imaginary part
+    would be dropped), strings and objects raise ``err`` naming ``what``."""
+    try:
+        raw = np.asarray(x)
+    except (TypeError, ValueError) as exc:
+        raise err(f"{what} must be real numbers: {exc}") from None
+    if raw.dtype.kind not in "biuf":
+        kind = {"c": "complex", "U": "string", "S": "bytes", "O": "object"}.get(raw.dtype.kind, str(raw.dtype))
+        raise err(f"{what} must be real numbers, got {kind} values {x!r}")
+    return raw.astype(np.float64)
+
+
+def parse_actuated_dofs(actuated_dofs: Sequence[int] | None, n: int) -> tuple[int, ...]:
+    """Distinct integer indices in [0, n) (default: all n); anything else (0.5, True, duplicates) is a ParameterError."""
+    if actuated_dofs is None:
+        return tuple(range(n))
+    try:
+        vals = list(np.asarray(actuated_dofs, dtype=object).reshape(-1))
+    except (TypeError, ValueError) as exc:
+        raise ParameterError(f"actuated_dofs must be distinct indices in [0, {n}): {exc}") from None
+    if not all(isinstance(i, (int, np.integer)) and not isinstance(i, (bool, np.bool_)) for i in vals):
+        raise ParameterError(f"actuated_dofs must be integer indices in [0, {n}), got {list(actuated_dofs)}")
+    dofs = [int(i) for i in vals]
+    if not dofs or len(set(dofs)) != len(dofs) or any(not 0 <= i < n for i in dofs):
+        raise ParameterError(f"actuated_dofs must be distinct indices in [0, {n}), got {dofs}")
+    return tuple(dofs)
+
+
 class PortHamiltonianEnv(gym.Env):
     """A q-only port-Hamiltonian system with a torque/force port as its action.
 
@@ -85,13 +114,8 @@ class PortHamiltonianEnv(gym.Env):
             raise ParameterError(f"substeps must be a positive integer, got {substeps!r}")
         self.substeps = int(substeps) if substeps is not None else sysm.substeps
 
-        if actuated_dofs is None:
-            actuated_dofs = list(range(n))
-        actuated_dofs = [int(i) for i in actuated_dofs]
-        if not actuated_dofs or len(set(actuated_dofs)) != len(actuated_dofs) or any(not 0 <= i < n for i in actuated_dofs):
-            raise ParameterError(f"actuated_dofs must be distinct indices in [0, {n}), got {actuated_dofs}")
-        self.actuated_dofs = tuple(actuated_dofs)
-        self.m = len(actuated_dofs)
+        self.actuated_dofs = parse_actuated_dofs(actuated_dofs, n)
+        self.m = len(self.actuated_dofs)
         self.max_action = float(sysm.default_max_action if max_action is None else max_action)
         if not (self.max_action > 0 and math.isfinite(self.max_action)):
             raise ParameterError(f"max_action must be positive and finite, got {max_action!r}")
@@ -106,9 +130,11 @@ class PortHamiltonianEnv(gym.Env):
             raise ParameterError(f"dtype must be float32 or float64, got {self.dtype}")
         if target is None:
             target = [0.0] * n
-        target = [float(v) for v in np.atleast_1d(np.asarray(target, dtype=np.float64))]
+        target = [float(v) for v in _real_array(target, "target", ParameterError).reshape(-1)]
         if len(target) != n:
             raise ParameterError(f"target must have length {n}, got {len(target)}")
+        if not all(math.isfinite(v) for v in target):
+            raise ParameterError(f"target must be finite, got {target}")
         self.target = target
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ParameterError(f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
@@ -172,15 +198,17 @@ class PortHamiltonianEnv(gym.Env):
 
     # ------------------------------------------------------------------ API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
-        super().reset(seed=seed)
         n = self.n
-        if options and options.get("state") is not None:
-            x0 = np.asarray(options["state"], dtype=np.float64).reshape(-1)
+        x0 = None
+        if options and options.get("state") is not None:  # validated before anything changes (seed included)
+            x0 = _real_array(options["state"], "options['state']", ValueError).reshape(-1)
             if x0.shape != (2 * n,):
                 raise ValueError(f"options['state'] must have length 2n = {2 * n} (q then p), got shape {np.shape(options['state'])}")
             if not np.all(np.isfinite(x0)):
                 raise ValueError(f"options['state'] must be finite, got {x0}")
-        else:
+            self._check_state(x0)
+        super().reset(seed=seed)
+        if x0 is None:
             x0 = self.system.sample_initial(self.np_random, 1)[0]
         self._q = [float(v) for v in x0[:n]]
         self._p = [float(v) for v in x0[n:]]
@@ -188,15 +216,31 @@ class PortHamiltonianEnv(gym.Env):
         self._last_u = [0.0] * self.m
         return self._obs(), self._info()
 
+    def _check_state(self, x0: np.ndarray) -> None:
+        """A state the physics is defined at (energy, forces and damping finite), checked before anything is
+        assigned: e.g. coincident Lennard-Jones particles are a ValueError and the env keeps its state."""
+        n, sysm = self.n, self.system
+        q, p = [float(v) for v in x0[:n]], [float(v) for v in x0[n:]]
+        try:
+            with np.errstate(all="raise"):
+                qdot, pdot = sysm.rhs(q, p, None, SCALAR)
+                vals = [sysm.energy(q, p, SCALAR), *qdot, *pdot]
+                if self._has_damping:
+                    vals += list(sysm.damping(q, SCALAR))
+            finite = all(math.isfinite(float(v)) for v in vals)
+        except (ZeroDivisionError, OverflowError, FloatingPointError, ValueError) as exc:
+            raise ValueError(f"options['state'] {x0.tolist()} is outside the domain of {sysm.name} "
+                             f"({type(exc).__name__}: {exc}); the env keeps its previous state") from None
+        if not finite:
+            raise ValueError(f"options['state'] {x0.tolist()} gives non-finite energy or forces in {sysm.name}; "
+                             "the env keeps its previous state")
+
     def _validate_action(self, action: Any) -> tuple[list[float], bool]:
         """Action -> (clipped values as floats, clipped flag); ValueError on bad input (env untouched)."""
         if type(action) is np.ndarray and action.shape == self._action_shape and action.dtype.kind == "f":
             vals = action.tolist()  # fast path: the usual float array of the right shape
         else:
-            try:
-                a = np.asarray(action, dtype=np.float64)
-            except (TypeError, ValueError) as exc:
-                raise ValueError(f"action must be a numeric array of shape ({self.m},): {exc}") from None
+            a = _real_array(action, "action", ValueError)
             if a.shape != self._action_shape:
                 raise ValueError(f"action must have shape ({self.m},) (actuated dofs {list(self.actuated_dofs)}), got {a.shape}")
             vals = a.tolist()

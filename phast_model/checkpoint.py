@@ -15,7 +15,7 @@ from typing import Any
 
 import torch
 
-from phast_gym.fileio import atomic_write_bytes
+from phast_gym.fileio import atomic_write_bytes, jsonable
 from phast_gym.fileio import atomic_write_json as _atomic_write_json
 
 from .model import PHAST, PHASTConfig, build_from_config
@@ -23,6 +23,8 @@ from .model import PHAST, PHASTConfig, build_from_config
 FORMAT = "phast-run"
 VERSION = 1
 MODEL_FILE, CONFIG_FILE = "model.pt", "config.json"
+#: key of the run identity (config.json's content as UTF-8 JSON bytes) inside model.pt
+IDENTITY_KEY = "_phast_run_identity"
 
 
 def atomic_write_json(path: Path, obj: Any) -> None:
@@ -36,13 +38,26 @@ def save_run(model: PHAST, run_dir: str | Path, extra: dict[str, Any] | None = N
     cfg = getattr(model, "config", None)
     if not isinstance(cfg, PHASTConfig):
         raise ValueError(f"save_run needs a PHAST model with a PHASTConfig, got {type(model).__name__}")
-    buf = io.BytesIO()
-    torch.save({k: v.detach().cpu() for k, v in model.state_dict().items()}, buf)
-    atomic_write_bytes(run_dir / MODEL_FILE, buf.getvalue())
     dtype = str(next(model.parameters()).dtype).replace("torch.", "")
-    atomic_write_json(run_dir / CONFIG_FILE, {"format": FORMAT, "version": VERSION, "model": cfg.to_dict(),
-                                              "dtype": dtype, **(extra or {})})
+    meta = jsonable({"format": FORMAT, "version": VERSION, "model": cfg.to_dict(), "dtype": dtype, **(extra or {})})
+    state = {k: v.detach().cpu() for k, v in model.state_dict().items()}
+    # the run's identity travels inside model.pt (a uint8 tensor: still weights_only), so a model.pt of another
+    # run (another env, regime, data or training config) is refused by load_model even when the shapes match
+    state[IDENTITY_KEY] = torch.frombuffer(bytearray(_identity_json(meta).encode()), dtype=torch.uint8)
+    buf = io.BytesIO()
+    torch.save(state, buf)
+    atomic_write_bytes(run_dir / MODEL_FILE, buf.getvalue())
+    atomic_write_json(run_dir / CONFIG_FILE, meta)
     return run_dir
+
+
+def _identity(meta: dict[str, Any]) -> dict[str, Any]:
+    """What identifies a run in its config.json: everything but the format fields."""
+    return {k: v for k, v in meta.items() if k not in ("format", "version")}
+
+
+def _identity_json(meta: dict[str, Any]) -> str:
+    return json.dumps(_identity(meta), sort_keys=True, default=str)
 
 
 def read_config(run_dir: str | Path) -> dict[str, Any]:
@@ -61,15 +76,35 @@ def read_config(run_dir: str | Path) -> dict[str, Any]:
     return meta
 
 
+def torch_load(path: str | Path, what: str = "checkpoint") -> Any:
+    """``torch.load(path, weights_only=True)`` on CPU, or ValueError with a reason a person can act on
+    (missing, empty, truncated, not a torch file, unreadable)."""
+    path = Path(path)
+    if not path.exists():
+        raise ValueError(f"{what} {path} is missing")
+    try:
+        size = path.stat().st_size
+        if size == 0:
+            raise ValueError(f"corrupted or unreadable {what} {path}: the file is empty (0 bytes; an interrupted write?)")
+        if not zipfile.is_zipfile(path):
+            raise ValueError(f"corrupted or unreadable {what} {path}: truncated or not a torch checkpoint "
+                             f"({size} bytes, no zip directory)")
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except ValueError as exc:
+        if str(exc).startswith("corrupted or unreadable"):
+            raise
+        reason = exc
+    except (RuntimeError, EOFError, pickle.UnpicklingError, zipfile.BadZipFile, OSError, AttributeError, KeyError) as exc:
+        reason = exc
+    text = getattr(reason, "strerror", None) or (str(reason).splitlines() or [""])[0]
+    raise ValueError(f"corrupted or unreadable {what} {path}: {type(reason).__name__}"
+                     f"{': ' + text if text else ' (truncated file)'}") from None
+
+
 def load_state(path: str | Path) -> dict[str, torch.Tensor]:
     """A state dict saved by :func:`save_run` (``weights_only=True``), or ValueError."""
     path = Path(path)
-    if not path.exists():
-        raise ValueError(f"checkpoint {path} is missing")
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except (RuntimeError, EOFError, pickle.UnpicklingError, zipfile.BadZipFile, OSError, ValueError, AttributeError) as exc:
-        raise ValueError(f"corrupted or unreadable checkpoint {path}: {exc}") from None
+    state = torch_load(path)
     if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
         raise ValueError(f"{path} is not a PHAST state dict")
     return state
@@ -86,6 +121,19 @@ def load_model(run_dir: str | Path) -> PHAST:
     if meta.get("dtype") == "float64":
         model = model.double()
     state = load_state(Path(run_dir) / MODEL_FILE)
+    ident = state.pop(IDENTITY_KEY, None)  # absent in model.pt files written before identities were recorded
+    if ident is not None:
+        from .training import first_difference
+
+        try:
+            stored = json.loads(bytes(ident.to(torch.uint8).tolist()).decode())
+        except (ValueError, UnicodeDecodeError):
+            raise ValueError(f"{run_dir}/{MODEL_FILE} has a corrupted run identity") from None
+        diff = first_difference(stored, json.loads(_identity_json(meta)))
+        if diff is not None:
+            field_, old, new = diff
+            raise ValueError(f"{run_dir}/{MODEL_FILE} does not belong to {run_dir}/{CONFIG_FILE}: it was saved for "
+                             f"{field_}={old!r}, {CONFIG_FILE} says {field_}={new!r}")
     try:
         model.load_state_dict(state, strict=True)
     except RuntimeError as exc:

@@ -15,8 +15,6 @@ import copy
 import io
 import json
 import math
-import os
-import tempfile
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -25,6 +23,8 @@ from typing import Any
 import numpy as np
 import torch
 from tqdm.auto import tqdm
+
+from phast_gym.fileio import atomic_write_bytes
 
 from .interfaces import ForecastModel, coordinate_error
 
@@ -118,18 +118,11 @@ def validation_loss(model: ForecastModel, q: torch.Tensor, u: torch.Tensor | Non
 
 
 def _atomic_torch_save(obj: Any, path: Path) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            buf = io.BytesIO()
-            torch.save(obj, buf)
-            fh.write(buf.getvalue())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    """Serialize in memory, then one atomic write (a killed writer leaves no partial checkpoint; its temp file is
+    removed by the next write, see :func:`phast_gym.fileio.remove_stale_temps`)."""
+    buf = io.BytesIO()
+    torch.save(obj, buf)
+    atomic_write_bytes(path, buf.getvalue())
 
 
 def _resolved(cfg: TrainConfig, model: Any, name: str, default: float) -> float:
@@ -158,13 +151,78 @@ def _finite_params(model: torch.nn.Module) -> bool:
     return all(bool(torch.isfinite(p).all()) for p in model.parameters())
 
 
+#: TrainConfig fields that do not change what a run computes (a resume may change them)
+_NOT_IDENTITY = ("progress",)
+
+
+def _canonical(obj: Any) -> Any:
+    return json.loads(json.dumps(obj, sort_keys=True, default=str))
+
+
+def run_identity(cfg: TrainConfig, identity: dict[str, Any] | None = None) -> dict[str, Any]:
+    """What a checkpoint must match to be resumed: the training config (but ``progress``) and the caller's
+    ``identity`` (env, regime, data, model overrides ...), as canonical JSON values."""
+    train = {k: v for k, v in asdict(cfg).items() if k not in _NOT_IDENTITY}
+    return _canonical({"train": train, **(identity or {})})
+
+
+#: fields compared (and so named) first: the ones a person recognizes
+_FIRST = ("env_id", "regime", "model", "data", "train")
+
+
+def first_difference(stored: Any, wanted: Any, prefix: str = "") -> tuple[str, Any, Any] | None:
+    """(dotted field, stored value, wanted value) of the first field where two JSON values differ (env, regime,
+    model, data and training fields first), else None."""
+    if isinstance(stored, dict) and isinstance(wanted, dict):
+        for k in sorted(set(stored) | set(wanted), key=lambda k: (k not in _FIRST, _FIRST.index(k) if k in _FIRST else 0, k)):
+            d = first_difference(stored.get(k, "<absent>"), wanted.get(k, "<absent>"), f"{prefix}{k}.")
+            if d is not None:
+                return d
+        return None
+    return None if stored == wanted else (prefix.rstrip("."), stored, wanted)
+
+
+def check_resume(ckpt_path: str | Path, cfg: TrainConfig, identity: dict[str, Any] | None = None,
+                 ck: dict[str, Any] | None = None) -> None:
+    """ValueError naming the first differing field when ``ckpt_path`` was written by another run (env, regime,
+    data, training config ...); nothing to check when it does not exist.  Cheap enough to call before any work."""
+    ckpt_path = Path(ckpt_path)
+    if ck is None:
+        if not ckpt_path.exists():
+            return
+        ck = _load_checkpoint(ckpt_path)
+    stored = ck.get("identity")
+    if not isinstance(stored, str):
+        raise ValueError(f"cannot resume from {ckpt_path}: it records no run identity (written by an older phast), so "
+                         "it cannot be checked against this run; remove it to start over")
+    diff = first_difference(json.loads(stored), run_identity(cfg, identity))
+    if diff is not None:
+        field_, old, new = diff
+        raise ValueError(f"cannot resume from {ckpt_path}: it was written for {field_}={old!r}, this run asks for "
+                         f"{field_}={new!r}; use another output directory or the original settings")
+
+
+def _load_checkpoint(ckpt_path: Path) -> dict[str, Any]:
+    from .checkpoint import torch_load
+
+    try:
+        ck = torch_load(ckpt_path)
+    except ValueError as exc:
+        raise ValueError(f"cannot resume: {exc}; remove it to start over") from None
+    if not isinstance(ck, dict):
+        raise ValueError(f"cannot resume from {ckpt_path}: not a training checkpoint")
+    return ck
+
+
 def fit(model: ForecastModel, train: Any, val: Any, cfg: TrainConfig | None = None,
-        run_dir: str | Path | None = None, resume: bool = False) -> FitResult:
+        run_dir: str | Path | None = None, resume: bool = False, identity: dict[str, Any] | None = None) -> FitResult:
     """Train ``model`` on ``train`` (a :class:`phast_gym.datasets.Dataset` or anything with ``q``/``u``),
     select on ``val``; returns a :class:`FitResult` whose ``.model`` holds the best-validation weights.
 
     With ``run_dir``, ``checkpoint.pt`` is written atomically after every ``checkpoint_every`` epochs
-    and ``resume=True`` continues from it (model, optimizer, scheduler, RNG, history, best state)."""
+    and ``resume=True`` continues from it (model, optimizer, scheduler, RNG, history, best state).  The checkpoint
+    records the run's identity (the training config and ``identity``: env, regime, data ...); resuming a checkpoint
+    of another run is a ValueError naming the differing field (:func:`check_resume`)."""
     cfg = cfg or TrainConfig()
     dtype = torch.float32 if cfg.dtype == "float32" else torch.float64
     model = model.to(dtype)
@@ -193,16 +251,14 @@ def fit(model: ForecastModel, train: Any, val: Any, cfg: TrainConfig | None = No
     start_epoch, nan_events, elapsed0 = 0, 0, 0.0
     ckpt_path = Path(run_dir) / CHECKPOINT if run_dir is not None else None
     if resume and ckpt_path is not None and ckpt_path.exists():
+        ck = _load_checkpoint(ckpt_path)
+        check_resume(ckpt_path, cfg, identity, ck)
         try:
-            ck = torch.load(ckpt_path, map_location="cpu", weights_only=True)
             model.load_state_dict(ck["model"])
             opt.load_state_dict(ck["optimizer"])
             sched.load_state_dict(ck["scheduler"])
         except Exception as exc:  # noqa: BLE001 - any failure means an unusable checkpoint
-            raise ValueError(f"cannot resume from {ckpt_path}: {exc}") from None
-        if ck.get("train_config", {}).get("epochs") != cfg.epochs:
-            raise ValueError(f"{ckpt_path} was written for epochs={ck.get('train_config', {}).get('epochs')}, "
-                             f"resume asked for epochs={cfg.epochs}")
+            raise ValueError(f"cannot resume from {ckpt_path}: {type(exc).__name__}: {exc}") from None
         gen.set_state(ck["gen_state"])
         torch.set_rng_state(ck["torch_rng"])
         history = json.loads(ck["history"])
@@ -217,6 +273,7 @@ def fit(model: ForecastModel, train: Any, val: Any, cfg: TrainConfig | None = No
             "gen_state": gen.get_state(), "torch_rng": torch.get_rng_state(), "history": json.dumps(history),
             "best_val": best_val, "best_epoch": best_epoch, "best_state": best_state, "epoch": epoch,
             "nan_events": nan_events, "elapsed": elapsed, "train_config": asdict(cfg),
+            "identity": json.dumps(run_identity(cfg, identity), sort_keys=True),
         }, ckpt_path)
 
     t0 = time.perf_counter() - elapsed0

@@ -185,3 +185,84 @@ def test_env_energy_rejects_non_hamiltonian_env() -> None:
     with pytest.raises(ValueError, match="not port-Hamiltonian"):
         env_energy("PHAST/PredatorPrey-v0", q, 0.1, ())
     assert env_energy("PHAST/RLCCircuit-v0", q, 0.1, ()).shape == (1, 4)
+
+
+def _alive(pid: int) -> bool:
+    """A process that still runs (a zombie waiting to be reaped counts as gone)."""
+    try:
+        with open(f"/proc/{pid}/status") as fh:
+            return not any(line.startswith("State:") and "Z" in line.split()[1] for line in fh)
+    except FileNotFoundError:
+        return False
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_killed_sweep_leaves_no_live_workers(tmp_path: Path) -> None:
+    """SIGKILL of ``phast-bench --workers 2`` mid-training: its workers die with it (no orphan keeps training and
+    writing checkpoints), and the run directories are not left locked for a rerun."""
+    import os
+    import signal
+    import time
+
+    from phast_gym.fileio import dir_lock
+
+    out = tmp_path / "sweep"
+    root = str(Path(__file__).resolve().parents[1])
+    env = {**os.environ, "PYTHONPATH": root + os.pathsep + os.environ.get("PYTHONPATH", ""), "OMP_NUM_THREADS": "1"}
+    cmd = [sys.executable, "-m", "phast_model.cli.bench", "--envs", "Pendulum-v0", "--models", "gru", "--seeds", "0-1",
+           "--epochs", "100000", "--n-train", "4", "--n-val", "2", "--n-test", "2", "--T", "20", "--horizons", "5",
+           "--burn-in", "5", "--train", "batch_size=4", "--out", str(out), "--workers", "2", "--no-progress"]
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    pids: list[int] = []
+    try:
+        deadline = time.monotonic() + 120
+        while len(pids) < 2:  # both workers hold their run's lock (the lock file names the holder) and train
+            assert proc.poll() is None and time.monotonic() < deadline, "the workers never started training"
+            time.sleep(0.2)
+            locks = [p / ".lock" for p in (out / "work").glob("*/*/*") if (p / "checkpoint.pt").exists()]
+            pids = [int(t) for lk in locks if (t := lk.read_text().strip()).isdigit()]
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    assert proc.pid not in pids and all(pid != os.getpid() for pid in pids)
+    deadline = time.monotonic() + 30
+    while any(_alive(pid) for pid in pids) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not any(_alive(pid) for pid in pids), "workers outlived the killed sweep"
+    for wdir in (out / "work").glob("*/*/*"):
+        with dir_lock(wdir):  # free again: a rerun can take it
+            pass
+
+
+def test_run_directory_lock_is_exclusive(tmp_path: Path) -> None:
+    from phast_gym.fileio import DirLocked, dir_lock
+
+    with dir_lock(tmp_path):
+        code = f"from phast_gym.fileio import dir_lock\nwith dir_lock({str(tmp_path)!r}): pass"
+        res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                             env={**__import__("os").environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])})
+        assert res.returncode != 0 and "in use by another process" in res.stderr
+    with pytest.raises(DirLocked):
+        with dir_lock(tmp_path):
+            with dir_lock(tmp_path):
+                pass
+
+
+@pytest.mark.parametrize("bad, msg", [(["--workers", "0"], "--workers"), (["--workers", "-4"], "--workers"),
+                                      (["--models", ""], "--models is empty"), (["--envs", " , "], "--envs is empty"),
+                                      (["--seeds", "0-100000000", "--dry-run"], "more than 10000 seeds"),
+                                      (["--seeds", "0-999", "--dry-run"], "more than 20000")])
+def test_cli_rejects_bad_grid_at_once(tmp_path: Path, capsys: pytest.CaptureFixture, bad: list[str], msg: str) -> None:
+    import time
+
+    t0 = time.perf_counter()
+    assert main(["--out", str(tmp_path / "o"), *bad]) == 2
+    assert msg in capsys.readouterr().err
+    assert time.perf_counter() - t0 < 5 and not (tmp_path / "o").exists()
+
+
+def test_cli_refuses_unwritable_out_before_any_run(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    (tmp_path / "file").write_text("x")
+    assert main(["--envs", "Pendulum-v0", "--models", "gru", "--seeds", "0", "--out", str(tmp_path / "file"),
+                 "--workers", "1", "--no-progress"]) == 2
+    assert "not a directory" in capsys.readouterr().err

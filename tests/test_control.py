@@ -217,3 +217,16 @@ def test_phast_estimators_with_untrained_model() -> None:
         PHASTObserverEstimator(make_control_env(ControlProtocol(dt=0.03)).unwrapped.system, 0.03, model)
     with pytest.raises(ValueError, match="phast-run"):
         make_estimator("phast-model", system, 0.01)
+
+
+def test_cli_bad_estimators_and_unwritable_out_fail_before_evaluating(tmp_path, capsys, monkeypatch) -> None:
+    import phast_model.cli.control_eval as ce
+
+    monkeypatch.setattr(ce, "evaluate", lambda *a, **k: pytest.fail("evaluation started"))
+    assert ce.main(["--estimators", "", "--out", str(tmp_path / "a")]) == 2
+    assert "--estimators is empty" in capsys.readouterr().err
+    assert ce.main(["--estimators", " , ", "--out", str(tmp_path / "a")]) == 2
+    (tmp_path / "file").write_text("x")
+    assert ce.main(["--estimators", "oracle", "--out", str(tmp_path / "file" / "sub")]) == 2
+    assert "cannot write to --out" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]

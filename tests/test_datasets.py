@@ -74,6 +74,8 @@ def test_actuated_dofs_and_u_validation() -> None:
         make_dataset("PHAST/WindyCartPole-v0", 3, T=10, actuated_dofs=[1, 1], cache=False)
     with pytest.raises(ValueError, match="n_traj"):
         make_dataset("PHAST/Pendulum-v0", 0, T=5, cache=False)
+    with pytest.raises(ValueError, match="integer indices"):
+        make_dataset("PHAST/WindyCartPole-v0", 3, T=10, actuated_dofs=[0.5], cache=False)
     with pytest.raises(ValueError, match="env kwarg"):
         make_dataset("PHAST/Pendulum-v0", 2, T=5, render_mode="rgb_array", cache=False)
     with pytest.raises(gym.error.Error):
@@ -136,3 +138,32 @@ def test_cache_writes_are_atomic() -> None:
     make_dataset("PHAST/HeatExchange-v0", 3, T=10, seed=2)
     leftovers = [f for f in os.listdir(cache_dir()) if ".tmp" in f]
     assert leftovers == []
+
+
+@pytest.mark.parametrize("noise", [-1.0, float("nan"), float("inf"), "0.1", True])
+def test_bad_obs_noise_std_is_rejected_and_nothing_cached(noise) -> None:
+    before = set(os.listdir(cache_dir())) if cache_dir().exists() else set()
+    with pytest.raises(ValueError, match="obs_noise_std"):
+        make_dataset("PHAST/Pendulum-v0", 2, T=5, seed=123, obs_noise_std=noise)
+    after = set(os.listdir(cache_dir())) if cache_dir().exists() else set()
+    assert after == before
+
+
+def test_stale_temp_of_a_killed_write_is_removed(tmp_path) -> None:
+    """A killed writer's temp file (its pid gone, or a legacy tmp*.tmp older than a day) goes with the next write."""
+    import subprocess
+    import sys
+
+    from phast_gym.fileio import _HOST, atomic_write_bytes
+
+    proc = subprocess.Popen([sys.executable, "-c", "pass"])
+    proc.wait()  # a pid that no longer runs
+    dead = tmp_path / f".x.bin.{_HOST}-{proc.pid}.abc123.tmp"
+    dead.write_bytes(b"")
+    legacy = tmp_path / "tmpab12cd.tmp"
+    legacy.write_bytes(b"")
+    os.utime(legacy, (0, 0))
+    live = tmp_path / f".x.bin.{_HOST}-{os.getppid()}.zz.tmp"  # a live writer's temp is kept
+    live.write_bytes(b"")
+    atomic_write_bytes(tmp_path / "x.bin", b"data")
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["x.bin", live.name])

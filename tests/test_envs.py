@@ -113,7 +113,8 @@ def test_observe_qp() -> None:
     assert np.allclose(obs, [0.5, -1.5])
 
 
-@pytest.mark.parametrize("bad", [np.array([np.nan]), np.array([np.inf]), np.zeros(2), np.zeros((1, 1)), "a", None])
+@pytest.mark.parametrize("bad", [np.array([np.nan]), np.array([np.inf]), np.zeros(2), np.zeros((1, 1)), "a", None,
+                                 np.array([1.0 + 2.0j]), [1.0 + 0.0j], "1.5", ["1.5"], np.array(["1.5"])])
 def test_bad_action_raises_and_leaves_env_unchanged(bad) -> None:
     env = gym.make("PHAST/WindyPendulum-v0")
     env.reset(seed=0)
@@ -150,7 +151,8 @@ def test_in_range_action_applied_exactly_and_reward() -> None:
     "kwargs",
     [{"mass": -1.0}, {"length": 0.0}, {"gamma": -0.1}, {"no_such_param": 1.0}, {"actuated_dofs": [3]},
      {"obs_noise_std": -0.1}, {"observe": "p"}, {"max_action": 0.0}, {"render_mode": "ansi"}, {"target": [0.0, 1.0]},
-     {"mass": float("nan")}, {"mass": "heavy"}],
+     {"mass": float("nan")}, {"mass": "heavy"}, {"target": [float("nan")]}, {"target": ["up"]}, {"actuated_dofs": [0.5]},
+     {"actuated_dofs": [True]}],
 )
 def test_bad_kwargs_raise_at_make(kwargs) -> None:
     with pytest.raises(ValueError):
@@ -247,3 +249,16 @@ def test_demo_runner_skips_a_missing_stage(tmp_path) -> None:
     spec.loader.exec_module(demo)
     result = demo.run_stage("no_such_stage", tmp_path)
     assert result["status"] == "skipped" and "demo_no_such_stage.py" in result["reason"]
+
+
+def test_reset_to_a_singular_state_raises_and_keeps_the_env() -> None:
+    """Coincident Lennard-Jones particles: a clear ValueError before anything is assigned; the env still steps."""
+    env = gym.make("PHAST/LennardJones3-v0").unwrapped
+    env.reset(seed=0)
+    env.step(_zero(env))
+    before = (env.state.copy(), env._t)
+    with pytest.raises(ValueError, match="outside the domain of lennard_jones3"):
+        env.reset(options={"state": np.zeros(12)})
+    assert np.array_equal(env.state, before[0]) and env._t == before[1]
+    obs, *_ = env.step(_zero(env))
+    assert np.all(np.isfinite(obs))

@@ -436,3 +436,41 @@ def test_armature_candidate():
     (arm,) = [c for c in candidates(problem, system) if c.term == "armature"]
     M = float(np.asarray(sys0.mass_matrix((rec.q[..., 0],))[0][0]).mean())
     assert arm.coordinate == 0 and arm.must_be_positive and abs(arm.scale - 0.05 * M) < 1e-12 * M
+
+
+@pytest.mark.parametrize("bad, msg", [(["--threshold", "-1"], "--threshold"), (["--threshold", "nan"], "--threshold"),
+                                      (["--max-terms", "-3"], "--max-terms"), (["--shoot-window", "0"], "--shoot-window"),
+                                      (["--smoothing-window", "1"], "--smoothing-window"),
+                                      (["--rollout-window", "-2"], "--rollout-window")])
+def test_cli_rejects_out_of_range_options_before_analysis(tmp_path, capsys, monkeypatch, bad, msg):
+    import phast_model.mismatch as mm
+    from phast_model.cli.mismatch import main
+
+    monkeypatch.setattr(mm, "analyze", lambda *a, **k: pytest.fail("analysis started"))
+    np.savez(tmp_path / "rec.npz", **_ok())
+    assert main(["--sim", "PHAST/Pendulum-v0", "--recordings", str(tmp_path / "rec.npz"), "--out", str(tmp_path / "out"),
+                 "--quiet", *bad]) == 2
+    assert msg in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.npz"]
+
+
+@pytest.mark.parametrize("name, content, match", [
+    ("empty.npz", b"", "is empty"),
+    ("noarrays.npz", None, "no arrays"),
+    ("header.csv", "traj,t,q0\n", "header .* but no data rows"),
+    ("short.csv", "traj,t,q0\n0,0,1\n0,0.1\n", "line 3 has 2 values, the header has 3 columns"),
+    ("long.csv", "traj,t,q0\n0,0,1,5\n0,0.1,2\n", "line 2 has 4 values"),
+    ("text.csv", "traj,t,q0\n0,0,1\n0,0.1,x\n", "line 3 has a non-numeric value 'x'"),
+])
+def test_unusable_recording_files_name_the_problem(tmp_path, name, content, match):
+    from phast_model.mismatch import load_raw
+
+    path = tmp_path / name
+    if content is None:
+        np.savez(path)
+    elif isinstance(content, bytes):
+        path.write_bytes(content)
+    else:
+        path.write_text(content)
+    with pytest.raises(ValueError, match=match):
+        load_raw(path)

@@ -143,7 +143,7 @@ def test_corrupted_and_foreign_checkpoints(tmp_path):
     foreign = tmp_path / "foreign"
     save_run(build_model("PHAST/WindyCartPole-v0", "known"), foreign)
     (foreign / "config.json").write_text((tmp_path / "ok" / "config.json").read_text())
-    with pytest.raises(ValueError, match="does not match"):
+    with pytest.raises(ValueError, match="does not belong.*env_id='PHAST/WindyCartPole-v0'"):
         load_run(foreign)
     other = tmp_path / "other"
     other.mkdir()
@@ -218,3 +218,91 @@ def test_latent_prior_trains_only_on_first_step():
         model.prior_raw.add_(1.0)
     moved = model(q)
     assert not torch.allclose(base[:, 0], moved[:, 0]) and torch.allclose(base[:, 1:], moved[:, 1:])
+
+
+TINY = ["--n-train", "8", "--n-val", "4", "--n-test", "4", "--T", "40", "--no-progress", "--no-plots"]
+
+
+def _train_cmd(out, *extra):
+    return ["--env", ENV, "--regime", "partial", "--out", str(out), *TINY, *extra]
+
+
+def test_killed_run_resumed_with_another_env_or_config_is_refused(tmp_path, capsys):
+    """Kill phast-train mid-run, then --resume under another env / lr / seed / n-train: exit 2 naming the field,
+    and the run directory is left as it was (no config.json written beside the old checkpoint)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    from phast_model.cli.train import main
+
+    out = tmp_path / "run"
+    root = str(Path(__file__).resolve().parents[1])
+    env = {**os.environ, "PYTHONPATH": root + os.pathsep + os.environ.get("PYTHONPATH", ""), "OMP_NUM_THREADS": "1"}
+    proc = subprocess.Popen([sys.executable, "-m", "phast_model.cli.train", *_train_cmd(out, "--epochs", "100000")],
+                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120
+        while not (out / "checkpoint.pt").exists():
+            assert proc.poll() is None and time.monotonic() < deadline, "phast-train never wrote a checkpoint"
+            time.sleep(0.1)
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    before = sorted(p.name for p in out.iterdir())
+    for extra, field in ((["--env", "PHAST/Pendulum-v0"], "env_id"), (["--lr", "0.01"], "train.lr"),
+                         (["--seed", "3"], "train.seed"), (["--n-train", "9"], "data.n_train")):
+        argv = _train_cmd(out, "--epochs", "100000", "--resume")
+        if extra[0] == "--env":
+            argv[1] = extra[1]
+        else:
+            argv += extra
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert f"written for {field}=" in err, err
+    assert sorted(p.name for p in out.iterdir()) == before and not (out / "config.json").exists()
+
+
+def test_load_run_refuses_model_pt_of_another_env_with_the_same_shapes(tmp_path):
+    save_run(build_model(ENV, "partial"), tmp_path / "windy")
+    save_run(build_model("PHAST/Pendulum-v0", "partial"), tmp_path / "plain")
+    (tmp_path / "windy" / "model.pt").write_bytes((tmp_path / "plain" / "model.pt").read_bytes())
+    with pytest.raises(ValueError, match="does not belong.*model.env_id='PHAST/Pendulum-v0'"):
+        load_run(tmp_path / "windy")
+
+
+@pytest.mark.parametrize("bad", [["--n-train", "0"], ["--n-val", "0"], ["--n-test", "0"], ["--n-test", "-2"],
+                                 ["--obs-noise-std", "-1"], ["--obs-noise-std", "nan"], ["--obs-noise-std", "inf"]])
+def test_phast_train_rejects_empty_splits_and_bad_noise_before_any_work(tmp_path, capsys, bad):
+    from phast_model.cli.train import main
+
+    out = tmp_path / "run"
+    assert main(_train_cmd(out, "--epochs", "1", *bad)) == 2
+    assert bad[0] in capsys.readouterr().err.replace("obs_noise_std", "--obs-noise-std")
+    assert not out.exists()  # nothing trained, nothing written
+
+
+def test_phast_train_refuses_an_unwritable_out_before_training(tmp_path, capsys):
+    from phast_model.cli.train import main
+
+    (tmp_path / "file").write_text("x")
+    assert main(_train_cmd(tmp_path / "file", "--epochs", "1")) == 2
+    assert "not a directory" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("content", [b"", "half"])
+def test_empty_or_truncated_checkpoints_give_a_reason(tmp_path, content):
+    save_run(build_model(ENV, "known"), tmp_path)
+    data = (tmp_path / "model.pt").read_bytes()
+    (tmp_path / "model.pt").write_bytes(data[: len(data) // 2] if content == "half" else content)
+    reason = "truncated" if content == "half" else "empty"
+    with pytest.raises(ValueError, match=f"corrupted or unreadable checkpoint .*{reason}"):
+        load_run(tmp_path)
+    (tmp_path / "checkpoint.pt").write_bytes((tmp_path / "model.pt").read_bytes())
+    cfg = TrainConfig(epochs=1, progress=False)
+    with pytest.raises(ValueError, match=f"cannot resume: .*{reason}"):
+        fit(build_model(ENV, "known"), make_splits(ENV, 4, 2, 2, T=20, seed=3)["train"],
+            make_splits(ENV, 4, 2, 2, T=20, seed=3)["val"], cfg, run_dir=tmp_path, resume=True)

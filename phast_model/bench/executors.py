@@ -1,7 +1,8 @@
 """Executors behind one interface: run the same function over many run configs.
 
 * :class:`LocalExecutor` (default): a process pool over the machine's cores
-  (``spawn`` context, one torch thread per worker); ``workers=1`` runs inline.
+  (``spawn`` context, one torch thread per worker); ``workers=1`` runs inline.  Workers
+  die with the process that started them (a killed sweep leaves none behind).
 * :class:`RayExecutor` (``--backend ray``, extra ``ray``): one Ray task per run
   (``num_cpus=1``) on a local or remote cluster (``address``).  Ray is imported
   lazily, so the harness works without it.
@@ -30,7 +31,37 @@ class Executor:
         """Release workers (idempotent)."""
 
 
-def _init_worker(threads: int) -> None:
+def _exit_with_parent(parent_pid: int, poll_s: float = 0.5) -> None:
+    """Make this worker die with the sweep that started it: on Linux the kernel sends SIGKILL when the parent
+    dies (``PR_SET_PDEATHSIG``); everywhere, a daemon thread exits the process once it is orphaned (its parent
+    pid changes).  A killed ``phast-bench`` so leaves no worker training and writing checkpoints."""
+    import signal
+    import sys
+    import threading
+    import time
+
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
+        except (OSError, AttributeError):  # pragma: no cover - no libc prctl: the watchdog still runs
+            pass
+    if os.getppid() != parent_pid:  # the parent died before the signal was armed
+        os._exit(1)
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(poll_s)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="phast-bench-parent-watch", daemon=True).start()
+
+
+def _init_worker(threads: int, parent_pid: int | None = None) -> None:
+    if parent_pid is not None:
+        _exit_with_parent(parent_pid)
     os.environ.setdefault("OMP_NUM_THREADS", str(threads))
     import torch
 
@@ -43,8 +74,11 @@ class LocalExecutor(Executor):
     name = "local"
 
     def __init__(self, workers: int | None = None, threads: int = 1) -> None:
-        self.workers = max(1, int(workers or os.cpu_count() or 1))
-        self.threads = max(1, int(threads))
+        for name, v in (("workers", workers), ("threads", threads)):
+            if v is not None and (isinstance(v, bool) or int(v) != v or v < 1):
+                raise ValueError(f"{name} must be a positive integer, got {v!r}")
+        self.workers = int(workers or os.cpu_count() or 1)
+        self.threads = int(threads)
         self._pool: ProcessPoolExecutor | None = None
 
     def map_unordered(self, fn: Callable[..., dict], configs: list[dict], out_dir: str) -> Iterator[dict]:
@@ -53,7 +87,7 @@ class LocalExecutor(Executor):
                 yield fn(cfg, out_dir, self.threads)
             return
         self._pool = ProcessPoolExecutor(max_workers=min(self.workers, len(configs)), mp_context=get_context("spawn"),
-                                         initializer=_init_worker, initargs=(self.threads,))
+                                         initializer=_init_worker, initargs=(self.threads, os.getpid()))
         futures = {self._pool.submit(fn, cfg, out_dir, self.threads) for cfg in configs}
         while futures:
             done, futures = wait(futures, return_when=FIRST_COMPLETED)

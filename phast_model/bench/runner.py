@@ -11,8 +11,8 @@ never redone and an interrupted sweep resumes where it stopped.
 from __future__ import annotations
 
 import dataclasses
+import io
 import json
-import os
 import platform
 import socket
 import time
@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from phast_gym.fileio import atomic_write_text
+from phast_gym.fileio import atomic_write_bytes, atomic_write_text, dir_lock
 from phast_gym.fileio import jsonable as _jsonable
 
 from .spec import RunSpec, run_key
@@ -140,6 +140,17 @@ def run_one(config: dict[str, Any], out_dir: str, threads: int = 1) -> dict[str,
     if cached is not None:
         return {**cached, "status": "cached"}
     torch.set_num_threads(max(1, int(threads)))
+    wdir = work_dir(out_dir, spec)
+    with dir_lock(wdir):  # one writer per run: a second sweep over the same OUT reports this run as in use
+        cached = load_result(out_dir, spec)  # finished while we waited for the lock
+        if cached is not None:
+            return {**cached, "status": "cached"}
+        return _train_and_score(spec, out_dir, wdir)
+
+
+def _train_and_score(spec: RunSpec, out_dir: str, wdir: Path) -> dict[str, Any]:
+    import torch
+
     from phast_model.metrics import evaluate
     from phast_model.training import fit
 
@@ -149,9 +160,7 @@ def run_one(config: dict[str, Any], out_dir: str, threads: int = 1) -> dict[str,
     np.random.seed(spec.seed)
     model = build_run_model(spec, splits["train"])
     cfg = make_train_config(spec)
-    wdir = work_dir(out_dir, spec)
-    wdir.mkdir(parents=True, exist_ok=True)
-    fit_res = fit(model, splits["train"], splits["val"], cfg, run_dir=wdir, resume=True)
+    fit_res = fit(model, splits["train"], splits["val"], cfg, run_dir=wdir, resume=True, identity=spec.config())
     t_fit = time.perf_counter() - t0
     fitted = fit_res.model
     fitted.eval()
@@ -160,9 +169,9 @@ def run_one(config: dict[str, Any], out_dir: str, threads: int = 1) -> dict[str,
         test = dataclasses.replace(test, env_id="")
     metrics = evaluate(fitted, test, horizons=tuple(spec.horizons), burn_in=spec.burn_in)
     # the weights the metrics came from, for figures (state_dict only: torch.load(weights_only=True))
-    tmp = wdir / ".bench_model.pt.tmp"
-    torch.save(fitted.state_dict(), tmp)
-    os.replace(tmp, wdir / "bench_model.pt")
+    buf = io.BytesIO()
+    torch.save(fitted.state_dict(), buf)
+    atomic_write_bytes(wdir / "bench_model.pt", buf.getvalue())
     rec = {
         "key": run_key(spec), "env": spec.env_id, "model": spec.model, "seed": spec.seed,
         "config": spec.config(), "metrics": _jsonable(metrics), "params": int(fitted.n_parameters()),

@@ -74,8 +74,13 @@ def run_key(spec: RunSpec) -> str:
     return hashlib.sha256(blob).hexdigest()[:16]
 
 
-def parse_seeds(text: str) -> list[int]:
-    """``"0-4"`` -> [0..4]; ``"0,2,5"`` -> [0, 2, 5]; mixes allowed (``"0-2,7"``)."""
+#: most seeds one grid may ask for (a typo such as 0-100000000 is refused at once instead of running for minutes)
+MAX_SEEDS = 10_000
+
+
+def parse_seeds(text: str, max_seeds: int = MAX_SEEDS) -> list[int]:
+    """``"0-4"`` -> [0..4]; ``"0,2,5"`` -> [0, 2, 5]; mixes allowed (``"0-2,7"``); more than ``max_seeds`` seeds is
+    a ValueError (checked on the ranges' sizes, before any list is built)."""
     out: list[int] = []
     for part in str(text).split(","):
         part = part.strip()
@@ -86,9 +91,11 @@ def parse_seeds(text: str) -> list[int]:
             lo, hi = int(a), int(b or a)
             if lo < 0 or hi < lo:
                 raise ValueError
-            out.extend(range(lo, hi + 1))
         except ValueError:
             raise ValueError(f"bad seed list {text!r}: use e.g. '0-4' or '0,1,2'") from None
+        if len(out) + hi - lo + 1 > max_seeds:
+            raise ValueError(f"seed list {text!r} asks for more than {max_seeds} seeds")
+        out.extend(range(lo, hi + 1))
     if not out:
         raise ValueError(f"empty seed list {text!r}")
     return sorted(set(out))

@@ -20,6 +20,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from phast_gym.fileio import ensure_writable_dir
 from phast_model.bench import (
     ALL_MODELS,
     KNOWN_MODELS,
@@ -31,11 +32,17 @@ from phast_model.bench import (
     write_reports,
 )
 
+#: most runs one invocation may ask for (the paper grid is 13 x 10 x 5 = 650)
+MAX_RUNS = 20_000
+
 
 def _parse_list(text: str, all_values: tuple[str, ...], what: str) -> list[str]:
     if text.strip().lower() == "all":
         return list(all_values)
-    return [t.strip() for t in text.split(",") if t.strip()]
+    out = [t.strip() for t in text.split(",") if t.strip()]
+    if not out:
+        raise ValueError(f"--{what}s is empty: give 'all' or a comma-separated list")
+    return out
 
 
 def _parse_kv(items: list[str] | None) -> dict[str, Any]:
@@ -96,10 +103,19 @@ def main(argv: list[str] | None = None) -> int:
         if bad:
             raise ValueError(f"unknown model(s) {bad}; known: {', '.join(KNOWN_MODELS)}")
         seeds = parse_seeds(args.seeds)
+        for name in ("workers", "threads"):
+            v = getattr(args, name)
+            if v is not None and v < 1:
+                raise ValueError(f"--{name} must be >= 1, got {v}")
+        if len(envs) * len(models) * len(seeds) > MAX_RUNS:
+            raise ValueError(f"the grid has {len(envs) * len(models) * len(seeds)} runs (more than {MAX_RUNS}); "
+                             "ask for fewer envs, models or seeds")
         horizons = tuple(int(h) for h in args.horizons.split(",") if h.strip())
         specs = grid(envs, models, seeds, epochs=args.epochs, n_train=args.n_train, n_val=args.n_val,
                      n_test=args.n_test, T=args.T, data_seed=args.data_seed, horizons=horizons, burn_in=args.burn_in,
                      train=_parse_kv(args.train), model_kw=_parse_kv(args.model_kw), full_state=args.full_state)
+        if not args.dry_run:
+            ensure_writable_dir(args.out, "--out")
     except Exception as exc:  # noqa: BLE001 - bad input: one clear line, nothing written
         print(f"phast-bench: error: {exc}", file=sys.stderr)
         return 2

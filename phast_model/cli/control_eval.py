@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from phast_gym.control import REGIMES, ControlProtocol, estimator_names, evaluate, make_estimator
-from phast_gym.fileio import atomic_write_text
+from phast_gym.fileio import atomic_write_text, ensure_writable_dir
 from phast_gym.systems import wrap
 
 #: upright (q_star = pi) defaults: k_c > m g l = 9.81 with margin, stronger damping injection
@@ -85,6 +85,10 @@ def run(args: argparse.Namespace) -> list[dict[str, Any]]:
         raise ValueError(f"--sigma values must be >= 0, got {sigmas}")
     (q_star,) = _parse_floats(args.q_star, "--q-star")
     names = [s.strip() for s in args.estimators.split(",") if s.strip()]
+    if not names:
+        raise ValueError(f"--estimators is empty: give a comma-separated list from {estimator_names()}")
+    if args.trials_per_regime < 1:
+        raise ValueError(f"--trials-per-regime must be >= 1, got {args.trials_per_regime}")
     unknown = [n for n in names if n not in estimator_names()]
     if unknown:
         raise ValueError(f"unknown estimator(s) {unknown}; valid names are {estimator_names()}")
@@ -95,8 +99,7 @@ def run(args: argparse.Namespace) -> list[dict[str, Any]]:
     d_inj = args.d_inj if args.d_inj is not None else (UPRIGHT_D_INJ if upright else ControlProtocol.d_inj)
     protocol = ControlProtocol(env_id=args.env, dt=args.dt, horizon=args.horizon, q_star=q_star, k_c=k_c, d_inj=d_inj,
                                k_xi=args.k_xi, tol=args.tol, u_tol=args.u_tol)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = ensure_writable_dir(args.out, "--out")  # before the evaluation, not after it
     cache = Path(args.tcn_cache) if args.tcn_cache else out / "observers"
     if any(n.startswith("tcn") or n.startswith("phast") for n in names):
         import torch

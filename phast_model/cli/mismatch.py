@@ -52,6 +52,24 @@ def parse_indices(text: str | None) -> list[int] | None:
     return out
 
 
+def check_args(args: argparse.Namespace) -> None:
+    """Numeric options in range, before any work; ValueError naming the option."""
+    import math
+
+    if not (math.isfinite(args.threshold) and args.threshold > 0):
+        raise ValueError(f"--threshold must be a positive number (a significance |coefficient|/std), got {args.threshold}")
+    if args.max_terms < 0:
+        raise ValueError(f"--max-terms must be >= 0, got {args.max_terms}")
+    if args.shoot_window is not None and args.shoot_window < 2:
+        raise ValueError(f"--shoot-window must be at least 2 samples, got {args.shoot_window}")
+    if args.smoothing_window is not None and args.smoothing_window < 5:
+        raise ValueError(f"--smoothing-window must be at least 5 samples (a cubic Savitzky-Golay filter), got {args.smoothing_window}")
+    if args.rollout_window is not None and not (math.isfinite(args.rollout_window) and args.rollout_window > 0):
+        raise ValueError(f"--rollout-window must be a positive number of seconds, got {args.rollout_window}")
+    if not (math.isfinite(args.systematic_chi2) and args.systematic_chi2 > 0):
+        raise ValueError(f"--systematic-chi2 must be a positive number, got {args.systematic_chi2}")
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     from phast_model.mismatch import Options, analyze
@@ -59,6 +77,7 @@ def main(argv: list[str] | None = None) -> int:
     from phast_model.mismatch.report import check_writable
 
     try:
+        check_args(args)
         holdout = check_holdout_indices(parse_indices(args.holdout_trajectories))
         check_writable(args.out)
         try:

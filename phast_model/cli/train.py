@@ -67,23 +67,45 @@ def train_run(env: str, regime: str, out: str | Path, epochs: int = 50, seed: in
     """Python entry point of ``phast-train``: returns the metrics dict it writes to ``metrics.json``."""
     import torch
 
+    from phast_gym.datasets import _check_noise
+    from phast_gym.fileio import dir_lock, ensure_writable_dir
+
+    from ..regimes import build_model
+    from ..training import CHECKPOINT, TrainConfig, check_resume, fit
+
+    # every check before any work (no dataset generated, nothing written): a bad run leaves nothing half-done
+    env = resolve_env_id(env)
+    for name, v in (("n_train", n_train), ("n_val", n_val), ("n_test", n_test)):
+        if isinstance(v, bool) or int(v) != v or v < 1:
+            raise ValueError(f"--{name.replace('_', '-')} must be a positive integer (the {name[2:]} split cannot be "
+                             f"empty), got {v!r}")
+    if int(T) != T or T < 2:
+        raise ValueError(f"--T must be an integer >= 2, got {T!r}")
+    noise = _check_noise(obs_noise_std)
+    cfg = TrainConfig(epochs=epochs, batch_size=batch_size, lr=lr, seed=seed, progress=progress)
+    model = build_model(env, regime, seed=seed, **(overrides or {}))
+    data = {"n_train": n_train, "n_val": n_val, "n_test": n_test, "T": T, "seed": data_seed, "obs_noise_std": noise}
+    identity = {"env_id": env, "regime": regime, "data": data, "overrides": overrides or {}}
+    out = ensure_writable_dir(out, "--out")
+    with dir_lock(out):  # one writer per run directory
+        if resume:
+            check_resume(out / CHECKPOINT, cfg, identity)
+        kw = {"obs_noise_std": noise} if noise > 0 else {}
+        splits = make_splits(env, n_train, n_val, n_test, T=T, seed=data_seed, **kw)
+        res = fit(model, splits["train"], splits["val"], cfg, run_dir=out, resume=resume, identity=identity)
+        if not all(bool(torch.isfinite(p).all()) for p in res.model.parameters()):
+            raise RuntimeError("training produced non-finite parameters; nothing saved")
+        return _finish(res, splits, cfg, identity, out, plots)
+
+
+def _finish(res: Any, splits: dict[str, Any], cfg: Any, identity: dict[str, Any], out: Path, plots: bool) -> dict[str, Any]:
+    """Score on the test split, then save model.pt + config.json, metrics.json / history.json and the plots."""
     from ..checkpoint import atomic_write_json, save_run
     from ..metrics import benchmark_metric, evaluate
-    from ..regimes import build_model
-    from ..training import TrainConfig, fit
 
-    env = resolve_env_id(env)
-    out = Path(out)
-    kw = {"obs_noise_std": obs_noise_std} if obs_noise_std > 0 else {}
-    splits = make_splits(env, n_train, n_val, n_test, T=T, seed=data_seed, **kw)
-    model = build_model(env, regime, seed=seed, **(overrides or {}))
-    cfg = TrainConfig(epochs=epochs, batch_size=batch_size, lr=lr, seed=seed, progress=progress)
-    res = fit(model, splits["train"], splits["val"], cfg, run_dir=out, resume=resume)
-    if not all(bool(torch.isfinite(p).all()) for p in res.model.parameters()):
-        raise RuntimeError("training produced non-finite parameters; nothing saved")
-    save_run(res.model, out, {"train": cfg.__dict__, "data": {"n_train": n_train, "n_val": n_val, "n_test": n_test,
-                                                              "T": T, "seed": data_seed, "obs_noise_std": obs_noise_std}})
+    env, regime, seed, epochs = identity["env_id"], identity["regime"], cfg.seed, cfg.epochs
     metrics = evaluate(res.model, splits["test"])
+    save_run(res.model, out, {"train": cfg.__dict__, "data": identity["data"], "overrides": identity["overrides"]})
     metrics.update({"train_wall_time_s": res.wall_time_s, "best_val": res.best_val, "best_epoch": res.best_epoch,
                     "nan_events": res.nan_events, "benchmark_metric": benchmark_metric(env)})
     metrics["benchmark_value"] = metrics.get(metrics["benchmark_metric"], float("nan"))

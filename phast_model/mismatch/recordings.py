@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import csv
 import math
+import zipfile
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -179,16 +180,23 @@ def _read_csv(path: Path) -> dict[str, Any]:
             header = [h.strip() for h in next(reader)]
         except StopIteration:
             raise ValueError(f"{path}: empty CSV file") from None
-        rows = [r for r in reader if r]
+        rows = [(reader.line_num, r) for r in reader if r]
     for key in ("traj", "t", "q0"):
         if key not in header:
             raise ValueError(f"{path}: CSV is missing column {key!r} (need traj,t,q0..q{{n-1}}[,u0..]); got {header}")
-    try:
-        data = np.array([[float(x) for x in r] for r in rows], dtype=np.float64)
-    except ValueError as exc:
-        raise ValueError(f"{path}: non-numeric CSV value ({exc})") from None
-    if data.ndim != 2 or data.shape[1] != len(header):
-        raise ValueError(f"{path}: CSV rows do not all have {len(header)} columns")
+    if not rows:
+        raise ValueError(f"{path}: CSV has a header ({','.join(header)}) but no data rows")
+    for line, r in rows:  # ragged rows: name the first one, before any number is parsed
+        if len(r) != len(header):
+            raise ValueError(f"{path}: line {line} has {len(r)} values, the header has {len(header)} columns ({','.join(header)})")
+    values = []
+    for line, r in rows:
+        try:
+            values.append([float(x) for x in r])
+        except ValueError:
+            bad = next(x for x in r if not _is_float(x))
+            raise ValueError(f"{path}: line {line} has a non-numeric value {bad!r}") from None
+    data = np.array(values, dtype=np.float64)
     col = {h: i for i, h in enumerate(header)}
     qcols = sorted((h for h in header if h.startswith("q") and h[1:].isdigit()), key=lambda h: int(h[1:]))
     ucols = sorted((h for h in header if h.startswith("u") and h[1:].isdigit()), key=lambda h: int(h[1:]))
@@ -211,6 +219,14 @@ def _read_csv(path: Path) -> dict[str, Any]:
     return out
 
 
+def _is_float(x: str) -> bool:
+    try:
+        float(x)
+    except ValueError:
+        return False
+    return True
+
+
 def load_raw(source: str | Path | Mapping[str, Any]) -> tuple[dict[str, Any], str]:
     """Read an .npz / .csv path or take a mapping; returns (dict, description)."""
     if isinstance(source, Mapping):
@@ -220,10 +236,21 @@ def load_raw(source: str | Path | Mapping[str, Any]) -> tuple[dict[str, Any], st
         raise ValueError(f"recordings file {path} does not exist")
     if path.suffix.lower() == ".csv":
         return _read_csv(path), str(path)
+    if path.is_file() and path.stat().st_size == 0:
+        raise ValueError(f"recordings file {path} is empty (0 bytes)")
     try:
-        with np.load(path, allow_pickle=False) as z:
+        z = np.load(path, allow_pickle=False)
+        if isinstance(z, np.ndarray):
+            raise ValueError(f"recordings file {path} holds a single .npy array, not an .npz archive with key 'q'")
+        with z:
+            if not z.files:
+                raise ValueError(f"recordings file {path} is an .npz archive with no arrays (need at least 'q')")
             return {k: z[k] for k in z.files}, str(path)
-    except (OSError, ValueError) as exc:
+    except ValueError as exc:
+        if str(exc).startswith(f"recordings file {path}"):
+            raise
+        raise ValueError(f"recordings file {path} is not a readable .npz or .csv ({exc})") from None
+    except (OSError, EOFError, zipfile.BadZipFile) as exc:
         raise ValueError(f"recordings file {path} is not a readable .npz or .csv ({exc})") from None
 
 
