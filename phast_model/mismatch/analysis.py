@@ -14,7 +14,9 @@ Stages: :mod:`.problem` (noise, scales, windows), :mod:`.calibrate`,
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +24,7 @@ import numpy as np
 
 from phast_gym.systems.base import System
 
-from .calibrate import Calibration, calibrate
+from .calibrate import Calibration, calibrate, explained_share
 from .candidates import candidates
 from .energy import energy_check
 from .evaluate import check_holdout_indices, check_holdout_range, held_out, split
@@ -92,6 +94,34 @@ def _compared(compare: Mapping[str, System] | None, sys0: System, name: str) -> 
     return out
 
 
+#: the nominal simulator must explain at least this share of the recordings beyond a line per window (explained_share)
+MIN_DESCRIBED = 0.5
+
+
+def _confirmed(missing: list[dict], fitres: dict) -> tuple[list[dict], list[dict]]:
+    """A term that does not improve the prediction of the held-out recordings is not a discovery: (confirmed, not)."""
+    if missing and fitres["augmented"]["rollout_rmse"] >= fitres["calibrated"]["rollout_rmse"]:
+        return [], missing
+    return missing, []
+
+
+def _verdicts(share: float, unconfirmed: list[dict], fitres: dict) -> list[str]:
+    """Sentences for the summary when the simulator does not describe the recordings or the found terms do not predict."""
+    out = []
+    if share < MIN_DESCRIBED:
+        out.append(f"The simulator does not describe these recordings: with its own parameters it explains {max(share, 0.0):.0%} "
+                   "of their variation beyond a straight line per window (a model of the recorded system explains nearly all "
+                   "of it), so no parameter was calibrated and no term is named; check the simulator, the coordinates and "
+                   "the units (angle_offset, angle_dims).")
+    if unconfirmed:
+        names = ", ".join(f"{m['term']}[{m['coordinate']}]" for m in unconfirmed)
+        out.append(f"Terms that fit the training recordings ({names}) do not improve the prediction of the held-out recordings "
+                   f"(rollout RMSE calibrated {fitres['calibrated']['rollout_rmse']:.4g}, with them "
+                   f"{fitres['augmented']['rollout_rmse']:.4g}), so they are not reported as missing physics "
+                   "(details.unconfirmed_terms).")
+    return out
+
+
 def _data(rec: Recordings, dec: int, sigma_raw: np.ndarray) -> dict[str, Any]:
     """report.data (sizes of the recordings as given, before decimation)."""
     return {"n_traj": rec.n_traj, "T": rec.T, "dt": rec.dt, "decimated_by": dec, "noise_std": float(np.sqrt(np.mean(sigma_raw**2))),
@@ -157,6 +187,9 @@ def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mappin
     held = held_out(hold, evaluated_on, problem.sigma, problem.x_scale, problem.L, problem.sg, opts.rollout_window)
 
     cal = calibrate(problem)
+    share = explained_share(cal.shooter, cal.fit_nominal)
+    if share < MIN_DESCRIBED:  # nothing to explain: no terms, no model-error regime
+        problem = replace(problem, opts=replace(opts, max_terms=0, systematic_chi2=math.inf))
     sel = select_terms(problem, cal, candidates(problem, cal.system))
     calibrated, missing = calibrated_rows(problem, cal, sel), missing_rows(cal, sel)
     models = {"nominal": problem.fam0.build(np.zeros(0)), "calibrated": cal.system, "augmented": sel.system}
@@ -164,9 +197,14 @@ def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mappin
     sysE = _systematic(problem, cal, sel, calibrated)
     if sysE.replaces:
         models["augmented"], final_fit, calibrated, missing = sysE.system, sysE.fit, sysE.calibrated, sysE.missing
+    if share < MIN_DESCRIBED:
+        calibrated = {k: {"nominal": v["nominal"], "fitted": v["nominal"], "ci95": None,
+                          "note": "not calibrated: the simulator does not describe these recordings"} for k, v in calibrated.items()}
+        models["calibrated"] = models["augmented"] = models["nominal"]
 
     fitres, rollouts = held.fit_table({**models, **_compared(compare, sys0, simulator.name)})
     log(f"held-out: {fitres}")
+    missing, unconfirmed = _confirmed(missing, fitres)
     if train.u is None and any(VOCABULARY[m["term"]][0] == "dissipation" for m in missing):  # a check, no fitting
         fitres["energy_check"] = {"model": "augmented", "training": energy_check(models["augmented"], train, problem.sg),
                                   "held_out": energy_check(models["augmented"], hold, min(problem.sg, _odd(hold.T // 2 - 1)))}
@@ -174,12 +212,15 @@ def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mappin
     if not missing and cal.fit.chi2_red < 1.5:  # within the noise
         located = []
     summary = summary_text(simulator.name, calibrated, missing, located, fitres, cal.fit.chi2_red, final_fit.chi2_red,
-                           problem.sigma_raw)
+                           problem.sigma_raw, _verdicts(share, unconfirmed, fitres))
+    if share < MIN_DESCRIBED:
+        located = []
     return Report(
         sim={"env_id": simulator.name, "kwargs": dict(simulator.kwargs), "calibrated": calibrated},
         data=_data(given, dec, problem.sigma_raw),
         located=located, missing_physics=missing, fit=fitres, summary=summary,
-        details=_details(problem, cal, sel, sysE, final_fit, models["augmented"]),
+        details={**_details(problem, cal, sel, sysE, final_fit, models["augmented"]), "explained_share": share,
+                 "unconfirmed_terms": unconfirmed},
         plot_data={"hold": held.rec, "rollouts": rollouts, "resid_map": resid_map, "train": train,
                    "augmented_system": models["augmented"], "calibrated_system": models["calibrated"],
                    "nominal_system": models["nominal"], "friction_curve": sysE.curve, "friction_laws": sysE.laws},

@@ -132,3 +132,17 @@ def calibrate(problem: Problem) -> Calibration:
     problem.log(f"calibrated {[k for k, _ in selected]}: chi2/dof = {fitC.chi2_red:.3g} ({fitC.iterations} it)")
     columns = np.stack(sel_cols, 1) if sel_cols else np.zeros((cols.shape[0], 0))
     return Calibration(shooter, fitN, n_dropped, selected, columns, notes, famC, fitC)
+
+
+def explained_share(shooter: Shooter, fit: ShootFit) -> float:
+    """How much of the recordings the simulator describes: 1 - cost / cost of a straight line per window and coordinate
+    (the same number of free values as the window states).  About 1 for a simulator of the right kind of system, about
+    0 when it follows the recordings no better than a line (white noise, another system)."""
+    w = shooter.w
+    t = w.obs.astype(float)
+    q = w.q[:, w.obs]  # (W, L, n)
+    A = np.stack([np.ones_like(t), t - t.mean()], 1)
+    coef = np.linalg.lstsq(A, q.transpose(1, 0, 2).reshape(len(t), -1), rcond=None)[0]
+    line = (A @ coef).reshape(len(t), q.shape[0], q.shape[2]).transpose(1, 0, 2)
+    cost_line = float(np.sum(((q - line) / shooter.sigma) ** 2))
+    return 1.0 - fit.cost / max(cost_line, 1e-300)

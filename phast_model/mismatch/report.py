@@ -102,20 +102,21 @@ def _alternative_sentences(missing: list[dict]) -> list[str]:
 
 
 def summary_text(name: str, calibrated: dict, missing: list[dict], located: list[dict], fitres: dict, chi2_calibrated: float,
-                 chi2_augmented: float, sigma: np.ndarray) -> str:
+                 chi2_augmented: float, sigma: np.ndarray, verdicts: list[str] = ()) -> str:
     """The report's plain-language summary (the chi^2/dof of the calibrated and augmented shooting fits decide what is said)."""
     parts = [f"Compared {name} with the recordings (estimated measurement noise {float(np.sqrt(np.mean(sigma**2))):.3g})."]
     cal = [f"{k} {v['nominal']:.4g} -> {v['fitted']:.4g}{_fmt_ci(v.get('ci95'))}" for k, v in calibrated.items() if v.get("ci95")]
     if cal:
         parts.append("Calibrated parameters: " + "; ".join(cal) + ".")
+    parts += list(verdicts)  # the simulator does not describe the recordings / found terms do not predict: nothing is named
     if missing:
         items = [f"{m['term']} on coordinate {m['coordinate']} ({m['component']}), coefficient {m['coefficient']:.4g}{_fmt_ci(m['ci95'])}"
                  for m in missing]
         parts.append("Missing physics: " + "; ".join(items) + ".")
         parts += _alternative_sentences(missing)
-    elif chi2_calibrated < 1.5:
+    elif chi2_calibrated < 1.5 and not verdicts:
         parts.append("No missing physics: the calibrated simulator agrees with the recordings within the noise.")
-    if located and chi2_augmented >= 1.5:
+    if located and chi2_augmented >= 1.5 and not verdicts:
         loc = located[0]
         parts.append(f"Unexplained residual, located at coordinate {loc['coordinate']} ({loc['component']}), where {loc['where']}, "
                      f"{loc['when']}; no term of the vocabulary explains it.")
