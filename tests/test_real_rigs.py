@@ -86,10 +86,11 @@ def _check_arm(rep, tol: float = 0.3) -> None:
 
 
 FULL_VOCABULARY_XFAIL = pytest.mark.xfail(strict=False, reason=(
-    "systematic regime holds the shooting selection's sensor_gain / actuator_gain terms fixed in the weak-form fit; "
-    "on this arm the shooting selection picks spurious sensor_gain[0,1] ~0.86-0.89 and actuator_gain[0] ~0.92, which "
-    "drive mass1/mass2/gravity to 0.41/0.43/10.4 and the armature to 0.009 / (not found) instead of 0.004 / 0.004 "
-    "(Coulomb 0.090 / 0.103 is fine). Reported to the pipeline owner."))
+    "with the whole vocabulary the shooting path (its chi^2/dof ends at 4, below the model-error regime) finds both "
+    "Coulomb frictions within 1% and improves the held-out rollout 75x, but explains the inertia by an equivalent "
+    "combination: armature[0] 0.0086, sensor_gain 0.94 / 0.95 and masses / gravity bent 15% (the calibration is made "
+    "before any term is considered); a backward elimination restarted at the nominal parameters did not undo it. "
+    "The joint vocabulary (test above) and the weak-form identification recover the truth."))
 
 
 @pytest.mark.parametrize("jitter", [False, True], ids=["uniform", "jittered"])

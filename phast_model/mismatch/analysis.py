@@ -109,7 +109,7 @@ def _verdicts(share: float, unconfirmed: list[dict], fitres: dict) -> list[str]:
     """Sentences for the summary when the simulator does not describe the recordings or the found terms do not predict."""
     out = []
     if share < MIN_DESCRIBED:
-        out.append(f"The simulator does not describe these recordings: with its own parameters it explains {max(share, 0.0):.0%} "
+        out.append(f"The simulator does not describe these recordings: nominal or calibrated, it explains {max(share, 0.0):.0%} "
                    "of their variation beyond a straight line per window (a model of the recorded system explains nearly all "
                    "of it), so no parameter was calibrated and no term is named; check the simulator, the coordinates and "
                    "the units (angle_offset, angle_dims).")
@@ -187,7 +187,7 @@ def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mappin
     held = held_out(hold, evaluated_on, problem.sigma, problem.x_scale, problem.L, problem.sg, opts.rollout_window)
 
     cal = calibrate(problem)
-    share = explained_share(cal.shooter, cal.fit_nominal)
+    share = max(explained_share(cal.shooter, cal.fit_nominal), explained_share(cal.shooter, cal.fit))
     if share < MIN_DESCRIBED:  # nothing to explain: no terms, no model-error regime
         problem = replace(problem, opts=replace(opts, max_terms=0, systematic_chi2=math.inf))
     sel = select_terms(problem, cal, candidates(problem, cal.system))
