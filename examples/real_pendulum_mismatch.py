@@ -83,9 +83,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rollout-window", type=float, default=None,
                     help="held-out open-loop window [s] (default: each held-out segment whole, 9.2 s)")
     ap.add_argument("--json", type=Path, default=None, help="also write the printed headline numbers to this JSON file")
+    ap.add_argument("--quiet", action="store_true", help="no progress lines")
     args = ap.parse_args(argv)
     try:
-        res = run(args.data, args.out, args.max_T, shoot_window=args.shoot_window, rollout_window=args.rollout_window)
+        res = run(args.data, args.out, args.max_T, progress=not args.quiet, shoot_window=args.shoot_window,
+                  rollout_window=args.rollout_window)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -113,6 +113,10 @@ def summary_text(name: str, calibrated: dict, missing: list[dict], located: list
         items = [f"{m['term']} on coordinate {m['coordinate']} ({m['component']}), coefficient {m['coefficient']:.4g}{_fmt_ci(m['ci95'])}"
                  for m in missing]
         parts.append("Missing physics: " + "; ".join(items) + ".")
+        neg = [f"{m['term']}[{m['coordinate']}]" for m in missing if m["component"] == "dissipation" and m["coefficient"] < 0]
+        if neg:
+            parts.append(f"Negative coefficient(s) {', '.join(neg)}: they lower the model's own dissipation, and the total friction "
+                         "force stays passive (opposes motion) at every speed the recordings reach.")
         parts += _alternative_sentences(missing)
     elif chi2_calibrated < 1.5 and not verdicts:
         parts.append("No missing physics: the calibrated simulator agrees with the recordings within the noise.")

@@ -4,25 +4,31 @@ With chi^2/dof >> 1 (a real encoder's noise is tiny next to any model error) the
 shooting chi^2 gains and |t| values measure misfit, not evidence, and a law
 chosen by them (or by how well a model follows the training recordings open
 loop, which large swings' phase drift dominates) need not predict anything.
-So the dissipation is chosen from time-resolved, local evidence instead
-(:mod:`.friction`):
+So the answer is built from time-resolved, local evidence instead, every choice
+made by prediction on recordings not used for the fit:
 
-* the weak-form momentum balance (one filter on both sides) under the model
-  with the shooting selection's non-dissipative terms (sensor map, potential,
-  inertia, port) held at their shooting values;
+* the weak-form momentum balance (one filter on both sides, :mod:`.friction`)
+  under the simulator at the user's values (a shooting calibration made before
+  any friction term may have absorbed friction);
+* which parameters to calibrate (:func:`.weakid.check_parameters`): those whose
+  fit predicts the left-out recordings' weak-form force better;
+* parameters, armature (where u drives) and a provisional friction law in one
+  least squares (:func:`.weakid.identify`);
 * a non-parametric friction curve (total dissipative force by speed band, with
   block-bootstrap intervals) from the training recordings;
 * per coordinate, the candidate laws (up to 3 dissipative vocabulary terms,
   coefficients sign free) fitted on all training recordings but one and scored
   by how well they predict the left-out recording's friction curve; passivity
   is required of the total force at every observed speed, every coefficient's
-  95% interval must exclude zero, and the fewest parameters within one paired
-  standard error of the best score win.
+  95% interval must exclude zero and the law must lie inside the training
+  curve's intervals; the fewest parameters not significantly worse than the
+  best win;
+* the chosen law refitted jointly with the parameters and armature.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -35,7 +41,7 @@ from .friction import FrictionCurve, FrictionLaw, Selection, check_against_curve
 from .problem import Problem
 from .shooting import ShootFit
 from .terms import VOCABULARY, AugmentedSystem, Term
-from .weakid import WeakFit, WeakModel, identify
+from .weakid import WeakFit, WeakModel, check_parameters, identify
 
 #: laws whose fold score is within this many paired standard errors of the chosen one are named as alternatives
 NEAR_SE = 1.0
@@ -120,8 +126,12 @@ def _weak_model(ctx: SystematicContext, window: int) -> WeakModel:
     return WeakModel(problem.sim, {}, [k for k, _ in ctx.cal.selected], [], arm, problem.eps, problem.fam0.deadzone_width, window)
 
 
-def _calibrated_rows(ctx: SystematicContext, fit: WeakFit) -> dict[str, dict[str, Any]]:
+def _calibrated_rows(ctx: SystematicContext, fit: WeakFit, held: list[str]) -> dict[str, dict[str, Any]]:
     rows = {k: dict(v) for k, v in ctx.calibrated.items()}
+    for k in held:
+        nom = ctx.problem.sys0.params[k]
+        rows[k] = {"nominal": nom, "fitted": nom, "ci95": None,
+                   "note": "held at nominal: fitting it does not predict left-out recordings better (details.friction.parameter_check)"}
     for k, row in fit.params.items():
         rows[k] = {**row, "note": "weak-form fit jointly with the friction law and armature"}
     for k in fit.no_signal:
@@ -145,19 +155,23 @@ PROVISIONAL_LAW = ("viscous_damping", "coulomb_friction")
 
 
 def systematic(ctx: SystematicContext) -> SystematicResult:
-    """The friction answer of the module docstring, with the shooting selection's other terms kept."""
+    """Parameters (those that predict left-out recordings better when fitted), armature and the friction law from the
+    weak form, as the module docstring says."""
     problem = ctx.problem
     train = problem.train.resampled()  # the filters need uniform samples; shooting keeps the recorded times
     window = problem.sg
     problem.log(f"model error dominates (chi2/dof {ctx.chi2_aug:.3g}): weak-form identification, window {window} samples")
     model = _weak_model(ctx, window)
-    first = identify(model, train, [(nm, i) for i in range(problem.n) for nm in PROVISIONAL_LAW])
+    provisional = [(nm, i) for i in range(problem.n) for nm in PROVISIONAL_LAW]
+    pcheck = check_parameters(model, train, provisional)
+    model = replace(model, params=pcheck.kept)
+    problem.log(f"parameters that predict left-out recordings better when fitted: {pcheck.kept}")
+    first = identify(model, train, provisional)
     base = model.build(first.kwargs, first.armature_terms())
     law, sels = select_friction(base, train, window=window, eps=problem.eps)
     problem.log(f"friction law: {law.name}; parameters {first.kwargs}")
     specs = [(t.term, t.coordinate) + ((t.velocity,) if t.term == "stribeck_friction" else ()) for t in law.terms]
-    final = identify(WeakModel(model.sim, first.kwargs, model.params, model.fixed_terms, model.armature, model.eps,
-                               model.deadzone_width, window), train, specs)
+    final = identify(replace(model, kwargs=first.kwargs), train, specs)
     augmented = final.system(model)
     curve = friction_curve(model.build(final.kwargs, final.armature_terms()), train, window=window, eps=problem.eps)
     passive = is_passive(final.law, curve).to_dict()
@@ -172,7 +186,10 @@ def systematic(ctx: SystematicContext) -> SystematicResult:
             "window_samples": int(window),
             "law": final.law.to_dict(), "passivity": passive, "selection": [s.to_dict() for s in sels],
             "armature": [{"coordinate": a.coordinate, "coefficient": a.coefficient, "ci95": list(a.ci95)} for a in final.armature],
+            "parameter_check": pcheck.to_dict(),
             "armature_absorbed_by_parameters": [int(k.split(":")[1]) for k in final.no_signal if k.startswith("armature:")],
             "curve": curve.to_dict(), "law_vs_curve": check_against_curve(final.law, curve),
             "chi2_per_dof_augmented": fit.chi2_red}
-    return SystematicResult(info, augmented, fit, _calibrated_rows(ctx, final), missing, curve, {f"chosen: {law.name}": final.law})
+    held_params = [k for k, _ in ctx.cal.selected if k not in pcheck.kept]
+    rows = _calibrated_rows(ctx, final, held_params)
+    return SystematicResult(info, augmented, fit, rows, missing, curve, {f"chosen: {law.name}": final.law})
