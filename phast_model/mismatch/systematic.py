@@ -126,7 +126,7 @@ def _weak_model(ctx: SystematicContext, window: int) -> WeakModel:
     return WeakModel(problem.sim, {}, [k for k, _ in ctx.cal.selected], [], arm, problem.eps, problem.fam0.deadzone_width, window)
 
 
-def _calibrated_rows(ctx: SystematicContext, fit: WeakFit, held: list[str]) -> dict[str, dict[str, Any]]:
+def _calibrated_rows(ctx: SystematicContext, fit: WeakFit, held: list[str], no_signal: list[str]) -> dict[str, dict[str, Any]]:
     rows = {k: dict(v) for k, v in ctx.calibrated.items()}
     for k in held:
         nom = ctx.problem.sys0.params[k]
@@ -134,9 +134,7 @@ def _calibrated_rows(ctx: SystematicContext, fit: WeakFit, held: list[str]) -> d
                    "note": "held at nominal: fitting it does not predict left-out recordings better (details.friction.parameter_check)"}
     for k, row in fit.params.items():
         rows[k] = {**row, "note": "weak-form fit jointly with the friction law and armature"}
-    for k in fit.no_signal:
-        if k.startswith("armature:"):
-            continue
+    for k in no_signal:
         rows[k] = {**rows.get(k, {}), "nominal": rows.get(k, {}).get("nominal", ctx.problem.sys0.params[k]),
                    "fitted": ctx.problem.sys0.params[k], "ci95": None,
                    "note": "held at nominal: the friction law (added to the model's own dissipation) covers it"}
@@ -190,6 +188,6 @@ def systematic(ctx: SystematicContext) -> SystematicResult:
             "armature_absorbed_by_parameters": [int(k.split(":")[1]) for k in final.no_signal if k.startswith("armature:")],
             "curve": curve.to_dict(), "law_vs_curve": check_against_curve(final.law, curve),
             "chi2_per_dof_augmented": fit.chi2_red}
-    held_params = [k for k, _ in ctx.cal.selected if k not in pcheck.kept]
-    rows = _calibrated_rows(ctx, final, held_params)
+    held_params = [k for k, _ in ctx.cal.selected if k not in pcheck.kept and k not in pcheck.no_signal]
+    rows = _calibrated_rows(ctx, final, held_params, pcheck.no_signal)
     return SystematicResult(info, augmented, fit, rows, missing, curve, {f"chosen: {law.name}": final.law})

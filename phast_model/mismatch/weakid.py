@@ -185,9 +185,10 @@ class ParameterCheck:
     kept: list[str]
     table: list[dict[str, Any]]  # parameter, t of the left-out improvement, kept
     folds: str
+    no_signal: list[str] = field(default_factory=list)  # parameters the weak form cannot see (the model's own damping)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"kept": self.kept, "table": self.table, "folds": self.folds}
+        return {"kept": self.kept, "table": self.table, "folds": self.folds, "no_signal": self.no_signal}
 
 
 def _fold_labels(wf: WeakForm) -> tuple[np.ndarray, str]:
@@ -216,7 +217,7 @@ def check_parameters(model: WeakModel, rec: Recordings, law: list[Spec]) -> Para
     simulator's values, with ``law`` and the armature columns always in): a parameter stays only if dropping it makes
     the left-out weak-form force residual significantly worse (one-sided paired t-test over the folds, 5%).  A
     calibration that only bends parameters to soak up model error does not predict left-out recordings better."""
-    wf, names, cols, _ = _columns(model, dict(model.kwargs), rec, law)
+    wf, names, cols, none = _columns(model, dict(model.kwargs), rec, law)
     folds, txt = _fold_labels(wf)
     n = wf.n
     X = np.stack([c.reshape(-1) for c in cols], 1)
@@ -242,4 +243,5 @@ def check_parameters(model: WeakModel, rec: Recordings, law: list[Spec]) -> Para
         kept.remove(worst)
     out = [names[j].split(":", 1)[1] for j in kept]
     rows = [{"parameter": k, "t_left_out_improvement": t, "kept": k in out} for k, t in table.items()]
-    return ParameterCheck(out, rows, txt + f"; kept when dropping it worsens the left-out residual with t >= {tq:.3g}")
+    return ParameterCheck(out, rows, txt + f"; kept when dropping it worsens the left-out residual with t >= {tq:.3g}",
+                          [k for k in none if not k.startswith("armature:")])
