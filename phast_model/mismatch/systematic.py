@@ -133,7 +133,7 @@ def _calibrated_rows(ctx: SystematicContext, fit: WeakFit, held: list[str], no_s
         rows[k] = {"nominal": nom, "fitted": nom, "ci95": None,
                    "note": "held at nominal: fitting it does not predict left-out recordings better (details.friction.parameter_check)"}
     for k, row in fit.params.items():
-        rows[k] = {**row, "note": "weak-form fit jointly with the friction law and armature"}
+        rows[k] = {**row, "note": "weak-form fit jointly with the friction law (and the armature where u drives)"}
     for k in no_signal:
         rows[k] = {**rows.get(k, {}), "nominal": rows.get(k, {}).get("nominal", ctx.problem.sys0.params[k]),
                    "fitted": ctx.problem.sys0.params[k], "ci95": None,

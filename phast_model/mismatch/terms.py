@@ -92,11 +92,12 @@ class Term:
             return f"{c:+.4g}"
         if self.name == "armature":
             return text.replace("+= c", f"+= {c:.4g}")
+        neg = f"{-c:+.4g}*"  # -c* with the sign folded in (a negative friction coefficient reads +|c|*)
         if self.name == "stribeck_friction":
-            return text.replace("-c*", f"-{c:.4g}*").replace("v_s", f"{self.velocity:.4g}")
+            return text.replace("-c*", neg).replace("v_s", f"{self.velocity:.4g}")
         if self.name in ("actuator_deadzone", "sensor_offset", "sensor_gain", "sensor_eccentricity"):
             return text.replace("+ c", f"+ {c:.4g}").replace("< c", f"< {c:.4g}").replace("= c *", f"= {c:.4g} *")
-        return text.replace("-c*", f"-{c:.4g}*")
+        return text.replace("-c*", neg)
 
 
 def friction_basis(name: str, q: Any, v: Any, eps: float, velocity: float = 0.0, xp: Any = NUMPY) -> Any:
