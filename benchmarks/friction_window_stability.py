@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from phast_gym.fileio import atomic_write_json
+
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "examples"))
 
@@ -58,9 +60,7 @@ def main(argv: list[str] | None = None) -> int:
         rows.append(row)
         print(json.dumps(row), flush=True)
     if args.json:
-        tmp = args.json.with_name(args.json.name + ".tmp")
-        tmp.write_text(json.dumps({"command": "python benchmarks/friction_window_stability.py", "rows": rows}, indent=1) + "\n")
-        tmp.replace(args.json)
+        atomic_write_json(args.json, {"command": "python benchmarks/friction_window_stability.py", "rows": rows}, indent=1)
     return 0
 
 

@@ -18,13 +18,13 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from phast_gym.fileio import atomic_write_json
 from phast_gym.systems import DoublePendulum, Param
 from phast_gym.systems.base import NUMPY, Components
 
@@ -147,12 +147,9 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    text = json.dumps(res, indent=1)
     if args.json is not None:
-        tmp = args.json.with_name(args.json.name + ".tmp")
-        tmp.write_text(text + "\n")
-        os.replace(tmp, args.json)
-    print(text)
+        atomic_write_json(args.json, res, indent=1)
+    print(json.dumps(res, indent=1))
     return 0
 
 

@@ -121,6 +121,37 @@ def _block_labels(N: int, T: int, block: int) -> np.ndarray:
     return np.arange(N)[:, None] * nb + b[None, :]
 
 
+@dataclass
+class Balance:
+    """The momentum balance along the smoothed recordings, untrimmed (N, T, n): q, qdot, d/dt S*p and the model's pdot."""
+
+    qs: np.ndarray
+    vs: np.ndarray
+    dp: np.ndarray
+    pdot: np.ndarray
+
+    @property
+    def qc(self) -> tuple:
+        return tuple(self.qs[..., i] for i in range(self.qs.shape[-1]))
+
+
+def momentum_balance(system: System, rec: Recordings, window: int) -> Balance:
+    """Smoothed q, qdot (measurement map undone), d/dt of the filtered momentum p = M(q) qdot, and the model's pdot
+    (conservative, port and dissipative force) at those states with the recorded u held per interval."""
+    n, dt = rec.n, rec.dt
+    qs, vs = smooth(rec.q, dt, window)
+    qs = getattr(system, "unmeasure", lambda y: y)(qs)
+    p = momentum(system, qs, vs)
+    dp = savgol_filter(p, window, 3, deriv=1, delta=dt, axis=1, mode="interp")
+    u = None
+    if rec.u is not None:
+        uu = np.concatenate([rec.u, rec.u[:, -1:]], axis=1)
+        u = tuple(uu[..., i] for i in range(n))
+    qc, pc = tuple(qs[..., i] for i in range(n)), tuple(p[..., i] for i in range(n))
+    pdot = np.stack([np.broadcast_to(f, qs.shape[:-1]) for f in system.rhs(qc, pc, u, NUMPY)[1]], -1)
+    return Balance(qs, vs, dp, pdot)
+
+
 def weak_form(system: System, rec: Recordings, window: int | None = None, eps: float | None = None,
               block: int | None = None) -> WeakForm:
     """The filtered momentum balance of ``rec`` under ``system`` (see the module docstring).
@@ -130,20 +161,11 @@ def weak_form(system: System, rec: Recordings, window: int | None = None, eps: f
     window = _odd(window or default_window(rec))
     window = min(window, _odd(rec.T // 3))
     eps = float(eps if eps is not None else (system.coulomb_eps if isinstance(system, AugmentedSystem) else default_eps(rec, window)))
-    n, dt = rec.n, rec.dt
-    qs, vs = smooth(rec.q, dt, window)
-    qs = getattr(system, "unmeasure", lambda y: y)(qs)
-    p = momentum(system, qs, vs)
-    dp = savgol_filter(p, window, 3, deriv=1, delta=dt, axis=1, mode="interp")
-    qc = tuple(qs[..., i] for i in range(n))
-    pc = tuple(p[..., i] for i in range(n))
-    u = None
-    if rec.u is not None:
-        uu = np.concatenate([rec.u, rec.u[:, -1:]], axis=1)
-        u = tuple(uu[..., i] for i in range(n))
-    pdot = np.stack([np.broadcast_to(f, qs.shape[:-1]) for f in system.rhs(qc, pc, u, NUMPY)[1]], -1)
-    own = _own_dissipation(system, qc, vs)
-    cons = pdot + own  # conservative + port force (the model's dissipation added back)
+    dt = rec.dt
+    bal = momentum_balance(system, rec, window)
+    qs, vs, dp = bal.qs, bal.vs, bal.dp
+    own = _own_dissipation(system, bal.qc, vs)
+    cons = bal.pdot + own  # conservative + port force (the model's dissipation added back)
     tr = window // 2
     sl = slice(tr, rec.T - tr)
     total = savgol_filter(cons, window, 3, axis=1, mode="interp")[:, sl] - dp[:, sl]

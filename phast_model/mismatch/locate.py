@@ -12,29 +12,20 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from phast_gym.systems import wrap
-from phast_gym.systems.base import NUMPY, System
+from phast_gym.systems.base import System
 
+from .friction import momentum_balance
 from .recordings import Recordings
-from .shooting import _odd, momentum, smooth
+from .shooting import _odd
 
 
 def residual_force(system: System, rec: Recordings, sg_window: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, slice]:
     """(r, q, qdot, qddot, kept samples): the filtered residual force and the smoothed states, filter edges dropped."""
-    dt, n = rec.dt, rec.n
+    dt = rec.dt
     w = _odd(min(max(sg_window, 5), rec.T - 1 + rec.T % 2 - 1))
-    qs, vs = smooth(rec.q, dt, w)
-    qs = getattr(system, "unmeasure", lambda y: y)(qs)
-    p = momentum(system, qs, vs)
-    dp = savgol_filter(p, w, 3, deriv=1, delta=dt, axis=1, mode="interp")
-    qc = tuple(qs[..., i] for i in range(n))
-    pc = tuple(p[..., i] for i in range(n))
-    u = None
-    if rec.u is not None:
-        uu = np.concatenate([rec.u, rec.u[:, -1:]], axis=1)
-        u = tuple(uu[..., i] for i in range(n))
-    F = np.stack([np.broadcast_to(f, qs.shape[:-1]) for f in system.rhs(qc, pc, u, NUMPY)[1]], -1)
-    F = savgol_filter(F, w, 3, axis=1, mode="interp")
-    r = dp - F
+    bal = momentum_balance(system, rec, w)
+    qs, vs = bal.qs, bal.vs
+    r = bal.dp - savgol_filter(bal.pdot, w, 3, axis=1, mode="interp")
     e = w // 2
     sl = slice(e, rec.T - e) if rec.T > 2 * e + 10 else slice(None)
     a = savgol_filter(rec.q, w, 3, deriv=2, delta=dt, axis=1, mode="interp")[:, sl]
