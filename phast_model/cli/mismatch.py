@@ -31,7 +31,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--smoothing-window", type=int, default=None, help="Savitzky-Golay window in samples (seeds, residual map)")
     p.add_argument("--rollout-window", type=float, default=None,
                    help="held-out open-loop window in seconds (default: each held-out trajectory whole)")
-    p.add_argument("--systematic-chi2", type=float, default=30.0,
+    p.add_argument("--systematic-chi2", type=float, default=3.0,
                    help="shooting chi^2/dof above which model error dominates: parameters, armature and friction law from the weak form")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
