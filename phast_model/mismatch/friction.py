@@ -31,7 +31,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -754,12 +754,138 @@ def _folds(rec: Recordings, n_blocks: int) -> tuple[list[tuple[Recordings, Recor
     return out, f"one recording: {n_blocks} contiguous time blocks, each held out in turn"
 
 
+@dataclass
+class LawSelectionOptions:
+    """Knobs of :func:`select_law` (criterion and eligibility rules)."""
+
+    criterion: str = "curve"  # "curve", "window_rollout", "rollout" or "weak_form"
+    rollout_window: float | None = None  # [s] for "window_rollout" (default 3 periods)
+    init_samples: int | None = None  # samples each rollout's initial state is fitted to
+    n_time_blocks: int = 4  # folds when there is one recording
+    max_terms: int = 3
+    require_significant: bool = True
+    min_t: float = 3.0
+    min_share: float = 0.01  # rms force of a term / rms total friction force
+    min_agreement: float = 0.75  # share of the training curve's bands whose interval holds the law
+    relative: bool | None = None  # rollout criteria: RMSE relative to each window's amplitude
+    bands: str = "quantile"
+    n_bands: int = 8
+    progress: bool = False
+
+
+@dataclass
+class _Scoring:
+    """What every candidate is scored against: the weak forms of all recordings and of each fold, the curve."""
+
+    system: System
+    rec: Recordings
+    opts: LawSelectionOptions
+    wf_all: WeakForm
+    folds: list[tuple[WeakForm, WeakForm, Recordings]]  # (training weak form, left-out weak form, left-out recordings)
+    fold_txt: str
+    curve: FrictionCurve
+    edges: list[np.ndarray]
+    ref: list[np.ndarray]  # pooled |curve| per band: the common denominator of the curve score
+    scored: list[int] | None  # coordinates the score looks at (None: all)
+    own: list
+    W: int  # rollout window [samples]
+    K: int  # rollout initial-state samples
+    sigma: np.ndarray
+    caches: list[tuple[dict, dict]] = field(default_factory=list)
+    cache_all: dict = field(default_factory=dict)
+
+
+def _pooled_reference(wf: WeakForm, edges: list[np.ndarray]) -> list[np.ndarray]:
+    """|curve| of all recordings per coordinate and band (floored at 5% of the largest band)."""
+    ref = []
+    for i in range(wf.n):
+        sp, sg_ = np.abs(wf.vs[..., i]), np.sign(wf.vs[..., i])
+        vals = [abs(float(np.mean((wf.total[..., i] * sg_)[(sp >= a) & (sp < b)]))) if np.any((sp >= a) & (sp < b)) else 0.0
+                for a, b in zip(edges[i][:-1], edges[i][1:])]
+        ref.append(np.maximum(np.asarray(vals), 0.05 * max(vals + [1e-300])))
+    return ref
+
+
+def _scoring(system: System, rec: Recordings, window: int | None, eps: float | None, block: int | None,
+             coordinate: int | None, opts: LawSelectionOptions) -> _Scoring:
+    wf_all = weak_form(system, rec, window, eps, block)
+    window, eps = wf_all.window, wf_all.eps
+    folds, fold_txt = _folds(rec, opts.n_time_blocks)
+    period = 2 * math.pi * time_scale(rec.q, rec.dt)
+    W = int(round((opts.rollout_window or 3 * period) / rec.dt)) + 1
+    K = int(opts.init_samples or max(10, int(round(0.5 * period / rec.dt)) // 4))
+    fold_wf = [(weak_form(system, tr, window, eps, block), weak_form(system, te, window, eps, block), te) for tr, te in folds]
+    curve = friction_curve(system, rec, window, bands=opts.bands, n_bands=opts.n_bands, eps=eps, block=block)
+    edges = [_edges(np.abs(wf_all.vs[..., i]).reshape(-1), opts.bands, opts.n_bands) for i in range(rec.n)]
+    return _Scoring(system, rec, opts, wf_all, fold_wf, fold_txt, curve, edges, _pooled_reference(wf_all, edges),
+                    None if coordinate is None else [coordinate], _own_samples(system, wf_all), W, K, estimate_noise(rec.q),
+                    [({}, {}) for _ in folds])
+
+
+def _fold_score(sc: _Scoring, specs: Sequence[Spec], k: int) -> tuple[float, float]:
+    """(criterion score, left-out weak-form rms) of the law ``specs`` fitted without fold k."""
+    wtr, wte, te = sc.folds[k]
+    ctr, cte = sc.caches[k]
+    opts, n = sc.opts, sc.rec.n
+    law = _fit_law(wtr, specs, cache=ctr, own=sc.own, own_terms=_own_terms(sc.system))
+    fixed = [(t.term, t.coordinate) + ((t.velocity,) if t.term == "stribeck_friction" else ()) for t in law.terms]  # fold's v_s
+    X = _design(wte, fixed, cte)
+    res = []
+    for i in range(n):
+        idx = [j for j, t in enumerate(law.terms) if t.coordinate == i]
+        pi = np.einsum("ntk,k->nt", X[..., idx], np.array([law.terms[j].coefficient for j in idx])) if idx else 0.0
+        res.append((wte.total[..., i] - wte.own[..., i] - pi).reshape(-1))
+    wfs = float(np.sqrt(np.mean(np.concatenate(res) ** 2)))
+    if opts.criterion == "weak_form":
+        return wfs, wfs
+    if opts.criterion in ("window_rollout", "rollout"):
+        rel = (opts.criterion == "window_rollout") if opts.relative is None else opts.relative
+        W = sc.W if opts.criterion == "window_rollout" else None
+        return rollout_score(law.augmented(sc.system), te, W, sc.K, wtr.window, sc.sigma, relative=rel)[0], wfs
+    if opts.criterion == "curve":
+        return _curve_score(law, wte, sc.edges, max(10, 2 * wtr.window), sc.ref, sc.scored), wfs
+    raise ValueError(f"unknown criterion {opts.criterion!r}")
+
+
+def _score(sc: _Scoring, specs: Sequence[Spec]) -> CandidateScore:
+    """Fit on all recordings (passivity, significance, curve agreement) and on each fold (the scores)."""
+    opts, wf = sc.opts, sc.wf_all
+    full = _fit_law(wf, specs, cache=sc.cache_all, own=sc.own, own_terms=_own_terms(sc.system))
+    passive = is_passive(full, [float(np.max(np.abs(wf.vs[..., i]))) for i in range(sc.rec.n)]).passive
+    tot_rms = [float(np.sqrt(np.mean(wf.total[..., i] ** 2))) + 1e-300 for i in range(sc.rec.n)]
+    share = [float(np.sqrt(np.mean((t.coefficient * _design(wf, [(t.term, t.coordinate, t.velocity)], sc.cache_all)) ** 2)))
+             / tot_rms[t.coordinate] for t in full.terms]
+    sig = all(t.excludes_zero and abs(t.t) >= opts.min_t and sh >= opts.min_share for t, sh in zip(full.terms, share))
+    fs, wfs = zip(*[_fold_score(sc, specs, k) for k in range(len(sc.folds))])
+    se = float(np.std(fs, ddof=1) / math.sqrt(len(fs))) if len(fs) > 1 else 0.0
+    inside = [r["inside"] for r in check_against_curve(full, sc.curve) if sc.scored is None or r["coordinate"] in sc.scored]
+    return CandidateScore(full.name, full.n_params, [float(x) for x in fs], float(np.mean(fs)), se, passive, sig, float(np.mean(wfs)),
+                          curve_agreement=float(np.mean(inside)) if inside else 1.0, fitted=full)
+
+
+def _choose(scores: list[CandidateScore], opts: LawSelectionOptions) -> tuple[CandidateScore, str]:
+    """The eligible law with the fewest parameters not significantly worse than the best; and the rule in words."""
+    sig_ok = [s for s in scores if s.passive and (s.every_ci_excludes_zero or not opts.require_significant)]
+    ok = [s for s in sig_ok if s.curve_agreement >= opts.min_agreement] or sig_ok or [s for s in scores if s.passive] or scores
+    best = min(ok, key=lambda s: s.mean)
+    for s in scores:  # paired standard error of the fold-wise difference to the best candidate
+        d = np.asarray(s.fold_scores) - np.asarray(best.fold_scores)
+        s.diff_se = float(np.std(d, ddof=1) / math.sqrt(len(d))) if len(d) > 1 else 0.0
+    # not significantly worse than the best: one-sided paired t-test at 5% over the folds
+    t_margin = float(student_t.ppf(0.95, max(len(best.fold_scores) - 1, 1)))
+    pick = min([s for s in ok if s.mean - best.mean <= t_margin * s.diff_se], key=lambda s: (s.n_params, s.mean))
+    sig_txt = (f", every coefficient |t| >= {opts.min_t:g} (95% interval excludes zero) and its rms force >= {opts.min_share:g} "
+               "of the rms total friction force" if opts.require_significant else "")
+    rule = ("passive over observed speeds" + sig_txt + f", inside the training friction curve's 95% interval in >= "
+            f"{opts.min_agreement:.0%} of its speed bands; fewest parameters (a Stribeck term counts 2) among those not "
+            f"significantly worse than the best (one-sided paired t-test over the folds at 5%: mean difference <= "
+            f"{t_margin:.3g} x its standard error); ties: lower mean")
+    return pick, rule
+
+
 def select_law(system: System, rec: Recordings, candidates: Sequence[Sequence[Any]] | None = None,
-               window: int | None = None, eps: float | None = None, block: int | None = None, criterion: str = "curve",
-               rollout_window: float | None = None, init_samples: int | None = None, n_time_blocks: int = 4,
-               max_terms: int = 3, require_significant: bool = True, min_t: float = 3.0, min_share: float = 0.01,
-               relative: bool | None = None, bands: str = "quantile", n_bands: int = 8,
-               progress: bool = False, coordinate: int | None = None, min_agreement: float = 0.75) -> Selection:
+               window: int | None = None, eps: float | None = None, block: int | None = None, coordinate: int | None = None,
+               options: LawSelectionOptions | None = None, **overrides: Any) -> Selection:
     """Choose a friction law by prediction on data not used for its fit.
 
     Each candidate (a list of terms as in :func:`fit_law`; default :func:`candidate_laws`) is fitted by the weak form on
@@ -786,97 +912,24 @@ def select_law(system: System, rec: Recordings, candidates: Sequence[Sequence[An
     2) that is not significantly worse than the best (one-sided paired t-test of the fold-wise differences at 5%);
     ties: lower mean.  (A plain one-standard-error rule lets a noisy candidate through while excluding one that tracks
     the best closely.)"""
-    wf_all = weak_form(system, rec, window, eps, block)
-    window = wf_all.window
-    eps = wf_all.eps
+    opts = replace(options or LawSelectionOptions(), **overrides)
     if candidates is not None:
         specs_list = [_parse_terms(c, rec.n) for c in candidates]
     elif coordinate is not None:
-        specs_list = coordinate_laws(coordinate, max_terms)
+        specs_list = coordinate_laws(coordinate, opts.max_terms)
     else:
-        specs_list = candidate_laws(rec.n, max_terms)
-    scored = None if coordinate is None else [coordinate]
-    folds, fold_txt = _folds(rec, n_time_blocks)
-    period = 2 * math.pi * time_scale(rec.q, rec.dt)
-    W = int(round((rollout_window or 3 * period) / rec.dt)) + 1
-    K = int(init_samples or max(10, int(round(0.5 * period / rec.dt)) // 4))
-    fold_wf = []
-    for tr, te in folds:
-        fold_wf.append((weak_form(system, tr, window, eps, block), weak_form(system, te, window, eps, block), te))
-    sigma = estimate_noise(rec.q)
-    curve = friction_curve(system, rec, window, bands=bands, n_bands=n_bands, eps=eps, block=block)  # the band-by-band check
-    edges = [_edges(np.abs(wf_all.vs[..., i]).reshape(-1), bands, n_bands) for i in range(rec.n)]
-    min_count = max(10, 2 * window)
-    ref = []
-    for i in range(rec.n):  # pooled |curve| per band: the common denominator of the curve score
-        sp, sg_ = np.abs(wf_all.vs[..., i]), np.sign(wf_all.vs[..., i])
-        vals = [abs(float(np.mean((wf_all.total[..., i] * sg_)[(sp >= a) & (sp < b)]))) if np.any((sp >= a) & (sp < b)) else 0.0
-                for a, b in zip(edges[i][:-1], edges[i][1:])]
-        floor = 0.05 * max(vals + [1e-300])
-        ref.append(np.maximum(np.asarray(vals), floor))
-    caches = [({}, {}) for _ in folds]
-    cache_all: dict = {}
-    own = _own_samples(system, wf_all)
-    scores: list[CandidateScore] = []
+        specs_list = candidate_laws(rec.n, opts.max_terms)
+    sc = _scoring(system, rec, window, eps, block, coordinate, opts)
+    scores = []
     for c_idx, specs in enumerate(specs_list):
-        full = _fit_law(wf_all, specs, cache=cache_all, own=own, own_terms=_own_terms(system))
-        passive = is_passive(full, [float(np.max(np.abs(wf_all.vs[..., i]))) for i in range(rec.n)]).passive
-        tot_rms = [float(np.sqrt(np.mean(wf_all.total[..., i] ** 2))) + 1e-300 for i in range(rec.n)]
-        share = [float(np.sqrt(np.mean((t.coefficient * _design(wf_all, [(t.term, t.coordinate, t.velocity)], cache_all)) ** 2)))
-                 / tot_rms[t.coordinate] for t in full.terms]
-        sig = all(t.excludes_zero and abs(t.t) >= min_t and sh >= min_share for t, sh in zip(full.terms, share))
-        fs, wfs = [], []
-        for (wtr, wte, te), (ctr, cte) in zip(fold_wf, caches):
-            law = _fit_law(wtr, specs, cache=ctr, own=own, own_terms=_own_terms(system))
-            # fixed v_s from this fold's profile: predict the left-out weak form
-            fixed = [(t.term, t.coordinate) + ((t.velocity,) if t.term == "stribeck_friction" else ()) for t in law.terms]
-            X = _design(wte, fixed, cte)
-            res = []
-            for i in range(rec.n):
-                idx = [k for k, t in enumerate(law.terms) if t.coordinate == i]
-                pi = np.einsum("ntk,k->nt", X[..., idx], np.array([law.terms[k].coefficient for k in idx])) if idx else 0.0
-                res.append((wte.total[..., i] - wte.own[..., i] - pi).reshape(-1))
-            wfs.append(float(np.sqrt(np.mean(np.concatenate(res) ** 2))))
-            if criterion == "weak_form":
-                fs.append(wfs[-1])
-            elif criterion in ("window_rollout", "rollout"):
-                m = law.augmented(system)
-                rel = (criterion == "window_rollout") if relative is None else relative
-                fs.append(rollout_score(m, te, W if criterion == "window_rollout" else None, K, window, sigma, relative=rel)[0])
-            elif criterion == "curve":
-                fs.append(_curve_score(law, wte, edges, min_count, ref, scored))
-            else:
-                raise ValueError(f"unknown criterion {criterion!r}")
-        mean = float(np.mean(fs))
-        se = float(np.std(fs, ddof=1) / math.sqrt(len(fs))) if len(fs) > 1 else 0.0
-        inside = [r["inside"] for r in check_against_curve(full, curve) if scored is None or r["coordinate"] in scored]
-        scores.append(CandidateScore(full.name, full.n_params, [float(x) for x in fs], mean, se, passive, sig,
-                                     float(np.mean(wfs)), curve_agreement=float(np.mean(inside)) if inside else 1.0, fitted=full))
-        if progress:
-            print(f"[select_law {c_idx + 1}/{len(specs_list)}] {full.name}: {mean:.4g} +- {se:.2g} passive={passive} sig={sig}",
-                  flush=True)
+        scores.append(_score(sc, specs))
+        if opts.progress:
+            s = scores[-1]
+            print(f"[select_law {c_idx + 1}/{len(specs_list)}] {s.law}: {s.mean:.4g} +- {s.se:.2g} passive={s.passive} "
+                  f"sig={s.every_ci_excludes_zero}", flush=True)
     scores.sort(key=lambda s: s.mean)
-    ok = [s for s in scores if s.passive and (s.every_ci_excludes_zero or not require_significant)
-          and s.curve_agreement >= min_agreement]
-    if not ok:
-        ok = [s for s in scores if s.passive and (s.every_ci_excludes_zero or not require_significant)]
-    if not ok:
-        ok = [s for s in scores if s.passive] or scores
-    best = min(ok, key=lambda s: s.mean)
-    for s in scores:  # paired standard error of the fold-wise difference to the best candidate
-        d = np.asarray(s.fold_scores) - np.asarray(best.fold_scores)
-        s.diff_se = float(np.std(d, ddof=1) / math.sqrt(len(d))) if len(d) > 1 else 0.0
-    # not significantly worse than the best: one-sided paired t-test at 5% over the folds
-    t_margin = float(student_t.ppf(0.95, max(len(best.fold_scores) - 1, 1)))
-    within = [s for s in ok if s.mean - best.mean <= t_margin * s.diff_se]
-    pick = min(within, key=lambda s: (s.n_params, s.mean))
-    sig_txt = (f", every coefficient |t| >= {min_t:g} (95% interval excludes zero) and its rms force >= {min_share:g} of the "
-               "rms total friction force" if require_significant else "")
-    rule = ("passive over observed speeds" + sig_txt + f", inside the training friction curve's 95% interval in >= {min_agreement:.0%} "
-            "of its speed bands"
-            + f"; fewest parameters (a Stribeck term counts 2) among those not significantly worse than the best (one-sided "
-              f"paired t-test over the folds at 5%: mean difference <= {t_margin:.3g} x its standard error); ties: lower mean")
-    return Selection(pick.fitted, pick.law, criterion, scores, fold_txt, rule)
+    pick, rule = _choose(scores, opts)
+    return Selection(pick.fitted, pick.law, opts.criterion, scores, sc.fold_txt, rule)
 
 
 def select_friction(system: System, rec: Recordings, **kwargs: Any) -> tuple[FrictionLaw, list[Selection]]:
