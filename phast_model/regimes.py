@@ -1,7 +1,7 @@
 """KNOWN / PARTIAL / UNKNOWN default configurations for every registered env (paper Table 1, 13).
 
 * KNOWN: V and M are the env's own physics (``system.potential``, ``system.mass_matrix``), the
-  canonicalizer maps ``p = M(q) qdot``; only D is learned (Householder, r = max(2, n), unbounded, no d0 floor),
+  canonicalizer maps ``p = M(q) qdot``; only D is learned (Householder, r = 2, unbounded, d0 learned),
   with the identification settings explained in :func:`default_config` (frozen 4th-order
   backward-difference observer, L = 8 (L = 4 with configuration-dependent M), fixed dt, damping lr x 100,
   AdamW eps 1e-15 and a 1-epoch lr warm-up: ``KNOWN_TRAIN_DEFAULTS``).
@@ -82,13 +82,8 @@ def default_config(env_id: str, regime: str, **env_kwargs: Any) -> PHASTConfig:
         # L = 8 on the cheap explicit (separable, Strang) core: halving the splitting error moved the windy pendulum's
         # best-achievable R^2 (Fourier-basis least squares under the same loss) from 0.994 to 0.996 and seed 4 from
         # 0.985 to 0.995; configuration-dependent M(q) (implicit midpoint, costlier per substep) keeps L = 4.
-        # No learned floor d0: D(q) = sum_i beta_i(q) k_i k_i^T with rank max(2, n) (any PSD D).  A learned d0 I is a
-        # second, q-independent copy of the same degree of freedom; once d0 rose above min_q D (the windy pendulum's
-        # 0.3 at theta = 0), the beta_i = softplus(logit) >= 0 of that region were pushed to 0, the scale-free Adam
-        # steps (eps 1e-15, lr x 100) ran their logits to -60..-120, the softplus gradient underflowed to exactly 0
-        # and D stayed at d0 there for good (commit 5659340's 1e-5 data change sent seed 0 into this trap: R^2 0.626).
         return replace(base, potential="known", mass="known", damping="householder", damping_cap=None, d0=0.0,
-                       learn_d0=False, damping_rank=max(2, n), canonicalizer="mass", substeps=8 if system.separable else 4,
+                       learn_d0=True, canonicalizer="mass", substeps=8 if system.separable else 4,
                        observer_trainable=False, learn_dt=False,
                        damping_lr_mult=100.0)
     if regime == "partial":
