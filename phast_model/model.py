@@ -218,7 +218,12 @@ class PHAST(ForecastModel):
     def param_groups(self, lr: float) -> list[dict[str, Any]]:
         """Optimizer parameter groups (the trainer uses this hook when present): the damping
         parameters get ``damping_lr_mult * lr``."""
-        damp = {id(p) for p in self.damping.parameters()} if self.damping is not None else set()
+        # the multiplier is for the damping *network*; its constant floor d0 keeps the base lr: at lr x 100 the
+        # scalar d0 raced the network above min_q D (windy pendulum seed 0: 0.1 -> 0.45 in 10 epochs), the softplus
+        # logits of the region where D < d0 were driven to -60..-120 (scale-free Adam, eps 1e-15), their gradient
+        # underflowed to exactly 0 and D stayed at d0 there for good (R^2 0.626)
+        floor = {id(getattr(self.damping, "raw_d0", None))} - {id(None)} if self.damping is not None else set()
+        damp = {id(p) for p in self.damping.parameters()} - floor if self.damping is not None else set()
         rest = [p for p in self.parameters() if p.requires_grad and id(p) not in damp]
         groups = [{"params": rest, "lr": lr}] if rest else []
         dp = [p for p in self.parameters() if p.requires_grad and id(p) in damp]

@@ -3,7 +3,8 @@
 * KNOWN: V and M are the env's own physics (``system.potential``, ``system.mass_matrix``), the
   canonicalizer maps ``p = M(q) qdot``; only D is learned (Householder, r = 2, unbounded, d0 learned),
   with the identification settings explained in :func:`default_config` (frozen 4th-order
-  backward-difference observer, L = 8 (L = 4 with configuration-dependent M), fixed dt, damping lr x 100,
+  backward-difference observer, L = 8 (L = 4 with configuration-dependent M), fixed dt, damping-network lr x 100
+  (the floor d0 keeps the base lr, see :meth:`phast_model.model.PHAST.param_groups`),
   AdamW eps 1e-15 and a 1-epoch lr warm-up: ``KNOWN_TRAIN_DEFAULTS``).
   Configuration-dependent M(q) (cart-pole, double pendulum) uses the implicit-midpoint core.
 * PARTIAL: V = template with learnable coefficients (least-squares initialized from the env's
@@ -78,7 +79,8 @@ def default_config(env_id: str, regime: str, **env_kwargs: Any) -> PHASTConfig:
         # the observer; a trainable observer can absorb D under the one-step loss (gauge: only v_hat (1 - dt/2 D)
         # enters q_{t+1} when L = 1), and the L = 1 splitting error is O(dt) relative to D v.  KNOWN therefore keeps
         # the observer at its 4th-order backward-difference init, uses L >= 4 substeps, the env dt, a 100x
-        # learning rate on the damping network (the only physics left to learn) and KNOWN_TRAIN_DEFAULTS.
+        # learning rate on the damping network (the only physics left to learn; not on its floor d0, which at x 100
+        # overshot min_q D and killed the softplus terms below it: PHAST.param_groups) and KNOWN_TRAIN_DEFAULTS.
         # L = 8 on the cheap explicit (separable, Strang) core: halving the splitting error moved the windy pendulum's
         # best-achievable R^2 (Fourier-basis least squares under the same loss) from 0.994 to 0.996 and seed 4 from
         # 0.985 to 0.995; configuration-dependent M(q) (implicit midpoint, costlier per substep) keeps L = 4.

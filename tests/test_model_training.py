@@ -195,7 +195,11 @@ def test_known_trainer_defaults_and_warmup(splits, tmp_path):
     # 48 trajectories / 16 = 3 steps per epoch: 2 warm-up epochs = 6 steps, then cosine over 12 steps
     cfg = TrainConfig(epochs=4, batch_size=16, val_every=2, progress=False, warmup_epochs=2.0)
     res = fit(model, splits["train"], splits["val"], cfg, run_dir=tmp_path / "w")
-    base = cfg.lr * model.config.damping_lr_mult
+    # the damping network gets lr x damping_lr_mult, its floor d0 the base lr (the history records group 0: d0's)
+    groups = model.param_groups(cfg.lr)
+    assert [g["lr"] for g in groups] == [cfg.lr, cfg.lr * model.config.damping_lr_mult]
+    assert groups[0]["params"] == [model.core.damping.raw_d0] and model.config.damping_lr_mult == 100.0
+    base = cfg.lr
     assert math.isclose(res.history[0]["lr"], base * 4 / 7, rel_tol=1e-6)  # linear ramp, step 3 of 6
     assert math.isclose(res.history[1]["lr"], base * 0.5, rel_tol=1e-6)  # cosine at 6 / 12
     ck = torch.load(tmp_path / "w" / "checkpoint.pt", weights_only=True)  # LambdaLR state stays loadable
