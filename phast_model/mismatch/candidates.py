@@ -17,10 +17,12 @@ import numpy as np
 
 from phast_gym.systems.base import NUMPY, System
 
-from .energy import STRIBECK_GRID, dissipative_basis
 from .shooting import momentum
 from .simulators import Simulator
-from .terms import FORCE_TERMS, VOCABULARY, AugmentedSystem, Term, default_value
+from .terms import FORCE_TERMS, VOCABULARY, AugmentedSystem, Term, default_value, friction_basis
+
+#: Stribeck velocities of the shooting candidates, as fractions of the coordinate's rms speed (a chosen one is refined)
+STRIBECK_FRACTIONS = tuple(0.05 * 2.0**k for k in range(4))  # 0.05, 0.1, 0.2, 0.4
 
 if TYPE_CHECKING:
     from .problem import Problem
@@ -159,9 +161,9 @@ def candidates(problem: Problem, system: System) -> list[Candidate]:
                 if b > 1e-12:
                     out.append(Candidate(name, i, float(force_rms[i] / b), h))
             elif name == "stribeck_friction":  # one candidate per Stribeck velocity of a coarse grid
-                for f in STRIBECK_GRID[::2]:
+                for f in STRIBECK_FRACTIONS:
                     w = float(f * vi_rms)
-                    b = float(np.sqrt(np.mean(dissipative_basis(name, qi, vi, eps, w) ** 2)))
+                    b = float(np.sqrt(np.mean(np.asarray(friction_basis(name, qi, vi, eps, w, NUMPY)) ** 2)))
                     if b > 1e-12:
                         out.append(Candidate(name, i, float(force_rms[i] / b), h, w))
             elif name == "armature" and name in VOCABULARY:  # c added to M_ii (c >= 0): z = 1 is 5% of the coordinate's inertia

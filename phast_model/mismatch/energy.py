@@ -17,16 +17,6 @@ from phast_gym.systems.base import NUMPY, System
 
 from .recordings import Recordings
 from .shooting import momentum, smooth
-from .terms import friction_basis
-
-DISSIPATIVE = ("viscous_damping", "coulomb_friction", "quadratic_drag", "position_dependent_damping", "stribeck_friction")
-#: Stribeck velocities tried, as fractions of the coordinate's rms velocity
-STRIBECK_GRID = tuple(0.05 * 2 ** (k / 2) for k in range(7))  # 0.05 ... 0.4, steps of sqrt(2)
-
-
-def dissipative_basis(name: str, q: np.ndarray, v: np.ndarray, eps: float, vs: float = 0.0) -> np.ndarray:
-    """f(q, v) of a dissipative vocabulary term (force = -c f), the model's own law (:func:`.terms.friction_basis`)."""
-    return np.asarray(friction_basis(name, q, v, eps, vs, NUMPY))
 
 
 def _intervals(v: np.ndarray, margin: int, min_len: int) -> list[tuple[int, int]]:

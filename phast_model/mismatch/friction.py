@@ -575,14 +575,6 @@ def check_against_curve(law: FrictionLaw, curve: FrictionCurve) -> list[dict[str
              "ci95": list(b.ci95), "law": v, "inside": bool(b.ci95[0] <= v <= b.ci95[1])} for b, v in zip(curve.bands, vals)]
 
 
-def format_check(rows: list[dict[str, Any]]) -> str:
-    lines = ["| coord | dir | |qdot| band | curve [95% CI] | law | inside |", "|---|---|---|---|---|---|"]
-    for r in rows:
-        lines.append(f"| {r['coordinate']} | {r['direction']} | {r['band'][0]:.3g}-{r['band'][1]:.3g} | {r['curve']:.4g} "
-                     f"[{r['ci95'][0]:.4g}, {r['ci95'][1]:.4g}] | {r['law']:.4g} | {'yes' if r['inside'] else 'NO'} |")
-    return "\n".join(lines)
-
-
 def plot_friction_curve(curve: FrictionCurve, laws: dict[str, FrictionLaw] | Sequence[FrictionLaw] | None, path: str) -> str:
     """Curve (bands with 95% intervals, and the model's own force) per coordinate, with candidate laws overlaid
     (through the same filter and bands, and as their unfiltered force vs speed).  Writes a PNG (matplotlib Agg)."""
@@ -645,18 +637,6 @@ def candidate_laws(n: int, max_terms: int = 3, terms: Sequence[str] = LAW_TERMS)
     return out
 
 
-def _cut_windows(rec: Recordings, length: int) -> Recordings:
-    """Consecutive windows of ``length`` samples of every recording, as recordings (remainder dropped)."""
-    k = rec.T // length
-    if k <= 1:
-        return rec
-    q = rec.q[:, : k * length].reshape(rec.n_traj * k, length, rec.n)
-    u = None
-    if rec.u is not None:
-        u = np.stack([rec.u[:, j * length: j * length + length - 1] for j in range(k)], 1).reshape(rec.n_traj * k, length - 1, -1)
-    return Recordings(q, rec.dt, u, rec.angle_dims, rec.source, rec.meta)
-
-
 def rollout_score(system: System, rec: Recordings, window: int | None, init_samples: int, sg: int,
                   sigma: np.ndarray | None = None, relative: bool = True) -> tuple[float, np.ndarray]:
     """Open-loop rollout error of ``system`` on ``rec`` cut into windows of ``window`` samples (None: whole recordings),
@@ -665,7 +645,7 @@ def rollout_score(system: System, rec: Recordings, window: int | None, init_samp
     ones); returns (mean over windows, per-window values)."""
     from .evaluate import evaluate_models
 
-    recw = _cut_windows(rec, window) if window else rec
+    recw = rec.windows(window) if window else rec
     sigma = estimate_noise(rec.q) if sigma is None else sigma
     sigma = np.maximum(sigma, 1e-6 * (rec.q.reshape(-1, rec.n).std(0) + 1e-12))
     qs, vs = smooth(recw.q, recw.dt, min(sg, _odd(recw.T // 2 - 1)))
@@ -716,6 +696,7 @@ class CandidateScore:
     weak_form_loro: float  # mean over folds of the left-out weak-form force RMSE
     diff_se: float = 0.0  # paired standard error of (fold scores - the best candidate's fold scores)
     curve_agreement: float = 1.0  # share of the training curve's speed bands whose 95% interval holds the law
+    not_worse: bool = False  # eligible and not significantly worse than the best (one-sided paired t-test, 5%)
     fitted: FrictionLaw | None = field(default=None, repr=False)  # fitted on all training recordings
 
     def to_dict(self) -> dict[str, Any]:
@@ -873,7 +854,9 @@ def _choose(scores: list[CandidateScore], opts: LawSelectionOptions) -> tuple[Ca
         s.diff_se = float(np.std(d, ddof=1) / math.sqrt(len(d))) if len(d) > 1 else 0.0
     # not significantly worse than the best: one-sided paired t-test at 5% over the folds
     t_margin = float(student_t.ppf(0.95, max(len(best.fold_scores) - 1, 1)))
-    pick = min([s for s in ok if s.mean - best.mean <= t_margin * s.diff_se], key=lambda s: (s.n_params, s.mean))
+    for s in ok:
+        s.not_worse = s.mean - best.mean <= t_margin * s.diff_se
+    pick = min([s for s in ok if s.not_worse], key=lambda s: (s.n_params, s.mean))
     sig_txt = (f", every coefficient |t| >= {opts.min_t:g} (95% interval excludes zero) and its rms force >= {opts.min_share:g} "
                "of the rms total friction force" if opts.require_significant else "")
     rule = ("passive over observed speeds" + sig_txt + f", inside the training friction curve's 95% interval in >= "
@@ -919,7 +902,12 @@ def select_law(system: System, rec: Recordings, candidates: Sequence[Sequence[An
         specs_list = coordinate_laws(coordinate, opts.max_terms)
     else:
         specs_list = candidate_laws(rec.n, opts.max_terms)
-    sc = _scoring(system, rec, window, eps, block, coordinate, opts)
+    return _select(_scoring(system, rec, window, eps, block, coordinate, opts), specs_list)
+
+
+def _select(sc: _Scoring, specs_list: list[list[Spec]]) -> Selection:
+    """Score every candidate law against ``sc`` and choose."""
+    opts = sc.opts
     scores = []
     for c_idx, specs in enumerate(specs_list):
         scores.append(_score(sc, specs))
@@ -936,7 +924,10 @@ def select_friction(system: System, rec: Recordings, **kwargs: Any) -> tuple[Fri
     """:func:`select_law` coordinate by coordinate (friction is diagonal: the weak-form balance of coordinate i holds
     only the terms on i, so the choices are independent and the candidate count stays linear in n).  Returns the
     merged law and the per-coordinate selections."""
-    sels = [select_law(system, rec, coordinate=i, **kwargs) for i in range(rec.n)]
+    opts = replace(LawSelectionOptions(), **{k: v for k, v in kwargs.items() if k not in ("window", "eps", "block")})
+    sc = _scoring(system, rec, kwargs.get("window"), kwargs.get("eps"), kwargs.get("block"), None, opts)  # weak forms, folds
+    # and curve computed once, shared by the coordinates
+    sels = [_select(replace(sc, scored=[i]), coordinate_laws(i, opts.max_terms)) for i in range(rec.n)]
     first = sels[0].chosen
     merged = FrictionLaw([t for s in sels for t in s.chosen.terms], first.eps, first.n, float(sum(s.chosen.rss for s in sels)),
                          first.n_obs, first.interval, first.own_samples, first.own_terms)

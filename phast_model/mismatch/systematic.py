@@ -43,9 +43,6 @@ from .shooting import ShootFit
 from .terms import VOCABULARY, AugmentedSystem, Term
 from .weakid import WeakFit, WeakModel, check_parameters, identify
 
-#: laws whose fold score is within this many paired standard errors of the chosen one are named as alternatives
-NEAR_SE = 1.0
-
 
 @dataclass
 class SystematicContext:
@@ -89,9 +86,7 @@ def _law_rows(law: FrictionLaw, sels: list[Selection], passive: dict[str, Any], 
     for t in law.terms:
         sel = sels[t.coordinate]
         term = Term(t.term, t.coordinate, t.coefficient, t.velocity)
-        best = next(s for s in sel.scores if s.law == sel.chosen_name)
-        near = [s.law for s in sel.scores if s.law != sel.chosen_name and s.passive and s.every_ci_excludes_zero
-                and s.mean - best.mean <= NEAR_SE * max(s.diff_se, 1e-300)]
+        near = [s.law for s in sel.scores if s.law != sel.chosen_name and s.not_worse]
         note = ""
         if t.coefficient < 0:
             total = own.get(t.coordinate, 0.0) + t.coefficient if t.term == "viscous_damping" else None
