@@ -19,7 +19,9 @@ from torch import nn
 from phast_gym import make_env_system, resolve_env_id
 from phast_gym.systems import NUMPY, TORCH, System, split, stack
 
+from . import data_init
 from .components import (
+    CholeskyMass,
     FDTCNObserver,
     HouseholderDamping,
     HybridPotential,
@@ -28,9 +30,11 @@ from .components import (
     KnownPotential,
     LowRankMass,
     NeuralPotential,
+    TemplateMass,
     make_template,
 )
 from .components.features import coordinate_features, n_features
+from .components.potentials import TemplatePotential
 from .core import PHASTCore
 from .interfaces import ForecastModel, coordinate_error, wrap_angles
 
@@ -45,8 +49,14 @@ class PHASTConfig:
     potential: str = "known"  # known | template | neural | hybrid
     template: str | None = None  # cosine | quadratic | lennard_jones | gravity
     template_dims: list[int] | None = None
-    mass: str = "known"  # known | lowrank
+    mass: str = "known"  # known | lowrank | template | cholesky
     mass_rank: int = 1
+    mass_template: str | None = None  # mass="template": cartpole | double_pendulum | double_pendulum_relative
+    mass_hidden: int = 32  # mass="cholesky": hidden width of the factor network
+    #: where learned physics starts: "data" (least squares on the training set at the start of training,
+    #: :mod:`phast_model.data_init`), "physics" (template and mass fitted to the env's true V and M: the
+    #: "V given" variant) or "none" (unit coefficients, identity mass)
+    init_from: str = "data"
     damping: str = "householder"  # householder | known | none
     damping_rank: int = 2
     damping_hidden: int = 32
@@ -160,6 +170,33 @@ class PHAST(ForecastModel):
         v = self.observer(q_hist[:, -self.observer.window:])[:, -1]
         q = q_hist[:, -1]
         return q, self.canonicalize(q, v)
+
+    # ---- least-squares start (init_from="data") ----------------------------------
+    #: the KNOWN damping floor starts at this fraction of the smallest damping the data show (below it, so the
+    #: softplus terms above the floor are not pushed negative where D is smallest)
+    floor_margin = 0.8
+
+    @torch.no_grad()
+    def initialize_from_data(self, q: torch.Tensor, u: torch.Tensor | None) -> dict[str, float]:
+        """Start the learned physics from one least squares on the training set (:mod:`phast_model.data_init`):
+        PARTIAL's template and mass coefficients, KNOWN's damping floor d0.  Called by
+        :func:`phast_model.training.fit` before the first epoch (not on resume); a no-op unless
+        ``init_from == "data"``.  Returns what it set."""
+        if self.config.init_from != "data" or not isinstance(self.core, PHASTCore):
+            return {}
+        f = self.port_force(self.pad_u(u, q.shape[1])) if u is not None else None
+        kin = data_init.kinematics(q, f, self.dt, tuple(self.angle_dims))
+        pot = self.potential
+        if isinstance(pot, (TemplatePotential, HybridPotential)) and hasattr(self.mass, "linear_basis"):
+            fit = data_init.initialize_partial(self, kin)
+            return {"init_residual": fit.residual}
+        damp = self.damping
+        if isinstance(pot, KnownPotential) and isinstance(damp, HouseholderDamping) and damp.learn_d0:
+            floor = data_init.damping_floor(self, kin)
+            d0 = max(self.floor_margin * floor, 1e-3)
+            damp.raw_d0.copy_(torch.log(torch.expm1(torch.tensor(d0, dtype=damp.raw_d0.dtype))))
+            return {"init_damping_floor": floor, "init_d0": d0}
+        return {}
 
     # ---- ForecastModel --------------------------------------------------------
     def _prep(self, q: torch.Tensor, u: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor | None]:
@@ -467,6 +504,8 @@ def build_from_config(cfg: PHASTConfig) -> PHAST:
         q_typ = torch.as_tensor(system.sample_initial(np.random.default_rng(0), 256)[:, :n], dtype=torch.float32)
         model.init_prior(q_typ, qs)
         return model
+    if cfg.init_from not in ("data", "physics", "none"):
+        raise ValueError(f"init_from must be data, physics or none, got {cfg.init_from!r}")
     if cfg.kind != "phast":
         raise ValueError(f"kind must be 'phast' or 'latent_ode', got {cfg.kind!r}")
     if not system.hamiltonian_system:
@@ -477,7 +516,8 @@ def build_from_config(cfg: PHASTConfig) -> PHAST:
         if cfg.template is None:
             raise ValueError(f"potential={cfg.potential!r} needs a template name")
         t = make_template(cfg.template, n, tuple(cfg.template_dims) if cfg.template_dims is not None else None)
-        t.fit_to(system)
+        if cfg.init_from == "physics":
+            t.fit_to(system)
         return t
 
     e_scale = float(np.mean(v_scale**2))
@@ -498,17 +538,21 @@ def build_from_config(cfg: PHASTConfig) -> PHAST:
     if cfg.mass == "known":
         mass = KnownMass(system)
     elif cfg.mass == "lowrank":
-        diag_init = 1.0
-        if cfg.canonicalizer == "mass":  # physical gauge: start from the mean diagonal of the env's M(q)
+        mass = LowRankMass(n, cfg.mass_rank, diag_init=1.0, seed=cfg.seed)
+        if cfg.init_from == "physics" and cfg.canonicalizer == "mass":  # the mean diagonal of the env's M(q)
             x = system.sample_initial(np.random.default_rng(0), 256)[:, :n]
             rows = system.mass_matrix(split(x), NUMPY)
-            diag_init = torch.tensor([float(np.mean(rows[i][i])) for i in range(n)])
-        mass = LowRankMass(n, cfg.mass_rank, diag_init=1.0, seed=cfg.seed)
-        if isinstance(diag_init, torch.Tensor):
-            with torch.no_grad():
-                mass.raw_d.copy_(torch.log(torch.expm1(diag_init)))
+            mass.set_linear(torch.tensor([float(np.mean(rows[i][i])) for i in range(n)]))
+    elif cfg.mass == "template":
+        if cfg.mass_template is None:
+            raise ValueError("mass='template' needs mass_template (cartpole, double_pendulum, double_pendulum_relative)")
+        mass = TemplateMass(cfg.mass_template)
+        if n != mass.n:
+            raise ValueError(f"mass template {cfg.mass_template!r} has {mass.n} coordinates, {env_id} has {n}")
+    elif cfg.mass == "cholesky":
+        mass = CholeskyMass(n, angle, cfg.mass_hidden, q_scale=torch.as_tensor(q_scale))
     else:
-        raise ValueError(f"mass must be known or lowrank, got {cfg.mass!r}")
+        raise ValueError(f"mass must be known, lowrank, template or cholesky, got {cfg.mass!r}")
     # damping
     if cfg.damping == "householder":
         damp = HouseholderDamping(n, angle, cfg.damping_rank, hidden=cfg.damping_hidden, cap=cfg.damping_cap, d0=cfg.d0,

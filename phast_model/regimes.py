@@ -25,6 +25,7 @@ from dataclasses import fields, replace
 from typing import Any
 
 from phast_gym import env_ids, make_env_system, resolve_env_id
+from phast_gym.systems import System
 
 from .interfaces import ForecastModel
 from .model import PHASTConfig, build_from_config
@@ -42,6 +43,10 @@ TEMPLATES: dict[str, tuple[str, list[int] | None]] = {
     "lennard_jones3": ("lennard_jones", None),
     "nbody3": ("gravity", None),
 }
+
+
+#: systems with a configuration-dependent M(q) and their PARTIAL mass template (:class:`TemplateMass`)
+MASS_TEMPLATES = ("cartpole", "double_pendulum")
 
 
 #: trainer defaults of KNOWN (see :func:`build_model`; a TrainConfig value overrides them).  With V, M and the
@@ -88,12 +93,29 @@ def default_config(env_id: str, regime: str, **env_kwargs: Any) -> PHASTConfig:
                        learn_d0=True, canonicalizer="mass", substeps=8 if system.separable else 4,
                        observer_trainable=False, learn_dt=False,
                        damping_lr_mult=100.0)
+    mass_tmpl = _mass_template(system)
     if regime == "partial":
         cap, base_d = _windy(system.params)
-        return replace(base, potential="hybrid", template=tmpl, template_dims=dims, mass="lowrank", mass_rank=min(4, n),
+        mass = {"mass": "template", "mass_template": mass_tmpl} if mass_tmpl else {"mass": "lowrank", "mass_rank": min(4, n)}
+        return replace(base, potential="hybrid", template=tmpl, template_dims=dims, **mass,
                        damping_cap=cap, d0=base_d, learn_d0=cap is None, canonicalizer="mass")
+    if not system.separable:  # a neural M(q) = L L^T; p = M(q) qdot keeps the canonical state consistent with it
+        return replace(base, potential="neural", mass="cholesky", damping_cap=None, d0=0.0, learn_d0=True,
+                       canonicalizer="mass")
     return replace(base, potential="neural", mass="lowrank", mass_rank=min(4, n), damping_cap=None, d0=0.0,
                    learn_d0=True, canonicalizer="identity")
+
+
+def _mass_template(system: System) -> str | None:
+    """The PARTIAL mass template of a configuration-dependent M(q) (None when M is constant)."""
+    if system.separable:
+        return None
+    if system.name == "double_pendulum" and system.params.get("coordinates") == "relative":
+        return "double_pendulum_relative"
+    if system.name not in MASS_TEMPLATES:
+        raise ValueError(f"no PARTIAL mass template for {system.name!r} (configuration-dependent M); "
+                         f"known: {MASS_TEMPLATES}")
+    return system.name
 
 
 def build_model(env_id: str, regime: str, **overrides: Any) -> ForecastModel:

@@ -231,6 +231,10 @@ def fit(model: ForecastModel, train: Any, val: Any, cfg: TrainConfig | None = No
     if q_tr.shape[-1] != model.n:
         raise ValueError(f"model has n={model.n} coordinates, training data has {q_tr.shape[-1]}")
     skip = int(cfg.skip_first if cfg.skip_first is not None else getattr(model, "loss_skip", 0))
+    ckpt_path = Path(run_dir) / CHECKPOINT if run_dir is not None else None
+    resuming = resume and ckpt_path is not None and ckpt_path.exists()
+    if not resuming and hasattr(model, "initialize_from_data"):  # least-squares start of the learned physics
+        model.initialize_from_data(q_tr, u_tr)
     torch.manual_seed(cfg.seed)
     gen = torch.Generator().manual_seed(cfg.seed)
     groups = model.param_groups(cfg.lr) if hasattr(model, "param_groups") else [
@@ -249,8 +253,7 @@ def fit(model: ForecastModel, train: Any, val: Any, cfg: TrainConfig | None = No
     history: list[dict[str, Any]] = []
     best_val, best_epoch, best_state = math.inf, -1, copy.deepcopy(model.state_dict())
     start_epoch, nan_events, elapsed0 = 0, 0, 0.0
-    ckpt_path = Path(run_dir) / CHECKPOINT if run_dir is not None else None
-    if resume and ckpt_path is not None and ckpt_path.exists():
+    if resuming:
         ck = _load_checkpoint(ckpt_path)
         check_resume(ckpt_path, cfg, identity, ck)
         try:

@@ -9,7 +9,7 @@
 
 from .damping import Damping, HouseholderDamping, KnownDamping
 from .features import coordinate_features, n_features
-from .mass import KnownMass, LowRankMass, Mass
+from .mass import CholeskyMass, KnownMass, LowRankMass, Mass, TemplateMass
 from .observer import FDTCNObserver, finite_difference
 from .potentials import (
     HybridPotential,
@@ -22,6 +22,7 @@ from .potentials import (
 
 __all__ = [
     "Damping", "HouseholderDamping", "KnownDamping", "coordinate_features", "n_features", "KnownMass", "LowRankMass",
+    "TemplateMass", "CholeskyMass",
     "Mass", "FDTCNObserver", "finite_difference", "HybridPotential", "KnownPotential", "NeuralPotential", "Potential",
     "TemplatePotential", "make_template",
 ]

@@ -52,6 +52,11 @@ class HouseholderDamping(Damping):
         with torch.no_grad():
             last = self.net[-1]
             last.weight[self.rank * n:].mul_(0.1)
+            # directions start near the coordinate axes k_i = e_(i mod n): most mechanical damping acts per
+            # coordinate, and a weakly excited coordinate (a heavy cart) gives too little gradient to rotate a
+            # random direction onto its axis
+            last.weight[: self.rank * n].mul_(0.1)
+            last.bias[: self.rank * n] = torch.eye(n).repeat(self.rank // n + 1, 1)[: self.rank].reshape(-1)
             if cap is None:  # softplus(b) = beta_init per term
                 last.bias[self.rank * n:] = math.log(math.expm1(beta_init))
         self.learn_d0 = bool(learn_d0)
