@@ -16,6 +16,9 @@ from typing import Any
 
 #: bump when the meaning of a stored result changes (new metrics protocol, ...)
 HARNESS_VERSION = 1
+#: bump a model family's version when its code changes what it learns; it enters the hash of that family's runs
+#: only (the others' stored results stay valid).  PHAST 2: least-squares start from the data, learned M(q).
+MODEL_VERSIONS: dict[str, int] = {"phast": 2}
 
 PHAST_MODELS = ("phast-known", "phast-partial", "phast-unknown")
 BASELINE_MODELS = ("gru", "lstm", "transformer", "s5", "linoss", "dlinoss", "vpt")
@@ -59,11 +62,15 @@ class RunSpec:
         """Canonical JSON-ready configuration (the hashed content)."""
         d = asdict(self)
         d["horizons"] = [int(h) for h in self.horizons]
+        family = self.model.split("-")[0]
+        if MODEL_VERSIONS.get(family):
+            d["model_version"] = MODEL_VERSIONS[family]
         return json.loads(json.dumps(d, sort_keys=True))
 
     @classmethod
     def from_config(cls, cfg: dict[str, Any]) -> RunSpec:
         cfg = dict(cfg)
+        cfg.pop("model_version", None)  # derived from the model family, not a field
         cfg["horizons"] = tuple(cfg.get("horizons", (10, 50, 100)))
         return cls(**cfg)
 
