@@ -4,7 +4,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 OUT    ?= demo_out
 
-.PHONY: install test demo lint format bench-envs clean
+.PHONY: install test demo lint format bench-envs check-results clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -26,6 +26,11 @@ lint: install
 
 format: install
 	$(PY) -m ruff format phast_gym phast_model tests examples benchmarks
+
+# re-run the headline PHAST configurations (windy pendulum KNOWN and PARTIAL, seeds 0 and 1, the paper's protocol;
+# ~10-20 min) and compare with docs/results/phast_windy.json: run it whenever phast_gym's integrators or phast_model change
+check-results: install
+	$(PY) benchmarks/phast_windy.py --check --runs WindyPendulum-v0:known WindyPendulum-v0:partial --seeds 0 1
 
 bench-envs: install
 	$(PY) benchmarks/envs.py --profile --compiled --out docs/envs_benchmark.json

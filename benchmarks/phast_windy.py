@@ -6,7 +6,12 @@ Windy pendulum (1000 / 200 / 200 trajectories, T = 200, dataset seed 42, 50 epoc
 KNOWN / PARTIAL / UNKNOWN regimes, plus the damped pendulum and the windy cart-pole, each
 seed a full ``phast-train`` run.  Acceptance (windy pendulum): KNOWN damping R^2 >= 0.99,
 PARTIAL rollout wrap-MSE(H=100) <= 0.092, UNKNOWN <= 0.298, wall time per 50-epoch run <= 180 s.
-The JSON is rewritten after every run (a partial sweep is never lost).
+The JSON is rewritten after every run (a partial sweep is never lost); every run records the commit it was
+measured at.
+
+``--check`` (``make check-results``) re-runs the selected runs of ``--out`` with the current code, in a temporary
+directory, and compares them with the committed numbers within ``TOLERANCE``: exit status 1 and a table naming
+each drifted number when they disagree.  Run it whenever phast_gym's integrators or phast_model change.
 """
 
 from __future__ import annotations
@@ -41,6 +46,59 @@ ACCEPT = {  # (env, regime) -> (metric, comparison, threshold)
     ("PHAST/WindyPendulum-v0", "unknown"): ("rollout_theta_wrap_mse_h100", "<=", 0.298),
 }
 MAX_WALL_S = 180.0
+#: --check tolerances: metric -> (absolute, relative); a number passes when it is within either of the two.  The runs
+#: are deterministic on one machine (1 thread); the slack covers other CPUs' floating-point summation order.
+TOLERANCE: dict[str, tuple[float, float]] = {
+    "damping_r2": (0.005, 0.0),
+    "rollout_theta_wrap_mse_h100": (1e-4, 0.10),
+    "theta_wrap_mse": (1e-9, 0.10),
+}
+
+
+def git_commit() -> str:
+    """HEAD of the working tree, with ``+dirty`` when tracked files differ from it ("unknown" outside git)."""
+    import subprocess
+
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "diff", "--quiet", "HEAD", "--", "phast_gym", "phast_model"]).returncode != 0
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return head + ("+dirty" if dirty else "")
+
+
+def compare(committed: dict, fresh: dict) -> list[tuple[str, float, float, bool]]:
+    """(metric, committed, fresh, within tolerance) for every metric of ``TOLERANCE`` both runs hold."""
+    rows = []
+    for k, (atol, rtol) in TOLERANCE.items():
+        if k in committed and k in fresh:
+            a, b = float(committed[k]), float(fresh[k])
+            rows.append((k, a, b, bool(abs(a - b) <= max(atol, rtol * abs(a)))))
+    return rows
+
+
+def check(out: Path, todo: list[tuple[str, str]], seeds: list[int], epochs: int, n_train: int) -> int:
+    """Re-run the selected committed runs and compare; 0 when every number reproduces, else 1."""
+    if not out.exists():
+        raise SystemExit(f"--check: {out} does not exist (nothing committed to compare with)")
+    doc = json.loads(out.read_text())
+    stored = {(r["env_id"], r["regime"], r["seed"]): r for r in doc.get("runs", [])}
+    missing = [(e, r, s) for e, r in todo for s in seeds if (e, r, s) not in stored]
+    if missing:
+        raise SystemExit(f"--check: {out} holds no committed run for {missing}")
+    ok = True
+    with tempfile.TemporaryDirectory(prefix="phast_check_") as tmp:
+        jobs = [(e, r, s) for e, r in todo for s in seeds]
+        for env, regime, seed in tqdm(jobs, desc="check-results"):
+            fresh = _one(env, regime, seed, tmp, epochs, n_train)
+            old = stored[(env, regime, seed)]
+            for k, a, b, good in compare(old, fresh):
+                ok &= good
+                print(f"{env.split('/')[-1]:<22} {regime:<8} seed {seed}  {k:<28} committed {a:.6g} "
+                      f"(at {old.get('commit', '?')})  now {b:.6g}  {'ok' if good else 'DRIFT'}")
+    print("check-results:", "every number reproduces" if ok else "DRIFT: update the docs with the new numbers "
+          "(benchmarks/phast_windy.py --append --replace ...) or fix the regression")
+    return 0 if ok else 1
 
 
 def summarize(runs: list[dict]) -> dict:
@@ -103,7 +161,7 @@ def _one(env: str, regime: str, seed: int, runs_dir: str, epochs: int, n_train: 
     torch.set_num_threads(1)
     rd = Path(runs_dir) / f"{env.split('/')[-1]}_{regime}_s{seed}"
     m = train_run(env, regime, rd, epochs=epochs, seed=seed, n_train=n_train, plots=False, progress=False)
-    return {"env_id": env, "regime": regime, "seed": seed, **m}
+    return {"env_id": env, "regime": regime, "seed": seed, "commit": git_commit(), **m}
 
 
 class _call:
@@ -125,6 +183,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--n-train", type=int, default=1000)
     ap.add_argument("--runs-dir", default=None, help="keep run directories here (default: a temp dir)")
     ap.add_argument("--table", action="store_true", help="print the markdown table of --out and exit")
+    ap.add_argument("--check", action="store_true",
+                    help="re-run the selected runs of --out and compare with the committed numbers (exit 1 on drift)")
     ap.add_argument("--replace", action="store_true", help="with --append: drop and rerun the selected runs")
     ap.add_argument("--jobs", type=int, default=1,
                     help="runs in parallel processes (1 torch thread each; wall times then include contention)")
@@ -138,6 +198,8 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(1)
     todo = DEFAULT_RUNS if not args.runs else [
         (e if e.startswith("PHAST/") else f"PHAST/{e}", r) for e, r in (x.split(":") for x in args.runs)]
+    if args.check:
+        return check(Path(args.out), todo, args.seeds, args.epochs, args.n_train)
     runs_dir = Path(args.runs_dir) if args.runs_dir else Path(tempfile.mkdtemp(prefix="phast_windy_"))
     out = Path(args.out)
     results: list[dict] = []

@@ -74,6 +74,9 @@ class PHASTConfig:
     observer_fd_order: int = 4
     observer_trainable: bool = True  # False: the observer stays the backward-difference formula it starts as
     damping_lr_mult: float = 1.0  # learning-rate multiplier of the damping parameters (see param_groups)
+    #: trainer defaults this model asks for (a TrainConfig value overrides them; None: the trainer's own)
+    adam_eps: float | None = None
+    warmup_epochs: float | None = None
     potential_hidden: int = 64
     potential_layers: int = 3
     hybrid_eps: float = 0.01
@@ -126,6 +129,12 @@ class PHAST(ForecastModel):
         self.register_buffer("G", torch.eye(self.n)[:, list(self.actuated_dofs)])
         #: training leaves out predictions made before the backward difference has all its samples
         self.loss_skip = int(getattr(observer, "fd_order", 1))
+
+    @property
+    def train_defaults(self) -> dict[str, float]:
+        """The config's trainer defaults (``adam_eps``, ``warmup_epochs``) that are set; read by
+        :func:`phast_model.training.fit` where its TrainConfig leaves them None."""
+        return {k: float(v) for k in ("adam_eps", "warmup_epochs") if (v := getattr(self.config, k)) is not None}
 
     # ---- public pieces (control and mismatch reuse these) --------------------
     @property

@@ -49,12 +49,11 @@ TEMPLATES: dict[str, tuple[str, list[int] | None]] = {
 MASS_TEMPLATES = ("cartpole", "double_pendulum")
 
 
-#: trainer defaults of KNOWN (see :func:`build_model`; a TrainConfig value overrides them).  With V, M and the
-#: observer fixed the one-step loss is ~1e-6..1e-9 and its gradients ~1e-7..1e-12, below AdamW's default
-#: eps = 1e-8: Adam then degenerates to plain SGD with step lr * g / eps (badly conditioned, and the reason an
-#: earlier version needed lr x 100 *and* was still seed-sensitive).  eps = 1e-15 restores Adam's scale-free
-#: steps; the 1-epoch linear warm-up keeps the first steps at lr x 100 (0.1 on the damping net) from overshooting
-#: while Adam's second-moment estimate is still empty.
+#: trainer defaults of the identification settings (KNOWN; a TrainConfig value overrides them).  With V, M and the
+#: observer fixed the one-step loss is ~1e-6..1e-9 and its gradients ~1e-7..1e-12, below AdamW's default eps = 1e-8,
+#: where Adam degenerates to badly conditioned SGD (step lr g / eps); eps = 1e-15 keeps its steps scale-free, and a
+#: 1-epoch linear warm-up keeps the first steps at lr x 100 (the damping net) from overshooting while Adam's
+#: second-moment estimate is still empty.
 KNOWN_TRAIN_DEFAULTS: dict[str, float] = {"adam_eps": 1e-15, "warmup_epochs": 1.0}
 
 
@@ -92,7 +91,7 @@ def default_config(env_id: str, regime: str, **env_kwargs: Any) -> PHASTConfig:
         return replace(base, potential="known", mass="known", damping="householder", damping_cap=None, d0=0.0,
                        learn_d0=True, canonicalizer="mass", substeps=8 if system.separable else 4,
                        observer_trainable=False, learn_dt=False,
-                       damping_lr_mult=100.0)
+                       damping_lr_mult=100.0, **KNOWN_TRAIN_DEFAULTS)
     mass_tmpl = _mass_template(system)
     if regime == "partial":
         cap, base_d = _windy(system.params)
@@ -127,11 +126,7 @@ def build_model(env_id: str, regime: str, **overrides: Any) -> ForecastModel:
         raise ValueError(f"unknown override(s) {bad}; valid PHASTConfig fields: {sorted(names)}")
     cfg = default_config(env_id, regime, **overrides.get("env_kwargs", {}))
     cfg = replace(cfg, **overrides)
-    model = build_from_config(cfg)
-    if cfg.regime == "known" and cfg.kind == "phast" and cfg.damping == "householder":
-        # read by :func:`phast_model.training.fit` where its TrainConfig leaves these None
-        model.train_defaults = dict(KNOWN_TRAIN_DEFAULTS)
-    return model
+    return build_from_config(cfg)
 
 
 def all_defaults() -> dict[str, dict[str, PHASTConfig]]:

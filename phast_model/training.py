@@ -130,7 +130,7 @@ def _resolved(cfg: TrainConfig, model: Any, name: str, default: float) -> float:
     :func:`phast_model.regimes.build_model` for KNOWN), else ``default``."""
     v = getattr(cfg, name)
     if v is None:
-        v = (getattr(model, "train_defaults", None) or {}).get(name, default)
+        v = getattr(model, "train_defaults", {}).get(name, default)
     return float(v)
 
 

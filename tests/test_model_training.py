@@ -191,7 +191,7 @@ def test_phast_train_cli(tmp_path):
 def test_known_trainer_defaults_and_warmup(splits, tmp_path):
     model = build_model(ENV, "known")
     assert model.train_defaults == {"adam_eps": 1e-15, "warmup_epochs": 1.0}
-    assert not hasattr(build_model(ENV, "partial"), "train_defaults")  # other regimes keep the trainer's defaults
+    assert build_model(ENV, "unknown").train_defaults == {}  # other regimes keep the trainer's defaults
     # 48 trajectories / 16 = 3 steps per epoch: 2 warm-up epochs = 6 steps, then cosine over 12 steps
     cfg = TrainConfig(epochs=4, batch_size=16, val_every=2, progress=False, warmup_epochs=2.0)
     res = fit(model, splits["train"], splits["val"], cfg, run_dir=tmp_path / "w")
