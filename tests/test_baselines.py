@@ -5,8 +5,9 @@ from __future__ import annotations
 import pytest
 import torch
 
-from phast_model.baselines import BASELINES, DHNNBaseline, make_baseline
+from phast_model.baselines import BASELINES, DHNNBaseline, TransformerBaseline, make_baseline
 from phast_model.baselines.ssm import scan_2x2, scan_diag
+from phast_model.baselines.transformer import sinusoidal_encoding
 from phast_model.interfaces import ForecastModel, coordinate_error
 
 SEQ = [k for k in BASELINES if k != "dhnn"]
@@ -61,6 +62,46 @@ def test_rollout_matches_autoregressive_definition(name: str) -> None:
     assert fast.shape == (3, 12, 2)
     assert torch.allclose(fast, slow, atol=2e-4, rtol=1e-3)
     assert torch.allclose(model.rollout(q[:, :8], None, 5), ForecastModel.rollout(model, q[:, :8], None, 5), atol=2e-4)
+
+
+@pytest.mark.parametrize("name", SEQ)
+def test_cached_rollout_equals_definition_float64(name: str) -> None:
+    """O(H) rollouts (recurrent state, KV cache, VPT input cache) = re-running the prefix, to 1e-10 in float64."""
+    model = _model(name).double()
+    q, u = (t.double() for t in _data(2, 1, T=40))
+    for uu in (u, None):
+        fast = model.rollout(q[:, :9], uu, 30)
+        slow = ForecastModel.rollout(model, q[:, :9], uu, 30)
+        assert (fast - slow).abs().max() <= 1e-10
+
+
+def _torch_encoder(model: TransformerBaseline, x: torch.Tensor) -> torch.Tensor:
+    """Reference hidden states: torch's nn.TransformerEncoder on the model's own weights."""
+    T = x.shape[1]
+    h = model.embed(x) + sinusoidal_encoding(T, model.d_model, x.device, x.dtype)
+    mask = torch.triu(torch.ones(T, T, dtype=torch.bool), diagonal=1)
+    return model.encoder(h, mask=mask, is_causal=True)
+
+
+@pytest.mark.parametrize("train", [False, True])
+def test_transformer_fused_attention_matches_torch_encoder(train: bool) -> None:
+    """Fused causal attention = torch's encoder (outputs and parameter gradients to 1e-10, float64); train mode
+    with dropout 0 exercises torch's training path (the one that also drops attention weights)."""
+    torch.manual_seed(0)
+    model = make_baseline("transformer", 2, 1, (0,), dropout=0.0).double().train(train)
+    x = torch.randn(3, 23, model.in_dim, dtype=torch.float64)
+    w = torch.randn(3, 23, model.d_model, dtype=torch.float64)
+    params = [*model.embed.parameters(), *model.encoder.parameters()]
+    fast, ref = model.encode(x), _torch_encoder(model, x)
+    assert (fast - ref).abs().max() <= 1e-10
+    for a, b in zip(torch.autograd.grad((fast * w).sum(), params), torch.autograd.grad((ref * w).sum(), params)):
+        assert (a - b).abs().max() <= 1e-10 * max(1.0, float(b.abs().max()))
+
+
+def test_transformer_dropout_is_active_in_training() -> None:
+    model = _model("transformer").train()
+    q, u = _data(2, 1)
+    assert not torch.equal(model(q, u), model(q, u))
 
 
 def _rnn_params(gate: int, f: int, n: int, d: int = 64) -> int:
