@@ -2,7 +2,8 @@
 
 A run is identified by :func:`run_key` = sha256 of the canonical JSON of every
 field that can change its result (env, model, seed, data protocol, training
-budget, evaluation protocol, model overrides, harness version).  Identical
+budget, evaluation protocol, model overrides, harness version, and the model's
+revision where it has one).  Identical
 configurations always hash the same across processes and machines, so a finished
 run is found again and never redone, and changing any field starts a new run.
 """
@@ -16,6 +17,11 @@ from typing import Any
 
 #: bump when the meaning of a stored result changes (new metrics protocol, ...)
 HARNESS_VERSION = 1
+
+#: per model, bumped when a code change alters what its runs train or output (absent = 1); it enters the hash of
+#: that model's runs only, so their stored results are redone and every other model's stay valid.
+#: transformer 2: no dropout on the attention weights (fused attention)
+MODEL_REVISIONS: dict[str, int] = {"transformer": 2}
 
 PHAST_MODELS = ("phast-known", "phast-partial", "phast-unknown")
 BASELINE_MODELS = ("gru", "lstm", "transformer", "s5", "linoss", "dlinoss", "vpt")
@@ -59,11 +65,15 @@ class RunSpec:
         """Canonical JSON-ready configuration (the hashed content)."""
         d = asdict(self)
         d["horizons"] = [int(h) for h in self.horizons]
+        if self.model in MODEL_REVISIONS:
+            d["model_revision"] = MODEL_REVISIONS[self.model]
         return json.loads(json.dumps(d, sort_keys=True))
 
     @classmethod
     def from_config(cls, cfg: dict[str, Any]) -> RunSpec:
+        """The spec of a configuration; its ``model_revision`` (derived, not a field) is dropped."""
         cfg = dict(cfg)
+        cfg.pop("model_revision", None)
         cfg["horizons"] = tuple(cfg.get("horizons", (10, 50, 100)))
         return cls(**cfg)
 
