@@ -1,13 +1,23 @@
-"""Parameter counts and CPU cost of every baseline (and PHAST regime) per env: one training step and one rollout.
+"""CPU cost of every model of the grid per env: one training step and the evaluation rollouts.
 
-    .venv/bin/python benchmarks/bench_baselines.py --envs WindyPendulum-v0,DampedOscillator-v0 \\
-        --out docs/results/baselines_cost.json
+    PYTHONPATH=. OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_baselines.py
+    .venv/bin/python benchmarks/bench_baselines.py --envs WindyPendulum-v0,DampedOscillator-v0 --out cost.json
 
-For each (env, model): trainable parameters, seconds per optimizer step on a
-batch of 64 trajectories x T = 200 (forward + backward, 1 torch thread), and
-seconds for an H = 100 open-loop rollout of 64 trajectories.  Training-step
-time x (n_train / 64) x epochs estimates a run's cost (used to size the reduced
-sweep in docs/results.md).
+For each (env, model), on one torch thread: trainable parameters; milliseconds
+per optimizer step on a batch of 64 trajectories x T = 200 (forward + backward
++ AdamW, min over ``--reps`` after one warm-up step); seconds for the
+evaluation's open-loop rollouts (``n_eval`` = 200 test trajectories, burn-in 10,
+H = 100, as :func:`phast_model.metrics.evaluate` runs them).
+
+Where a slower reference of the same computation exists it is timed in the
+same run and the ratio printed:
+
+* Transformer training step: torch's ``nn.TransformerEncoder`` on the same
+  weights (unfused attention, dropout on the attention weights too);
+* Transformer and VPT rollouts: :meth:`ForecastModel.rollout`, the interface's
+  definition that re-runs the whole prefix at every step.
+
+Training-step time x (n_train / 64) x epochs estimates a run's training cost.
 """
 
 from __future__ import annotations
@@ -18,26 +28,35 @@ import os
 import sys
 import tempfile
 import time
-from pathlib import Path
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import torch
-from tqdm.auto import tqdm
 
 from phast_gym.datasets import make_dataset
 from phast_gym.registry import resolve_env_id
 from phast_model.bench import ALL_MODELS, TABLE4_ENVS, RunSpec
-from phast_model.bench.runner import build_run_model
-from phast_model.interfaces import coordinate_error
+from phast_model.bench.runner import build_run_model, full_state_view
+from phast_model.interfaces import ForecastModel, coordinate_error
+from phast_model.rollout import batched_rollout
+
+#: models whose evaluation rollout has a prefix-recomputing reference worth timing
+ROLLOUT_REFERENCE = frozenset({"transformer", "vpt"})
 
 
-def time_model(env_id: str, model_name: str, batch: int = 64, T: int = 200, H: int = 100, reps: int = 3) -> dict:
-    ds = make_dataset(env_id, batch, T=T, seed=42)
-    spec = RunSpec(env_id, model_name)
-    torch.manual_seed(0)
-    model = build_run_model(spec, ds)
-    q = torch.as_tensor(ds.q, dtype=torch.float32)
-    u = torch.as_tensor(ds.u, dtype=torch.float32) if ds.u.size else None
+def _torch_encoder_reference(model: Any, x: torch.Tensor) -> torch.Tensor:
+    """The Transformer baseline's hidden states through torch's ``nn.TransformerEncoder`` (same weights)."""
+    from phast_model.baselines.transformer import sinusoidal_encoding
+
+    T = x.shape[1]
+    h = model.embed(x) + sinusoidal_encoding(T, model.d_model, x.device, x.dtype)
+    mask = torch.triu(torch.ones(T, T, dtype=torch.bool, device=x.device), diagonal=1)
+    return model.encoder(h, mask=mask, is_causal=True)
+
+
+def train_step_ms(model: ForecastModel, q: torch.Tensor, u: torch.Tensor | None, reps: int) -> float:
+    """Min over ``reps`` (after one warm-up) of one AdamW step on the next-step loss, in ms."""
     opt = torch.optim.AdamW(model.parameters(), lr=1e-3)
     model.train()
     times = []
@@ -48,18 +67,68 @@ def time_model(env_id: str, model_name: str, batch: int = 64, T: int = 200, H: i
         (e * e).mean().backward()
         opt.step()
         times.append(time.perf_counter() - t0)
-    model.eval()
-    t0 = time.perf_counter()
-    with torch.no_grad():
-        model.rollout(q[:, :10], u, H)
-    return {"env": env_id, "model": model_name, "params": model.n_parameters(),
-            "train_step_s": float(np.median(times[1:])), "rollout_h100_s": time.perf_counter() - t0}
+    return 1e3 * min(times[1:])
+
+
+def rollout_s(model: ForecastModel, q: np.ndarray, u: np.ndarray | None, burn_in: int, H: int,
+              fn: Callable[..., torch.Tensor] | None = None) -> float:
+    """Seconds of the evaluation's batched open-loop rollouts (``fn`` replaces ``model.rollout``)."""
+    if fn is not None:
+        model.rollout = fn  # type: ignore[method-assign]
+    try:
+        t0 = time.perf_counter()
+        batched_rollout(model, q, u, burn_in, H)
+        return time.perf_counter() - t0
+    finally:
+        model.__dict__.pop("rollout", None)
+
+
+def _build(env_id: str, model_name: str, ds: Any) -> ForecastModel:
+    spec = RunSpec(env_id, model_name, full_state=model_name == "dhnn")
+    torch.manual_seed(0)
+    return build_run_model(spec, ds)
+
+
+def time_model(env_id: str, model_name: str, batch: int = 64, T: int = 200, H: int = 100, burn_in: int = 10,
+               n_eval: int = 200, reps: int = 3, reference: bool = True) -> dict[str, Any]:
+    """Cost row of one (env, model); ``*_ref`` entries where a reference exists and ``reference`` is set."""
+    ds = make_dataset(env_id, max(batch, n_eval), T=T, seed=42)
+    if model_name == "dhnn":  # the full-state ablation sees (q, p)
+        ds = full_state_view(ds)
+    model = _build(env_id, model_name, ds)
+    q = torch.as_tensor(ds.q[:batch], dtype=torch.float32)
+    u = torch.as_tensor(ds.u[:batch], dtype=torch.float32) if ds.u.size else None
+    row: dict[str, Any] = {"env": env_id, "model": model_name, "params": model.n_parameters(),
+                           "train_step_ms": train_step_ms(model, q, u, reps)}
+    if reference and model_name == "transformer":
+        ref = _build(env_id, model_name, ds)
+        ref.encode = lambda x: _torch_encoder_reference(ref, x)  # type: ignore[method-assign]
+        row["train_step_ms_ref"] = train_step_ms(ref, q, u, reps)
+    q_eval, u_eval = ds.q[:n_eval], (ds.u[:n_eval] if ds.u.size else None)
+    row["eval_rollout_s"] = rollout_s(model, q_eval, u_eval, burn_in, H)
+    if reference and model_name in ROLLOUT_REFERENCE:
+        def definition(qb: torch.Tensor, ub: torch.Tensor | None, h: int) -> torch.Tensor:
+            return ForecastModel.rollout(model, qb, ub, h)
+
+        row["eval_rollout_s_ref"] = rollout_s(model, q_eval, u_eval, burn_in, H, definition)
+    return row
+
+
+def format_row(r: dict[str, Any]) -> str:
+    def ratio(key: str) -> str:
+        return f" (ref {r[key + '_ref']:.4g}, x{r[key + '_ref'] / r[key]:.1f})" if key + "_ref" in r else ""
+
+    return (f"{r['env']:28s} {r['model']:14s} params {r['params']:7d}  step {r['train_step_ms']:7.1f} ms"
+            f"{ratio('train_step_ms')}  eval rollout {r['eval_rollout_s']:6.2f} s{ratio('eval_rollout_s')}")
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--envs", default="WindyPendulum-v0", help="comma list of env ids or 'all' (Table 4)")
     p.add_argument("--models", default="all", help=f"comma list or 'all' ({','.join(ALL_MODELS)})")
+    p.add_argument("--reps", type=int, default=3, help="timed training steps (the minimum is reported)")
+    p.add_argument("--n-eval", type=int, default=200, help="trajectories in the evaluation rollout")
+    p.add_argument("--no-reference", action="store_true", help="skip the reference timings")
     p.add_argument("--out", default=None, help="JSON output path (default: print only)")
     p.add_argument("--threads", type=int, default=1)
     args = p.parse_args(argv)
@@ -72,14 +141,15 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:  # noqa: BLE001 - bad input: one clear line
         print(f"bench_baselines: error: {exc}", file=sys.stderr)
         return 2
-    rows = [time_model(e, m) for e in tqdm(envs, desc="envs") for m in models]
-    for r in rows:
-        print(f"{r['env']:32s} {r['model']:14s} params {r['params']:7d}  step {r['train_step_s']:.3f}s  "
-              f"rollout {r['rollout_h100_s']:.2f}s")
+    rows = []
+    for e in envs:
+        for m in models:
+            rows.append(time_model(e, m, n_eval=args.n_eval, reps=args.reps, reference=not args.no_reference))
+            print(format_row(rows[-1]), flush=True)
     if args.out:
-        out = Path(args.out)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=out.parent, suffix=".tmp")
+        out = os.path.abspath(args.out)
+        os.makedirs(os.path.dirname(out), exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=os.path.dirname(out), suffix=".tmp")
         with os.fdopen(fd, "w") as fh:
             json.dump({"threads": args.threads, "torch": torch.__version__, "rows": rows}, fh, indent=1)
         os.replace(tmp, out)

@@ -5,8 +5,9 @@ from __future__ import annotations
 import pytest
 import torch
 
-from phast_model.baselines import BASELINES, DHNNBaseline, make_baseline
+from phast_model.baselines import BASELINES, DHNNBaseline, TransformerBaseline, make_baseline
 from phast_model.baselines.ssm import scan_2x2, scan_diag
+from phast_model.baselines.transformer import sinusoidal_encoding
 from phast_model.interfaces import ForecastModel, coordinate_error
 
 SEQ = [k for k in BASELINES if k != "dhnn"]
@@ -61,6 +62,46 @@ def test_rollout_matches_autoregressive_definition(name: str) -> None:
     assert fast.shape == (3, 12, 2)
     assert torch.allclose(fast, slow, atol=2e-4, rtol=1e-3)
     assert torch.allclose(model.rollout(q[:, :8], None, 5), ForecastModel.rollout(model, q[:, :8], None, 5), atol=2e-4)
+
+
+@pytest.mark.parametrize("name", SEQ)
+def test_cached_rollout_equals_definition_float64(name: str) -> None:
+    """O(H) rollouts (recurrent state, KV cache, VPT input cache) = re-running the prefix, to 1e-10 in float64."""
+    model = _model(name).double()
+    q, u = (t.double() for t in _data(2, 1, T=40))
+    for uu in (u, None):
+        fast = model.rollout(q[:, :9], uu, 30)
+        slow = ForecastModel.rollout(model, q[:, :9], uu, 30)
+        assert (fast - slow).abs().max() <= 1e-10
+
+
+def _torch_encoder(model: TransformerBaseline, x: torch.Tensor) -> torch.Tensor:
+    """Reference hidden states: torch's nn.TransformerEncoder on the model's own weights."""
+    T = x.shape[1]
+    h = model.embed(x) + sinusoidal_encoding(T, model.d_model, x.device, x.dtype)
+    mask = torch.triu(torch.ones(T, T, dtype=torch.bool), diagonal=1)
+    return model.encoder(h, mask=mask, is_causal=True)
+
+
+@pytest.mark.parametrize("train", [False, True])
+def test_transformer_fused_attention_matches_torch_encoder(train: bool) -> None:
+    """Fused causal attention = torch's encoder (outputs and parameter gradients to 1e-10, float64); train mode
+    with dropout 0 exercises torch's training path (the one that also drops attention weights)."""
+    torch.manual_seed(0)
+    model = make_baseline("transformer", 2, 1, (0,), dropout=0.0).double().train(train)
+    x = torch.randn(3, 23, model.in_dim, dtype=torch.float64)
+    w = torch.randn(3, 23, model.d_model, dtype=torch.float64)
+    params = [*model.embed.parameters(), *model.encoder.parameters()]
+    fast, ref = model.encode(x), _torch_encoder(model, x)
+    assert (fast - ref).abs().max() <= 1e-10
+    for a, b in zip(torch.autograd.grad((fast * w).sum(), params), torch.autograd.grad((ref * w).sum(), params)):
+        assert (a - b).abs().max() <= 1e-10 * max(1.0, float(b.abs().max()))
+
+
+def test_transformer_dropout_is_active_in_training() -> None:
+    model = _model("transformer").train()
+    q, u = _data(2, 1)
+    assert not torch.equal(model(q, u), model(q, u))
 
 
 def _rnn_params(gate: int, f: int, n: int, d: int = 64) -> int:
@@ -135,7 +176,7 @@ def test_fit_normalizer_sets_scales() -> None:
     assert "q_std" in state and "dq_scale" in state  # scales travel with the checkpoint
 
 
-def test_scans_match_recurrence() -> None:
+def test_scan_diag_matches_recurrence() -> None:
     g = torch.Generator().manual_seed(0)
     a = torch.complex(torch.rand(5, generator=g) * 0.9, torch.rand(5, generator=g) * 0.3)
     b = torch.randn(2, 37, 5, dtype=torch.complex64, generator=g)
@@ -144,19 +185,54 @@ def test_scans_match_recurrence() -> None:
         x = a * x + b[:, t]
         ref.append(x)
     assert torch.allclose(scan_diag(a, b), torch.stack(ref, 1), atol=1e-5)
-    M = torch.randn(5, 2, 2, generator=g) * 0.5
-    f = torch.randn(2, 19, 5, 2, generator=g)
-    x, ref = torch.zeros(2, 5, 2), []
-    for t in range(19):
-        x = torch.einsum("pij,bpj->bpi", M, x) + f[:, t]
-        ref.append(x)
-    assert torch.allclose(scan_2x2(M, f), torch.stack(ref, 1), atol=1e-4)
-    fc = torch.complex(f, torch.randn(f.shape, generator=g))  # complex forcing, real transition (LinOSS)
-    x, ref = torch.zeros(2, 5, 2, dtype=fc.dtype), []
-    for t in range(19):
-        x = torch.einsum("pij,bpj->bpi", M.to(fc.dtype), x) + fc[:, t]
-        ref.append(x)
-    assert torch.allclose(scan_2x2(M, fc), torch.stack(ref, 1), atol=1e-4)
+
+
+def _naive_2x2(M: torch.Tensor, f: torch.Tensor) -> torch.Tensor:
+    """x_t = M x_{t-1} + f_t step by step; M (Q, 2, 2), f (2, N, T, Q) state-major."""
+    x, out = torch.zeros_like(f[:, :, 0]), []
+    for t in range(f.shape[2]):
+        x = torch.einsum("qij,jnq->inq", M, x) + f[:, :, t]
+        out.append(x)
+    return torch.stack(out, 2)
+
+
+@pytest.mark.parametrize("T", [1, 2, 9, 19, 37, 200])
+def test_scan_2x2_matches_recurrence_and_its_gradients(T: int) -> None:
+    """Chunked scan = the step-by-step recurrence to 1e-12 (float64), values and gradients in M and f."""
+    g = torch.Generator().manual_seed(T)
+    M = (torch.randn(5, 2, 2, generator=g, dtype=torch.float64) * 0.5).requires_grad_()
+    f = torch.randn(2, 3, T, 5, generator=g, dtype=torch.float64, requires_grad=True)
+    w = torch.randn(2, 3, T, 5, generator=g, dtype=torch.float64)
+    fast, ref = scan_2x2(M, f), _naive_2x2(M, f)
+    scale = ref.abs().max()
+    assert (fast - ref).abs().max() <= 1e-12 * scale
+    for a, b in zip(torch.autograd.grad((fast * w).sum(), (M, f)), torch.autograd.grad((ref * w).sum(), (M, f))):
+        assert (a - b).abs().max() <= 1e-12 * b.abs().max()
+    with pytest.raises(ValueError, match="need M"):
+        scan_2x2(M, f[0])
+
+
+def test_scan_2x2_gradcheck() -> None:
+    g = torch.Generator().manual_seed(1)
+    M = (torch.randn(3, 2, 2, generator=g, dtype=torch.float64) * 0.5).requires_grad_()
+    f = torch.randn(2, 2, 11, 3, generator=g, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(scan_2x2, (M, f))
+
+
+@pytest.mark.parametrize("name", ["linoss", "dlinoss"])
+def test_oscillator_layer_matches_complex_recurrence(name: str) -> None:
+    """The real-arithmetic layer = the paper's complex recurrence x_t = M x_{t-1} + (B z_t) w, y = Re(C x_t[1]) + D z."""
+    torch.manual_seed(0)
+    layer = make_baseline(name, 2, 1, (0,)).double().layers[0]
+    z = torch.randn(3, 29, 64, dtype=torch.float64)
+    M, w = layer.transition()
+    B, C = torch.complex(layer.B[..., 0], layer.B[..., 1]), torch.complex(layer.C[..., 0], layer.C[..., 1])
+    x, ys = torch.zeros(3, M.shape[0], 2, dtype=torch.complex128), []
+    for t in range(z.shape[1]):
+        x = torch.einsum("pij,bpj->bpi", M.to(x.dtype), x) + (z[:, t].to(x.dtype) @ B.T)[..., None] * w
+        ys.append((x[..., 1] @ C.T).real + layer.D * z[:, t])
+    y, _ = layer.sequence(z)
+    assert (y - torch.stack(ys, 1)).abs().max() <= 1e-12
 
 
 def test_oscillator_ssms_are_stable() -> None:

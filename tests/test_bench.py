@@ -49,6 +49,24 @@ def test_run_key_is_stable_and_sensitive() -> None:
         assert run_key(RunSpec(**{**spec.config(), "horizons": tuple(spec.horizons), **change})) != run_key(spec)
 
 
+def test_model_revision_changes_only_that_models_key() -> None:
+    """A model revision re-keys that model's runs (stale results are redone); other models keep their keys."""
+    from phast_model.bench import spec as spec_mod
+
+    gru, tf = RunSpec(ENV, "gru", seed=3), RunSpec(ENV, "transformer", seed=3)
+    assert "model_revision" not in gru.config()
+    assert tf.config()["model_revision"] == spec_mod.MODEL_REVISIONS["transformer"]
+    assert run_key(RunSpec.from_config(tf.config())) == run_key(tf)
+    keys = run_key(gru), run_key(tf)
+    old = dict(spec_mod.MODEL_REVISIONS)
+    try:
+        spec_mod.MODEL_REVISIONS["transformer"] += 1
+        assert run_key(gru) == keys[0] and run_key(tf) != keys[1]
+    finally:
+        spec_mod.MODEL_REVISIONS.clear()
+        spec_mod.MODEL_REVISIONS.update(old)
+
+
 def test_spec_validation_and_seed_parsing() -> None:
     with pytest.raises(ValueError, match="unknown model"):
         RunSpec(ENV, "mamba")

@@ -7,9 +7,10 @@ Every baseline is a causal seq2seq next-step predictor ``q_{0:t}, u_{0:t} -> q_{
   standardized, the port input ``u_t`` (held over ``[t, t+1]``) appended;
 * an increment head: ``q_{t+1} = wrap(q_t + s * head(h_t))`` with ``s`` the
   per-coordinate scale of the training increments (a buffer, not a parameter);
-* a recurrent ``rollout`` for models that keep a state (RNNs, SSMs): the burn-in is
-  encoded once and each open-loop step costs O(1) instead of re-running the whole
-  prefix (the base class's O(H^2) definition, which it reproduces exactly).
+* an incremental ``rollout`` for models that carry a state (RNNs, SSMs) or a cache
+  of the past (Transformer: keys and values, VPT: attention inputs): the burn-in is
+  encoded once and each open-loop step only computes the new position instead of
+  re-running the whole prefix (the base class's definition, which it reproduces).
 
 Normalization statistics are buffers set by :meth:`SeqBaseline.fit_normalizer`
 from the training set (the harness calls it before training); they travel with the
@@ -36,7 +37,7 @@ class SeqBaseline(ForecastModel):
 
     Subclasses implement :meth:`encode` ((B, T, F) features -> (B, T, d) causal
     hidden states).  Stateful subclasses also implement :meth:`encode_state`
-    and :meth:`step` and set ``stateful = True`` to get the O(H) rollout.
+    and :meth:`step` and set ``stateful = True`` to get the incremental rollout.
     """
 
     stateful: bool = False
@@ -124,7 +125,7 @@ class SeqBaseline(ForecastModel):
     # ------------------------------------------------------------------ rollout
     @torch.no_grad()
     def rollout(self, q_burn: torch.Tensor, u: torch.Tensor | None, H: int) -> torch.Tensor:
-        """Open-loop rollout; O(K + H) for stateful models, the base definition otherwise."""
+        """Open-loop rollout; one new position per step for stateful models, the base definition otherwise."""
         if not self.stateful:
             return super().rollout(q_burn, u, H)
         q_burn, _ = self._prep(q_burn, None)

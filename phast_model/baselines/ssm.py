@@ -1,8 +1,9 @@
 """State-space baselines: S5, LinOSS and D-LinOSS, each a stack of residual SSM layers.
 
 All three are linear time-invariant recurrences ``x_t = A_bar x_{t-1} + B_bar u_t``
-evaluated over a whole sequence with a parallel (Hillis-Steele) prefix scan in
-ceil(log2 T) vectorized steps; the open-loop rollout steps the same recurrence.
+evaluated over a whole sequence in a few vectorized steps (S5: a parallel
+Hillis-Steele prefix scan; LinOSS / D-LinOSS: a chunked scan with an adjoint
+backward, :func:`scan_2x2`); the open-loop rollout steps the same recurrence.
 
 * **S5** (Smith, Warrington & Linderman, ICLR 2023): diagonal complex state
   ``x' = Lambda x + B u``, ``y = 2 Re(C x) + D u`` (conjugate-symmetric, P = d_state/2
@@ -35,11 +36,12 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 from torch import nn
+from torch.autograd.function import once_differentiable
 
 from .common import SeqBaseline
 
 
-# --------------------------------------------------------------------------- parallel scans
+# --------------------------------------------------------------------------- diagonal scan
 def scan_diag(a: torch.Tensor, b: torch.Tensor, x0: torch.Tensor | None = None) -> torch.Tensor:
     """All states of ``x_t = a * x_{t-1} + b_t`` (a (P,), b (B, T, P), x_{-1} = x0 or 0) by a prefix scan."""
     if x0 is not None:
@@ -51,25 +53,90 @@ def scan_diag(a: torch.Tensor, b: torch.Tensor, x0: torch.Tensor | None = None) 
     return x
 
 
-def scan_2x2(M: torch.Tensor, f: torch.Tensor) -> torch.Tensor:
-    """All states of ``x_t = M x_{t-1} + f_t`` for P independent 2x2 blocks (M (P, 2, 2) real, f (B, T, P, 2)).
+# --------------------------------------------------------------------------- 2x2 oscillator scan
+#: a batch of 2x2 blocks as four coefficient vectors (a, b; c, d), each (Q,) or broadcastable
+Coef = tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]
 
-    A complex ``f`` is scanned as its real and imaginary parts (M is real), with the
-    2x2 products written out elementwise: much cheaper than a complex einsum on CPU.
+
+def _mul_add_(out0: torch.Tensor, out1: torch.Tensor, m: Coef, x0: torch.Tensor, x1: torch.Tensor) -> None:
+    """``(out0, out1) += M (x0, x1)`` in place (fused multiply-adds, broadcasting)."""
+    a, b, c, d = m
+    out0.addcmul_(a, x0).addcmul_(b, x1)
+    out1.addcmul_(c, x0).addcmul_(d, x1)
+
+
+def _powers(m: Coef, n: int) -> Coef:
+    """Coefficients of ``M^1 .. M^n``, each stacked to (n, Q)."""
+    a, b, c, d = m
+    out = [m]
+    for _ in range(n - 1):
+        A, B, C, D = out[-1]
+        out.append((A * a + B * c, A * b + B * d, C * a + D * c, C * b + D * d))
+    return tuple(torch.stack(p) for p in zip(*out))  # type: ignore[return-value]
+
+
+def _chunked_scan(m: Coef, f: torch.Tensor, reverse: bool = False) -> torch.Tensor:
+    """States of ``x_t = M x_{t-1} + f_t`` (``x_{-1} = 0``) for state-major ``f`` (2, N, T, Q); no autograd.
+
+    Exact sequential steps inside chunks of length ``L = ceil(sqrt(T))``, vectorized over
+    the chunks; then each chunk's end state is carried into the next chunk
+    (``s_c = end_c + M^L s_{c-1}``) and added to its steps as ``M^(i+1) s_{c-1}``.
+    O(T) work in O(sqrt(T)) vectorized steps, in place in one buffer (a parallel
+    prefix scan does O(T log T) work and, under autograd, allocates a full-size
+    gradient per level).  ``reverse`` scans from the end (the adjoint pass).
     """
-    if f.is_complex():
-        return torch.view_as_complex(scan_2x2(M, torch.view_as_real(f).movedim(-1, 0)).movedim(0, -1).contiguous())
-    lead = f.shape[:-3]
-    x = f.reshape(-1, *f.shape[-3:])
-    T, k = x.shape[1], 1
-    a, b, c, d = M[:, 0, 0], M[:, 0, 1], M[:, 1, 0], M[:, 1, 1]
-    while k < T:
-        x0, x1 = x[:, :-k, :, 0], x[:, :-k, :, 1]
-        upd = torch.stack([a * x0 + b * x1, c * x0 + d * x1], -1)
-        x = torch.cat([x[:, :k], x[:, k:] + upd], dim=1)
-        a, b, c, d = a * a + b * c, a * b + b * d, c * a + d * c, c * b + d * d  # M^k -> M^2k
-        k *= 2
-    return x.reshape(*lead, *x.shape[1:])
+    _, N, T, Q = f.shape
+    L = math.isqrt(max(T - 1, 0)) + 1
+    C = -(-T // L)
+    x = f.new_empty(2, N, C * L, Q)
+    x[:, :, :T] = f.flip(2) if reverse else f
+    x[:, :, T:] = 0.0
+    xc = x.view(2, N, C, L, Q)
+    for i in range(1, L):
+        _mul_add_(xc[0, :, :, i], xc[1, :, :, i], m, xc[0, :, :, i - 1], xc[1, :, :, i - 1])
+    if C > 1:
+        pw = _powers(m, L)
+        m_L = tuple(p[-1] for p in pw)
+        for c in range(1, C):
+            _mul_add_(xc[0, :, c, -1], xc[1, :, c, -1], m_L, xc[0, :, c - 1, -1], xc[1, :, c - 1, -1])
+        ends = xc[0, :, :-1, -1:], xc[1, :, :-1, -1:]  # true end states of chunks 0 .. C-2
+        _mul_add_(xc[0, :, 1:, :-1], xc[1, :, 1:, :-1], tuple(p[:-1] for p in pw), *ends)  # type: ignore[arg-type]
+    x = x[:, :, :T]
+    return x.flip(2) if reverse else x
+
+
+class _Scan2x2(torch.autograd.Function):
+    """:func:`_chunked_scan` with its adjoint as the backward: ``g_t + M^T g_{t+1}`` scanned in reverse."""
+
+    @staticmethod
+    def forward(ctx: Any, a: torch.Tensor, b: torch.Tensor, c: torch.Tensor, d: torch.Tensor,
+                f: torch.Tensor) -> torch.Tensor:
+        x = _chunked_scan((a, b, c, d), f)
+        ctx.save_for_backward(a, b, c, d, x)
+        return x
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx: Any, g: torch.Tensor) -> tuple[torch.Tensor | None, ...]:
+        a, b, c, d, x = ctx.saved_tensors
+        gf = _chunked_scan((a, c, b, d), g.contiguous(), reverse=True)
+        if not any(ctx.needs_input_grad[:4]):
+            return None, None, None, None, gf
+        dm = torch.einsum("intq,jntq->ijq", gf[:, :, 1:], x[:, :, :-1])  # dL/dM_ij = sum_t gf_i[t] x_j[t-1]
+        return dm[0, 0], dm[0, 1], dm[1, 0], dm[1, 1], gf
+
+
+def scan_2x2(M: torch.Tensor, f: torch.Tensor) -> torch.Tensor:
+    """All states of ``x_t = M x_{t-1} + f_t`` for Q independent real 2x2 blocks.
+
+    ``M`` (Q, 2, 2); ``f`` (2, N, T, Q), state-major: ``f[0]``, ``f[1]`` are the two
+    state components, so every update runs on contiguous rows.  Returns x in the
+    same layout.  Differentiable in M and f (an adjoint scan, not autograd through
+    the steps).
+    """
+    if f.ndim != 4 or f.shape[0] != 2 or M.shape != (f.shape[-1], 2, 2):
+        raise ValueError(f"need M (Q, 2, 2) and f (2, N, T, Q), got {tuple(M.shape)} and {tuple(f.shape)}")
+    return _Scan2x2.apply(M[:, 0, 0], M[:, 0, 1], M[:, 1, 0], M[:, 1, 1], f)
 
 
 def _complex_param(*shape: int, scale: float) -> nn.Parameter:
@@ -82,7 +149,7 @@ def _c(p: torch.Tensor) -> torch.Tensor:
 
 # --------------------------------------------------------------------------- layers
 class _SSMLayer(nn.Module):
-    """Residual pre-norm SSM layer; subclasses define the recurrence."""
+    """Residual pre-norm SSM layer; subclasses define the recurrence (:meth:`sequence`, :meth:`recur`)."""
 
     def __init__(self, d: int) -> None:
         super().__init__()
@@ -92,15 +159,21 @@ class _SSMLayer(nn.Module):
     def post(self, y: torch.Tensor) -> torch.Tensor:
         return F.gelu(y)
 
+    def sequence(self, z: torch.Tensor) -> tuple[torch.Tensor, Any]:  # pragma: no cover - abstract
+        """SSM outputs (B, T, d) of normalized inputs z (B, T, d) and the state after the last step."""
+        raise NotImplementedError
+
+    def recur(self, z: torch.Tensor, state: Any) -> tuple[torch.Tensor, Any]:  # pragma: no cover - abstract
+        """One step: SSM output (B, d) of z (B, d) and the new state."""
+        raise NotImplementedError
+
     def forward(self, h: torch.Tensor) -> tuple[torch.Tensor, Any]:
-        z = self.norm(h)
-        states = self.scan(z)
-        return h + self.post(self.out(states, z)), states[:, -1]
+        y, state = self.sequence(self.norm(h))
+        return h + self.post(y), state
 
     def step(self, h: torch.Tensor, state: Any) -> tuple[torch.Tensor, Any]:
-        z = self.norm(h)
-        state = self.recur(z, state)
-        return h + self.post(self.out(state[:, None], z[:, None])[:, 0]), state
+        y, state = self.recur(self.norm(h), state)
+        return h + self.post(y), state
 
 
 class S5Layer(_SSMLayer):
@@ -119,20 +192,28 @@ class S5Layer(_SSMLayer):
         b_bar = ((lam_bar - 1) / lam)[:, None] * _c(self.B)  # S5 Eq. 7
         return lam_bar, b_bar
 
-    def scan(self, z: torch.Tensor) -> torch.Tensor:
-        lam_bar, b_bar = self._disc()
-        return scan_diag(lam_bar, z.to(b_bar.dtype) @ b_bar.T)
-
-    def recur(self, z: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-        lam_bar, b_bar = self._disc()
-        return lam_bar * x + z.to(b_bar.dtype) @ b_bar.T
-
     def out(self, x: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
         return 2 * (x @ _c(self.C).T).real + self.D * z
 
+    def sequence(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        lam_bar, b_bar = self._disc()
+        x = scan_diag(lam_bar, z.to(b_bar.dtype) @ b_bar.T)
+        return self.out(x, z), x[:, -1]
+
+    def recur(self, z: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        lam_bar, b_bar = self._disc()
+        x = lam_bar * x + z.to(b_bar.dtype) @ b_bar.T
+        return self.out(x, z), x
+
 
 class _OscLayer(_SSMLayer):
-    """Shared parts of LinOSS / D-LinOSS: P oscillators, complex B, C, per-oscillator dt."""
+    """Shared parts of LinOSS / D-LinOSS: P oscillators, complex B, C, per-oscillator dt.
+
+    The inputs z are real, so ``B z`` splits into ``(Re B) z`` and ``(Im B) z``: the
+    layer runs Q = 2P real oscillators (the real parts, then the imaginary parts)
+    sharing M, with real matrices throughout; ``Re(C y) = (Re C) Re y - (Im C) Im y``.
+    The state is (2, B, Q) in the layout of :func:`scan_2x2`.
+    """
 
     def __init__(self, d: int, P: int) -> None:
         super().__init__(d)
@@ -145,21 +226,22 @@ class _OscLayer(_SSMLayer):
         """(M (P, 2, 2), f-weights (P, 2)) of the discretized oscillators."""
         raise NotImplementedError
 
-    def _forcing(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def _real_system(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """M (Q, 2, 2), forcing weights (2, Q), input map (Q, d), output map (d, Q) of the Q = 2P real oscillators."""
         M, w = self.transition()
-        bu = z.to(torch.complex64 if z.dtype == torch.float32 else torch.complex128) @ _c(self.B).T
-        return M, bu[..., None] * w.to(bu.dtype)
+        B_in = torch.cat([self.B[..., 0], self.B[..., 1]], 0)
+        C_out = torch.cat([self.C[..., 0], -self.C[..., 1]], 1)
+        return M.repeat(2, 1, 1), w.T.repeat(1, 2), B_in, C_out
 
-    def scan(self, z: torch.Tensor) -> torch.Tensor:
-        M, f = self._forcing(z)
-        return scan_2x2(M, f)
+    def sequence(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        M, w, B_in, C_out = self._real_system()
+        x = scan_2x2(M, w[:, None, None] * (z @ B_in.T))
+        return x[1] @ C_out.T + self.D * z, x[:, :, -1]
 
-    def recur(self, z: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-        M, f = self._forcing(z)
-        return torch.einsum("pij,bpj->bpi", M.to(x.dtype), x) + f
-
-    def out(self, x: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
-        return (x[..., 1] @ _c(self.C).T).real + self.D * z
+    def recur(self, z: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        M, w, B_in, C_out = self._real_system()
+        x = torch.einsum("qij,jbq->ibq", M, x) + w[:, None] * (z @ B_in.T)
+        return x[1] @ C_out.T + self.D * z, x
 
 
 class LinOSSLayer(_OscLayer):

@@ -2,7 +2,8 @@
 
 A run is identified by :func:`run_key` = sha256 of the canonical JSON of every
 field that can change its result (env, model, seed, data protocol, training
-budget, evaluation protocol, model overrides, harness version).  Identical
+budget, evaluation protocol, model overrides, harness version, and the model's
+revision where it has one).  Identical
 configurations always hash the same across processes and machines, so a finished
 run is found again and never redone, and changing any field starts a new run.
 """
@@ -16,9 +17,12 @@ from typing import Any
 
 #: bump when the meaning of a stored result changes (new metrics protocol, ...)
 HARNESS_VERSION = 1
-#: bump a model family's version when its code changes what it learns; it enters the hash of that family's runs
-#: only (the others' stored results stay valid).  PHAST 2: least-squares start from the data, learned M(q).
-MODEL_VERSIONS: dict[str, int] = {"phast": 2}
+
+#: per model, bumped when a code change alters what its runs train or output (absent = 1); it enters the hash of
+#: that model's runs only, so their stored results are redone and every other model's stay valid.
+#: transformer 2: no dropout on the attention weights (fused attention); PHAST 2: least-squares start from the
+#: training data, learned M(q), Householder directions starting on the axes
+MODEL_REVISIONS: dict[str, int] = {"transformer": 2, "phast-known": 2, "phast-partial": 2, "phast-unknown": 2}
 
 PHAST_MODELS = ("phast-known", "phast-partial", "phast-unknown")
 BASELINE_MODELS = ("gru", "lstm", "transformer", "s5", "linoss", "dlinoss", "vpt")
@@ -62,15 +66,15 @@ class RunSpec:
         """Canonical JSON-ready configuration (the hashed content)."""
         d = asdict(self)
         d["horizons"] = [int(h) for h in self.horizons]
-        family = self.model.split("-")[0]
-        if MODEL_VERSIONS.get(family):
-            d["model_version"] = MODEL_VERSIONS[family]
+        if self.model in MODEL_REVISIONS:
+            d["model_revision"] = MODEL_REVISIONS[self.model]
         return json.loads(json.dumps(d, sort_keys=True))
 
     @classmethod
     def from_config(cls, cfg: dict[str, Any]) -> RunSpec:
+        """The spec of a configuration; its ``model_revision`` (derived, not a field) is dropped."""
         cfg = dict(cfg)
-        cfg.pop("model_version", None)  # derived from the model family, not a field
+        cfg.pop("model_revision", None)
         cfg["horizons"] = tuple(cfg.get("horizons", (10, 50, 100)))
         return cls(**cfg)
 
