@@ -14,7 +14,7 @@ import argparse
 import json
 import pathlib
 
-from phast_gym.control import ControlProtocol, evaluate
+from phast_gym.control import ControlProtocol, evaluate_estimators
 from phast_model.cli.control_eval import plot_success_by_regime, plot_traces, results_markdown
 
 ESTIMATORS = ("oracle", "fd", "map", "ekf")
@@ -26,7 +26,7 @@ def run(out_dir: pathlib.Path, trials_per_regime: int = 2) -> dict:
     out_dir = pathlib.Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     protocol = ControlProtocol()
-    rows, kept = evaluate(protocol, ESTIMATORS, [SIGMA], trials_per_regime=trials_per_regime, seed=0,
+    rows, kept = evaluate_estimators(protocol, ESTIMATORS, [SIGMA], trials_per_regime=trials_per_regime, seed=0,
                           keep_episodes=lambda s, e, r, i: r == "far_unstable" and i == 0)
     (out_dir / "control_results.json").write_text(json.dumps(rows, indent=1))
     (out_dir / "control_results.md").write_text(results_markdown(rows, protocol))

@@ -83,8 +83,8 @@ def energy_diagnostics(env_id: str, q_roll: np.ndarray, dt: float, angle_dims: t
     return float(np.abs(rho).mean()), float((dH > tol).mean())
 
 
-def evaluate(model: ForecastModel, test: Any, horizons: tuple[int, ...] = (10, 50, 100), burn_in: int = 10,
-             batch_size: int = 256, takeover: bool = True, energy: bool = True) -> dict[str, float]:
+def forecast_metrics(model: ForecastModel, test: Any, horizons: tuple[int, ...] = (10, 50, 100), burn_in: int = 10,
+                     batch_size: int = 256, takeover: bool = True, energy: bool = True) -> dict[str, float]:
     """Table 16 metrics of ``model`` on ``test`` (a Dataset): one-step, autoregressive and takeover
     rollouts at each H, damping R^2 / MAE (models with a damping field), energy-budget residual and
     passivity violations from the env's H and D, and the trainable parameter count."""

@@ -3,7 +3,7 @@
 ``run_one(config, out_dir)`` trains one (env, model, seed) with the shared
 :func:`phast_model.training.fit` (same optimizer, schedule, epochs and
 best-validation selection for PHAST and baselines) and scores it with
-:func:`phast_model.metrics.evaluate`; the result JSON is written atomically under
+:func:`phast_model.metrics.forecast_metrics`; the result JSON is written atomically under
 ``out_dir/runs/`` and named by the configuration hash, so a finished run is
 never redone and an interrupted sweep resumes where it stopped.
 """
@@ -151,7 +151,7 @@ def run_one(config: dict[str, Any], out_dir: str, threads: int = 1) -> dict[str,
 def _train_and_score(spec: RunSpec, out_dir: str, wdir: Path) -> dict[str, Any]:
     import torch
 
-    from phast_model.metrics import evaluate
+    from phast_model.metrics import forecast_metrics
     from phast_model.training import fit
 
     t0 = time.perf_counter()
@@ -167,7 +167,7 @@ def _train_and_score(spec: RunSpec, out_dir: str, wdir: Path) -> dict[str, Any]:
     test = splits["test"]
     if spec.full_state:  # the env's energy diagnostics read q as positions: not defined for (q, p) inputs
         test = dataclasses.replace(test, env_id="")
-    metrics = evaluate(fitted, test, horizons=tuple(spec.horizons), burn_in=spec.burn_in)
+    metrics = forecast_metrics(fitted, test, horizons=tuple(spec.horizons), burn_in=spec.burn_in)
     # the weights the metrics came from, for figures (state_dict only: torch.load(weights_only=True))
     buf = io.BytesIO()
     torch.save(fitted.state_dict(), buf)

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from phast_gym.control import REGIMES, ControlProtocol, estimator_names, evaluate, make_estimator
+from phast_gym.control import START_REGIMES, ControlProtocol, estimator_names, evaluate_estimators, make_estimator
 from phast_gym.fileio import atomic_write_text, ensure_writable_dir
 from phast_gym.systems import wrap
 
@@ -116,10 +116,10 @@ def run(args: argparse.Namespace) -> list[dict[str, Any]]:
         return make_estimator(name, system, dt, sigma=sigma, **kw)
 
     keep = (lambda s, e, r, i: r == "far_unstable" and i == 0) if not args.no_plots else None
-    rows, kept = evaluate(protocol, names, sigmas, args.trials_per_regime, seed=args.seed, factory=factory,
+    rows, kept = evaluate_estimators(protocol, names, sigmas, args.trials_per_regime, seed=args.seed, factory=factory,
                           progress=not args.no_progress, keep_episodes=keep)
     atomic_write_text(out / "results.json", json.dumps(rows, indent=1))
-    atomic_write_text(out / "protocol.json", json.dumps({**protocol.to_dict(), "regimes": REGIMES, "seed": args.seed,
+    atomic_write_text(out / "protocol.json", json.dumps({**protocol.to_dict(), "regimes": START_REGIMES, "seed": args.seed,
                                                      "trials_per_regime": args.trials_per_regime,
                                                      "command": "phast-control-eval " + " ".join(sys.argv[1:])},
                                                     indent=1))
@@ -166,7 +166,7 @@ def results_markdown(rows: list[dict[str, Any]], protocol: ControlProtocol) -> s
             if r["sigma"] == s and r["regime"] == "near_stable":
                 lines.append(f"| {LABELS.get(r['estimator'], (r['estimator'],))[0]} ({r['estimator']}) | {_fmt(r['success_rate'], 's')} | "
                              f"{_fmt(r['final_error'], 'err')} | {_fmt(r['effort'], 'eff')} | {_fmt(r['velocity_error'], 'vel')} |")
-    regs = list(REGIMES)
+    regs = list(START_REGIMES)
     lines += ["", "## Success rate by regime (paper Fig. 8)", "", "| sigma | estimator | " + " | ".join(regs) + " |",
               "|---|---|" + "---|" * len(regs)]
     for s in sigmas:
@@ -212,7 +212,7 @@ def plot_success_by_regime(rows: list[dict[str, Any]], out: Path) -> None:
 
     sigmas = sorted({r["sigma"] for r in rows})
     names = list(dict.fromkeys(r["estimator"] for r in rows))
-    regs = list(REGIMES)
+    regs = list(START_REGIMES)
     fig, axes = plt.subplots(1, len(sigmas), figsize=(4.5 * len(sigmas), 3.6), squeeze=False)
     w = 0.8 / max(1, len(names))
     for ax, s in zip(axes[0], sigmas):

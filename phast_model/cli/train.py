@@ -101,10 +101,10 @@ def train_run(env: str, regime: str, out: str | Path, epochs: int = 50, seed: in
 def _finish(res: Any, splits: dict[str, Any], cfg: Any, identity: dict[str, Any], out: Path, plots: bool) -> dict[str, Any]:
     """Score on the test split, then save model.pt + config.json, metrics.json / history.json and the plots."""
     from ..checkpoint import atomic_write_json, save_run
-    from ..metrics import benchmark_metric, evaluate
+    from ..metrics import benchmark_metric, forecast_metrics
 
     env, regime, seed, epochs = identity["env_id"], identity["regime"], cfg.seed, cfg.epochs
-    metrics = evaluate(res.model, splits["test"])
+    metrics = forecast_metrics(res.model, splits["test"])
     save_run(res.model, out, {"train": cfg.__dict__, "data": identity["data"], "overrides": identity["overrides"]})
     metrics.update({"train_wall_time_s": res.wall_time_s, "best_val": res.best_val, "best_epoch": res.best_epoch,
                     "nan_events": res.nan_events, "benchmark_metric": benchmark_metric(env)})

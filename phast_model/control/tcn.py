@@ -27,7 +27,7 @@ from torch import nn
 
 from phast_gym import integrate
 from phast_gym.control.estimators import PortEstimator
-from phast_gym.control.evaluation import REGIMES, ControlProtocol, control_system, sample_regime
+from phast_gym.control.evaluation import START_REGIMES, ControlProtocol, control_system, sample_start_states
 from phast_gym.systems.base import NUMPY, System, split, stack, wrap
 
 from ..checkpoint import atomic_write_bytes, atomic_write_json
@@ -113,8 +113,8 @@ def closed_loop_data(protocol: ControlProtocol, n_traj: int, steps: int, seed: i
     """
     system = control_system(protocol)
     rng = np.random.default_rng(seed)
-    names = list(REGIMES)
-    x0 = np.concatenate([sample_regime(system, names[i % len(names)], rng, 1) for i in range(n_traj)])
+    names = list(START_REGIMES)
+    x0 = np.concatenate([sample_start_states(system, names[i % len(names)], rng, 1) for i in range(n_traj)])
     n = system.n
     q, p = list(split(x0[:, :n])), list(split(x0[:, n:]))
     xi = x0[:, :n].copy()
