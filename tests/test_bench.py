@@ -179,7 +179,7 @@ def test_env_energy_rejects_non_hamiltonian_env() -> None:
     """Figures: predator-prey has no mechanical energy; env_energy says so (the figure code catches ValueError)."""
     import numpy as np
 
-    from phast_model.bench.figures import env_energy
+    from phast_model.metrics import env_energy
 
     q = np.ones((1, 5, 1))
     with pytest.raises(ValueError, match="not port-Hamiltonian"):

@@ -223,3 +223,30 @@ def test_predator_prey_both_populations_within_1e5_of_a_tight_solve() -> None:
     for _ in range(50):
         _, _, _, _, info = env.step(np.array([u_held[31]]))
     np.testing.assert_allclose(info["state"], traj[31, -1], rtol=0, atol=1e-12)  # the env is that integrator
+
+
+@pytest.mark.parametrize("env_id", HAMILTONIAN_IDS)
+def test_momentum_inverts_velocity(env_id: str) -> None:
+    """System.momentum (p = M(q) qdot, what metrics, plots, control and the mismatch tool use) inverts System.velocity."""
+    system = phast_gym.make_env_system(env_id)
+    x = system.sample_initial(np.random.default_rng(0), 16)
+    n = system.n
+    q, p = tuple(x[:, i] for i in range(n)), tuple(x[:, n + i] for i in range(n))
+    back = system.momentum(q, system.velocity(q, p, NUMPY), NUMPY)
+    np.testing.assert_allclose(np.stack(np.broadcast_arrays(*back), -1), x[:, n:], rtol=1e-12, atol=1e-12)
+
+
+def test_angle_helpers() -> None:
+    """angle_diff wraps only the angular coordinates; fd_velocity is its time difference; break_at_wraps puts NaN
+    only where a wrapped series jumps across +-pi."""
+    from phast_gym.systems import angle_diff, break_at_wraps, fd_velocity
+
+    a, b = np.array([[3.0, 3.0]]), np.array([[-3.0, -3.0]])
+    np.testing.assert_allclose(angle_diff(a, b, (0,)), [[6.0 - 2 * math.pi, 6.0]])
+    q = np.array([[[3.0, 0.0], [-3.0, 1.0]]])
+    np.testing.assert_allclose(fd_velocity(q, 0.5, (0,)), [[[(2 * math.pi - 6.0) / 0.5, 2.0]]])
+    y = np.array([0.0, 3.0, -3.0, -2.9])
+    out = break_at_wraps(y)
+    assert np.isnan(out[2]) and np.isfinite(out[[0, 1, 3]]).all() and np.isfinite(y).all()
+    two = break_at_wraps(np.stack([y, y[::-1]]), axis=1)
+    assert np.isnan(two[0, 2]) and np.isnan(two[1, 2]) and np.isfinite(two[:, [0, 1, 3]]).all()

@@ -114,9 +114,8 @@ def sample_start_states(system: System, regime: str, rng: np.random.Generator, s
     else:  # high_energy
         q, qd = u(-math.pi, math.pi, size), sign * u(7.0, 10.0, size)
     q = wrap(q)
-    m = np.asarray(system.mass_matrix((q,), NUMPY)[0][0], dtype=np.float64)
-    p = np.broadcast_to(m, q.shape) * qd
-    return np.stack([q, p], -1)
+    (p,) = system.momentum((q,), (qd,), NUMPY)
+    return np.stack(np.broadcast_arrays(q, p), -1)
 
 
 @dataclass

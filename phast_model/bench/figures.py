@@ -20,35 +20,11 @@ from typing import Any
 
 import numpy as np
 
-from phast_gym.systems import wrap
+from phast_gym.systems import fd_velocity
 
 from .runner import build_run_model, load_result, load_splits, work_dir
 from .spec import RunSpec
 from .summary import DISPLAY, aggregate, env_metric
-
-
-def fd_velocity(q: np.ndarray, dt: float, angle_dims: tuple[int, ...]) -> np.ndarray:
-    """(..., T, n) -> (..., T-1, n) finite-difference velocities, wrapped on angles."""
-    v = q[..., 1:, :] - q[..., :-1, :]
-    if angle_dims:
-        v[..., list(angle_dims)] = wrap(v[..., list(angle_dims)])
-    return v / dt
-
-
-def env_energy(env_id: str, q: np.ndarray, dt: float, angle_dims: tuple[int, ...]) -> np.ndarray:
-    """Env energy H(q, M(q) qdot_fd) along trajectories (..., T, n) -> (..., T-1), via the system's own functions."""
-    from phast_gym import make_env_system
-    from phast_gym.systems import NUMPY, split
-
-    system = make_env_system(env_id)
-    if not system.hamiltonian_system:  # e.g. predator-prey: no M(q), its invariant needs the unobserved latent
-        raise ValueError(f"{env_id} is not port-Hamiltonian: no energy H(q, M(q) qdot)")
-    v = fd_velocity(q, dt, angle_dims)
-    qs = split(q[..., 1:, :])
-    rows = system.mass_matrix(qs, NUMPY)
-    vs = split(v)
-    p = tuple(sum(np.asarray(rows[i][j]) * vs[j] for j in range(system.n)) for i in range(system.n))
-    return np.asarray(system.hamiltonian(qs, p, NUMPY)) * np.ones(v.shape[:-1])
 
 
 def load_model(out_dir: str | Path, spec: RunSpec, train: Any) -> Any:
@@ -86,6 +62,8 @@ def make_figures(out_dir: str | Path, specs: list[RunSpec], n_traj: int = 3, H: 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import torch
+
+    from ..metrics import env_energy
 
     out_dir = Path(out_dir)
     fig_dir = out_dir / "figures"

@@ -225,8 +225,7 @@ class AugmentedSystem(System):
         """dH/dq|_p given v = dH/dp.  With armature A (constant): dH/dq|_p = dV/dq - v^T (dM/dq) v / 2, which is the
         base's dH/dq at the base momentum p' = M(q) v (same v, same dM/dq), plus the extra potential's gradient."""
         if self.has_armature:
-            M = self.base.mass_matrix(q, xp)
-            p = tuple(sum(mij * vj for mij, vj in zip(row, v)) for row in M)
+            p = self.base.momentum(q, v, xp)
         return tuple(a + b for a, b in zip(self.base.dH_dq(q, p, xp), self._extra_grad(q, xp)))
 
     def dH_dq(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
