@@ -15,7 +15,8 @@ import json
 import pathlib
 
 from phast_gym.control import ControlProtocol, evaluate_estimators
-from phast_model.cli.control_eval import plot_success_by_regime, plot_traces, results_markdown
+from phast_gym.control.report import plot_success_by_regime, plot_traces, results_markdown
+from phast_gym.fileio import atomic_write_text
 
 ESTIMATORS = ("oracle", "fd", "map", "ekf")
 SIGMA = 0.05
@@ -28,8 +29,8 @@ def run(out_dir: pathlib.Path, trials_per_regime: int = 2) -> dict:
     protocol = ControlProtocol()
     rows, kept = evaluate_estimators(protocol, ESTIMATORS, [SIGMA], trials_per_regime=trials_per_regime, seed=0,
                           keep_episodes=lambda s, e, r, i: r == "far_unstable" and i == 0)
-    (out_dir / "control_results.json").write_text(json.dumps(rows, indent=1))
-    (out_dir / "control_results.md").write_text(results_markdown(rows, protocol))
+    atomic_write_text(out_dir / "control_results.json", json.dumps(rows, indent=1))
+    atomic_write_text(out_dir / "control_results.md", results_markdown(rows, protocol))
     plot_traces(kept, protocol, out_dir)
     plot_success_by_regime(rows, out_dir)
     summary = {}

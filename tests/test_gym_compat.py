@@ -73,7 +73,7 @@ def test_make_with_module_prefix_without_import() -> None:
 def test_phast_gym_does_not_import_torch() -> None:
     """phast_gym is numpy-only (the compiled backend is opt-in behind ``phast_gym.compiled``): every env
     stepped, every env's batched dataset above any batch-size threshold, the paper-sized 1400 x 200
-    windy-pendulum dataset and the numpy port estimators, all in a fresh process without torch."""
+    windy-pendulum dataset, the numpy port estimators and the control tables, all in a fresh process without torch."""
     code = """
 import sys
 import gymnasium as gym
@@ -90,6 +90,10 @@ phast_gym.make_dataset('PHAST/WindyPendulum-v0', n_traj=1400, T=200, seed=42, ca
 system = make_control_env(ControlProtocol()).unwrapped.system
 for name in estimator_names():
     make_estimator(name, system, 0.01)
+from phast_gym.control import evaluate_estimators
+from phast_gym.control.report import results_markdown
+rows, _ = evaluate_estimators(ControlProtocol(horizon=20, settle_steps=5), ["fd"], [0.0], 1, progress=False)
+assert "| 0.00 |" in results_markdown(rows, ControlProtocol())
 print(sorted(m for m in sys.modules if m == 'torch' or m.startswith(('torch.', 'phast_model'))))
 """
     assert _run(code) == "[]"

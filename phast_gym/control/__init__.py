@@ -4,7 +4,8 @@
 * port (velocity) estimators behind one interface, built by name with :func:`make_estimator`
   (``oracle``, ``fd``, ``map``, ``ekf``/``ukf``; packages above this one register their own,
   see :func:`register_estimator_provider`);
-* :mod:`.evaluation`: the closed-loop protocol of paper Sec. 4.2 (start regimes, metrics).
+* :mod:`.evaluation`: the closed-loop protocol of paper Sec. 4.2 (start regimes, metrics);
+* :mod:`.report`: its tables and plots.
 """
 
 from .controller import EnergyCasimirController, EnergyCasimirWrapper, validate_gains
