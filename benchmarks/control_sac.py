@@ -31,6 +31,7 @@ import numpy as np
 import torch
 
 from phast_gym.control import START_REGIMES, ControlProtocol, evaluate_estimators, make_control_env, sample_start_states, start_states
+from phast_gym.fileio import atomic_write_text
 from phast_gym.systems.base import SCALAR, wrap
 
 
@@ -195,13 +196,13 @@ def main() -> None:
     meta = {"command": "python benchmarks/control_sac.py " + " ".join(f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items()
                                                                      if v is not None),
             "protocol": protocol.to_dict(), "sigma": args.sigma, "trials_per_regime": args.trials_per_regime, "results": results}
-    (out / "control_sac.json").write_text(json.dumps(meta, indent=1))
+    atomic_write_text(out / "control_sac.json", json.dumps(meta, indent=1))
     lines = [f"SAC vs Energy-Casimir, sigma = {args.sigma:g}, {5 * args.trials_per_regime} trials ({meta['command']})", "",
              "| Method | Success | Effort | Final error | Real-env samples (plant steps) | Train s |", "|---|---|---|---|---|---|"]
     for r in results:
         lines.append(f"| {r['method']} | {r['success_rate']:.2f} | {r['effort']:.1f} | {r['final_error']:.2e} | {r['real_env_samples']} | "
                      f"{r['train_seconds']} |")
-    (out / "control_sac.md").write_text("\n".join(lines) + "\n")
+    atomic_write_text(out / "control_sac.md", "\n".join(lines) + "\n")
     print("\n".join(lines))
 
 
