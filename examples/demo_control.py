@@ -23,7 +23,7 @@ SIGMA = 0.05
 
 
 def run(out_dir: pathlib.Path, trials_per_regime: int = 2) -> dict:
-    """Closed-loop runs at sigma = 0.05; returns success rate and velocity error per estimator."""
+    """Closed-loop runs at sigma = 0.05; returns success rate and velocity error per estimator (and the trace figure)."""
     out_dir = pathlib.Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     protocol = ControlProtocol()
@@ -33,7 +33,7 @@ def run(out_dir: pathlib.Path, trials_per_regime: int = 2) -> dict:
     atomic_write_text(out_dir / "control_results.md", results_markdown(rows, protocol))
     plot_traces(kept, protocol, out_dir)
     plot_success_by_regime(rows, out_dir)
-    summary = {}
+    summary = {"sigma": SIGMA, "figure": str(out_dir / f"traces_sigma{SIGMA:g}.png")}
     for r in rows:
         if r["regime"] == "all":
             summary[f"success_{r['estimator']}"] = r["success_rate"]
