@@ -4,7 +4,7 @@ Everything is measured side by side in one run, so the ratios are meaningful on 
 
     python benchmarks/envs.py --out docs/envs_benchmark.json
 
-Targets (issue "phast_gym"): PHAST/Pendulum-v0 >= 0.5x Pendulum-v1 steps/s; every full 1400 x 200
+Targets: PHAST/Pendulum-v0 >= 0.5x Pendulum-v1 steps/s; every full 1400 x 200
 dataset <= 2 s (LennardJones3 <= 10 s); batched throughput >= 100x single-env; peak memory < 1 GB.
 
 Everything runs on one core (``torch.set_num_threads(1)`` for the compiled backend; the NumPy batched

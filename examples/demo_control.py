@@ -5,7 +5,7 @@ model-based UKF inside the same controller (same gains, initial states and noise
 env's reset/step only.  Writes ``control_results.json``, ``control_results.md``,
 ``traces_sigma0.05.png`` and ``success_by_regime.png`` into ``out_dir``.
 
-Run alone: ``python examples/demo_control.py --out demo_out/control`` (about 20 s on one core).
+Run alone: ``python examples/demo_control.py --out demo_out/control``.
 """
 
 from __future__ import annotations

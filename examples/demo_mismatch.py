@@ -38,10 +38,7 @@ def run(out_dir: pathlib.Path, real_T: int = 4000) -> dict:
         "synthetic_rollout_rmse_augmented": round(syn.fit["augmented"]["rollout_rmse"], 4),
         "figure": str(out_dir / "synthetic" / "heldout_fit.png"),
     }
-    try:
-        import real_pendulum_mismatch as real
-    except ImportError:  # pragma: no cover - the example sits next to this file
-        return summary
+    import real_pendulum_mismatch as real
     data = real.DEFAULT_DATA
     if not data.exists():
         print(f"[demo] mismatch: real-pendulum data not found at {data} (set PHAST_REAL_DATA to its directory); "

@@ -73,7 +73,7 @@ class PublishedIdentifiedArm(DoublePendulum):
 
 
 def load(path: Path, max_T: int | None = None) -> tuple[dict[str, Any], dict[str, Any], dict[str, float]]:
-    """Recordings dict (MISMATCH.md keys: q, t, u, angle_dims; the first ``max_T`` samples of each run), the nominal env
+    """Recordings dict (docs/mismatch.md keys: q, t, u, angle_dims; the first ``max_T`` samples of each run), the nominal env
     kwargs, and the identified parameters."""
     if not path.exists():
         raise ValueError(f"real double-pendulum data not found at {path}; pass --data or set PHAST_REAL_DATA to its directory")

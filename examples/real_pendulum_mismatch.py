@@ -34,7 +34,7 @@ DEFAULT_DATA = DATA_DIR / "multiarm_single_pendulum.npz"
 
 
 def load(path: Path, n_seg: int = 6, max_T: int | None = None) -> tuple[dict[str, Any], dict[str, float]]:
-    """Recordings dict (MISMATCH.md keys) and the published-model env kwargs."""
+    """Recordings dict (docs/mismatch.md keys) and the published-model env kwargs."""
     if not path.exists():
         raise ValueError(f"real-pendulum data not found at {path}; pass --data or set PHAST_REAL_DATA to its directory")
     with np.load(path) as z:

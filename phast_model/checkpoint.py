@@ -127,7 +127,7 @@ def load_model(run_dir: str | Path) -> PHAST:
     if meta.get("dtype") == "float64":
         model = model.double()
     state = load_state(Path(run_dir) / MODEL_FILE)
-    ident = state.pop(IDENTITY_KEY, None)  # absent in model.pt files written before identities were recorded
+    ident = state.pop(IDENTITY_KEY, None)  # a model.pt of the format's first release has none: loaded unchecked
     if ident is not None:
         from .training import first_difference
 

@@ -1,4 +1,4 @@
-"""The env contract of ENVIRONMENTS.md: spaces, reset, wrapping, noise, info, bad input, kwargs."""
+"""The env contract of docs/envs.md: spaces, reset, wrapping, noise, info, bad input, kwargs."""
 
 from __future__ import annotations
 

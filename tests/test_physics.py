@@ -24,7 +24,7 @@ DISSIPATIVE_IDS = [
 
 
 def _reference(system, x0: np.ndarray, t_end: float, u: np.ndarray | None = None, rtol: float = 1e-11) -> np.ndarray:
-    """High-accuracy solve of the spec's ODE (rtol 1e-10) with DOP853."""
+    """High-accuracy solve of the env's ODE (docs/envs.md; rtol 1e-10) with DOP853."""
     n = system.n
     uu = None if u is None else list(u)
 
@@ -38,7 +38,7 @@ def _reference(system, x0: np.ndarray, t_end: float, u: np.ndarray | None = None
 
 @pytest.mark.parametrize("env_id", phast_gym.env_ids())
 def test_env_matches_tight_ode_solve_after_50_steps(env_id: str) -> None:
-    """ENVIRONMENTS.md: after 50 steps the observed q matches a 1e-10 ODE solve within 1e-5."""
+    """docs/envs.md: after 50 steps the observed q matches a 1e-10 ODE solve within 1e-5."""
     env = gym.make(env_id, dtype=np.float64).unwrapped
     system = env.system
     worst = 0.0
@@ -189,8 +189,8 @@ def test_small_angle_pendulum_period() -> None:
 @pytest.mark.parametrize("env_id", ["PHAST/Pendulum-v0", "PHAST/DampedPendulum-v0", "PHAST/WindyPendulum-v0",
                                     "PHAST/WindyCartPole-v0", "PHAST/DampedDoublePendulum-v0"])
 def test_accuracy_over_many_random_and_fast_states(env_id: str) -> None:
-    """The substeps were tuned down for speed: check the 1e-5 spec on 24 random initial states,
-    a third of them with momenta pushed to 2.5x their spec draw (fast, near-separatrix motion)."""
+    """The substeps were tuned down for speed: check the 1e-5 bound on 24 random initial states,
+    a third of them with momenta pushed to 2.5x their initial-state draw (fast, near-separatrix motion)."""
     system = phast_gym.make_env_system(env_id)
     rng = np.random.default_rng(123)
     x0 = system.sample_initial(rng, 24)
@@ -204,7 +204,7 @@ def test_accuracy_over_many_random_and_fast_states(env_id: str) -> None:
 
 
 def test_predator_prey_both_populations_within_1e5_of_a_tight_solve() -> None:
-    """The 1e-5 contract on the whole state of predator-prey (the predators are the hidden "p"): 32 spec
+    """The 1e-5 contract on the whole state of predator-prey (the predators are the hidden "p"): 32 initial-state
     draws with held inputs up to the action bound, 50 steps, against DOP853 at rtol 1e-13.  Two RK4
     substeps missed it by up to 4e-5 on the predators; four leave about 2.6e-6 over 1000 draws."""
     system = phast_gym.make_env_system("PHAST/PredatorPrey-v0")

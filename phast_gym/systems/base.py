@@ -213,9 +213,9 @@ class Param:
     """A documented physical parameter: default, constraint and meaning.
 
     A parameter with ``choices`` is a string option (e.g. a coordinate convention) instead of a
-    number; its value must be one of them.  ``extension`` marks a parameter added after the
-    benchmark datasets were fixed: while at its default it is left out of :meth:`System.key_params`,
-    so the dataset cache keys of the benchmark envs do not change.
+    number; its value must be one of them.  ``extension`` marks a parameter that is not part of the
+    benchmark envs' definition: while at its default it is left out of :meth:`System.key_params`, so the
+    dataset cache keys of the benchmark envs do not depend on it.
     """
 
     default: float | str | None
@@ -409,7 +409,7 @@ class System:
 
     # ---- initial states -------------------------------------------------
     def sample_initial(self, rng: np.random.Generator, size: int) -> np.ndarray:
-        """Sample ``size`` initial states ``(q, p)`` from the spec's distribution -> (size, 2n)."""
+        """Sample ``size`` initial states ``(q, p)`` from the env's initial-state distribution (docs/envs.md) -> (size, 2n)."""
         raise NotImplementedError
 
     # ---- helpers -------------------------------------------------------------

@@ -127,10 +127,7 @@ def make_train_config(spec: RunSpec) -> Any:
     bad = sorted(set(spec.train) - names)
     if bad:
         raise ValueError(f"unknown TrainConfig field(s) {bad}; known: {sorted(names)}")
-    kw = {"epochs": spec.epochs, "seed": spec.seed, **spec.train}
-    if "progress" in names:
-        kw["progress"] = False
-    return TrainConfig(**kw)
+    return TrainConfig(**{"epochs": spec.epochs, "seed": spec.seed, **spec.train, "progress": False})
 
 
 # --------------------------------------------------------------------------- the run function

@@ -1,6 +1,6 @@
 """The mismatch report: the :class:`Report` data, its text (summary, markdown, HTML), plots, and writing it safely.
 
-``Report.write(out)`` writes report.json (MISMATCH.md schema plus ``"tool":
+``Report.write(out)`` writes report.json (docs/mismatch.md schema plus ``"tool":
 "phast-mismatch"``), report.md, report.html (self-contained: tables as HTML,
 plots embedded as data URIs) and the PNG plots.  It never deletes what it did
 not write: ``out`` must be new, empty, or a previous phast-mismatch report
@@ -41,7 +41,7 @@ _MODELS = (("nominal", ":"), ("calibrated", "--"), ("augmented", "-"))
 
 @dataclass
 class Report:
-    """The report of MISMATCH.md (``to_dict`` is the report.json schema) plus plot data."""
+    """The report of docs/mismatch.md (``to_dict`` is the report.json schema) plus plot data."""
 
     sim: dict[str, Any]
     data: dict[str, Any]

@@ -150,8 +150,8 @@ def simulate_qv(system: System, q0: np.ndarray, v0: np.ndarray, n_steps: int, u:
     (n_steps,) (recorded, jittered times: e.g. ``Recordings.steps`` or ``Recordings.sim_dt``); u (B, n_steps, n)
     is held over each interval.  ``substeps``: RK4 substeps per interval, an int (every interval of every
     sample: substep h = dt / substeps) or an (n_steps,) int array, one count per interval common to the batch
-    (``substeps_for(system, dt)`` gives counts that keep every substep within the env's).  A scalar dt runs
-    exactly as before; an array filled with the same value gives the same numbers.
+    (``substeps_for(system, dt)`` gives counts that keep every substep within the env's).  A scalar dt and an
+    array filled with that value give the same numbers.
     The model's measurement map (``measure``: sensor terms) is applied to the output.
     """
     B, n = q0.shape
