@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from phast_gym.fileio import jsonable as _jsonable
-from phast_gym.systems import wrap
+from phast_gym.systems import break_at_wraps, wrap
 
 from .terms import AugmentedSystem
 
@@ -330,7 +330,7 @@ def _heldout_fit(plt: Any, report: Report, out: Path) -> None:
         for name, style in _MODELS:
             e = roll[name][0, :, i] - hold.q[0, :, i]
             if i in hold.angle_dims:
-                e = wrap(e)
+                e = break_at_wraps(wrap(e))
             ax.plot(t, e, style, lw=1, label=name)
         ax.set_ylabel("error")
         ax.set_xlabel("t [s]")
