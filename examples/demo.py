@@ -110,7 +110,7 @@ def summary_table(summary: dict, out: pathlib.Path, width: int = 44) -> str:
     widths = [max(len(head[0]), *(len(r[0]) for r in rows)), 5, width, width, max(len(head[4]), *(len(r[4]) for r in rows))]
     lines = ["  ".join(h.ljust(w) for h, w in zip(head, widths)).rstrip(), "  ".join("-" * w for w in widths)]
     for row in rows:
-        cells = [textwrap.wrap(c, w) or [""] for c, w in zip(row, widths)]
+        cells = [textwrap.wrap(c, w, break_on_hyphens=False) or [""] for c, w in zip(row, widths)]
         for k in range(max(len(c) for c in cells)):
             lines.append("  ".join((c[k] if k < len(c) else "").ljust(w) for c, w in zip(cells, widths)).rstrip())
     return f"[demo] summary (pictures under {out})\n" + "\n".join(lines)
