@@ -62,9 +62,11 @@ def _datasets(r: dict) -> tuple[str, str]:
 
 
 def _world_model(r: dict) -> tuple[str, str]:
+    found = [f"{label} {_fmt(r[k])}" for k, label in (("rollout_theta_wrap_mse_h100", "rollout wrap-MSE at H = 100:"),
+                                                      ("theta_wrap_mse", "next-step"), ("damping_r2", "damping R^2"))
+             if k in r]
     return (f"trained PHAST ({r.get('regime', '?')} knowledge) on {r.get('env', '?')} in {_fmt(r.get('train_wall_time_s'), '.0f')} s",
-            f"rollout wrap-MSE at H = 100: {_fmt(r.get('rollout_theta_wrap_mse_h100'))}; next-step "
-            f"{_fmt(r.get('theta_wrap_mse'))}; damping R^2 {_fmt(r.get('damping_r2'))}")
+            "; ".join(found))
 
 
 def _control(r: dict) -> tuple[str, str]:
