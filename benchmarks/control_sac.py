@@ -30,8 +30,8 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from phast_gym.control import REGIMES, ControlProtocol, evaluate, make_control_env
-from phast_gym.control.evaluation import regime_states, sample_regime
+from phast_gym.control import START_REGIMES, ControlProtocol, evaluate_estimators, make_control_env, sample_start_states, start_states
+from phast_gym.fileio import atomic_write_text
 from phast_gym.systems.base import SCALAR, wrap
 
 
@@ -73,8 +73,8 @@ class RepeatRegimeEnv(gym.Wrapper):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
         rng = np.random.default_rng(seed if seed is not None else int(np.random.SeedSequence().generate_state(1)[0]))
-        regime = list(REGIMES)[int(rng.integers(len(REGIMES)))]
-        x0 = sample_regime(self.env.unwrapped.system, regime, rng, 1)[0]
+        regime = list(START_REGIMES)[int(rng.integers(len(START_REGIMES)))]
+        x0 = sample_start_states(self.env.unwrapped.system, regime, rng, 1)[0]
         self._k = 0
         return self.env.reset(seed=int(rng.integers(2**31)), options={"state": x0, **(options or {})})
 
@@ -111,7 +111,7 @@ def evaluate_policy_on_plant(model: Any, protocol: ControlProtocol, sigma: float
     from phast_gym.control.evaluation import _stable_seed
 
     env = make_control_env(protocol, sigma)
-    states = regime_states(protocol, trials, seed)
+    states = start_states(protocol, trials, seed)
     succ, eff, fin = [], [], []
     for regime, x0s in states.items():
         for i, x0 in enumerate(x0s):
@@ -161,7 +161,7 @@ def main() -> None:
     results: list[dict[str, Any]] = []
 
     # Energy-Casimir reference rows (no real-env samples for training; the gains use the plant's m g l only)
-    rows, _ = evaluate(protocol, args.ec_estimators.split(","), [args.sigma], args.trials_per_regime, seed=args.seed)
+    rows, _ = evaluate_estimators(protocol, args.ec_estimators.split(","), [args.sigma], args.trials_per_regime, seed=args.seed)
     for r in rows:
         if r["regime"] == "all":
             results.append({"method": f"energy-casimir/{r['estimator']}", "success_rate": r["success_rate"], "effort": r["effort"],
@@ -196,13 +196,13 @@ def main() -> None:
     meta = {"command": "python benchmarks/control_sac.py " + " ".join(f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items()
                                                                      if v is not None),
             "protocol": protocol.to_dict(), "sigma": args.sigma, "trials_per_regime": args.trials_per_regime, "results": results}
-    (out / "control_sac.json").write_text(json.dumps(meta, indent=1))
+    atomic_write_text(out / "control_sac.json", json.dumps(meta, indent=1))
     lines = [f"SAC vs Energy-Casimir, sigma = {args.sigma:g}, {5 * args.trials_per_regime} trials ({meta['command']})", "",
              "| Method | Success | Effort | Final error | Real-env samples (plant steps) | Train s |", "|---|---|---|---|---|---|"]
     for r in results:
         lines.append(f"| {r['method']} | {r['success_rate']:.2f} | {r['effort']:.1f} | {r['final_error']:.2e} | {r['real_env_samples']} | "
                      f"{r['train_seconds']} |")
-    (out / "control_sac.md").write_text("\n".join(lines) + "\n")
+    atomic_write_text(out / "control_sac.md", "\n".join(lines) + "\n")
     print("\n".join(lines))
 
 

@@ -4,7 +4,7 @@ Everything is measured side by side in one run, so the ratios are meaningful on 
 
     python benchmarks/envs.py --out docs/envs_benchmark.json
 
-Targets (issue "phast_gym"): PHAST/Pendulum-v0 >= 0.5x Pendulum-v1 steps/s; every full 1400 x 200
+Targets: PHAST/Pendulum-v0 >= 0.5x Pendulum-v1 steps/s; every full 1400 x 200
 dataset <= 2 s (LennardJones3 <= 10 s); batched throughput >= 100x single-env; peak memory < 1 GB.
 
 Everything runs on one core (``torch.set_num_threads(1)`` for the compiled backend; the NumPy batched
@@ -37,6 +37,7 @@ from tqdm import tqdm
 
 import phast_gym
 from phast_gym.datasets import make_dataset
+from phast_gym.fileio import atomic_write_text
 
 
 def steps_per_second(env_id: str, n_steps: int, repeats: int = 3) -> float:
@@ -311,11 +312,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{r['env_id']:32s} {c['first_call_s']:12.1f} {c['wall_s']:10.3f} {c['batched_vs_single']:12.0f} "
                   f"{c['max_abs_diff_vs_numpy']:9.1e}")
     if args.out:
-        out = Path(args.out)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = out.with_suffix(".tmp")
-        tmp.write_text(json.dumps(result, indent=2))
-        os.replace(tmp, out)
+        atomic_write_text(Path(args.out), json.dumps(result, indent=2))
     return 0
 
 

@@ -30,8 +30,8 @@ import torch
 from tqdm.auto import tqdm
 
 from phast_model.checkpoint import atomic_write_json
-from phast_model.cli.train import train_run
 from phast_model.metrics import benchmark_metric
+from phast_model.runs import train_run
 
 DEFAULT_RUNS = [
     ("PHAST/WindyPendulum-v0", "known"),

@@ -5,7 +5,7 @@ model-based UKF inside the same controller (same gains, initial states and noise
 env's reset/step only.  Writes ``control_results.json``, ``control_results.md``,
 ``traces_sigma0.05.png`` and ``success_by_regime.png`` into ``out_dir``.
 
-Run alone: ``python examples/demo_control.py --out demo_out/control`` (about 20 s on one core).
+Run alone: ``python examples/demo_control.py --out demo_out/control``.
 """
 
 from __future__ import annotations
@@ -14,25 +14,26 @@ import argparse
 import json
 import pathlib
 
-from phast_gym.control import ControlProtocol, evaluate
-from phast_model.cli.control_eval import plot_success_by_regime, plot_traces, results_markdown
+from phast_gym.control import ControlProtocol, evaluate_estimators
+from phast_gym.control.report import plot_success_by_regime, plot_traces, results_markdown
+from phast_gym.fileio import atomic_write_text
 
 ESTIMATORS = ("oracle", "fd", "map", "ekf")
 SIGMA = 0.05
 
 
 def run(out_dir: pathlib.Path, trials_per_regime: int = 2) -> dict:
-    """Closed-loop runs at sigma = 0.05; returns success rate and velocity error per estimator."""
+    """Closed-loop runs at sigma = 0.05; returns success rate and velocity error per estimator (and the trace figure)."""
     out_dir = pathlib.Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     protocol = ControlProtocol()
-    rows, kept = evaluate(protocol, ESTIMATORS, [SIGMA], trials_per_regime=trials_per_regime, seed=0,
+    rows, kept = evaluate_estimators(protocol, ESTIMATORS, [SIGMA], trials_per_regime=trials_per_regime, seed=0,
                           keep_episodes=lambda s, e, r, i: r == "far_unstable" and i == 0)
-    (out_dir / "control_results.json").write_text(json.dumps(rows, indent=1))
-    (out_dir / "control_results.md").write_text(results_markdown(rows, protocol))
+    atomic_write_text(out_dir / "control_results.json", json.dumps(rows, indent=1))
+    atomic_write_text(out_dir / "control_results.md", results_markdown(rows, protocol))
     plot_traces(kept, protocol, out_dir)
     plot_success_by_regime(rows, out_dir)
-    summary = {}
+    summary = {"sigma": SIGMA, "figure": str(out_dir / f"traces_sigma{SIGMA:g}.png")}
     for r in rows:
         if r["regime"] == "all":
             summary[f"success_{r['estimator']}"] = r["success_rate"]

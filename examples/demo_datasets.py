@@ -21,6 +21,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from phast_gym import make_dataset  # noqa: E402
+from phast_gym.systems import break_at_wraps  # noqa: E402
 
 SYSTEMS = (
     ("PHAST/WindyPendulum-v0", 0, "theta"),
@@ -43,9 +44,7 @@ def run(out_dir: pathlib.Path, n_traj: int = 64, n_plot: int = 5) -> dict:
         t = np.arange(ds.T) * ds.dt
         ax_t, ax_p = axes[0, col], axes[1, col]
         for i in range(n_plot):
-            y = ds.q[i, :, dim].copy()
-            if dim in ds.angle_dims:  # do not draw the vertical jump where the angle wraps
-                y[1:][np.abs(np.diff(y)) > np.pi] = np.nan
+            y = break_at_wraps(ds.q[i, :, dim]) if dim in ds.angle_dims else ds.q[i, :, dim]
             ax_t.plot(t, y, lw=1.0)
             ax_p.plot(ds.q_true[i, :, dim], ds.p[i, :, dim], lw=1.0)
             ax_p.plot(ds.q_true[i, 0, dim], ds.p[i, 0, dim], "k.", ms=5)

@@ -1,8 +1,10 @@
 """The mismatch tool on a real two-motor arm: what did the frictionless model leave out at each joint?
 
-Data: ../shared/data/real/dfki_double_pendulum_c0.npz (DFKI underactuated-lab double pendulum, hardware
-design C.0, system-identification runs; README next to the file): 9 runs of q (joint angles, relative
-coordinates), the logger's jittered time stamps and the measured motor torques u.
+Data: ``dfki_double_pendulum_c0.npz`` (DFKI underactuated-lab double pendulum, hardware design C.0,
+system-identification runs): 9 runs of q (joint angles, relative coordinates), the logger's jittered time
+stamps and the measured motor torques u.  It is not shipped with the package: ``--data PATH``, or
+``$PHAST_REAL_DATA`` naming its directory (default: the project workspace's ``../shared/data/real/`` next to
+the repository); a missing file is a clear error.
 
 The nominal simulator is ``PHAST/DoublePendulum-v0`` in joint coordinates with the authors' published
 **frictionless** link parameters (compound links: masses, centre-of-mass distances, inertias about the
@@ -18,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -29,7 +32,9 @@ from phast_gym.systems import DoublePendulum, Param
 from phast_gym.systems.base import NUMPY, Components
 
 REPO = Path(__file__).resolve().parents[1]
-DEFAULT_DATA = REPO.parent / "shared" / "data" / "real" / "dfki_double_pendulum_c0.npz"
+#: directory of the real recordings: $PHAST_REAL_DATA, else the project workspace's data next to the repository
+DATA_DIR = Path(os.environ.get("PHAST_REAL_DATA", REPO.parent / "shared" / "data" / "real"))
+DEFAULT_DATA = DATA_DIR / "dfki_double_pendulum_c0.npz"
 #: runs held out (0-based): one of each excitation (both motors, motor 2 only, motor 1 only)
 DEFAULT_HOLDOUT = (2, 4, 6)
 #: open-loop windows of the held-out comparison [s] (the arm is chaotic over its 6-7 s runs)
@@ -68,10 +73,10 @@ class PublishedIdentifiedArm(DoublePendulum):
 
 
 def load(path: Path, max_T: int | None = None) -> tuple[dict[str, Any], dict[str, Any], dict[str, float]]:
-    """Recordings dict (MISMATCH.md keys: q, t, u, angle_dims; the first ``max_T`` samples of each run), the nominal env
+    """Recordings dict (docs/mismatch.md keys: q, t, u, angle_dims; the first ``max_T`` samples of each run), the nominal env
     kwargs, and the identified parameters."""
     if not path.exists():
-        raise ValueError(f"real double-pendulum data not found at {path}; pass --data")
+        raise ValueError(f"real double-pendulum data not found at {path}; pass --data or set PHAST_REAL_DATA to its directory")
     with np.load(path, allow_pickle=False) as z:
         names = [str(s) for s in z["published_names"]]
         nominal = dict(zip(names, (float(v) for v in z["published_nominal"])))

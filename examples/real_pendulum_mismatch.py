@@ -1,7 +1,9 @@
 """The mismatch tool on a real pendulum: what did the published viscous model leave out?
 
-Data: ../shared/data/real/multiarm_single_pendulum.npz (Kaheman et al. 2022,
-free swing of one arm, encoder at 1 kHz, 6 consecutive segments).  The nominal
+Data: ``multiarm_single_pendulum.npz`` (Kaheman et al. 2022, arXiv:2205.06231, MIT License;
+free swing of one arm, encoder at 1 kHz, 6 consecutive segments).  It is not shipped with the
+package: ``--data PATH``, or ``$PHAST_REAL_DATA`` naming its directory (default: the project
+workspace's ``../shared/data/real/`` next to the repository); a missing file is a clear error.  The nominal
 simulator is PHAST/Pendulum-v0 with the authors' published fit (viscous
 friction only).  The recording puts theta = pi hanging, so ``angle_offset = pi``
 maps it to the env's convention (0 hanging, same direction); the real arm is
@@ -16,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -25,13 +28,15 @@ import numpy as np
 from phast_gym.fileio import atomic_write_json
 
 REPO = Path(__file__).resolve().parents[1]
-DEFAULT_DATA = REPO.parent / "shared" / "data" / "real" / "multiarm_single_pendulum.npz"
+#: directory of the real recordings: $PHAST_REAL_DATA, else the project workspace's data next to the repository
+DATA_DIR = Path(os.environ.get("PHAST_REAL_DATA", REPO.parent / "shared" / "data" / "real"))
+DEFAULT_DATA = DATA_DIR / "multiarm_single_pendulum.npz"
 
 
 def load(path: Path, n_seg: int = 6, max_T: int | None = None) -> tuple[dict[str, Any], dict[str, float]]:
-    """Recordings dict (MISMATCH.md keys) and the published-model env kwargs."""
+    """Recordings dict (docs/mismatch.md keys) and the published-model env kwargs."""
     if not path.exists():
-        raise ValueError(f"real-pendulum data not found at {path}; pass --data")
+        raise ValueError(f"real-pendulum data not found at {path}; pass --data or set PHAST_REAL_DATA to its directory")
     with np.load(path) as z:
         q, dt = z["q"][:n_seg], float(z["dt"])
         fit = dict(zip([str(s) for s in z["published_fit_names"]], [float(v) for v in z["published_fit"]]))

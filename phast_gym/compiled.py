@@ -7,8 +7,8 @@ interval (all RK4 substeps, the kink splitting of the windy damping laws, the po
 projection) through the system's own ``rhs`` / ``switching`` / ``post_step`` on torch tensors
 (``xp = TORCH``, so there is still one source of physics) and lets TorchInductor fuse it into a
 single vectorized CPU kernel.  It agrees with :func:`~phast_gym.integrate.simulate` to ~1e-11
-and, once compiled, is up to ~7x faster (about equal on the cheapest systems, whose NumPy path is
-already cheap).
+and, once compiled, is faster on all but the cheapest systems, whose NumPy path is already cheap
+(measured speed-ups per system: docs/envs.md, "Compiled backend").
 
 The catch is the compile: seconds to about a minute per system and batch shape the first time
 (TorchInductor keeps an on-disk cache, so later processes pay only the tracing).  It pays off for

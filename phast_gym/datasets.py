@@ -151,9 +151,9 @@ def make_dataset(
     cache : read/write the on-disk cache.
     backend : ``"numpy"`` (default; :func:`phast_gym.integrate.simulate`) or ``"compiled"``
         (:func:`phast_gym.compiled.simulate_compiled`: the same RK4 and physics fused by
-        ``torch.compile``, up to ~7x faster (about equal on the cheapest systems) but seconds to a
-        minute of compilation the first time per system and batch size; worth it for large or many datasets).  The two agree to ~1e-12
-        and are cached separately.
+        ``torch.compile``: faster once compiled, but seconds to a minute of compilation the first time per
+        system and batch size; worth it for large or many datasets; speed-ups measured in docs/envs.md).  The two
+        agree to ~1e-12 and are cached separately.
     env_kwargs : the env's kwargs (physical parameters, ``obs_noise_std``,
         ``actuated_dofs``); other env-only kwargs are rejected.
     """

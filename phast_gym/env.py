@@ -3,7 +3,7 @@
 Observation: q only (angles wrapped into [-pi, pi)), optionally noisy, or the
 full state with ``observe="qp"``.  Action: the port input u (torque, force or
 voltage) on the actuated coordinates, ``G`` = the selected columns of I.
-See ENVIRONMENTS.md for the contract; every registered id documents its
+See docs/envs.md for the contract; every registered id documents its
 system's parameters in :mod:`phast_gym.systems`.
 """
 

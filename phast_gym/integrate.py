@@ -118,7 +118,7 @@ def _split_at_crossing(system: System, q: Sequence, p: Sequence, u: Sequence | N
         coef.append((a, c1, 3.0 * d - 2.0 * c1 - hv1, c1 + hv1 - 2.0 * d))
 
     def s_at(th: Any) -> Any:
-        # D = D(q) (ENVIRONMENTS.md): switching functions depend on q; p is passed for the signature
+        # D = D(q) (docs/envs.md): switching functions depend on q; p is passed for the signature
         return system.switching([a + th * (c1 + th * (c2 + th * c3)) for a, c1, c2, c3 in coef], p, xp)
 
     # regula falsi (Illinois) on th in [a, b]

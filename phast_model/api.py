@@ -1,4 +1,5 @@
-"""Python API over trained PHAST runs (what the CLIs, control and mismatch code call)."""
+"""Python API over PHAST runs (what the CLIs, control and mismatch code call): train one
+(:func:`train_run`, what ``phast-train`` runs), load it, forecast with it."""
 
 from __future__ import annotations
 
@@ -9,6 +10,9 @@ import torch
 
 from .checkpoint import load_model
 from .model import PHAST
+from .runs import train_run
+
+__all__ = ["load_run", "predict", "train_run"]
 
 
 def load_run(run_dir: str | Path) -> PHAST:

@@ -32,6 +32,14 @@ def atomic_write_json(path: Path, obj: Any) -> None:
     _atomic_write_json(path, obj, indent=2, sort_keys=True)
 
 
+def atomic_torch_save(obj: Any, path: str | Path) -> Path:
+    """``torch.save(obj)`` serialized in memory, then written with :func:`phast_gym.fileio.atomic_write_bytes`:
+    a reader (or a killed writer) never leaves a partial file at ``path``."""
+    buf = io.BytesIO()
+    torch.save(obj, buf)
+    return atomic_write_bytes(path, buf.getvalue())
+
+
 def save_run(model: PHAST, run_dir: str | Path, extra: dict[str, Any] | None = None) -> Path:
     """Write ``model.pt`` and ``config.json`` (the model's :class:`PHASTConfig` plus ``extra``) to ``run_dir``."""
     run_dir = Path(run_dir)
@@ -44,9 +52,7 @@ def save_run(model: PHAST, run_dir: str | Path, extra: dict[str, Any] | None = N
     # the run's identity travels inside model.pt (a uint8 tensor: still weights_only), so a model.pt of another
     # run (another env, regime, data or training config) is refused by load_model even when the shapes match
     state[IDENTITY_KEY] = torch.frombuffer(bytearray(_identity_json(meta).encode()), dtype=torch.uint8)
-    buf = io.BytesIO()
-    torch.save(state, buf)
-    atomic_write_bytes(run_dir / MODEL_FILE, buf.getvalue())
+    atomic_torch_save(state, run_dir / MODEL_FILE)
     atomic_write_json(run_dir / CONFIG_FILE, meta)
     return run_dir
 
@@ -121,7 +127,7 @@ def load_model(run_dir: str | Path) -> PHAST:
     if meta.get("dtype") == "float64":
         model = model.double()
     state = load_state(Path(run_dir) / MODEL_FILE)
-    ident = state.pop(IDENTITY_KEY, None)  # absent in model.pt files written before identities were recorded
+    ident = state.pop(IDENTITY_KEY, None)  # a model.pt of the format's first release has none: loaded unchecked
     if ident is not None:
         from .training import first_difference
 

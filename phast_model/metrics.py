@@ -14,14 +14,13 @@ import numpy as np
 import torch
 
 from phast_gym import make_env_system, resolve_env_id
-from phast_gym.systems import NUMPY, split, wrap
+from phast_gym.systems import NUMPY, System, angle_diff, fd_velocity, split
 
 from .interfaces import ForecastModel
 from .rollout import batched_predict, batched_rollout
 
-#: the paper's Table 4 headline metric per env (rollout at H = 100 unless next-step)
-# ENVIRONMENTS.md "Angle handling and metrics": rollout MSE at H = 100 for the mechanical eight,
-# next-step MSE for RLC, LJ-3, heat exchange, N-body and predator-prey (paper Table 4)
+#: the paper's Table 4 headline metric per env (docs/envs.md "Angle handling and metrics"): rollout MSE at
+#: H = 100 for the mechanical eight, next-step MSE for RLC, LJ-3, heat exchange, N-body and predator-prey
 _HEADLINE = {
     "PHAST/RLCCircuit-v0": "mse",
     "PHAST/PredatorPrey-v0": "mse",
@@ -40,12 +39,8 @@ def benchmark_metric(env_id: str) -> str:
     return _HEADLINE.get(env_id, "rollout_theta_wrap_mse_h100")
 
 
-
 def _sq_err(pred: np.ndarray, target: np.ndarray, angle_dims: tuple[int, ...]) -> np.ndarray:
-    e = pred - target
-    if angle_dims:
-        e = e.copy()
-        e[..., list(angle_dims)] = wrap(e[..., list(angle_dims)])
+    e = angle_diff(pred, target, angle_dims)
     return e * e
 
 
@@ -61,21 +56,30 @@ def _error_keys(prefix: str, se: np.ndarray, angle_dims: tuple[int, ...], suffix
     return out
 
 
+def _fd_energy(system: System, q: np.ndarray, dt: float, angle_dims: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """(H(q_{h+1}, M(q_{h+1}) v_h) (..., T-1), v (..., T-1, n)) with v_h = wrapped (q_{h+1} - q_h) / dt."""
+    v = fd_velocity(q, dt, angle_dims)
+    qs = split(q[..., 1:, :])
+    H = np.asarray(system.hamiltonian(qs, system.momentum(qs, split(v), NUMPY), NUMPY))
+    return H * np.ones(v.shape[:-1]), v
+
+
+def env_energy(env_id: str, q: np.ndarray, dt: float, angle_dims: tuple[int, ...],
+               env_kwargs: dict[str, Any] | None = None) -> np.ndarray:
+    """The env's energy H(q, M(q) qdot_fd) along trajectories (..., T, n) -> (..., T-1), through the system's own
+    functions (finite-difference velocities, wrapped on angles); ValueError for a system with no mechanical energy."""
+    system = make_env_system(env_id, **(env_kwargs or {}))
+    if not system.hamiltonian_system:  # e.g. predator-prey: no M(q), its invariant needs the unobserved latent
+        raise ValueError(f"{env_id} is not port-Hamiltonian: no energy H(q, M(q) qdot)")
+    return _fd_energy(system, q, dt, angle_dims)[0]
+
+
 def energy_diagnostics(env_id: str, q_roll: np.ndarray, dt: float, angle_dims: tuple[int, ...],
                        env_kwargs: dict[str, Any] | None = None, tol: float = 1e-6) -> tuple[float, float]:
     """(energy-budget residual Eq. 96, passivity-violation rate Eq. 94) of rollouts q_roll (N, H+1, n),
     from finite-difference velocities and the env's analytic H and D."""
     system = make_env_system(env_id, **(env_kwargs or {}))
-    v = q_roll[:, 1:] - q_roll[:, :-1]
-    if angle_dims:
-        v[..., list(angle_dims)] = wrap(v[..., list(angle_dims)])
-    v = v / dt  # v_h ~ (q_{h+1} - q_h) / dt, h = 0..H-1
-    qn = q_roll[:, 1:]
-    qs = split(qn)
-    rows = system.mass_matrix(qs, NUMPY)
-    vs = split(v)
-    p = tuple(sum(np.asarray(rows[i][j]) * vs[j] for j in range(system.n)) for i in range(system.n))
-    Hh = np.asarray(system.hamiltonian(qs, p, NUMPY))  # H_env(q_{h+1}, v_h), (N, H)
+    Hh, v = _fd_energy(system, q_roll, dt, angle_dims)  # H_env(q_{h+1}, v_h), (N, H)
     dH = Hh[:, 1:] - Hh[:, :-1]
     d = np.stack(np.broadcast_arrays(*system.damping(split(q_roll[:, 1:-1]), NUMPY)), -1)
     diss = (d * v[:, 1:] ** 2).sum(-1)
@@ -83,8 +87,8 @@ def energy_diagnostics(env_id: str, q_roll: np.ndarray, dt: float, angle_dims: t
     return float(np.abs(rho).mean()), float((dH > tol).mean())
 
 
-def evaluate(model: ForecastModel, test: Any, horizons: tuple[int, ...] = (10, 50, 100), burn_in: int = 10,
-             batch_size: int = 256, takeover: bool = True, energy: bool = True) -> dict[str, float]:
+def forecast_metrics(model: ForecastModel, test: Any, horizons: tuple[int, ...] = (10, 50, 100), burn_in: int = 10,
+                     batch_size: int = 256, takeover: bool = True, energy: bool = True) -> dict[str, float]:
     """Table 16 metrics of ``model`` on ``test`` (a Dataset): one-step, autoregressive and takeover
     rollouts at each H, damping R^2 / MAE (models with a damping field), energy-budget residual and
     passivity violations from the env's H and D, and the trainable parameter count."""

@@ -177,27 +177,22 @@ def test_paper_table_metrics_agree_with_benchmark_metric() -> None:
 
 def test_first_step_floor_is_below_persistence() -> None:
     """The t = 0 floor E Var(q1 | q0) / (T - 1) is positive and below the persistence predictor's t = 0 term."""
-    import importlib.util
-
     from phast_gym.datasets import make_splits
+    from phast_model.bench.floor import first_step_floor
 
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_first_step_floor.py"
-    spec = importlib.util.spec_from_file_location("bench_first_step_floor", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    r = mod.first_step_floor("PHAST/NBody3-v0", n_train=4, n_val=2, n_test=8, T=20, draws=64)
+    r = first_step_floor("PHAST/NBody3-v0", n_train=4, n_val=2, n_test=8, T=20, draws=64)
     test = make_splits("PHAST/NBody3-v0", 4, 2, 8, T=20, seed=42)["test"]
     persistence = float(((test.q[:, 1] - test.q[:, 0]) ** 2).mean()) / 19
     assert 0.0 < r["floor_mse"] < 2.0 * persistence
     with pytest.raises(ValueError, match="draws"):
-        mod.first_step_floor("PHAST/NBody3-v0", n_train=4, n_val=2, n_test=8, T=20, draws=1)
+        first_step_floor("PHAST/NBody3-v0", n_train=4, n_val=2, n_test=8, T=20, draws=1)
 
 
 def test_env_energy_rejects_non_hamiltonian_env() -> None:
     """Figures: predator-prey has no mechanical energy; env_energy says so (the figure code catches ValueError)."""
     import numpy as np
 
-    from phast_model.bench.figures import env_energy
+    from phast_model.metrics import env_energy
 
     q = np.ones((1, 5, 1))
     with pytest.raises(ValueError, match="not port-Hamiltonian"):

@@ -15,7 +15,7 @@ from phast_gym.control import (
     EnergyCasimirController,
     EnergyCasimirWrapper,
     MAPSmootherEstimator,
-    evaluate,
+    evaluate_estimators,
     make_control_env,
     make_estimator,
     map_smoother_weights,
@@ -100,7 +100,7 @@ def test_ukf_tracks_velocity_under_noise() -> None:
 
 def test_fd_noise_vs_ekf_in_evaluation() -> None:
     protocol = ControlProtocol(horizon=600, settle_steps=100)
-    rows, _ = evaluate(protocol, ["fd", "ekf"], [0.05], trials_per_regime=1, progress=False)
+    rows, _ = evaluate_estimators(protocol, ["fd", "ekf"], [0.05], trials_per_regime=1, progress=False)
     by = {(r["estimator"], r["regime"]): r for r in rows}
     assert len(rows) == 12 and by[("fd", "all")]["n_trials"] == 5
     assert by[("fd", "all")]["velocity_error"] > 10 * by[("ekf", "all")]["velocity_error"]
@@ -154,7 +154,7 @@ def test_unknown_estimator_and_missing_info() -> None:
 def test_upright_stabilisation() -> None:
     protocol = ControlProtocol(env_id="PHAST/DampedPendulum-v0", horizon=1000, q_star=math.pi, k_c=20.0, d_inj=3.0,
                                settle_steps=100)
-    rows, _ = evaluate(protocol, ["oracle"], [0.0], trials_per_regime=1, progress=False)
+    rows, _ = evaluate_estimators(protocol, ["oracle"], [0.0], trials_per_regime=1, progress=False)
     assert next(r for r in rows if r["regime"] == "all")["success_rate"] == 1.0
 
 
@@ -222,7 +222,7 @@ def test_phast_estimators_with_untrained_model() -> None:
 def test_cli_bad_estimators_and_unwritable_out_fail_before_evaluating(tmp_path, capsys, monkeypatch) -> None:
     import phast_model.cli.control_eval as ce
 
-    monkeypatch.setattr(ce, "evaluate", lambda *a, **k: pytest.fail("evaluation started"))
+    monkeypatch.setattr(ce, "evaluate_estimators", lambda *a, **k: pytest.fail("evaluation started"))
     assert ce.main(["--estimators", "", "--out", str(tmp_path / "a")]) == 2
     assert "--estimators is empty" in capsys.readouterr().err
     assert ce.main(["--estimators", " , ", "--out", str(tmp_path / "a")]) == 2

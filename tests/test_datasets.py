@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import pathlib
 import warnings
 
 import gymnasium as gym
@@ -134,10 +135,98 @@ def test_corrupted_cache_is_detected_and_regenerated(damage: str) -> None:
     assert np.array_equal(a.q, c.q)
 
 
-def test_cache_writes_are_atomic() -> None:
-    make_dataset("PHAST/HeatExchange-v0", 3, T=10, seed=2)
-    leftovers = [f for f in os.listdir(cache_dir()) if ".tmp" in f]
-    assert leftovers == []
+def _cache_file(env_id: str, **kw) -> tuple[datasets.Dataset, pathlib.Path]:
+    """A dataset written to the cache, and its cache file."""
+    before = set(cache_dir().glob("*.npz")) if cache_dir().exists() else set()
+    ds = make_dataset(env_id, **kw)
+    (path,) = set(cache_dir().glob("*.npz")) - before
+    return ds, path
+
+
+#: a file object that writes half of what it is given to disk, then calls ``then()``: a write cut short midway
+#: (source text, so that a child process can define it too)
+HALF_WRITER = """
+import os
+
+
+class HalfWriter:
+    def __init__(self, fh, then):
+        self.fh, self.then = fh, then
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.fh.close()
+
+    def write(self, data):
+        self.fh.write(data[: len(data) // 2])
+        self.fh.flush()
+        os.fsync(self.fh.fileno())
+        self.then()
+"""
+
+
+def test_cache_write_killed_midway_leaves_the_old_file() -> None:
+    """A rewrite of a cache file whose process is SIGKILLed after half its bytes reached the disk: the previous file
+    is intact and loads, the half-written temp file is not a loadable dataset and is never read as the cache, and
+    the next write of that file removes it."""
+    import signal
+    import subprocess
+    import sys
+
+    kw = {"n_traj": 3, "T": 10, "seed": 2}
+    old, path = _cache_file("PHAST/HeatExchange-v0", **kw)
+    old_bytes = path.read_bytes()
+    code = HALF_WRITER + f"""
+import signal
+from phast_gym import datasets
+
+ds = datasets._load({str(path)!r}, {old.config!r})
+ds.q = ds.q + 1.0  # different content, same cache file
+real_fdopen = os.fdopen
+os.fdopen = lambda fd, mode: HalfWriter(real_fdopen(fd, mode), lambda: os.kill(os.getpid(), signal.SIGKILL))
+datasets._save(datasets.Path({str(path)!r}), ds)
+"""
+    root = str(pathlib.Path(__file__).resolve().parents[1])
+    env = {**os.environ, "PYTHONPATH": root + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    res = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert res.returncode == -signal.SIGKILL, res.stderr
+    assert path.read_bytes() == old_bytes
+    temps = [p for p in path.parent.iterdir() if p.name.startswith(f".{path.name}.") and p.name.endswith(".tmp")]
+    assert len(temps) == 1 and 0 < temps[0].stat().st_size < len(old_bytes)  # the killed writer's half file
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # loaded from the cache, not regenerated after a failed load
+        again = make_dataset("PHAST/HeatExchange-v0", **kw)
+    np.testing.assert_array_equal(again.q, old.q)
+    with pytest.raises(ValueError, match="unreadable cache file"):
+        datasets._load(temps[0], old.config)
+    datasets._save(path, old)  # the next write of the file clears the dead writer's temp
+    assert not temps[0].exists() and path.read_bytes() == old_bytes
+
+
+def test_cache_write_failing_midway_leaves_the_old_file(monkeypatch) -> None:
+    """A write that fails after half the bytes reached the disk (disk full) leaves the previous file intact and
+    loadable and no temp file behind."""
+    kw = {"n_traj": 3, "T": 10, "seed": 3}
+    old, path = _cache_file("PHAST/HeatExchange-v0", **kw)
+    old_bytes = path.read_bytes()
+    ns: dict = {}
+    exec(HALF_WRITER, ns)
+
+    def disk_full() -> None:
+        raise OSError(28, "No space left on device")
+
+    real_fdopen = os.fdopen
+    monkeypatch.setattr(os, "fdopen", lambda fd, mode: ns["HalfWriter"](real_fdopen(fd, mode), disk_full))
+    changed = old.subset(slice(None))
+    changed.q = changed.q + 1.0
+    with pytest.raises(OSError, match="No space left"):
+        datasets._save(path, changed)
+    monkeypatch.undo()
+    assert path.read_bytes() == old_bytes
+    assert [p.name for p in path.parent.iterdir() if p.name.startswith(f".{path.name}.")] == []
+    np.testing.assert_array_equal(datasets._load(path, old.config).q, old.q)
 
 
 @pytest.mark.parametrize("noise", [-1.0, float("nan"), float("inf"), "0.1", True])

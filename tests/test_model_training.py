@@ -12,7 +12,7 @@ import torch
 from phast_gym import make_splits
 from phast_model.api import load_run, predict
 from phast_model.checkpoint import save_run
-from phast_model.metrics import benchmark_metric, evaluate
+from phast_model.metrics import benchmark_metric, forecast_metrics
 from phast_model.regimes import build_model
 from phast_model.training import TrainConfig, fit, next_step_loss
 
@@ -43,7 +43,7 @@ def test_short_training_lowers_loss_and_keeps_best(splits):
 
 def test_evaluate_keys(splits):
     model = build_model(ENV, "known")
-    m = evaluate(model, splits["test"], horizons=(10, 50))
+    m = forecast_metrics(model, splits["test"], horizons=(10, 50))
     for k in ("theta_wrap_mse", "mse", "rollout_theta_wrap_mse_h10", "rollout_theta_wrap_mse_h50", "rollout_takeover_mse_h10",
               "damping_r2", "damping_mae", "rollout_energy_budget_resid_h50", "rollout_passivity_violations_h50", "n_parameters"):
         assert k in m and np.isfinite(m[k]), k

@@ -24,7 +24,7 @@ DISSIPATIVE_IDS = [
 
 
 def _reference(system, x0: np.ndarray, t_end: float, u: np.ndarray | None = None, rtol: float = 1e-11) -> np.ndarray:
-    """High-accuracy solve of the spec's ODE (rtol 1e-10) with DOP853."""
+    """High-accuracy solve of the env's ODE (docs/envs.md; rtol 1e-10) with DOP853."""
     n = system.n
     uu = None if u is None else list(u)
 
@@ -38,7 +38,7 @@ def _reference(system, x0: np.ndarray, t_end: float, u: np.ndarray | None = None
 
 @pytest.mark.parametrize("env_id", phast_gym.env_ids())
 def test_env_matches_tight_ode_solve_after_50_steps(env_id: str) -> None:
-    """ENVIRONMENTS.md: after 50 steps the observed q matches a 1e-10 ODE solve within 1e-5."""
+    """docs/envs.md: after 50 steps the observed q matches a 1e-10 ODE solve within 1e-5."""
     env = gym.make(env_id, dtype=np.float64).unwrapped
     system = env.system
     worst = 0.0
@@ -189,8 +189,8 @@ def test_small_angle_pendulum_period() -> None:
 @pytest.mark.parametrize("env_id", ["PHAST/Pendulum-v0", "PHAST/DampedPendulum-v0", "PHAST/WindyPendulum-v0",
                                     "PHAST/WindyCartPole-v0", "PHAST/DampedDoublePendulum-v0"])
 def test_accuracy_over_many_random_and_fast_states(env_id: str) -> None:
-    """The substeps were tuned down for speed: check the 1e-5 spec on 24 random initial states,
-    a third of them with momenta pushed to 2.5x their spec draw (fast, near-separatrix motion)."""
+    """The substeps were tuned down for speed: check the 1e-5 bound on 24 random initial states,
+    a third of them with momenta pushed to 2.5x their initial-state draw (fast, near-separatrix motion)."""
     system = phast_gym.make_env_system(env_id)
     rng = np.random.default_rng(123)
     x0 = system.sample_initial(rng, 24)
@@ -204,7 +204,7 @@ def test_accuracy_over_many_random_and_fast_states(env_id: str) -> None:
 
 
 def test_predator_prey_both_populations_within_1e5_of_a_tight_solve() -> None:
-    """The 1e-5 contract on the whole state of predator-prey (the predators are the hidden "p"): 32 spec
+    """The 1e-5 contract on the whole state of predator-prey (the predators are the hidden "p"): 32 initial-state
     draws with held inputs up to the action bound, 50 steps, against DOP853 at rtol 1e-13.  Two RK4
     substeps missed it by up to 4e-5 on the predators; four leave about 2.6e-6 over 1000 draws."""
     system = phast_gym.make_env_system("PHAST/PredatorPrey-v0")
@@ -223,3 +223,30 @@ def test_predator_prey_both_populations_within_1e5_of_a_tight_solve() -> None:
     for _ in range(50):
         _, _, _, _, info = env.step(np.array([u_held[31]]))
     np.testing.assert_allclose(info["state"], traj[31, -1], rtol=0, atol=1e-12)  # the env is that integrator
+
+
+@pytest.mark.parametrize("env_id", HAMILTONIAN_IDS)
+def test_momentum_inverts_velocity(env_id: str) -> None:
+    """System.momentum (p = M(q) qdot, what metrics, plots, control and the mismatch tool use) inverts System.velocity."""
+    system = phast_gym.make_env_system(env_id)
+    x = system.sample_initial(np.random.default_rng(0), 16)
+    n = system.n
+    q, p = tuple(x[:, i] for i in range(n)), tuple(x[:, n + i] for i in range(n))
+    back = system.momentum(q, system.velocity(q, p, NUMPY), NUMPY)
+    np.testing.assert_allclose(np.stack(np.broadcast_arrays(*back), -1), x[:, n:], rtol=1e-12, atol=1e-12)
+
+
+def test_angle_helpers() -> None:
+    """angle_diff wraps only the angular coordinates; fd_velocity is its time difference; break_at_wraps puts NaN
+    only where a wrapped series jumps across +-pi."""
+    from phast_gym.systems import angle_diff, break_at_wraps, fd_velocity
+
+    a, b = np.array([[3.0, 3.0]]), np.array([[-3.0, -3.0]])
+    np.testing.assert_allclose(angle_diff(a, b, (0,)), [[6.0 - 2 * math.pi, 6.0]])
+    q = np.array([[[3.0, 0.0], [-3.0, 1.0]]])
+    np.testing.assert_allclose(fd_velocity(q, 0.5, (0,)), [[[(2 * math.pi - 6.0) / 0.5, 2.0]]])
+    y = np.array([0.0, 3.0, -3.0, -2.9])
+    out = break_at_wraps(y)
+    assert np.isnan(out[2]) and np.isfinite(out[[0, 1, 3]]).all() and np.isfinite(y).all()
+    two = break_at_wraps(np.stack([y, y[::-1]]), axis=1)
+    assert np.isnan(two[0, 2]) and np.isnan(two[1, 2]) and np.isfinite(two[:, [0, 1, 3]]).all()

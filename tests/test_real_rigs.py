@@ -119,7 +119,7 @@ def test_two_motor_arm_friction_and_armature_joint_vocabulary(jitter):
 @pytest.mark.slow
 @pytest.mark.parametrize("jitter", [False, True], ids=["uniform", "jittered"])
 def test_two_motor_arm_friction_and_armature_full_vocabulary(jitter):
-    """The issue's case: 6 x 3 s at 4 ms, the whole vocabulary, only the nominal (frictionless, no armature) kwargs.
+    """A realistic rig case: 6 x 3 s at 4 ms, the whole vocabulary, only the nominal (frictionless, no armature) kwargs.
     The shooting path alone ends at chi^2/dof 4 with sensor gains of 0.94 and masses bent 15% standing in for the
     rotor inertia; the weak-form regime (chi^2/dof > 3) recovers Coulomb and armature at both joints (~2.5 min each)."""
     d = arm_recordings(6, 750, 0.004, seed=0, jitter=jitter)

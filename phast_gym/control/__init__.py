@@ -4,7 +4,8 @@
 * port (velocity) estimators behind one interface, built by name with :func:`make_estimator`
   (``oracle``, ``fd``, ``map``, ``ekf``/``ukf``; packages above this one register their own,
   see :func:`register_estimator_provider`);
-* :mod:`.evaluation`: the closed-loop protocol of paper Sec. 4.2 (regimes, metrics).
+* :mod:`.evaluation`: the closed-loop protocol of paper Sec. 4.2 (start regimes, metrics);
+* :mod:`.report`: its tables and plots.
 """
 
 from .controller import EnergyCasimirController, EnergyCasimirWrapper, validate_gains
@@ -21,11 +22,20 @@ from .estimators import (
     register_estimator,
     register_estimator_provider,
 )
-from .evaluation import REGIMES, ControlProtocol, Episode, evaluate, make_control_env, run_episode, sample_regime
+from .evaluation import (
+    START_REGIMES,
+    ControlProtocol,
+    Episode,
+    evaluate_estimators,
+    make_control_env,
+    run_episode,
+    sample_start_states,
+    start_states,
+)
 
 __all__ = [
     "EnergyCasimirController", "EnergyCasimirWrapper", "validate_gains", "ESTIMATORS", "PortEstimator", "OracleEstimator",
     "FiniteDifferenceEstimator", "MAPSmootherEstimator", "UKFEstimator", "estimator_names", "make_estimator",
-    "map_smoother_weights", "register_estimator", "register_estimator_provider", "REGIMES", "ControlProtocol", "Episode",
-    "evaluate", "make_control_env", "run_episode", "sample_regime",
+    "map_smoother_weights", "register_estimator", "register_estimator_provider", "START_REGIMES", "ControlProtocol", "Episode",
+    "evaluate_estimators", "make_control_env", "run_episode", "sample_start_states", "start_states",
 ]

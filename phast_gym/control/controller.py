@@ -93,7 +93,7 @@ class EnergyCasimirController:
     """Energy-Casimir policy with internal state ``xi`` (paper Eq. 28-31).
 
     ``wrap_target`` (default True) applies the shaping force to ``wrap(xi - q_star)`` on angular
-    coordinates: the spec writes ``xi - q_star`` on the covering space, which would make a spinning
+    coordinates: the paper's Eq. 28 writes ``xi - q_star`` on the covering space, which would make a spinning
     pendulum unwind every revolution it made; on the circle the storage is periodic.
 
     Usage in a user loop: ``obs, info = env.reset(); ctrl.reset(obs, info)`` then each step

@@ -6,7 +6,7 @@ Protocol (documented in docs/control.md; defaults of :class:`ControlProtocol`):
   ``dt = 0.01`` s (the paper's control rate: its finite-difference velocity error at
   sigma = 0.01, 1.117 rad/s, is the mean |N(0, 2 sigma^2 / dt^2)| = 1.13 of a dt = 0.01 sampler),
   q-only observations with ``obs_noise_std = sigma``;
-* five initial-condition regimes x ``trials_per_regime`` trials (:data:`REGIMES`), the same
+* five initial-condition regimes x ``trials_per_regime`` trials (:data:`START_REGIMES`), the same
   initial states and noise streams for every estimator (common random numbers);
 * metrics per trial: success = settled and quiet: ``|wrap(q - q_star)| < tol`` (true q) at
   every step of the last ``settle_steps`` steps AND the RMS applied torque over those steps
@@ -32,8 +32,9 @@ from ..systems.base import NUMPY, SCALAR, System, wrap
 from .controller import EnergyCasimirController
 from .estimators import PortEstimator, make_estimator
 
-#: regime name -> (q offset sampler description, used in docs); sampling in :func:`sample_regime`
-REGIMES: dict[str, str] = {
+#: initial-condition ("start") regime of a closed-loop trial -> how its start states are drawn (sampled by
+#: :func:`sample_start_states`)
+START_REGIMES: dict[str, str] = {
     "near_stable": "theta ~ U(-0.5, 0.5), thetadot ~ U(-0.5, 0.5)",
     "far_stable": "|theta| ~ U(1.0, 2.0) (random sign), thetadot ~ U(-1, 1)",
     "near_unstable": "theta = pi + U(-0.3, 0.3), thetadot ~ U(-0.3, 0.3)",
@@ -94,10 +95,10 @@ def make_control_env(protocol: ControlProtocol, sigma: float = 0.0) -> gym.Env:
     return gym.wrappers.TimeLimit(env, max_episode_steps=protocol.horizon)
 
 
-def sample_regime(system: System, regime: str, rng: np.random.Generator, size: int) -> np.ndarray:
-    """Initial states (size, 2) of a pendulum regime; p = M(q) qdot through the system's mass matrix."""
-    if regime not in REGIMES:
-        raise ValueError(f"unknown regime {regime!r}; valid regimes are {list(REGIMES)}")
+def sample_start_states(system: System, regime: str, rng: np.random.Generator, size: int) -> np.ndarray:
+    """Initial states (size, 2) of a pendulum start regime (:data:`START_REGIMES`); p = M(q) qdot."""
+    if regime not in START_REGIMES:
+        raise ValueError(f"unknown regime {regime!r}; valid regimes are {list(START_REGIMES)}")
     if system.n != 1 or system.angle_dims != (0,):
         raise ValueError(f"the control regimes are defined for 1-dof pendulum plants, got {system.name} (n={system.n})")
     u = rng.uniform
@@ -113,9 +114,8 @@ def sample_regime(system: System, regime: str, rng: np.random.Generator, size: i
     else:  # high_energy
         q, qd = u(-math.pi, math.pi, size), sign * u(7.0, 10.0, size)
     q = wrap(q)
-    m = np.asarray(system.mass_matrix((q,), NUMPY)[0][0], dtype=np.float64)
-    p = np.broadcast_to(m, q.shape) * qd
-    return np.stack([q, p], -1)
+    (p,) = system.momentum((q,), (qd,), NUMPY)
+    return np.stack(np.broadcast_arrays(q, p), -1)
 
 
 @dataclass
@@ -185,16 +185,17 @@ def _stable_seed(*parts: Any) -> int:
     return zlib.crc32("/".join(str(p) for p in parts).encode()) & 0x7FFFFFFF
 
 
-def regime_states(protocol: ControlProtocol, trials_per_regime: int, seed: int = 0) -> dict[str, np.ndarray]:
-    """The initial states of every regime (same for every estimator and noise level)."""
+def start_states(protocol: ControlProtocol, trials_per_regime: int, seed: int = 0) -> dict[str, np.ndarray]:
+    """The initial states of every start regime (same for every estimator and noise level)."""
     system = control_system(protocol)
-    return {r: sample_regime(system, r, np.random.default_rng(_stable_seed(seed, r)), trials_per_regime) for r in REGIMES}
+    return {r: sample_start_states(system, r, np.random.default_rng(_stable_seed(seed, r)), trials_per_regime)
+            for r in START_REGIMES}
 
 
 EstimatorFactory = Callable[[str, System, float, float], PortEstimator]
 
 
-def evaluate(
+def evaluate_estimators(
     protocol: ControlProtocol,
     estimators: Sequence[str],
     sigmas: Sequence[float],
@@ -204,7 +205,8 @@ def evaluate(
     progress: bool = True,
     keep_episodes: Callable[[float, str, str, int], bool] | None = None,
 ) -> tuple[list[dict[str, Any]], dict[tuple[float, str, str, int], Episode]]:
-    """Every (sigma, estimator, regime) row plus an ``all`` row per (sigma, estimator).
+    """Closed-loop trials of every port estimator at every noise level: one row per (sigma, estimator, start regime)
+    plus an ``all`` row per (sigma, estimator).
 
     ``factory(name, system, dt, sigma)`` builds an estimator (default :func:`make_estimator`);
     ``keep_episodes(sigma, estimator, regime, trial)`` selects episodes whose traces are returned.
@@ -212,10 +214,10 @@ def evaluate(
     if trials_per_regime < 1:
         raise ValueError(f"trials_per_regime must be >= 1, got {trials_per_regime}")
     factory = factory or (lambda name, system, dt, sigma: make_estimator(name, system, dt, sigma=sigma))
-    states = regime_states(protocol, trials_per_regime, seed)
+    states = start_states(protocol, trials_per_regime, seed)
     rows: list[dict[str, Any]] = []
     kept: dict[tuple[float, str, str, int], Episode] = {}
-    total = len(sigmas) * len(estimators) * len(REGIMES) * trials_per_regime
+    total = len(sigmas) * len(estimators) * len(START_REGIMES) * trials_per_regime
     from tqdm.auto import tqdm
 
     bar = tqdm(total=total, desc="closed-loop trials", disable=not progress)

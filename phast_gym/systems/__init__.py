@@ -7,7 +7,10 @@ from .base import (
     Param,
     ParameterError,
     System,
+    angle_diff,
+    break_at_wraps,
     const_like,
+    fd_velocity,
     namespace,
     solve_spd,
     split,
@@ -39,7 +42,8 @@ def make_system(name: str, **params: object) -> System:
 
 
 __all__ = [
-    "NUMPY", "SCALAR", "TORCH", "Param", "ParameterError", "System", "const_like", "namespace", "solve_spd", "split",
-    "stack", "wrap", "CartPole", "DoublePendulum", "HeatExchange", "Oscillator", "LennardJones3", "NBody3",
-    "PairParticles", "Pendulum", "PredatorPrey", "RLCCircuit", "SYSTEMS", "make_system",
+    "NUMPY", "SCALAR", "TORCH", "Param", "ParameterError", "System", "angle_diff", "break_at_wraps", "const_like",
+    "fd_velocity", "namespace", "solve_spd", "split", "stack", "wrap", "CartPole", "DoublePendulum", "HeatExchange",
+    "Oscillator", "LennardJones3", "NBody3", "PairParticles", "Pendulum", "PredatorPrey", "RLCCircuit", "SYSTEMS",
+    "make_system",
 ]

@@ -13,7 +13,7 @@ Vector results are returned as tuples of components.  Use :func:`namespace`
 to pick ``xp`` from an example coordinate, and :func:`split` / :func:`stack`
 to move between a ``(..., n)`` array and component form.
 
-The dynamics are the port-Hamiltonian ones of ENVIRONMENTS.md (paper Eq. 1-3)::
+The dynamics are the port-Hamiltonian ones of docs/envs.md (paper Eq. 1-3)::
 
     qdot = dH/dp = M(q)^-1 p
     pdot = -dH/dq - D(q) qdot + G u
@@ -177,6 +177,32 @@ def wrap(a: Any) -> Any:
     return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
+def angle_diff(a: np.ndarray, b: np.ndarray, angle_dims: Sequence[int]) -> np.ndarray:
+    """``a - b`` (NumPy arrays, coordinates on the last axis), wrapped into ``[-pi, pi)`` on the angular
+    coordinates ``angle_dims`` (paper Appendix F)."""
+    d = a - b
+    if len(angle_dims):
+        idx = list(angle_dims)
+        d[..., idx] = wrap(d[..., idx])
+    return d
+
+
+def fd_velocity(q: np.ndarray, dt: float, angle_dims: Sequence[int]) -> np.ndarray:
+    """Finite-difference velocities ``(..., T, n) -> (..., T-1, n)``, wrapped on angular coordinates."""
+    return angle_diff(q[..., 1:, :], q[..., :-1, :], angle_dims) / dt
+
+
+def break_at_wraps(y: np.ndarray, axis: int = -1) -> np.ndarray:
+    """A float copy of a wrapped angle series with NaN where it jumps by more than pi along ``axis``, so a
+    line plot breaks at the wrap instead of drawing a vertical line across ``[-pi, pi)``."""
+    y = np.array(y, dtype=float)
+    jump = np.abs(np.diff(y, axis=axis)) > math.pi
+    tail = [slice(None)] * y.ndim
+    tail[axis] = slice(1, None)
+    y[tuple(tail)][jump] = np.nan
+    return y
+
+
 # --------------------------------------------------------------------------- parameters
 class ParameterError(ValueError, TypeError):
     """A physical parameter kwarg is unknown or out of its valid range."""
@@ -187,9 +213,9 @@ class Param:
     """A documented physical parameter: default, constraint and meaning.
 
     A parameter with ``choices`` is a string option (e.g. a coordinate convention) instead of a
-    number; its value must be one of them.  ``extension`` marks a parameter added after the
-    benchmark datasets were fixed: while at its default it is left out of :meth:`System.key_params`,
-    so the dataset cache keys of the benchmark envs do not change.
+    number; its value must be one of them.  ``extension`` marks a parameter that is not part of the
+    benchmark envs' definition: while at its default it is left out of :meth:`System.key_params`, so the
+    dataset cache keys of the benchmark envs do not depend on it.
     """
 
     default: float | str | None
@@ -297,6 +323,10 @@ class System:
         """Generalized velocity qdot = dH/dp = M(q)^-1 p."""
         raise NotImplementedError
 
+    def momentum(self, q: Components, v: Components, xp: Any = NUMPY) -> tuple:
+        """Canonical momentum p = M(q) qdot for the generalized velocity ``v`` (the inverse of :meth:`velocity`)."""
+        return tuple(sum(mij * vj for mij, vj in zip(row, v)) for row in self.mass_matrix(q, xp))
+
     def kinetic(self, q: Components, p: Components, xp: Any = NUMPY) -> Any:
         """Kinetic energy p^T M(q)^-1 p / 2."""
         v = self.velocity(q, p, xp)
@@ -379,7 +409,7 @@ class System:
 
     # ---- initial states -------------------------------------------------
     def sample_initial(self, rng: np.random.Generator, size: int) -> np.ndarray:
-        """Sample ``size`` initial states ``(q, p)`` from the spec's distribution -> (size, 2n)."""
+        """Sample ``size`` initial states ``(q, p)`` from the env's initial-state distribution (docs/envs.md) -> (size, 2n)."""
         raise NotImplementedError
 
     # ---- helpers -------------------------------------------------------------

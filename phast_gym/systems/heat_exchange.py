@@ -1,7 +1,7 @@
 """Heat exchange between two thermal masses, as a port-Hamiltonian analogue.
 
 H = c1 T1^2 / 2 + c2 T2^2 / 2 + kc (T1 - T2)^2 / 2 + |p|^2 / (2 tau),
-M = tau I, D = kloss I (ENVIRONMENTS.md, a *choice* the paper implies).
+M = tau I, D = kloss I (docs/envs.md, a *choice* the paper implies).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Two-dimensional harmonic oscillator (plain and damped).
 
-H = |p|^2 / (2 m) + m omega^2 |q|^2 / 2 (m = 1 gives the spec's
+H = |p|^2 / (2 m) + m omega^2 |q|^2 / 2 (m = 1 gives docs/envs.md's
 0.5|p|^2 + 0.5 w^2 |q|^2), D = gamma I.
 """
 

@@ -1,7 +1,7 @@
 """Single pendulum family: plain, damped (gamma) and windy (d0 + dd |sin theta|).
 
 H = p^2 / (2 I) + m g l (1 - cos theta), theta from the downward vertical.
-D(theta) = gamma + d0 + dd |sin theta|  (ENVIRONMENTS.md; paper Appendix B).
+D(theta) = gamma + d0 + dd |sin theta|  (docs/envs.md; paper Appendix B).
 """
 
 from __future__ import annotations

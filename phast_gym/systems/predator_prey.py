@@ -22,7 +22,7 @@ class PredatorPrey(System):
     n = 1
     dt = 0.1
     #: 4 RK4 substeps: both populations within 1e-5 of a DOP853 solve after 50 steps (2.6e-6 worst over 1000
-    #: spec draws with held inputs up to the action bound; 2 substeps missed by up to 4e-5 on the predators)
+    #: initial-state draws with held inputs up to the action bound; 2 substeps would miss by up to 4e-5 on the predators)
     substeps = 4
     default_max_action = 5.0
     hamiltonian_system = False

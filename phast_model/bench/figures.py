@@ -20,35 +20,11 @@ from typing import Any
 
 import numpy as np
 
-from phast_gym.systems import wrap
+from phast_gym.systems import break_at_wraps, fd_velocity
 
-from .runner import build_run_model, load_result, load_splits, work_dir
+from .runner import BENCH_MODEL_FILE, build_run_model, load_result, load_splits, work_dir
 from .spec import RunSpec
 from .summary import DISPLAY, aggregate, env_metric
-
-
-def fd_velocity(q: np.ndarray, dt: float, angle_dims: tuple[int, ...]) -> np.ndarray:
-    """(..., T, n) -> (..., T-1, n) finite-difference velocities, wrapped on angles."""
-    v = q[..., 1:, :] - q[..., :-1, :]
-    if angle_dims:
-        v[..., list(angle_dims)] = wrap(v[..., list(angle_dims)])
-    return v / dt
-
-
-def env_energy(env_id: str, q: np.ndarray, dt: float, angle_dims: tuple[int, ...]) -> np.ndarray:
-    """Env energy H(q, M(q) qdot_fd) along trajectories (..., T, n) -> (..., T-1), via the system's own functions."""
-    from phast_gym import make_env_system
-    from phast_gym.systems import NUMPY, split
-
-    system = make_env_system(env_id)
-    if not system.hamiltonian_system:  # e.g. predator-prey: no M(q), its invariant needs the unobserved latent
-        raise ValueError(f"{env_id} is not port-Hamiltonian: no energy H(q, M(q) qdot)")
-    v = fd_velocity(q, dt, angle_dims)
-    qs = split(q[..., 1:, :])
-    rows = system.mass_matrix(qs, NUMPY)
-    vs = split(v)
-    p = tuple(sum(np.asarray(rows[i][j]) * vs[j] for j in range(system.n)) for i in range(system.n))
-    return np.asarray(system.hamiltonian(qs, p, NUMPY)) * np.ones(v.shape[:-1])
 
 
 def load_model(out_dir: str | Path, spec: RunSpec, train: Any) -> Any:
@@ -56,7 +32,7 @@ def load_model(out_dir: str | Path, spec: RunSpec, train: Any) -> Any:
     import torch
 
     model = build_run_model(spec, train)
-    state = torch.load(work_dir(out_dir, spec) / "bench_model.pt", weights_only=True, map_location="cpu")
+    state = torch.load(work_dir(out_dir, spec) / BENCH_MODEL_FILE, weights_only=True, map_location="cpu")
     model.to(next(iter(state.values())).dtype)
     model.load_state_dict(state)
     return model.eval()
@@ -86,6 +62,8 @@ def make_figures(out_dir: str | Path, specs: list[RunSpec], n_traj: int = 3, H: 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import torch
+
+    from ..metrics import env_energy
 
     out_dir = Path(out_dir)
     fig_dir = out_dir / "figures"
@@ -128,19 +106,20 @@ def make_figures(out_dir: str | Path, specs: list[RunSpec], n_traj: int = 3, H: 
         fig, axes = plt.subplots(n, 2, figsize=(10, 3 * n), squeeze=False)
         for i in range(n):
             ax = axes[i, 0]
-            ax.plot(t[:K + Hh], q[0, :K + Hh, i], "k-", lw=2, label="truth")
+            brk = break_at_wraps if i in ang else np.asarray
+            ax.plot(t[:K + Hh], brk(q[0, :K + Hh, i]), "k-", lw=2, label="truth")
             ax.axvline(t[K - 1], color="grey", ls=":", lw=1)
             for name, roll in preds.items():
-                ax.plot(tr, roll[0, :, i], "--", label=DISPLAY.get(name, name))
+                ax.plot(tr, brk(roll[0, :, i]), "--", label=DISPLAY.get(name, name))
             ax.set_xlabel("t")
             ax.set_ylabel(f"q[{i}]" + (" (wrapped)" if i in ang else ""))
             ax.legend(fontsize=7)
             ax = axes[i, 1]
             full_true = q[0, K - 1:K + Hh]
-            ax.plot(full_true[1:, i], fd_velocity(full_true, test.dt, ang)[:, i], "k-", lw=2, label="truth")
+            ax.plot(brk(full_true[1:, i]), fd_velocity(full_true, test.dt, ang)[:, i], "k-", lw=2, label="truth")
             for name, roll in preds.items():
                 full = np.concatenate([q[0, K - 1:K], roll[0]], 0)
-                ax.plot(full[1:, i], fd_velocity(full, test.dt, ang)[:, i], "--", label=DISPLAY.get(name, name))
+                ax.plot(brk(full[1:, i]), fd_velocity(full, test.dt, ang)[:, i], "--", label=DISPLAY.get(name, name))
             ax.set_xlabel(f"q[{i}]")
             ax.set_ylabel(f"finite-difference qdot[{i}]")
         fig.suptitle(f"{env}: open-loop rollout after {K} burn-in steps (test trajectory 0)")

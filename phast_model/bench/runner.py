@@ -1,9 +1,9 @@
 """The one run function shared by every executor, and the sweep driver.
 
-``run_one(config, out_dir)`` trains one (env, model, seed) with the shared
-:func:`phast_model.training.fit` (same optimizer, schedule, epochs and
-best-validation selection for PHAST and baselines) and scores it with
-:func:`phast_model.metrics.evaluate`; the result JSON is written atomically under
+``run_one(config, out_dir)`` trains and scores one (env, model, seed) with
+:func:`phast_model.runs.train_and_score`, the function behind ``phast-train`` too (same
+optimizer, schedule, epochs and best-validation selection for PHAST and baselines, the
+metrics of :func:`phast_model.metrics.forecast_metrics`); the result JSON is written atomically under
 ``out_dir/runs/`` and named by the configuration hash, so a finished run is
 never redone and an interrupted sweep resumes where it stopped.
 """
@@ -11,7 +11,6 @@ never redone and an interrupted sweep resumes where it stopped.
 from __future__ import annotations
 
 import dataclasses
-import io
 import json
 import platform
 import socket
@@ -23,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from phast_gym.fileio import atomic_write_bytes, atomic_write_text, dir_lock
+from phast_gym.fileio import atomic_write_text, dir_lock
 from phast_gym.fileio import jsonable as _jsonable
 
 from .spec import RunSpec, run_key
@@ -38,6 +37,10 @@ def run_slug(spec: RunSpec) -> str:
 
 def result_path(out_dir: str | Path, spec: RunSpec) -> Path:
     return Path(out_dir) / "runs" / f"{run_slug(spec)}.json"
+
+
+#: the trained weights of a benchmark run (a bare state dict) in its :func:`work_dir`, read by the figures
+BENCH_MODEL_FILE = "bench_model.pt"
 
 
 def work_dir(out_dir: str | Path, spec: RunSpec) -> Path:
@@ -124,10 +127,7 @@ def make_train_config(spec: RunSpec) -> Any:
     bad = sorted(set(spec.train) - names)
     if bad:
         raise ValueError(f"unknown TrainConfig field(s) {bad}; known: {sorted(names)}")
-    kw = {"epochs": spec.epochs, "seed": spec.seed, **spec.train}
-    if "progress" in names:
-        kw["progress"] = False
-    return TrainConfig(**kw)
+    return TrainConfig(**{"epochs": spec.epochs, "seed": spec.seed, **spec.train, "progress": False})
 
 
 # --------------------------------------------------------------------------- the run function
@@ -151,33 +151,28 @@ def run_one(config: dict[str, Any], out_dir: str, threads: int = 1) -> dict[str,
 def _train_and_score(spec: RunSpec, out_dir: str, wdir: Path) -> dict[str, Any]:
     import torch
 
-    from phast_model.metrics import evaluate
-    from phast_model.training import fit
+    from phast_model.checkpoint import atomic_torch_save
+    from phast_model.runs import train_and_score
 
     t0 = time.perf_counter()
     splits = load_splits(spec)
     torch.manual_seed(spec.seed)
     np.random.seed(spec.seed)
     model = build_run_model(spec, splits["train"])
-    cfg = make_train_config(spec)
-    fit_res = fit(model, splits["train"], splits["val"], cfg, run_dir=wdir, resume=True, identity=spec.config())
-    t_fit = time.perf_counter() - t0
-    fitted = fit_res.model
-    fitted.eval()
     test = splits["test"]
     if spec.full_state:  # the env's energy diagnostics read q as positions: not defined for (q, p) inputs
         test = dataclasses.replace(test, env_id="")
-    metrics = evaluate(fitted, test, horizons=tuple(spec.horizons), burn_in=spec.burn_in)
+    fit_res, metrics = train_and_score(model, splits, make_train_config(spec), wdir, spec.config(), resume=True, test=test,
+                                       horizons=tuple(spec.horizons), burn_in=spec.burn_in)
+    fitted = fit_res.model
     # the weights the metrics came from, for figures (state_dict only: torch.load(weights_only=True))
-    buf = io.BytesIO()
-    torch.save(fitted.state_dict(), buf)
-    atomic_write_bytes(wdir / "bench_model.pt", buf.getvalue())
+    atomic_torch_save(fitted.state_dict(), wdir / BENCH_MODEL_FILE)
     rec = {
         "key": run_key(spec), "env": spec.env_id, "model": spec.model, "seed": spec.seed,
         "config": spec.config(), "metrics": _jsonable(metrics), "params": int(fitted.n_parameters()),
-        "best_val": _jsonable(getattr(fit_res, "best_val", None)),
-        "fit_wall_time_s": float(getattr(fit_res, "wall_time_s", t_fit)), "wall_time_s": time.perf_counter() - t0,
-        "history": _jsonable(list(getattr(fit_res, "history", []))),
+        "best_val": _jsonable(fit_res.best_val),
+        "fit_wall_time_s": float(fit_res.wall_time_s), "wall_time_s": time.perf_counter() - t0,
+        "history": _jsonable(list(fit_res.history)),
         "git_commit": _CODE_COMMIT, "host": socket.gethostname(), "python": platform.python_version(), "torch": torch.__version__,
         "threads": torch.get_num_threads(), "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }

@@ -20,8 +20,9 @@ from typing import Any
 
 import numpy as np
 
+from phast_gym.fileio import atomic_write_text
+
 from .paper import PAPER, PAPER_FULL_STATE, PaperRow
-from .runner import atomic_write_text
 
 DISPLAY = {"phast-known": "PHAST (KNOWN)", "phast-partial": "PHAST (PARTIAL)", "phast-unknown": "PHAST (UNKNOWN)",
            "gru": "GRU", "lstm": "LSTM", "transformer": "Transformer", "s5": "S5", "linoss": "LinOSS",

@@ -1,4 +1,4 @@
-"""phast-mismatch: locate and explain the mismatch between a simulator and recordings (MISMATCH.md).
+"""phast-mismatch: locate and explain the mismatch between a simulator and recordings (docs/mismatch.md).
 
     phast-mismatch --sim PHAST/Pendulum-v0 [--sim-kwargs '{"length": 0.9}'] \\
                    --recordings recordings.npz [--holdout-fraction 0.3 | --holdout-trajectories 4,5] --out report_dir/
@@ -20,7 +20,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="nominal simulator: an env id (PHAST/Pendulum-v0), my_pkg.mod:MyRig or path/to/rig.py:MyRig "
                         "(a phast_gym.systems.System subclass)")
     p.add_argument("--sim-kwargs", default="{}", help="JSON dict of physical parameters overriding the simulator's")
-    p.add_argument("--recordings", required=True, help=".npz or .csv recordings (keys / columns of MISMATCH.md)")
+    p.add_argument("--recordings", required=True, help=".npz or .csv recordings (keys / columns of docs/mismatch.md)")
     p.add_argument("--holdout-fraction", type=float, default=0.3, help="share of trajectories (or of time, for one) held out")
     p.add_argument("--holdout-trajectories", default=None,
                    help="comma-separated 0-based trajectory indices to hold out, e.g. 4,5 (overrides --holdout-fraction)")

@@ -68,10 +68,6 @@ def _term_text(t: tuple) -> str:
     return f"{t[0]}[{t[1]}]={t[2]:g}" + (f"(v_s={t[3]:g})" if len(t) > 3 else "")
 
 
-def _hidden_key(terms: list[tuple]) -> set[tuple[str, int]]:
-    return {(t[0], t[1]) for t in terms}
-
-
 def run_tool(case: Case, rec: dict[str, Any], holdout: float) -> dict[str, Any]:
     """The mismatch tool on one case, scored against the hidden truth."""
     from phast_model.mismatch import analyze

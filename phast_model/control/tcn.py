@@ -27,10 +27,10 @@ from torch import nn
 
 from phast_gym import integrate
 from phast_gym.control.estimators import PortEstimator
-from phast_gym.control.evaluation import REGIMES, ControlProtocol, control_system, sample_regime
+from phast_gym.control.evaluation import START_REGIMES, ControlProtocol, control_system, sample_start_states
 from phast_gym.systems.base import NUMPY, System, split, stack, wrap
 
-from ..checkpoint import atomic_write_bytes, atomic_write_json
+from ..checkpoint import atomic_torch_save, atomic_write_json
 from ..components.observer import CausalConv1d, finite_difference
 
 NOISE_MODES = ("fixed", "uniform", "conditioned")
@@ -113,8 +113,8 @@ def closed_loop_data(protocol: ControlProtocol, n_traj: int, steps: int, seed: i
     """
     system = control_system(protocol)
     rng = np.random.default_rng(seed)
-    names = list(REGIMES)
-    x0 = np.concatenate([sample_regime(system, names[i % len(names)], rng, 1) for i in range(n_traj)])
+    names = list(START_REGIMES)
+    x0 = np.concatenate([sample_start_states(system, names[i % len(names)], rng, 1) for i in range(n_traj)])
     n = system.n
     q, p = list(split(x0[:, :n])), list(split(x0[:, n:]))
     xi = x0[:, :n].copy()
@@ -179,12 +179,8 @@ def train_tcn_observer(protocol: ControlProtocol, cfg: TCNObserverConfig, progre
 
 def save_tcn_observer(model: TCNObserver, path: str | Path, protocol: ControlProtocol, report: dict[str, Any]) -> None:
     """``path`` (.pt state dict) + ``path.json`` (config), both written atomically."""
-    import io
-
     path = Path(path)
-    buf = io.BytesIO()
-    torch.save(model.state_dict(), buf)
-    atomic_write_bytes(path, buf.getvalue())
+    atomic_torch_save(model.state_dict(), path)
     atomic_write_json(path.with_suffix(".json"), {"format": "phast-tcn-observer", "cfg": asdict(model.cfg), "dt": model.dt,
                                                    "protocol": protocol.to_dict(), "report": report})
 

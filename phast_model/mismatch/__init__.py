@@ -1,7 +1,7 @@
 """Simulation vs. reality: locate the mismatch, name the missing physics, model it, show the fit improve.
 
 ``analyze(sim, recordings, sim_kwargs=None, holdout_fraction=0.3) -> Report`` implements
-MISMATCH.md; ``Report.write(out_dir)`` writes report.json / report.md / report.html / plots.
+docs/mismatch.md; ``Report.write(out_dir)`` writes report.json / report.md / report.html / plots.
 """
 
 from .analysis import analyze

@@ -1,4 +1,4 @@
-"""The mismatch pipeline of MISMATCH.md: calibrate, explain, locate, show the fit.
+"""The mismatch pipeline of docs/mismatch.md: calibrate, explain, locate, show the fit.
 
 Everything that decides (calibration, term selection, coefficients and their
 95% intervals, the held-out comparison) is a *fit by simulation*: multiple
@@ -168,7 +168,7 @@ def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mappin
 
     ``sim``: an env id, ``my_pkg.mod:MyRig``, ``path/to/rig.py:MyRig`` or a System subclass
     (:func:`.simulators.load_simulator`); ``sim_kwargs`` override its physical parameters.
-    ``recordings``: an .npz / .csv path, a dict with the keys of MISMATCH.md, or a :class:`Recordings`.
+    ``recordings``: an .npz / .csv path, a dict with the keys of docs/mismatch.md, or a :class:`Recordings`.
     ``holdout_trajectories`` (0-based indices) overrides ``holdout_fraction``.  ``compare``: more models (e.g. a
     published identified model) scored on the held-out recordings by the same code, as extra rows of ``fit``.
     Returns a :class:`Report`.

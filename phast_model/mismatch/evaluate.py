@@ -1,4 +1,4 @@
-"""Held-out evaluation (MISMATCH.md "fit"): the split, rollout windows, one-step MSE and open-loop rollout RMSE."""
+"""Held-out evaluation (docs/mismatch.md, "Show the fit"): the split, rollout windows, one-step MSE and open-loop rollout RMSE."""
 
 from __future__ import annotations
 
@@ -83,7 +83,7 @@ def _initial_states(shooter_factory: Callable[[Recordings], Shooter], system: Sy
 
 def evaluate_models(models: dict[str, System], rec: Recordings, sigma: np.ndarray, x_scale: np.ndarray, K: int,
                     sg_window: int, scale: np.ndarray) -> tuple[dict[str, dict[str, float]], dict[str, np.ndarray]]:
-    """one_step_mse and rollout_rmse (MISMATCH.md) of each model on held-out recordings."""
+    """one_step_mse and rollout_rmse (docs/mismatch.md) of each model on held-out recordings."""
     n, dt = rec.n, rec.dt
     qs, vs = smooth(rec.q, dt, sg_window, rec.t)
     out: dict[str, dict[str, float]] = {}

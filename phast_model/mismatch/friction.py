@@ -38,6 +38,7 @@ import numpy as np
 from scipy.signal import savgol_filter
 from scipy.stats import t as student_t
 
+from phast_gym.systems import angle_diff
 from phast_gym.systems.base import NUMPY, System
 
 from .recordings import Recordings
@@ -652,9 +653,7 @@ def rollout_score(system: System, rec: Recordings, window: int | None, init_samp
     x_scale = np.concatenate([np.sqrt(np.mean(qs**2, axis=(0, 1))) + 1e-9, np.sqrt(np.mean(vs**2, axis=(0, 1))) + 1e-12])
     _, rolls = evaluate_models({"m": system}, recw, sigma, x_scale, min(init_samples, recw.T), min(sg, _odd(recw.T // 2 - 1)),
                                np.ones(rec.n))
-    d = rolls["m"] - recw.q
-    for i in recw.angle_dims:
-        d[..., i] = (d[..., i] + math.pi) % (2 * math.pi) - math.pi
+    d = angle_diff(rolls["m"], recw.q, recw.angle_dims)
     d = np.where(np.isfinite(d), d, 1e3)
     per = np.sqrt(np.mean(d**2, axis=(1, 2)))
     if relative:

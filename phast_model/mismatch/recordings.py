@@ -1,4 +1,4 @@
-"""Loading and validating measured recordings (MISMATCH.md "Recordings").
+"""Loading and validating measured recordings (the recordings format of docs/mismatch.md).
 
 A recording set is q (N, T, n) sampled at dt or at recorded times t ((T,) or
 (N, T), strictly increasing, not necessarily uniform: real loggers jitter and
@@ -85,7 +85,7 @@ class Recordings:
     @property
     def sim_dt(self) -> float | np.ndarray:
         """What to pass as ``dt`` to the simulation of whole trajectories: the scalar dt when the sampling is
-        uniform (so uniform recordings simulate exactly as before), else the (N, T-1) recorded steps."""
+        uniform (uniform recordings take the fixed-step path of the simulator), else the (N, T-1) recorded steps."""
         return float(self.dt) if self.uniform else self.steps
 
     def times(self) -> np.ndarray:

@@ -1,6 +1,6 @@
 """The mismatch report: the :class:`Report` data, its text (summary, markdown, HTML), plots, and writing it safely.
 
-``Report.write(out)`` writes report.json (MISMATCH.md schema plus ``"tool":
+``Report.write(out)`` writes report.json (docs/mismatch.md schema plus ``"tool":
 "phast-mismatch"``), report.md, report.html (self-contained: tables as HTML,
 plots embedded as data URIs) and the PNG plots.  It never deletes what it did
 not write: ``out`` must be new, empty, or a previous phast-mismatch report
@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from phast_gym.fileio import jsonable as _jsonable
-from phast_gym.systems import wrap
+from phast_gym.systems import break_at_wraps, wrap
 
 from .terms import AugmentedSystem
 
@@ -41,7 +41,7 @@ _MODELS = (("nominal", ":"), ("calibrated", "--"), ("augmented", "-"))
 
 @dataclass
 class Report:
-    """The report of MISMATCH.md (``to_dict`` is the report.json schema) plus plot data."""
+    """The report of docs/mismatch.md (``to_dict`` is the report.json schema) plus plot data."""
 
     sim: dict[str, Any]
     data: dict[str, Any]
@@ -330,7 +330,7 @@ def _heldout_fit(plt: Any, report: Report, out: Path) -> None:
         for name, style in _MODELS:
             e = roll[name][0, :, i] - hold.q[0, :, i]
             if i in hold.angle_dims:
-                e = wrap(e)
+                e = break_at_wraps(wrap(e))
             ax.plot(t, e, style, lw=1, label=name)
         ax.set_ylabel("error")
         ax.set_xlabel("t [s]")

@@ -23,7 +23,7 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from phast_gym.integrate import step
-from phast_gym.systems import wrap
+from phast_gym.systems import angle_diff, split
 from phast_gym.systems.base import NUMPY, System
 
 from .recordings import Recordings
@@ -116,11 +116,8 @@ def _smooth_jittered(q: np.ndarray, dt: float, window: int, t: np.ndarray) -> tu
 
 
 def momentum(system: System, q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """p = M(q) qdot for (..., n) arrays, through the system's mass matrix."""
-    qc = tuple(q[..., i] for i in range(q.shape[-1]))
-    M = system.mass_matrix(qc, NUMPY)
-    n = q.shape[-1]
-    return np.stack([sum(np.broadcast_to(M[i][j], q.shape[:-1]) * v[..., j] for j in range(n)) for i in range(n)], -1)
+    """p = M(q) qdot (:meth:`System.momentum`) for (..., n) arrays."""
+    return np.stack(np.broadcast_arrays(*system.momentum(split(q), split(v), NUMPY)), -1)
 
 
 # --------------------------------------------------------------------------- simulation
@@ -153,8 +150,8 @@ def simulate_qv(system: System, q0: np.ndarray, v0: np.ndarray, n_steps: int, u:
     (n_steps,) (recorded, jittered times: e.g. ``Recordings.steps`` or ``Recordings.sim_dt``); u (B, n_steps, n)
     is held over each interval.  ``substeps``: RK4 substeps per interval, an int (every interval of every
     sample: substep h = dt / substeps) or an (n_steps,) int array, one count per interval common to the batch
-    (``substeps_for(system, dt)`` gives counts that keep every substep within the env's).  A scalar dt runs
-    exactly as before; an array filled with the same value gives the same numbers.
+    (``substeps_for(system, dt)`` gives counts that keep every substep within the env's).  A scalar dt and an
+    array filled with that value give the same numbers.
     The model's measurement map (``measure``: sensor terms) is applied to the output.
     """
     B, n = q0.shape
@@ -263,14 +260,6 @@ class Windows:
         """Every window cut to its first ``length`` samples."""
         return Windows(self.traj, self.start, length, self.q[:, :length], None if self.u is None else self.u[:, : length - 1],
                        self.angle_dims, self.dt, None if self.steps is None else self.steps[:, : length - 1], self.stride)
-
-
-def angle_diff(a: np.ndarray, b: np.ndarray, angle_dims: tuple[int, ...]) -> np.ndarray:
-    """a - b, wrapped into [-pi, pi) on angular coordinates (paper Appendix F)."""
-    d = a - b
-    for i in angle_dims:
-        d[..., i] = wrap(d[..., i])
-    return d
 
 
 # --------------------------------------------------------------------------- least squares

@@ -15,7 +15,7 @@ from .terms import AugmentedSystem, Term
 def make_reality(env_id: str, terms: list[Term] | tuple[Term, ...] = (), true_kwargs: dict[str, Any] | None = None,
                  n_traj: int = 40, T: int = 400, noise_std: float = 0.01, seed: int = 0, u_std: float = 0.0,
                  x0_scale: float = 1.0, coulomb_eps: float = 1e-3) -> dict[str, Any]:
-    """Recordings dict (MISMATCH.md keys) of ``env_id`` with hidden ``terms`` and parameter changes.
+    """Recordings dict (docs/mismatch.md keys) of ``env_id`` with hidden ``terms`` and parameter changes.
 
     Initial states come from the system's own sampler (scaled by ``x0_scale``);
     ``u_std > 0`` adds a smooth random port input on every coordinate; q gets

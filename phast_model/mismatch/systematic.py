@@ -72,14 +72,6 @@ class SystematicResult:
         return self.system is not None
 
 
-def without_dissipation(system: System) -> System:
-    """``system`` with the dissipative vocabulary terms of an AugmentedSystem removed (its own D(q) is kept)."""
-    if not isinstance(system, AugmentedSystem):
-        return system
-    keep = [t for t in system.terms if t.component != "dissipation"]
-    return AugmentedSystem(system.base, keep, system.coulomb_eps, system.deadzone_width)
-
-
 def _law_rows(law: FrictionLaw, sels: list[Selection], passive: dict[str, Any], own: dict[int, float]) -> list[dict[str, Any]]:
     """report.missing_physics rows of the chosen law: coefficient, 95% interval, the evidence, near alternatives."""
     rows = []

@@ -1,4 +1,4 @@
-"""The named term vocabulary of MISMATCH.md and the augmented port-Hamiltonian model.
+"""The named term vocabulary of docs/mismatch.md and the augmented port-Hamiltonian model.
 
 Each term adds a force to ``pdot_i`` (or changes the port / the sensor) and sits
 in one component of the port-Hamiltonian structure:
@@ -49,19 +49,18 @@ VOCABULARY: dict[str, tuple[str, str, bool]] = {
     "actuator_gain": ("port", "(c-1)*u{i}", True),
     "actuator_deadzone": ("port", "port delivers 0 when abs(u{i}) < c", True),
     "sensor_offset": ("sensor", "measured q{i} = true q{i} + c", False),
-    # additions to the MISMATCH.md vocabulary, documented the same way (sensor component):
+    # additions to the docs/mismatch.md vocabulary, documented the same way (sensor component):
     "sensor_gain": ("sensor", "measured q{i} = c * true q{i}", False),
     "sensor_eccentricity": ("sensor", "measured q{i} = true q{i} + c*(1 - cos(true q{i})) (angles only)", False),
 }
 SENSOR_TERMS = ("sensor_offset", "sensor_gain", "sensor_eccentricity")
 FORCE_TERMS = ("viscous_damping", "coulomb_friction", "quadratic_drag", "position_dependent_damping",
                "linear_stiffness", "cubic_stiffness", "constant_force")  # stribeck_friction: energy balance only (needs v_s)
-PORT_TERMS = ("actuator_gain", "actuator_deadzone")
 
 
 @dataclass(frozen=True)
 class Term:
-    """One named term on one coordinate with its coefficient (MISMATCH.md units).
+    """One named term on one coordinate with its coefficient (docs/mismatch.md units).
 
     ``velocity`` is the Stribeck velocity v_s of ``stribeck_friction`` (unused by other terms)."""
 
@@ -125,7 +124,7 @@ def default_value(name: str) -> float:
 class AugmentedSystem(System):
     """A base system plus named terms, in the right port-Hamiltonian place.
 
-    ``coulomb_eps`` smooths ``sign(qdot)`` as ``tanh(qdot / eps)`` (MISMATCH.md
+    ``coulomb_eps`` smooths ``sign(qdot)`` as ``tanh(qdot / eps)`` (docs/mismatch.md
     allows smoothing near 0); it keeps explicit RK4 stable at the env's steps.
     ``deadzone_width > 0`` smooths the deadzone edge so its threshold can be fitted.
     """
@@ -225,8 +224,7 @@ class AugmentedSystem(System):
         """dH/dq|_p given v = dH/dp.  With armature A (constant): dH/dq|_p = dV/dq - v^T (dM/dq) v / 2, which is the
         base's dH/dq at the base momentum p' = M(q) v (same v, same dM/dq), plus the extra potential's gradient."""
         if self.has_armature:
-            M = self.base.mass_matrix(q, xp)
-            p = tuple(sum(mij * vj for mij, vj in zip(row, v)) for row in M)
+            p = self.base.momentum(q, v, xp)
         return tuple(a + b for a, b in zip(self.base.dH_dq(q, p, xp), self._extra_grad(q, xp)))
 
     def dH_dq(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:

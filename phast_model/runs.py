@@ -1,0 +1,103 @@
+"""Train one run and score it: the library function behind ``phast-train``, the benchmark harness and the examples.
+
+* :func:`train_and_score` is the shared core: :func:`phast_model.training.fit` (checkpoints in the run's
+  directory, resumable), a refusal of non-finite weights, then the test metrics of
+  :func:`phast_model.metrics.forecast_metrics`.  ``phast-train`` and every benchmark run
+  (:func:`phast_model.bench.runner.run_one`, PHAST and baselines alike) train through it.
+* :func:`train_run` is a whole PHAST run directory (what ``phast-train`` writes): checks, the dataset,
+  :func:`train_and_score`, then ``model.pt`` + ``config.json`` (:func:`phast_model.checkpoint.save_run`,
+  read back by :func:`phast_model.api.load_run`), ``metrics.json``, ``history.json`` and the plots of
+  :func:`phast_model.plots.make_plots`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+#: the run files :func:`train_run` writes besides the checkpoint
+METRICS_FILE, HISTORY_FILE = "metrics.json", "history.json"
+
+
+def train_and_score(model: Any, splits: dict[str, Any], cfg: Any, run_dir: str | Path, identity: dict[str, Any],
+                    resume: bool = False, test: Any = None, horizons: tuple[int, ...] = (10, 50, 100),
+                    burn_in: int = 10) -> tuple[Any, dict[str, float]]:
+    """Train ``model`` on ``splits["train"]`` with best-validation selection on ``splits["val"]``, then score it.
+
+    ``run_dir`` holds the resumable ``checkpoint.pt`` (``resume=True`` continues from it; ``identity`` is recorded
+    in it and checked on resume).  Non-finite trained weights raise RuntimeError.  ``test`` (default
+    ``splits["test"]``) is scored at ``horizons`` after ``burn_in`` true samples.  Returns
+    ``(FitResult, metrics)``."""
+    import torch
+
+    from .metrics import forecast_metrics
+    from .training import fit
+
+    res = fit(model, splits["train"], splits["val"], cfg, run_dir=run_dir, resume=resume, identity=identity)
+    if not all(bool(torch.isfinite(p).all()) for p in res.model.parameters()):
+        raise RuntimeError("training produced non-finite parameters; nothing saved")
+    metrics = forecast_metrics(res.model, splits["test"] if test is None else test, horizons=horizons, burn_in=burn_in)
+    return res, metrics
+
+
+def check_split_sizes(n_train: int, n_val: int, n_test: int, T: int) -> None:
+    """ValueError naming the flag when a split is empty or T is too short (before any work is done)."""
+    for name, v in (("n_train", n_train), ("n_val", n_val), ("n_test", n_test)):
+        if isinstance(v, bool) or int(v) != v or v < 1:
+            raise ValueError(f"--{name.replace('_', '-')} must be a positive integer (the {name[2:]} split cannot be "
+                             f"empty), got {v!r}")
+    if int(T) != T or T < 2:
+        raise ValueError(f"--T must be an integer >= 2, got {T!r}")
+
+
+def train_run(env: str, regime: str, out: str | Path, epochs: int = 50, seed: int = 0, n_train: int = 1000,
+              n_val: int = 200, n_test: int = 200, T: int = 200, data_seed: int = 42, batch_size: int = 64,
+              lr: float = 1e-3, obs_noise_std: float = 0.0, overrides: dict[str, Any] | None = None,
+              resume: bool = False, plots: bool = True, progress: bool = True) -> dict[str, Any]:
+    """Train a PHAST model (``regime``: known / partial / unknown) on ``env`` and write the run directory ``out``.
+
+    The Python entry point of ``phast-train``; returns the metrics dict it writes to ``metrics.json``.  Every
+    argument is checked before any work (no dataset generated, nothing written), and one process at a time
+    may write ``out``."""
+    from phast_gym import make_splits, resolve_env_id
+    from phast_gym.datasets import _check_noise
+    from phast_gym.fileio import dir_lock, ensure_writable_dir
+
+    from .regimes import build_model
+    from .training import CHECKPOINT, TrainConfig, check_resume
+
+    env = resolve_env_id(env)
+    check_split_sizes(n_train, n_val, n_test, T)
+    noise = _check_noise(obs_noise_std)
+    cfg = TrainConfig(epochs=epochs, batch_size=batch_size, lr=lr, seed=seed, progress=progress)
+    model = build_model(env, regime, seed=seed, **(overrides or {}))
+    data = {"n_train": n_train, "n_val": n_val, "n_test": n_test, "T": T, "seed": data_seed, "obs_noise_std": noise}
+    identity = {"env_id": env, "regime": regime, "data": data, "overrides": overrides or {}}
+    out = ensure_writable_dir(out, "--out")
+    with dir_lock(out):  # one writer per run directory
+        if resume:
+            check_resume(out / CHECKPOINT, cfg, identity)
+        kw = {"obs_noise_std": noise} if noise > 0 else {}
+        splits = make_splits(env, n_train, n_val, n_test, T=T, seed=data_seed, **kw)
+        res, metrics = train_and_score(model, splits, cfg, out, identity, resume=resume)
+        return _write_run(res, metrics, splits["test"], cfg, identity, out, plots)
+
+
+def _write_run(res: Any, metrics: dict[str, Any], test: Any, cfg: Any, identity: dict[str, Any], out: Path,
+               plots: bool) -> dict[str, Any]:
+    """Save model.pt + config.json, metrics.json / history.json and the plots of a scored run."""
+    from .checkpoint import atomic_write_json, save_run
+    from .metrics import benchmark_metric
+
+    env, regime = identity["env_id"], identity["regime"]
+    save_run(res.model, out, {"train": cfg.__dict__, "data": identity["data"], "overrides": identity["overrides"]})
+    metrics.update({"train_wall_time_s": res.wall_time_s, "best_val": res.best_val, "best_epoch": res.best_epoch,
+                    "nan_events": res.nan_events, "benchmark_metric": benchmark_metric(env)})
+    metrics["benchmark_value"] = metrics.get(metrics["benchmark_metric"], float("nan"))
+    atomic_write_json(out / METRICS_FILE, {"env_id": env, "regime": regime, "seed": cfg.seed, "epochs": cfg.epochs, **metrics})
+    atomic_write_json(out / HISTORY_FILE, res.history)
+    if plots:
+        from .plots import make_plots
+
+        make_plots(res.model, test, out)
+    return metrics
