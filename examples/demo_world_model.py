@@ -18,7 +18,7 @@ import torch
 
 from phast_gym.systems import NUMPY, split, stack
 from phast_model.checkpoint import load_model
-from phast_model.cli.train import train_run
+from phast_model.runs import train_run
 
 ENV = "PHAST/WindyPendulum-v0"
 
@@ -54,7 +54,7 @@ def run(out_dir: pathlib.Path) -> dict:
     torch.set_num_threads(1)
     run_dir = pathlib.Path(out_dir) / "world_model"
     m = train_run(ENV, "known", run_dir, epochs=30, seed=0, n_train=400, n_val=100, n_test=100, progress=False)
-    fig = damping_figure(run_dir, run_dir / "damping.png")
+    fig = damping_figure(run_dir, run_dir / "damping_field.png")
     return {
         "env": ENV,
         "regime": "known",

@@ -12,7 +12,6 @@ optional ``model.extra_losses(q, u, pred) -> dict[str, Tensor]`` hook (PHAST: Eq
 from __future__ import annotations
 
 import copy
-import io
 import json
 import math
 import time
@@ -24,8 +23,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from phast_gym.fileio import atomic_write_bytes
-
+from .checkpoint import atomic_torch_save
 from .interfaces import ForecastModel, coordinate_error
 
 CHECKPOINT = "checkpoint.pt"
@@ -115,14 +113,6 @@ def validation_loss(model: ForecastModel, q: torch.Tensor, u: torch.Tensor | Non
         cnt += qb.shape[0]
     model.train(was)
     return tot / max(cnt, 1)
-
-
-def _atomic_torch_save(obj: Any, path: Path) -> None:
-    """Serialize in memory, then one atomic write (a killed writer leaves no partial checkpoint; its temp file is
-    removed by the next write, see :func:`phast_gym.fileio.remove_stale_temps`)."""
-    buf = io.BytesIO()
-    torch.save(obj, buf)
-    atomic_write_bytes(path, buf.getvalue())
 
 
 def _resolved(cfg: TrainConfig, model: Any, name: str, default: float) -> float:
@@ -271,7 +261,7 @@ def fit(model: ForecastModel, train: Any, val: Any, cfg: TrainConfig | None = No
     def save_ckpt(epoch: int, elapsed: float) -> None:
         if ckpt_path is None:
             return
-        _atomic_torch_save({
+        atomic_torch_save({
             "model": model.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
             "gen_state": gen.get_state(), "torch_rng": torch.get_rng_state(), "history": json.dumps(history),
             "best_val": best_val, "best_epoch": best_epoch, "best_state": best_state, "epoch": epoch,
