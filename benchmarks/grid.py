@@ -1,0 +1,81 @@
+"""Background driver of the paper-protocol grid (all 13 rows x models x seeds), resumable across sessions.
+
+    nice -n 10 .venv/bin/python benchmarks/grid.py --models baselines --commit &
+
+Runs ``phast-bench`` one (env, model) block at a time (5 seeds, one worker, one torch thread) into
+``docs/results/full`` (per-run JSON under ``runs/``, keyed by the hash of the full configuration, so a finished run
+is never redone), refreshes ``summary.csv`` / ``tables.md`` after every block and, with ``--commit``, commits that
+directory (that path only; retried when another git command holds the index), so a session that ends loses at most
+the block in progress.  ``--dry-run`` lists what is left.
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from phast_model.bench.paper import PAPER
+from phast_model.bench.runner import load_result
+from phast_model.bench.spec import ALL_MODELS, BASELINE_MODELS, PHAST_MODELS, RunSpec, parse_seeds
+
+GROUPS = {"baselines": BASELINE_MODELS, "phast": PHAST_MODELS, "all": ALL_MODELS}
+
+
+def pending(envs: list[str], models: tuple[str, ...], seeds: list[int], out: Path) -> list[tuple[str, str]]:
+    """(env, model) blocks with at least one seed not finished in ``out``."""
+    return [(e, m) for e in envs for m in models
+            if any(load_result(out, RunSpec(env_id=e, model=m, seed=s)) is None for s in seeds)]
+
+
+def bench(args: list[str]) -> int:
+    return subprocess.call([sys.executable, "-m", "phast_model.cli.bench", *args])
+
+
+def commit(out: Path, message: str, tries: int = 20) -> bool:
+    """``git add`` + ``git commit`` of ``out`` only; retried while another git process holds the index."""
+    for _ in range(tries):
+        add = subprocess.run(["git", "add", "--", str(out)], capture_output=True, text=True)
+        if add.returncode == 0:
+            res = subprocess.run(["git", "commit", "-q", "-m", message, "--", str(out)], capture_output=True, text=True)
+            if res.returncode == 0 or "nothing to commit" in res.stdout + res.stderr:
+                return True
+        time.sleep(15)
+    print(f"grid: could not commit {out} (git busy?); the files are on disk", file=sys.stderr)
+    return False
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--models", default="baselines", help="baselines | phast | all | a comma list")
+    ap.add_argument("--envs", default="all", help="'all' (the 13 rows of Table 4) or a comma list")
+    ap.add_argument("--seeds", default="0-4")
+    ap.add_argument("--out", default="docs/results/full")
+    ap.add_argument("--commit", action="store_true", help="git-commit OUT after every finished block")
+    ap.add_argument("--dry-run", action="store_true")
+    args = ap.parse_args(argv)
+    models = GROUPS.get(args.models) or tuple(m.strip() for m in args.models.split(","))
+    envs = list(PAPER) if args.envs == "all" else [e if e.startswith("PHAST/") else f"PHAST/{e}" for e in args.envs.split(",")]
+    seeds, out = parse_seeds(args.seeds), Path(args.out)
+    todo = pending(envs, models, seeds, out)
+    print(f"grid: {len(todo)} (env, model) blocks left of {len(envs) * len(models)}", flush=True)
+    if args.dry_run:
+        print("\n".join(f"  {e} {m}" for e, m in todo))
+        return 0
+    every = ["--envs", ",".join(envs), "--models", ",".join(ALL_MODELS), "--seeds", args.seeds, "--out", str(out)]
+    for env, model in todo:
+        t0 = time.time()
+        rc = bench(["--envs", env, "--models", model, "--seeds", args.seeds, "--out", str(out), "--workers", "1",
+                    "--threads", "1", "--no-progress"])
+        bench([*every, "--summarize-only", "--title", "Paper protocol (1000/200/200, 50 epochs, seeds " + args.seeds + ")",
+               "--note", "Written by benchmarks/grid.py as blocks finish; rows fill in across sessions."])
+        print(f"grid: {env} {model} rc={rc} in {time.time() - t0:.0f} s", flush=True)
+        if args.commit:
+            commit(out, f"grid: {env.split('/')[-1]} {model} seeds {args.seeds}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
