@@ -171,8 +171,8 @@ class PHAST(ForecastModel):
         return self.damping.diag(q)
 
     def step(self, q: torch.Tensor, p: torch.Tensor, u: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-        """One Strang step of the core with port input u (..., m)."""
-        return self.core.strang_step(q, p, self.port_force(u))
+        """One observation step of the core (Strang splitting; RK4 for the predator-prey latent ODE) with port input u (..., m)."""
+        return self.core(q, p, self.port_force(u))
 
     def infer_state(self, q_hist: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(B, T, n) observed history -> the canonical state (q_T-1, p_T-1) at its last sample."""
@@ -218,7 +218,7 @@ class PHAST(ForecastModel):
         q, u = self._prep(q, u)
         v = self.observer(q)
         p = self.canonicalize(q, v)
-        q1, _ = self.core.strang_step(q, p, self.port_force(u), need_p=False)
+        q1, _ = self.core(q, p, self.port_force(u), need_p=False)
         return wrap_angles(q1, self.angle_dims)
 
     def predict_next(self, hist: torch.Tensor, u_t: torch.Tensor | None = None) -> torch.Tensor:
@@ -227,7 +227,7 @@ class PHAST(ForecastModel):
         hist = hist[:, -self.observer.window:]
         v = self.observer(hist)[:, -1]
         qt = hist[:, -1]
-        q1, _ = self.core.strang_step(qt, self.canonicalize(qt, v), self.port_force(u_t), need_p=False)
+        q1, _ = self.core(qt, self.canonicalize(qt, v), self.port_force(u_t), need_p=False)
         return wrap_angles(q1, self.angle_dims)
 
     @torch.no_grad()
@@ -255,7 +255,7 @@ class PHAST(ForecastModel):
         qs, ps = [], []
         for h in range(H):
             ut = None if u is None else (u[:, K - 1 + h] if K - 1 + h < u.shape[1] else torch.zeros_like(u[:, 0]))
-            q, p = self.core.strang_step(q, p, self.port_force(ut))
+            q, p = self.core(q, p, self.port_force(ut))
             qs.append(wrap_angles(q, self.angle_dims))
             ps.append(p)
         out = torch.stack(qs, 1)
@@ -288,7 +288,7 @@ class PHAST(ForecastModel):
         p = self.canonicalize(q, self.observer(q))
         f = self.port_force(u)
         if cfg.lambda_pass > 0 or cfg.lambda_energy > 0:
-            q1, p1 = self.core.strang_step(q[:, :-1], p[:, :-1], None if f is None else f[:, :-1])
+            q1, p1 = self.core(q[:, :-1], p[:, :-1], None if f is None else f[:, :-1])
             H0, H1 = self.hamiltonian(q[:, :-1], p[:, :-1]), self.hamiltonian(q1, p1)
             if cfg.lambda_pass > 0:  # Eq. 86 (u = 0 benchmarks; with u the port power is not subtracted)
                 out["pass"] = cfg.lambda_pass * torch.relu(H1 - H0).mean()
@@ -301,7 +301,7 @@ class PHAST(ForecastModel):
             qq, pp = q[:, t0], p[:, t0]
             errs = []
             for h in range(Hr):
-                qq, pp = self.core.strang_step(qq, pp, None if f is None else f[:, t0 + h])
+                qq, pp = self.core(qq, pp, None if f is None else f[:, t0 + h])
                 errs.append((coordinate_error(qq, q[:, t0 + h + 1], self.angle_dims) ** 2).mean())
             out["roll"] = cfg.lambda_roll * torch.stack(errs).mean()
         return out
@@ -397,8 +397,9 @@ class LatentODECore(nn.Module):
     def h(self) -> torch.Tensor:
         return torch.exp(self.log_dt)
 
-    def strang_step(self, q: torch.Tensor, p: torch.Tensor, f: torch.Tensor | None = None,
-                    need_p: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
+    def rk4_step(self, q: torch.Tensor, p: torch.Tensor, f: torch.Tensor | None = None,
+                 need_p: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
+        """One observation step: L classical RK4 substeps with the port force f held."""
         h = self.h
         F = self.field.rhs
         for _ in range(self.substeps):
@@ -410,7 +411,7 @@ class LatentODECore(nn.Module):
             p = p + h / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
         return q, p
 
-    forward = strang_step
+    forward = rk4_step
 
 
 class LatentODEModel(PHAST):
@@ -444,7 +445,7 @@ class LatentODEModel(PHAST):
         p = self.canonicalize(q, self.observer(q))
         if hasattr(self, "prior_raw"):
             p = torch.cat([self.prior_latent().to(p.dtype).expand_as(p[:, :1]), p[:, 1:]], 1)
-        q1, _ = self.core.strang_step(q, p, self.port_force(u), need_p=False)
+        q1, _ = self.core(q, p, self.port_force(u), need_p=False)
         return q1
 
     def param_groups(self, lr: float) -> list[dict[str, Any]]:
