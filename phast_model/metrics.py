@@ -16,27 +16,15 @@ import torch
 from phast_gym import make_env_system, resolve_env_id
 from phast_gym.systems import NUMPY, System, angle_diff, fd_velocity, split
 
+from .envinfo import ENV_INFO
 from .interfaces import ForecastModel
 from .rollout import batched_predict, batched_rollout
-
-#: the paper's Table 4 headline metric per env (docs/envs.md "Angle handling and metrics"): rollout MSE at
-#: H = 100 for the mechanical eight, next-step MSE for RLC, LJ-3, heat exchange, N-body and predator-prey
-_HEADLINE = {
-    "PHAST/RLCCircuit-v0": "mse",
-    "PHAST/PredatorPrey-v0": "mse",
-    "PHAST/HeatExchange-v0": "mse",
-    "PHAST/LennardJones3-v0": "mse",
-    "PHAST/NBody3-v0": "mse",
-    "PHAST/Oscillator-v0": "rollout_mse_h100",
-    "PHAST/DampedOscillator-v0": "rollout_mse_h100",
-    "PHAST/WindyCartPole-v0": "rollout_mixed_mse_h100",
-}
 
 
 def benchmark_metric(env_id: str) -> str:
     """Key of the paper's Table 4 metric for ``env_id`` (angular envs: wrapped rollout MSE at H = 100)."""
     env_id = resolve_env_id(env_id)
-    return _HEADLINE.get(env_id, "rollout_theta_wrap_mse_h100")
+    return ENV_INFO[env_id].metric
 
 
 def _sq_err(pred: np.ndarray, target: np.ndarray, angle_dims: tuple[int, ...]) -> np.ndarray:

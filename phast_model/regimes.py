@@ -29,29 +29,12 @@ from dataclasses import fields, replace
 from typing import Any
 
 from phast_gym import env_ids, make_env_system, resolve_env_id
-from phast_gym.systems import System
 
+from .envinfo import ENV_INFO
 from .interfaces import ForecastModel
 from .model import PHASTConfig, build_from_config
 
 REGIMES = ("known", "partial", "unknown")
-
-#: potential template of each system (paper Table 1 / Appendix D)
-TEMPLATES: dict[str, tuple[str, list[int] | None]] = {
-    "pendulum": ("cosine", [0]),
-    "cartpole": ("cosine", [1]),
-    "double_pendulum": ("cosine", [0, 1]),
-    "oscillator": ("quadratic", None),
-    "rlc": ("quadratic", None),
-    "heat_exchange": ("quadratic", None),
-    "lennard_jones3": ("lennard_jones", None),
-    "nbody3": ("gravity", None),
-}
-
-
-#: systems with a configuration-dependent M(q) and their PARTIAL mass template (:class:`TemplateMass`)
-MASS_TEMPLATES = ("cartpole", "double_pendulum")
-
 
 #: trainer defaults of the identification settings (KNOWN; a TrainConfig value overrides them).  With V, M and the
 #: observer fixed the one-step loss is ~1e-6..1e-9 and its gradients ~1e-7..1e-12, below AdamW's default eps = 1e-8,
@@ -81,7 +64,8 @@ def default_config(env_id: str, regime: str, **env_kwargs: Any) -> PHASTConfig:
         return replace(base, kind="latent_ode", ode_field={"known": "known", "partial": "template", "unknown": "neural"}[regime],
                        potential="none", mass="none", damping="none")
     n = system.n
-    tmpl, dims = TEMPLATES[system.name]
+    info = ENV_INFO[env_id]
+    tmpl, dims = info.template, None if info.template_dims is None else list(info.template_dims)
     if regime == "known":
         # identification settings (measured, docs/phast_model.md): with V and M known the only unknowns are D and
         # the observer; a trainable observer can absorb D under the one-step loss (gauge: only v_hat (1 - dt/2 D)
@@ -96,7 +80,7 @@ def default_config(env_id: str, regime: str, **env_kwargs: Any) -> PHASTConfig:
                        learn_d0=True, canonicalizer="mass", substeps=8 if system.separable else 4,
                        observer_trainable=False, learn_dt=False,
                        damping_lr_mult=100.0, **KNOWN_TRAIN_DEFAULTS)
-    mass_tmpl = _mass_template(system)
+    mass_tmpl = info.partial_mass_template(system)
     if regime == "partial":
         cap, base_d = _windy(system.params)
         mass = {"mass": "template", "mass_template": mass_tmpl} if mass_tmpl else {"mass": "lowrank", "mass_rank": min(4, n)}
@@ -115,18 +99,6 @@ def default_config(env_id: str, regime: str, **env_kwargs: Any) -> PHASTConfig:
                        canonicalizer="mass")
     return replace(base, potential="neural", mass="lowrank", mass_rank=min(4, n), damping_cap=None, d0=0.0,
                    learn_d0=True, canonicalizer="identity")
-
-
-def _mass_template(system: System) -> str | None:
-    """The PARTIAL mass template of a configuration-dependent M(q) (None when M is constant)."""
-    if system.separable:
-        return None
-    if system.name == "double_pendulum" and system.params.get("coordinates") == "relative":
-        return "double_pendulum_relative"
-    if system.name not in MASS_TEMPLATES:
-        raise ValueError(f"no PARTIAL mass template for {system.name!r} (configuration-dependent M); "
-                         f"known: {MASS_TEMPLATES}")
-    return system.name
 
 
 def build_model(env_id: str, regime: str, **overrides: Any) -> ForecastModel:

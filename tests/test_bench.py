@@ -166,15 +166,6 @@ def test_ray_two_run_sweep(tmp_path: Path) -> None:
     assert [r["status"] for r in run_sweep(specs, tmp_path / "ray", backend="ray", workers=2, progress=False)] == ["cached"] * 2
 
 
-def test_paper_table_metrics_agree_with_benchmark_metric() -> None:
-    """The harness's paper rows and phast_model.metrics.benchmark_metric name the same Table 4 metric."""
-    from phast_model.bench.paper import PAPER
-    from phast_model.metrics import benchmark_metric
-
-    for env_id, row in PAPER.items():
-        assert row.metric == benchmark_metric(env_id), env_id
-
-
 def test_first_step_floor_is_below_persistence() -> None:
     """The t = 0 floor E Var(q1 | q0) / (T - 1) is positive and below the persistence predictor's t = 0 term."""
     from phast_gym.datasets import make_splits
