@@ -89,7 +89,10 @@ def forecast_metrics(model: ForecastModel, test: Any, horizons: tuple[int, ...] 
     ang = tuple(model.angle_dims)
     out: dict[str, float] = {"n_parameters": float(model.n_parameters())}
     pred = batched_predict(model, q, u, batch_size)
-    out.update(_error_keys("", _sq_err(pred[:, :-1], q[:, 1:], ang), ang))
+    se1 = _sq_err(pred[:, :-1], q[:, 1:], ang)
+    out.update(_error_keys("", se1, ang))  # Eq. 90: every next-step prediction
+    # the same after the K = burn_in context (targets q_t, t >= K): free of the first steps' unobservable velocity
+    out.update(_error_keys("", se1[:, burn_in - 1:], ang, "_after_burnin"))
     Hmax = max(horizons)
     modes = [("rollout_", "autoregressive")]
     if takeover and hasattr(model, "rollout_takeover"):

@@ -270,3 +270,19 @@ def test_cli_refuses_unwritable_out_before_any_run(tmp_path: Path, capsys: pytes
     assert main(["--envs", "Pendulum-v0", "--models", "gru", "--seeds", "0", "--out", str(tmp_path / "file"),
                  "--workers", "1", "--no-progress"]) == 2
     assert "not a directory" in capsys.readouterr().err
+
+
+def test_regime_table_puts_each_regime_next_to_the_papers():
+    from phast_model.bench.paper import PAPER
+    from phast_model.bench.summary import regime_table
+
+    env = "PHAST/WindyPendulum-v0"
+    paper = PAPER[env].results["phast-partial"][0]
+    agg = {(env, "phast-partial"): {"metrics": {"rollout_theta_wrap_mse_h100": (paper / 2, 0.0, 5)}}}
+    lines = regime_table(agg, [env])
+    row = next(ln for ln in lines if ln.startswith(f"| {PAPER[env].benchmark} |"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[1] == "`rollout_theta_wrap_mse_h100`"
+    assert cells[7] == "0.5"  # PARTIAL: ours, paper, ours / paper
+    assert cells[5] != "—" and cells[6] != "—"
+    assert cells[2] == "—" and cells[4] == "—"  # KNOWN not run: no number, no ratio
