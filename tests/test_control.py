@@ -277,3 +277,23 @@ def test_cli_bad_estimators_and_unwritable_out_fail_before_evaluating(tmp_path, 
     assert ce.main(["--estimators", "oracle", "--out", str(tmp_path / "file" / "sub")]) == 2
     assert "cannot write to --out" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
+
+
+def test_lqg_torque_floor_upright() -> None:
+    # benchmarks/control_lqg_bound.py: no causal q-only controller holds the upright with less stationary RMS torque
+    # than the LQG limit; it scales with sigma, and Energy-Casimir gains on the Kalman estimate sit above it.
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "control_lqg_bound.py"
+    spec = importlib.util.spec_from_file_location("control_lqg_bound", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    a, b = mod.linearise("PHAST/DampedPendulum-v0", math.pi, 0.01)
+    lo1, lo5 = mod.torque_floor(a, b, 0.01), mod.torque_floor(a, b, 0.05)
+    assert lo5["rms_torque"] == pytest.approx(5 * lo1["rms_torque"], rel=1e-3)
+    assert 0.4 < lo5["rms_torque"] < 0.5  # above the protocol's u_tol = 0.25 at sigma = 0.05
+    for gains in [(20.0, 3.0), (45.0, 3.0), (12.0, 1.0)]:
+        assert mod.torque_floor(a, b, 0.05, gains=gains)["rms_torque"] >= lo5["rms_torque"] - 1e-9
+    a0, b0 = mod.linearise("PHAST/DampedPendulum-v0", 0.0, 0.01)  # stable equilibrium: no floor
+    assert mod.torque_floor(a0, b0, 0.05)["rms_torque"] < 1e-3
