@@ -8,7 +8,7 @@
 * :mod:`.report`: its tables and plots.
 """
 
-from .controller import EnergyCasimirController, EnergyCasimirWrapper, validate_gains
+from .controller import XI_FEEDBACK, EnergyCasimirController, EnergyCasimirWrapper, validate_gains
 from .estimators import (
     ESTIMATORS,
     FiniteDifferenceEstimator,
@@ -34,7 +34,7 @@ from .evaluation import (
 )
 
 __all__ = [
-    "EnergyCasimirController", "EnergyCasimirWrapper", "validate_gains", "ESTIMATORS", "PortEstimator", "OracleEstimator",
+    "XI_FEEDBACK", "EnergyCasimirController", "EnergyCasimirWrapper", "validate_gains", "ESTIMATORS", "PortEstimator", "OracleEstimator",
     "FiniteDifferenceEstimator", "MAPSmootherEstimator", "UKFEstimator", "estimator_names", "make_estimator",
     "map_smoother_weights", "register_estimator", "register_estimator_provider", "START_REGIMES", "ControlProtocol", "Episode",
     "evaluate_estimators", "make_control_env", "run_episode", "sample_start_states", "start_states",

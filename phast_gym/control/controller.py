@@ -5,11 +5,20 @@ The controller is a port-Hamiltonian system with state ``xi`` and storage
 port (paper Fig. 7)::
 
     u_t      = -k_c (xi_t - q_star) + v_ext_t - d_inj * y_hat_t            (Eq. 28/30)
-    xi_{t+1} = xi_t + dt * (y_hat_t + k_xi * wrap(q_meas_t - xi_t))        (Eq. 29/31)
+    xi_{t+1} = xi_t + dt * (y_hat_t + k_xi * wrap(q_fb_t - xi_t))          (Eq. 29/31)
+
+``q_fb = q_meas`` (the paper's Eq. 29, ``xi_feedback="meas"``) or the estimator's filtered
+``q_hat`` (``xi_feedback="filtered"``, e.g. the UKF's posterior q): the correction term then
+feeds ``k_xi`` times the *estimation* error into xi instead of ``k_xi`` times the raw
+measurement noise, which ``k_c`` would otherwise amplify into the torque.
 
 With ``y_hat = y_p = qdot`` and ``k_xi = 0`` the Casimir ``C = q - xi`` is invariant and
 with ``v_ext = 0`` the closed-loop storage ``H_cl = H + k_c/2 |xi - q_star|^2`` is
-non-increasing (Eq. 27): ``dH_cl/dt <= -d_inj |y_p|^2``.  The plant is touched only through
+non-increasing (Eq. 27): ``dH_cl/dt <= -d_inj |y_p|^2``.  With ``k_xi > 0`` the correction adds
+``k_c k_xi (xi - q_star) . (q_fb - xi)`` to ``dH_cl/dt``; with the exact port and ``q_fb = q`` (the oracle,
+noiseless, either ``xi_feedback``) ``C = q - xi`` obeys ``dC/dt = -k_xi C``, so xi started on the leaf
+``C = 0`` stays there, the term vanishes and the bound holds for every ``k_xi >= 0`` (the sampled loop,
+zero-order-hold torque and Euler xi, adds O(dt^2) per step).  The plant is touched only through
 ``reset``/``step``; physics (for gain validation) comes from ``env.unwrapped.system``.
 """
 
@@ -89,12 +98,19 @@ def validate_gains(
         )
 
 
+#: sources of the q fed back into the xi update (Eq. 29): the raw measurement or the estimator's filtered q
+XI_FEEDBACK = ("meas", "filtered")
+
+
 class EnergyCasimirController:
     """Energy-Casimir policy with internal state ``xi`` (paper Eq. 28-31).
 
     ``wrap_target`` (default True) applies the shaping force to ``wrap(xi - q_star)`` on angular
     coordinates: the paper's Eq. 28 writes ``xi - q_star`` on the covering space, which would make a spinning
     pendulum unwind every revolution it made; on the circle the storage is periodic.
+
+    ``xi_feedback="filtered"`` corrects xi towards the estimator's filtered q (:meth:`PortEstimator.q_estimate`)
+    instead of the raw measurement; estimators without one (finite differences) fall back to the measurement.
 
     Usage in a user loop: ``obs, info = env.reset(); ctrl.reset(obs, info)`` then each step
     ``u = ctrl.act(obs, info); obs, r, term, trunc, info = env.step(u)``.
@@ -111,7 +127,10 @@ class EnergyCasimirController:
         max_action: float | None = None,
         system: System | None = None,
         wrap_target: bool = True,
+        xi_feedback: str = "meas",
     ) -> None:
+        if xi_feedback not in XI_FEEDBACK:
+            raise ValueError(f"xi_feedback must be one of {XI_FEEDBACK}, got {xi_feedback!r}")
         if not isinstance(estimator, PortEstimator):
             raise ValueError(f"estimator must be a PortEstimator (see make_estimator), got {type(estimator).__name__}")
         self.estimator = estimator
@@ -123,6 +142,7 @@ class EnergyCasimirController:
         self.k_c, self.d_inj, self.k_xi = float(k_c), float(d_inj), float(k_xi)
         self.max_action = None if max_action is None else float(max_action)
         self.wrap_target = bool(wrap_target)
+        self.xi_feedback = xi_feedback
         self._angle = np.array([i in self.system.angle_dims for i in range(n)])
         self.xi = np.zeros(n)
         self.u_prev: np.ndarray | None = None
@@ -152,7 +172,12 @@ class EnergyCasimirController:
         if not np.all(np.isfinite(y_hat)):
             raise ValueError(f"port estimator {self.estimator.name!r} returned a non-finite estimate {y_hat}")
         u = -self.k_c * self.shaping_error() + np.asarray(v_ext, dtype=np.float64) - self.d_inj * y_hat  # Eq. 28
-        self.xi = self.xi + self.dt * (y_hat + self.k_xi * self._wrap(q_meas - self.xi))  # Eq. 29
+        q_fb = q_meas
+        if self.xi_feedback == "filtered":
+            q_hat = self.estimator.q_estimate()
+            if q_hat is not None:
+                q_fb = np.asarray(q_hat, dtype=np.float64).reshape(n)
+        self.xi = self.xi + self.dt * (y_hat + self.k_xi * self._wrap(q_fb - self.xi))  # Eq. 29
         if self.max_action is not None:
             u = np.clip(u, -self.max_action, self.max_action)
         self.u_prev = u
@@ -184,9 +209,10 @@ class EnergyCasimirWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         d_inj: float = 2.0,
         k_xi: float = 5.0,
         estimator_kwargs: dict[str, Any] | None = None,
+        xi_feedback: str = "meas",
     ) -> None:
         gym.utils.RecordConstructorArgs.__init__(self, estimator=estimator, q_star=q_star, k_c=k_c, d_inj=d_inj, k_xi=k_xi,
-                                                 estimator_kwargs=estimator_kwargs)
+                                                 estimator_kwargs=estimator_kwargs, xi_feedback=xi_feedback)
         gym.Wrapper.__init__(self, env)
         base = env.unwrapped
         system = getattr(base, "system", None)
@@ -201,7 +227,7 @@ class EnergyCasimirWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             estimator = make_estimator(estimator, system, dt, sigma=float(getattr(base, "obs_noise_std", 0.0)),
                                        **(estimator_kwargs or {}))
         self.controller = EnergyCasimirController(estimator, q_star, k_c, d_inj, k_xi, dt=dt,
-                                                  max_action=float(base.max_action), system=system)
+                                                  max_action=float(base.max_action), system=system, xi_feedback=xi_feedback)
         self.action_space = base.action_space
         self._obs: np.ndarray | None = None
         self._info: dict | None = None

@@ -8,7 +8,10 @@ q-only measurement stream.  One interface (:class:`PortEstimator`):
 * ``update(q_meas, info=None, u_prev=None) -> qdot_hat`` consumes the newest
   measurement (angles wrapped, possibly noisy), the env's ``info`` (only the
   oracle reads it) and the port input applied over the last interval (only
-  model-based filters use it).
+  model-based filters use it);
+* ``q_estimate() -> q_hat | None``: the estimator's filtered q after the last ``update``
+  (None when it has none, e.g. finite differences); the controller's filtered xi feedback
+  (``xi_feedback="filtered"``) uses it instead of the raw measurement.
 
 Estimators are built by name through :func:`make_estimator`.  This module is numpy-only and
 knows no package above it: torch-based estimators live in a package that depends on this one,
@@ -53,6 +56,10 @@ class PortEstimator:
     def update(self, q_meas: np.ndarray, info: dict | None = None, u_prev: np.ndarray | None = None) -> np.ndarray:
         raise NotImplementedError
 
+    def q_estimate(self) -> np.ndarray | None:
+        """Filtered q (n,) after the last :meth:`update` (angles may be unwrapped), or None if this estimator has none."""
+        return None
+
     def _wrap_diff(self, d: np.ndarray) -> np.ndarray:
         """Difference of two measurements, wrapped on angular coordinates."""
         return np.where(self._angle, wrap(d), d)
@@ -79,7 +86,15 @@ class OracleEstimator(PortEstimator):
             raise ValueError("the oracle estimator needs the env's info['state'] (true (q, p)); pass info to update()")
         x = np.asarray(info["state"], dtype=np.float64)
         n = self.n
+        self._q = x[:n].copy()
         return np.array([float(v) for v in self.system.velocity(list(x[:n]), list(x[n:]), SCALAR)])
+
+    def reset(self) -> None:
+        self._q: np.ndarray | None = None
+
+    def q_estimate(self) -> np.ndarray | None:
+        """The true q (simulation only)."""
+        return None if getattr(self, "_q", None) is None else self._q.copy()
 
 
 class FiniteDifferenceEstimator(PortEstimator):
@@ -101,13 +116,14 @@ class FiniteDifferenceEstimator(PortEstimator):
         return out
 
 
-def map_smoother_weights(w: int, dt: float, sigma: float, sigma_a: float) -> np.ndarray:
+def map_smoother_weights(w: int, dt: float, sigma: float, sigma_a: float, derivative: bool = True) -> np.ndarray:
     """Row vector ``c`` with ``qdot_hat = c @ q_window`` for the fixed-lag MAP smoother.
 
     Paper Eq. 32: ``min_q sum_s |q_s - q^meas_s|^2 / sigma^2 + sum_s |q_{s+2} - 2 q_{s+1} + q_s|^2 / (dt^4 sigma_a^2)``
     has the closed form ``q_smooth = (I + lam D2^T D2)^{-1} q^meas`` with ``lam = sigma^2 / (dt^4 sigma_a^2)``;
     Eq. 33 takes ``(q_smooth[w-1] - q_smooth[w-2]) / dt``.  Both are linear in the window, so the whole
     estimator is one precomputed dot product.  ``sigma = 0`` gives plain finite differences.
+    ``derivative=False`` returns the weights of the smoothed newest angle ``q_smooth[w-1]`` instead.
     """
     if w < 2:
         raise ValueError(f"MAP window must be >= 2 samples, got {w}")
@@ -119,7 +135,10 @@ def map_smoother_weights(w: int, dt: float, sigma: float, sigma_a: float) -> np.
         d2[s, s : s + 3] = (1.0, -2.0, 1.0)
     a = np.eye(w) + lam * d2.T @ d2
     e = np.zeros(w)
-    e[-1], e[-2] = 1.0 / dt, -1.0 / dt
+    if derivative:
+        e[-1], e[-2] = 1.0 / dt, -1.0 / dt
+    else:
+        e[-1] = 1.0
     return np.linalg.solve(a, e)  # a is symmetric: c^T = e^T a^{-1}  <=>  c = a^{-1} e
 
 
@@ -138,19 +157,28 @@ class MAPSmootherEstimator(PortEstimator):
             raise ValueError(f"MAP window must be an integer >= 2, got {window!r}")
         self.window, self.sigma, self.sigma_a = int(window), float(sigma), float(sigma_a)
         self._weights = {L: map_smoother_weights(L, self.dt, self.sigma, self.sigma_a) for L in range(2, self.window + 1)}
+        self._q_weights = {L: map_smoother_weights(L, self.dt, self.sigma, self.sigma_a, derivative=False)
+                           for L in range(2, self.window + 1)}
         self.reset()
 
     def reset(self) -> None:
         self._hist: deque[np.ndarray] = deque(maxlen=self.window)
+        self._q: np.ndarray | None = None
+
+    def q_estimate(self) -> np.ndarray | None:
+        """The smoothed newest angle of the window (Eq. 32's minimiser at the last sample)."""
+        return None if self._q is None else self._q.copy()
 
     def update(self, q_meas: np.ndarray, info: dict | None = None, u_prev: np.ndarray | None = None) -> np.ndarray:
         self._hist.append(_as_q(q_meas, self.n))
         L = len(self._hist)
         if L < 2:
+            self._q = self._hist[-1].copy()
             return np.zeros(self.n)
         win = np.stack(self._hist)  # (L, n)
         inc = self._wrap_diff(np.diff(win, axis=0))
         unwrapped = win[0] + np.concatenate([np.zeros((1, self.n)), np.cumsum(inc, axis=0)])
+        self._q = self._q_weights[L] @ unwrapped
         return self._weights[L] @ unwrapped
 
 
@@ -244,6 +272,10 @@ class UKFEstimator(PortEstimator):
             self._x = x + K @ innov
             self._P = P - K @ S @ K.T
         return np.array([float(v) for v in self.system.velocity(list(self._x[:n]), list(self._x[n:]), SCALAR)])
+
+    def q_estimate(self) -> np.ndarray | None:
+        """Posterior mean of q (angles unwrapped)."""
+        return None if self._x is None else self._x[: self.n].copy()
 
     @property
     def state(self) -> np.ndarray | None:

@@ -12,7 +12,8 @@ Protocol (documented in docs/control.md; defaults of :class:`ControlProtocol`):
   every step of the last ``settle_steps`` steps AND the RMS applied torque over those steps
   ``< u_tol`` (a loop that keeps chattering the actuator with estimator noise has not converged;
   ``success_angle`` reports the angle-only criterion alongside), final error ``|wrap(q_T - q_star)|`` (true q), effort
-  ``sum_t |u_t|^2`` (applied torque), velocity error ``mean_t |qdot_hat_t - qdot_t|``.
+  ``sum_t |u_t|^2`` (applied torque), velocity error ``mean_t |qdot_hat_t - qdot_t|``, and the RMS torque over
+  the final window (``u_rms_final``; rows give its mean and 90th percentile).
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ import numpy as np
 from ..env import PortHamiltonianEnv
 from ..registry import make_env_system
 from ..systems.base import NUMPY, SCALAR, System, wrap
-from .controller import EnergyCasimirController
+from .controller import XI_FEEDBACK, EnergyCasimirController
 from .estimators import PortEstimator, make_estimator
 
 #: initial-condition ("start") regime of a closed-loop trial -> how its start states are drawn (sampled by
@@ -58,6 +59,7 @@ class ControlProtocol:
     settle_steps: int = 100
     u_tol: float = 0.25
     max_action: float | None = None
+    xi_feedback: str = "meas"
     env_kwargs: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -69,6 +71,8 @@ class ControlProtocol:
             raise ValueError(f"tol and u_tol must be > 0, got tol={self.tol}, u_tol={self.u_tol}")
         if not (self.dt > 0 and math.isfinite(self.dt)):
             raise ValueError(f"dt must be positive, got {self.dt}")
+        if self.xi_feedback not in XI_FEEDBACK:
+            raise ValueError(f"xi_feedback must be one of {XI_FEEDBACK}, got {self.xi_feedback!r}")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -134,11 +138,12 @@ class Episode:
     final_error: float
     effort: float
     velocity_error: float
+    u_rms_final: float = float("nan")
 
     def metrics(self) -> dict[str, float]:
         return {"success": float(self.success), "success_angle": float(self.success_angle),
                 "final_error": self.final_error, "effort": self.effort,
-                "velocity_error": self.velocity_error}
+                "velocity_error": self.velocity_error, "u_rms_final": self.u_rms_final}
 
 
 def run_episode(env: gym.Env, controller: EnergyCasimirController, x0: np.ndarray, seed: int, protocol: ControlProtocol,
@@ -171,13 +176,15 @@ def run_episode(env: gym.Env, controller: EnergyCasimirController, x0: np.ndarra
     err = np.linalg.norm(np.where([i in system.angle_dims for i in range(n)], wrap(q - controller.q_star), q - controller.q_star), axis=-1)
     finite = bool(np.all(np.isfinite(q)))
     settled = finite and len(q) == T + 1 and bool(np.all(err[-protocol.settle_steps:] < protocol.tol))
-    quiet = bool(np.sqrt(np.mean(np.sum(u_arr[-protocol.settle_steps:] ** 2, axis=-1))) < protocol.u_tol)
+    u_rms = float(np.sqrt(np.mean(np.sum(u_arr[-protocol.settle_steps:] ** 2, axis=-1))))
+    quiet = bool(u_rms < protocol.u_tol)
     return Episode(
         q=q, qdot=qdot, q_meas=np.array(qm), y_hat=y_hat, u=u_arr, xi=np.array(xis), storage=np.array(hs),
         success=settled and quiet, success_angle=settled,
         final_error=float(err[-1]) if finite else float("nan"),
         effort=float(np.sum(u_arr**2)),
         velocity_error=float(np.mean(np.linalg.norm(y_hat - qdot, axis=-1))),
+        u_rms_final=u_rms,
     )
 
 
@@ -227,7 +234,8 @@ def evaluate_estimators(
         for name in estimators:
             est = factory(name, system, protocol.dt, float(sigma))
             ctrl = EnergyCasimirController(est, protocol.q_star, protocol.k_c, protocol.d_inj, protocol.k_xi, dt=protocol.dt,
-                                           max_action=float(env.unwrapped.max_action), system=system)
+                                           max_action=float(env.unwrapped.max_action), system=system,
+                                           xi_feedback=protocol.xi_feedback)
             per_all: list[dict[str, float]] = []
             for regime, x0s in states.items():
                 per: list[dict[str, float]] = []
@@ -253,4 +261,6 @@ def _aggregate(sigma: float, name: str, regime: str, per: list[dict[str, float]]
         "final_error": float(np.nanmean(arr["final_error"])) if np.isfinite(arr["final_error"]).any() else float("nan"),
         "effort": float(arr["effort"].mean()),
         "velocity_error": float(arr["velocity_error"].mean()),
+        "u_rms_final": float(arr["u_rms_final"].mean()),
+        "u_rms_final_p90": float(np.percentile(arr["u_rms_final"], 90)),
     }

@@ -43,21 +43,23 @@ def results_markdown(rows: list[dict[str, Any]], protocol: ControlProtocol) -> s
     """Tables shaped like paper Tables 7-11: one 'all' table per sigma, the near-stable table, and success by regime."""
     star = "pi (upright)" if abs(protocol.q_star - math.pi) < 1e-9 else f"{protocol.q_star:g}"
     lines = [f"# Energy-Casimir control ({protocol.env_id}, q_star = {star}, k_c = {protocol.k_c:g}, d_inj = {protocol.d_inj:g}, "
-             f"k_xi = {protocol.k_xi:g}, dt = {protocol.dt:g} s, horizon {protocol.horizon} steps)", "",
+             f"k_xi = {protocol.k_xi:g}, xi feedback {protocol.xi_feedback}, dt = {protocol.dt:g} s, horizon {protocol.horizon} steps)", "",
              f"Success: |wrap(q - q_star)| < {protocol.tol:g} rad and RMS torque < {protocol.u_tol:g} N m over the last "
              f"{protocol.settle_steps} steps (success_angle: angle criterion only). Final error: |wrap(q_T - q_star)| (true q). "
              "Effort: sum_t u_t^2. Velocity error: mean_t |qdot_hat - qdot|.", ""]
     sigmas = sorted({r["sigma"] for r in rows})
     per = rows[0]["n_trials"] if rows else 0
     lines += [f"## All regimes ({per} trials per regime, pooled; paper Tables 7, 8, 11)", "",
-              "| sigma | Method | Velocity estimate | Success | Success (angle only) | Final error | Effort | abs(qdot_hat - qdot) |",
-              "|---|---|---|---|---|---|---|---|"]
+              "| sigma | Method | Velocity estimate | Success | Success (angle only) | Final error | Effort | abs(qdot_hat - qdot) "
+              "| RMS torque, last window (mean / p90) |",
+              "|---|---|---|---|---|---|---|---|---|"]
     for s in sigmas:
         for r in rows:
             if r["sigma"] == s and r["regime"] == "all":
                 m, v = LABELS.get(r["estimator"], (r["estimator"], r["estimator"]))
                 lines.append(f"| {s:.2f} | {m} | {v} | {_fmt(r['success_rate'], 's')} | {_fmt(r['success_angle_rate'], 's')} | "
-                             f"{_fmt(r['final_error'], 'err')} | {_fmt(r['effort'], 'eff')} | {_fmt(r['velocity_error'], 'vel')} |")
+                             f"{_fmt(r['final_error'], 'err')} | {_fmt(r['effort'], 'eff')} | {_fmt(r['velocity_error'], 'vel')} | "
+                             f"{_fmt(r.get('u_rms_final', math.nan), 'vel')} / {_fmt(r.get('u_rms_final_p90', math.nan), 'vel')} |")
     for s in sigmas:
         lines += ["", f"## Near-stable regime, sigma = {s:g} (paper Tables 9-10)", "",
                   "| Method | Success | Final error | Effort | abs(qdot_hat - qdot) |", "|---|---|---|---|---|"]

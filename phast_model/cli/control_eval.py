@@ -21,7 +21,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from phast_gym.control import START_REGIMES, ControlProtocol, estimator_names, evaluate_estimators, make_estimator
+from phast_gym.control import START_REGIMES, XI_FEEDBACK, ControlProtocol, estimator_names, evaluate_estimators, make_estimator
 from phast_gym.control.report import plot_success_by_regime, plot_traces, results_markdown
 from phast_gym.fileio import atomic_write_text, ensure_writable_dir
 
@@ -59,6 +59,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--k-c", type=float, default=None, help="shaping gain (default 0.7; 20 when q_star = pi, which needs k_c > m g l)")
     p.add_argument("--d-inj", type=float, default=None, help="damping-injection gain (default 0.11; 3 when q_star = pi)")
     p.add_argument("--k-xi", type=float, default=ControlProtocol.k_xi, help="xi predictor-corrector gain")
+    p.add_argument("--xi-feedback", choices=XI_FEEDBACK, default=ControlProtocol.xi_feedback,
+                   help="q fed back into the xi update (Eq. 29): the raw measurement (paper) or the estimator's filtered q "
+                        "(UKF posterior, MAP smoothed angle; estimators without one use the measurement)")
     p.add_argument("--tol", type=float, default=ControlProtocol.tol, help="success angle tolerance (rad)")
     p.add_argument("--u-tol", type=float, default=ControlProtocol.u_tol, help="success RMS-torque tolerance (N m) over the final window")
     p.add_argument("--tcn-sigma-max", type=float, default=0.05, help="sigma_max of the U[0, sigma_max] TCN variants")
@@ -89,7 +92,7 @@ def run(args: argparse.Namespace) -> list[dict[str, Any]]:
     k_c = args.k_c if args.k_c is not None else (UPRIGHT_K_C if upright else ControlProtocol.k_c)
     d_inj = args.d_inj if args.d_inj is not None else (UPRIGHT_D_INJ if upright else ControlProtocol.d_inj)
     protocol = ControlProtocol(env_id=args.env, dt=args.dt, horizon=args.horizon, q_star=q_star, k_c=k_c, d_inj=d_inj,
-                               k_xi=args.k_xi, tol=args.tol, u_tol=args.u_tol)
+                               k_xi=args.k_xi, tol=args.tol, u_tol=args.u_tol, xi_feedback=args.xi_feedback)
     out = ensure_writable_dir(args.out, "--out")  # before the evaluation, not after it
     cache = Path(args.tcn_cache) if args.tcn_cache else out / "observers"
     if any(n.startswith("tcn") or n.startswith("phast") for n in names):
