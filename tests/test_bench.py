@@ -286,3 +286,21 @@ def test_regime_table_puts_each_regime_next_to_the_papers():
     assert cells[7] == "0.5"  # PARTIAL: ours, paper, ours / paper
     assert cells[5] != "—" and cells[6] != "—"
     assert cells[2] == "—" and cells[4] == "—"  # KNOWN not run: no number, no ratio
+
+
+def test_floor_rule_judges_nbody_against_its_information_floor():
+    from phast_model.bench.floor import first_step_floor
+    from phast_model.bench.summary import floor_rule
+
+    env = "PHAST/NBody3-v0"
+    floor = first_step_floor(env)["floor_mse"]
+
+    def agg_with(phast90: float) -> dict:
+        return {(env, "phast-partial"): {"metrics": {"mse": (phast90, 0.0, 5), "mse_after_burnin": (1e-9, 0.0, 5)}},
+                (env, "gru"): {"metrics": {"mse": (10 * floor, 0.0, 5), "mse_after_burnin": (1e-6, 0.0, 5)}}}
+
+    row = floor_rule(agg_with(1.05 * floor), [env])[-1]
+    assert row.endswith("| yes | yes | **yes** |")
+    row = floor_rule(agg_with(1.5 * floor), [env])[-1]  # above 1.1 x the floor
+    assert row.endswith("| no | yes | no |")
+    assert floor_rule(agg_with(floor), ["PHAST/Pendulum-v0"]) == []
