@@ -20,6 +20,7 @@ import argparse
 import json
 import multiprocessing as mp
 import platform
+import subprocess
 import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -57,8 +58,6 @@ TOLERANCE: dict[str, tuple[float, float]] = {
 
 def git_commit() -> str:
     """HEAD of the working tree, with ``+dirty`` when tracked files differ from it ("unknown" outside git)."""
-    import subprocess
-
     try:
         head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
         dirty = subprocess.run(["git", "diff", "--quiet", "HEAD", "--", "phast_gym", "phast_model"]).returncode != 0

@@ -13,9 +13,10 @@ of the recorded q, one least squares over a subsample of the training set gives
   small Fourier basis), so the learned floor does not have to climb to it (a slow floor left a weakly excited
   coordinate, the cart of the cart-pole, under-damped).
 
-Scale gauge: without a port input (u = 0) and without a fixed physical damping, (M, V, D) and a(M, V, D) give the
-same trajectories.  The problem is then homogeneous and solved by the smallest right singular vector, normalized
-to a mean mass diagonal of 1 (the neutral mass).
+Scale gauge: without a port input (u = 0), (M, V, D) and a(M, V, D) give the same trajectories.  A constant mass
+then starts neutral (M = I, which also fixes the scale of decoupled coordinates); a mass template is fitted by the
+smallest right singular vector of the homogeneous problem, normalized to a mean mass diagonal of 1.  A fixed
+physical damping floor d0 (the windy systems) rescales the result so that the smallest fitted damping equals it.
 """
 
 from __future__ import annotations
@@ -88,23 +89,12 @@ def mass_columns(kin: Kinematics, basis) -> torch.Tensor:  # noqa: ANN001 - basi
     return (ddt - 0.5 * torch.stack(grads, 1)).transpose(1, 2).detach()
 
 
-def potential_columns(kin: Kinematics, template: TemplatePotential) -> torch.Tensor:
-    """(M, n, K): dphi_k/dq of the template's basis functions."""
-    with torch.enable_grad():
-        q = kin.q.to(template.coef.dtype).clone().requires_grad_(True)
-        b = template.basis(q)
-        cols = [_grad_or_zero(b[:, k].sum(), q) for k in range(b.shape[-1])]
-    return torch.stack(cols, -1).detach().double()
-
-
 def damping_columns(kin: Kinematics, features: torch.Tensor | None = None) -> torch.Tensor:
     """(M, n, n K): D_ii(q) = sum_k w_ik phi_k(q) on each coordinate (``features`` (M, K); constant if None)."""
     phi = torch.ones(kin.q.shape[0], 1, dtype=kin.q.dtype) if features is None else features
     n, K = kin.q.shape[-1], phi.shape[-1]
-    cols = torch.zeros(kin.q.shape[0], n, n * K, dtype=kin.q.dtype)
-    for i in range(n):
-        cols[:, i, i * K:(i + 1) * K] = kin.v[:, i:i + 1] * phi
-    return cols
+    eye = torch.eye(n, dtype=kin.q.dtype)
+    return (kin.v[:, :, None, None] * eye[None, :, :, None] * phi[:, None, None, :]).reshape(-1, n, n * K)
 
 
 @dataclass(frozen=True)
@@ -151,6 +141,12 @@ def _fourier(q: torch.Tensor, angle_dims: tuple[int, ...]) -> torch.Tensor:
     return torch.stack(parts, -1)
 
 
+def _fitted_floor(phi: torch.Tensor, w: torch.Tensor, quantile: float) -> float:
+    """The ``quantile`` over samples of min_i D_ii(q) of a per-coordinate fit D_ii = phi @ w_i (w: (n K,))."""
+    d = phi @ w.reshape(-1, phi.shape[-1]).T  # (M, n)
+    return float(torch.quantile(d.min(-1).values, quantile))
+
+
 def damping_floor(model, kin: Kinematics, quantile: float = 0.01) -> float:  # noqa: ANN001 - a PHAST model
     """Smallest damping the data show under the model's known V and M: D_ii(q) fitted on a small basis per
     coordinate to the residual force; returns the ``quantile`` of min_i D_ii over the samples (>= 0)."""
@@ -167,9 +163,7 @@ def damping_floor(model, kin: Kinematics, quantile: float = 0.01) -> float:  # n
         resid = (kin.f if kin.f is not None else 0.0) - pdot - dH  # = D(q) v
     phi = _fourier(kin.q, tuple(model.angle_dims))
     fit = solve(damping_columns(kin, phi), resid)
-    w = fit.theta.reshape(kin.q.shape[-1], -1)
-    d = phi @ w.T  # (M, n)
-    return max(0.0, float(torch.quantile(d.min(-1).values, quantile)))
+    return max(0.0, _fitted_floor(phi, fit.theta, quantile))
 
 
 def initialize_partial(model, kin: Kinematics, quantile: float = 0.01) -> LinearFit:  # noqa: ANN001 - a PHAST model
@@ -200,7 +194,7 @@ def initialize_partial(model, kin: Kinematics, quantile: float = 0.01) -> Linear
         if eps is not None:
             with torch.no_grad():
                 template.log_eps.fill_(float(np.log(eps)))
-        Ap = potential_columns(kin, template)
+        Ap = template.gradient_basis(kin.q).double()
         if neutral:
             fit = solve(torch.cat([Ap, Ad], -1), rhs)
             fit = LinearFit(torch.cat([theta_m, fit.theta]), fit.residual)
@@ -215,8 +209,7 @@ def initialize_partial(model, kin: Kinematics, quantile: float = 0.01) -> Linear
     damp = model.damping
     fixed_floor = float(damp.d0) if damp is not None and not damp.learn_d0 else 0.0
     if kin.f is None and fixed_floor > 0:
-        d = phi @ theta[J + K:].reshape(kin.q.shape[-1], -1).T
-        floor = float(torch.quantile(d.min(-1).values, quantile))
+        floor = _fitted_floor(phi, theta[J + K:], quantile)
         if floor > 0:
             theta = theta * (fixed_floor / floor)
     mass.set_linear(theta[:J])

@@ -203,7 +203,7 @@ class PHAST(ForecastModel):
         if isinstance(pot, KnownPotential) and isinstance(damp, HouseholderDamping) and damp.learn_d0:
             floor = data_init.damping_floor(self, kin)
             d0 = max(self.floor_margin * floor, 1e-3)
-            damp.raw_d0.copy_(torch.log(torch.expm1(torch.tensor(d0, dtype=damp.raw_d0.dtype))))
+            damp.set_d0(d0)
             return {"init_damping_floor": floor, "init_d0": d0}
         return {}
 

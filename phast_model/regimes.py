@@ -42,6 +42,9 @@ REGIMES = ("known", "partial", "unknown")
 #: 1-epoch linear warm-up keeps the first steps at lr x 100 (the damping net) from overshooting while Adam's
 #: second-moment estimate is still empty.
 KNOWN_TRAIN_DEFAULTS: dict[str, float] = {"adam_eps": 1e-15, "warmup_epochs": 1.0}
+#: the identification settings (KNOWN, and PARTIAL on separable windy systems; see :func:`default_config`)
+IDENTIFICATION: dict[str, Any] = {"observer_trainable": False, "learn_dt": False, "damping_lr_mult": 100.0,
+                                  **KNOWN_TRAIN_DEFAULTS}
 
 
 def _windy(params: dict[str, Any]) -> tuple[float | None, float]:
@@ -77,9 +80,7 @@ def default_config(env_id: str, regime: str, **env_kwargs: Any) -> PHASTConfig:
         # best-achievable R^2 (Fourier-basis least squares under the same loss) from 0.994 to 0.996 and seed 4 from
         # 0.985 to 0.995; configuration-dependent M(q) (implicit midpoint, costlier per substep) keeps L = 4.
         return replace(base, potential="known", mass="known", damping="householder", damping_cap=None, d0=0.0,
-                       learn_d0=True, canonicalizer="mass", substeps=8 if system.separable else 4,
-                       observer_trainable=False, learn_dt=False,
-                       damping_lr_mult=100.0, **KNOWN_TRAIN_DEFAULTS)
+                       learn_d0=True, canonicalizer="mass", substeps=8 if system.separable else 4, **IDENTIFICATION)
     mass_tmpl = info.partial_mass_template(system)
     if regime == "partial":
         cap, base_d = _windy(system.params)
@@ -91,8 +92,7 @@ def default_config(env_id: str, regime: str, **env_kwargs: Any) -> PHASTConfig:
             # PARTIAL too (windy pendulum seed 0: damping R^2 0.88 and rollout wrap-MSE(H=100) 0.0017, against
             # -1.61 and 0.0078 with a trainable observer, learnable dt and L = 1; docs/phast_model.md).  L = 4
             # (0.88) beat L = 8 (0.84) at half the cost of the learned potential's autograd gradients.
-            cfg = replace(cfg, substeps=4, observer_trainable=False, learn_dt=False, damping_lr_mult=100.0,
-                          **KNOWN_TRAIN_DEFAULTS)
+            cfg = replace(cfg, substeps=4, **IDENTIFICATION)
         return cfg
     if not system.separable:  # a neural M(q) = L L^T; p = M(q) qdot keeps the canonical state consistent with it
         return replace(base, potential="neural", mass="cholesky", damping_cap=None, d0=0.0, learn_d0=True,

@@ -69,6 +69,13 @@ class HouseholderDamping(Damping):
     def d0(self) -> torch.Tensor:
         return nn.functional.softplus(self.raw_d0) if self.learn_d0 else self.fixed_d0
 
+    @torch.no_grad()
+    def set_d0(self, value: float) -> None:
+        """Start a learned floor at ``value`` (> 0)."""
+        if not self.learn_d0:
+            raise ValueError("set_d0: this damping's floor d0 is fixed")
+        self.raw_d0.copy_(torch.log(torch.expm1(torch.tensor(float(value), dtype=self.raw_d0.dtype))))
+
     def terms(self, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(beta (..., r) >= 0, k (..., r, n) unit vectors)."""
         out = self.net(coordinate_features(q, self.angle_dims, self.q_scale))

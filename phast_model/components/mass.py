@@ -18,6 +18,7 @@ from torch import nn
 from phast_gym.systems import TORCH, System, split, stack
 
 from .features import coordinate_features, n_features
+from .potentials import autograd_grad
 
 
 class Mass(nn.Module):
@@ -240,9 +241,4 @@ class CholeskyMass(Mass):
 
     def kinetic_dq(self, q: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
         """d/dq (p^T M(q)^-1 p / 2) at fixed p, by autograd (the graph is kept while training)."""
-        outer = torch.is_grad_enabled()
-        with torch.enable_grad():
-            qq = q if (outer and q.requires_grad) else q.detach().requires_grad_(True)
-            T = 0.5 * (p * self.velocity(qq, p)).sum()
-            (g,) = torch.autograd.grad(T, qq, create_graph=outer)
-        return g
+        return autograd_grad(lambda x: 0.5 * (p * self.velocity(x, p)).sum(-1), q)

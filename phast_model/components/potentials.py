@@ -120,6 +120,19 @@ class TemplatePotential(Potential):
             return g
         return autograd_grad(self.energy, q)
 
+    def gradient_basis(self, q: torch.Tensor) -> torch.Tensor:
+        """(M, n) -> (M, n, K): dphi_k/dq of every basis function (columns of least squares on dV/dq; zero where a
+        basis function does not depend on q), in the coefficients' dtype."""
+        with torch.enable_grad():
+            qq = q.detach().to(self.coef.dtype).requires_grad_(True)
+            b = self.basis(qq)
+            cols = []
+            for k in range(b.shape[-1]):
+                g = torch.autograd.grad(b[:, k].sum(), qq, retain_graph=True, allow_unused=True)[0] \
+                    if b.requires_grad else None
+                cols.append(torch.zeros_like(qq) if g is None else g)
+        return torch.stack(cols, -1).detach()
+
     @torch.no_grad()
     def fit_to(self, system: System, n_samples: int = 512, seed: int = 0) -> float:
         """Least-squares init of the coefficients from ``system.grad_potential`` on its initial-state
@@ -132,14 +145,7 @@ class TemplatePotential(Potential):
         for eps in eps_grid:
             if eps is not None:
                 self.log_eps.fill_(math.log(eps))
-            cols = []
-            for k in range(self.coef.numel()):
-                with torch.enable_grad():
-                    qq = q.clone().requires_grad_(True)
-                    b = self.basis(qq.to(self.coef.dtype))[..., k].sum()
-                    (gk,) = torch.autograd.grad(b, qq)
-                cols.append(gk.reshape(-1))
-            A = torch.stack(cols, -1)
+            A = self.gradient_basis(q).to(q.dtype).reshape(-1, self.coef.numel())
             sol = torch.linalg.lstsq(A, target.unsqueeze(-1)).solution.squeeze(-1)
             res = float(torch.linalg.norm(A @ sol - target) / (torch.linalg.norm(target) + 1e-12))
             if res < best[0]:
