@@ -86,13 +86,16 @@ class PHASTCore(nn.Module):
         return q1, p1
 
     def strang_step(self, q: torch.Tensor, p: torch.Tensor, f: torch.Tensor | None = None,
-                    need_p: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
+                    need_p: bool = True, h: torch.Tensor | None = None,
+                    substeps: int | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """One observation step: L substeps of Phi_D(h/2) o Phi_H(h) o Phi_D(h/2) (Eq. 78).
 
-        ``need_p=False`` skips work that only affects the final momentum (teacher-forced training)."""
-        h = self.h
-        for s in range(self.substeps):
-            last = s == self.substeps - 1
+        ``need_p=False`` skips work that only affects the final momentum (teacher-forced training).
+        ``h`` / ``substeps`` override the learned substep and L, e.g. to step at a control rate."""
+        h = self.h if h is None else h
+        substeps = self.substeps if substeps is None else int(substeps)
+        for s in range(substeps):
+            last = s == substeps - 1
             p = self.damping_half_step(q, p, h)
             q, p = self.conservative_step(q, p, f, h, need_p=need_p or not last)
             if need_p or not last:

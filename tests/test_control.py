@@ -266,6 +266,42 @@ def test_phast_estimators_with_untrained_model() -> None:
         make_estimator("phast-model", system, 0.01)
 
 
+def test_phast_ukf_process_model_is_the_learned_core() -> None:
+    """phast-ukf predicts with the PHAST run: at the run's dt one interval is the model's own step; at the control
+    rate, on an exact (frictionless KNOWN) model, it agrees with the plant physics and the closed loop tracks qdot."""
+    torch = pytest.importorskip("torch")
+    from phast_gym.control.estimators import PlantPhysics
+    from phast_model.control import PHASTProcess, phast_ukf
+    from phast_model.regimes import build_model
+
+    model = build_model("PHAST/Pendulum-v0", "known", damping="none").eval()
+    dtype = next(model.parameters()).dtype
+    X = np.array([[0.3, 1.5], [-2.0, -0.4], [3.0, 2.0]])
+    u = np.array([0.7])
+    coarse = PHASTProcess(model, model.dt)
+    with torch.no_grad():
+        q1, p1 = model.step(torch.as_tensor(X[:, :1], dtype=dtype), torch.as_tensor(X[:, 1:], dtype=dtype),
+                            torch.full((3, 1), 0.7, dtype=dtype))
+    np.testing.assert_allclose(coarse.propagate(X, u), torch.cat([q1, p1], -1).double().numpy(), rtol=1e-6, atol=1e-6)
+    protocol = ControlProtocol(env_id="PHAST/Pendulum-v0", horizon=400, k_c=0.7, d_inj=0.5, settle_steps=10)
+    system = make_control_env(protocol).unwrapped.system
+    fine = PHASTProcess(model, protocol.dt)
+    assert fine.substeps >= 1 and fine.dt == protocol.dt
+    np.testing.assert_allclose(fine.propagate(X, u), PlantPhysics(system, protocol.dt).propagate(X, u), atol=2e-5)
+    np.testing.assert_allclose(fine.velocity(X[0]), system.velocity([0.3], [1.5], __import__("phast_gym").systems.SCALAR),
+                               rtol=1e-6)
+    env = make_control_env(protocol, 0.05)
+    est = make_estimator("phast-ukf", system, protocol.dt, sigma=0.05, run=model)
+    assert est.name == "phast-ukf" and isinstance(est.process, PHASTProcess)
+    ctrl = EnergyCasimirController(est, 0.0, 0.7, 0.5, 5.0, dt=protocol.dt, max_action=protocol.max_action, system=system)
+    ep = run_episode(env, ctrl, np.array([2.5, 1.0]), seed=3, protocol=protocol)
+    assert np.mean(np.abs(ep.y_hat[50:, 0] - ep.qdot[50:, 0])) < 0.1
+    with pytest.raises(ValueError, match="n = 2"):
+        phast_ukf(system, protocol.dt, build_model("PHAST/DoublePendulum-v0", "known").eval())
+    with pytest.raises(ValueError, match="PHASTCore"):
+        PHASTProcess(build_model("PHAST/PredatorPrey-v0", "known").eval(), 0.01)
+
+
 def test_cli_bad_estimators_and_unwritable_out_fail_before_evaluating(tmp_path, capsys, monkeypatch) -> None:
     import phast_model.cli.control_eval as ce
 

@@ -182,14 +182,55 @@ class MAPSmootherEstimator(PortEstimator):
         return self._weights[L] @ unwrapped
 
 
-class UKFEstimator(PortEstimator):
-    """Unscented Kalman filter on (q, p) with the plant's own physics as process model.
+class ProcessModel:
+    """Interface: the physics a model-based filter predicts with, on the canonical state x = (q, p).
 
-    Prediction integrates all 4n + 1 sigma points at once (``phast_gym.integrate.step`` with
-    numpy components) under the applied port input ``u_prev``; the measurement is the wrapped q.
-    Returns ``qdot_hat = dH/dp`` (``System.velocity``) at the posterior mean.  Model-based: it
-    assumes the physics of ``system`` (exact for the simulated plant; see the mismatch tool for
-    real hardware).
+    * ``propagate(X, u)``: a batch of states (S, 2n) advanced over one control interval with the
+      port input u held;
+    * ``velocity(x)``: the port output qdot = dH/dp at one state (2n,) -> (n,).
+
+    :class:`PlantPhysics` is the plant's own ``System``; ``phast_model.control`` adds a learned
+    PHAST run, so a user without the plant's equations can filter with what the model learned.
+    """
+
+    n: int
+
+    def propagate(self, X: np.ndarray, u: np.ndarray) -> np.ndarray:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def velocity(self, x: np.ndarray) -> np.ndarray:  # pragma: no cover - interface
+        raise NotImplementedError
+
+
+class PlantPhysics(ProcessModel):
+    """The plant's own ``System`` integrated with numpy components (exact for the simulated plant)."""
+
+    def __init__(self, system: System, dt: float, substeps: int | None = None) -> None:
+        if not system.hamiltonian_system:
+            raise ValueError(f"the UKF needs a port-Hamiltonian system (q, p), got {system.name}")
+        self.system, self.n, self.dt = system, system.n, float(dt)
+        self.substeps = int(substeps or max(1, math.ceil(system.substeps * self.dt / type(system).dt)))
+
+    def propagate(self, X: np.ndarray, u: np.ndarray) -> np.ndarray:
+        n = self.n
+        q = [X[:, i].copy() for i in range(n)]
+        p = [X[:, n + i].copy() for i in range(n)]
+        qn, pn = integrate.step(self.system, q, p, [float(v) for v in u], NUMPY, dt=self.dt, substeps=self.substeps)
+        return np.stack([np.broadcast_to(np.asarray(c, dtype=np.float64), (X.shape[0],)) for c in list(qn) + list(pn)], -1)
+
+    def velocity(self, x: np.ndarray) -> np.ndarray:
+        n = self.n
+        return np.array([float(v) for v in self.system.velocity(list(x[:n]), list(x[n:]), SCALAR)])
+
+
+class UKFEstimator(PortEstimator):
+    """Unscented Kalman filter on (q, p) with a :class:`ProcessModel` (default: the plant's own physics).
+
+    Prediction propagates all 4n + 1 sigma points at once under the applied port input ``u_prev``;
+    the measurement is the wrapped q.  Returns ``qdot_hat = dH/dp`` of the process model at the
+    posterior mean.  With ``process=None`` it assumes the physics of ``system`` (exact for the simulated
+    plant; see the mismatch tool for real hardware); ``process_std`` is the (q, p) random-walk noise
+    per sqrt(s) that absorbs the process model's error.
     """
 
     name = "ekf"
@@ -206,12 +247,13 @@ class UKFEstimator(PortEstimator):
         alpha: float = 1.0,
         kappa: float = 0.0,
         beta: float = 2.0,
+        process: ProcessModel | None = None,
     ) -> None:
         super().__init__(system, dt)
-        if not system.hamiltonian_system:
-            raise ValueError(f"the UKF needs a port-Hamiltonian system (q, p), got {system.name}")
+        self.process = process if process is not None else PlantPhysics(system, self.dt, substeps)
+        if self.process.n != self.n:
+            raise ValueError(f"the process model has n = {self.process.n}, the plant n = {self.n}")
         n = self.n
-        self.substeps = int(substeps or max(1, math.ceil(system.substeps * self.dt / type(system).dt)))
         self.r = max(float(sigma), float(min_meas_std)) ** 2
         self.p0_std = float(p0_std)
         qs, ps = process_std
@@ -231,14 +273,6 @@ class UKFEstimator(PortEstimator):
         self._P: np.ndarray | None = None
         self._last_q: np.ndarray | None = None
 
-    def _propagate(self, X: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """Integrate a batch of states (S, 2n) over one interval with held input u (n,)."""
-        n = self.n
-        q = [X[:, i].copy() for i in range(n)]
-        p = [X[:, n + i].copy() for i in range(n)]
-        qn, pn = integrate.step(self.system, q, p, [float(v) for v in u], NUMPY, dt=self.dt, substeps=self.substeps)
-        return np.stack([np.broadcast_to(np.asarray(c, dtype=np.float64), (X.shape[0],)) for c in list(qn) + list(pn)], -1)
-
     def _sigma_points(self) -> np.ndarray:
         P = 0.5 * (self._P + self._P.T)
         try:
@@ -257,7 +291,7 @@ class UKFEstimator(PortEstimator):
             self._P = np.diag([self.r] * n + [self.p0_std**2] * n)
         else:
             u = np.zeros(n) if u_prev is None else np.asarray(u_prev, dtype=np.float64).reshape(n)
-            X = self._propagate(self._sigma_points(), u)
+            X = self.process.propagate(self._sigma_points(), u)
             x = self._wm @ X
             dX = X - x
             P = (self._wc[:, None] * dX).T @ dX + self.Q
@@ -271,7 +305,7 @@ class UKFEstimator(PortEstimator):
             innov = self._wrap_diff(z - zhat)
             self._x = x + K @ innov
             self._P = P - K @ S @ K.T
-        return np.array([float(v) for v in self.system.velocity(list(self._x[:n]), list(self._x[n:]), SCALAR)])
+        return self.process.velocity(self._x)
 
     def q_estimate(self) -> np.ndarray | None:
         """Posterior mean of q (angles unwrapped)."""

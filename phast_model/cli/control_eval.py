@@ -51,7 +51,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--trials-per-regime", type=int, default=20, help="trials per initial-condition regime (5 regimes)")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--q-star", default="0", help="target angle: 0 (hanging) or pi (upright, needs k_c > m g l)")
-    p.add_argument("--phast-run", default=None, help="phast-train run dir for phast-observer / phast-model")
+    p.add_argument("--phast-run", default=None, help="phast-train run dir for phast-observer / phast-model / phast-ukf")
     p.add_argument("--seed", type=int, default=0, help="seed of initial states and noise streams")
     p.add_argument("--env", default=ControlProtocol.env_id, help="pendulum-family plant env id")
     p.add_argument("--dt", type=float, default=ControlProtocol.dt, help="control sampling interval (s)")
@@ -87,7 +87,7 @@ def run(args: argparse.Namespace) -> list[dict[str, Any]]:
     if unknown:
         raise ValueError(f"unknown estimator(s) {unknown}; valid names are {estimator_names()}")
     if any(n.startswith("phast") for n in names) and not args.phast_run:
-        raise ValueError("phast-observer / phast-model need --phast-run DIR (a phast-train run directory)")
+        raise ValueError("phast-observer / phast-model / phast-ukf need --phast-run DIR (a phast-train run directory)")
     upright = abs(math.cos(q_star) + 1) < 1e-9
     k_c = args.k_c if args.k_c is not None else (UPRIGHT_K_C if upright else ControlProtocol.k_c)
     d_inj = args.d_inj if args.d_inj is not None else (UPRIGHT_D_INJ if upright else ControlProtocol.d_inj)

@@ -3,7 +3,8 @@
 * ``tcn`` (noise-matched), ``tcn-uniform`` (sigma ~ U[0, sigma_max]), ``tcn-cond`` (noise-conditioned):
   FD+TCN observers trained offline (:mod:`.tcn`); factory kwargs ``cache_dir``, ``sigma_max``,
   ``protocol`` (a :class:`~phast_gym.control.ControlProtocol`), ``progress``;
-* ``phast-observer`` / ``phast-model``: from a trained PHAST run (kwarg ``run``: run dir or model).
+* ``phast-observer`` / ``phast-model`` / ``phast-ukf``: from a trained PHAST run (kwarg ``run``: run dir or
+  model); ``phast-ukf`` is the q-only UKF with the learned model as its process model.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from phast_gym.control.estimators import register_estimator
 from phast_gym.control.evaluation import ControlProtocol
 from phast_gym.systems.base import System
 
-from .phast_estimators import PHASTModelEstimator, PHASTObserverEstimator
+from .phast_estimators import PHASTModelEstimator, PHASTObserverEstimator, PHASTProcess, phast_ukf
 from .tcn import (
     NOISE_MODES,
     TCNEstimator,
@@ -47,8 +48,10 @@ for _name, _mode in TCN_VARIANTS.items():
     register_estimator(_name, _tcn_factory(_mode))
 register_estimator("phast-observer", lambda system, dt, sigma=0.0, run=None, **kw: PHASTObserverEstimator(system, dt, run, **kw))
 register_estimator("phast-model", lambda system, dt, sigma=0.0, run=None, **kw: PHASTModelEstimator(system, dt, run, **kw))
+register_estimator("phast-ukf", lambda system, dt, sigma=0.0, run=None, **kw: phast_ukf(system, dt, run, sigma=sigma, **kw))
 
 __all__ = [
     "NOISE_MODES", "TCN_VARIANTS", "TCNEstimator", "TCNObserver", "TCNObserverConfig", "closed_loop_data", "get_tcn_observer",
     "load_tcn_observer", "save_tcn_observer", "train_tcn_observer", "PHASTObserverEstimator", "PHASTModelEstimator",
+    "PHASTProcess", "phast_ukf",
 ]

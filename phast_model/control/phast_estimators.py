@@ -6,21 +6,24 @@
   ending at the current one (still causal, no resampling of the network).
 * ``phast-model``: model-based port output ``dH_hat/dp (q, p)`` of the learned Hamiltonian from the
   full state ``info["state"]`` (paper Table 8, full-state).
+* ``phast-ukf``: the q-only UKF of ``phast_gym.control`` with the learned PHAST model as its process
+  model (:class:`PHASTProcess`), for a user who has recordings but not the plant's equations.
 """
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from phast_gym.control.estimators import PortEstimator
+from phast_gym.control.estimators import PortEstimator, ProcessModel, UKFEstimator
 from phast_gym.systems.base import System
 
 
-def _load(run: str | Path | torch.nn.Module) -> torch.nn.Module:
+def _load(run: str | Path | torch.nn.Module | None) -> torch.nn.Module:
     if isinstance(run, torch.nn.Module):
         return run.eval()
     if run is None:
@@ -81,3 +84,54 @@ class PHASTModelEstimator(PortEstimator):
         x = torch.as_tensor(np.asarray(info["state"], dtype=np.float64), dtype=self._dtype)
         n = self.n
         return self.model.velocity(x[None, :n], x[None, n:])[0].double().numpy().copy()
+
+
+class PHASTProcess(ProcessModel):
+    """A trained PHAST run as a filter's process model on its own canonical state (q, p = M_hat qdot).
+
+    One control interval ``dt`` is ``k`` Strang substeps of the learned core (Eq. 78) with the learned
+    substep rescaled to ``dt`` (so a learned time-scale correction carries over), ``k`` chosen so the
+    substep is no longer than the one the run was trained with.  The port input enters through the
+    run's G (``PHAST.port_force``).  All sigma points go through the network in one batch.
+    """
+
+    def __init__(self, model: torch.nn.Module, dt: float) -> None:
+        from ..core import PHASTCore
+
+        if not isinstance(getattr(model, "core", None), PHASTCore):
+            raise ValueError(f"phast-ukf needs a Hamiltonian PHAST run (PHASTCore); this run's core is "
+                             f"{type(getattr(model, 'core', None)).__name__}")
+        self.model, self.n, self.dt = model, int(model.n), float(dt)
+        core = model.core
+        ratio = self.dt / float(model.dt)
+        self.substeps = max(1, math.ceil(core.substeps * ratio - 1e-9))
+        self._h_scale = ratio * core.substeps / self.substeps
+        self._dtype = next(model.parameters()).dtype
+
+    @torch.no_grad()
+    def propagate(self, X: np.ndarray, u: np.ndarray) -> np.ndarray:
+        n, core = self.n, self.model.core
+        x = torch.as_tensor(np.asarray(X, dtype=np.float64), dtype=self._dtype)
+        ut = torch.as_tensor(np.asarray(u, dtype=np.float64), dtype=self._dtype).expand(x.shape[0], -1)
+        q, p = core.strang_step(x[:, :n], x[:, n:], self.model.port_force(ut), h=core.h * self._h_scale,
+                                substeps=self.substeps)
+        return torch.cat([q, p], -1).double().numpy()
+
+    @torch.no_grad()
+    def velocity(self, x: np.ndarray) -> np.ndarray:
+        xt = torch.as_tensor(np.asarray(x, dtype=np.float64), dtype=self._dtype)[None]
+        return self.model.velocity(xt[:, : self.n], xt[:, self.n:])[0].double().numpy().copy()
+
+
+def phast_ukf(system: System, dt: float, run: str | Path | torch.nn.Module | None, sigma: float = 0.0,
+              process_std: tuple[float, float] = (1e-3, 0.1), **kw: object) -> UKFEstimator:
+    """The q-only UKF with a trained PHAST run as process model (``--estimators phast-ukf --phast-run DIR``).
+
+    Its default process noise is larger than the plant-physics UKF's (1e-5, 1e-2): the learned model is
+    not exact, and the filter must not trust it more than its one-step error warrants."""
+    model = _load(run)
+    if model.n != system.n:
+        raise ValueError(f"the PHAST run has n = {model.n}, the plant n = {system.n}")
+    est = UKFEstimator(system, dt, sigma=sigma, process=PHASTProcess(model, dt), process_std=process_std, **kw)
+    est.name = "phast-ukf"
+    return est
