@@ -21,6 +21,7 @@ physical damping floor d0 (the windy systems) rescales the result so that the sm
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -218,3 +219,38 @@ def initialize_partial(model, kin: Kinematics, quantile: float = 0.01) -> Linear
         if eps is not None:
             template.log_eps.fill_(float(np.log(eps)))
     return LinearFit(theta, fit.residual)
+
+
+def lotka_volterra_start(kin: Kinematics) -> tuple[torch.Tensor, float]:
+    """Coefficients c of the Lotka-Volterra template (``qdot = q (c1 + c2 q + c3 p)``, ``pdot = p (c4 q + c5) + f``)
+    from the observed prey q alone, and the relative residual of the fit.
+
+    The predator p is latent: with z = qdot / q = c1 + c2 q + c3 p, eliminating p gives
+    ``zdot = (c2 + c4) qdot + c5 z - (c1 c4 + c2 c5) q - c1 c5 - c2 c4 q^2 + c3 f``, linear in six combined
+    coefficients.  c5 and c1 = (c1 c5) / c5 follow at once, c2 and c4 are the roots of
+    ``x^2 - (c2 + c4) x - c2 c4`` (assigned so the q coefficient is matched best).  c3 is identified by the port
+    force; without one it is a gauge (the latent's unit), fixed so the mean latent equals the mean prey density."""
+    q, v = kin.q[:, 0], kin.v[:, 0]
+    lp, lq, ln_ = (torch.log(x[:, 0].clamp_min(1e-9)) for x in (kin.q_prev, kin.q, kin.q_next))
+    z = (ln_ - lp) / (2 * kin.dt)  # d/dt ln q: compact stencils in log space (O(dt^2), no nested differences)
+    zdot = (ln_ - 2 * lq + lp) / kin.dt**2
+    cols = [v, z, q, torch.ones_like(q), q * q]
+    if kin.f is not None:
+        cols.append(kin.f[:, 0])
+    fit = solve(torch.stack(cols, -1), zdot)
+    th = fit.theta
+    s, c5, k_q, k_1, k_qq = (float(t) for t in th[:5])
+    if abs(c5) < 1e-12:
+        raise ValueError("Lotka-Volterra start: the predator's own rate c5 is not identified by the data")
+    c1 = -k_1 / c5
+    disc = max(s * s + 4.0 * k_qq, 0.0)  # x^2 - s x - c2 c4 = 0 with c2 c4 = -k_qq
+    roots = ((s + math.sqrt(disc)) / 2, (s - math.sqrt(disc)) / 2)
+    c2, c4 = min((roots, roots[::-1]), key=lambda r: abs(k_q + c1 * r[1] + r[0] * c5))
+    if kin.f is not None:
+        c3 = float(th[5])
+    else:
+        resid = z - c1 - c2 * q  # = c3 p
+        c3 = float(resid.mean() / q.mean())  # mean latent p = mean q
+    if abs(c3) < 1e-12:
+        raise ValueError("Lotka-Volterra start: the predation coefficient c3 is not identified by the data")
+    return torch.tensor([c1, c2, c3, c4, c5], dtype=torch.float64), fit.residual

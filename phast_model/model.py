@@ -331,20 +331,32 @@ class SystemField(nn.Module):
 
 
 class LVTemplateField(nn.Module):
-    """Lotka-Volterra template ``qdot = q (c1 + c2 q + c3 p)``, ``pdot = p (c4 q + c5) + G u`` with learnable c
-    (least-squares initialized from the env's ``rhs``), plus ``softplus(rho) * MLP`` on pdot."""
+    """Lotka-Volterra template ``qdot = q (c1 + c2 q + c3 p)``, ``pdot = p (c4 q + c5) + G u`` with learnable c,
+    plus ``softplus(rho) * MLP`` on pdot.
 
-    def __init__(self, system: System, q_scale: float, eps_init: float = 0.01) -> None:
+    ``init_from``: "data" (the default) starts from a neutral c that :meth:`LatentODEModel.initialize_from_data`
+    replaces by a least squares on the observed prey (:func:`phast_model.data_init.lotka_volterra_start`);
+    "physics" fits c to the env's ``rhs`` (the "template given" variant); "none" keeps the neutral c."""
+
+    #: neutral start: no growth, no interaction, predation of unit strength (so the latent map is defined)
+    NEUTRAL = (0.0, 0.0, -1.0, 0.0, 0.0)
+
+    def __init__(self, system: System, q_scale: float, eps_init: float = 0.01, init_from: str = "data") -> None:
         super().__init__()
-        rng = np.random.default_rng(0)
-        x = system.sample_initial(rng, 512)
-        q, p = x[:, :1], x[:, 1:]
-        dq, dp = (np.asarray(a[0]) for a in system.rhs(split(q), split(p), None, NUMPY))
-        A1 = np.concatenate([q, q * q, q * p], 1)
-        c1 = np.linalg.lstsq(A1, dq, rcond=None)[0]
-        A2 = np.concatenate([p * q, p], 1)
-        c2 = np.linalg.lstsq(A2, dp, rcond=None)[0]
-        self.coef = nn.Parameter(torch.tensor(np.concatenate([c1.ravel(), c2.ravel()]), dtype=torch.float32))
+        if init_from == "physics":
+            rng = np.random.default_rng(0)
+            x = system.sample_initial(rng, 512)
+            q, p = x[:, :1], x[:, 1:]
+            dq, dp = (np.asarray(a[0]) for a in system.rhs(split(q), split(p), None, NUMPY))
+            A1 = np.concatenate([q, q * q, q * p], 1)
+            c1 = np.linalg.lstsq(A1, dq, rcond=None)[0]
+            A2 = np.concatenate([p * q, p], 1)
+            c2 = np.linalg.lstsq(A2, dp, rcond=None)[0]
+            coef = np.concatenate([c1.ravel(), c2.ravel()])
+        else:
+            coef = np.array(self.NEUTRAL)
+            coef[2] = coef[2] / float(q_scale)
+        self.coef = nn.Parameter(torch.tensor(coef, dtype=torch.float32))
         self.scale = float(q_scale)
         self.rho = nn.Parameter(torch.tensor(math.log(math.expm1(eps_init))))
         self.net = nn.Sequential(nn.Linear(2, 32), nn.SiLU(), nn.Linear(32, 1))
@@ -436,6 +448,22 @@ class LatentODEModel(PHAST):
     def prior_latent(self) -> torch.Tensor:
         return self.prior_scale * self.prior_raw
 
+    @torch.no_grad()
+    def initialize_from_data(self, q: torch.Tensor, u: torch.Tensor | None) -> dict[str, float]:
+        """PARTIAL: the Lotka-Volterra coefficients from one least squares on the observed prey
+        (:func:`phast_model.data_init.lotka_volterra_start`), then the latent prior from the training data's
+        first samples.  A no-op for KNOWN / UNKNOWN or unless ``init_from == "data"``."""
+        fld = self.core.field
+        if self.config.init_from != "data" or not isinstance(fld, LVTemplateField):
+            return {}
+        f = self.port_force(self.pad_u(u, q.shape[1])) if u is not None else None
+        coef, resid = data_init.lotka_volterra_start(data_init.kinematics(q, f, self.dt, ()))
+        fld.coef.copy_(coef.to(fld.coef.dtype))
+        if hasattr(self, "prior_raw"):
+            q0 = q[:, 0].to(fld.coef.dtype)
+            self.prior_raw.copy_(self.canonicalize(q0, torch.zeros_like(q0)).mean(0) / self.prior_scale)
+        return {**{f"lv_c{i + 1}": float(c) for i, c in enumerate(coef)}, "lv_residual": resid}
+
     def canonicalize(self, q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
         return self.core.field.latent(q, v)
 
@@ -504,7 +532,7 @@ def build_from_config(cfg: PHASTConfig) -> PHAST:
         if cfg.ode_field == "known":
             fld = SystemField(system)
         elif cfg.ode_field == "template":
-            fld = LVTemplateField(system, qs, cfg.hybrid_eps)
+            fld = LVTemplateField(system, qs, cfg.hybrid_eps, cfg.init_from)
         elif cfg.ode_field == "neural":
             fld = NeuralField(n, qs, vs)
         else:

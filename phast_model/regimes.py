@@ -20,7 +20,8 @@
   unbounded D with learned d0.
 * Predator-prey (not Hamiltonian): a latent ODE on (prey, predator) whose latent predator density is
   obtained by inverting the prey equation from the observer's qdot; KNOWN = env rhs, PARTIAL =
-  Lotka-Volterra template + neural correction, UNKNOWN = neural field + learned latent map; RK4 core.
+  Lotka-Volterra template + neural correction (its coefficients start from a least squares on the observed prey,
+  ``init_from="data"``), UNKNOWN = neural field + learned latent map; RK4 core.
 """
 
 from __future__ import annotations

@@ -67,6 +67,23 @@ def test_model_revision_changes_only_that_models_key() -> None:
         spec_mod.MODEL_REVISIONS.update(old)
 
 
+def test_env_model_revision_rekeys_that_env_only() -> None:
+    """A revision of one (model, env) pair re-keys that env's runs of the model and no other."""
+    from phast_model.bench import spec as spec_mod
+
+    pp, pend = RunSpec("PHAST/PredatorPrey-v0", "phast-partial"), RunSpec("PHAST/Pendulum-v0", "phast-partial")
+    assert pp.config()["model_revision"] == spec_mod.ENV_MODEL_REVISIONS[("phast-partial", "PHAST/PredatorPrey-v0")]
+    assert pend.config()["model_revision"] == spec_mod.MODEL_REVISIONS["phast-partial"]
+    keys = run_key(pp), run_key(pend)
+    old = dict(spec_mod.ENV_MODEL_REVISIONS)
+    try:
+        spec_mod.ENV_MODEL_REVISIONS[("phast-partial", "PHAST/PredatorPrey-v0")] += 1
+        assert run_key(pp) != keys[0] and run_key(pend) == keys[1]
+    finally:
+        spec_mod.ENV_MODEL_REVISIONS.clear()
+        spec_mod.ENV_MODEL_REVISIONS.update(old)
+
+
 def test_spec_validation_and_seed_parsing() -> None:
     with pytest.raises(ValueError, match="unknown model"):
         RunSpec(ENV, "mamba")

@@ -132,3 +132,30 @@ def test_configuration_dependent_mass_uses_implicit_midpoint(regime, mass):
     grads = [p.grad for p in model.mass.parameters()]
     assert all(g is not None and torch.isfinite(g).all() for g in grads)
     assert any(float(g.abs().max()) > 0 for g in grads)
+
+
+@pytest.mark.parametrize("with_port", [False, True])
+def test_predator_prey_partial_starts_from_the_observed_prey(with_port):
+    """The Lotka-Volterra template starts from a least squares on the prey alone (the predator is latent), not from
+    the env's rhs: the identified rates are the env's; the predation coefficient is the latent's unit, identified
+    by a port input and otherwise fixed so the mean latent equals the mean prey density."""
+    env_id = "PHAST/PredatorPrey-v0"
+    u = 0.5 * np.sin(0.3 * np.arange(199))[None, :, None] if with_port else None
+    ds = make_dataset(env_id, 64, T=200, seed=3, u=u, cache=False)
+    model = build_model(env_id, "partial")
+    assert model.config.init_from == "data"
+    np.testing.assert_allclose(model.core.field.coef.detach().numpy()[[0, 1, 3, 4]], 0.0)  # neutral until fit
+    q = torch.as_tensor(ds.q, dtype=torch.float32)
+    ut = None if u is None else torch.as_tensor(np.broadcast_to(u, (64, 199, 1)).copy(), dtype=torch.float32)
+    info = model.initialize_from_data(q, ut)
+    c = np.array([info[f"lv_c{i}"] for i in range(1, 6)])
+    a, b, cc, d, K, mu = 1.0, 0.1, 0.4, 0.1, 100.0, 0.01
+    np.testing.assert_allclose(c[[0, 1, 3, 4]], [a - mu, -a / K, d, -(cc + mu)], rtol=0.06, atol=2e-3)
+    if with_port:
+        assert c[2] == pytest.approx(-b, rel=0.06)
+    else:
+        lat = model.canonicalize(q.reshape(-1, 1)[::7], torch.zeros(1)).detach()  # latent of qdot = 0, finite
+        assert torch.isfinite(lat).all() and c[2] < 0
+    assert np.allclose(model.core.field.coef.detach().numpy(), c, rtol=1e-5)
+    phys = build_model(env_id, "partial", init_from="physics").core.field.coef.detach().numpy()
+    np.testing.assert_allclose(phys, [a - mu, -a / K, -b, d, -(cc + mu)], rtol=1e-4, atol=1e-6)

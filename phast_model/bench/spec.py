@@ -23,6 +23,14 @@ HARNESS_VERSION = 1
 #: transformer 2: no dropout on the attention weights (fused attention); PHAST 2: least-squares start from the
 #: training data, learned M(q), Householder directions starting on the axes
 MODEL_REVISIONS: dict[str, int] = {"transformer": 2, "phast-known": 2, "phast-partial": 2, "phast-unknown": 2}
+#: (model, env id) -> revision, where a change touches one env's runs of a model only (overrides MODEL_REVISIONS).
+#: phast-partial 3 on predator-prey: the Lotka-Volterra template starts from the observed prey, not the env's rhs
+ENV_MODEL_REVISIONS: dict[tuple[str, str], int] = {("phast-partial", "PHAST/PredatorPrey-v0"): 3}
+
+
+def model_revision(model: str, env_id: str) -> int | None:
+    """The revision of ``model``'s runs on ``env_id`` (None: never revised)."""
+    return ENV_MODEL_REVISIONS.get((model, env_id), MODEL_REVISIONS.get(model))
 
 PHAST_MODELS = ("phast-known", "phast-partial", "phast-unknown")
 BASELINE_MODELS = ("gru", "lstm", "transformer", "s5", "linoss", "dlinoss", "vpt")
@@ -66,8 +74,9 @@ class RunSpec:
         """Canonical JSON-ready configuration (the hashed content)."""
         d = asdict(self)
         d["horizons"] = [int(h) for h in self.horizons]
-        if self.model in MODEL_REVISIONS:
-            d["model_revision"] = MODEL_REVISIONS[self.model]
+        rev = model_revision(self.model, self.env_id)
+        if rev is not None:
+            d["model_revision"] = rev
         return json.loads(json.dumps(d, sort_keys=True))
 
     @classmethod
