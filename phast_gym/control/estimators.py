@@ -189,8 +189,9 @@ class ProcessModel:
       port input u held;
     * ``velocity(x)``: the port output qdot = dH/dp at one state (2n,) -> (n,).
 
-    :class:`PlantPhysics` is the plant's own ``System``; ``phast_model.control`` adds a learned
-    PHAST run, so a user without the plant's equations can filter with what the model learned.
+    :class:`PlantPhysics` is the plant's own ``System``; the torch layer adds a learned PHAST run
+    (estimator ``phast-ukf``), so a user without the plant's equations can filter with what the
+    model learned.
     """
 
     n: int
