@@ -1,0 +1,109 @@
+"""Summarise the learned-model-in-the-loop study: the plant-physics UKF next to ``phast-ukf`` (the same filter
+with a trained PHAST run as its process model), one row per (target, sigma, process model).
+
+Reads the ``results.json`` / ``protocol.json`` that ``phast-control-eval`` wrote into the sub-directories of
+``--dir`` (one per target and PHAST run, e.g. ``windy_q0_known``) and the ``metrics.json`` of each run, and writes
+``summary.md`` + ``summary.json`` there.  The evaluation commands are listed in docs/control.md.
+
+    python benchmarks/control_learned_model.py --dir docs/control_results/phast_ukf \
+        --runs known=/tmp/runs/windy_known_s0 partial=/tmp/runs/windy_partial_s0 unknown=/tmp/runs/windy_unknown_s0
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from phast_gym.fileio import atomic_write_text
+
+#: estimators reported (the plant-physics UKF is registered as "ekf")
+PLANT_UKF, LEARNED_UKF = "ekf", "phast-ukf"
+
+
+@dataclass(frozen=True)
+class Row:
+    """One pooled (all regimes) result."""
+
+    target: str
+    sigma: float
+    process_model: str
+    n: int
+    success: float
+    success_angle: float
+    u_rms_final: float
+    effort: float
+    velocity_error: float
+
+
+def _target(protocol: dict) -> str:
+    return "upright (q* = pi)" if abs(math.cos(protocol["q_star"]) + 1) < 1e-9 else "hanging (q* = 0)"
+
+
+def _rows(sub: Path, regime: str) -> list[Row]:
+    """Pooled rows of the plant UKF and phast-ukf in one evaluation directory (``regime``: the run's label)."""
+    protocol = json.loads((sub / "protocol.json").read_text())
+    out = []
+    for r in json.loads((sub / "results.json").read_text()):
+        if r["regime"] != "all" or r["estimator"] not in (PLANT_UKF, LEARNED_UKF):
+            continue
+        model = "plant physics" if r["estimator"] == PLANT_UKF else f"PHAST {regime.upper()}"
+        out.append(Row(_target(protocol), float(r["sigma"]), model, int(r["n_trials"]), r["success_rate"],
+                       r["success_angle_rate"], r["u_rms_final"], r["effort"], r["velocity_error"]))
+    return out
+
+
+def summarize(root: Path, runs: dict[str, Path]) -> tuple[list[Row], dict[str, dict]]:
+    """All rows under ``root`` (sub-directories named ``*_<regime>``) and the runs' model metrics."""
+    rows: list[Row] = []
+    for sub in sorted(p for p in root.iterdir() if (p / "results.json").exists()):
+        rows += _rows(sub, sub.name.rsplit("_", 1)[-1])
+    uniq = {(r.target, r.sigma, r.process_model): r for r in rows}  # the plant UKF appears once per target
+    rows = sorted(uniq.values(), key=lambda r: (r.target, r.sigma, r.process_model != "plant physics", r.process_model))
+    keys = ("damping_r2", "rollout_theta_wrap_mse_h100", "mse")
+    metrics = {}
+    for name, run in runs.items():
+        m = json.loads((run / "metrics.json").read_text())
+        metrics[name] = {k: m[k] for k in keys if k in m}
+    return rows, metrics
+
+
+def markdown(rows: list[Row], metrics: dict[str, dict]) -> str:
+    lines = ["| process model | damping R^2 | rollout wrap-MSE(H=100) |", "|---|---|---|"]
+    for name, m in metrics.items():
+        lines.append(f"| PHAST {name.upper()} | {m.get('damping_r2', float('nan')):.3f} | "
+                     f"{m.get('rollout_theta_wrap_mse_h100', float('nan')):.4f} |")
+    lines += ["", "| target | sigma | filter's process model | n | success | success (angle only) | "
+              "RMS torque last 1 s | effort | abs(qdot_hat - qdot) |", "|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r.target} | {r.sigma:g} | {r.process_model} | {r.n} | {r.success:.2f} | {r.success_angle:.2f} | "
+                     f"{r.u_rms_final:.3f} | {r.effort:.1f} | {r.velocity_error:.4f} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--dir", required=True, help="directory holding one phast-control-eval output per sub-directory")
+    ap.add_argument("--runs", nargs="+", default=[], metavar="REGIME=RUN_DIR", help="the PHAST runs, for their metrics")
+    args = ap.parse_args(argv)
+    runs = {}
+    for item in args.runs:
+        name, sep, path = item.partition("=")
+        if not sep:
+            ap.error(f"--runs takes REGIME=RUN_DIR, got {item!r}")
+        runs[name] = Path(path)
+    root = Path(args.dir)
+    rows, metrics = summarize(root, runs)
+    if not rows:
+        ap.error(f"no phast-control-eval results under {root}")
+    atomic_write_text(root / "summary.json", json.dumps({"models": metrics, "rows": [asdict(r) for r in rows]}, indent=1))
+    text = markdown(rows, metrics)
+    atomic_write_text(root / "summary.md", text)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
