@@ -66,6 +66,21 @@ def git_commit() -> str:
     return head + ("+dirty" if dirty else "")
 
 
+def numerics() -> dict[str, str]:
+    """What a run's last digits depend on besides the code: CPU, torch's SIMD kernels, package versions.
+
+    The PARTIAL optimisation on seed 0 amplifies rounding differences: the same code and package versions gave damping
+    R^2 0.883 on one machine and 0.851 on another, so a drift is read together with this fingerprint.
+    """
+    import numpy
+    import scipy
+
+    cpu = next((ln.split(":", 1)[1].strip() for ln in Path("/proc/cpuinfo").read_text().splitlines()
+                if ln.startswith("model name")), platform.processor()) if Path("/proc/cpuinfo").exists() else platform.processor()
+    return {"cpu": cpu, "torch_cpu_capability": str(torch.backends.cpu.get_cpu_capability()),
+            "torch": str(torch.__version__), "numpy": numpy.__version__, "scipy": scipy.__version__}
+
+
 def compare(committed: dict, fresh: dict) -> list[tuple[str, float, float, bool]]:
     """(metric, committed, fresh, within tolerance) for every metric of ``TOLERANCE`` both runs hold."""
     rows = []
@@ -85,16 +100,21 @@ def check(out: Path, todo: list[tuple[str, str]], seeds: list[int], epochs: int,
     missing = [(e, r, s) for e, r in todo for s in seeds if (e, r, s) not in stored]
     if missing:
         raise SystemExit(f"--check: {out} holds no committed run for {missing}")
-    ok = True
+    ok, here = True, numerics()
+    print("check-results: this machine", json.dumps(here))
     with tempfile.TemporaryDirectory(prefix="phast_check_") as tmp:
         jobs = [(e, r, s) for e, r in todo for s in seeds]
         for env, regime, seed in tqdm(jobs, desc="check-results"):
             fresh = _one(env, regime, seed, tmp, epochs, n_train)
             old = stored[(env, regime, seed)]
-            for k, a, b, good in compare(old, fresh):
+            rows = compare(old, fresh)
+            for k, a, b, good in rows:
                 ok &= good
                 print(f"{env.split('/')[-1]:<22} {regime:<8} seed {seed}  {k:<28} committed {a:.6g} "
                       f"(at {old.get('commit', '?')})  now {b:.6g}  {'ok' if good else 'DRIFT'}")
+            if not all(g for *_, g in rows) and old.get("numerics") != here:
+                where = json.dumps(old.get("numerics", "an unrecorded machine"))
+                print(f"  measured on {where}: rerun there before calling it a regression")
     print("check-results:", "every number reproduces" if ok else "DRIFT: update the docs with the new numbers "
           "(benchmarks/phast_windy.py --append --replace ...) or fix the regression")
     return 0 if ok else 1
@@ -160,7 +180,7 @@ def _one(env: str, regime: str, seed: int, runs_dir: str, epochs: int, n_train: 
     torch.set_num_threads(1)
     rd = Path(runs_dir) / f"{env.split('/')[-1]}_{regime}_s{seed}"
     m = train_run(env, regime, rd, epochs=epochs, seed=seed, n_train=n_train, plots=False, progress=False)
-    return {"env_id": env, "regime": regime, "seed": seed, "commit": git_commit(), **m}
+    return {"env_id": env, "regime": regime, "seed": seed, "commit": git_commit(), "numerics": numerics(), **m}
 
 
 class _call:
@@ -225,7 +245,7 @@ def main(argv: list[str] | None = None) -> int:
             "command": "benchmarks/phast_windy.py " + " ".join(argv if argv is not None else __import__("sys").argv[1:]),
             "protocol": {"n_train": args.n_train, "n_val": 200, "n_test": 200, "T": 200, "data_seed": 42,
                          "epochs": args.epochs, "torch_threads": 1},
-            "machine": {"platform": platform.platform(), "processor": platform.processor()},
+            "machine": {"platform": platform.platform(), "processor": platform.processor(), **numerics()},
             "elapsed_s": time.time() - t0, "summary": summarize(results), "runs": results})
     if pool:
         pool.shutdown()
