@@ -62,19 +62,55 @@ def summarize(root: Path, runs: dict[str, Path]) -> tuple[list[Row], dict[str, d
         rows += _rows(sub, sub.name.rsplit("_", 1)[-1])
     uniq = {(r.target, r.sigma, r.process_model): r for r in rows}  # the plant UKF appears once per target
     rows = sorted(uniq.values(), key=lambda r: (r.target, r.sigma, r.process_model != "plant physics", r.process_model))
-    keys = ("damping_r2", "rollout_theta_wrap_mse_h100", "mse")
+    keys = ("damping_r2", "rollout_theta_wrap_mse_h100", "rollout_takeover_theta_wrap_mse_h100", "mse")
     metrics = {}
     for name, run in runs.items():
         m = json.loads((run / "metrics.json").read_text())
-        metrics[name] = {k: m[k] for k in keys if k in m}
+        metrics[name] = {**{k: m[k] for k in keys if k in m}, **linearised(run)}
     return rows, metrics
 
 
+def linearised(run: Path) -> dict[str, float]:
+    """What the filter's prediction rests on near the targets, learned vs true (n = 1 runs).
+
+    ``stiffness_0`` / ``stiffness_pi``: M^-1 d2V/dq2 at q = 0 and pi (the squared natural frequency, or the
+    instability rate squared); ``port_gain``: M^-1 G, the acceleration per N m of torque.  Free-swing data
+    (u = 0) fix only ratios of H's parts, so a learned scale of H shows up as a wrong port gain.
+    """
+    import gymnasium as gym
+    import torch
+
+    import phast_gym  # noqa: F401  (registers the envs)
+    from phast_model.api import load_run
+
+    model = load_run(run)
+    config = json.loads((run / "config.json").read_text())
+    system = gym.make(config["model"]["env_id"]).unwrapped.system
+    out = {}
+    for name, q0 in (("0", 0.0), ("pi", math.pi)):
+        q = torch.full((1, 1), q0, dtype=torch.float64, requires_grad=True)
+        (g,) = torch.autograd.grad(model.hamiltonian(q.float(), torch.zeros(1, 1)).sum(), q, create_graph=True)
+        (h,) = torch.autograd.grad(g.sum(), q)
+        minv = float(model.velocity(q.detach().float(), torch.ones(1, 1))[0, 0])
+        eps = 1e-5
+        true_h = (system.grad_potential((q0 + eps,))[0] - system.grad_potential((q0 - eps,))[0]) / (2 * eps)
+        out[f"stiffness_{name}"] = minv * float(h)
+        out[f"true_stiffness_{name}"] = float(system.velocity((q0,), (1.0,))[0]) * float(true_h)
+    out["port_gain"] = float(model.velocity(torch.zeros(1, 1), torch.ones(1, 1))[0, 0]) * float(model.G[0, 0])
+    out["true_port_gain"] = float(system.velocity((0.0,), (1.0,))[0])  # the torque acts on the angle itself (G = 1)
+    return out
+
+
 def markdown(rows: list[Row], metrics: dict[str, dict]) -> str:
-    lines = ["| process model | damping R^2 | rollout wrap-MSE(H=100) |", "|---|---|---|"]
+    lines = ["| process model | damping R^2 | rollout wrap-MSE(H=100) | takeover wrap-MSE(H=100) | M^-1 V''(0) | "
+             "M^-1 V''(pi) | port gain M^-1 G |", "|---|---|---|---|---|---|---|"]
+    nan = float("nan")
     for name, m in metrics.items():
-        lines.append(f"| PHAST {name.upper()} | {m.get('damping_r2', float('nan')):.3f} | "
-                     f"{m.get('rollout_theta_wrap_mse_h100', float('nan')):.4f} |")
+        lines.append(f"| PHAST {name.upper()} | {m.get('damping_r2', nan):.3f} | {m.get('rollout_theta_wrap_mse_h100', nan):.4f} | "
+                     f"{m.get('rollout_takeover_theta_wrap_mse_h100', nan):.4f} | {m.get('stiffness_0', nan):.2f} "
+                     f"(true {m.get('true_stiffness_0', nan):.2f}) | {m.get('stiffness_pi', nan):.2f} "
+                     f"(true {m.get('true_stiffness_pi', nan):.2f}) | {m.get('port_gain', nan):.3f} "
+                     f"(true {m.get('true_port_gain', nan):.3f}) |")
     lines += ["", "| target | sigma | filter's process model | n | success | success (angle only) | "
               "RMS torque last 1 s | effort | abs(qdot_hat - qdot) |", "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
