@@ -19,7 +19,7 @@ __version__ = "0.1.0"
 
 
 def __getattr__(name: str):  # lazy: datasets pull in file I/O helpers only when used
-    if name in ("make_dataset", "make_splits", "Dataset", "split_dataset"):
+    if name in ("make_dataset", "make_splits", "Dataset", "split_dataset", "PortExcitation"):
         from . import datasets
 
         return getattr(datasets, name)
@@ -29,5 +29,5 @@ def __getattr__(name: str):  # lazy: datasets pull in file I/O helpers only when
 __all__ = [
     "PortHamiltonianEnv", "ENV_TABLE", "env_ids", "make_env_system", "register_all", "resolve_env_id",
     "SYSTEMS", "ParameterError", "System", "make_system", "wrap", "make_dataset", "make_splits", "Dataset",
-    "split_dataset",
+    "split_dataset", "PortExcitation",
 ]

@@ -231,6 +231,40 @@ def make_dataset(
     return ds
 
 
+@dataclass(frozen=True)
+class PortExcitation:
+    """A random port input for training data: Gaussian levels (std ``std``, per actuated coordinate) held for
+    ``hold`` steps each, from its own seed.
+
+    Free motion (u = 0) fixes only the ratios of a Hamiltonian model's parts: V, M^-1 and D scaled by c, 1/c and c
+    give the same trajectories, so a model learned from them can have the wrong input gain M^-1 G.  A model meant
+    for control (a filter's process model, a world model for RL) is identified from data whose port is excited.
+    """
+
+    std: float
+    hold: int = 5
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.std, (int, float)) and math.isfinite(self.std) and self.std >= 0):
+            raise ValueError(f"port excitation std must be a finite number >= 0, got {self.std!r}")
+        if isinstance(self.hold, bool) or int(self.hold) != self.hold or self.hold < 1:
+            raise ValueError(f"port excitation hold must be a positive integer (steps), got {self.hold!r}")
+        if isinstance(self.seed, bool) or int(self.seed) != self.seed or self.seed < 0:
+            raise ValueError(f"port excitation seed must be an integer >= 0, got {self.seed!r}")
+
+    def signal(self, n_traj: int, T: int, m: int) -> np.ndarray:
+        """(n_traj, T - 1, m) piecewise-constant input; the same arguments give the same array."""
+        rng = np.random.default_rng(np.random.SeedSequence([int(self.seed), int(n_traj), int(T), int(m)]))
+        levels = rng.normal(0.0, float(self.std), (int(n_traj), -(-(int(T) - 1) // int(self.hold)), int(m)))
+        return np.repeat(levels, int(self.hold), axis=1)[:, : int(T) - 1]
+
+    def for_env(self, env_id: str, n_traj: int, T: int, **env_kwargs: Any) -> np.ndarray:
+        """:meth:`signal` sized for ``env_id``'s actuated coordinates (``actuated_dofs`` among ``env_kwargs``)."""
+        system = make_env_system(resolve_env_id(env_id), **{k: v for k, v in env_kwargs.items() if k != "actuated_dofs"})
+        return self.signal(n_traj, T, len(parse_actuated_dofs(env_kwargs.get("actuated_dofs"), system.n)))
+
+
 def split_dataset(ds: Dataset, n_train: int = 1000, n_val: int = 200, n_test: int = 200) -> dict[str, Dataset]:
     """Split consecutive trajectories into train / val / test (paper Sec. 4.1.1)."""
     if n_train + n_val + n_test > ds.n_traj:

@@ -12,8 +12,12 @@
 
 from __future__ import annotations
 
+from dataclasses import asdict
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from phast_gym.datasets import PortExcitation
 
 #: the run files :func:`train_run` writes besides the checkpoint
 METRICS_FILE, HISTORY_FILE = "metrics.json", "history.json"
@@ -53,12 +57,14 @@ def check_split_sizes(n_train: int, n_val: int, n_test: int, T: int) -> None:
 def train_run(env: str, regime: str, out: str | Path, epochs: int = 50, seed: int = 0, n_train: int = 1000,
               n_val: int = 200, n_test: int = 200, T: int = 200, data_seed: int = 42, batch_size: int = 64,
               lr: float = 1e-3, obs_noise_std: float = 0.0, overrides: dict[str, Any] | None = None,
-              resume: bool = False, plots: bool = True, progress: bool = True) -> dict[str, Any]:
+              resume: bool = False, plots: bool = True, progress: bool = True,
+              excitation: PortExcitation | None = None) -> dict[str, Any]:
     """Train a PHAST model (``regime``: known / partial / unknown) on ``env`` and write the run directory ``out``.
 
     The Python entry point of ``phast-train``; returns the metrics dict it writes to ``metrics.json``.  Every
     argument is checked before any work (no dataset generated, nothing written), and one process at a time
-    may write ``out``."""
+    may write ``out``.  ``excitation`` drives the port of every split with a random input (default: free
+    motion, as in the paper), which a model meant for control needs (:class:`phast_gym.datasets.PortExcitation`)."""
     from phast_gym import make_splits, resolve_env_id
     from phast_gym.datasets import _check_noise
     from phast_gym.fileio import dir_lock, ensure_writable_dir
@@ -72,12 +78,16 @@ def train_run(env: str, regime: str, out: str | Path, epochs: int = 50, seed: in
     cfg = TrainConfig(epochs=epochs, batch_size=batch_size, lr=lr, seed=seed, progress=progress)
     model = build_model(env, regime, seed=seed, **(overrides or {}))
     data = {"n_train": n_train, "n_val": n_val, "n_test": n_test, "T": T, "seed": data_seed, "obs_noise_std": noise}
+    if excitation is not None and excitation.std > 0:  # recorded only when used: free-motion runs keep their identity
+        data["port_excitation"] = asdict(excitation)
     identity = {"env_id": env, "regime": regime, "data": data, "overrides": overrides or {}}
     out = ensure_writable_dir(out, "--out")
     with dir_lock(out):  # one writer per run directory
         if resume:
             check_resume(out / CHECKPOINT, cfg, identity)
-        kw = {"obs_noise_std": noise} if noise > 0 else {}
+        kw: dict[str, Any] = {"obs_noise_std": noise} if noise > 0 else {}
+        if "port_excitation" in data:
+            kw["u"] = excitation.for_env(env, n_train + n_val + n_test, T)
         splits = make_splits(env, n_train, n_val, n_test, T=T, seed=data_seed, **kw)
         res, metrics = train_and_score(model, splits, cfg, out, identity, resume=resume)
         return _write_run(res, metrics, splits["test"], cfg, identity, out, plots)

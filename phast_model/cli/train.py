@@ -16,6 +16,7 @@ import sys
 from typing import Any
 
 from phast_gym import env_ids
+from phast_gym.datasets import PortExcitation
 
 from ..runs import train_run
 
@@ -37,6 +38,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--batch-size", type=int, default=64)
     ap.add_argument("--lr", type=float, default=1e-3)
     ap.add_argument("--obs-noise-std", type=float, default=0.0)
+    ap.add_argument("--port-excitation", type=float, default=0.0, metavar="STD",
+                    help="drive the port of the data with random torques/forces of this std, held --excitation-hold "
+                         "steps (default 0: free motion, as in the paper); a model meant for control needs it, since "
+                         "free motion leaves the scale of H and so the input gain unidentified")
+    ap.add_argument("--excitation-hold", type=int, default=5, metavar="STEPS")
+    ap.add_argument("--excitation-seed", type=int, default=0)
     ap.add_argument("--set", action="append", default=[], metavar="FIELD=JSON",
                     help="override a PHASTConfig field, e.g. --set damping_cap=1.0 --set substeps=4")
     ap.add_argument("--out", required=True, help="run directory")
@@ -66,9 +73,11 @@ def main(argv: list[str] | None = None) -> int:
 
     torch.set_num_threads(max(1, args.threads))
     try:
+        excitation = PortExcitation(args.port_excitation, args.excitation_hold, args.excitation_seed)
         metrics = train_run(args.env, args.regime, args.out, args.epochs, args.seed, args.n_train, args.n_val, args.n_test,
                             args.T, args.data_seed, args.batch_size, args.lr, args.obs_noise_std, _overrides(args.set),
-                            resume=args.resume, plots=not args.no_plots, progress=not args.no_progress)
+                            resume=args.resume, plots=not args.no_plots, progress=not args.no_progress,
+                            excitation=excitation)
     except ValueError as exc:
         print(f"phast-train: error: {exc}", file=sys.stderr)
         return 2
