@@ -256,3 +256,25 @@ def test_stale_temp_of_a_killed_write_is_removed(tmp_path) -> None:
     live.write_bytes(b"")
     atomic_write_bytes(tmp_path / "x.bin", b"data")
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["x.bin", live.name])
+
+
+def test_port_excitation_is_held_seeded_and_checked():
+    from phast_gym.datasets import PortExcitation
+
+    e = PortExcitation(2.0, hold=4, seed=1)
+    u = e.for_env("PHAST/WindyCartPole-v0", 8, 11)
+    assert u.shape == (8, 10, 2)
+    np.testing.assert_array_equal(u[:, 0], u[:, 3])  # held for 4 steps
+    assert not np.array_equal(u[:, 3], u[:, 4])
+    np.testing.assert_array_equal(u, PortExcitation(2.0, hold=4, seed=1).for_env("PHAST/WindyCartPole-v0", 8, 11))
+    assert not np.array_equal(u, PortExcitation(2.0, hold=4, seed=2).for_env("PHAST/WindyCartPole-v0", 8, 11))
+    assert e.for_env("PHAST/WindyCartPole-v0", 8, 11, actuated_dofs=[1]).shape == (8, 10, 1)
+    big = PortExcitation(1.5, hold=1).signal(400, 101, 1)
+    assert big.std() == pytest.approx(1.5, rel=0.02)
+    for bad in ({"std": -1.0}, {"std": float("nan")}, {"std": 1.0, "hold": 0}, {"std": 1.0, "seed": -1}):
+        with pytest.raises(ValueError, match="port excitation"):
+            PortExcitation(**bad)
+    ds = make_dataset("PHAST/DampedPendulum-v0", 8, T=11, seed=0, u=e.for_env("PHAST/DampedPendulum-v0", 8, 11),
+                      cache=False)
+    free = make_dataset("PHAST/DampedPendulum-v0", 8, T=11, seed=0, cache=False)
+    assert not np.allclose(ds.q, free.q)  # the input drives the data

@@ -159,3 +159,24 @@ def test_predator_prey_partial_starts_from_the_observed_prey(with_port):
     assert np.allclose(model.core.field.coef.detach().numpy(), c, rtol=1e-5)
     phys = build_model(env_id, "partial", init_from="physics").core.field.coef.detach().numpy()
     np.testing.assert_allclose(phys, [a - mu, -a / K, -b, d, -(cc + mu)], rtol=1e-4, atol=1e-6)
+
+
+@pytest.mark.parametrize("excite", [False, True])
+def test_an_excited_port_fixes_the_scale_of_the_partial_start(excite):
+    """Free motion leaves (V, M, D) -> c (V, M, D) open and the constant mass starts neutral (M = 1); with the port
+    driven, the least squares identifies M itself (here m l^2 = 2, m g l = 19.62) and with it the input gain."""
+    from phast_gym.datasets import PortExcitation
+
+    env, kw = "PHAST/DampedPendulum-v0", {"mass": 2.0}
+    u = PortExcitation(2.0).for_env(env, 64, 200) if excite else None
+    ds = make_dataset(env, 64, T=200, seed=3, u=u, **kw)
+    model = build_model(env, "partial", env_kwargs=kw)
+    model.initialize_from_data(torch.as_tensor(ds.q, dtype=torch.float32),
+                               torch.as_tensor(ds.u, dtype=torch.float32) if excite else None)
+    minv = float(model.velocity(torch.zeros(1, 1), torch.ones(1, 1)).detach()[0, 0])
+    coef = float(model.potential.template.coef.detach()[0])
+    assert coef * minv == pytest.approx(9.81, rel=0.05)  # the free dynamics are identified either way
+    if excite:
+        assert minv == pytest.approx(0.5, rel=0.1) and coef == pytest.approx(19.62, rel=0.1)
+    else:
+        assert minv == pytest.approx(1.0, rel=0.02)  # the neutral gauge: the scale is not in the data

@@ -310,3 +310,16 @@ def test_empty_or_truncated_checkpoints_give_a_reason(tmp_path, content):
     with pytest.raises(ValueError, match=f"cannot resume: .*{reason}"):
         fit(build_model(ENV, "known"), make_splits(ENV, 4, 2, 2, T=20, seed=3)["train"],
             make_splits(ENV, 4, 2, 2, T=20, seed=3)["val"], cfg, run_dir=tmp_path, resume=True)
+
+
+def test_phast_train_port_excitation_is_part_of_the_run_identity(tmp_path):
+    from phast_model.cli.train import main
+
+    out = tmp_path / "run"
+    assert main(_train_cmd(out, "--epochs", "1", "--port-excitation", "1.5", "--no-plots")) == 0
+    data = json.loads((out / "config.json").read_text())["data"]
+    assert data["port_excitation"] == {"std": 1.5, "hold": 5, "seed": 0}
+    assert main(_train_cmd(tmp_path / "free", "--epochs", "1", "--no-plots")) == 0
+    assert "port_excitation" not in json.loads((tmp_path / "free" / "config.json").read_text())["data"]
+    assert main(_train_cmd(tmp_path / "bad", "--epochs", "1", "--port-excitation", "-1")) == 2
+    assert not (tmp_path / "bad").exists()
