@@ -17,7 +17,15 @@ import pytest
 
 from phast_model.bench import LocalExecutor, RayExecutor, grid, load_result, result_path, run_sweep
 from phast_model.bench import executors as executors_mod
-from phast_model.bench.runner import absolute_out_dir, lost_record, persist_record, run_one, safe_run_one, write_record
+from phast_model.bench.runner import (
+    RAY_LOCK_WAIT_S,
+    absolute_out_dir,
+    lost_record,
+    persist_record,
+    run_one,
+    safe_run_one,
+    write_record,
+)
 from phast_model.cli.bench import main
 
 ENV = "PHAST/WindyPendulum-v0"
@@ -165,6 +173,39 @@ def test_persist_record_rules(tmp_path: Path) -> None:
         write_record(tmp_path / "e", {**rec, "key": "0" * 16})
 
 
+def test_run_waits_for_a_run_directory_held_elsewhere(tmp_path: Path) -> None:
+    """A rerun that meets a run still held by a dying task waits for it (and returns its result) instead of failing."""
+    import threading
+    import time
+
+    from phast_gym.fileio import DirLocked, dir_lock
+    from phast_model.bench.runner import work_dir
+
+    spec = grid([ENV], ["gru"], [0], **TINY)[0]
+    rec = run_one(spec.config(), str(tmp_path / "elsewhere"))
+    out = tmp_path / "out"
+    with dir_lock(work_dir(out, spec)):
+        with pytest.raises(DirLocked):
+            run_one(spec.config(), str(out))
+        assert safe_run_one(spec.config(), str(out))["error"].startswith("DirLocked")
+    release = threading.Event()
+
+    def holder() -> None:  # holds the run, then finishes it and lets go
+        with dir_lock(work_dir(out, spec)):
+            release.set()
+            time.sleep(1.0)
+            write_record(out, rec)
+
+    t = threading.Thread(target=holder)
+    t.start()
+    release.wait()
+    try:
+        got = run_one(spec.config(), str(out), lock_wait_s=30)
+    finally:
+        t.join()
+    assert got["status"] == "cached" and got["metrics"] == rec["metrics"]
+
+
 def test_lost_record() -> None:
     cfg = {"env_id": ENV, "model": "gru", "seed": 3}
     rec = lost_record(cfg, _FakeWorkerCrashed("The worker died unexpectedly\nmore detail"))
@@ -206,12 +247,25 @@ def test_fake_ray_sweep_with_a_lost_worker(fake_ray: _FakeRay, tmp_path: Path, m
                                            capsys: pytest.CaptureFixture[str]) -> None:
     """One lost run does not end the sweep: it is a failed record and a FAILED line, the other run is stored."""
     fake_ray.lose_seeds = {1}
+    submitted: list[Any] = []
+    real_remote = fake_ray.remote
+
+    def remote(**kw: Any) -> Callable[[Callable[..., dict]], Any]:
+        def wrap(fn: Callable[..., dict]) -> Any:
+            submitted.append(fn)
+            return real_remote(**kw)(fn)
+
+        return wrap
+
+    fake_ray.remote = remote  # type: ignore[method-assign]
     out = tmp_path / "out"
     assert main(CLI_TINY + ["--seeds", "0-1", "--backend", "ray", "--out", str(out)]) == 1
     printed = capsys.readouterr().out
     assert "FAILED PHAST/WindyPendulum-v0 gru seed 1: worker lost: _FakeWorkerCrashed" in printed
     assert json.loads(printed[printed.index("{"):])["failed"] == 1
     assert len(list((out / "runs").rglob("*.json"))) == 1
+    # on Ray a run held by a task of a killed driver is waited for, not failed at once
+    assert submitted[0].keywords == {"lock_wait_s": RAY_LOCK_WAIT_S} and submitted[0].func is safe_run_one
 
 
 def test_cli_address_needs_ray_backend(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -14,7 +14,9 @@ made absolute before it is shipped to workers (:func:`absolute_out_dir`), whose 
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import functools
 import json
 import platform
 import socket
@@ -26,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from phast_gym.fileio import atomic_write_text, dir_lock
+from phast_gym.fileio import DirLocked, atomic_write_text, dir_lock
 from phast_gym.fileio import jsonable as _jsonable
 
 from .spec import RunSpec, run_key
@@ -181,8 +183,15 @@ def make_train_config(spec: RunSpec) -> Any:
 
 
 # --------------------------------------------------------------------------- the run function
-def run_one(config: dict[str, Any], out_dir: str, threads: int = 1) -> dict[str, Any]:
-    """Train + evaluate one run (or return its stored result).  Same function for every executor."""
+#: seconds a Ray task waits for a run directory another process holds (see :func:`run_sweep`)
+RAY_LOCK_WAIT_S = 60.0
+
+
+def run_one(config: dict[str, Any], out_dir: str, threads: int = 1, lock_wait_s: float = 0.0) -> dict[str, Any]:
+    """Train + evaluate one run (or return its stored result).  Same function for every executor.
+
+    One writer per run: while another process holds the run's directory this waits up to ``lock_wait_s`` seconds
+    (returning the result if the holder finishes it), then raises :class:`phast_gym.fileio.DirLocked`."""
     import torch
 
     spec = RunSpec.from_config(config)
@@ -191,7 +200,16 @@ def run_one(config: dict[str, Any], out_dir: str, threads: int = 1) -> dict[str,
         return {**cached, "status": "cached"}
     torch.set_num_threads(max(1, int(threads)))
     wdir = work_dir(out_dir, spec)
-    with dir_lock(wdir):  # one writer per run: a second sweep over the same OUT reports this run as in use
+    deadline = time.monotonic() + max(0.0, float(lock_wait_s))
+    with contextlib.ExitStack() as stack:
+        while True:
+            try:
+                stack.enter_context(dir_lock(wdir))
+                break
+            except DirLocked:
+                if time.monotonic() >= deadline:
+                    raise
+                time.sleep(0.5)
         cached = load_result(out_dir, spec)  # finished while we waited for the lock
         if cached is not None:
             return {**cached, "status": "cached"}
@@ -230,10 +248,10 @@ def _train_and_score(spec: RunSpec, out_dir: str, wdir: Path) -> dict[str, Any]:
     return {**rec, "status": "ran"}
 
 
-def safe_run_one(config: dict[str, Any], out_dir: str, threads: int = 1) -> dict[str, Any]:
+def safe_run_one(config: dict[str, Any], out_dir: str, threads: int = 1, lock_wait_s: float = 0.0) -> dict[str, Any]:
     """:func:`run_one` that reports a failure as a record instead of raising (one bad run keeps the sweep going)."""
     try:
-        return run_one(config, out_dir, threads)
+        return run_one(config, out_dir, threads, lock_wait_s)
     except Exception as exc:  # noqa: BLE001 - reported to the caller with its traceback
         return failed_record(config, f"{type(exc).__name__}: {exc}", traceback.format_exc())
 
@@ -277,7 +295,10 @@ def run_sweep(specs: list[RunSpec], out_dir: str | Path, backend: str = "local",
         ex = make_executor(backend, workers=workers, address=address, threads=threads)
         try:
             configs = [s.config() for s in pending]
-            it = ex.map_unordered(safe_run_one, configs, str(out_dir), on_lost=lost_record)
+            # a killed Ray driver's tasks are stopped by Ray a few seconds later (local workers die with their
+            # parent): a rerun started at once waits for their run directories instead of failing those runs
+            fn = functools.partial(safe_run_one, lock_wait_s=RAY_LOCK_WAIT_S) if ex.name == "ray" else safe_run_one
+            it = ex.map_unordered(fn, configs, str(out_dir), on_lost=lost_record)
             if progress:
                 from tqdm.auto import tqdm
 
