@@ -91,6 +91,11 @@ t2=$(now)
 bench "${RAY_ARGS[@]}" --out "$OUT/ray_clean" 2>&1 | grep -E '"(ran|cached|failed)"' | tr -d '\n '; echo
 echo "ray (2 nodes x 1 CPU) wall time, 8 runs: $(secs "$t2" "$(now)") s"
 
+section "4b. ray with a relative --out, driver started in another directory than the nodes"
+(cd "$OUT" && bench "${RAY_ARGS[@]}" --envs WindyPendulum-v0 --models gru --seeds 0 --out rel_out 2>&1 \
+   | grep -E '"(ran|failed)"' | tr -d '\n '; echo)
+echo "results under the driver's $OUT/rel_out: $(n_done "$OUT/rel_out"); under the nodes' cwd $REPO/rel_out: $(n_done "$REPO/rel_out")"
+
 section "5. the same grid with --backend local --workers 2"
 t3=$(now)
 bench --backend local --workers 2 --out "$OUT/local" 2>&1 | grep -E '"(ran|cached|failed)"' | tr -d '\n '; echo
