@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import functools
 import json
 import platform
 import socket
@@ -256,6 +255,12 @@ def safe_run_one(config: dict[str, Any], out_dir: str, threads: int = 1, lock_wa
         return failed_record(config, f"{type(exc).__name__}: {exc}", traceback.format_exc())
 
 
+def safe_run_one_waiting(config: dict[str, Any], out_dir: str, threads: int = 1) -> dict[str, Any]:
+    """:func:`safe_run_one` waiting up to :data:`RAY_LOCK_WAIT_S` for a run directory another process holds (the Ray
+    task function: a plain function, as ``ray.remote`` needs)."""
+    return safe_run_one(config, out_dir, threads, lock_wait_s=RAY_LOCK_WAIT_S)
+
+
 # --------------------------------------------------------------------------- sweeps
 def grid(envs: Iterable[str], models: Iterable[str], seeds: Iterable[int], **common: Any) -> list[RunSpec]:
     """The cross product env x model x seed; DHNN runs are full-state, others q-only."""
@@ -297,7 +302,7 @@ def run_sweep(specs: list[RunSpec], out_dir: str | Path, backend: str = "local",
             configs = [s.config() for s in pending]
             # a killed Ray driver's tasks are stopped by Ray a few seconds later (local workers die with their
             # parent): a rerun started at once waits for their run directories instead of failing those runs
-            fn = functools.partial(safe_run_one, lock_wait_s=RAY_LOCK_WAIT_S) if ex.name == "ray" else safe_run_one
+            fn = safe_run_one_waiting if ex.name == "ray" else safe_run_one
             it = ex.map_unordered(fn, configs, str(out_dir), on_lost=lost_record)
             if progress:
                 from tqdm.auto import tqdm
