@@ -51,7 +51,10 @@ section "start the cluster: head + a second node on this machine (1 CPU each)"
 "$RAY" start --head --num-cpus=1 --port="$PORT" --include-dashboard=false --disable-usage-stats > "$OUT/ray_head.log" 2>&1
 "$RAY" start --address="127.0.0.1:$PORT" --num-cpus=1 --disable-usage-stats > "$OUT/ray_worker.log" 2>&1
 trap '"$RAY" stop > /dev/null 2>&1 || true' EXIT
-sleep 3
+for _ in $(seq 60); do  # until both raylets have registered with the head
+  [ "$("$RAY" status --address="127.0.0.1:$PORT" 2>/dev/null | grep -c ' node_')" -ge 2 ] && break
+  sleep 1
+done
 "$RAY" status --address="127.0.0.1:$PORT" | sed -n '/Node status/,/Pending/p'
 echo "raylet processes: $(pgrep -u "$(id -u)" -f 'ray/core/src/ray/raylet/raylet' | wc -l)"
 
