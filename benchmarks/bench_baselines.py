@@ -151,7 +151,7 @@ def main(argv: list[str] | None = None) -> int:
         os.makedirs(os.path.dirname(out), exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=os.path.dirname(out), suffix=".tmp")
         with os.fdopen(fd, "w") as fh:
-            json.dump({"threads": args.threads, "torch": torch.__version__, "rows": rows}, fh, indent=1)
+            json.dump({"threads": args.threads, "torch": str(torch.__version__), "rows": rows}, fh, indent=1)
         os.replace(tmp, out)
     return 0
 

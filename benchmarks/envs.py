@@ -281,7 +281,7 @@ def main(argv: list[str] | None = None) -> int:
     result = {
         "command": "python benchmarks/envs.py " + " ".join(argv if argv is not None else sys.argv[1:]),
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "numpy": np.__version__,
-                    "torch": torch.__version__, "torch_threads": torch.get_num_threads(),
+                    "torch": str(torch.__version__), "torch_threads": torch.get_num_threads(),
                     "gymnasium": gym.__version__, "platform": platform.platform(),
                     "loadavg_1min_before_after": [load_before[0], os.getloadavg()[0]]},
         "pendulum_v1_steps_per_s": ref, "process_peak_rss_mb": ru, "rows": rows, "targets_met": targets,

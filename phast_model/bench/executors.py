@@ -4,10 +4,13 @@
   (``spawn`` context, one torch thread per worker); ``workers=1`` runs inline.  Workers
   die with the process that started them (a killed sweep leaves none behind).
 * :class:`RayExecutor` (``--backend ray``, extra ``ray``): one Ray task per run
-  (``num_cpus=1``) on a local or remote cluster (``address``).  Ray is imported
+  (``num_cpus=threads``) on a running cluster (``address``, e.g. ``auto`` or ``HOST:PORT``) or, with no
+  address, on a private local instance started for this sweep and stopped after it.  Ray is imported
   lazily, so the harness works without it.
 
-Both yield results as runs finish (``map_unordered``).
+Both yield results as runs finish (``map_unordered``).  A run whose worker is lost (killed, out of memory,
+its node gone) is handed to ``on_lost(config, exc)``, which turns it into a record (a failed run), so one
+lost worker never ends the sweep; without ``on_lost`` the error is raised.
 """
 
 from __future__ import annotations
@@ -15,16 +18,21 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from multiprocessing import get_context
 from typing import Any
 
+#: ``on_lost(config, exc)``: the record of a run whose worker was lost
+OnLost = Callable[[dict, BaseException], dict]
+
 
 class Executor:
-    """Interface: ``map_unordered(fn, configs, out_dir)`` yields ``fn(config, out_dir, threads)`` as they finish."""
+    """Interface: ``map_unordered(fn, configs, out_dir, on_lost)`` yields ``fn(config, out_dir, threads)`` as they finish."""
 
     name = "base"
 
-    def map_unordered(self, fn: Callable[..., dict], configs: list[dict], out_dir: str) -> Iterator[dict]:  # pragma: no cover
+    def map_unordered(self, fn: Callable[..., dict], configs: list[dict], out_dir: str,
+                      on_lost: OnLost | None = None) -> Iterator[dict]:  # pragma: no cover
         raise NotImplementedError
 
     def shutdown(self) -> None:
@@ -81,18 +89,25 @@ class LocalExecutor(Executor):
         self.threads = int(threads)
         self._pool: ProcessPoolExecutor | None = None
 
-    def map_unordered(self, fn: Callable[..., dict], configs: list[dict], out_dir: str) -> Iterator[dict]:
+    def map_unordered(self, fn: Callable[..., dict], configs: list[dict], out_dir: str,
+                      on_lost: OnLost | None = None) -> Iterator[dict]:
         if self.workers == 1 or len(configs) <= 1:
             for cfg in configs:  # inline: no process start-up, easiest to debug
                 yield fn(cfg, out_dir, self.threads)
             return
         self._pool = ProcessPoolExecutor(max_workers=min(self.workers, len(configs)), mp_context=get_context("spawn"),
                                          initializer=_init_worker, initargs=(self.threads, os.getpid()))
-        futures = {self._pool.submit(fn, cfg, out_dir, self.threads) for cfg in configs}
-        while futures:
-            done, futures = wait(futures, return_when=FIRST_COMPLETED)
+        futures = {self._pool.submit(fn, cfg, out_dir, self.threads): cfg for cfg in configs}
+        pending = set(futures)
+        while pending:
+            done, pending = wait(pending, return_when=FIRST_COMPLETED)
             for f in done:
-                yield f.result()
+                try:
+                    yield f.result()
+                except BrokenProcessPool as exc:  # a worker died (killed, out of memory): this run is lost
+                    if on_lost is None:
+                        raise
+                    yield on_lost(futures[f], exc)
 
     def shutdown(self) -> None:
         if self._pool is not None:
@@ -108,37 +123,73 @@ def _import_ray() -> Any:
     return ray
 
 
+def ray_lost_errors(ray: Any) -> tuple[type[BaseException], ...]:
+    """The errors ``ray.get`` raises for a task that did not return (``ray.exceptions.RayError``: worker crashed or
+    killed, node died, result lost, out of memory, cancelled).  The run function itself never raises: it returns
+    failures as records."""
+    err = getattr(getattr(ray, "exceptions", None), "RayError", None)
+    return (err,) if isinstance(err, type) and issubclass(err, BaseException) else (Exception,)
+
+
 class RayExecutor(Executor):
-    """One Ray task per run; ``address`` None starts (or joins) a local Ray instance."""
+    """One Ray task per run.
+
+    ``address`` None starts a **private** local instance (``ray.init(address="local")``, ``workers`` CPUs) that
+    is stopped after the sweep, even when a cluster is running on this machine (Ray's own default would attach
+    to it silently); ``"auto"`` or ``HOST:PORT`` attaches to a running cluster, which keeps running.  A task whose
+    worker dies is retried ``max_retries`` times by Ray, then handed to ``on_lost``.
+    """
 
     name = "ray"
 
-    def __init__(self, address: str | None = None, workers: int | None = None, threads: int = 1) -> None:
+    def __init__(self, address: str | None = None, workers: int | None = None, threads: int = 1, max_retries: int = 1) -> None:
         self.ray = _import_ray()
         self.threads = max(1, int(threads))
+        self.max_retries = int(max_retries)
+        self.address = address or "local"
         self._started = False
+        self._pending: list[Any] = []
         if not self.ray.is_initialized():
-            kw: dict[str, Any] = {"ignore_reinit_error": True, "include_dashboard": False, "log_to_driver": True}
-            if address:
-                kw["address"] = address
-            elif workers:
+            kw: dict[str, Any] = {"address": self.address, "include_dashboard": False, "log_to_driver": True}
+            if self.address == "local" and workers:
                 kw["num_cpus"] = int(workers)
             self.ray.init(**kw)
             self._started = True
         self.workers = workers
 
-    def map_unordered(self, fn: Callable[..., dict], configs: list[dict], out_dir: str) -> Iterator[dict]:
+    def map_unordered(self, fn: Callable[..., dict], configs: list[dict], out_dir: str,
+                      on_lost: OnLost | None = None) -> Iterator[dict]:
         ray = self.ray
-        remote = ray.remote(num_cpus=self.threads)(fn)
-        pending = [remote.remote(cfg, out_dir, self.threads) for cfg in configs]
-        while pending:
-            done, pending = ray.wait(pending, num_returns=1)
-            for ref in done:
-                yield ray.get(ref)
+        lost = ray_lost_errors(ray)
+        remote = ray.remote(num_cpus=self.threads, max_retries=self.max_retries)(fn)
+        by_ref = {remote.remote(cfg, out_dir, self.threads): cfg for cfg in configs}
+        self._pending = list(by_ref)
+        try:
+            while self._pending:
+                done, self._pending = ray.wait(self._pending, num_returns=1)
+                for ref in done:
+                    try:
+                        rec = ray.get(ref)
+                    except lost as exc:
+                        if on_lost is None:
+                            raise
+                        rec = on_lost(by_ref[ref], exc)
+                    yield rec
+        finally:
+            self._cancel_pending()  # interrupted (Ctrl-C, an error): no task keeps training for a sweep that is gone
+
+    def _cancel_pending(self) -> None:
+        for ref in self._pending:
+            try:
+                self.ray.cancel(ref, force=True)
+            except Exception:  # noqa: BLE001 - already finished or its node is gone: nothing to cancel
+                pass
+        self._pending = []
 
     def shutdown(self) -> None:
+        self._cancel_pending()
         if self._started:
-            self.ray.shutdown()
+            self.ray.shutdown()  # stops a private instance; on a cluster, only disconnects this driver
             self._started = False
 
 

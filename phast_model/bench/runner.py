@@ -6,10 +6,15 @@ optimizer, schedule, epochs and best-validation selection for PHAST and baseline
 metrics of :func:`phast_model.metrics.forecast_metrics`); the result JSON is written atomically under
 ``out_dir/runs/`` and named by the configuration hash, so a finished run is
 never redone and an interrupted sweep resumes where it stopped.
+
+The worker returns the record too, and the sweep driver writes it where it is missing on the driver's disk
+(:func:`persist_record`): on a cluster whose nodes do not share a disk no result is lost.  ``out_dir`` is
+made absolute before it is shipped to workers (:func:`absolute_out_dir`), whose working directory differs.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import platform
@@ -22,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from phast_gym.fileio import atomic_write_text, dir_lock
+from phast_gym.fileio import DirLocked, atomic_write_text, dir_lock
 from phast_gym.fileio import jsonable as _jsonable
 
 from .spec import RunSpec, run_key
@@ -37,6 +42,52 @@ def run_slug(spec: RunSpec) -> str:
 
 def result_path(out_dir: str | Path, spec: RunSpec) -> Path:
     return Path(out_dir) / "runs" / f"{run_slug(spec)}.json"
+
+
+def absolute_out_dir(out_dir: str | Path) -> Path:
+    """``out_dir`` as an absolute path (``~`` expanded): the form shipped to workers, whose working directory may
+    differ from the driver's (a Ray worker starts in the directory its node was started from)."""
+    return Path(out_dir).expanduser().absolute()
+
+
+#: record fields that describe one delivery of a run, not the run: never stored in its result file
+TRANSIENT_FIELDS = ("status", "persisted_by")
+
+
+def write_record(out_dir: str | Path, rec: dict[str, Any]) -> Path:
+    """Write a finished run's record (its transient fields dropped) to its result file, atomically; the same bytes
+    whether a worker or the driver writes it."""
+    spec = RunSpec.from_config(rec["config"])
+    if rec.get("key") != run_key(spec) or not isinstance(rec.get("metrics"), dict):
+        raise ValueError(f"not a finished run record of {spec.env_id} {spec.model} seed {spec.seed} (key or metrics missing)")
+    stored = {k: v for k, v in rec.items() if k not in TRANSIENT_FIELDS}
+    return atomic_write_text(result_path(out_dir, spec), json.dumps(stored, indent=1, sort_keys=True))
+
+
+def persist_record(out_dir: str | Path, rec: dict[str, Any]) -> dict[str, Any]:
+    """Driver side: write a returned record (ran or cached on its worker) whose result file this machine lacks.
+
+    On one machine, or nodes sharing a disk, the worker already wrote it and nothing happens; on a node with its
+    own disk the record only reached the driver through the return value, and is written here.  Returns the
+    record, marked ``persisted_by: "driver"`` when written here."""
+    if rec.get("status") not in ("ran", "cached"):
+        return rec
+    if load_result(out_dir, RunSpec.from_config(rec["config"])) is not None:
+        return rec
+    write_record(out_dir, rec)
+    return {**rec, "persisted_by": "driver"}
+
+
+def failed_record(config: dict[str, Any], error: str, tb: str = "") -> dict[str, Any]:
+    """The record of a run that produced no result (it raised, or its worker was lost)."""
+    return {"status": "failed", "env": config.get("env_id"), "model": config.get("model"), "seed": config.get("seed"),
+            "config": config, "error": error, "traceback": tb}
+
+
+def lost_record(config: dict[str, Any], exc: BaseException) -> dict[str, Any]:
+    """The failed record of a run whose worker was lost (``on_lost`` of the executors); rerunning the sweep retries it."""
+    first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+    return failed_record(config, f"worker lost: {type(exc).__name__}: {first}".rstrip(": "), "".join(traceback.format_exception_only(exc)))
 
 
 #: the trained weights of a benchmark run (a bare state dict) in its :func:`work_dir`, read by the figures
@@ -131,8 +182,15 @@ def make_train_config(spec: RunSpec) -> Any:
 
 
 # --------------------------------------------------------------------------- the run function
-def run_one(config: dict[str, Any], out_dir: str, threads: int = 1) -> dict[str, Any]:
-    """Train + evaluate one run (or return its stored result).  Same function for every executor."""
+#: seconds a Ray task waits for a run directory another process holds (see :func:`run_sweep`)
+RAY_LOCK_WAIT_S = 60.0
+
+
+def run_one(config: dict[str, Any], out_dir: str, threads: int = 1, lock_wait_s: float = 0.0) -> dict[str, Any]:
+    """Train + evaluate one run (or return its stored result).  Same function for every executor.
+
+    One writer per run: while another process holds the run's directory this waits up to ``lock_wait_s`` seconds
+    (returning the result if the holder finishes it), then raises :class:`phast_gym.fileio.DirLocked`."""
     import torch
 
     spec = RunSpec.from_config(config)
@@ -141,7 +199,16 @@ def run_one(config: dict[str, Any], out_dir: str, threads: int = 1) -> dict[str,
         return {**cached, "status": "cached"}
     torch.set_num_threads(max(1, int(threads)))
     wdir = work_dir(out_dir, spec)
-    with dir_lock(wdir):  # one writer per run: a second sweep over the same OUT reports this run as in use
+    deadline = time.monotonic() + max(0.0, float(lock_wait_s))
+    with contextlib.ExitStack() as stack:
+        while True:
+            try:
+                stack.enter_context(dir_lock(wdir))
+                break
+            except DirLocked:
+                if time.monotonic() >= deadline:
+                    raise
+                time.sleep(0.5)
         cached = load_result(out_dir, spec)  # finished while we waited for the lock
         if cached is not None:
             return {**cached, "status": "cached"}
@@ -173,21 +240,25 @@ def _train_and_score(spec: RunSpec, out_dir: str, wdir: Path) -> dict[str, Any]:
         "best_val": _jsonable(fit_res.best_val),
         "fit_wall_time_s": float(fit_res.wall_time_s), "wall_time_s": time.perf_counter() - t0,
         "history": _jsonable(list(fit_res.history)),
-        "git_commit": _CODE_COMMIT, "host": socket.gethostname(), "python": platform.python_version(), "torch": torch.__version__,
+        "git_commit": _CODE_COMMIT, "host": socket.gethostname(), "python": platform.python_version(), "torch": str(torch.__version__),
         "threads": torch.get_num_threads(), "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }
-    atomic_write_text(result_path(out_dir, spec), json.dumps(rec, indent=1, sort_keys=True))
+    write_record(out_dir, rec)
     return {**rec, "status": "ran"}
 
 
-def safe_run_one(config: dict[str, Any], out_dir: str, threads: int = 1) -> dict[str, Any]:
+def safe_run_one(config: dict[str, Any], out_dir: str, threads: int = 1, lock_wait_s: float = 0.0) -> dict[str, Any]:
     """:func:`run_one` that reports a failure as a record instead of raising (one bad run keeps the sweep going)."""
     try:
-        return run_one(config, out_dir, threads)
+        return run_one(config, out_dir, threads, lock_wait_s)
     except Exception as exc:  # noqa: BLE001 - reported to the caller with its traceback
-        return {"status": "failed", "env": config.get("env_id"), "model": config.get("model"),
-                "seed": config.get("seed"), "config": config, "error": f"{type(exc).__name__}: {exc}",
-                "traceback": traceback.format_exc()}
+        return failed_record(config, f"{type(exc).__name__}: {exc}", traceback.format_exc())
+
+
+def safe_run_one_waiting(config: dict[str, Any], out_dir: str, threads: int = 1) -> dict[str, Any]:
+    """:func:`safe_run_one` waiting up to :data:`RAY_LOCK_WAIT_S` for a run directory another process holds (the Ray
+    task function: a plain function, as ``ray.remote`` needs)."""
+    return safe_run_one(config, out_dir, threads, lock_wait_s=RAY_LOCK_WAIT_S)
 
 
 # --------------------------------------------------------------------------- sweeps
@@ -209,11 +280,12 @@ def run_sweep(specs: list[RunSpec], out_dir: str | Path, backend: str = "local",
     """Run every spec not already finished in ``out_dir``; return all records (cached, ran or failed).
 
     Finished runs are read from disk in this process and never dispatched, so a
-    repeated call with the same grid does no work.
+    repeated call with the same grid does no work.  Each returned record is written by this process where its
+    worker's disk is not this one (:func:`persist_record`); a run whose worker is lost becomes a failed record.
     """
     from .executors import make_executor
 
-    out_dir = Path(out_dir)
+    out_dir = absolute_out_dir(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     records: list[dict[str, Any]] = []
     pending: list[RunSpec] = []
@@ -228,12 +300,20 @@ def run_sweep(specs: list[RunSpec], out_dir: str | Path, backend: str = "local",
         ex = make_executor(backend, workers=workers, address=address, threads=threads)
         try:
             configs = [s.config() for s in pending]
-            it = ex.map_unordered(safe_run_one, configs, str(out_dir))
+            # a killed Ray driver's tasks are stopped by Ray a few seconds later (local workers die with their
+            # parent): a rerun started at once waits for their run directories instead of failing those runs
+            fn = safe_run_one_waiting if ex.name == "ray" else safe_run_one
+            it = ex.map_unordered(fn, configs, str(out_dir), on_lost=lost_record)
             if progress:
                 from tqdm.auto import tqdm
 
                 it = tqdm(it, total=len(configs), desc=f"phast-bench ({ex.name}, {len(records)} cached)", unit="run")
             for rec in it:
+                try:
+                    rec = persist_record(out_dir, rec)
+                except (OSError, ValueError) as exc:  # keep the sweep (and this record, in memory) going
+                    print(f"[phast-bench] could not store {rec.get('env')} {rec.get('model')} seed {rec.get('seed')}: {exc}",
+                          flush=True)
                 if rec.get("status") == "failed":
                     print(f"[phast-bench] FAILED {rec['env']} {rec['model']} seed {rec['seed']}: {rec['error']}", flush=True)
                 records.append(rec)

@@ -79,7 +79,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model-kw", action="append", metavar="KEY=VALUE", help="model constructor override (repeatable)")
     p.add_argument("--out", default="results", help="output directory (default results/)")
     p.add_argument("--backend", choices=("local", "ray"), default="local")
-    p.add_argument("--address", default=None, help="Ray cluster address (backend ray; default: start a local instance)")
+    p.add_argument("--address", default=None,
+                   help="Ray cluster to run on (backend ray): 'auto' (the cluster started on this machine by 'ray start') or "
+                        "HOST:PORT; default: a private local Ray instance for this sweep only")
     p.add_argument("--workers", type=int, default=None, help="parallel runs (default: all cores)")
     p.add_argument("--threads", type=int, default=1, help="torch threads per run (default 1)")
     p.add_argument("--summarize-only", action="store_true", help="do not train: tabulate the finished runs of this grid")
@@ -103,6 +105,8 @@ def main(argv: list[str] | None = None) -> int:
         if bad:
             raise ValueError(f"unknown model(s) {bad}; known: {', '.join(KNOWN_MODELS)}")
         seeds = parse_seeds(args.seeds)
+        if args.address and args.backend != "ray":
+            raise ValueError("--address is the Ray cluster to run on: add --backend ray")
         for name in ("workers", "threads"):
             v = getattr(args, name)
             if v is not None and v < 1:
@@ -131,8 +135,14 @@ def main(argv: list[str] | None = None) -> int:
     if args.summarize_only:
         records = [r for s in specs if (r := load_result(out, s)) is not None]
     else:
-        records = run_sweep(specs, out, backend=args.backend, workers=args.workers, address=args.address,
-                            progress=not args.no_progress, threads=args.threads)
+        try:
+            records = run_sweep(specs, out, backend=args.backend, workers=args.workers, address=args.address,
+                                progress=not args.no_progress, threads=args.threads)
+        except KeyboardInterrupt:  # Ctrl-C: finished runs are on disk; the same command resumes
+            done = sum(load_result(out, s) is not None for s in specs)
+            print(f"phast-bench: interrupted; {done}/{len(specs)} runs are finished in {out.absolute()}; "
+                  "rerun the same command to resume", file=sys.stderr)
+            return 130
     paths = write_reports(records, out, title=args.title, note=args.note)
     if args.figures:
         from phast_model.bench.figures import make_figures
