@@ -213,6 +213,11 @@ class PHAST(ForecastModel):
         q = q.to(dtype)
         return q, (None if u is None else self.pad_u(u.to(dtype), q.shape[1]))
 
+    def _prep_rollout(self, q_burn: torch.Tensor, u: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Like :meth:`_prep`, but ``u`` keeps its full length: a rollout reads it past the burn-in."""
+        q, _ = self._prep(q_burn, None)
+        return q, (None if u is None else u.to(q.dtype))
+
     def forward(self, q: torch.Tensor, u: torch.Tensor | None = None) -> torch.Tensor:
         """Teacher-forced next-step predictions for every t at once: (B, T, n) -> (B, T, n)."""
         q, u = self._prep(q, u)
@@ -233,8 +238,9 @@ class PHAST(ForecastModel):
     @torch.no_grad()
     def rollout(self, q_burn: torch.Tensor, u: torch.Tensor | None, H: int) -> torch.Tensor:
         """Autoregressive rollout; the observer is re-run on its finite window only (exactly the
-        autoregressive definition, O(H) instead of O(H^2))."""
-        q, u = self._prep(q_burn, u)
+        autoregressive definition, O(H) instead of O(H^2)).  ``u`` covers the burn-in and the horizon
+        (zeros beyond it)."""
+        q, u = self._prep_rollout(q_burn, u)
         K, W = q.shape[1], self.observer.window
         hist = q[:, -W:]
         preds = []
@@ -249,7 +255,7 @@ class PHAST(ForecastModel):
     def rollout_takeover(self, q_burn: torch.Tensor, u: torch.Tensor | None, H: int,
                          return_p: bool = False) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
         """Takeover rollout (Eq. 8): infer one state at the end of the burn-in, then integrate the core only."""
-        q_burn, u = self._prep(q_burn, u)
+        q_burn, u = self._prep_rollout(q_burn, u)
         K = q_burn.shape[1]
         q, p = self.infer_state(q_burn)
         qs, ps = [], []

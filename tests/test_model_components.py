@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 import torch
@@ -174,6 +176,26 @@ def test_fast_rollout_equals_generic_definition():
     fast = model.rollout(q, None, 15)
     slow = super(type(model), model).rollout(q, None, 15)  # ForecastModel's O(H^2) reference
     assert torch.allclose(fast, slow, atol=1e-9)
+
+
+def test_rollouts_apply_the_port_input_past_the_burn_in():
+    """u covers the burn-in and the horizon: both rollouts read it after the burn-in (they once cropped it to the
+    burn-in, so a driven test set was scored as if the port were idle)."""
+    model = build_model("PHAST/WindyPendulum-v0", "known").double()
+    K, H = 10, 15
+    q = torch.rand(3, K, 1, dtype=torch.float64) * 2 - 1
+    u = torch.randn(3, K - 1 + H, 1, dtype=torch.float64) * 2
+    fast = model.rollout(q, u, H)
+    slow = super(type(model), model).rollout(q, u, H)  # ForecastModel's O(H^2) reference
+    assert torch.allclose(fast, slow, atol=1e-9)
+    assert (fast - model.rollout(q, None, H)).abs().max() > 1e-2  # the input moves the pendulum
+    qt, pt = model.infer_state(q)
+    ref = []
+    for h in range(H):
+        qt, pt = model.core(qt, pt, model.port_force(u[:, K - 1 + h]))
+        ref.append(qt)
+    wrapped = torch.remainder(torch.stack(ref, 1) + math.pi, 2 * math.pi) - math.pi
+    assert torch.allclose(model.rollout_takeover(q, u, H), wrapped, atol=1e-9)
 
 
 def test_bad_config_values_raise():
