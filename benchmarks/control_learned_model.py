@@ -2,13 +2,14 @@
 with a trained PHAST run as its process model), one row per (target, sigma, process model).
 
 Reads the ``results.json`` / ``protocol.json`` that ``phast-control-eval`` wrote into the sub-directories of
-``--dir`` (one per target and PHAST run, e.g. ``windy_q0_known``) and the ``metrics.json`` of each run, and writes
+``--dir`` (one per target and PHAST run, named ``<plant>_<target>_<run>``, e.g. ``windy_q0_known`` or
+``windy_up_partial_excited``), the ``metrics.json`` of each run and the run itself (its linearisation), and writes
 ``summary.md`` + ``summary.json`` there.  The evaluation commands are listed in docs/control.md.
 
+    R=docs/control_results/phast_ukf/runs
     python benchmarks/control_learned_model.py --dir docs/control_results/phast_ukf \
-        --runs known=/tmp/runs/windy_known_s0 partial=/tmp/runs/windy_partial_s0 unknown=/tmp/runs/windy_unknown_s0
+        --runs known=$R/windy_known_s0 partial=$R/windy_partial_s0 unknown=$R/windy_unknown_s0
 """
-
 from __future__ import annotations
 
 import argparse
@@ -42,6 +43,12 @@ def _target(protocol: dict) -> str:
     return "upright (q* = pi)" if abs(math.cos(protocol["q_star"]) + 1) < 1e-9 else "hanging (q* = 0)"
 
 
+def label(run: str) -> str:
+    """``partial`` -> "PHAST PARTIAL", ``partial_excited`` -> "PHAST PARTIAL, excited port" (trained on driven data)."""
+    base, _, tag = run.partition("_")
+    return f"PHAST {base.upper()}" + (", excited port" if tag == "excited" else f" {tag}" if tag else "")
+
+
 def _rows(sub: Path, regime: str) -> list[Row]:
     """Pooled rows of the plant UKF and phast-ukf in one evaluation directory (``regime``: the run's label)."""
     protocol = json.loads((sub / "protocol.json").read_text())
@@ -49,7 +56,7 @@ def _rows(sub: Path, regime: str) -> list[Row]:
     for r in json.loads((sub / "results.json").read_text()):
         if r["regime"] != "all" or r["estimator"] not in (PLANT_UKF, LEARNED_UKF):
             continue
-        model = "plant physics" if r["estimator"] == PLANT_UKF else f"PHAST {regime.upper()}"
+        model = "plant physics" if r["estimator"] == PLANT_UKF else label(regime)
         out.append(Row(_target(protocol), float(r["sigma"]), model, int(r["n_trials"]), r["success_rate"],
                        r["success_angle_rate"], r["u_rms_final"], r["effort"], r["velocity_error"]))
     return out
@@ -59,7 +66,7 @@ def summarize(root: Path, runs: dict[str, Path]) -> tuple[list[Row], dict[str, d
     """All rows under ``root`` (sub-directories named ``*_<regime>``) and the runs' model metrics."""
     rows: list[Row] = []
     for sub in sorted(p for p in root.iterdir() if (p / "results.json").exists()):
-        rows += _rows(sub, sub.name.rsplit("_", 1)[-1])
+        rows += _rows(sub, sub.name.split("_", 2)[-1])  # windy_up_partial_excited -> partial_excited
     uniq = {(r.target, r.sigma, r.process_model): r for r in rows}  # the plant UKF appears once per target
     rows = sorted(uniq.values(), key=lambda r: (r.target, r.sigma, r.process_model != "plant physics", r.process_model))
     keys = ("damping_r2", "rollout_theta_wrap_mse_h100", "rollout_takeover_theta_wrap_mse_h100", "mse")
@@ -106,7 +113,7 @@ def markdown(rows: list[Row], metrics: dict[str, dict]) -> str:
              "M^-1 V''(pi) | port gain M^-1 G |", "|---|---|---|---|---|---|---|"]
     nan = float("nan")
     for name, m in metrics.items():
-        lines.append(f"| PHAST {name.upper()} | {m.get('damping_r2', nan):.3f} | {m.get('rollout_theta_wrap_mse_h100', nan):.4f} | "
+        lines.append(f"| {label(name)} | {m.get('damping_r2', nan):.3f} | {m.get('rollout_theta_wrap_mse_h100', nan):.4f} | "
                      f"{m.get('rollout_takeover_theta_wrap_mse_h100', nan):.4f} | {m.get('stiffness_0', nan):.2f} "
                      f"(true {m.get('true_stiffness_0', nan):.2f}) | {m.get('stiffness_pi', nan):.2f} "
                      f"(true {m.get('true_stiffness_pi', nan):.2f}) | {m.get('port_gain', nan):.3f} "
