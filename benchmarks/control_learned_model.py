@@ -43,10 +43,14 @@ def _target(protocol: dict) -> str:
     return "upright (q* = pi)" if abs(math.cos(protocol["q_star"]) + 1) < 1e-9 else "hanging (q* = 0)"
 
 
+#: run-name suffixes: how the run differs from the regime's defaults
+VARIANTS = {"excited": "excited port", "ident": "identification settings"}
+
+
 def label(run: str) -> str:
     """``partial`` -> "PHAST PARTIAL", ``partial_excited`` -> "PHAST PARTIAL, excited port" (trained on driven data)."""
     base, _, tag = run.partition("_")
-    return f"PHAST {base.upper()}" + (", excited port" if tag == "excited" else f" {tag}" if tag else "")
+    return f"PHAST {base.upper()}" + (f", {VARIANTS.get(tag, tag)}" if tag else "")
 
 
 def _rows(sub: Path, regime: str) -> list[Row]:

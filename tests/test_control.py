@@ -333,3 +333,40 @@ def test_lqg_torque_floor_upright() -> None:
         assert mod.torque_floor(a, b, 0.05, gains=gains)["rms_torque"] >= lo5["rms_torque"] - 1e-9
     a0, b0 = mod.linearise("PHAST/DampedPendulum-v0", 0.0, 0.01)  # stable equilibrium: no floor
     assert mod.torque_floor(a0, b0, 0.05)["rms_torque"] < 1e-3
+
+
+def test_learned_model_summary_reads_the_eval_directories(tmp_path) -> None:
+    # benchmarks/control_learned_model.py: one row per (target, sigma, process model), the plant UKF once per target,
+    # run labels from the directory names, and a linearisation of a run that matches the plant for the KNOWN model
+    import importlib.util
+    import json
+    import sys
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "control_learned_model.py"
+    spec = importlib.util.spec_from_file_location("control_learned_model", path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod  # its dataclasses look their module up
+    spec.loader.exec_module(mod)
+    assert mod.label("partial_excited") == "PHAST PARTIAL, excited port"
+    assert mod.label("unknown") == "PHAST UNKNOWN"
+
+    def row(est: str, success: float) -> dict:
+        return {"regime": "all", "estimator": est, "sigma": 0.05, "n_trials": 50, "success_rate": success,
+                "success_angle_rate": 1.0, "u_rms_final": 0.1, "effort": 1.0, "velocity_error": 0.01}
+
+    for name, q_star, rows in [("windy_q0_known", 0.0, [row("ekf", 1.0), row("phast-ukf", 0.9), row("map", 1.0)]),
+                               ("windy_up_partial_excited", math.pi, [row("phast-ukf", 0.5)])]:
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "protocol.json").write_text(json.dumps({"q_star": q_star}))
+        (tmp_path / name / "results.json").write_text(json.dumps(rows))
+    got = {(r.target, r.process_model): r.success for r in mod.summarize(tmp_path, {})[0]}
+    assert got == {("hanging (q* = 0)", "plant physics"): 1.0, ("hanging (q* = 0)", "PHAST KNOWN"): 0.9,
+                   ("upright (q* = pi)", "PHAST PARTIAL, excited port"): 0.5}
+    from phast_model.checkpoint import save_run
+    from phast_model.regimes import build_model
+
+    save_run(build_model("PHAST/WindyPendulum-v0", "known"), tmp_path / "run")
+    lin = mod.linearised(tmp_path / "run")  # KNOWN's V and M are the plant's
+    for k in ("stiffness_0", "stiffness_pi", "port_gain"):
+        assert lin[k] == pytest.approx(lin[f"true_{k}"], rel=1e-4)
