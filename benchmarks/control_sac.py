@@ -347,6 +347,7 @@ def train_agent(name: str, args: argparse.Namespace, out: Path) -> dict[str, Any
                      ("seconds", round(time.time() - t0, 1))):
             curve[k].append(v)
         bar.set_postfix(ret=f"{ret:.2f}", plant=f"{plant:.2f}")
+        atomic_write_text(out / f"curve_{name}_{args.reward}.json", json.dumps(curve, indent=1))  # partial curve
         if is_flat(curve["train_env_return"], args.flat_window, args.flat_rel_tol, args.flat_abs_tol):
             curve["flat"] = True
             break
