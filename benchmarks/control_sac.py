@@ -31,8 +31,9 @@ import json
 import math
 import time
 from collections import deque
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -403,7 +404,8 @@ def write_tables(out: Path, meta: dict[str, Any]) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", required=True)
-    ap.add_argument("--agents", default="sac-real,sac-world", help="comma list of sac-real, sac-world (needs --phast-run); none: Energy-Casimir rows only")
+    ap.add_argument("--agents", default="sac-real,sac-world",
+                    help="comma list of sac-real, sac-world (needs --phast-run); none: Energy-Casimir rows only")
     ap.add_argument("--steps", type=int, default=20000, help="SAC decisions per agent without --until-flat (zoo: 20k)")
     ap.add_argument("--until-flat", action="store_true", help="train until the learning curve is flat (is_flat) or --max-steps")
     ap.add_argument("--max-steps", type=int, default=150000, help="cap on SAC decisions with --until-flat")
