@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from test_bench import ENV, TINY  # the tiny protocol the sweep tests share (tests/ is on sys.path under pytest)
 
 from phast_model.bench import LocalExecutor, RayExecutor, grid, load_result, result_path, run_sweep
 from phast_model.bench import executors as executors_mod
@@ -29,8 +30,6 @@ from phast_model.bench.runner import (
 )
 from phast_model.cli.bench import main
 
-ENV = "PHAST/WindyPendulum-v0"
-TINY = dict(epochs=1, n_train=6, n_val=3, n_test=3, T=30, horizons=(5, 10), burn_in=5, train={"batch_size": 4})
 CLI_TINY = ["--envs", "WindyPendulum-v0", "--models", "gru", "--epochs", "1", "--n-train", "6", "--n-val", "3", "--n-test", "3",
             "--T", "30", "--horizons", "5,10", "--burn-in", "5", "--train", "batch_size=4", "--no-progress"]
 
