@@ -88,25 +88,24 @@ def linearised(run: Path) -> dict[str, float]:
     instability rate squared); ``port_gain``: M^-1 G, the acceleration per N m of torque.  Free-swing data
     (u = 0) fix only ratios of H's parts, so a learned scale of H shows up as a wrong port gain.
     """
-    import gymnasium as gym
     import torch
 
-    import phast_gym  # noqa: F401  (registers the envs)
+    from phast_gym import make_env_system
+    from phast_gym.control.controller import potential_curvature
     from phast_model.api import load_run
 
     model = load_run(run)
-    config = json.loads((run / "config.json").read_text())
-    system = gym.make(config["model"]["env_id"]).unwrapped.system
+    cfg = json.loads((run / "config.json").read_text())["model"]
+    system = make_env_system(cfg["env_id"], **cfg.get("env_kwargs", {}))
     out = {}
     for name, q0 in (("0", 0.0), ("pi", math.pi)):
         q = torch.full((1, 1), q0, dtype=torch.float64, requires_grad=True)
         (g,) = torch.autograd.grad(model.hamiltonian(q.float(), torch.zeros(1, 1)).sum(), q, create_graph=True)
         (h,) = torch.autograd.grad(g.sum(), q)
         minv = float(model.velocity(q.detach().float(), torch.ones(1, 1))[0, 0])
-        eps = 1e-5
-        true_h = (system.grad_potential((q0 + eps,))[0] - system.grad_potential((q0 - eps,))[0]) / (2 * eps)
         out[f"stiffness_{name}"] = minv * float(h)
-        out[f"true_stiffness_{name}"] = float(system.velocity((q0,), (1.0,))[0]) * float(true_h)
+        true_minv = float(system.velocity((q0,), (1.0,))[0])
+        out[f"true_stiffness_{name}"] = true_minv * float(potential_curvature(system, [q0])[0, 0])
     out["port_gain"] = float(model.velocity(torch.zeros(1, 1), torch.ones(1, 1))[0, 0]) * float(model.G[0, 0])
     out["true_port_gain"] = float(system.velocity((0.0,), (1.0,))[0])  # the torque acts on the angle itself (G = 1)
     return out

@@ -75,8 +75,10 @@ def numerics() -> dict[str, str]:
     import numpy
     import scipy
 
-    cpu = next((ln.split(":", 1)[1].strip() for ln in Path("/proc/cpuinfo").read_text().splitlines()
-                if ln.startswith("model name")), platform.processor()) if Path("/proc/cpuinfo").exists() else platform.processor()
+    cpuinfo = Path("/proc/cpuinfo")
+    names = [ln.split(":", 1)[1].strip() for ln in cpuinfo.read_text().splitlines() if ln.startswith("model name")] \
+        if cpuinfo.exists() else []
+    cpu = names[0] if names else platform.processor()
     return {"cpu": cpu, "torch_cpu_capability": str(torch.backends.cpu.get_cpu_capability()),
             "torch": str(torch.__version__), "numpy": numpy.__version__, "scipy": scipy.__version__}
 

@@ -261,8 +261,8 @@ class PortExcitation:
 
     def for_env(self, env_id: str, n_traj: int, T: int, **env_kwargs: Any) -> np.ndarray:
         """:meth:`signal` sized for ``env_id``'s actuated coordinates (``actuated_dofs`` among ``env_kwargs``)."""
-        system = make_env_system(resolve_env_id(env_id), **{k: v for k, v in env_kwargs.items() if k != "actuated_dofs"})
-        return self.signal(n_traj, T, len(parse_actuated_dofs(env_kwargs.get("actuated_dofs"), system.n)))
+        n = make_env_system(env_id, **env_kwargs).n
+        return self.signal(n_traj, T, len(parse_actuated_dofs(env_kwargs.get("actuated_dofs"), n)))
 
 
 def split_dataset(ds: Dataset, n_train: int = 1000, n_val: int = 200, n_test: int = 200) -> dict[str, Dataset]:

@@ -189,7 +189,7 @@ def initialize_partial(model, kin: Kinematics, quantile: float = 0.01) -> Linear
     # scale of each decoupled coordinate); a mass template is fitted, in the gauge of a mean diagonal of 1
     neutral = bool(mass.constant) and kin.f is None  # with a port, the input fixes the scale: M is fitted too
     theta_m = torch.ones(J, dtype=Am.dtype) if neutral else None
-    rhs = (torch.zeros_like(kin.q) if kin.f is None else kin.f) - Am @ theta_m if neutral else kin.f
+    rhs = -(Am @ theta_m) if neutral else kin.f
     best: tuple[LinearFit, float | None] | None = None
     for eps in ([None] if template.kind != "gravity" else list(np.logspace(-2, 0, 11))):
         if eps is not None:
