@@ -145,10 +145,11 @@ class DirLocked(ValueError):
 
 
 @contextlib.contextmanager
-def dir_lock(directory: str | Path, name: str = ".lock") -> Iterator[Path]:
-    """Exclusive, non-blocking lock on ``directory`` (``flock`` on ``directory/name``) for the duration of the block.
+def dir_lock(directory: str | Path, name: str = ".lock", wait_s: float = 0.0) -> Iterator[Path]:
+    """Exclusive lock on ``directory`` (``flock`` on ``directory/name``) for the duration of the block.
 
-    Raises :class:`DirLocked` naming the holder's pid when another process holds it.  The kernel releases the
+    Raises :class:`DirLocked` naming the holder's pid when another process holds it (after retrying for up to
+    ``wait_s`` seconds; 0: at once).  The kernel releases the
     lock when its holder exits or is killed, so a crashed run never leaves the directory locked.  Where
     ``fcntl`` is unavailable (Windows) the block runs unlocked."""
     directory = Path(directory)
@@ -160,13 +161,19 @@ def dir_lock(directory: str | Path, name: str = ".lock") -> Iterator[Path]:
         return
     path = directory / name
     fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    deadline = time.monotonic() + max(0.0, float(wait_s))
     try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = os.pread(fd, 64, 0).decode(errors="replace").strip() or "?"
-            raise DirLocked(f"{directory} is in use by another process (pid {holder}); wait for it to finish "
-                            f"or stop it") from None
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                if time.monotonic() < deadline:
+                    time.sleep(0.5)
+                    continue
+                holder = os.pread(fd, 64, 0).decode(errors="replace").strip() or "?"
+                raise DirLocked(f"{directory} is in use by another process (pid {holder}); wait for it to finish "
+                                f"or stop it") from None
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
         yield directory

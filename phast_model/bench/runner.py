@@ -14,7 +14,6 @@ made absolute before it is shipped to workers (:func:`absolute_out_dir`), whose 
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import json
 import platform
@@ -27,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from phast_gym.fileio import DirLocked, atomic_write_text, dir_lock
+from phast_gym.fileio import atomic_write_text, dir_lock
 from phast_gym.fileio import jsonable as _jsonable
 
 from .spec import RunSpec, run_key
@@ -199,16 +198,7 @@ def run_one(config: dict[str, Any], out_dir: str, threads: int = 1, lock_wait_s:
         return {**cached, "status": "cached"}
     torch.set_num_threads(max(1, int(threads)))
     wdir = work_dir(out_dir, spec)
-    deadline = time.monotonic() + max(0.0, float(lock_wait_s))
-    with contextlib.ExitStack() as stack:
-        while True:
-            try:
-                stack.enter_context(dir_lock(wdir))
-                break
-            except DirLocked:
-                if time.monotonic() >= deadline:
-                    raise
-                time.sleep(0.5)
+    with dir_lock(wdir, wait_s=lock_wait_s):
         cached = load_result(out_dir, spec)  # finished while we waited for the lock
         if cached is not None:
             return {**cached, "status": "cached"}
