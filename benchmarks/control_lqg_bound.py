@@ -9,15 +9,15 @@ so the torque RMS cannot go below ``rms_floor`` however the controller is built.
 static feedback u = -k_c q_hat_err - d_inj qdot_hat on the Kalman estimate for given (k_c, d_inj) (the Energy-Casimir
 law with xi = q_hat).
 
-``python benchmarks/control_lqg_bound.py --env PHAST/DampedPendulum-v0 --sigma 0.01,0.05 --out DIR`` writes
+``python benchmarks/control_lqg_bound.py --env PHAST/DampedPendulum-v0 --sigma 0.01,0.05 --pass-grid --out DIR`` writes
 ``DIR/lqg_bound.json`` and prints one line per sigma.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +25,7 @@ import scipy.linalg as sl
 
 from phast_gym.control.controller import potential_curvature
 from phast_gym.control.evaluation import ControlProtocol, control_system
+from phast_gym.fileio import atomic_write_json
 from phast_gym.systems.base import SCALAR
 
 
@@ -41,9 +42,23 @@ def linearise(env_id: str, q_star: float, dt: float) -> tuple[np.ndarray, np.nda
     return mm[:2, :2], mm[:2, 2:]
 
 
-def torque_floor(a: np.ndarray, b: np.ndarray, sigma: float, gains: tuple[float, float] | None = None,
-                 eps: float = 1e-6, q_proc: float = 1e-12) -> dict[str, float]:
-    """Stationary RMS torque and angle std of LQG (eps -> 0), or of static gains on the Kalman posterior estimate."""
+@dataclass(frozen=True)
+class ClosedLoop:
+    """Linear closed loop z' = f z + g v (z = [x, e], e = x - x_hat posterior, v ~ N(0, sigma^2) the measurement
+    noise), torque u = h z, stationary covariance s; ``post`` is the Kalman posterior covariance."""
+
+    f: np.ndarray
+    g: np.ndarray
+    h: np.ndarray
+    s: np.ndarray | None
+    post: np.ndarray
+    k: np.ndarray
+    sigma: float
+
+
+def closed_loop(a: np.ndarray, b: np.ndarray, sigma: float, gains: tuple[float, float] | None = None,
+                eps: float = 1e-6, q_proc: float = 1e-12) -> ClosedLoop:
+    """LQG (eps -> 0) or static gains on the stationary Kalman posterior estimate; ``s`` is None when unstable."""
     c = np.array([[1.0, 0.0]])
     r = sigma**2
     p = sl.solve_discrete_are(a.T, c.T, q_proc * np.eye(2), np.array([[r]]))
@@ -54,16 +69,54 @@ def torque_floor(a: np.ndarray, b: np.ndarray, sigma: float, gains: tuple[float,
         k = np.linalg.solve(b.T @ x @ b + 1.0, b.T @ x @ a)
     else:
         k = np.array([[gains[0], gains[1]]])
-    # z = [x, e], e = x - x_hat (posterior); u = -k (x - e); e' = (I - L C) A e - L v
+    # u = -k (x - e); e' = (I - L C) A e - L v
     f = np.block([[a - b @ k, b @ k], [np.zeros((2, 2)), (np.eye(2) - gain_l @ c) @ a]])
-    if np.max(np.abs(np.linalg.eigvals(f))) >= 1:
-        return {"k_q": float(k[0, 0]), "k_qdot": float(k[0, 1]), "rms_torque": math.inf, "angle_std": math.inf}
     g = np.vstack([np.zeros((2, 1)), -gain_l])
-    s = sl.solve_discrete_lyapunov(f, g @ g.T * r)
-    h = np.hstack([-k, k])
+    stable = np.max(np.abs(np.linalg.eigvals(f))) < 1
+    s = sl.solve_discrete_lyapunov(f, g @ g.T * r) if stable else None
+    return ClosedLoop(f=f, g=g, h=np.hstack([-k, k]), s=s, post=post, k=k, sigma=sigma)
+
+
+def window_pass_rate(loop: ClosedLoop, window: int = 100, tol: float = 0.05, u_tol: float = 0.25,
+                     n: int = 20000, seed: int = 0) -> dict[str, float]:
+    """Monte Carlo fraction of stationary ``window``-step windows that pass the protocol's success rule
+    (|angle error| < tol at every step and RMS torque < u_tol), and each half of it; batched over windows."""
+    if loop.s is None:
+        return {"pass": 0.0, "pass_torque": 0.0, "pass_angle": 0.0}
+    rng = np.random.default_rng(seed)
+    z = rng.multivariate_normal(np.zeros(4), loop.s, size=n)
+    u2, worst = np.zeros(n), np.zeros(n)
+    for _ in range(window):
+        u2 += (z @ loop.h.T)[:, 0] ** 2
+        worst = np.maximum(worst, np.abs(z[:, 0]))
+        z = z @ loop.f.T + rng.normal(0.0, loop.sigma, size=(n, 1)) @ loop.g.T
+    torque_ok, angle_ok = np.sqrt(u2 / window) < u_tol, worst < tol
+    return {"pass": float(np.mean(torque_ok & angle_ok)), "pass_torque": float(np.mean(torque_ok)),
+            "pass_angle": float(np.mean(angle_ok))}
+
+
+def torque_floor(a: np.ndarray, b: np.ndarray, sigma: float, gains: tuple[float, float] | None = None,
+                 eps: float = 1e-6, q_proc: float = 1e-12) -> dict[str, float]:
+    """Stationary RMS torque and angle std of LQG (eps -> 0), or of static gains on the Kalman posterior estimate."""
+    loop = closed_loop(a, b, sigma, gains, eps, q_proc)
+    k, s, h, post = loop.k, loop.s, loop.h, loop.post
+    if s is None:
+        return {"k_q": float(k[0, 0]), "k_qdot": float(k[0, 1]), "rms_torque": math.inf, "angle_std": math.inf}
     return {"k_q": float(k[0, 0]), "k_qdot": float(k[0, 1]), "rms_torque": float(np.sqrt((h @ s @ h.T)[0, 0])),
             "angle_std": float(np.sqrt(s[0, 0])), "kalman_q_std": float(np.sqrt(post[0, 0])),
             "kalman_qdot_std": float(np.sqrt(post[1, 1]))}
+
+
+def best_static_pass_rate(a: np.ndarray, b: np.ndarray, sigma: float, k_q: np.ndarray, k_qdot: np.ndarray,
+                          **rule: float) -> dict[str, float]:
+    """The highest window pass rate over a grid of static gains (k_q, k_qdot) on the Kalman estimate."""
+    best = {"pass": -1.0}
+    for kq in k_q:
+        for kd in k_qdot:
+            rate = window_pass_rate(closed_loop(a, b, sigma, gains=(float(kq), float(kd))), **rule)
+            if rate["pass"] > best["pass"]:
+                best = {"k_q": float(kq), "k_qdot": float(kd), **rate}
+    return best
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -73,22 +126,37 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--dt", type=float, default=0.01)
     ap.add_argument("--sigma", default="0.01,0.05")
     ap.add_argument("--gains", default="20:3", help="comma-separated k_c:d_inj pairs to evaluate as static feedback on the estimate")
+    ap.add_argument("--u-tol", type=float, default=0.25, help="the success rule's RMS-torque tolerance (N m)")
+    ap.add_argument("--pass-grid", action="store_true",
+                    help="also search static gains k_q in [5, 300], k_qdot in [0.3, 40] (log grid) for the highest "
+                         "Monte Carlo rate of 1-s windows that pass the success rule")
     ap.add_argument("--out", default=None)
     args = ap.parse_args(argv)
+    rule = {"u_tol": args.u_tol, "window": round(1.0 / args.dt)}
     a, b = linearise(args.env, args.q_star, args.dt)
     rows = []
     for sigma in (float(s) for s in args.sigma.split(",")):
-        rows.append({"sigma": sigma, "controller": "LQG (eps -> 0): lower bound", **torque_floor(a, b, sigma)})
+        rows.append({"sigma": sigma, "controller": "LQG (eps -> 0): lower bound", **torque_floor(a, b, sigma),
+                     "window": window_pass_rate(closed_loop(a, b, sigma), **rule)})
         for pair in args.gains.split(","):
             kc, dinj = (float(v) for v in pair.split(":"))
             rows.append({"sigma": sigma, "controller": f"k_c = {kc:g}, d_inj = {dinj:g} on the Kalman estimate",
-                         **torque_floor(a, b, sigma, gains=(kc, dinj))})
+                         **torque_floor(a, b, sigma, gains=(kc, dinj)),
+                         "window": window_pass_rate(closed_loop(a, b, sigma, gains=(kc, dinj)), **rule)})
+        if args.pass_grid:
+            best = best_static_pass_rate(a, b, sigma, np.geomspace(5, 300, 25), np.geomspace(0.3, 40, 25), **rule)
+            rows.append({"sigma": sigma, "controller": "best static gains on the Kalman estimate (pass-rate search)",
+                         **torque_floor(a, b, sigma, gains=(best["k_q"], best["k_qdot"])),
+                         "window": {k: best[k] for k in ("pass", "pass_torque", "pass_angle")}})
     for r in rows:
-        print(f"sigma={r['sigma']:g} {r['controller']}: RMS torque {r['rms_torque']:.3f} N m, angle std {r['angle_std']:.4f} rad")
+        print(f"sigma={r['sigma']:g} {r['controller']}: RMS torque {r['rms_torque']:.3f} N m, angle std "
+              f"{r['angle_std']:.4f} rad, 1-s windows passing {r['window']['pass']:.3f} "
+              f"(torque {r['window']['pass_torque']:.3f}, angle {r['window']['pass_angle']:.3f})")
     if args.out:
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
-        (out / "lqg_bound.json").write_text(json.dumps({"env": args.env, "q_star": args.q_star, "dt": args.dt, "rows": rows}, indent=1))
+        record = {"env": args.env, "q_star": args.q_star, "dt": args.dt, "rule": rule, "rows": rows}
+        atomic_write_json(out / "lqg_bound.json", record, indent=1)
     return 0
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 
 import gymnasium as gym
 import numpy as np
@@ -315,7 +316,7 @@ def test_cli_bad_estimators_and_unwritable_out_fail_before_evaluating(tmp_path, 
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
 
 
-def test_lqg_torque_floor_upright() -> None:
+def test_lqg_torque_floor_upright(monkeypatch) -> None:
     # benchmarks/control_lqg_bound.py: no causal q-only controller holds the upright with less stationary RMS torque
     # than the LQG limit; it scales with sigma, and Energy-Casimir gains on the Kalman estimate sit above it.
     import importlib.util
@@ -324,6 +325,7 @@ def test_lqg_torque_floor_upright() -> None:
     path = Path(__file__).resolve().parents[1] / "benchmarks" / "control_lqg_bound.py"
     spec = importlib.util.spec_from_file_location("control_lqg_bound", path)
     mod = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, spec.name, mod)  # its dataclass looks its module up there
     spec.loader.exec_module(mod)
     a, b = mod.linearise("PHAST/DampedPendulum-v0", math.pi, 0.01)
     lo1, lo5 = mod.torque_floor(a, b, 0.01), mod.torque_floor(a, b, 0.05)
@@ -333,6 +335,13 @@ def test_lqg_torque_floor_upright() -> None:
         assert mod.torque_floor(a, b, 0.05, gains=gains)["rms_torque"] >= lo5["rms_torque"] - 1e-9
     a0, b0 = mod.linearise("PHAST/DampedPendulum-v0", 0.0, 0.01)  # stable equilibrium: no floor
     assert mod.torque_floor(a0, b0, 0.05)["rms_torque"] < 1e-3
+    # the floor caps the success rule: at sigma = 0.05 the minimum-torque loop passes few 1-s windows, at 0.01 all
+    lqg1, lqg5 = mod.closed_loop(a, b, 0.01), mod.closed_loop(a, b, 0.05)
+    assert mod.window_pass_rate(lqg1, n=2000)["pass"] > 0.98
+    rate5 = mod.window_pass_rate(lqg5, n=2000)
+    assert rate5["pass"] < 0.25 and rate5["pass"] <= min(rate5["pass_torque"], rate5["pass_angle"])
+    unstable = mod.closed_loop(a, b, 0.05, gains=(1.0, 0.1))  # k_q below m g l: no stationary loop
+    assert unstable.s is None and mod.window_pass_rate(unstable)["pass"] == 0.0
 
 
 def test_learned_model_summary_reads_the_eval_directories(tmp_path) -> None:
