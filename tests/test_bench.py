@@ -323,3 +323,22 @@ def test_floor_rule_judges_nbody_against_its_information_floor():
     row = floor_rule(agg_with(1.5 * floor), [env])[-1]  # above 1.1 x the floor
     assert row.endswith("| no | yes | no |")
     assert floor_rule(agg_with(floor), ["PHAST/Pendulum-v0"]) == []
+
+
+def test_phast_run_seed_seeds_the_model_weights() -> None:
+    # the run's seed is the PHAST model's seed, as with phast-train --seed: seeds differ in their initial weights,
+    # an explicit model_kw seed wins, and the weights of a seed match build_model(..., seed=seed)
+    from phast_model.bench.runner import build_run_model
+    from phast_model.regimes import build_model
+
+    def weights(model) -> list:  # noqa: ANN001
+        return [t.detach().clone() for t in model.state_dict().values()]
+
+    def same(a: list, b: list) -> bool:
+        return all(x.shape == y.shape and bool((x == y).all()) for x, y in zip(a, b, strict=True))
+
+    w0 = weights(build_run_model(RunSpec(ENV, "phast-unknown", seed=0), None))
+    w1 = weights(build_run_model(RunSpec(ENV, "phast-unknown", seed=1), None))
+    assert not same(w0, w1)
+    assert same(w1, weights(build_model(ENV, "unknown", seed=1)))
+    assert same(w0, weights(build_run_model(RunSpec(ENV, "phast-unknown", seed=1, model_kw={"seed": 0}), None)))

@@ -149,7 +149,8 @@ def build_run_model(spec: RunSpec, train: Any) -> Any:
     if spec.model.startswith("phast-"):
         from phast_model.regimes import build_model
 
-        model = build_model(spec.env_id, spec.model.split("-", 1)[1], **spec.model_kw)
+        # the run's seed is the model's seed (its initial weights), as in ``phast-train --seed``
+        model = build_model(spec.env_id, spec.model.split("-", 1)[1], **{"seed": spec.seed, **spec.model_kw})
         if spec.full_state:  # p observed: the core on (q, p), no observer (paper Table 25)
             from phast_model.fullstate import FullStatePHAST
 

@@ -21,11 +21,13 @@ HARNESS_VERSION = 1
 #: per model, bumped when a code change alters what its runs train or output (absent = 1); it enters the hash of
 #: that model's runs only, so their stored results are redone and every other model's stay valid.
 #: transformer 2: no dropout on the attention weights (fused attention); PHAST 2: least-squares start from the
-#: training data, learned M(q), Householder directions starting on the axes
-MODEL_REVISIONS: dict[str, int] = {"transformer": 2, "phast-known": 2, "phast-partial": 2, "phast-unknown": 2}
+#: training data, learned M(q), Householder directions starting on the axes; PHAST 3: the run's seed also seeds the
+#: model's initial weights (before, every seed started from the weights of seed 0 and only the batch order varied)
+MODEL_REVISIONS: dict[str, int] = {"transformer": 2, "phast-known": 3, "phast-partial": 3, "phast-unknown": 3}
 #: (model, env id) -> revision, where a change touches one env's runs of a model only (overrides MODEL_REVISIONS).
-#: phast-partial 3 on predator-prey: the Lotka-Volterra template starts from the observed prey, not the env's rhs
-ENV_MODEL_REVISIONS: dict[tuple[str, str], int] = {("phast-partial", "PHAST/PredatorPrey-v0"): 3}
+#: phast-partial on predator-prey: 3 = the Lotka-Volterra template starts from the observed prey, not the env's rhs;
+#: 4 = the PHAST 3 change
+ENV_MODEL_REVISIONS: dict[tuple[str, str], int] = {("phast-partial", "PHAST/PredatorPrey-v0"): 4}
 
 
 def model_revision(model: str, env_id: str) -> int | None:
