@@ -520,95 +520,164 @@ class LatentODEModel(PHAST):
 
 
 # ------------------------------------------------------------------------------ builder
-def build_from_config(cfg: PHASTConfig) -> PHAST:
-    """Compose a PHAST (or predator-prey latent ODE) model from its configuration."""
-    env_id = resolve_env_id(cfg.env_id)
-    system = make_env_system(env_id, **cfg.env_kwargs)
-    n = system.n
-    actuated = tuple(cfg.actuated_dofs) if cfg.actuated_dofs is not None else tuple(range(n))
-    torch.manual_seed(cfg.seed)
+@dataclass
+class _EnvScales:
+    """What the components are sized and scaled by: the env's system, its angle coordinates and the RMS scales of
+    :func:`system_scales`."""
+
+    env_id: str
+    system: System
+    n: int
+    angle: tuple[int, ...]
+    q_scale: np.ndarray
+    v_scale: np.ndarray
+
+
+def _env_scales(env_id: str, system: System) -> _EnvScales:
+    """The :class:`_EnvScales` of ``system`` (numpy RNG only: leaves the torch RNG alone)."""
     q_scale, v_scale = system_scales(system)
-    angle = tuple(system.angle_dims)
-    observer = FDTCNObserver(n, system.dt, angle, hidden=cfg.observer_hidden, layers=cfg.observer_layers,
-                             q_scale=torch.as_tensor(q_scale), v_scale=torch.as_tensor(v_scale), use_tcn=cfg.use_tcn,
-                             fd_order=cfg.observer_fd_order)
-    if cfg.kind == "latent_ode":
-        qs, vs = float(np.mean(q_scale)) if len(q_scale) else 1.0, float(np.mean(v_scale))
-        fld: nn.Module
-        if cfg.ode_field == "known":
-            fld = SystemField(system)
-        elif cfg.ode_field == "template":
-            fld = LVTemplateField(system, qs, cfg.hybrid_eps, cfg.init_from)
-        elif cfg.ode_field == "neural":
-            fld = NeuralField(n, qs, vs)
-        else:
-            raise ValueError(f"field must be known, template or neural, got {cfg.ode_field!r}")
-        core = LatentODECore(fld, system.dt, cfg.substeps, cfg.learn_dt)
-        model = LatentODEModel(cfg, observer, core, system, actuated)
-        q_typ = torch.as_tensor(system.sample_initial(np.random.default_rng(0), 256)[:, :n], dtype=torch.float32)
-        model.init_prior(q_typ, qs)
-        return model
+    return _EnvScales(env_id, system, system.n, tuple(system.angle_dims), q_scale, v_scale)
+
+
+def _observer(cfg: PHASTConfig, env: _EnvScales) -> FDTCNObserver:
+    """The finite-difference / TCN observer that estimates velocities from q."""
+    return FDTCNObserver(env.n, env.system.dt, env.angle, hidden=cfg.observer_hidden, layers=cfg.observer_layers,
+                         q_scale=torch.as_tensor(env.q_scale), v_scale=torch.as_tensor(env.v_scale),
+                         use_tcn=cfg.use_tcn, fd_order=cfg.observer_fd_order)
+
+
+def _latent_ode_model(cfg: PHASTConfig, env: _EnvScales, observer: FDTCNObserver,
+                      actuated: tuple[int, ...]) -> LatentODEModel:
+    """The latent-ODE model (non-Hamiltonian envs): ``cfg.ode_field`` as vector field, prior fitted to typical q."""
+    qs, vs = float(np.mean(env.q_scale)) if len(env.q_scale) else 1.0, float(np.mean(env.v_scale))
+    fld: nn.Module
+    if cfg.ode_field == "known":
+        fld = SystemField(env.system)
+    elif cfg.ode_field == "template":
+        fld = LVTemplateField(env.system, qs, cfg.hybrid_eps, cfg.init_from)
+    elif cfg.ode_field == "neural":
+        fld = NeuralField(env.n, qs, vs)
+    else:
+        raise ValueError(f"field must be known, template or neural, got {cfg.ode_field!r}")
+    core = LatentODECore(fld, env.system.dt, cfg.substeps, cfg.learn_dt)
+    model = LatentODEModel(cfg, observer, core, env.system, actuated)
+    q_typ = torch.as_tensor(env.system.sample_initial(np.random.default_rng(0), 256)[:, :env.n], dtype=torch.float32)
+    model.init_prior(q_typ, qs)
+    return model
+
+
+def _check_phast_config(cfg: PHASTConfig, env: _EnvScales) -> None:
+    """ValueError for a PHAST config that cannot be built: unknown ``init_from`` or ``kind``, or an env that is not
+    port-Hamiltonian."""
     if cfg.init_from not in ("data", "physics", "none"):
         raise ValueError(f"init_from must be data, physics or none, got {cfg.init_from!r}")
     if cfg.kind != "phast":
         raise ValueError(f"kind must be 'phast' or 'latent_ode', got {cfg.kind!r}")
-    if not system.hamiltonian_system:
-        raise ValueError(f"{env_id} is not port-Hamiltonian; use kind='latent_ode'")
+    if not env.system.hamiltonian_system:
+        raise ValueError(f"{env.env_id} is not port-Hamiltonian; use kind='latent_ode'")
 
-    # potential
-    def template():  # noqa: ANN202
-        if cfg.template is None:
-            raise ValueError(f"potential={cfg.potential!r} needs a template name")
-        t = make_template(cfg.template, n, tuple(cfg.template_dims) if cfg.template_dims is not None else None)
-        if cfg.init_from == "physics":
-            t.fit_to(system)
-        return t
 
-    e_scale = float(np.mean(v_scale**2))
+def _template_potential(cfg: PHASTConfig, env: _EnvScales) -> TemplatePotential:
+    """The named template potential, fitted to the env's true V when ``init_from='physics'``."""
+    if cfg.template is None:
+        raise ValueError(f"potential={cfg.potential!r} needs a template name")
+    t = make_template(cfg.template, env.n, tuple(cfg.template_dims) if cfg.template_dims is not None else None)
+    if cfg.init_from == "physics":
+        t.fit_to(env.system)
+    return t
+
+
+def _neural_potential(cfg: PHASTConfig, env: _EnvScales) -> NeuralPotential:
+    """An MLP potential, its output scaled to the typical kinetic energy scale mean(v_scale^2)."""
+    e_scale = float(np.mean(env.v_scale**2))
+    return NeuralPotential(env.n, env.angle, cfg.potential_hidden, cfg.potential_layers,
+                           q_scale=torch.as_tensor(env.q_scale), out_scale=e_scale)
+
+
+def _potential(cfg: PHASTConfig, env: _EnvScales) -> nn.Module:
+    """V(q) of ``cfg.potential``: known, template, neural or hybrid (template + eps * neural)."""
     if cfg.potential == "known":
-        pot = KnownPotential(system)
-    elif cfg.potential == "template":
-        pot = template()
-    elif cfg.potential == "neural":
-        pot = NeuralPotential(n, angle, cfg.potential_hidden, cfg.potential_layers, q_scale=torch.as_tensor(q_scale),
-                              out_scale=e_scale)
-    elif cfg.potential == "hybrid":
-        neural = NeuralPotential(n, angle, cfg.potential_hidden, cfg.potential_layers, q_scale=torch.as_tensor(q_scale),
-                                 out_scale=e_scale)
-        pot = HybridPotential(template(), neural, cfg.hybrid_eps)
-    else:
-        raise ValueError(f"potential must be known, template, neural or hybrid, got {cfg.potential!r}")
-    # mass
+        return KnownPotential(env.system)
+    if cfg.potential == "template":
+        return _template_potential(cfg, env)
+    if cfg.potential == "neural":
+        return _neural_potential(cfg, env)
+    if cfg.potential == "hybrid":
+        neural = _neural_potential(cfg, env)  # before the template: the creation order fixes the initial weights
+        return HybridPotential(_template_potential(cfg, env), neural, cfg.hybrid_eps)
+    raise ValueError(f"potential must be known, template, neural or hybrid, got {cfg.potential!r}")
+
+
+def _lowrank_mass(cfg: PHASTConfig, env: _EnvScales) -> LowRankMass:
+    """A low-rank + diagonal mass; with ``init_from='physics'`` and the mass canonicalizer its diagonal starts at
+    the mean diagonal of the env's M(q)."""
+    mass = LowRankMass(env.n, cfg.mass_rank, diag_init=1.0, seed=cfg.seed)
+    if cfg.init_from == "physics" and cfg.canonicalizer == "mass":
+        x = env.system.sample_initial(np.random.default_rng(0), 256)[:, :env.n]
+        rows = env.system.mass_matrix(split(x), NUMPY)
+        mass.set_linear(torch.tensor([float(np.mean(rows[i][i])) for i in range(env.n)]))
+    return mass
+
+
+def _template_mass(cfg: PHASTConfig, env: _EnvScales) -> TemplateMass:
+    """The named mass template, checked against the env's coordinate count."""
+    if cfg.mass_template is None:
+        raise ValueError("mass='template' needs mass_template (cartpole, double_pendulum, double_pendulum_relative)")
+    mass = TemplateMass(cfg.mass_template)
+    if env.n != mass.n:
+        raise ValueError(f"mass template {cfg.mass_template!r} has {mass.n} coordinates, {env.env_id} has {env.n}")
+    return mass
+
+
+def _mass(cfg: PHASTConfig, env: _EnvScales) -> nn.Module:
+    """M(q) of ``cfg.mass``: known, lowrank, template or cholesky."""
     if cfg.mass == "known":
-        mass = KnownMass(system)
-    elif cfg.mass == "lowrank":
-        mass = LowRankMass(n, cfg.mass_rank, diag_init=1.0, seed=cfg.seed)
-        if cfg.init_from == "physics" and cfg.canonicalizer == "mass":  # the mean diagonal of the env's M(q)
-            x = system.sample_initial(np.random.default_rng(0), 256)[:, :n]
-            rows = system.mass_matrix(split(x), NUMPY)
-            mass.set_linear(torch.tensor([float(np.mean(rows[i][i])) for i in range(n)]))
-    elif cfg.mass == "template":
-        if cfg.mass_template is None:
-            raise ValueError("mass='template' needs mass_template (cartpole, double_pendulum, double_pendulum_relative)")
-        mass = TemplateMass(cfg.mass_template)
-        if n != mass.n:
-            raise ValueError(f"mass template {cfg.mass_template!r} has {mass.n} coordinates, {env_id} has {n}")
-    elif cfg.mass == "cholesky":
-        mass = CholeskyMass(n, angle, cfg.mass_hidden, q_scale=torch.as_tensor(q_scale))
-    else:
-        raise ValueError(f"mass must be known, lowrank, template or cholesky, got {cfg.mass!r}")
-    # damping
+        return KnownMass(env.system)
+    if cfg.mass == "lowrank":
+        return _lowrank_mass(cfg, env)
+    if cfg.mass == "template":
+        return _template_mass(cfg, env)
+    if cfg.mass == "cholesky":
+        return CholeskyMass(env.n, env.angle, cfg.mass_hidden, q_scale=torch.as_tensor(env.q_scale))
+    raise ValueError(f"mass must be known, lowrank, template or cholesky, got {cfg.mass!r}")
+
+
+def _damping(cfg: PHASTConfig, env: _EnvScales) -> nn.Module | None:
+    """D(q) of ``cfg.damping``: householder (learned), known or none."""
     if cfg.damping == "householder":
-        damp = HouseholderDamping(n, angle, cfg.damping_rank, hidden=cfg.damping_hidden, cap=cfg.damping_cap, d0=cfg.d0,
-                                  learn_d0=cfg.learn_d0,
-                                  q_scale=torch.as_tensor(q_scale))
-    elif cfg.damping == "known":
-        damp = KnownDamping(system)
-    elif cfg.damping == "none":
-        damp = None
-    else:
-        raise ValueError(f"damping must be householder, known or none, got {cfg.damping!r}")
-    core = PHASTCore(pot, mass, damp, system.dt, cfg.substeps, cfg.learn_dt, cfg.integrator, cfg.midpoint_iters)
+        return HouseholderDamping(env.n, env.angle, cfg.damping_rank, hidden=cfg.damping_hidden, cap=cfg.damping_cap,
+                                  d0=cfg.d0, learn_d0=cfg.learn_d0, q_scale=torch.as_tensor(env.q_scale))
+    if cfg.damping == "known":
+        return KnownDamping(env.system)
+    if cfg.damping == "none":
+        return None
+    raise ValueError(f"damping must be householder, known or none, got {cfg.damping!r}")
+
+
+def _phast_core(cfg: PHASTConfig, env: _EnvScales) -> PHASTCore:
+    """The Strang-splitting core; potential, mass and damping are created in this order (it fixes their initial
+    weights)."""
+    pot = _potential(cfg, env)
+    mass = _mass(cfg, env)
+    damp = _damping(cfg, env)
+    return PHASTCore(pot, mass, damp, env.system.dt, cfg.substeps, cfg.learn_dt, cfg.integrator, cfg.midpoint_iters)
+
+
+def build_from_config(cfg: PHASTConfig) -> PHAST:
+    """Compose a PHAST (or predator-prey latent ODE) model from its configuration.
+
+    Every module draws its initial weights from the torch RNG seeded here, so the creation order (observer, then
+    potential, mass, damping; or the latent-ODE field) is part of the model's definition."""
+    env_id = resolve_env_id(cfg.env_id)
+    system = make_env_system(env_id, **cfg.env_kwargs)
+    actuated = tuple(cfg.actuated_dofs) if cfg.actuated_dofs is not None else tuple(range(system.n))
+    torch.manual_seed(cfg.seed)
+    env = _env_scales(env_id, system)
+    observer = _observer(cfg, env)
+    if cfg.kind == "latent_ode":
+        return _latent_ode_model(cfg, env, observer, actuated)
+    _check_phast_config(cfg, env)
+    core = _phast_core(cfg, env)
     if not cfg.observer_trainable:
         observer.requires_grad_(False)
     return PHAST(cfg, observer, core, system, actuated)

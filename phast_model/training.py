@@ -204,6 +204,211 @@ def _load_checkpoint(ckpt_path: Path) -> dict[str, Any]:
     return ck
 
 
+@dataclass
+class _Split:
+    """One split as tensors: q (N, T, n) and u (N, T-1, m) or None."""
+
+    q: torch.Tensor
+    u: torch.Tensor | None
+
+
+@dataclass
+class _Data:
+    """What :func:`fit` trains and selects on: both splits as tensors, the leading predictions the loss leaves out
+    and the number of batches per epoch."""
+
+    train: _Split
+    val: _Split
+    skip: int
+    n_batches: int
+
+
+@dataclass
+class _TrainState:
+    """Everything a run carries from epoch to epoch; the checkpoint stores it and a resume restores it."""
+
+    model: ForecastModel
+    opt: torch.optim.Optimizer
+    sched: torch.optim.lr_scheduler.LRScheduler
+    gen: torch.Generator
+    best_state: dict[str, Any]
+    history: list[dict[str, Any]] = field(default_factory=list)
+    best_val: float = math.inf
+    best_epoch: int = -1
+    start_epoch: int = 0
+    nan_events: int = 0
+    elapsed0: float = 0.0  # seconds trained before this call (a resume)
+    t0: float = 0.0  # perf_counter origin of the run's clock (elapsed0 included)
+    stopped: bool = False
+
+
+def _data(model: ForecastModel, train: Any, val: Any, cfg: TrainConfig, dtype: torch.dtype) -> _Data:
+    """Both splits as ``dtype`` tensors, checked against the model's coordinate count."""
+    q_tr, u_tr = _tensors(train, dtype)
+    q_va, u_va = _tensors(val, dtype)
+    if q_tr.shape[-1] != model.n:
+        raise ValueError(f"model has n={model.n} coordinates, training data has {q_tr.shape[-1]}")
+    skip = int(cfg.skip_first if cfg.skip_first is not None else getattr(model, "loss_skip", 0))
+    return _Data(_Split(q_tr, u_tr), _Split(q_va, u_va), skip, math.ceil(q_tr.shape[0] / cfg.batch_size))
+
+
+def _param_groups(model: ForecastModel, lr: float) -> list[dict[str, Any]]:
+    """The model's own optimizer groups (``model.param_groups``), else one group of its trainable parameters."""
+    if hasattr(model, "param_groups"):
+        return model.param_groups(lr)
+    return [{"params": [p for p in model.parameters() if p.requires_grad], "lr": lr}]
+
+
+def _check_schedule_settings(warm: float, eps: float) -> None:
+    """ValueError unless the resolved warm-up length (epochs) is >= 0 and AdamW's eps is positive, both finite."""
+    if warm < 0 or not math.isfinite(warm):
+        raise ValueError(f"warmup_epochs must be >= 0 and finite, got {warm!r}")
+    if not (eps > 0 and math.isfinite(eps)):
+        raise ValueError(f"adam_eps must be positive and finite, got {eps!r}")
+
+
+def _scheduler(opt: torch.optim.Optimizer, warm: float, n_batches: int,
+               epochs: int) -> torch.optim.lr_scheduler.LRScheduler:
+    """Per-batch cosine decay to 0 over ``epochs``, after a linear warm-up over ``warm`` epochs when positive."""
+    if warm > 0:
+        return torch.optim.lr_scheduler.LambdaLR(opt, _warmup_cosine(round(warm * n_batches), epochs * n_batches))
+    return torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=epochs * n_batches)
+
+
+def _new_state(model: ForecastModel, cfg: TrainConfig, n_batches: int) -> _TrainState:
+    """Where a run starts: seeded RNGs (global and batch order), a fresh AdamW and schedule, no record yet."""
+    torch.manual_seed(cfg.seed)
+    gen = torch.Generator().manual_seed(cfg.seed)
+    groups = _param_groups(model, cfg.lr)
+    warm, eps = _resolved(cfg, model, "warmup_epochs", 0.0), _resolved(cfg, model, "adam_eps", 1e-8)
+    _check_schedule_settings(warm, eps)
+    opt = torch.optim.AdamW(groups, lr=cfg.lr, weight_decay=cfg.weight_decay, eps=eps)
+    sched = _scheduler(opt, warm, n_batches, cfg.epochs)
+    return _TrainState(model, opt, sched, gen, best_state=copy.deepcopy(model.state_dict()))
+
+
+def _restore(state: _TrainState, ckpt_path: Path, cfg: TrainConfig, identity: dict[str, Any] | None) -> None:
+    """Continue ``state`` from the checkpoint at ``ckpt_path`` (checked to belong to this run)."""
+    ck = _load_checkpoint(ckpt_path)
+    check_resume(ckpt_path, cfg, identity, ck)
+    try:
+        state.model.load_state_dict(ck["model"])
+        state.opt.load_state_dict(ck["optimizer"])
+        state.sched.load_state_dict(ck["scheduler"])
+    except Exception as exc:  # noqa: BLE001 - any failure means an unusable checkpoint
+        raise ValueError(f"cannot resume from {ckpt_path}: {type(exc).__name__}: {exc}") from None
+    state.gen.set_state(ck["gen_state"])
+    torch.set_rng_state(ck["torch_rng"])
+    state.history = json.loads(ck["history"])
+    state.best_val, state.best_epoch, state.best_state = float(ck["best_val"]), int(ck["best_epoch"]), ck["best_state"]
+    state.start_epoch, state.nan_events, state.elapsed0 = int(ck["epoch"]), int(ck["nan_events"]), float(ck["elapsed"])
+
+
+def _save_checkpoint(state: _TrainState, ckpt_path: Path | None, cfg: TrainConfig, identity: dict[str, Any] | None,
+                     epoch: int, elapsed: float) -> None:
+    """Write ``checkpoint.pt`` atomically (nothing without a run directory): what :func:`_restore` reads back."""
+    if ckpt_path is None:
+        return
+    atomic_torch_save({
+        "model": state.model.state_dict(), "optimizer": state.opt.state_dict(), "scheduler": state.sched.state_dict(),
+        "gen_state": state.gen.get_state(), "torch_rng": torch.get_rng_state(), "history": json.dumps(state.history),
+        "best_val": state.best_val, "best_epoch": state.best_epoch, "best_state": state.best_state, "epoch": epoch,
+        "nan_events": state.nan_events, "elapsed": elapsed, "train_config": asdict(cfg),
+        "identity": json.dumps(run_identity(cfg, identity), sort_keys=True),
+    }, ckpt_path)
+
+
+def _batch_loss(model: ForecastModel, qb: torch.Tensor, ub: torch.Tensor | None, cfg: TrainConfig,
+                skip: int) -> torch.Tensor:
+    """Weighted L_data plus the model's ``extra_losses`` (if it has the hook)."""
+    loss, pred = next_step_loss(model, qb, ub, skip)
+    loss = cfg.lambda_data * loss
+    hook = getattr(model, "extra_losses", None)
+    if hook is not None:
+        for v in hook(qb, ub, pred).values():
+            loss = loss + v
+    return loss
+
+
+def _optimizer_step(state: _TrainState, loss: torch.Tensor, grad_clip: float | None) -> bool:
+    """Backward, clip and step; False (stopping there) as soon as the loss, the gradient norm or the updated
+    parameters are not finite."""
+    state.opt.zero_grad(set_to_none=True)
+    if not bool(torch.isfinite(loss)):
+        return False
+    loss.backward()
+    gnorm = torch.nn.utils.clip_grad_norm_(state.model.parameters(), grad_clip if grad_clip else math.inf)
+    if not bool(torch.isfinite(gnorm)):
+        return False
+    state.opt.step()
+    return _finite_params(state.model)
+
+
+def _roll_back(state: _TrainState, good_model: dict[str, Any], good_opt: dict[str, Any], lr_factor: float) -> None:
+    """After a non-finite step: count it, restore the epoch-start model and optimizer, lower the lr (now and in
+    the schedule)."""
+    state.nan_events += 1
+    state.model.load_state_dict(good_model)
+    state.opt.load_state_dict(good_opt)
+    for g in state.opt.param_groups:
+        g["lr"] *= lr_factor
+    state.sched.base_lrs = [lr * lr_factor for lr in state.sched.base_lrs]
+
+
+def _train_epoch(state: _TrainState, data: _Data, cfg: TrainConfig) -> float:
+    """One pass over shuffled batches with the NaN guard; the mean training loss of the good batches.  Sets
+    ``state.stopped`` when the rollbacks exceed ``cfg.max_nan_events``."""
+    good_model = copy.deepcopy(state.model.state_dict())
+    good_opt = copy.deepcopy(state.opt.state_dict())
+    perm = torch.randperm(data.train.q.shape[0], generator=state.gen)
+    tot, cnt = 0.0, 0
+    for b in range(data.n_batches):
+        idx = perm[b * cfg.batch_size:(b + 1) * cfg.batch_size]
+        qb = data.train.q[idx]
+        ub = None if data.train.u is None else data.train.u[idx]
+        loss = _batch_loss(state.model, qb, ub, cfg, data.skip)
+        if not _optimizer_step(state, loss, cfg.grad_clip):  # roll back to the start of the epoch, lower the lr
+            _roll_back(state, good_model, good_opt, cfg.nan_lr_factor)
+            if state.nan_events > cfg.max_nan_events:
+                state.stopped = True
+                break
+            continue
+        state.sched.step()
+        tot += float(loss.detach()) * qb.shape[0]
+        cnt += qb.shape[0]
+    return tot / max(cnt, 1)
+
+
+def _validate_and_select(state: _TrainState, data: _Data, cfg: TrainConfig, epoch: int) -> float:
+    """Validation loss of the current weights; they become the best state when finite and lower than the best."""
+    vl = validation_loss(state.model, data.val.q, data.val.u, cfg.val_batch_size, data.skip)
+    if math.isfinite(vl) and vl < state.best_val:
+        state.best_val, state.best_epoch, state.best_state = vl, epoch, copy.deepcopy(state.model.state_dict())
+    return vl
+
+
+def _run_epochs(state: _TrainState, data: _Data, cfg: TrainConfig, ckpt_path: Path | None,
+                identity: dict[str, Any] | None) -> None:
+    """Epochs ``state.start_epoch`` .. ``cfg.epochs``: train, record, validate when due, checkpoint when due."""
+    bar = tqdm(range(state.start_epoch, cfg.epochs), desc=f"fit {type(state.model).__name__}",
+               disable=not cfg.progress, initial=state.start_epoch, total=cfg.epochs)
+    state.model.train()
+    for epoch in bar:
+        train_loss = _train_epoch(state, data, cfg)
+        rec: dict[str, Any] = {"epoch": epoch + 1, "train_loss": train_loss, "lr": state.opt.param_groups[0]["lr"],
+                               "time_s": time.perf_counter() - state.t0, "nan_events": state.nan_events}
+        if state.stopped:
+            state.history.append(rec)
+            break
+        if (epoch + 1) % cfg.val_every == 0 or epoch + 1 == cfg.epochs:
+            rec["val_loss"] = _validate_and_select(state, data, cfg, epoch + 1)
+        state.history.append(rec)
+        bar.set_postfix(loss=f"{rec['train_loss']:.3g}", val=f"{state.best_val:.3g}")
+        if (epoch + 1) % cfg.checkpoint_every == 0 or epoch + 1 == cfg.epochs:
+            _save_checkpoint(state, ckpt_path, cfg, identity, epoch + 1, time.perf_counter() - state.t0)
+    bar.close()
+
+
 def fit(model: ForecastModel, train: Any, val: Any, cfg: TrainConfig | None = None,
         run_dir: str | Path | None = None, resume: bool = False, identity: dict[str, Any] | None = None) -> FitResult:
     """Train ``model`` on ``train`` (a :class:`phast_gym.datasets.Dataset` or anything with ``q``/``u``),
@@ -216,123 +421,21 @@ def fit(model: ForecastModel, train: Any, val: Any, cfg: TrainConfig | None = No
     cfg = cfg or TrainConfig()
     dtype = torch.float32 if cfg.dtype == "float32" else torch.float64
     model = model.to(dtype)
-    q_tr, u_tr = _tensors(train, dtype)
-    q_va, u_va = _tensors(val, dtype)
-    if q_tr.shape[-1] != model.n:
-        raise ValueError(f"model has n={model.n} coordinates, training data has {q_tr.shape[-1]}")
-    skip = int(cfg.skip_first if cfg.skip_first is not None else getattr(model, "loss_skip", 0))
+    data = _data(model, train, val, cfg, dtype)
     ckpt_path = Path(run_dir) / CHECKPOINT if run_dir is not None else None
     resuming = resume and ckpt_path is not None and ckpt_path.exists()
     if not resuming and hasattr(model, "initialize_from_data"):  # least-squares start of the learned physics
-        model.initialize_from_data(q_tr, u_tr)
-    torch.manual_seed(cfg.seed)
-    gen = torch.Generator().manual_seed(cfg.seed)
-    groups = model.param_groups(cfg.lr) if hasattr(model, "param_groups") else [
-        {"params": [p for p in model.parameters() if p.requires_grad], "lr": cfg.lr}]
-    n_batches = math.ceil(q_tr.shape[0] / cfg.batch_size)
-    warm, eps = (_resolved(cfg, model, k, d) for k, d in (("warmup_epochs", 0.0), ("adam_eps", 1e-8)))
-    if warm < 0 or not math.isfinite(warm):
-        raise ValueError(f"warmup_epochs must be >= 0 and finite, got {warm!r}")
-    if not (eps > 0 and math.isfinite(eps)):
-        raise ValueError(f"adam_eps must be positive and finite, got {eps!r}")
-    opt = torch.optim.AdamW(groups, lr=cfg.lr, weight_decay=cfg.weight_decay, eps=eps)
-    if warm > 0:  # linear warm-up over ``warm`` epochs, then the same cosine decay to 0
-        sched = torch.optim.lr_scheduler.LambdaLR(opt, _warmup_cosine(round(warm * n_batches), cfg.epochs * n_batches))
-    else:
-        sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=cfg.epochs * n_batches)
-    history: list[dict[str, Any]] = []
-    best_val, best_epoch, best_state = math.inf, -1, copy.deepcopy(model.state_dict())
-    start_epoch, nan_events, elapsed0 = 0, 0, 0.0
+        model.initialize_from_data(data.train.q, data.train.u)
+    state = _new_state(model, cfg, data.n_batches)
     if resuming:
-        ck = _load_checkpoint(ckpt_path)
-        check_resume(ckpt_path, cfg, identity, ck)
-        try:
-            model.load_state_dict(ck["model"])
-            opt.load_state_dict(ck["optimizer"])
-            sched.load_state_dict(ck["scheduler"])
-        except Exception as exc:  # noqa: BLE001 - any failure means an unusable checkpoint
-            raise ValueError(f"cannot resume from {ckpt_path}: {type(exc).__name__}: {exc}") from None
-        gen.set_state(ck["gen_state"])
-        torch.set_rng_state(ck["torch_rng"])
-        history = json.loads(ck["history"])
-        best_val, best_epoch, best_state = float(ck["best_val"]), int(ck["best_epoch"]), ck["best_state"]
-        start_epoch, nan_events, elapsed0 = int(ck["epoch"]), int(ck["nan_events"]), float(ck["elapsed"])
-
-    def save_ckpt(epoch: int, elapsed: float) -> None:
-        if ckpt_path is None:
-            return
-        atomic_torch_save({
-            "model": model.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
-            "gen_state": gen.get_state(), "torch_rng": torch.get_rng_state(), "history": json.dumps(history),
-            "best_val": best_val, "best_epoch": best_epoch, "best_state": best_state, "epoch": epoch,
-            "nan_events": nan_events, "elapsed": elapsed, "train_config": asdict(cfg),
-            "identity": json.dumps(run_identity(cfg, identity), sort_keys=True),
-        }, ckpt_path)
-
-    t0 = time.perf_counter() - elapsed0
-    stopped = False
-    bar = tqdm(range(start_epoch, cfg.epochs), desc=f"fit {type(model).__name__}", disable=not cfg.progress,
-               initial=start_epoch, total=cfg.epochs)
-    model.train()
-    for epoch in bar:
-        good_model = copy.deepcopy(model.state_dict())
-        good_opt = copy.deepcopy(opt.state_dict())
-        perm = torch.randperm(q_tr.shape[0], generator=gen)
-        tot, cnt = 0.0, 0
-        for b in range(n_batches):
-            idx = perm[b * cfg.batch_size:(b + 1) * cfg.batch_size]
-            qb = q_tr[idx]
-            ub = None if u_tr is None else u_tr[idx]
-            loss, pred = next_step_loss(model, qb, ub, skip)
-            loss = cfg.lambda_data * loss
-            hook = getattr(model, "extra_losses", None)
-            if hook is not None:
-                for v in hook(qb, ub, pred).values():
-                    loss = loss + v
-            opt.zero_grad(set_to_none=True)
-            bad = not bool(torch.isfinite(loss))
-            if not bad:
-                loss.backward()
-                gnorm = torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip if cfg.grad_clip else math.inf)
-                bad = not bool(torch.isfinite(gnorm))
-            if not bad:
-                opt.step()
-                bad = not _finite_params(model)
-            if bad:  # roll back to the start of the epoch and lower the lr
-                nan_events += 1
-                model.load_state_dict(good_model)
-                opt.load_state_dict(good_opt)
-                for g in opt.param_groups:
-                    g["lr"] *= cfg.nan_lr_factor
-                sched.base_lrs = [lr * cfg.nan_lr_factor for lr in sched.base_lrs]
-                if nan_events > cfg.max_nan_events:
-                    stopped = True
-                    break
-                continue
-            sched.step()
-            tot += float(loss.detach()) * qb.shape[0]
-            cnt += qb.shape[0]
-        rec: dict[str, Any] = {"epoch": epoch + 1, "train_loss": tot / max(cnt, 1), "lr": opt.param_groups[0]["lr"],
-                               "time_s": time.perf_counter() - t0, "nan_events": nan_events}
-        if stopped:
-            history.append(rec)
-            break
-        if (epoch + 1) % cfg.val_every == 0 or epoch + 1 == cfg.epochs:
-            vl = validation_loss(model, q_va, u_va, cfg.val_batch_size, skip)
-            rec["val_loss"] = vl
-            if math.isfinite(vl) and vl < best_val:
-                best_val, best_epoch, best_state = vl, epoch + 1, copy.deepcopy(model.state_dict())
-        history.append(rec)
-        bar.set_postfix(loss=f"{rec['train_loss']:.3g}", val=f"{best_val:.3g}")
-        if (epoch + 1) % cfg.checkpoint_every == 0 or epoch + 1 == cfg.epochs:
-            save_ckpt(epoch + 1, time.perf_counter() - t0)
-    bar.close()
-    if best_epoch < 0:  # never validated (stopped early): validate what we have if it is finite
-        if _finite_params(model):
-            vl = validation_loss(model, q_va, u_va, cfg.val_batch_size, skip)
-            if math.isfinite(vl):
-                best_val, best_epoch, best_state = vl, len(history), copy.deepcopy(model.state_dict())
-    model.load_state_dict(best_state)
+        _restore(state, ckpt_path, cfg, identity)
+    state.t0 = time.perf_counter() - state.elapsed0
+    _run_epochs(state, data, cfg, ckpt_path, identity)
+    # never validated (stopped early): validate what we have; best_val is still inf, so any finite loss is taken
+    if state.best_epoch < 0 and _finite_params(model):
+        _validate_and_select(state, data, cfg, len(state.history))
+    model.load_state_dict(state.best_state)
     model.eval()
-    return FitResult(model=model, history=history, wall_time_s=time.perf_counter() - t0, best_val=best_val,
-                     best_epoch=best_epoch, nan_events=nan_events, stopped_early=stopped)
+    return FitResult(model=model, history=state.history, wall_time_s=time.perf_counter() - state.t0,
+                     best_val=state.best_val, best_epoch=state.best_epoch, nan_events=state.nan_events,
+                     stopped_early=state.stopped)
