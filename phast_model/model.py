@@ -85,6 +85,9 @@ class PHASTConfig:
     lambda_energy: float = 0.0
     lambda_roll: float = 0.0
     roll_horizon: int = 10
+    #: what L_roll unrolls: "core" (paper Eq. 88: the core alone from the observer's state at a random start) or
+    #: "observer" (the autoregressive rollout the benchmark scores: the observer re-run on the predicted window)
+    roll_mode: str = "core"
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     actuated_dofs: list[int] | None = None
     seed: int = 0
@@ -301,16 +304,30 @@ class PHAST(ForecastModel):
             if cfg.lambda_energy > 0:  # Eq. 87
                 dt = self.core.h * self.core.substeps
                 out["energy"] = cfg.lambda_energy * ((H1 - H0) / dt - self.core.power(q[:, :-1], p[:, :-1])).abs().mean()
-        if cfg.lambda_roll > 0:  # Eq. 88: open-loop core rollout from a random start
-            Hr = min(cfg.roll_horizon, q.shape[1] - 1 - self.loss_skip)
-            t0 = int(torch.randint(self.loss_skip, q.shape[1] - Hr, ()).item())  # observer warm-up excluded
-            qq, pp = q[:, t0], p[:, t0]
-            errs = []
-            for h in range(Hr):
-                qq, pp = self.core(qq, pp, None if f is None else f[:, t0 + h])
-                errs.append((coordinate_error(qq, q[:, t0 + h + 1], self.angle_dims) ** 2).mean())
-            out["roll"] = cfg.lambda_roll * torch.stack(errs).mean()
+        if cfg.lambda_roll > 0:
+            out["roll"] = cfg.lambda_roll * self._roll_loss(q, u, p, f)
         return out
+
+    def _roll_loss(self, q: torch.Tensor, u: torch.Tensor | None, p: torch.Tensor, f: torch.Tensor | None) -> torch.Tensor:
+        """Mean squared open-loop error over ``roll_horizon`` steps from one random start (the same for the batch):
+        the core alone (Eq. 88) or, with ``roll_mode="observer"``, the autoregressive rollout of :meth:`rollout`."""
+        cfg = self.config
+        if cfg.roll_mode not in ("core", "observer"):
+            raise ValueError(f"roll_mode must be 'core' or 'observer', got {cfg.roll_mode!r}")
+        first = self.loss_skip if cfg.roll_mode == "core" else max(self.loss_skip, self.observer.window - 1)
+        Hr = min(cfg.roll_horizon, q.shape[1] - 1 - first)
+        t0 = int(torch.randint(first, q.shape[1] - Hr, ()).item())  # observer warm-up excluded
+        target = q[:, t0 + 1:t0 + 1 + Hr]
+        if cfg.roll_mode == "observer":
+            start = t0 + 1 - self.observer.window
+            pred = self.rollout(q[:, start:t0 + 1], None if u is None else u[:, start:], Hr)
+            return (coordinate_error(pred, target, self.angle_dims) ** 2).mean()
+        qq, pp = q[:, t0], p[:, t0]
+        errs = []
+        for h in range(Hr):
+            qq, pp = self.core(qq, pp, None if f is None else f[:, t0 + h])
+            errs.append((coordinate_error(qq, target[:, h], self.angle_dims) ** 2).mean())
+        return torch.stack(errs).mean()
 
 
 # ------------------------------------------------------------------------------ predator-prey

@@ -214,3 +214,27 @@ def test_predator_prey_latent_inversion_recovers_predators():
     q, p = torch.as_tensor(x[:, :1]), torch.as_tensor(x[:, 1:])
     qdot, _ = model.core.field.rhs(q, p, None)
     assert torch.allclose(model.canonicalize(q, qdot), p, atol=1e-9)
+
+
+def test_observer_roll_loss_is_the_scored_rollout() -> None:
+    # roll_mode="observer" unrolls PHAST.rollout (the observer re-run on predicted samples): over one step it is the
+    # teacher-forced one-step error at the drawn start; an unknown mode is a clear error
+    import torch
+
+    from phast_gym import make_dataset
+    from phast_model.interfaces import coordinate_error
+    from phast_model.regimes import build_model
+
+    ds = make_dataset("PHAST/WindyCartPole-v0", n_traj=3, T=40, seed=5)
+    model = build_model("PHAST/WindyCartPole-v0", "unknown", lambda_roll=1.0, roll_horizon=1, roll_mode="observer")
+    q, u = model._prep(torch.as_tensor(ds.q), torch.as_tensor(ds.u))
+    torch.manual_seed(3)
+    loss = model.extra_losses(q, u, None)["roll"]
+    torch.manual_seed(3)
+    first = max(model.loss_skip, model.observer.window - 1)
+    t0 = int(torch.randint(first, q.shape[1] - 1, ()).item())
+    expected = (coordinate_error(model(q, u)[:, t0], q[:, t0 + 1], model.angle_dims) ** 2).mean()
+    assert torch.allclose(loss, expected, rtol=1e-5, atol=1e-12)
+    model.config.roll_mode = "nope"
+    with pytest.raises(ValueError, match="roll_mode"):
+        model.extra_losses(q, u, None)
