@@ -9,6 +9,7 @@ structured model of the non-Hamiltonian predator-prey env (see its docstring).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
@@ -611,18 +612,33 @@ def _neural_potential(cfg: PHASTConfig, env: _EnvScales) -> NeuralPotential:
                            q_scale=torch.as_tensor(env.q_scale), out_scale=e_scale)
 
 
+def _hybrid_potential(cfg: PHASTConfig, env: _EnvScales) -> HybridPotential:
+    """Template + eps * neural (Eq. 84)."""
+    neural = _neural_potential(cfg, env)  # before the template: the creation order fixes the initial weights
+    return HybridPotential(_template_potential(cfg, env), neural, cfg.hybrid_eps)
+
+
+#: ``PHASTConfig.potential`` -> builder
+POTENTIALS: dict[str, Callable[[PHASTConfig, _EnvScales], nn.Module]] = {
+    "known": lambda cfg, env: KnownPotential(env.system), "template": _template_potential,
+    "neural": _neural_potential, "hybrid": _hybrid_potential}
+
+
+def _component(kind: str, registry: dict[str, Callable[[PHASTConfig, _EnvScales], Any]], name: str,
+               cfg: PHASTConfig, env: _EnvScales) -> Any:
+    """Build the ``kind`` component registered as ``name``; an unknown name is a ValueError listing the choices."""
+    if name not in registry:
+        raise ValueError(f"{kind} must be {_choices(list(registry))}, got {name!r}")
+    return registry[name](cfg, env)
+
+
+def _choices(names: list[str]) -> str:
+    return ", ".join(names[:-1]) + " or " + names[-1]
+
+
 def _potential(cfg: PHASTConfig, env: _EnvScales) -> nn.Module:
     """V(q) of ``cfg.potential``: known, template, neural or hybrid (template + eps * neural)."""
-    if cfg.potential == "known":
-        return KnownPotential(env.system)
-    if cfg.potential == "template":
-        return _template_potential(cfg, env)
-    if cfg.potential == "neural":
-        return _neural_potential(cfg, env)
-    if cfg.potential == "hybrid":
-        neural = _neural_potential(cfg, env)  # before the template: the creation order fixes the initial weights
-        return HybridPotential(_template_potential(cfg, env), neural, cfg.hybrid_eps)
-    raise ValueError(f"potential must be known, template, neural or hybrid, got {cfg.potential!r}")
+    return _component("potential", POTENTIALS, cfg.potential, cfg, env)
 
 
 def _lowrank_mass(cfg: PHASTConfig, env: _EnvScales) -> LowRankMass:
@@ -646,17 +662,15 @@ def _template_mass(cfg: PHASTConfig, env: _EnvScales) -> TemplateMass:
     return mass
 
 
+#: ``PHASTConfig.mass`` -> builder
+MASSES: dict[str, Callable[[PHASTConfig, _EnvScales], nn.Module]] = {
+    "known": lambda cfg, env: KnownMass(env.system), "lowrank": _lowrank_mass, "template": _template_mass,
+    "cholesky": lambda cfg, env: CholeskyMass(env.n, env.angle, cfg.mass_hidden, q_scale=torch.as_tensor(env.q_scale))}
+
+
 def _mass(cfg: PHASTConfig, env: _EnvScales) -> nn.Module:
     """M(q) of ``cfg.mass``: known, lowrank, template or cholesky."""
-    if cfg.mass == "known":
-        return KnownMass(env.system)
-    if cfg.mass == "lowrank":
-        return _lowrank_mass(cfg, env)
-    if cfg.mass == "template":
-        return _template_mass(cfg, env)
-    if cfg.mass == "cholesky":
-        return CholeskyMass(env.n, env.angle, cfg.mass_hidden, q_scale=torch.as_tensor(env.q_scale))
-    raise ValueError(f"mass must be known, lowrank, template or cholesky, got {cfg.mass!r}")
+    return _component("mass", MASSES, cfg.mass, cfg, env)
 
 
 def _damping(cfg: PHASTConfig, env: _EnvScales) -> nn.Module | None:
