@@ -244,6 +244,10 @@ class PHAST(ForecastModel):
         """Autoregressive rollout; the observer is re-run on its finite window only (exactly the
         autoregressive definition, O(H) instead of O(H^2)).  ``u`` covers the burn-in and the horizon
         (zeros beyond it)."""
+        return self.differentiable_rollout(q_burn, u, H)
+
+    def differentiable_rollout(self, q_burn: torch.Tensor, u: torch.Tensor | None, H: int) -> torch.Tensor:
+        """:meth:`rollout` with the autograd graph kept (the ``roll_mode="observer"`` training loss)."""
         q, u = self._prep_rollout(q_burn, u)
         K, W = q.shape[1], self.observer.window
         hist = q[:, -W:]
@@ -311,7 +315,8 @@ class PHAST(ForecastModel):
 
     def _roll_loss(self, q: torch.Tensor, u: torch.Tensor | None, p: torch.Tensor, f: torch.Tensor | None) -> torch.Tensor:
         """Mean squared open-loop error over ``roll_horizon`` steps from one random start (the same for the batch):
-        the core alone (Eq. 88) or, with ``roll_mode="observer"``, the autoregressive rollout of :meth:`rollout`."""
+        the core alone (Eq. 88) or, with ``roll_mode="observer"``, the autoregressive rollout of :meth:`rollout`
+        (with its autograd graph)."""
         cfg = self.config
         if cfg.roll_mode not in ("core", "observer"):
             raise ValueError(f"roll_mode must be 'core' or 'observer', got {cfg.roll_mode!r}")
@@ -321,7 +326,7 @@ class PHAST(ForecastModel):
         target = q[:, t0 + 1:t0 + 1 + Hr]
         if cfg.roll_mode == "observer":
             start = t0 + 1 - self.observer.window
-            pred = self.rollout(q[:, start:t0 + 1], None if u is None else u[:, start:], Hr)
+            pred = self.differentiable_rollout(q[:, start:t0 + 1], None if u is None else u[:, start:], Hr)
             return (coordinate_error(pred, target, self.angle_dims) ** 2).mean()
         qq, pp = q[:, t0], p[:, t0]
         errs = []

@@ -235,6 +235,9 @@ def test_observer_roll_loss_is_the_scored_rollout() -> None:
     t0 = int(torch.randint(first, q.shape[1] - 1, ()).item())
     expected = (coordinate_error(model(q, u)[:, t0], q[:, t0 + 1], model.angle_dims) ** 2).mean()
     assert torch.allclose(loss, expected, rtol=1e-5, atol=1e-12)
+    loss.backward()  # the loss trains the model: gradients reach the potential, the mass and the observer
+    for part in (model.potential, model.mass, model.observer):
+        assert any(p.grad is not None and bool(p.grad.abs().sum() > 0) for p in part.parameters())
     model.config.roll_mode = "nope"
     with pytest.raises(ValueError, match="roll_mode"):
         model.extra_losses(q, u, None)
