@@ -93,6 +93,38 @@ def compare(committed: dict, fresh: dict) -> list[tuple[str, float, float, bool]
     return rows
 
 
+#: key of the reproductions of committed runs on other machines: the committed code (or code checked to give the
+#: committed numbers bit for bit) run there, so that ``--check`` on that machine compares like with like
+MACHINE_REFS = "machine_references"
+
+
+def reference_for(doc: dict, env: str, regime: str, seed: int, here: dict[str, str]) -> dict | None:
+    """The reproduction of (env, regime, seed) measured on a machine with this numerics fingerprint, if any."""
+    refs = [r for r in doc.get(MACHINE_REFS, [])
+            if (r["env_id"], r["regime"], r["seed"]) == (env, regime, seed) and r.get("numerics") == here]
+    return refs[-1] if refs else None
+
+
+def import_references(out: Path, src: Path) -> list[dict]:
+    """Add the runs of ``src`` (a JSON this script wrote, typically from a checkout of an older commit on another
+    machine) to ``out``'s machine references; a reference of the same run and fingerprint is replaced."""
+    doc, new = json.loads(out.read_text()), json.loads(src.read_text()).get("runs", [])
+    stored = {(r["env_id"], r["regime"], r["seed"]) for r in doc.get("runs", [])}
+    refs = []
+    for r in new:
+        key = (r.get("env_id"), r.get("regime"), r.get("seed"))
+        if key not in stored or "numerics" not in r or "commit" not in r:
+            raise SystemExit(f"--import-references: {src} run {key} has no committed run in {out} or lacks "
+                             "numerics/commit")
+        refs.append({"env_id": key[0], "regime": key[1], "seed": key[2], "commit": r["commit"],
+                     "numerics": r["numerics"], **{k: r[k] for k in TOLERANCE if k in r}})
+    keep = [r for r in doc.get(MACHINE_REFS, []) if not any(
+        (r["env_id"], r["regime"], r["seed"], json.dumps(r["numerics"], sort_keys=True))
+        == (n["env_id"], n["regime"], n["seed"], json.dumps(n["numerics"], sort_keys=True)) for n in refs)]
+    atomic_write_json(out, {**doc, MACHINE_REFS: keep + refs})
+    return refs
+
+
 def check(out: Path, todo: list[tuple[str, str]], seeds: list[int], epochs: int, n_train: int) -> int:
     """Re-run the selected committed runs and compare; 0 when every number reproduces, else 1."""
     if not out.exists():
@@ -108,11 +140,13 @@ def check(out: Path, todo: list[tuple[str, str]], seeds: list[int], epochs: int,
         jobs = [(e, r, s) for e, r in todo for s in seeds]
         for env, regime, seed in tqdm(jobs, desc="check-results"):
             fresh = _one(env, regime, seed, tmp, epochs, n_train)
-            old = stored[(env, regime, seed)]
+            ref = reference_for(doc, env, regime, seed, here)
+            old = ref or stored[(env, regime, seed)]
+            what = "this machine's reference" if ref else "committed"
             rows = compare(old, fresh)
             for k, a, b, good in rows:
                 ok &= good
-                print(f"{env.split('/')[-1]:<22} {regime:<8} seed {seed}  {k:<28} committed {a:.6g} "
+                print(f"{env.split('/')[-1]:<22} {regime:<8} seed {seed}  {k:<28} {what} {a:.6g} "
                       f"(at {old.get('commit', '?')})  now {b:.6g}  {'ok' if good else 'DRIFT'}")
             if not all(g for *_, g in rows) and old.get("numerics") != here:
                 where = json.dumps(old.get("numerics", "an unrecorded machine"))
@@ -209,12 +243,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--replace", action="store_true", help="with --append: drop and rerun the selected runs")
     ap.add_argument("--jobs", type=int, default=1,
                     help="runs in parallel processes (1 torch thread each; wall times then include contention)")
+    ap.add_argument("--import-references", metavar="FILE", default=None,
+                    help="add the runs of FILE (this script's JSON, e.g. from a checkout of the committed commit on "
+                         "another machine) to --out as that machine's references for --check, and exit")
     ap.add_argument("--out", default="docs/results/phast_windy.json")
     ap.add_argument("--append", action="store_true",
                     help="keep the runs already in --out (same protocol) and skip those (env, regime, seed)")
     args = ap.parse_args(argv)
     if args.table:
         print(markdown_table(json.loads(Path(args.out).read_text())))
+        return 0
+    if args.import_references:
+        for r in import_references(Path(args.out), Path(args.import_references)):
+            print(f"reference {r['env_id']} {r['regime']} seed {r['seed']} (at {r['commit']}) on {json.dumps(r['numerics'])}")
         return 0
     torch.set_num_threads(1)
     todo = DEFAULT_RUNS if not args.runs else [
@@ -224,6 +265,7 @@ def main(argv: list[str] | None = None) -> int:
     runs_dir = Path(args.runs_dir) if args.runs_dir else Path(tempfile.mkdtemp(prefix="phast_windy_"))
     out = Path(args.out)
     results: list[dict] = []
+    prev: dict = {}
     if args.append and out.exists():
         prev = json.loads(out.read_text())
         if prev.get("protocol", {}).get("epochs") != args.epochs or prev.get("protocol", {}).get("n_train") != args.n_train:
@@ -232,6 +274,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.replace:  # rerun the selected (env, regime, seed) with the current code
             sel = {(e, r, sd) for e, r in todo for sd in args.seeds}
             results = [r for r in results if (r["env_id"], r["regime"], r["seed"]) not in sel]
+            # their other-machine reproductions reproduce the replaced numbers: drop them too
+            prev[MACHINE_REFS] = [r for r in prev.get(MACHINE_REFS, []) if (r["env_id"], r["regime"], r["seed"]) not in sel]
     done = {(r["env_id"], r["regime"], r["seed"]) for r in results}
     t0 = time.time()
     jobs = [(e, r, s) for e, r in todo for s in args.seeds if (e, r, s) not in done]
@@ -248,7 +292,8 @@ def main(argv: list[str] | None = None) -> int:
             "protocol": {"n_train": args.n_train, "n_val": 200, "n_test": 200, "T": 200, "data_seed": 42,
                          "epochs": args.epochs, "torch_threads": 1},
             "machine": {"platform": platform.platform(), "processor": platform.processor(), **numerics()},
-            "elapsed_s": time.time() - t0, "summary": summarize(results), "runs": results})
+            "elapsed_s": time.time() - t0, "summary": summarize(results), "runs": results,
+            **({MACHINE_REFS: prev[MACHINE_REFS]} if MACHINE_REFS in prev else {})})
     if pool:
         pool.shutdown()
     print(json.dumps({k: {kk: v.get(kk) for kk in ("accept", "accept_wall_time")} for k, v in summarize(results).items()},
