@@ -98,10 +98,14 @@ def compare(committed: dict, fresh: dict) -> list[tuple[str, float, float, bool]
 MACHINE_REFS = "machine_references"
 
 
+def _ref_key(env: str, regime: str, seed: int, numerics: dict[str, str]) -> tuple:
+    return env, regime, seed, json.dumps(numerics, sort_keys=True)
+
+
 def reference_for(doc: dict, env: str, regime: str, seed: int, here: dict[str, str]) -> dict | None:
     """The reproduction of (env, regime, seed) measured on a machine with this numerics fingerprint, if any."""
-    refs = [r for r in doc.get(MACHINE_REFS, [])
-            if (r["env_id"], r["regime"], r["seed"]) == (env, regime, seed) and r.get("numerics") == here]
+    key = _ref_key(env, regime, seed, here)
+    refs = [r for r in doc.get(MACHINE_REFS, []) if _ref_key(r["env_id"], r["regime"], r["seed"], r["numerics"]) == key]
     return refs[-1] if refs else None
 
 
@@ -118,9 +122,9 @@ def import_references(out: Path, src: Path) -> list[dict]:
                              "numerics/commit")
         refs.append({"env_id": key[0], "regime": key[1], "seed": key[2], "commit": r["commit"],
                      "numerics": r["numerics"], **{k: r[k] for k in TOLERANCE if k in r}})
-    keep = [r for r in doc.get(MACHINE_REFS, []) if not any(
-        (r["env_id"], r["regime"], r["seed"], json.dumps(r["numerics"], sort_keys=True))
-        == (n["env_id"], n["regime"], n["seed"], json.dumps(n["numerics"], sort_keys=True)) for n in refs)]
+    replaced = {_ref_key(n["env_id"], n["regime"], n["seed"], n["numerics"]) for n in refs}
+    keep = [r for r in doc.get(MACHINE_REFS, [])
+            if _ref_key(r["env_id"], r["regime"], r["seed"], r["numerics"]) not in replaced]
     atomic_write_json(out, {**doc, MACHINE_REFS: keep + refs})
     return refs
 

@@ -299,7 +299,8 @@ class PHAST(ForecastModel):
         if cfg.lambda_pass <= 0 and cfg.lambda_energy <= 0 and cfg.lambda_roll <= 0:
             return out
         q, u = self._prep(q, u)
-        p = self.canonicalize(q, self.observer(q))
+        needs_p = cfg.lambda_pass > 0 or cfg.lambda_energy > 0 or cfg.roll_mode == "core"
+        p = self.canonicalize(q, self.observer(q)) if needs_p else None  # the observer-mode L_roll infers its own
         f = self.port_force(u)
         if cfg.lambda_pass > 0 or cfg.lambda_energy > 0:
             q1, p1 = self.core(q[:, :-1], p[:, :-1], None if f is None else f[:, :-1])
@@ -313,7 +314,8 @@ class PHAST(ForecastModel):
             out["roll"] = cfg.lambda_roll * self._roll_loss(q, u, p, f)
         return out
 
-    def _roll_loss(self, q: torch.Tensor, u: torch.Tensor | None, p: torch.Tensor, f: torch.Tensor | None) -> torch.Tensor:
+    def _roll_loss(self, q: torch.Tensor, u: torch.Tensor | None, p: torch.Tensor | None,
+                   f: torch.Tensor | None) -> torch.Tensor:
         """Mean squared open-loop error over ``roll_horizon`` steps from one random start (the same for the batch):
         the core alone (Eq. 88) or, with ``roll_mode="observer"``, the autoregressive rollout of :meth:`rollout`
         (with its autograd graph)."""
@@ -678,16 +680,17 @@ def _mass(cfg: PHASTConfig, env: _EnvScales) -> nn.Module:
     return _component("mass", MASSES, cfg.mass, cfg, env)
 
 
+#: ``PHASTConfig.damping`` -> builder (``none``: no dissipation)
+DAMPINGS: dict[str, Callable[[PHASTConfig, _EnvScales], nn.Module | None]] = {
+    "householder": lambda cfg, env: HouseholderDamping(
+        env.n, env.angle, cfg.damping_rank, hidden=cfg.damping_hidden, cap=cfg.damping_cap, d0=cfg.d0,
+        learn_d0=cfg.learn_d0, q_scale=torch.as_tensor(env.q_scale)),
+    "known": lambda cfg, env: KnownDamping(env.system), "none": lambda cfg, env: None}
+
+
 def _damping(cfg: PHASTConfig, env: _EnvScales) -> nn.Module | None:
     """D(q) of ``cfg.damping``: householder (learned), known or none."""
-    if cfg.damping == "householder":
-        return HouseholderDamping(env.n, env.angle, cfg.damping_rank, hidden=cfg.damping_hidden, cap=cfg.damping_cap,
-                                  d0=cfg.d0, learn_d0=cfg.learn_d0, q_scale=torch.as_tensor(env.q_scale))
-    if cfg.damping == "known":
-        return KnownDamping(env.system)
-    if cfg.damping == "none":
-        return None
-    raise ValueError(f"damping must be householder, known or none, got {cfg.damping!r}")
+    return _component("damping", DAMPINGS, cfg.damping, cfg, env)
 
 
 def _phast_core(cfg: PHASTConfig, env: _EnvScales) -> PHASTCore:

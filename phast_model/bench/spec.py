@@ -26,8 +26,12 @@ HARNESS_VERSION = 1
 MODEL_REVISIONS: dict[str, int] = {"transformer": 2, "phast-known": 3, "phast-partial": 3, "phast-unknown": 3}
 #: (model, env id) -> revision, where a change touches one env's runs of a model only (overrides MODEL_REVISIONS).
 #: phast-partial on predator-prey: 3 = the Lotka-Volterra template starts from the observed prey, not the env's rhs;
-#: 4 = the PHAST 3 change
-ENV_MODEL_REVISIONS: dict[tuple[str, str], int] = {("phast-partial", "PHAST/PredatorPrey-v0"): 4}
+#: 4 = the PHAST 3 change.  phast-unknown 4 on the rows with a learned M(q): L_roll over the scored rollout and a
+#: 128-wide Cholesky factor (848cd4d)
+ENV_MODEL_REVISIONS: dict[tuple[str, str], int] = {
+    ("phast-partial", "PHAST/PredatorPrey-v0"): 4,
+    **{("phast-unknown", f"PHAST/{e}-v0"): 4
+       for e in ("WindyCartPole", "DoublePendulum", "DampedDoublePendulum", "WindyDoublePendulum")}}
 
 
 def model_revision(model: str, env_id: str) -> int | None:
