@@ -1,0 +1,253 @@
+"""Why a PHAST regime's benchmark number is what it is: an error decomposition of trained grid runs.
+
+    .venv/bin/python benchmarks/regime_diagnostics.py --out docs/results/full --envs Pendulum-v0 \
+        --models phast-known,phast-partial --seeds 0-4 --json docs/results/full/diagnostics.json
+
+For every finished PHAST run of a ``phast-bench`` grid (its weights are ``work/.../bench_model.pt``) it re-scores
+the run's row metric on the test split with one part of the forecast replaced by the truth at a time:
+
+* ``scored``: the benchmark's own number (observer in the loop: the autoregressive rollout, or next-step);
+* ``takeover``: the observer runs once at the end of the burn-in, then the core alone (rollout rows);
+* ``oracle_state``: the core from the true state (true q, and p with the model's dH/dp = the true velocity), so
+  what is left is the learned physics and the time step;
+* ``oracle_state_fine``: the same with 4x the model's Strang substeps (what is left is the learned physics);
+* ``oracle_state_true_D``: ``oracle_state_fine`` with the env's damping instead of the learned one (models whose
+  mass is the env's, i.e. KNOWN; the learned D is only comparable in the env's units);
+
+plus the observer's velocity error at the last burn-in sample, the learned and true dissipation rate
+``sum v^T D v / sum v^T M v`` over the test states (1/s; it does not depend on the common scale of the learned V, M
+and D, which the data cannot fix), and the share of
+the scored error that comes from the 5 worst test trajectories (a large share means a few trajectories decide the
+row, e.g. near a separatrix).  Evaluation only; about a second per run on one core.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from phast_model.bench.runner import BENCH_MODEL_FILE, build_run_model, load_result, load_splits, work_dir
+from phast_model.bench.spec import PHAST_MODELS, RunSpec, parse_seeds
+from phast_model.metrics import _error_keys, _sq_err, benchmark_metric
+from phast_model.model import PHAST, LatentODEModel
+
+FINER = 4  # oracle_state_fine: this many times the model's substeps
+WORST = 5
+
+
+@dataclasses.dataclass
+class Diagnosis:
+    """One run's error decomposition (None where a part does not apply to the model or row)."""
+
+    env: str
+    model: str
+    seed: int
+    metric: str
+    recorded: float
+    scored: float
+    takeover: float | None
+    oracle_state: float | None
+    oracle_state_fine: float | None
+    oracle_state_true_D: float | None
+    velocity_rel_err: float | None
+    learned_rate: float | None
+    true_rate: float
+    worst5_share: float
+
+
+def load_trained(out: Path, spec: RunSpec, splits: dict[str, Any]) -> PHAST:
+    """The run's trained model from ``work/.../bench_model.pt`` (weights only)."""
+    path = work_dir(out, spec) / BENCH_MODEL_FILE
+    if not path.exists():
+        raise FileNotFoundError(f"{path} is missing: the run's weights are kept only where it was trained "
+                                "(rerun it there, or into a fresh --out)")
+    model = build_run_model(spec, splits["train"])
+    model.load_state_dict(torch.load(path, weights_only=True))
+    return model.eval()
+
+
+def _true_velocity(system: Any, q: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """qdot = M(q)^-1 p of the env, (..., n)."""
+    return np.stack(system.velocity(tuple(np.moveaxis(q, -1, 0)), tuple(np.moveaxis(p, -1, 0))), -1)
+
+
+def true_state(model: PHAST, test: Any, t: int | slice) -> tuple[torch.Tensor, torch.Tensor]:
+    """(q, p) of the model from the env's true state at sample(s) ``t``: p = M_model(q) qdot, so that the model's
+    dH/dp is the true velocity (whatever its canonicalizer)."""
+    dtype = next(model.parameters()).dtype
+    q, p = np.asarray(test.q_true[:, t]), np.asarray(test.p[:, t])
+    v = _true_velocity(model.system, q, p)
+    qt, vt = torch.as_tensor(q, dtype=dtype), torch.as_tensor(v, dtype=dtype)
+    return qt, model.mass.momentum(qt, vt)
+
+
+def core_rollout(model: PHAST, q: torch.Tensor, p: torch.Tensor, u: torch.Tensor | None, start: int, H: int,
+                 substeps: int) -> np.ndarray:
+    """H steps of the core alone from (q, p) at sample ``start``; ``substeps`` Strang substeps per sample."""
+    h = model.core.h * model.core.substeps / substeps
+    qs = []
+    for k in range(H):
+        f = None if u is None else model.port_force(u[:, start + k])
+        q, p = model.core(q, p, f, h=h, substeps=substeps)
+        qs.append(q.numpy().copy())
+    return np.stack(qs, 1)
+
+
+def _score(metric: str, se: np.ndarray, angle_dims: tuple[int, ...], prefix: str, suffix: str) -> float:
+    key = metric.replace(prefix, "", 1).replace(suffix, "") if metric.startswith(prefix) else metric
+    return _error_keys("", se, angle_dims)[key]
+
+
+def diagnose(model: PHAST, spec: RunSpec, test: Any, recorded: float, H: int = 100) -> Diagnosis:
+    """Scored, takeover and oracle-start errors of one trained PHAST run on its row metric."""
+    metric, K, ang = benchmark_metric(spec.env_id), spec.burn_in, tuple(model.angle_dims)
+    dtype = next(model.parameters()).dtype
+    q = torch.as_tensor(test.q, dtype=dtype)
+    u = None if test.u is None else torch.as_tensor(test.u, dtype=dtype)
+    rollout_row = metric.startswith("rollout_")
+    target = test.q[:, K:K + H] if rollout_row else test.q[:, 1:]
+    suffix = f"_h{H}" if rollout_row else ""
+
+    def score(pred: np.ndarray) -> float:
+        return _score(metric, _sq_err(pred, target, ang), ang, "rollout_", suffix)
+
+    res: dict[str, Any] = dict(takeover=None, oracle_state=None, oracle_state_fine=None, oracle_state_true_D=None,
+                               velocity_rel_err=None, learned_rate=None)
+    with torch.no_grad():
+        scored_pred = (model.rollout(q[:, :K], u, H) if rollout_row else model(q, None if u is None else u))
+        scored_pred = scored_pred.numpy()[:, :target.shape[1]]
+        se_traj = _sq_err(scored_pred, target, ang).mean(axis=tuple(range(1, target.ndim)))
+        worst = np.sort(se_traj)[::-1][:WORST].sum() / max(se_traj.sum(), 1e-300)
+        v_all = _true_velocity(model.system, test.q_true, test.p)
+        true_rate = float((v_all * np.asarray(test.damping) * v_all).sum() / (v_all * np.asarray(test.p)).sum())
+        if not isinstance(model, LatentODEModel):
+            res.update(_oracle_parts(model, test, q, u, K, H, rollout_row, score))
+    return Diagnosis(env=spec.env_id, model=spec.model, seed=spec.seed, metric=metric, recorded=recorded,
+                     scored=score(scored_pred), worst5_share=float(worst), true_rate=true_rate, **res)
+
+
+def _oracle_parts(model: PHAST, test: Any, q: torch.Tensor, u: torch.Tensor | None, K: int, H: int,
+                  rollout_row: bool, score: Any) -> dict[str, Any]:
+    from phast_model.components.damping import KnownDamping
+    from phast_model.interfaces import wrap_angles
+
+    out: dict[str, Any] = {}
+    qt, pt = true_state(model, test, K - 1)
+    v_obs = model.observer(q[:, :K][:, -model.observer.window:])[:, -1]
+    v_true = model.velocity(qt, pt)
+    out["velocity_rel_err"] = float(((v_obs - v_true) ** 2).mean().sqrt() / (v_true ** 2).mean().sqrt())
+    qa, pa = true_state(model, test, slice(None))
+    va = model.velocity(qa, pa)
+    dva = torch.zeros_like(va) if model.core.damping is None else model.core.damping.apply(qa, va)
+    out["learned_rate"] = float((va * dva).sum() / (va * pa).sum())
+
+    def oracle(substeps: int) -> float:
+        if rollout_row:
+            return score(wrap_angles(torch.as_tensor(core_rollout(model, qt, pt, u, K - 1, H, substeps)),
+                                     model.angle_dims).numpy())
+        f = None if u is None else model.port_force(u)
+        h = model.core.h * model.core.substeps / substeps
+        q1, _ = model.core(qa[:, :-1], pa[:, :-1], f, h=h, substeps=substeps)
+        return score(wrap_angles(q1, model.angle_dims).numpy())
+
+    if rollout_row:
+        out["takeover"] = score(model.rollout_takeover(q[:, :K], u, H).numpy())
+    out["oracle_state"] = oracle(model.core.substeps)
+    out["oracle_state_fine"] = oracle(FINER * model.core.substeps)
+    if model.config.mass == "known" and model.core.damping is not None:
+        learned, model.core.damping = model.core.damping, KnownDamping(model.system)
+        try:
+            out["oracle_state_true_D"] = oracle(FINER * model.core.substeps)
+        finally:
+            model.core.damping = learned
+    return out
+
+
+def diagnose_grid(out: Path, envs: list[str], models: list[str], seeds: list[int],
+                  model_kw: dict[str, Any] | None = None) -> list[Diagnosis]:
+    """:func:`diagnose` for every finished run of the grid whose weights are on disk (others are skipped)."""
+    todo = [RunSpec(env_id=e, model=m, seed=s, model_kw=dict(model_kw or {})) for e in envs for m in models for s in seeds]
+    found = [(s, r) for s in todo if (r := load_result(out, s)) is not None
+             and (work_dir(out, s) / BENCH_MODEL_FILE).exists()]
+    diags, splits_cache = [], {}
+    for spec, rec in tqdm(found, desc="diagnose", unit="run"):
+        if spec.env_id not in splits_cache:
+            splits_cache = {spec.env_id: load_splits(spec)}
+        splits = splits_cache[spec.env_id]
+        model = load_trained(out, spec, splits)
+        diags.append(diagnose(model, spec, splits["test"], float(rec["metrics"][benchmark_metric(spec.env_id)])))
+    return diags
+
+
+def _fmt(x: float | None) -> str:
+    return "—" if x is None else f"{x:.3g}"
+
+
+def markdown(diags: list[Diagnosis]) -> str:
+    """Mean over seeds per (env, model): the table docs/results.md quotes."""
+    cols = ["recorded", "scored", "takeover", "oracle_state", "oracle_state_fine", "oracle_state_true_D",
+            "velocity_rel_err", "learned_rate", "true_rate", "worst5_share"]
+    lines = ["| env | model | seeds | " + " | ".join(cols) + " |", "|" + "---|" * (len(cols) + 3)]
+    groups: dict[tuple[str, str], list[Diagnosis]] = {}
+    for d in diags:
+        groups.setdefault((d.env, d.model), []).append(d)
+    for (env, model), ds in groups.items():
+        vals = []
+        for c in cols:
+            xs = [getattr(d, c) for d in ds if getattr(d, c) is not None]
+            vals.append(_fmt(float(np.mean(xs)) if xs else None))
+        lines.append(f"| {env.split('/')[-1]} | {model} | {len(ds)} | " + " | ".join(vals) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def write_atomic(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    with os.fdopen(fd, "w") as fh:
+        fh.write(text)
+    os.replace(tmp, path)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", default="docs/results/full", help="the phast-bench output directory")
+    ap.add_argument("--envs", default="all", help="'all' or a comma list of env ids")
+    ap.add_argument("--models", default=",".join(PHAST_MODELS), help="PHAST models (baselines have no parts)")
+    ap.add_argument("--seeds", default="0-4")
+    ap.add_argument("--model-kw", action="append", metavar="KEY=VALUE",
+                    help="the runs' model overrides, as given to phast-bench (repeatable)")
+    ap.add_argument("--json", type=Path, help="write the per-run diagnoses here (JSON)")
+    ap.add_argument("--md", type=Path, help="write the per-(env, model) mean table here (Markdown)")
+    args = ap.parse_args(argv)
+    from phast_model.bench.paper import PAPER
+
+    envs = list(PAPER) if args.envs == "all" else [e if e.startswith("PHAST/") else f"PHAST/{e}"
+                                                   for e in args.envs.split(",")]
+    models = [m.strip() for m in args.models.split(",")]
+    bad = [m for m in models if m not in PHAST_MODELS]
+    if bad:
+        ap.error(f"not PHAST models: {bad} (choose from {list(PHAST_MODELS)})")
+    torch.set_num_threads(1)
+    from phast_model.cli.bench import _parse_kv
+
+    diags = diagnose_grid(Path(args.out), envs, models, parse_seeds(args.seeds), _parse_kv(args.model_kw))
+    table = markdown(diags)
+    print(table)
+    if args.json:
+        write_atomic(args.json, json.dumps([dataclasses.asdict(d) for d in diags], indent=1) + "\n")
+    if args.md:
+        write_atomic(args.md, table)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
