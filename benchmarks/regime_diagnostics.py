@@ -27,6 +27,7 @@ import argparse
 import dataclasses
 import json
 import os
+import re
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -102,9 +103,9 @@ def core_rollout(model: PHAST, q: torch.Tensor, p: torch.Tensor, u: torch.Tensor
     return np.stack(qs, 1)
 
 
-def _score(metric: str, se: np.ndarray, angle_dims: tuple[int, ...], prefix: str, suffix: str) -> float:
-    key = metric.replace(prefix, "", 1).replace(suffix, "") if metric.startswith(prefix) else metric
-    return _error_keys("", se, angle_dims)[key]
+def _error_kind(metric: str) -> str:
+    """The error of a row metric without its mode and horizon: rollout_theta_wrap_mse_h100 -> theta_wrap_mse."""
+    return re.sub(r"_h\d+$", "", metric.removeprefix("rollout_"))
 
 
 def diagnose(model: PHAST, spec: RunSpec, test: Any, recorded: float, H: int = 100) -> Diagnosis:
@@ -115,10 +116,9 @@ def diagnose(model: PHAST, spec: RunSpec, test: Any, recorded: float, H: int = 1
     u = None if test.u is None else torch.as_tensor(test.u, dtype=dtype)
     rollout_row = metric.startswith("rollout_")
     target = test.q[:, K:K + H] if rollout_row else test.q[:, 1:]
-    suffix = f"_h{H}" if rollout_row else ""
 
     def score(pred: np.ndarray) -> float:
-        return _score(metric, _sq_err(pred, target, ang), ang, "rollout_", suffix)
+        return _error_keys("", _sq_err(pred, target, ang), ang)[_error_kind(metric)]
 
     res: dict[str, Any] = dict(takeover=None, oracle_state=None, oracle_state_fine=None, oracle_state_true_D=None,
                                velocity_rel_err=None, learned_rate=None)

@@ -29,6 +29,9 @@ import torch
 
 from .components.potentials import HybridPotential, TemplatePotential
 
+#: the smallest starting value of a learned damping floor d0 (the softplus of a smaller one hardly moves)
+MIN_D0 = 1e-3
+
 
 @dataclass(frozen=True)
 class Kinematics:
@@ -209,10 +212,11 @@ def initialize_partial(model, kin: Kinematics, quantile: float = 0.01) -> Linear
     theta = fit.theta
     damp = model.damping
     fixed_floor = float(damp.d0) if damp is not None and not damp.learn_d0 else 0.0
-    if kin.f is None and fixed_floor > 0:
-        floor = _fitted_floor(phi, theta[J + K:], quantile)
-        if floor > 0:
-            theta = theta * (fixed_floor / floor)
+    floor = _fitted_floor(phi, theta[J + K:], quantile)
+    if kin.f is None and fixed_floor > 0 and floor > 0:
+        theta, floor = theta * (fixed_floor / floor), fixed_floor
+    if damp is not None and damp.learn_d0:  # a learned floor starts below the data's smallest D, as KNOWN's
+        damp.set_d0(max(model.floor_margin * max(floor, 0.0), MIN_D0))
     mass.set_linear(theta[:J])
     with torch.no_grad():
         template.coef.copy_(theta[J:J + K].to(template.coef.dtype))

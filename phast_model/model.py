@@ -202,11 +202,14 @@ class PHAST(ForecastModel):
         pot = self.potential
         if isinstance(pot, (TemplatePotential, HybridPotential)) and hasattr(self.mass, "linear_basis"):
             fit = data_init.initialize_partial(self, kin)
-            return {"init_residual": fit.residual}
+            out = {"init_residual": fit.residual}
+            if isinstance(self.damping, HouseholderDamping) and self.damping.learn_d0:
+                out["init_d0"] = float(self.damping.d0)
+            return out
         damp = self.damping
         if isinstance(pot, KnownPotential) and isinstance(damp, HouseholderDamping) and damp.learn_d0:
             floor = data_init.damping_floor(self, kin)
-            d0 = max(self.floor_margin * floor, 1e-3)
+            d0 = max(self.floor_margin * floor, data_init.MIN_D0)
             damp.set_d0(d0)
             return {"init_damping_floor": floor, "init_d0": d0}
         return {}

@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 from phast_gym import make_env_system
 from phast_gym.datasets import make_dataset
 from phast_gym.systems import NUMPY, split
+from phast_model import data_init
 from phast_model.components import CholeskyMass, TemplateMass
 from phast_model.core import PHASTCore
 from phast_model.regimes import build_model
@@ -118,6 +119,26 @@ def test_known_damping_floor_starts_below_the_smallest_damping():
     assert 0.25 < info["init_damping_floor"] < 0.35  # min_q D = 0.3 (cart friction, and the pole's wind floor)
     assert float(model.damping.d0) == pytest.approx(model.floor_margin * info["init_damping_floor"], rel=1e-5)
     assert float(model.damping.d0) < 0.3
+
+
+@pytest.mark.parametrize("env_id, rate", [("PHAST/DampedPendulum-v0", 0.5), ("PHAST/DampedDoublePendulum-v0", None),
+                                          ("PHAST/Pendulum-v0", 0.0)])
+def test_partial_learned_damping_floor_starts_from_the_data(env_id, rate):
+    """A learned floor d0 starts below the data's smallest D in the fitted gauge: where D is 0 at its smallest
+    value, at MIN_D0 (not at the generic 0.1 the observer could absorb; regime diagnostics in docs/results.md)."""
+    ds = make_dataset(env_id, 64, T=200, seed=3)
+    model = build_model(env_id, "partial")
+    assert model.damping.learn_d0
+    info = model.initialize_from_data(torch.as_tensor(ds.q, dtype=torch.float32), None)
+    d0 = float(model.damping.d0)
+    assert info["init_d0"] == pytest.approx(d0)
+    if rate == 0.0:
+        assert d0 == pytest.approx(data_init.MIN_D0, rel=1e-4)
+    elif rate is not None:  # 1-dof: the damping rate d0 / M is gauge-free
+        m = float(model.mass.matrix(torch.zeros(1, 1))[0, 0, 0])
+        assert d0 / m == pytest.approx(model.floor_margin * rate, rel=0.1)
+    else:
+        assert data_init.MIN_D0 < d0
 
 
 @pytest.mark.parametrize("regime, mass", [("partial", "template"), ("unknown", "cholesky")])

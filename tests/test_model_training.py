@@ -191,7 +191,8 @@ def test_phast_train_cli(tmp_path):
 def test_known_trainer_defaults_and_warmup(splits, tmp_path):
     model = build_model(ENV, "known")
     assert model.train_defaults == {"adam_eps": 1e-15, "warmup_epochs": 1.0}
-    assert build_model(ENV, "unknown").train_defaults == {}  # other regimes keep the trainer's defaults
+    assert build_model(ENV, "unknown").train_defaults == model.train_defaults  # identification settings everywhere
+    assert build_model("PHAST/WindyCartPole-v0", "unknown").train_defaults == {}  # learned M(q): the trainer's own
     # 48 trajectories / 16 = 3 steps per epoch: 2 warm-up epochs = 6 steps, then cosine over 12 steps
     cfg = TrainConfig(epochs=4, batch_size=16, val_every=2, progress=False, warmup_epochs=2.0)
     res = fit(model, splits["train"], splits["val"], cfg, run_dir=tmp_path / "w")
@@ -323,3 +324,25 @@ def test_phast_train_port_excitation_is_part_of_the_run_identity(tmp_path):
     assert "port_excitation" not in json.loads((tmp_path / "free" / "config.json").read_text())["data"]
     assert main(_train_cmd(tmp_path / "bad", "--epochs", "1", "--port-excitation", "-1")) == 2
     assert not (tmp_path / "bad").exists()
+
+
+def test_identification_settings_on_every_partial_and_constant_mass_unknown_row():
+    """A trainable observer absorbs D under the one-step loss (docs/results.md, section 0): PARTIAL everywhere and
+    UNKNOWN with a constant M freeze it, fix dt and take 4 substeps; UNKNOWN with a learned M(q) keeps its own."""
+    from phast_gym import env_ids, make_env_system
+    from phast_model.data_init import MIN_D0
+    from phast_model.regimes import IDENTIFICATION, default_config
+
+    for env in env_ids():
+        system = make_env_system(env)
+        if not system.hamiltonian_system:
+            continue
+        ident = [default_config(env, "partial")] + ([default_config(env, "unknown")] if system.separable else [])
+        for cfg in ident:
+            assert cfg.substeps == 4 and cfg.canonicalizer == "mass", (env, cfg.regime)
+            assert all(getattr(cfg, k) == v for k, v in IDENTIFICATION.items()), (env, cfg.regime)
+        if system.separable:
+            assert ident[-1].d0 == MIN_D0 and ident[-1].learn_d0
+        else:
+            cfg = default_config(env, "unknown")
+            assert cfg.observer_trainable and cfg.learn_dt and cfg.roll_mode == "observer", env

@@ -61,7 +61,9 @@ class HouseholderDamping(Damping):
                 last.bias[self.rank * n:] = math.log(math.expm1(beta_init))
         self.learn_d0 = bool(learn_d0)
         if self.learn_d0:
-            self.raw_d0 = nn.Parameter(torch.tensor(math.log(math.expm1(max(d0, 0.1)))))  # softplus must stay responsive
+            # d0 = 0 starts at 0.1 (a responsive softplus); a positive d0 is the start (the identification settings
+            # start it at MIN_D0 and let the x100 damping network raise D where the data need it)
+            self.raw_d0 = nn.Parameter(torch.tensor(math.log(math.expm1(d0 if d0 > 0 else 0.1))))
         else:
             self.register_buffer("fixed_d0", torch.tensor(float(d0)))
 
