@@ -4,7 +4,8 @@
 
 Runs ``phast-bench`` one (env, model) block at a time (5 seeds, one worker, one torch thread) into
 ``docs/results/full`` (per-run JSON under ``runs/``, keyed by the hash of the full configuration, so a finished run
-is never redone), refreshes ``summary.csv`` / ``tables.md`` after every block and, with ``--commit``, commits that
+is never redone), refreshes ``summary.csv`` / ``tables.md`` (and, after a PHAST block, the error decomposition
+``diagnostics.json`` / ``diagnostics.md`` of benchmarks/regime_diagnostics.py) after every block and, with ``--commit``, commits that
 directory (that path only; retried when another git command holds the index), so a session that ends loses at most
 the block in progress.  ``--dry-run`` lists what is left.
 """
@@ -32,6 +33,14 @@ def pending(envs: list[str], models: tuple[str, ...], seeds: list[int], out: Pat
 
 def bench(args: list[str]) -> int:
     return subprocess.call([sys.executable, "-m", "phast_model.cli.bench", *args])
+
+
+def diagnose(env: str, model: str, seeds: str, out: Path) -> int:
+    """Refresh ``OUT/diagnostics.{json,md}`` (benchmarks/regime_diagnostics.py) for one finished PHAST block."""
+    script = Path(__file__).with_name("regime_diagnostics.py")
+    return subprocess.call([sys.executable, str(script), "--out", str(out), "--envs", env, "--models", model,
+                            "--seeds", seeds, "--json", str(out / "diagnostics.json"), "--md",
+                            str(out / "diagnostics.md"), "--merge"], stderr=subprocess.DEVNULL)
 
 
 def commit(out: Path, message: str, tries: int = 20) -> bool:
@@ -71,6 +80,8 @@ def main(argv: list[str] | None = None) -> int:
                     "--threads", "1", "--no-progress"])
         bench([*every, "--summarize-only", "--title", "Paper protocol (1000/200/200, 50 epochs, seeds " + args.seeds + ")",
                "--note", "Written by benchmarks/grid.py as blocks finish; rows fill in across sessions."])
+        if model in PHAST_MODELS:  # the error decomposition of docs/results.md, section 0, kept in step with the tables
+            diagnose(env, model, args.seeds, out)
         print(f"grid: {env} {model} rc={rc} in {time.time() - t0:.0f} s", flush=True)
         if args.commit:
             commit(out, f"grid: {env.split('/')[-1]} {model} seeds {args.seeds}")

@@ -36,8 +36,10 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from phast_model.bench.paper import PAPER
 from phast_model.bench.runner import BENCH_MODEL_FILE, build_run_model, load_result, load_splits, work_dir
-from phast_model.bench.spec import PHAST_MODELS, RunSpec, parse_seeds
+from phast_model.bench.spec import PHAST_MODELS, RunSpec, parse_seeds, run_key
+from phast_model.cli.bench import parse_kv
 from phast_model.metrics import _error_keys, _sq_err, benchmark_metric
 from phast_model.model import PHAST, LatentODEModel
 
@@ -52,6 +54,7 @@ class Diagnosis:
     env: str
     model: str
     seed: int
+    key: str
     metric: str
     recorded: float
     scored: float
@@ -131,7 +134,7 @@ def diagnose(model: PHAST, spec: RunSpec, test: Any, recorded: float, H: int = 1
         true_rate = float((v_all * np.asarray(test.damping) * v_all).sum() / (v_all * np.asarray(test.p)).sum())
         if not isinstance(model, LatentODEModel):
             res.update(_oracle_parts(model, test, q, u, K, H, rollout_row, score))
-    return Diagnosis(env=spec.env_id, model=spec.model, seed=spec.seed, metric=metric, recorded=recorded,
+    return Diagnosis(env=spec.env_id, model=spec.model, seed=spec.seed, key=run_key(spec), metric=metric, recorded=recorded,
                      scored=score(scored_pred), worst5_share=float(worst), true_rate=true_rate, **res)
 
 
@@ -188,6 +191,20 @@ def diagnose_grid(out: Path, envs: list[str], models: list[str], seeds: list[int
     return diags
 
 
+def merge(old: list[dict[str, Any]], new: list[Diagnosis], redone: set[tuple[str, str]]) -> list[Diagnosis]:
+    """``new`` plus the entries of ``old`` (a --json file) outside the (env, model) blocks just diagnosed whose run key is
+    still the current one (a bumped model revision retires them)."""
+    kept = []
+    for e in old:
+        d = Diagnosis(**e)
+        spec = RunSpec(env_id=d.env, model=d.model, seed=d.seed)
+        if (d.env, d.model) not in redone and run_key(spec) == d.key:
+            kept.append(d)
+    order = {e: i for i, e in enumerate(PAPER)}
+    models = {m: i for i, m in enumerate(PHAST_MODELS)}
+    return sorted(kept + new, key=lambda d: (order.get(d.env, len(order)), models.get(d.model, 9), d.seed))
+
+
 def _fmt(x: float | None) -> str:
     return "—" if x is None else f"{x:.3g}"
 
@@ -227,9 +244,11 @@ def main(argv: list[str] | None = None) -> int:
                     help="the runs' model overrides, as given to phast-bench (repeatable)")
     ap.add_argument("--json", type=Path, help="write the per-run diagnoses here (JSON)")
     ap.add_argument("--md", type=Path, help="write the per-(env, model) mean table here (Markdown)")
+    ap.add_argument("--merge", action="store_true",
+                    help="keep the --json file's other blocks (the grid driver refreshes one block at a time)")
     args = ap.parse_args(argv)
-    from phast_model.bench.paper import PAPER
-
+    if args.merge and not args.json:
+        ap.error("--merge needs --json (the file to merge into)")
     envs = list(PAPER) if args.envs == "all" else [e if e.startswith("PHAST/") else f"PHAST/{e}"
                                                    for e in args.envs.split(",")]
     models = [m.strip() for m in args.models.split(",")]
@@ -237,9 +256,9 @@ def main(argv: list[str] | None = None) -> int:
     if bad:
         ap.error(f"not PHAST models: {bad} (choose from {list(PHAST_MODELS)})")
     torch.set_num_threads(1)
-    from phast_model.cli.bench import _parse_kv
-
-    diags = diagnose_grid(Path(args.out), envs, models, parse_seeds(args.seeds), _parse_kv(args.model_kw))
+    diags = diagnose_grid(Path(args.out), envs, models, parse_seeds(args.seeds), parse_kv(args.model_kw))
+    if args.merge and args.json.exists():
+        diags = merge(json.loads(args.json.read_text()), diags, {(e, m) for e in envs for m in models})
     table = markdown(diags)
     print(table)
     if args.json:

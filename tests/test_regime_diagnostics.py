@@ -83,3 +83,22 @@ def test_next_step_rows_are_decomposed_too(rd) -> None:
     assert d.metric == "mse" and d.takeover is None
     assert d.scored == pytest.approx(metric, rel=1e-9)
     assert d.oracle_state_true_D < 1e-3 * d.oracle_state_fine
+
+
+def test_merge_keeps_other_blocks_and_retires_stale_keys(rd) -> None:
+    """The grid refreshes one block at a time: other blocks stay, entries of a bumped revision are dropped."""
+    def diag(env: str, model: str, seed: int, key: str | None = None) -> object:
+        spec = RunSpec(env_id=env, model=model, seed=seed)
+        return rd.Diagnosis(env=env, model=model, seed=seed, key=key or rd.run_key(spec), metric="mse", recorded=1.0,
+                            scored=1.0, takeover=None, oracle_state=None, oracle_state_fine=None,
+                            oracle_state_true_D=None, velocity_rel_err=None, learned_rate=None, true_rate=0.0,
+                            worst5_share=1.0)
+
+    import dataclasses
+
+    old = [dataclasses.asdict(d) for d in (diag(ENV, "phast-known", 0), diag(ENV, "phast-partial", 0),
+                                            diag("PHAST/Pendulum-v0", "phast-known", 1, key="0" * 16))]
+    new = [diag(ENV, "phast-partial", 1)]
+    merged = rd.merge(old, new, {(ENV, "phast-partial")})
+    assert [(d.env, d.model, d.seed) for d in merged] == [(ENV, "phast-known", 0), (ENV, "phast-partial", 1)]
+    assert "| DampedPendulum-v0 | phast-known | 1 |" in rd.markdown(merged)

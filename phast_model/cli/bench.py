@@ -45,7 +45,7 @@ def _parse_list(text: str, all_values: tuple[str, ...], what: str) -> list[str]:
     return out
 
 
-def _parse_kv(items: list[str] | None) -> dict[str, Any]:
+def parse_kv(items: list[str] | None) -> dict[str, Any]:
     """``["lr=3e-4", "batch_size=32"]`` -> {"lr": 0.0003, "batch_size": 32} (values parsed as JSON when possible)."""
     out: dict[str, Any] = {}
     for item in items or []:
@@ -117,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
         horizons = tuple(int(h) for h in args.horizons.split(",") if h.strip())
         specs = grid(envs, models, seeds, epochs=args.epochs, n_train=args.n_train, n_val=args.n_val,
                      n_test=args.n_test, T=args.T, data_seed=args.data_seed, horizons=horizons, burn_in=args.burn_in,
-                     train=_parse_kv(args.train), model_kw=_parse_kv(args.model_kw), full_state=args.full_state)
+                     train=parse_kv(args.train), model_kw=parse_kv(args.model_kw), full_state=args.full_state)
         if not args.dry_run:
             ensure_writable_dir(args.out, "--out")
     except Exception as exc:  # noqa: BLE001 - bad input: one clear line, nothing written
