@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -55,16 +56,147 @@ def _pick(records: list[dict], env: str, phast: bool) -> dict | None:
     return min(runs, key=lambda r: r["seed"])
 
 
+@dataclass
+class EnvRollouts:
+    """One env's test trajectories and the chosen models' open-loop rollouts from its burn-in."""
+
+    env: str
+    test: Any
+    q: np.ndarray  # (n_traj, T, n) observed test trajectories
+    K: int  # burn-in
+    H: int  # rollout horizon
+    preds: dict[str, np.ndarray] = field(default_factory=dict)  # model name -> (n_traj, H, n)
+    models: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def angle_dims(self) -> tuple[int, ...]:
+        return tuple(self.test.angle_dims)
+
+    def label(self, name: str) -> str:
+        return DISPLAY.get(name, name)
+
+
+def _rollouts(out_dir: Path, env: str, chosen: list[dict], n_traj: int, H: int) -> EnvRollouts | None:
+    """Reload each chosen run and roll it out open loop on the first ``n_traj`` test trajectories."""
+    import torch
+
+    spec0 = RunSpec.from_config(chosen[0]["config"])
+    splits = load_splits(spec0)
+    test, K = splits["test"], spec0.burn_in
+    idx = slice(0, min(n_traj, test.n_traj))
+    ro = EnvRollouts(env, test, np.asarray(test.q[idx]), K, min(H, test.T - K))
+    u = np.asarray(test.u[idx])
+    for rec in chosen:
+        spec = RunSpec.from_config(rec["config"])
+        try:
+            model = load_model(out_dir, spec, splits["train"])
+        except (RuntimeError, OSError, KeyError) as exc:  # weights from another version of the model code
+            warnings.warn(f"figures: skipping {env} {rec['model']} seed {rec['seed']}: saved weights do not load "
+                          f"into the current code ({str(exc).splitlines()[0]}); rerun that run to draw it", stacklevel=2)
+            continue
+        dtype = next(model.parameters()).dtype
+        with torch.no_grad():
+            ro.preds[rec["model"]] = model.rollout(torch.as_tensor(ro.q[:, :K], dtype=dtype),
+                                                   torch.as_tensor(u, dtype=dtype), ro.H).numpy()
+        ro.models[rec["model"]] = model
+    return ro if ro.preds else None
+
+
+def _save(fig: Any, path: Path) -> Path:
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _rollout_figure(ro: EnvRollouts, path: Path) -> Path:
+    """Fig. 5 shape: q(t) of truth and predictions, and the phase portraits (q, finite-difference qdot)."""
+    import matplotlib.pyplot as plt
+
+    q, K, Hh, ang, dt = ro.q, ro.K, ro.H, ro.angle_dims, ro.test.dt
+    t = np.arange(q.shape[1]) * dt
+    tr = t[K:K + Hh]
+    n = q.shape[-1]
+    fig, axes = plt.subplots(n, 2, figsize=(10, 3 * n), squeeze=False)
+    for i in range(n):
+        ax = axes[i, 0]
+        brk = break_at_wraps if i in ang else np.asarray
+        ax.plot(t[:K + Hh], brk(q[0, :K + Hh, i]), "k-", lw=2, label="truth")
+        ax.axvline(t[K - 1], color="grey", ls=":", lw=1)
+        for name, roll in ro.preds.items():
+            ax.plot(tr, brk(roll[0, :, i]), "--", label=ro.label(name))
+        ax.set_xlabel("t")
+        ax.set_ylabel(f"q[{i}]" + (" (wrapped)" if i in ang else ""))
+        ax.legend(fontsize=7)
+        ax = axes[i, 1]
+        full_true = q[0, K - 1:K + Hh]
+        ax.plot(brk(full_true[1:, i]), fd_velocity(full_true, dt, ang)[:, i], "k-", lw=2, label="truth")
+        for name, roll in ro.preds.items():
+            full = np.concatenate([q[0, K - 1:K], roll[0]], 0)
+            ax.plot(brk(full[1:, i]), fd_velocity(full, dt, ang)[:, i], "--", label=ro.label(name))
+        ax.set_xlabel(f"q[{i}]")
+        ax.set_ylabel(f"finite-difference qdot[{i}]")
+    fig.suptitle(f"{ro.env}: open-loop rollout after {K} burn-in steps (test trajectory 0)")
+    return _save(fig, path)
+
+
+def _damping_panel(ax: Any, ro: EnvRollouts) -> None:
+    """The first PHAST model's learned damping diagonal against the env's D(q) on the test states."""
+    import torch
+
+    phast = next((m for name, m in ro.models.items() if name.startswith("phast-")), None)
+    if phast is None or getattr(phast, "damping", None) is None or not hasattr(phast, "damping_diag"):
+        ax.text(0.5, 0.5, "no learned damping field", ha="center", va="center", transform=ax.transAxes)
+        return
+    qa = np.asarray(ro.test.q)
+    with torch.no_grad():
+        d_hat = phast.damping_diag(torch.as_tensor(qa, dtype=next(phast.parameters()).dtype)).numpy()
+    d = np.asarray(ro.test.damping)
+    x = qa[..., 0].ravel()
+    order = np.argsort(x)
+    ax.plot(x[order], d[..., 0].ravel()[order], "k.", ms=2, label="true D(q)[0]")
+    ax.plot(x[order], d_hat[..., 0].ravel()[order], "r.", ms=2, label="learned (PHAST)")
+    ax.set_xlabel("q[0]")
+    ax.set_ylabel("damping diagonal [0]")
+    ax.legend(fontsize=7)
+
+
+def _energy_panel(ax: Any, ro: EnvRollouts) -> None:
+    """The env's energy along the true and the predicted trajectories (n/a for systems without one)."""
+    from ..metrics import env_energy
+
+    q, K, Hh, ang, dt = ro.q, ro.K, ro.H, ro.angle_dims, ro.test.dt
+    tr = (np.arange(q.shape[1]) * dt)[K:K + Hh]
+    try:
+        ax.plot(tr, env_energy(ro.env, q[0:1, K - 1:K + Hh], dt, ang)[0], "k-", lw=2, label="truth")
+        for name, roll in ro.preds.items():
+            full = np.concatenate([q[0:1, K - 1:K], roll[0:1]], 1)
+            ax.plot(tr, env_energy(ro.env, full, dt, ang)[0], "--", label=ro.label(name))
+        ax.set_xlabel("t")
+        ax.set_ylabel("env energy H(q, M(q) qdot_fd)")
+        ax.legend(fontsize=7)
+    except (ValueError, TypeError, IndexError) as exc:  # systems without a mechanical energy
+        ax.text(0.5, 0.5, f"energy n/a: {exc}", ha="center", va="center", transform=ax.transAxes, fontsize=7)
+
+
+def _damping_energy_figure(ro: EnvRollouts, path: Path) -> Path:
+    """Fig. 6 shape: the damping field and the energy along the rollout."""
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
+    _damping_panel(axes[0], ro)
+    _energy_panel(axes[1], ro)
+    fig.suptitle(f"{ro.env}: damping field and energy along the rollout")
+    return _save(fig, path)
+
+
 def make_figures(out_dir: str | Path, specs: list[RunSpec], n_traj: int = 3, H: int = 100) -> list[Path]:
     """Draw the rollout and damping/energy figures of every env in ``specs`` with finished runs."""
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import torch
-
-    from ..metrics import env_energy
-
     out_dir = Path(out_dir)
     fig_dir = out_dir / "figures"
     fig_dir.mkdir(parents=True, exist_ok=True)
@@ -72,96 +204,10 @@ def make_figures(out_dir: str | Path, specs: list[RunSpec], n_traj: int = 3, H: 
     written: list[Path] = []
     for env in dict.fromkeys(s.env_id for s in specs if not s.full_state):
         chosen = [r for r in (_pick(records, env, True), _pick(records, env, False)) if r is not None]
-        if not chosen:
+        ro = _rollouts(out_dir, env, chosen, n_traj, H) if chosen else None
+        if ro is None:
             continue
-        spec0 = RunSpec.from_config(chosen[0]["config"])
-        splits = load_splits(spec0)
-        test, train = splits["test"], splits["train"]
-        K = spec0.burn_in
-        Hh = min(H, test.T - K)
-        idx = slice(0, min(n_traj, test.n_traj))
-        q = np.asarray(test.q[idx])
-        u = np.asarray(test.u[idx])
-        ang = tuple(test.angle_dims)
-        preds, models = {}, {}
-        for rec in chosen:
-            spec = RunSpec.from_config(rec["config"])
-            try:
-                model = load_model(out_dir, spec, train)
-            except (RuntimeError, OSError, KeyError) as exc:  # weights from another version of the model code
-                warnings.warn(f"figures: skipping {env} {rec['model']} seed {rec['seed']}: saved weights do not load "
-                              f"into the current code ({str(exc).splitlines()[0]}); rerun that run to draw it", stacklevel=2)
-                continue
-            dtype = next(model.parameters()).dtype
-            with torch.no_grad():
-                roll = model.rollout(torch.as_tensor(q[:, :K], dtype=dtype), torch.as_tensor(u, dtype=dtype), Hh).numpy()
-            preds[rec["model"]] = roll
-            models[rec["model"]] = model
-        if not preds:
-            continue
-        t = np.arange(q.shape[1]) * test.dt
-        tr = t[K:K + Hh]
-        n = q.shape[-1]
-        # ---- Fig. 5 shape: rollouts + phase portraits
-        fig, axes = plt.subplots(n, 2, figsize=(10, 3 * n), squeeze=False)
-        for i in range(n):
-            ax = axes[i, 0]
-            brk = break_at_wraps if i in ang else np.asarray
-            ax.plot(t[:K + Hh], brk(q[0, :K + Hh, i]), "k-", lw=2, label="truth")
-            ax.axvline(t[K - 1], color="grey", ls=":", lw=1)
-            for name, roll in preds.items():
-                ax.plot(tr, brk(roll[0, :, i]), "--", label=DISPLAY.get(name, name))
-            ax.set_xlabel("t")
-            ax.set_ylabel(f"q[{i}]" + (" (wrapped)" if i in ang else ""))
-            ax.legend(fontsize=7)
-            ax = axes[i, 1]
-            full_true = q[0, K - 1:K + Hh]
-            ax.plot(brk(full_true[1:, i]), fd_velocity(full_true, test.dt, ang)[:, i], "k-", lw=2, label="truth")
-            for name, roll in preds.items():
-                full = np.concatenate([q[0, K - 1:K], roll[0]], 0)
-                ax.plot(brk(full[1:, i]), fd_velocity(full, test.dt, ang)[:, i], "--", label=DISPLAY.get(name, name))
-            ax.set_xlabel(f"q[{i}]")
-            ax.set_ylabel(f"finite-difference qdot[{i}]")
-        fig.suptitle(f"{env}: open-loop rollout after {K} burn-in steps (test trajectory 0)")
-        fig.tight_layout()
-        path = fig_dir / f"{env.replace('PHAST/', '').replace('/', '_')}_rollout.png"
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        written.append(path)
-        # ---- Fig. 6 shape: damping field + energy traces
-        fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
-        ax = axes[0]
-        phast = next((m for name, m in models.items() if name.startswith("phast-")), None)
-        if phast is not None and getattr(phast, "damping", None) is not None and hasattr(phast, "damping_diag"):
-            qa = np.asarray(test.q)
-            with torch.no_grad():
-                d_hat = phast.damping_diag(torch.as_tensor(qa, dtype=next(phast.parameters()).dtype)).numpy()
-            d = np.asarray(test.damping)
-            x = qa[..., 0].ravel()
-            order = np.argsort(x)
-            ax.plot(x[order], d[..., 0].ravel()[order], "k.", ms=2, label="true D(q)[0]")
-            ax.plot(x[order], d_hat[..., 0].ravel()[order], "r.", ms=2, label="learned (PHAST)")
-            ax.set_xlabel("q[0]")
-            ax.set_ylabel("damping diagonal [0]")
-            ax.legend(fontsize=7)
-        else:
-            ax.text(0.5, 0.5, "no learned damping field", ha="center", va="center", transform=ax.transAxes)
-        ax = axes[1]
-        try:
-            e_true = env_energy(env, q[0:1, K - 1:K + Hh], test.dt, ang)[0]
-            ax.plot(tr, e_true, "k-", lw=2, label="truth")
-            for name, roll in preds.items():
-                full = np.concatenate([q[0:1, K - 1:K], roll[0:1]], 1)
-                ax.plot(tr, env_energy(env, full, test.dt, ang)[0], "--", label=DISPLAY.get(name, name))
-            ax.set_xlabel("t")
-            ax.set_ylabel("env energy H(q, M(q) qdot_fd)")
-            ax.legend(fontsize=7)
-        except (ValueError, TypeError, IndexError) as exc:  # systems without a mechanical energy
-            ax.text(0.5, 0.5, f"energy n/a: {exc}", ha="center", va="center", transform=ax.transAxes, fontsize=7)
-        fig.suptitle(f"{env}: damping field and energy along the rollout")
-        fig.tight_layout()
-        path = fig_dir / f"{env.replace('PHAST/', '').replace('/', '_')}_damping_energy.png"
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        written.append(path)
+        stem = env.replace("PHAST/", "").replace("/", "_")
+        written.append(_rollout_figure(ro, fig_dir / f"{stem}_rollout.png"))
+        written.append(_damping_energy_figure(ro, fig_dir / f"{stem}_damping_energy.png"))
     return written
