@@ -257,6 +257,20 @@ def load_raw(source: str | Path | Mapping[str, Any]) -> tuple[dict[str, Any], st
 def validate(raw: Mapping[str, Any], n: int, env_angle_dims: tuple[int, ...], source: str = "<arrays>",
              min_samples: int = MIN_SAMPLES, actuated_dofs: tuple[int, ...] | None = None) -> Recordings:
     """Check shapes, finiteness and the time base (strictly increasing t); convert to the env's convention."""
+    q = _check_q(raw, n, source, min_samples)
+    T = q.shape[1]
+    t = _check_t(np.asarray(raw["t"], dtype=np.float64), q.shape[0], T, source) if raw.get("t") is not None else None
+    dt = _time_step(raw, t, source)
+    angle_dims = tuple(int(i) for i in np.atleast_1d(raw["angle_dims"])) if "angle_dims" in raw else tuple(env_angle_dims)
+    if any(not 0 <= i < n for i in angle_dims):
+        raise ValueError(f"{source}: angle_dims {angle_dims} out of range for n={n}")
+    q = _continuous_angles(q, raw.get("angle_offset"), angle_dims, source)
+    u = _port_input(raw, q.shape, actuated_dofs, source) if raw.get("u") is not None else None
+    return Recordings(q=q, dt=dt, u=u, angle_dims=angle_dims, source=source, t=t)
+
+
+def _check_q(raw: Mapping[str, Any], n: int, source: str, min_samples: int) -> np.ndarray:
+    """The measured coordinates as a finite (N, T, n) float array."""
     if "q" not in raw:
         raise ValueError(f"{source}: recordings are missing key 'q' (measured coordinates, (N, T, n) or (T, n)); "
                          f"keys present: {sorted(raw)}")
@@ -279,14 +293,15 @@ def validate(raw: Mapping[str, Any], n: int, env_angle_dims: tuple[int, ...], so
     if not np.all(np.isfinite(q)):
         bad = np.argwhere(~np.isfinite(q))[0]
         raise ValueError(f"{source}: 'q' contains NaN/inf (first at trajectory {bad[0]}, sample {bad[1]}, coordinate {bad[2]})")
-    T = q.shape[1]
-    # ---- time base
-    t = None
-    if "t" in raw and raw["t"] is not None:
-        t = _check_t(np.asarray(raw["t"], dtype=np.float64), q.shape[0], T, source)
-    if "dt" in raw and raw["dt"] is not None and np.size(raw["dt"]) == 1:
+    return q
+
+
+def _time_step(raw: Mapping[str, Any], t: np.ndarray | None, source: str) -> float:
+    """The nominal sample interval: 'dt', checked against the median step of 't' when both are given."""
+    dt_raw = raw.get("dt")
+    if dt_raw is not None and np.size(dt_raw) == 1:
         try:
-            dt = float(np.asarray(raw["dt"], dtype=np.float64).reshape(()))
+            dt = float(np.asarray(dt_raw, dtype=np.float64).reshape(()))
         except (TypeError, ValueError):
             raise ValueError(f"{source}: 'dt' is not a number") from None
         if not (math.isfinite(dt) and dt > 0):
@@ -298,48 +313,52 @@ def validate(raw: Mapping[str, Any], n: int, env_angle_dims: tuple[int, ...], so
             tol = UNIFORM_RTOL if uniform else 0.05
             if abs(step - dt) > tol * dt:
                 raise ValueError(f"{source}: 'dt'={dt} disagrees with the median step of 't' ({step:.6g} s)")
-    elif "dt" in raw and raw["dt"] is not None:
-        raise ValueError(f"{source}: 'dt' must be a scalar, got shape {np.shape(raw['dt'])}; give per-sample times as 't'")
+    elif dt_raw is not None:
+        raise ValueError(f"{source}: 'dt' must be a scalar, got shape {np.shape(dt_raw)}; give per-sample times as 't'")
     elif t is not None:
         dt = float(np.median(np.diff(t, axis=1)))
     else:
         raise ValueError(f"{source}: recordings are missing the time base: give 'dt' (scalar) or 't' ((T,) or (N, T) seconds)")
     if not (math.isfinite(dt) and dt > 0):
         raise ValueError(f"{source}: dt must be a positive finite number, got {dt}")
-    # ---- angles
-    angle_dims = tuple(int(i) for i in np.atleast_1d(raw["angle_dims"])) if "angle_dims" in raw else tuple(env_angle_dims)
-    if any(not 0 <= i < n for i in angle_dims):
-        raise ValueError(f"{source}: angle_dims {angle_dims} out of range for n={n}")
+    return dt
+
+
+def _continuous_angles(q: np.ndarray, offset: Any, angle_dims: tuple[int, ...], source: str) -> np.ndarray:
+    """The env's convention: add the angle offset, wrap, then unwrap along time (a continuous angle)."""
+    n = q.shape[-1]
     q = q.copy()
-    if "angle_offset" in raw:
-        off = np.asarray(raw["angle_offset"], dtype=np.float64)
+    if offset is not None:
+        off = np.asarray(offset, dtype=np.float64)
         if off.size not in (1, n) or not np.all(np.isfinite(off)):
             raise ValueError(f"{source}: angle_offset must be a finite scalar or n={n} values, got {off}")
         q = q + off.reshape(-1)[None, None, :] * np.ones(n)
     for i in angle_dims:
-        # convention: wrap then unwrap along time (continuous angle near the env's range)
-        w = wrap(q[..., i])
-        q[..., i] = np.unwrap(w, axis=1)
-    # ---- port input
-    u = None
-    if "u" in raw and raw["u"] is not None:
-        u_raw = np.asarray(raw["u"], dtype=np.float64)
-        if u_raw.ndim == 2:
-            u_raw = u_raw[None]
-        if u_raw.ndim != 3 or u_raw.shape[0] != q.shape[0] or u_raw.shape[1] not in (T, T - 1):
-            raise ValueError(f"{source}: 'u' must have shape (N, T, m) or (N, T-1, m) matching q {q.shape}, got {u_raw.shape}")
-        if not np.all(np.isfinite(u_raw)):
-            raise ValueError(f"{source}: 'u' contains NaN/inf")
-        u_raw = u_raw[:, : T - 1]
-        m = u_raw.shape[2]
-        dofs = tuple(int(i) for i in np.atleast_1d(raw["actuated_dofs"])) if "actuated_dofs" in raw else actuated_dofs
-        if dofs is None:
-            dofs = tuple(range(n)) if m == n else None
-        if dofs is None or len(dofs) != m or any(not 0 <= i < n for i in dofs):
-            raise ValueError(f"{source}: 'u' has m={m} inputs; give 'actuated_dofs' (m indices into n={n} coordinates)")
-        u = np.zeros(u_raw.shape[:2] + (n,))
-        u[..., list(dofs)] = u_raw
-    return Recordings(q=q, dt=dt, u=u, angle_dims=angle_dims, source=source, t=t)
+        q[..., i] = np.unwrap(wrap(q[..., i]), axis=1)
+    return q
+
+
+def _port_input(raw: Mapping[str, Any], q_shape: tuple[int, ...], actuated_dofs: tuple[int, ...] | None,
+                source: str) -> np.ndarray:
+    """The measured port input as (N, T-1, n) generalized forces (zero on unactuated coordinates)."""
+    N, T, n = q_shape
+    u_raw = np.asarray(raw["u"], dtype=np.float64)
+    if u_raw.ndim == 2:
+        u_raw = u_raw[None]
+    if u_raw.ndim != 3 or u_raw.shape[0] != N or u_raw.shape[1] not in (T, T - 1):
+        raise ValueError(f"{source}: 'u' must have shape (N, T, m) or (N, T-1, m) matching q {tuple(q_shape)}, got {u_raw.shape}")
+    if not np.all(np.isfinite(u_raw)):
+        raise ValueError(f"{source}: 'u' contains NaN/inf")
+    u_raw = u_raw[:, : T - 1]
+    m = u_raw.shape[2]
+    dofs = tuple(int(i) for i in np.atleast_1d(raw["actuated_dofs"])) if "actuated_dofs" in raw else actuated_dofs
+    if dofs is None:
+        dofs = tuple(range(n)) if m == n else None
+    if dofs is None or len(dofs) != m or any(not 0 <= i < n for i in dofs):
+        raise ValueError(f"{source}: 'u' has m={m} inputs; give 'actuated_dofs' (m indices into n={n} coordinates)")
+    u = np.zeros(u_raw.shape[:2] + (n,))
+    u[..., list(dofs)] = u_raw
+    return u
 
 
 def _check_t(t: np.ndarray, N: int, T: int, source: str) -> np.ndarray:
