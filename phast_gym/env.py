@@ -52,6 +52,28 @@ def parse_actuated_dofs(actuated_dofs: Sequence[int] | None, n: int) -> tuple[in
     return tuple(dofs)
 
 
+
+def _parse_target(target: Sequence[float] | None, n: int) -> list[float]:
+    """The control target q* as n finite floats (default: the origin)."""
+    if target is None:
+        return [0.0] * n
+    out = [float(v) for v in _real_array(target, "target", ParameterError).reshape(-1)]
+    if len(out) != n:
+        raise ParameterError(f"target must have length {n}, got {len(out)}")
+    if not all(math.isfinite(v) for v in out):
+        raise ParameterError(f"target must be finite, got {out}")
+    return out
+
+
+def _observation_space(angle: list[bool], observe: str, dtype: np.dtype) -> spaces.Box:
+    """Wrapped angles in [-pi, pi], other coordinates (and p, when observed) unbounded."""
+    lo = np.array([-math.pi if a else -np.inf for a in angle])
+    hi = np.array([math.pi if a else np.inf for a in angle])
+    if observe == "qp":
+        lo = np.concatenate([lo, np.full(len(angle), -np.inf)])
+        hi = np.concatenate([hi, np.full(len(angle), np.inf)])
+    return spaces.Box(lo.astype(dtype), hi.astype(dtype), dtype=dtype)
+
 class PortHamiltonianEnv(gym.Env):
     """A q-only port-Hamiltonian system with a torque/force port as its action.
 
@@ -128,26 +150,14 @@ class PortHamiltonianEnv(gym.Env):
         self.dtype = np.dtype(dtype)
         if self.dtype not in (np.float32, np.float64):
             raise ParameterError(f"dtype must be float32 or float64, got {self.dtype}")
-        if target is None:
-            target = [0.0] * n
-        target = [float(v) for v in _real_array(target, "target", ParameterError).reshape(-1)]
-        if len(target) != n:
-            raise ParameterError(f"target must have length {n}, got {len(target)}")
-        if not all(math.isfinite(v) for v in target):
-            raise ParameterError(f"target must be finite, got {target}")
-        self.target = target
+        self.target = _parse_target(target, n)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ParameterError(f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
         self.render_mode = render_mode
 
         self._angle = [i in sysm.angle_dims for i in range(n)]
         self._G = np.eye(n)[:, list(self.actuated_dofs)]
-        lo = np.array([-math.pi if a else -np.inf for a in self._angle])
-        hi = np.array([math.pi if a else np.inf for a in self._angle])
-        if observe == "qp":
-            lo = np.concatenate([lo, np.full(n, -np.inf)])
-            hi = np.concatenate([hi, np.full(n, np.inf)])
-        self.observation_space = spaces.Box(lo.astype(self.dtype), hi.astype(self.dtype), dtype=self.dtype)
+        self.observation_space = _observation_space(self._angle, observe, self.dtype)
         self.action_space = spaces.Box(-self.max_action, self.max_action, shape=(self.m,), dtype=self.dtype)
         self._q: list[float] = [0.0] * n
         self._p: list[float] = [0.0] * n
