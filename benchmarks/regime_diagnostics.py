@@ -26,9 +26,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import os
 import re
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -36,8 +34,11 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from phast_gym.fileio import atomic_write_text
+from phast_gym.systems import split
+from phast_model.bench.figures import load_model
 from phast_model.bench.paper import PAPER
-from phast_model.bench.runner import BENCH_MODEL_FILE, build_run_model, load_result, load_splits, work_dir
+from phast_model.bench.runner import BENCH_MODEL_FILE, load_result, load_splits, work_dir
 from phast_model.bench.spec import PHAST_MODELS, RunSpec, parse_seeds, run_key
 from phast_model.cli.bench import parse_kv
 from phast_model.metrics import _error_keys, _sq_err, benchmark_metric
@@ -69,19 +70,17 @@ class Diagnosis:
 
 
 def load_trained(out: Path, spec: RunSpec, splits: dict[str, Any]) -> PHAST:
-    """The run's trained model from ``work/.../bench_model.pt`` (weights only)."""
+    """The run's trained model from ``work/.../bench_model.pt`` (:func:`phast_model.bench.figures.load_model`)."""
     path = work_dir(out, spec) / BENCH_MODEL_FILE
     if not path.exists():
         raise FileNotFoundError(f"{path} is missing: the run's weights are kept only where it was trained "
                                 "(rerun it there, or into a fresh --out)")
-    model = build_run_model(spec, splits["train"])
-    model.load_state_dict(torch.load(path, weights_only=True))
-    return model.eval()
+    return load_model(out, spec, splits["train"])
 
 
 def _true_velocity(system: Any, q: np.ndarray, p: np.ndarray) -> np.ndarray:
     """qdot = M(q)^-1 p of the env, (..., n)."""
-    return np.stack(system.velocity(tuple(np.moveaxis(q, -1, 0)), tuple(np.moveaxis(p, -1, 0))), -1)
+    return np.stack(system.velocity(split(q), split(p)), -1)
 
 
 def true_state(model: PHAST, test: Any, t: int | slice) -> tuple[torch.Tensor, torch.Tensor]:
@@ -92,18 +91,6 @@ def true_state(model: PHAST, test: Any, t: int | slice) -> tuple[torch.Tensor, t
     v = _true_velocity(model.system, q, p)
     qt, vt = torch.as_tensor(q, dtype=dtype), torch.as_tensor(v, dtype=dtype)
     return qt, model.mass.momentum(qt, vt)
-
-
-def core_rollout(model: PHAST, q: torch.Tensor, p: torch.Tensor, u: torch.Tensor | None, start: int, H: int,
-                 substeps: int) -> np.ndarray:
-    """H steps of the core alone from (q, p) at sample ``start``; ``substeps`` Strang substeps per sample."""
-    h = model.core.h * model.core.substeps / substeps
-    qs = []
-    for k in range(H):
-        f = None if u is None else model.port_force(u[:, start + k])
-        q, p = model.core(q, p, f, h=h, substeps=substeps)
-        qs.append(q.numpy().copy())
-    return np.stack(qs, 1)
 
 
 def _error_kind(metric: str) -> str:
@@ -126,7 +113,7 @@ def diagnose(model: PHAST, spec: RunSpec, test: Any, recorded: float, H: int = 1
     res: dict[str, Any] = dict(takeover=None, oracle_state=None, oracle_state_fine=None, oracle_state_true_D=None,
                                velocity_rel_err=None, learned_rate=None)
     with torch.no_grad():
-        scored_pred = (model.rollout(q[:, :K], u, H) if rollout_row else model(q, None if u is None else u))
+        scored_pred = (model.rollout(q[:, :K], u, H) if rollout_row else model(q, u))
         scored_pred = scored_pred.numpy()[:, :target.shape[1]]
         se_traj = _sq_err(scored_pred, target, ang).mean(axis=tuple(range(1, target.ndim)))
         worst = np.sort(se_traj)[::-1][:WORST].sum() / max(se_traj.sum(), 1e-300)
@@ -144,22 +131,20 @@ def _oracle_parts(model: PHAST, test: Any, q: torch.Tensor, u: torch.Tensor | No
     from phast_model.interfaces import wrap_angles
 
     out: dict[str, Any] = {}
-    qt, pt = true_state(model, test, K - 1)
-    v_obs = model.observer(q[:, :K][:, -model.observer.window:])[:, -1]
-    v_true = model.velocity(qt, pt)
-    out["velocity_rel_err"] = float(((v_obs - v_true) ** 2).mean().sqrt() / (v_true ** 2).mean().sqrt())
     qa, pa = true_state(model, test, slice(None))
-    va = model.velocity(qa, pa)
+    va = model.velocity(qa, pa)  # the true velocity
+    v_obs = model.observer(q[:, :K][:, -model.observer.window:])[:, -1]
+    v_true = va[:, K - 1]
+    out["velocity_rel_err"] = float(((v_obs - v_true) ** 2).mean().sqrt() / (v_true ** 2).mean().sqrt())
     dva = torch.zeros_like(va) if model.core.damping is None else model.core.damping.apply(qa, va)
     out["learned_rate"] = float((va * dva).sum() / (va * pa).sum())
 
     def oracle(substeps: int) -> float:
+        step = {"h": model.core.h * model.core.substeps / substeps, "substeps": substeps}
         if rollout_row:
-            return score(wrap_angles(torch.as_tensor(core_rollout(model, qt, pt, u, K - 1, H, substeps)),
-                                     model.angle_dims).numpy())
+            return score(model.integrate(qa[:, K - 1], pa[:, K - 1], u, K - 1, H, **step)[0].numpy())
         f = None if u is None else model.port_force(u)
-        h = model.core.h * model.core.substeps / substeps
-        q1, _ = model.core(qa[:, :-1], pa[:, :-1], f, h=h, substeps=substeps)
+        q1, _ = model.core(qa[:, :-1], pa[:, :-1], f, **step)
         return score(wrap_angles(q1, model.angle_dims).numpy())
 
     if rollout_row:
@@ -226,14 +211,6 @@ def markdown(diags: list[Diagnosis]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_atomic(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    with os.fdopen(fd, "w") as fh:
-        fh.write(text)
-    os.replace(tmp, path)
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default="docs/results/full", help="the phast-bench output directory")
@@ -262,9 +239,9 @@ def main(argv: list[str] | None = None) -> int:
     table = markdown(diags)
     print(table)
     if args.json:
-        write_atomic(args.json, json.dumps([dataclasses.asdict(d) for d in diags], indent=1) + "\n")
+        atomic_write_text(args.json, json.dumps([dataclasses.asdict(d) for d in diags], indent=1) + "\n")
     if args.md:
-        write_atomic(args.md, table)
+        atomic_write_text(args.md, table)
     return 0
 
 

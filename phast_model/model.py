@@ -267,16 +267,23 @@ class PHAST(ForecastModel):
                          return_p: bool = False) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
         """Takeover rollout (Eq. 8): infer one state at the end of the burn-in, then integrate the core only."""
         q_burn, u = self._prep_rollout(q_burn, u)
-        K = q_burn.shape[1]
         q, p = self.infer_state(q_burn)
+        qs, ps = self.integrate(q, p, u, q_burn.shape[1] - 1, H)
+        return (qs, ps) if return_p else qs
+
+    def integrate(self, q: torch.Tensor, p: torch.Tensor, u: torch.Tensor | None, start: int, H: int,
+                  **step_kw: Any) -> tuple[torch.Tensor, torch.Tensor]:
+        """H steps of the core alone from the state (q, p) at sample ``start``, with u[:, start + k] held over step k
+        (zeros past the end of u): (B, H, n) wrapped positions and (B, H, n) momenta.  ``step_kw`` go to the core
+        (e.g. ``h`` and ``substeps`` of the Strang step)."""
         qs, ps = [], []
-        for h in range(H):
-            ut = None if u is None else (u[:, K - 1 + h] if K - 1 + h < u.shape[1] else torch.zeros_like(u[:, 0]))
-            q, p = self.core(q, p, self.port_force(ut))
+        for k in range(H):
+            t = start + k
+            ut = None if u is None else (u[:, t] if t < u.shape[1] else torch.zeros_like(u[:, 0]))
+            q, p = self.core(q, p, self.port_force(ut), **step_kw)
             qs.append(wrap_angles(q, self.angle_dims))
             ps.append(p)
-        out = torch.stack(qs, 1)
-        return (out, torch.stack(ps, 1)) if return_p else out
+        return torch.stack(qs, 1), torch.stack(ps, 1)
 
     def param_groups(self, lr: float) -> list[dict[str, Any]]:
         """Optimizer parameter groups (the trainer uses this hook when present): the damping
