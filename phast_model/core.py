@@ -26,20 +26,16 @@ from .components.mass import Mass
 from .components.potentials import Potential
 
 
-class PHASTCore(nn.Module):
-    """``(q, p, G u) -> (q', p')`` with potential V, mass M and damping D."""
+class SubstepCore(nn.Module):
+    """A core that takes ``substeps`` = L steps of length h = dt_model / L per observation step, with
+    ``log_dt`` = log h a parameter (learnable internal step) or a buffer (fixed)."""
 
-    def __init__(self, potential: Potential, mass: Mass, damping: Damping | None, dt: float, substeps: int = 1,
-                 learn_dt: bool = True, integrator: str = "auto", midpoint_iters: int = 4) -> None:
-        super().__init__()
-        if integrator not in ("auto", "leapfrog", "implicit_midpoint"):
-            raise ValueError(f"integrator must be 'auto', 'leapfrog' or 'implicit_midpoint', got {integrator!r}")
+    def init_substeps(self, dt: float, substeps: int, learn_dt: bool) -> None:
+        """Set L and register ``log_dt``; called last in ``__init__`` so that ``log_dt`` follows the components
+        in ``parameters()`` (the order optimizer states and checkpoints rely on)."""
         if int(substeps) != substeps or substeps < 1:
             raise ValueError(f"substeps must be a positive integer, got {substeps!r}")
-        self.potential, self.mass, self.damping = potential, mass, damping
         self.substeps = int(substeps)
-        self.integrator = ("leapfrog" if mass.constant else "implicit_midpoint") if integrator == "auto" else integrator
-        self.midpoint_iters = int(midpoint_iters)
         log_dt = torch.tensor(math.log(dt / self.substeps))
         if learn_dt:
             self.log_dt = nn.Parameter(log_dt)
@@ -50,6 +46,20 @@ class PHASTCore(nn.Module):
     def h(self) -> torch.Tensor:
         """Substep length dt_model / L."""
         return torch.exp(self.log_dt)
+
+
+class PHASTCore(SubstepCore):
+    """``(q, p, G u) -> (q', p')`` with potential V, mass M and damping D."""
+
+    def __init__(self, potential: Potential, mass: Mass, damping: Damping | None, dt: float, substeps: int = 1,
+                 learn_dt: bool = True, integrator: str = "auto", midpoint_iters: int = 4) -> None:
+        if integrator not in ("auto", "leapfrog", "implicit_midpoint"):
+            raise ValueError(f"integrator must be 'auto', 'leapfrog' or 'implicit_midpoint', got {integrator!r}")
+        super().__init__()
+        self.potential, self.mass, self.damping = potential, mass, damping
+        self.integrator = ("leapfrog" if mass.constant else "implicit_midpoint") if integrator == "auto" else integrator
+        self.midpoint_iters = int(midpoint_iters)
+        self.init_substeps(dt, substeps, learn_dt)
 
     # ---- energy --------------------------------------------------------------
     def hamiltonian(self, q: torch.Tensor, p: torch.Tensor) -> torch.Tensor:

@@ -36,7 +36,7 @@ from .components import (
 )
 from .components.features import coordinate_features, n_features
 from .components.potentials import TemplatePotential
-from .core import PHASTCore
+from .core import PHASTCore, SubstepCore
 from .interfaces import ForecastModel, coordinate_error, wrap_angles
 
 
@@ -433,22 +433,14 @@ class NeuralField(nn.Module):
         return self.g(torch.cat([q / self.qs, v / self.vs], -1)) * self.qs
 
 
-class LatentODECore(nn.Module):
+class LatentODECore(SubstepCore):
     """RK4 on a (q, p) vector field with L substeps and a learnable log dt (predator-prey is not Hamiltonian,
     so no symplectic/dissipative split applies)."""
 
     def __init__(self, field_: nn.Module, dt: float, substeps: int = 1, learn_dt: bool = True) -> None:
         super().__init__()
-        self.field, self.substeps = field_, int(substeps)
-        log_dt = torch.tensor(math.log(dt / self.substeps))
-        if learn_dt:
-            self.log_dt = nn.Parameter(log_dt)
-        else:
-            self.register_buffer("log_dt", log_dt)
-
-    @property
-    def h(self) -> torch.Tensor:
-        return torch.exp(self.log_dt)
+        self.field = field_
+        self.init_substeps(dt, substeps, learn_dt)
 
     def rk4_step(self, q: torch.Tensor, p: torch.Tensor, f: torch.Tensor | None = None,
                  need_p: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
