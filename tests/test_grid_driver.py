@@ -1,0 +1,40 @@
+"""benchmarks/grid.py: one block at a time, and a summary over all 13 rows whatever rows a driver runs."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import pytest
+
+from phast_model.bench.paper import PAPER
+
+
+@pytest.fixture()
+def grid_mod():  # noqa: ANN201
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "grid.py"
+    spec = importlib.util.spec_from_file_location("grid_driver", path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_driver_on_some_rows_summarizes_all_rows(grid_mod, monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    calls: list[list[str]] = []
+    diagnosed: list[tuple[str, str]] = []
+    monkeypatch.setattr(grid_mod, "bench", lambda args: calls.append(list(args)) or 0)
+    monkeypatch.setattr(grid_mod, "diagnose", lambda env, model, seeds, out: diagnosed.append((env, model)) or 0)
+    rc = grid_mod.main(["--envs", "Pendulum-v0,RLCCircuit-v0", "--models", "phast-known,gru", "--seeds", "0",
+                        "--out", str(tmp_path)])
+    assert rc == 0
+    runs = [c for c in calls if "--summarize-only" not in c]
+    summaries = [c for c in calls if "--summarize-only" in c]
+    blocks = [(c[c.index("--envs") + 1], c[c.index("--models") + 1]) for c in runs]
+    assert blocks == [("PHAST/Pendulum-v0", "phast-known"), ("PHAST/Pendulum-v0", "gru"),
+                      ("PHAST/RLCCircuit-v0", "phast-known"), ("PHAST/RLCCircuit-v0", "gru")]
+    assert len(summaries) == len(runs)
+    for c in summaries:  # every refresh covers the 13 rows, not only this driver's two
+        assert c[c.index("--envs") + 1].split(",") == list(PAPER)
+    assert diagnosed == [("PHAST/Pendulum-v0", "phast-known"), ("PHAST/RLCCircuit-v0", "phast-known")]
