@@ -54,7 +54,7 @@ def check_split_sizes(n_train: int, n_val: int, n_test: int, T: int) -> None:
         raise ValueError(f"--T must be an integer >= 2, got {T!r}")
 
 
-def train_run(env: str, regime: str, out: str | Path, epochs: int = 50, seed: int = 0, n_train: int = 1000,
+def train_run(env: str, regime: str, out: str | Path, *, epochs: int = 50, seed: int = 0, n_train: int = 1000,
               n_val: int = 200, n_test: int = 200, T: int = 200, data_seed: int = 42, batch_size: int = 64,
               lr: float = 1e-3, obs_noise_std: float = 0.0, overrides: dict[str, Any] | None = None,
               resume: bool = False, plots: bool = True, progress: bool = True,

@@ -74,10 +74,11 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(max(1, args.threads))
     try:
         excitation = PortExcitation(args.port_excitation, args.excitation_hold, args.excitation_seed)
-        metrics = train_run(args.env, args.regime, args.out, args.epochs, args.seed, args.n_train, args.n_val, args.n_test,
-                            args.T, args.data_seed, args.batch_size, args.lr, args.obs_noise_std, _overrides(args.set),
-                            resume=args.resume, plots=not args.no_plots, progress=not args.no_progress,
-                            excitation=excitation)
+        metrics = train_run(args.env, args.regime, args.out, epochs=args.epochs, seed=args.seed, n_train=args.n_train,
+                            n_val=args.n_val, n_test=args.n_test, T=args.T, data_seed=args.data_seed,
+                            batch_size=args.batch_size, lr=args.lr, obs_noise_std=args.obs_noise_std,
+                            overrides=_overrides(args.set), resume=args.resume, plots=not args.no_plots,
+                            progress=not args.no_progress, excitation=excitation)
     except ValueError as exc:
         print(f"phast-train: error: {exc}", file=sys.stderr)
         return 2
