@@ -27,7 +27,7 @@ from .env import parse_actuated_dofs
 from .fileio import atomic_write_bytes
 from .integrate import simulate
 from .registry import ENV_KWARGS, make_env_system, resolve_env_id
-from .systems import NUMPY, wrap
+from .systems import NUMPY, System, wrap
 
 #: 2: Hermite-located kink crossings, vectorized sin/cos in the batched simulator.
 #: 3: sin/cos back on NumPy (torch's kernels differed from libm's by 1 ulp in ~0.1 % of evaluations, up to
@@ -158,31 +158,11 @@ def make_dataset(
         ``actuated_dofs``); other env-only kwargs are rejected.
     """
     env_id = resolve_env_id(env_id)
-    if backend not in ("numpy", "compiled"):
-        raise ValueError(f"backend must be 'numpy' or 'compiled', got {backend!r}")
-    if int(n_traj) != n_traj or n_traj < 1:
-        raise ValueError(f"n_traj must be a positive integer, got {n_traj!r}")
-    if int(T) != T or T < 2:
-        raise ValueError(f"T must be an integer >= 2, got {T!r}")
-    allowed = {"obs_noise_std", "actuated_dofs", "substeps"}
-    bad = [k for k in env_kwargs if k in ENV_KWARGS and k not in allowed]
-    if bad:
-        raise ValueError(f"make_dataset does not take env kwarg(s) {bad}")
+    _check_request(n_traj, T, backend, env_kwargs)
     noise = _check_noise(env_kwargs.get("obs_noise_std", 0.0))
     system = make_env_system(env_id, **env_kwargs)
-    n = system.n
-    actuated = parse_actuated_dofs(env_kwargs.get("actuated_dofs"), n)
-    m = len(actuated)
-    if u is None:
-        u_arr = np.zeros((n_traj, T - 1, m))
-    else:
-        u_arr = np.asarray(u, dtype=np.float64)
-        try:
-            u_arr = np.broadcast_to(u_arr, (n_traj, T - 1, m)).copy()
-        except ValueError:
-            raise ValueError(f"u must broadcast to (n_traj, T-1, m) = {(n_traj, T - 1, m)}, got {np.shape(u)}") from None
-        if not np.isfinite(u_arr).all():
-            raise ValueError("u must be finite")
+    actuated = parse_actuated_dofs(env_kwargs.get("actuated_dofs"), system.n)
+    u_arr = _port_input(u, n_traj, T, len(actuated))
     config = {
         "version": CACHE_VERSION, "env_id": env_id, "n_traj": int(n_traj), "T": int(T), "seed": int(seed),
         "system": system.name, "params": system.key_params(), "obs_noise_std": noise, "actuated_dofs": list(actuated),
@@ -197,38 +177,77 @@ def make_dataset(
             return _load(path, config)
         except ValueError as exc:
             warnings.warn(f"{exc}; regenerating the dataset", RuntimeWarning, stacklevel=2)
-
-    ss = np.random.SeedSequence(int(seed))
-    rng_init, rng_noise, rng_sim = (np.random.default_rng(s) for s in ss.spawn(3))
-    x0 = system.sample_initial(rng_init, int(n_traj))
-    # generalized force G u (G = the identity's actuated columns), as a scatter: the same values as
-    # u_arr @ G.T for finite u, ~10x faster for the 6-dof particle systems.  Stored (T-1, n, N) so that
-    # simulate, which reads one step at a time, gets contiguous rows without a copy.
-    u_steps = np.zeros((T - 1, n, int(n_traj)))
-    u_steps[:, list(actuated), :] = u_arr.transpose(1, 2, 0)
-    sim = simulate
-    if backend == "compiled":
-        from .compiled import simulate_compiled as sim
-    traj = sim(system, x0, T - 1, u=u_steps.transpose(2, 0, 1), rng=rng_sim, substeps=env_kwargs.get("substeps"))
-    q_true, p = traj[..., :n], traj[..., n:]
-    q = q_true + (rng_noise.normal(0.0, noise, q_true.shape) if noise > 0 else 0.0)
-    for i in system.angle_dims:
-        q[..., i] = wrap(q[..., i])
-    const_d = system.constant_damping()
-    if const_d is not None:  # one fill instead of n full-size arrays stacked
-        damping = np.empty(q_true.shape)
-        damping[...] = np.asarray(const_d, dtype=np.float64)
-    else:
-        qs = tuple(np.ascontiguousarray(q_true[..., i]) for i in range(n))  # contiguous: faster ufuncs
-        damping = np.stack(np.broadcast_arrays(*system.damping(qs, NUMPY)), -1).astype(np.float64)
-    ds = Dataset(env_id, q=q, q_true=q_true, p=p, u=u_arr, damping=damping, dt=float(system.dt),
-                 angle_dims=tuple(system.angle_dims), actuated_dofs=actuated, config=config)
+    ds = _generate(system, u_arr, actuated, config, backend, env_kwargs.get("substeps"))
     if cache:
         try:
             _save(path, ds)
         except OSError as exc:  # a read-only cache must not break generation
             warnings.warn(f"could not write dataset cache {path}: {exc}", RuntimeWarning, stacklevel=2)
     return ds
+
+
+def _check_request(n_traj: int, T: int, backend: str, env_kwargs: dict[str, Any]) -> None:
+    """ValueError for a bad size, backend or an env kwarg that a dataset cannot take."""
+    if backend not in ("numpy", "compiled"):
+        raise ValueError(f"backend must be 'numpy' or 'compiled', got {backend!r}")
+    if int(n_traj) != n_traj or n_traj < 1:
+        raise ValueError(f"n_traj must be a positive integer, got {n_traj!r}")
+    if int(T) != T or T < 2:
+        raise ValueError(f"T must be an integer >= 2, got {T!r}")
+    allowed = {"obs_noise_std", "actuated_dofs", "substeps"}
+    bad = [k for k in env_kwargs if k in ENV_KWARGS and k not in allowed]
+    if bad:
+        raise ValueError(f"make_dataset does not take env kwarg(s) {bad}")
+
+
+def _port_input(u: np.ndarray | None, n_traj: int, T: int, m: int) -> np.ndarray:
+    """The port input as a finite (n_traj, T-1, m) float64 array (zeros when ``u`` is None)."""
+    if u is None:
+        return np.zeros((n_traj, T - 1, m))
+    u_arr = np.asarray(u, dtype=np.float64)
+    try:
+        u_arr = np.broadcast_to(u_arr, (n_traj, T - 1, m)).copy()
+    except ValueError:
+        raise ValueError(f"u must broadcast to (n_traj, T-1, m) = {(n_traj, T - 1, m)}, got {np.shape(u)}") from None
+    if not np.isfinite(u_arr).all():
+        raise ValueError("u must be finite")
+    return u_arr
+
+
+def _generate(system: System, u_arr: np.ndarray, actuated: tuple[int, ...], config: dict[str, Any], backend: str,
+              substeps: int | None) -> Dataset:
+    """Integrate the batch the cache key ``config`` describes (seed, size, noise) from sampled initial states."""
+    n, (n_traj, steps, _) = system.n, u_arr.shape
+    ss = np.random.SeedSequence(config["seed"])
+    rng_init, rng_noise, rng_sim = (np.random.default_rng(s) for s in ss.spawn(3))
+    x0 = system.sample_initial(rng_init, n_traj)
+    # generalized force G u (G = the identity's actuated columns), as a scatter: the same values as
+    # u_arr @ G.T for finite u, ~10x faster for the 6-dof particle systems.  Stored (T-1, n, N) so that
+    # simulate, which reads one step at a time, gets contiguous rows without a copy.
+    u_steps = np.zeros((steps, n, n_traj))
+    u_steps[:, list(actuated), :] = u_arr.transpose(1, 2, 0)
+    sim = simulate
+    if backend == "compiled":
+        from .compiled import simulate_compiled as sim
+    traj = sim(system, x0, steps, u=u_steps.transpose(2, 0, 1), rng=rng_sim, substeps=substeps)
+    q_true, p = traj[..., :n], traj[..., n:]
+    noise = config["obs_noise_std"]
+    q = q_true + (rng_noise.normal(0.0, noise, q_true.shape) if noise > 0 else 0.0)
+    for i in system.angle_dims:
+        q[..., i] = wrap(q[..., i])
+    return Dataset(config["env_id"], q=q, q_true=q_true, p=p, u=u_arr, damping=_true_damping(system, q_true),
+                   dt=float(system.dt), angle_dims=tuple(system.angle_dims), actuated_dofs=actuated, config=config)
+
+
+def _true_damping(system: System, q_true: np.ndarray) -> np.ndarray:
+    """diag D(q) along the true trajectories, (..., n)."""
+    const_d = system.constant_damping()
+    if const_d is not None:  # one fill instead of n full-size arrays stacked
+        damping = np.empty(q_true.shape)
+        damping[...] = np.asarray(const_d, dtype=np.float64)
+        return damping
+    qs = tuple(np.ascontiguousarray(q_true[..., i]) for i in range(system.n))  # contiguous: faster ufuncs
+    return np.stack(np.broadcast_arrays(*system.damping(qs, NUMPY)), -1).astype(np.float64)
 
 
 @dataclass(frozen=True)
