@@ -115,10 +115,18 @@ def forecast_metrics(model: ForecastModel, test: Any, horizons: tuple[int, ...] 
             dtype = next(model.parameters()).dtype
             d_hat = np.concatenate([model.damping_diag(torch.as_tensor(q[i:i + batch_size], dtype=dtype)).numpy()
                                     for i in range(0, q.shape[0], batch_size)], 0)
-        d = np.asarray(test.damping)
-        out["damping_r2"] = float(1.0 - ((d_hat - d) ** 2).sum() / (((d - d.mean()) ** 2).sum() + 1e-12))  # Eq. 93
-        out["damping_mae"] = float(np.abs(d_hat - d).mean())  # Eq. 92
+        out.update(damping_scores(d_hat, np.asarray(test.damping)))
     return {k: (float(v) if math.isfinite(v) else float("nan")) for k, v in out.items()}
+
+
+def damping_scores(d_hat: np.ndarray, d: np.ndarray) -> dict[str, float]:
+    """``damping_mae`` (Eq. 92) and ``damping_r2`` (Eq. 93) of the learned diag D against the truth along the test
+    trajectories.  R^2 is NaN where the true D does not vary (a constant or zero damping): its denominator is then
+    round-off, and the ratio would say nothing about the fit (the MAE does)."""
+    spread = float(((d - d.mean()) ** 2).sum())
+    sse = float(((d_hat - d) ** 2).sum())
+    varies = spread > 1e-12 * max(float((d * d).sum()), 1e-300)
+    return {"damping_r2": 1.0 - sse / spread if varies else float("nan"), "damping_mae": float(np.abs(d_hat - d).mean())}
 
 
 def _env_kwargs(ds: Any) -> dict[str, Any]:

@@ -12,7 +12,7 @@ import torch
 from phast_gym import make_splits
 from phast_model.api import load_run, predict
 from phast_model.checkpoint import save_run
-from phast_model.metrics import benchmark_metric, forecast_metrics
+from phast_model.metrics import benchmark_metric, damping_scores, forecast_metrics
 from phast_model.regimes import build_model
 from phast_model.training import TrainConfig, fit, next_step_loss
 
@@ -346,3 +346,18 @@ def test_identification_settings_on_every_partial_and_constant_mass_unknown_row(
         else:
             cfg = default_config(env, "unknown")
             assert cfg.observer_trainable and cfg.learn_dt and cfg.roll_mode == "observer", env
+
+
+def test_damping_scores_r2_undefined_for_constant_truth():
+    """Eq. 92-93: R^2 of a varying truth is the usual ratio; for a constant or zero true D it is NaN (not the
+    -1e13 a round-off denominator gives) while the MAE still scores the fit."""
+    rng = np.random.default_rng(0)
+    d = 0.3 + 0.5 * np.abs(np.sin(rng.uniform(-3, 3, (40, 1))))
+    d_hat = d + 0.01 * rng.normal(size=d.shape)
+    s = damping_scores(d_hat, d)
+    assert math.isclose(s["damping_r2"], 1 - ((d_hat - d) ** 2).sum() / ((d - d.mean()) ** 2).sum(), rel_tol=1e-12)
+    assert 0.99 < s["damping_r2"] < 1.0
+    for truth in (np.full((40, 1), 0.5), np.zeros((40, 2))):
+        s = damping_scores(truth + 1e-3, truth)
+        assert math.isnan(s["damping_r2"])
+        assert math.isclose(s["damping_mae"], 1e-3, rel_tol=1e-9)
