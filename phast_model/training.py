@@ -403,7 +403,9 @@ def _run_epochs(state: _TrainState, data: _Data, cfg: TrainConfig, ckpt_path: Pa
         if (epoch + 1) % cfg.val_every == 0 or epoch + 1 == cfg.epochs:
             rec["val_loss"] = _validate_and_select(state, data, cfg, epoch + 1)
         state.history.append(rec)
-        bar.set_postfix(loss=f"{rec['train_loss']:.3g}", val=f"{state.best_val:.3g}")
+        # the best validation loss so far, once there is one (validation runs every cfg.val_every epochs)
+        best = {"best_val": f"{state.best_val:.3g}"} if math.isfinite(state.best_val) else {}
+        bar.set_postfix(loss=f"{rec['train_loss']:.3g}", **best)
         if (epoch + 1) % cfg.checkpoint_every == 0 or epoch + 1 == cfg.epochs:
             _save_checkpoint(state, ckpt_path, cfg, identity, epoch + 1, time.perf_counter() - state.t0)
     bar.close()
