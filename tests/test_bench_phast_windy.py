@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 from pathlib import Path
 
 import pytest
+from repo_scripts import load_script
 
 ENV = "PHAST/WindyPendulum-v0"
 HERE = {"cpu": "cpu B", "torch_cpu_capability": "AVX512", "torch": "2.13.0+cpu", "numpy": "2.4.6", "scipy": "1.17.1"}
@@ -15,11 +14,7 @@ HERE = {"cpu": "cpu B", "torch_cpu_capability": "AVX512", "torch": "2.13.0+cpu",
 
 @pytest.fixture()
 def pw(monkeypatch: pytest.MonkeyPatch):  # noqa: ANN201
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "phast_windy.py"
-    spec = importlib.util.spec_from_file_location("phast_windy", path)
-    mod = importlib.util.module_from_spec(spec)
-    monkeypatch.setitem(sys.modules, spec.name, mod)
-    spec.loader.exec_module(mod)
+    mod = load_script("benchmarks/phast_windy.py")
     monkeypatch.setattr(mod, "numerics", lambda: dict(HERE))
     fresh = {"damping_r2": 0.851, "rollout_theta_wrap_mse_h100": 0.0019, "theta_wrap_mse": 2.15e-4}
     monkeypatch.setattr(mod, "_one", lambda env, regime, seed, *a: {"env_id": env, "regime": regime, "seed": seed, **fresh})

@@ -4,7 +4,6 @@ it); the tests marked ``ray`` use the real one and are skipped without it."""
 
 from __future__ import annotations
 
-import importlib.util
 import inspect
 import json
 import os
@@ -15,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from repo_scripts import load_script
 from test_bench import ENV, TINY  # the tiny protocol the sweep tests share (tests/ is on sys.path under pytest)
 
 from phast_model.bench import LocalExecutor, RayExecutor, grid, load_result, result_path, run_sweep
@@ -35,12 +35,7 @@ CLI_TINY = ["--envs", "WindyPendulum-v0", "--models", "gru", "--epochs", "1", "-
 
 
 def _load_compare_runs() -> types.ModuleType:
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "compare_runs.py"
-    spec = importlib.util.spec_from_file_location("compare_runs", path)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod  # dataclasses look their module up while the module runs
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("benchmarks/compare_runs.py")
 
 
 # --------------------------------------------------------------------------- a fake ray module

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 
 import gymnasium as gym
 import numpy as np
 import pytest
+from repo_scripts import load_script
 
 import phast_gym  # noqa: F401  (registers the ids)
 from phast_gym.control import (
@@ -319,14 +319,7 @@ def test_cli_bad_estimators_and_unwritable_out_fail_before_evaluating(tmp_path, 
 def test_lqg_torque_floor_upright(monkeypatch) -> None:
     # benchmarks/control_lqg_bound.py: no causal q-only controller holds the upright with less stationary RMS torque
     # than the LQG limit; it scales with sigma, and Energy-Casimir gains on the Kalman estimate sit above it.
-    import importlib.util
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "control_lqg_bound.py"
-    spec = importlib.util.spec_from_file_location("control_lqg_bound", path)
-    mod = importlib.util.module_from_spec(spec)
-    monkeypatch.setitem(sys.modules, spec.name, mod)  # its dataclass looks its module up there
-    spec.loader.exec_module(mod)
+    mod = load_script("benchmarks/control_lqg_bound.py")
     a, b = mod.linearise("PHAST/DampedPendulum-v0", math.pi, 0.01)
     lo1, lo5 = mod.torque_floor(a, b, 0.01), mod.torque_floor(a, b, 0.05)
     assert lo5["rms_torque"] == pytest.approx(5 * lo1["rms_torque"], rel=1e-3)
@@ -347,16 +340,9 @@ def test_lqg_torque_floor_upright(monkeypatch) -> None:
 def test_learned_model_summary_reads_the_eval_directories(tmp_path) -> None:
     # benchmarks/control_learned_model.py: one row per (target, sigma, process model), the plant UKF once per target,
     # run labels from the directory names, and a linearisation of a run that matches the plant for the KNOWN model
-    import importlib.util
     import json
-    import sys
-    from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "control_learned_model.py"
-    spec = importlib.util.spec_from_file_location("control_learned_model", path)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod  # its dataclasses look their module up
-    spec.loader.exec_module(mod)
+    mod = load_script("benchmarks/control_learned_model.py")
     assert mod.label("partial_excited") == "PHAST PARTIAL, excited port"
     assert mod.label("unknown") == "PHAST UNKNOWN"
 

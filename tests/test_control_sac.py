@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
 import sys
@@ -10,22 +9,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from repo_scripts import load_script
 
 import phast_gym  # noqa: F401  (registers the ids)
 from phast_gym.control import ControlProtocol, make_control_env
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _load():
-    spec = importlib.util.spec_from_file_location("control_sac", ROOT / "benchmarks" / "control_sac.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["control_sac"] = mod
-    spec.loader.exec_module(mod)
-    return mod
-
-
-cs = _load()
+cs = load_script("benchmarks/control_sac.py")
 
 
 def test_is_flat_on_synthetic_curves() -> None:

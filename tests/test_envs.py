@@ -7,6 +7,7 @@ import math
 import gymnasium as gym
 import numpy as np
 import pytest
+from repo_scripts import load_script
 
 import phast_gym
 from phast_gym.systems import SCALAR
@@ -240,13 +241,7 @@ def test_render_fps_follows_dt() -> None:
 
 
 def test_demo_runner_skips_a_missing_stage_and_tabulates_the_stages(tmp_path) -> None:
-    import importlib.util
-    import pathlib
-
-    path = pathlib.Path(__file__).resolve().parents[1] / "examples" / "demo.py"
-    spec = importlib.util.spec_from_file_location("phast_demo_runner", path)
-    demo = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(demo)
+    demo = load_script("examples/demo.py", "phast_demo_runner")
     result = demo.run_stage("no_such_stage", tmp_path)
     assert result["status"] == "skipped" and "demo_no_such_stage.py" in result["reason"]
     summary = {"stages": {

@@ -2,23 +2,17 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import pytest
+from repo_scripts import load_script
 
 from phast_model.bench.paper import PAPER
 
 
 @pytest.fixture()
 def grid_mod():  # noqa: ANN201
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "grid.py"
-    spec = importlib.util.spec_from_file_location("grid_driver", path)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("benchmarks/grid.py", "grid_driver")
 
 
 def test_driver_on_some_rows_summarizes_all_rows(grid_mod, monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:

@@ -2,13 +2,10 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 import torch
+from repo_scripts import load_script
 
 from phast_gym.datasets import make_splits
 from phast_model.bench.spec import RunSpec
@@ -20,12 +17,7 @@ ENV = "PHAST/DampedPendulum-v0"
 
 @pytest.fixture(scope="module")
 def rd():  # noqa: ANN201
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "regime_diagnostics.py"
-    spec = importlib.util.spec_from_file_location("regime_diagnostics", path)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("benchmarks/regime_diagnostics.py")
 
 
 @pytest.fixture(scope="module")
