@@ -9,8 +9,6 @@ slack logit, certifying ``lambda_max(D) <= d0 + beta_bar``.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from functools import partial
 
 import torch
 from torch import nn
@@ -25,10 +23,6 @@ class Damping(nn.Module):
 
     def apply(self, q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
         raise NotImplementedError
-
-    def at(self, q: torch.Tensor) -> Callable[[torch.Tensor], torch.Tensor]:
-        """``v -> D(q) v`` with the q-dependent part evaluated once: a Strang step applies D twice at each q."""
-        return partial(self.apply, q)
 
     def diag(self, q: torch.Tensor) -> torch.Tensor:
         raise NotImplementedError
@@ -96,18 +90,10 @@ class HouseholderDamping(Damping):
             beta = self.cap * torch.softmax(logits, -1)[..., : self.rank]
         return beta, k
 
-    def at(self, q: torch.Tensor) -> Callable[[torch.Tensor], torch.Tensor]:
-        beta, k = self.terms(q)
-        d0 = self.d0
-
-        def d_times(v: torch.Tensor) -> torch.Tensor:
-            proj = (k * v.unsqueeze(-2)).sum(-1)  # (..., r): k_i^T v
-            return d0 * v + ((beta * proj).unsqueeze(-1) * k).sum(-2)
-
-        return d_times
-
     def apply(self, q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
-        return self.at(q)(v)
+        beta, k = self.terms(q)
+        proj = (k * v.unsqueeze(-2)).sum(-1)  # (..., r): k_i^T v
+        return self.d0 * v + ((beta * proj).unsqueeze(-1) * k).sum(-2)
 
     def diag(self, q: torch.Tensor) -> torch.Tensor:
         beta, k = self.terms(q)
