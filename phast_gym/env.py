@@ -52,7 +52,6 @@ def parse_actuated_dofs(actuated_dofs: Sequence[int] | None, n: int) -> tuple[in
     return tuple(dofs)
 
 
-
 def _parse_target(target: Sequence[float] | None, n: int) -> list[float]:
     """The control target q* as n finite floats (default: the origin)."""
     if target is None:
@@ -73,6 +72,7 @@ def _observation_space(angle: list[bool], observe: str, dtype: np.dtype) -> spac
         lo = np.concatenate([lo, np.full(len(angle), -np.inf)])
         hi = np.concatenate([hi, np.full(len(angle), np.inf)])
     return spaces.Box(lo.astype(dtype), hi.astype(dtype), dtype=dtype)
+
 
 class PortHamiltonianEnv(gym.Env):
     """A q-only port-Hamiltonian system with a torque/force port as its action.
