@@ -15,6 +15,7 @@ from phast_model.bench import (
     TABLE4_ENVS,
     LocalExecutor,
     RunSpec,
+    aggregate,
     grid,
     load_result,
     make_executor,
@@ -342,3 +343,19 @@ def test_phast_run_seed_seeds_the_model_weights() -> None:
     assert not same(w0, w1)
     assert same(w1, weights(build_model(ENV, "unknown", seed=1)))
     assert same(w0, weights(build_run_model(RunSpec(ENV, "phast-unknown", seed=1, model_kw={"seed": 0}), None)))
+
+
+def test_summary_leaves_out_damping_r2_where_true_d_is_constant() -> None:
+    """Old records hold R^2 ~ -1e12 for a constant true D (round-off denominator); the mean leaves them out."""
+    def rec(env: str, seed: int, r2: float) -> dict:
+        return {"env": env, "model": "phast-known", "seed": seed, "params": 1,
+                "metrics": {"damping_r2": r2, "damping_mae": 0.01, "mse": 1e-6}}
+
+    agg = aggregate([rec("PHAST/DampedPendulum-v0", 0, -1.4e12), rec("PHAST/DampedPendulum-v0", 1, -1.3e12),
+                     rec("PHAST/WindyPendulum-v0", 0, 0.99), rec("PHAST/WindyPendulum-v0", 1, 0.98),
+                     rec("PHAST/NotInThisCheckout-v0", 0, 0.5)])
+    damped = agg[("PHAST/DampedPendulum-v0", "phast-known")]["metrics"]
+    assert "damping_r2" not in damped and damped["damping_mae"][2] == 2
+    windy = agg[("PHAST/WindyPendulum-v0", "phast-known")]["metrics"]["damping_r2"]
+    assert windy[0] == pytest.approx(0.985) and windy[2] == 2
+    assert agg[("PHAST/NotInThisCheckout-v0", "phast-known")]["metrics"]["damping_r2"][0] == 0.5

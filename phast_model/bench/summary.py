@@ -15,11 +15,14 @@ import io
 import math
 from collections import defaultdict
 from collections.abc import Callable
+from functools import cache
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from gymnasium.error import Error as GymError
 
+from phast_gym import make_env_system
 from phast_gym.fileio import atomic_write_text
 
 from .paper import PAPER, PAPER_FULL_STATE, PaperRow
@@ -34,6 +37,29 @@ def _group_key(rec: dict[str, Any]) -> tuple[str, str]:
     return env, rec["model"]
 
 
+@cache
+def _constant_damping(env_id: str) -> bool:
+    """True when the env's true D does not depend on q (its damping R^2 is undefined)."""
+    try:
+        return make_env_system(env_id).constant_damping() is not None
+    except GymError:  # an env this checkout does not register: keep its records as they are
+        return False
+
+
+def _metric_value(env_id: str, key: str, value: Any) -> float | None:
+    """A record's metric as it enters the mean: a finite float, NaN (for None), or None (left out).
+
+    ``damping_r2`` is left out where the true D is constant: its denominator is then round-off (records written
+    before :func:`phast_model.metrics.damping_scores` returned NaN there hold values like -1e12)."""
+    if value is None:
+        return float("nan")
+    if not isinstance(value, (int, float)) or not math.isfinite(float(value)):
+        return None
+    if key == "damping_r2" and _constant_damping(env_id):
+        return None
+    return float(value)
+
+
 def aggregate(records: list[dict[str, Any]]) -> dict[tuple[str, str], dict[str, Any]]:
     """(env, model) -> {"metrics": {key: (mean, std, n)}, "params": int, "seeds": [...], "wall_time_s": mean}."""
     groups: dict[tuple[str, str], list[dict]] = defaultdict(list)
@@ -45,10 +71,9 @@ def aggregate(records: list[dict[str, Any]]) -> dict[tuple[str, str], dict[str, 
         vals: dict[str, list[float]] = defaultdict(list)
         for r in recs:
             for k, v in r["metrics"].items():
-                if isinstance(v, (int, float)) and v is not None and math.isfinite(float(v)):
-                    vals[k].append(float(v))
-                elif v is None:
-                    vals[k].append(float("nan"))
+                x = _metric_value(r["env"], k, v)
+                if x is not None:
+                    vals[k].append(x)
         out[key] = {
             "metrics": {k: (float(np.mean(v)), float(np.std(v)), len(v)) for k, v in vals.items()},
             "params": int(recs[0].get("params", 0)), "seeds": sorted(int(r["seed"]) for r in recs),
