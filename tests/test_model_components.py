@@ -44,6 +44,24 @@ def test_damping_psd_and_cap(n, rank, seed, cap, d0):
     assert torch.allclose(damp.diag(q), torch.diagonal(D, dim1=-2, dim2=-1), atol=1e-10)
 
 
+@pytest.mark.parametrize("cap", [None, 1.0])
+def test_one_coordinate_damping_has_no_direction_gauge(cap):
+    """n = 1: k = +-1, so D = d0 + sum beta whatever the direction outputs; they get no gradient (a normalized
+    scalar's round-off gradient, amplified by Adam, random-walked it to a zero crossing that zeroed D)."""
+    torch.manual_seed(0)
+    damp = HouseholderDamping(1, rank=2, cap=cap, d0=0.1).double()
+    q = torch.linspace(-3, 3, 101, dtype=torch.float64)[:, None]
+    with torch.no_grad():  # direction outputs crossing zero inside the data range
+        damp.net[-1].weight[:2].zero_()
+        damp.net[-1].bias[:2] = torch.tensor([0.0, 1e-6])
+    beta, k = damp.terms(q)
+    assert torch.equal(k, torch.ones_like(k))
+    assert torch.allclose(damp.diag(q)[:, 0], damp.d0 + beta.sum(-1))
+    (damp.diag(q).sum() + damp.apply(q, torch.randn_like(q)).sum()).backward()
+    assert float(damp.net[-1].weight.grad[:2].abs().max()) == 0.0
+    assert float(damp.net[-1].weight.grad[2:].abs().max()) > 0.0
+
+
 @FAST
 @given(n=st.integers(1, 6), rank=st.integers(1, 4), seed=st.integers(0, 10_000))
 def test_mass_spd_and_woodbury(n, rank, seed):

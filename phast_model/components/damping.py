@@ -4,6 +4,12 @@
 ``D(q) = d0 I + sum_{i=1..r} beta_i(q) k_i(q) k_i(q)^T``, ``|k_i| = 1``,
 ``beta_i >= 0``; optional cap ``sum_i beta_i <= beta_bar`` via a softmax with a
 slack logit, certifying ``lambda_max(D) <= d0 + beta_bar``.
+
+With one coordinate every unit vector is +-1 and ``k k^T = 1``, so ``k_i = 1`` there.  Normalizing a learned
+scalar instead (``k = x / sqrt(x^2 + 1e-8)``) leaves ``x`` with a gradient only from the 1e-8 regularizer, which
+Adam with a tiny eps (the identification settings) turns into lr-sized steps: ``x`` random-walks to a zero
+crossing, where ``k k^T`` falls to 0 and a 1e4 gradient drives the strengths ``beta_i`` into softplus's flat
+tail.  That lost the identified D on 2 of 8 rounding-level perturbations of one windy-pendulum KNOWN run.
 """
 
 from __future__ import annotations
@@ -81,8 +87,11 @@ class HouseholderDamping(Damping):
     def terms(self, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(beta (..., r) >= 0, k (..., r, n) unit vectors)."""
         out = self.net(coordinate_features(q, self.angle_dims, self.q_scale))
-        k = out[..., : self.rank * self.n].reshape(*q.shape[:-1], self.rank, self.n)
-        k = k / torch.sqrt((k * k).sum(-1, keepdim=True) + 1e-8)
+        if self.n == 1:  # k = +-1 (module docstring); the network's direction outputs are left unused
+            k = out.new_ones(*q.shape[:-1], self.rank, 1)
+        else:
+            k = out[..., : self.rank * self.n].reshape(*q.shape[:-1], self.rank, self.n)
+            k = k / torch.sqrt((k * k).sum(-1, keepdim=True) + 1e-8)
         logits = out[..., self.rank * self.n:]
         if self.cap is None:
             beta = nn.functional.softplus(logits)
