@@ -15,7 +15,11 @@ same run and the ratio printed:
 * Transformer training step: torch's ``nn.TransformerEncoder`` on the same
   weights (unfused attention, dropout on the attention weights too);
 * Transformer and VPT rollouts: :meth:`ForecastModel.rollout`, the interface's
-  definition that re-runs the whole prefix at every step.
+  definition that re-runs the whole prefix at every step;
+* PHAST (all regimes but the predator-prey latent ODE) training step:
+  :func:`phast_model.core.composed_strang_step`, the Strang step that
+  evaluates D(q) and dV/dq afresh in every splitting piece instead of reusing
+  them at each substep's end point.
 
 Training-step time x (n_train / 64) x epochs estimates a run's training cost.
 """
@@ -83,6 +87,14 @@ def rollout_s(model: ForecastModel, q: np.ndarray, u: np.ndarray | None, burn_in
         model.__dict__.pop("rollout", None)
 
 
+def _compose_core_steps(model: Any) -> None:
+    """Make ``model``'s core step by :func:`composed_strang_step` (the no-reuse reference)."""
+    from phast_model.core import composed_strang_step
+
+    core = model.core
+    core.forward = lambda q, p, f=None, need_p=True: composed_strang_step(core, q, p, f, need_p)
+
+
 def _build(env_id: str, model_name: str, ds: Any) -> ForecastModel:
     spec = RunSpec(env_id, model_name, full_state=model_name == "dhnn")
     torch.manual_seed(0)
@@ -103,6 +115,10 @@ def time_model(env_id: str, model_name: str, batch: int = 64, T: int = 200, H: i
     if reference and model_name == "transformer":
         ref = _build(env_id, model_name, ds)
         ref.encode = lambda x: _torch_encoder_reference(ref, x)  # type: ignore[method-assign]
+        row["train_step_ms_ref"] = train_step_ms(ref, q, u, reps)
+    if reference and model_name.startswith("phast-") and hasattr(model, "core") and hasattr(model.core, "strang_step"):
+        ref = _build(env_id, model_name, ds)
+        _compose_core_steps(ref)
         row["train_step_ms_ref"] = train_step_ms(ref, q, u, reps)
     q_eval, u_eval = ds.q[:n_eval], (ds.u[:n_eval] if ds.u.size else None)
     row["eval_rollout_s"] = rollout_s(model, q_eval, u_eval, burn_in, H)

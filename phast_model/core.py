@@ -16,6 +16,7 @@ The internal step ``dt_model`` is log-parameterized and learnable by default.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import torch
 from torch import nn
@@ -69,31 +70,40 @@ class PHASTCore(SubstepCore):
         return self.potential.grad(q) + self.mass.kinetic_dq(q, p)
 
     # ---- splitting pieces ------------------------------------------------------
-    def damping_half_step(self, q: torch.Tensor, p: torch.Tensor, h: torch.Tensor) -> torch.Tensor:
+    def damping_half_step(self, q: torch.Tensor, p: torch.Tensor, h: torch.Tensor,
+                          d_at_q: Callable[[torch.Tensor], torch.Tensor] | None = None) -> torch.Tensor:
         """Phi_D(h/2): p <- p - (h/2) D(q) M^-1 p (Eq. 42); energy non-increasing when
-        h lambda_max(D) / (2 lambda_min(M)) <= 2 (Eq. 44)."""
+        h lambda_max(D) / (2 lambda_min(M)) <= 2 (Eq. 44).  ``d_at_q`` = ``damping.at(q)`` when already built."""
         if self.damping is None:
             return p
-        return p - 0.5 * h * self.damping.apply(q, self.mass.velocity(q, p))
+        d_at_q = self.damping.at(q) if d_at_q is None else d_at_q
+        return p - 0.5 * h * d_at_q(self.mass.velocity(q, p))
 
     def conservative_step(self, q: torch.Tensor, p: torch.Tensor, f: torch.Tensor | None, h: torch.Tensor,
                           need_p: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
         """Phi_H(h) with the port force f = G u held over the step."""
+        q1, p1, _ = self._conservative(q, p, f, h, need_p, None)
+        return q1, p1
+
+    def _conservative(self, q: torch.Tensor, p: torch.Tensor, f: torch.Tensor | None, h: torch.Tensor,
+                      need_p: bool, grad_v: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """Phi_H(h) given dV/dq at q (or None), returning dV/dq at q1 where the leapfrog computed it: the next
+        substep starts at q1 (the damping half-steps leave q unchanged), so it need not evaluate it again."""
         if self.integrator == "leapfrog":
-            force = -self.potential.grad(q) if f is None else f - self.potential.grad(q)
-            p_half = p + 0.5 * h * force
+            grad_v = self.potential.grad(q) if grad_v is None else grad_v
+            p_half = p + 0.5 * h * (-grad_v if f is None else f - grad_v)
             q1 = q + h * self.mass.velocity(q, p_half)
             if not need_p:
-                return q1, p_half
-            force1 = -self.potential.grad(q1) if f is None else f - self.potential.grad(q1)
-            return q1, p_half + 0.5 * h * force1
+                return q1, p_half, None
+            grad_v1 = self.potential.grad(q1)
+            return q1, p_half + 0.5 * h * (-grad_v1 if f is None else f - grad_v1), grad_v1
         # implicit midpoint: z1 = z0 + h J grad H((z0 + z1) / 2), solved by fixed-point iteration
         q1, p1 = q, p
         for _ in range(self.midpoint_iters + 1):
             qm, pm = 0.5 * (q + q1), 0.5 * (p + p1)
             force = -self.dH_dq(qm, pm) if f is None else f - self.dH_dq(qm, pm)
             q1, p1 = q + h * self.mass.velocity(qm, pm), p + h * force
-        return q1, p1
+        return q1, p1, None
 
     def strang_step(self, q: torch.Tensor, p: torch.Tensor, f: torch.Tensor | None = None,
                     need_p: bool = True, h: torch.Tensor | None = None,
@@ -101,15 +111,20 @@ class PHASTCore(SubstepCore):
         """One observation step: L substeps of Phi_D(h/2) o Phi_H(h) o Phi_D(h/2) (Eq. 78).
 
         ``need_p=False`` skips work that only affects the final momentum (teacher-forced training).
-        ``h`` / ``substeps`` override the learned substep and L, e.g. to step at a control rate."""
+        ``h`` / ``substeps`` override the learned substep and L, e.g. to step at a control rate.
+        D(q) and dV/dq at a substep's end point are evaluated once and reused by the next substep, which starts
+        there (the same values as composing :meth:`damping_half_step` and :meth:`conservative_step`)."""
         h = self.h if h is None else h
         substeps = self.substeps if substeps is None else int(substeps)
+        d_at_q = None if self.damping is None else self.damping.at(q)
+        grad_v = None
         for s in range(substeps):
             last = s == substeps - 1
-            p = self.damping_half_step(q, p, h)
-            q, p = self.conservative_step(q, p, f, h, need_p=need_p or not last)
+            p = self.damping_half_step(q, p, h, d_at_q)
+            q, p, grad_v = self._conservative(q, p, f, h, need_p or not last, grad_v)
             if need_p or not last:
-                p = self.damping_half_step(q, p, h)
+                d_at_q = None if self.damping is None else self.damping.at(q)
+                p = self.damping_half_step(q, p, h, d_at_q)
         return q, p
 
     forward = strang_step
@@ -120,3 +135,16 @@ class PHASTCore(SubstepCore):
         if self.damping is None:
             return torch.zeros_like(q[..., 0])
         return -(v * self.damping.apply(q, v)).sum(-1)
+
+
+def composed_strang_step(core: PHASTCore, q: torch.Tensor, p: torch.Tensor, f: torch.Tensor | None = None,
+                         need_p: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
+    """Eq. 78 as the plain composition of the public splitting pieces, evaluating D and dV/dq afresh in every
+    piece: the reference that :meth:`PHASTCore.strang_step` (which reuses them) is tested and timed against."""
+    for s in range(core.substeps):
+        last = s == core.substeps - 1
+        p = core.damping_half_step(q, p, core.h)
+        q, p = core.conservative_step(q, p, f, core.h, need_p=need_p or not last)
+        if need_p or not last:
+            p = core.damping_half_step(q, p, core.h)
+    return q, p

@@ -15,6 +15,8 @@ tail.  That lost the identified D on 2 of 8 rounding-level perturbations of one 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from functools import partial
 
 import torch
 from torch import nn
@@ -29,6 +31,10 @@ class Damping(nn.Module):
 
     def apply(self, q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
         raise NotImplementedError
+
+    def at(self, q: torch.Tensor) -> Callable[[torch.Tensor], torch.Tensor]:
+        """``v -> D(q) v`` with the q-dependent part evaluated once: a Strang step applies D twice at each q."""
+        return partial(self.apply, q)
 
     def diag(self, q: torch.Tensor) -> torch.Tensor:
         raise NotImplementedError
@@ -99,10 +105,18 @@ class HouseholderDamping(Damping):
             beta = self.cap * torch.softmax(logits, -1)[..., : self.rank]
         return beta, k
 
-    def apply(self, q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    def at(self, q: torch.Tensor) -> Callable[[torch.Tensor], torch.Tensor]:
         beta, k = self.terms(q)
-        proj = (k * v.unsqueeze(-2)).sum(-1)  # (..., r): k_i^T v
-        return self.d0 * v + ((beta * proj).unsqueeze(-1) * k).sum(-2)
+        d0 = self.d0
+
+        def d_times(v: torch.Tensor) -> torch.Tensor:
+            proj = (k * v.unsqueeze(-2)).sum(-1)  # (..., r): k_i^T v
+            return d0 * v + ((beta * proj).unsqueeze(-1) * k).sum(-2)
+
+        return d_times
+
+    def apply(self, q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+        return self.at(q)(v)
 
     def diag(self, q: torch.Tensor) -> torch.Tensor:
         beta, k = self.terms(q)
