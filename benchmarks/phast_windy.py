@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import multiprocessing as mp
 import platform
 import subprocess
@@ -170,7 +171,8 @@ def summarize(runs: list[dict]) -> dict:
         rs = [r for r in runs if r["env_id"] == env and r["regime"] == regime]
         s = {"seeds": [r["seed"] for r in rs], "benchmark_metric": benchmark_metric(env)}
         for k in keys:
-            vals = [r[k] for r in rs if k in r]
+            # None / NaN: undefined for this run (damping R^2 where the true D is constant)
+            vals = [float(r[k]) for r in rs if r.get(k) is not None and math.isfinite(float(r[k]))]
             if vals:
                 s[k] = {"mean": float(np.mean(vals)), "std": float(np.std(vals)), "values": vals}
         crit = ACCEPT.get((env, regime))

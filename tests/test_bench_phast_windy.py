@@ -54,3 +54,13 @@ def test_import_refuses_runs_without_a_committed_run_or_fingerprint(pw, tmp_path
     bad.write_text(json.dumps({"runs": [{**_run("0e2d87e", 0.851, 0.0019, HERE), "seed": 7}]}))
     with pytest.raises(SystemExit, match="no committed run"):
         pw.import_references(out, bad)
+
+
+def test_summary_skips_undefined_values(pw) -> None:
+    """A constant true D records damping R^2 as None (NaN in memory): the summary and the table leave it out."""
+    runs = [{"env_id": "PHAST/DampedPendulum-v0", "regime": "known", "seed": s, "damping_r2": v, "damping_mae": 0.006,
+             "rollout_theta_wrap_mse_h100": 6e-4, "train_wall_time_s": 70.0, "n_parameters": 1285}
+            for s, v in enumerate([None, float("nan")])]
+    s = pw.summarize(runs)["PHAST/DampedPendulum-v0|known"]
+    assert "damping_r2" not in s and s["damping_mae"]["values"] == [0.006, 0.006]
+    assert "| DampedPendulum-v0 | known | 2 |" in pw.markdown_table({"runs": runs})
