@@ -1,7 +1,10 @@
 """Background driver of the paper-protocol grid (all 13 rows x models x seeds), resumable across sessions.
 
-    nice -n 10 .venv/bin/python benchmarks/grid.py --models baselines --commit &
+    (echo 19 > /proc/self/autogroup; exec nice -n 19 .venv/bin/python benchmarks/grid.py --models baselines --commit) &
 
+On Linux with autogroup scheduling (``/proc/sys/kernel/sched_autogroup_enabled`` = 1), ``nice`` only ranks processes
+of one session: a sweep started from another shell or with ``setsid`` still takes an equal share of the CPU from
+interactive work unless its autogroup is lowered too (the ``echo`` above; harmless where autogroups are off).
 Runs ``phast-bench`` one (env, model) block at a time (5 seeds, one worker, one torch thread) into
 ``docs/results/full`` (per-run JSON under ``runs/``, keyed by the hash of the full configuration, so a finished run
 is never redone), refreshes ``summary.csv`` / ``tables.md`` (and, after a PHAST block, the error decomposition
