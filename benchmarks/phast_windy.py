@@ -70,8 +70,9 @@ def git_commit() -> str:
 def numerics() -> dict[str, str]:
     """What a run's last digits depend on besides the code: CPU, torch's SIMD kernels, package versions.
 
-    The PARTIAL optimisation on seed 0 amplifies rounding differences: the same code and package versions gave damping
-    R^2 0.883 on one machine and 0.851 on another, so a drift is read together with this fingerprint.
+    A drift is read together with this fingerprint: before 49cf0b4 the same code gave PARTIAL seed 0 damping R^2 0.883
+    on one machine and 0.851 on another (a rounding-triggered collapse of the one-coordinate damping network, see
+    docs/phast_model.md), and summation order still differs between CPUs.
     """
     import numpy
     import scipy
