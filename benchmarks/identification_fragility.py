@@ -51,7 +51,9 @@ class Outcome:
 
 
 def model_commit() -> str:
-    """Commit of the checkout whose phast_model is imported (``+dirty`` when its code differs from it)."""
+    """Commit of the checkout whose phast_model is imported (``+dirty`` when its code differs from it).
+
+    Not :func:`phast_model.provenance.code_commit`: this script is run against checkouts older than that module."""
     where = Path(phast_model.__file__).resolve().parent.parent
     try:
         head = subprocess.run(["git", "-C", str(where), "rev-parse", "--short", "HEAD"], capture_output=True,

@@ -21,7 +21,6 @@ import json
 import math
 import multiprocessing as mp
 import platform
-import subprocess
 import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -33,6 +32,7 @@ from tqdm.auto import tqdm
 
 from phast_model.checkpoint import atomic_write_json
 from phast_model.metrics import benchmark_metric
+from phast_model.provenance import code_commit
 from phast_model.runs import train_run
 
 DEFAULT_RUNS = [
@@ -58,13 +58,8 @@ TOLERANCE: dict[str, tuple[float, float]] = {
 
 
 def git_commit() -> str:
-    """HEAD of the working tree, with ``+dirty`` when tracked files differ from it ("unknown" outside git)."""
-    try:
-        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "diff", "--quiet", "HEAD", "--", "phast_gym", "phast_model"]).returncode != 0
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-    return head + ("+dirty" if dirty else "")
+    """The code's commit, with ``+dirty`` when phast_gym / phast_model differ from it ("unknown" outside git)."""
+    return code_commit(short=True, dirty=True) or "unknown"
 
 
 def numerics() -> dict[str, str]:

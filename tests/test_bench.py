@@ -359,3 +359,17 @@ def test_summary_leaves_out_damping_r2_where_true_d_is_constant() -> None:
     windy = agg[("PHAST/WindyPendulum-v0", "phast-known")]["metrics"]["damping_r2"]
     assert windy[0] == pytest.approx(0.985) and windy[2] == 2
     assert agg[("PHAST/NotInThisCheckout-v0", "phast-known")]["metrics"]["damping_r2"][0] == 0.5
+
+
+def test_code_commit_names_the_imported_checkout() -> None:
+    """Run records name the commit of the phast_model they ran (one helper for the harness and the scripts)."""
+    import re
+
+    from phast_model.bench.runner import _CODE_COMMIT
+    from phast_model.provenance import code_commit
+
+    full, short = code_commit(), code_commit(short=True, dirty=True)
+    if full is None:  # not a git checkout (an installed wheel): nothing to name
+        pytest.skip("phast_model is not in a git checkout")
+    assert re.fullmatch(r"[0-9a-f]{40}", full) and re.fullmatch(r"[0-9a-f]{40}", _CODE_COMMIT)
+    assert re.fullmatch(r"[0-9a-f]{4,40}(\+dirty)?", short) and full.startswith(short.split("+")[0])

@@ -29,6 +29,7 @@ import numpy as np
 from phast_gym.fileio import atomic_write_text, dir_lock
 from phast_gym.fileio import jsonable as _jsonable
 
+from ..provenance import code_commit
 from .spec import RunSpec, run_key
 
 
@@ -112,19 +113,8 @@ def load_result(out_dir: str | Path, spec: RunSpec) -> dict[str, Any] | None:
     return rec
 
 
-def _git_commit() -> str | None:
-    """Commit of the code that produced a result (provenance only; not part of the run hash)."""
-    import subprocess
-
-    try:
-        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).resolve().parent, capture_output=True,
-                              text=True, timeout=10).stdout.strip() or None
-    except (OSError, subprocess.SubprocessError):
-        return None
-
-
-#: HEAD when this module was imported (the code a long-lived worker actually runs)
-_CODE_COMMIT = _git_commit()
+#: HEAD when this module was imported (the code a long-lived worker actually runs; provenance only, not hashed)
+_CODE_COMMIT = code_commit()
 
 
 # --------------------------------------------------------------------------- data + models
