@@ -82,6 +82,9 @@ class PHASTConfig:
     potential_layers: int = 3
     hybrid_eps: float = 0.01
     ode_field: str = "known"  # latent_ode only: known | template | neural
+    #: latent_ode only: the latents of the start-up steps (history shorter than the backward difference):
+    #: "constant" (a learned constant at t = 0, the latent map after) or "learned" (LatentODEModel.init_prior)
+    latent_prior: str = "constant"
     lambda_pass: float = 0.0
     lambda_energy: float = 0.0
     lambda_roll: float = 0.0
@@ -349,6 +352,13 @@ class PHAST(ForecastModel):
 
 
 # ------------------------------------------------------------------------------ predator-prey
+def _zero_last(net: nn.Sequential) -> nn.Sequential:
+    """``net`` with its last layer zeroed: it starts as the constant 0 (a correction that starts as none)."""
+    nn.init.zeros_(net[-1].weight)
+    nn.init.zeros_(net[-1].bias)
+    return net
+
+
 class SystemField(nn.Module):
     """Known vector field: the env's ``rhs``; latent p from the observed qdot by inverting the
     q-equation, which is affine in p (two ``rhs`` evaluations, no retyped formula)."""
@@ -470,16 +480,47 @@ class LatentODEModel(PHAST):
     prior_lr_mult = 100.0
 
     def init_prior(self, q_typical: torch.Tensor, scale: float) -> None:
-        """Latent prior used where the history holds one sample (t = 0: no velocity information).  Unlike the
-        mechanical envs, whose initial momenta have zero mean, populations have a nonzero mean latent state, so
-        the first prediction is learnable: ``p_prior = scale * raw``, initialized at the latent of qdot = 0."""
+        """Start-up latents, used where the history is shorter than the observer's backward difference.
+
+        t = 0 has no velocity information.  Unlike the mechanical envs, whose initial momenta have zero mean,
+        populations have a nonzero mean latent state, so the first prediction is learnable: ``p_prior = scale *
+        raw``, initialized at the latent of qdot = 0.  ``latent_prior = "learned"`` adds a network of q_0 to it
+        (the best first prediction is E[q_1 | q_0], and a learned field need not reach it from one constant latent)
+        and, for each start-up step t = 1 .. loss_skip - 1, a correction of the latent map's output from (q_t,
+        qdot_hat_t), whose backward difference has order t only.  All of them train on the start-up steps with
+        the dynamics detached (:meth:`extra_losses`), so they cannot bias the field."""
         with torch.no_grad():
             p0 = self.canonicalize(q_typical, torch.zeros_like(q_typical)).mean(0)
         self.prior_scale = float(scale)
         self.prior_raw = nn.Parameter((p0 / self.prior_scale).float())
+        if self.config.latent_prior == "learned":
+            n, n_lat = q_typical.shape[-1], p0.shape[-1]
+            self.prior_net = _zero_last(nn.Sequential(nn.Linear(n, 32), nn.SiLU(), nn.Linear(32, n_lat)))
+            self.startup_nets = nn.ModuleList(
+                _zero_last(nn.Sequential(nn.Linear(2 * n, 32), nn.SiLU(), nn.Linear(32, n_lat)))
+                for _ in range(1, self.loss_skip))
+        elif self.config.latent_prior != "constant":
+            raise ValueError(f"latent_prior must be constant or learned, got {self.config.latent_prior!r}")
 
-    def prior_latent(self) -> torch.Tensor:
-        return self.prior_scale * self.prior_raw
+    def prior_latent(self, q0: torch.Tensor) -> torch.Tensor:
+        """The latent used where the history holds q_0 only: (B, n) -> (B, n_latent)."""
+        raw = self.prior_raw.to(q0.dtype).expand(*q0.shape[:-1], -1)
+        if hasattr(self, "prior_net"):
+            raw = raw + self.prior_net(q0 / self.prior_scale)
+        return self.prior_scale * raw
+
+    def startup_latents(self, q: torch.Tensor, v: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
+        """Latents of the first k = q.shape[1] <= loss_skip steps (B, k, .): the prior at t = 0, then the latent
+        map's ``p`` plus the learned start-up corrections (``latent_prior = "learned"``)."""
+        rows = [self.prior_latent(q[:, 0])]
+        nets = getattr(self, "startup_nets", None)
+        for t in range(1, q.shape[1]):
+            pt = p[:, t]
+            if nets is not None:
+                x = torch.cat([q[:, t] / self.prior_scale, v[:, t] / self.observer.v_scale.to(v.dtype)], -1)
+                pt = pt + self.prior_scale * nets[t - 1](x)
+            rows.append(pt)
+        return torch.stack(rows, 1)
 
     @torch.no_grad()
     def initialize_from_data(self, q: torch.Tensor, u: torch.Tensor | None) -> dict[str, float]:
@@ -503,14 +544,16 @@ class LatentODEModel(PHAST):
     def forward(self, q: torch.Tensor, u: torch.Tensor | None = None) -> torch.Tensor:
         """Teacher-forced next-step predictions; the first sample of the sequence uses the learned latent prior."""
         q, u = self._prep(q, u)
-        p = self.canonicalize(q, self.observer(q))
+        v = self.observer(q)
+        p = self.canonicalize(q, v)
         if hasattr(self, "prior_raw"):
-            p = torch.cat([self.prior_latent().to(p.dtype).expand_as(p[:, :1]), p[:, 1:]], 1)
+            k = min(self.loss_skip, q.shape[1])
+            p = torch.cat([self.startup_latents(q[:, :k], v[:, :k], p[:, :k]), p[:, k:]], 1)
         q1, _ = self.core(q, p, self.port_force(u), need_p=False)
         return q1
 
     def param_groups(self, lr: float) -> list[dict[str, Any]]:
-        prior = [self.prior_raw] if hasattr(self, "prior_raw") else []
+        prior = [self.prior_raw] if hasattr(self, "prior_raw") else []  # the prior net trains at the base lr
         rest = [p for p in self.parameters() if p.requires_grad and all(p is not x for x in prior)]
         return [g for g in ({"params": rest, "lr": lr}, {"params": prior, "lr": lr * self.prior_lr_mult}) if g["params"]]
 
@@ -540,10 +583,14 @@ class LatentODEModel(PHAST):
         q, u = self._prep(q, u)
         f = self.port_force(u)
         params = {k: v.detach() for k, v in self.core.named_parameters()}
-        p0 = self.prior_latent().to(q.dtype).expand_as(q[:, 0])
-        q1, _ = torch.func.functional_call(self.core, params, (q[:, 0], p0, None if f is None else f[:, 0]),
+        k = 1 if self.config.latent_prior == "constant" else min(self.loss_skip, q.shape[1] - 1)
+        with torch.no_grad():  # the latent map belongs to the dynamics: detached like them
+            v = self.observer(q[:, :k])
+            p = self.canonicalize(q[:, :k], v)
+        p = self.startup_latents(q[:, :k], v, p)
+        q1, _ = torch.func.functional_call(self.core, params, (q[:, :k], p, None if f is None else f[:, :k]),
                                            {"need_p": False})
-        return {"prior": ((q1 - q[:, 1]) ** 2).mean()}
+        return {"prior": ((q1 - q[:, 1:k + 1]) ** 2).mean()}
 
 
 # ------------------------------------------------------------------------------ builder

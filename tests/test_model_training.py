@@ -210,9 +210,9 @@ def test_known_trainer_defaults_and_warmup(splits, tmp_path):
 
 
 def test_latent_prior_trains_only_on_first_step():
-    """Predator-prey: the t = 0 prior loss moves only the latent prior (the core sees detached parameters),
-    and forward uses the prior for the first prediction only."""
-    model = build_model("PHAST/PredatorPrey-v0", "partial")
+    """Predator-prey, constant prior: the t = 0 prior loss moves only the latent prior (the core sees detached
+    parameters), and forward uses the prior for the first prediction only."""
+    model = build_model("PHAST/PredatorPrey-v0", "partial", latent_prior="constant")
     q = torch.as_tensor(make_splits("PHAST/PredatorPrey-v0", 4, 1, 1, T=20, seed=3)["train"].q, dtype=torch.float32)
     loss = model.extra_losses(q, None, model(q))["prior"]
     loss.backward()
@@ -223,6 +223,32 @@ def test_latent_prior_trains_only_on_first_step():
         model.prior_raw.add_(1.0)
     moved = model(q)
     assert not torch.allclose(base[:, 0], moved[:, 0]) and torch.allclose(base[:, 1:], moved[:, 1:])
+
+
+@pytest.mark.parametrize("regime", ["known", "partial", "unknown"])
+def test_learned_startup_latents_touch_only_the_startup_steps(regime):
+    """The default predator-prey start-up latents: their loss trains the start-up parameters alone (the field and
+    its latent map stay detached), each start-up network moves its own step's prediction only, and from
+    t = loss_skip on the predictions are those of the plain latent map."""
+    model = build_model("PHAST/PredatorPrey-v0", regime)
+    assert model.config.latent_prior == "learned" and len(model.startup_nets) == model.loss_skip - 1 == 3
+    q = torch.as_tensor(make_splits("PHAST/PredatorPrey-v0", 4, 1, 1, T=20, seed=3)["train"].q, dtype=torch.float32)
+    model.extra_losses(q, None, model(q))["prior"].backward()
+    trained = {k.split(".")[0] for k, p in model.named_parameters() if p.grad is not None and bool(p.grad.abs().sum() > 0)}
+    assert trained == {"prior_raw", "prior_net", "startup_nets"}
+    base = model(q)
+    for t, net in enumerate([model.prior_net, *model.startup_nets]):
+        with torch.no_grad():
+            net[-1].bias.add_(0.1)
+        moved = model(q)
+        changed = [s for s in range(q.shape[1]) if not torch.allclose(base[:, s], moved[:, s])]
+        assert changed == [t], (t, changed)
+        base = moved
+    plain = build_model("PHAST/PredatorPrey-v0", regime, latent_prior="constant")
+    plain.load_state_dict({k: v for k, v in model.state_dict().items() if k in plain.state_dict()})
+    assert torch.allclose(plain(q)[:, model.loss_skip:], model(q)[:, model.loss_skip:])
+    with pytest.raises(ValueError, match="latent_prior"):
+        build_model("PHAST/PredatorPrey-v0", regime, latent_prior="mlp")
 
 
 TINY = ["--n-train", "8", "--n-val", "4", "--n-test", "4", "--T", "40", "--no-progress", "--no-plots"]

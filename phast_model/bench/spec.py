@@ -30,11 +30,11 @@ MODEL_REVISIONS: dict[str, int] = {"transformer": 2, "phast-known": 3, "phast-pa
 #: phast-partial on the windy pendulum: 3 (it had the identification settings and a fixed floor before PARTIAL 5);
 #: on predator-prey (a latent ODE, untouched by PARTIAL 5): 3 = the Lotka-Volterra template starts from the observed
 #: prey, not the env's rhs; 4 = the PHAST 3 change.  phast-unknown 4 on the rows with a learned M(q): L_roll over
-#: the scored rollout and a 128-wide Cholesky factor (848cd4d); 3 on predator-prey (untouched by UNKNOWN 5)
+#: the scored rollout and a 128-wide Cholesky factor (848cd4d); 3 on predator-prey (untouched by UNKNOWN 5).
+#: Predator-prey 6 (every regime): learned start-up latents (``latent_prior = "learned"``)
 ENV_MODEL_REVISIONS: dict[tuple[str, str], int] = {
     ("phast-partial", "PHAST/WindyPendulum-v0"): 3,
-    ("phast-partial", "PHAST/PredatorPrey-v0"): 4,
-    ("phast-unknown", "PHAST/PredatorPrey-v0"): 3,
+    **{(m, "PHAST/PredatorPrey-v0"): 6 for m in ("phast-known", "phast-partial", "phast-unknown")},
     **{("phast-unknown", f"PHAST/{e}-v0"): 4
        for e in ("WindyCartPole", "DoublePendulum", "DampedDoublePendulum", "WindyDoublePendulum")}}
 
