@@ -18,7 +18,12 @@ plus the observer's velocity error at the last burn-in sample, the learned and t
 ``sum v^T D v / sum v^T M v`` over the test states (1/s; it does not depend on the common scale of the learned V, M
 and D, which the data cannot fix), and the share of
 the scored error that comes from the 5 worst test trajectories (a large share means a few trajectories decide the
-row, e.g. near a separatrix).  Evaluation only; about a second per run on one core.
+row, e.g. near a separatrix).  On the next-step rows also: ``startup_share``, the share of the scored error made at
+the start-up steps t < ``loss_skip`` (history shorter than the observer's backward difference; t = 0 has no velocity
+at all), and ``floor_ratio``, the scored number over the first-step information floor of the same test split
+(``test_floor_mse`` of :func:`phast_model.bench.floor.first_step_floor`: the best possible t = 0 prediction, scored
+on these test trajectories).  Evaluation only; about a second
+per run on one core.
 """
 
 from __future__ import annotations
@@ -37,6 +42,7 @@ from tqdm import tqdm
 from phast_gym.fileio import atomic_write_text
 from phast_gym.systems import split
 from phast_model.bench.figures import load_model
+from phast_model.bench.floor import first_step_floor
 from phast_model.bench.paper import PAPER
 from phast_model.bench.runner import BENCH_MODEL_FILE, load_result, load_splits, work_dir
 from phast_model.bench.spec import PHAST_MODELS, RunSpec, parse_seeds, run_key
@@ -46,6 +52,7 @@ from phast_model.model import PHAST, LatentODEModel
 
 FINER = 4  # oracle_state_fine: this many times the model's substeps
 WORST = 5
+FLOOR_DRAWS = 1024  # momenta per test q_0 in the first-step floor
 
 
 @dataclasses.dataclass
@@ -67,6 +74,8 @@ class Diagnosis:
     learned_rate: float | None
     true_rate: float
     worst5_share: float
+    startup_share: float | None = None
+    floor_ratio: float | None = None
 
 
 def load_trained(out: Path, spec: RunSpec, splits: dict[str, Any]) -> PHAST:
@@ -98,8 +107,10 @@ def _error_kind(metric: str) -> str:
     return re.sub(r"_h\d+$", "", metric.removeprefix("rollout_"))
 
 
-def diagnose(model: PHAST, spec: RunSpec, test: Any, recorded: float, H: int = 100) -> Diagnosis:
-    """Scored, takeover and oracle-start errors of one trained PHAST run on its row metric."""
+def diagnose(model: PHAST, spec: RunSpec, test: Any, recorded: float, H: int = 100,
+             floor: float | None = None) -> Diagnosis:
+    """Scored, takeover and oracle-start errors of one trained PHAST run on its row metric (``floor``: the row's
+    first-step floor, next-step rows)."""
     metric, K, ang = benchmark_metric(spec.env_id), spec.burn_in, tuple(model.angle_dims)
     dtype = next(model.parameters()).dtype
     q = torch.as_tensor(test.q, dtype=dtype)
@@ -111,18 +122,24 @@ def diagnose(model: PHAST, spec: RunSpec, test: Any, recorded: float, H: int = 1
         return _error_keys("", _sq_err(pred, target, ang), ang)[_error_kind(metric)]
 
     res: dict[str, Any] = dict(takeover=None, oracle_state=None, oracle_state_fine=None, oracle_state_true_D=None,
-                               velocity_rel_err=None, learned_rate=None)
+                               velocity_rel_err=None, learned_rate=None, startup_share=None, floor_ratio=None)
     with torch.no_grad():
         scored_pred = (model.rollout(q[:, :K], u, H) if rollout_row else model(q, u))
         scored_pred = scored_pred.numpy()[:, :target.shape[1]]
         se_traj = _sq_err(scored_pred, target, ang).mean(axis=tuple(range(1, target.ndim)))
         worst = np.sort(se_traj)[::-1][:WORST].sum() / max(se_traj.sum(), 1e-300)
+        if not rollout_row:
+            se_t = _sq_err(scored_pred, target, ang).mean(axis=(0, 2))
+            res["startup_share"] = float(se_t[:model.loss_skip].sum() / max(se_t.sum(), 1e-300))
         v_all = _true_velocity(model.system, test.q_true, test.p)
         true_rate = float((v_all * np.asarray(test.damping) * v_all).sum() / (v_all * np.asarray(test.p)).sum())
         if not isinstance(model, LatentODEModel):
             res.update(_oracle_parts(model, test, q, u, K, H, rollout_row, score))
+    scored = score(scored_pred)
+    if floor is not None and not rollout_row:
+        res["floor_ratio"] = scored / floor
     return Diagnosis(env=spec.env_id, model=spec.model, seed=spec.seed, key=run_key(spec), metric=metric, recorded=recorded,
-                     scored=score(scored_pred), worst5_share=float(worst), true_rate=true_rate, **res)
+                     scored=scored, worst5_share=float(worst), true_rate=true_rate, **res)
 
 
 def _oracle_parts(model: PHAST, test: Any, q: torch.Tensor, u: torch.Tensor | None, K: int, H: int,
@@ -166,14 +183,26 @@ def diagnose_grid(out: Path, envs: list[str], models: list[str], seeds: list[int
     todo = [RunSpec(env_id=e, model=m, seed=s, model_kw=dict(model_kw or {})) for e in envs for m in models for s in seeds]
     found = [(s, r) for s in todo if (r := load_result(out, s)) is not None
              and (work_dir(out, s) / BENCH_MODEL_FILE).exists()]
-    diags, splits_cache = [], {}
+    diags, splits_cache, floors = [], {}, {}
     for spec, rec in tqdm(found, desc="diagnose", unit="run"):
         if spec.env_id not in splits_cache:
             splits_cache = {spec.env_id: load_splits(spec)}
         splits = splits_cache[spec.env_id]
         model = load_trained(out, spec, splits)
-        diags.append(diagnose(model, spec, splits["test"], float(rec["metrics"][benchmark_metric(spec.env_id)])))
+        diags.append(diagnose(model, spec, splits["test"], float(rec["metrics"][benchmark_metric(spec.env_id)]),
+                              floor=_floor(spec, floors)))
     return diags
+
+
+def _floor(spec: RunSpec, cache: dict[tuple[Any, ...], float]) -> float | None:
+    """The first-step floor of ``spec``'s test split (next-step rows; None on rollout rows), computed once."""
+    if benchmark_metric(spec.env_id).startswith("rollout_"):
+        return None
+    key = (spec.env_id, spec.n_train, spec.n_val, spec.n_test, spec.T, spec.data_seed)
+    if key not in cache:
+        cache[key] = first_step_floor(spec.env_id, spec.n_train, spec.n_val, spec.n_test, spec.T, spec.data_seed,
+                                      draws=FLOOR_DRAWS)["test_floor_mse"]
+    return cache[key]
 
 
 def merge(old: list[dict[str, Any]], new: list[Diagnosis], redone: set[tuple[str, str]]) -> list[Diagnosis]:
@@ -197,7 +226,7 @@ def _fmt(x: float | None) -> str:
 def markdown(diags: list[Diagnosis]) -> str:
     """Mean over seeds per (env, model): the table docs/results.md quotes."""
     cols = ["recorded", "scored", "takeover", "oracle_state", "oracle_state_fine", "oracle_state_true_D",
-            "velocity_rel_err", "learned_rate", "true_rate", "worst5_share"]
+            "velocity_rel_err", "learned_rate", "true_rate", "worst5_share", "startup_share", "floor_ratio"]
     lines = ["| env | model | seeds | " + " | ".join(cols) + " |", "|" + "---|" * (len(cols) + 3)]
     groups: dict[tuple[str, str], list[Diagnosis]] = {}
     for d in diags:

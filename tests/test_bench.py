@@ -193,6 +193,8 @@ def test_first_step_floor_is_below_persistence() -> None:
     test = make_splits("PHAST/NBody3-v0", 4, 2, 8, T=20, seed=42)["test"]
     persistence = float(((test.q[:, 1] - test.q[:, 0]) ** 2).mean()) / 19
     assert 0.0 < r["floor_mse"] < 2.0 * persistence
+    # the best first prediction scored on the test split's own q_1: the same floor up to the test sample's noise
+    assert 0.3 < r["test_floor_mse"] / r["floor_mse"] < 3.0
     with pytest.raises(ValueError, match="draws"):
         first_step_floor("PHAST/NBody3-v0", n_train=4, n_val=2, n_test=8, T=20, draws=1)
 

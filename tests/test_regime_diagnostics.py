@@ -44,6 +44,7 @@ def test_scored_is_the_row_metric(rd, test_split) -> None:
     d = rd.diagnose(model, spec, test_split, recorded=metric)
     assert d.scored == pytest.approx(metric, rel=1e-9)
     assert 0.0 < d.worst5_share <= 1.0
+    assert d.startup_share is None and d.floor_ratio is None  # next-step rows only
 
 
 def test_true_damping_from_the_true_state_reproduces_the_data(rd, test_split) -> None:
@@ -71,10 +72,16 @@ def test_next_step_rows_are_decomposed_too(rd) -> None:
     model = _known_with(0.1, env)
     spec = RunSpec(env_id=env, model="phast-known", seed=0, T=60)
     metric = forecast_metrics(model, test, horizons=(10,), energy=False)["mse"]
-    d = rd.diagnose(model, spec, test, recorded=metric)
+    d = rd.diagnose(model, spec, test, recorded=metric, floor=0.5 * metric)
     assert d.metric == "mse" and d.takeover is None
     assert d.scored == pytest.approx(metric, rel=1e-9)
     assert d.oracle_state_true_D < 1e-3 * d.oracle_state_fine
+    assert d.floor_ratio == pytest.approx(2.0, rel=1e-9)
+    # the start-up share: the per-step errors of the first loss_skip predictions over all of them
+    with torch.no_grad():
+        se = ((model(torch.as_tensor(test.q, dtype=torch.float32)).numpy()[:, :-1] - test.q[:, 1:]) ** 2).mean(axis=(0, 2))
+    assert 0.0 < d.startup_share < 1.0
+    assert d.startup_share == pytest.approx(se[:model.loss_skip].sum() / se.sum(), rel=1e-4)
 
 
 def test_merge_keeps_other_blocks_and_retires_stale_keys(rd) -> None:
