@@ -19,7 +19,10 @@ same run and the ratio printed:
 * PHAST (all regimes but the predator-prey latent ODE) training step:
   :func:`phast_model.core.composed_strang_step`, the Strang step that
   evaluates D(q) and dV/dq afresh in every splitting piece instead of reusing
-  them at each substep's end point.
+  them at each substep's end point, with the neural potential's gradient by
+  autograd (a double backward in training) instead of its written-out chain rule;
+* S5 training step: :func:`phast_model.baselines.ssm.scan_diag`, the log-depth
+  prefix scan under autograd, instead of the 2x2 scan with an adjoint backward.
 
 Training-step time x (n_train / 64) x epochs estimates a run's training cost.
 """
@@ -27,6 +30,7 @@ Training-step time x (n_train / 64) x epochs estimates a run's training cost.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import sys
@@ -88,11 +92,28 @@ def rollout_s(model: ForecastModel, q: np.ndarray, u: np.ndarray | None, burn_in
 
 
 def _compose_core_steps(model: Any) -> None:
-    """Make ``model``'s core step by :func:`composed_strang_step` (the no-reuse reference)."""
+    """Make ``model``'s core step by :func:`composed_strang_step` and its neural potentials' gradients by autograd
+    (the reference without the reuse and the written-out gradient)."""
+    from phast_model.components.potentials import NeuralPotential, Potential
     from phast_model.core import composed_strang_step
 
     core = model.core
     core.forward = lambda q, p, f=None, need_p=True: composed_strang_step(core, q, p, f, need_p)
+    for mod in model.modules():
+        if isinstance(mod, NeuralPotential):
+            mod.grad = functools.partial(Potential.grad, mod)  # type: ignore[method-assign]
+
+
+def _s5_log_depth_step_ms(env_id: str, ds: Any, q: torch.Tensor, u: torch.Tensor | None, reps: int) -> float:
+    """S5's training step with the log-depth scan under autograd (the reference of the 2x2 scan)."""
+    from phast_model.baselines import ssm
+
+    ref = _build(env_id, "s5", ds)
+    fast, ssm.scan_complex_diag = ssm.scan_complex_diag, ssm.scan_diag
+    try:
+        return train_step_ms(ref, q, u, reps)
+    finally:
+        ssm.scan_complex_diag = fast
 
 
 def _build(env_id: str, model_name: str, ds: Any) -> ForecastModel:
@@ -120,6 +141,8 @@ def time_model(env_id: str, model_name: str, batch: int = 64, T: int = 200, H: i
         ref = _build(env_id, model_name, ds)
         _compose_core_steps(ref)
         row["train_step_ms_ref"] = train_step_ms(ref, q, u, reps)
+    if reference and model_name == "s5":
+        row["train_step_ms_ref"] = _s5_log_depth_step_ms(env_id, ds, q, u, reps)
     q_eval, u_eval = ds.q[:n_eval], (ds.u[:n_eval] if ds.u.size else None)
     row["eval_rollout_s"] = rollout_s(model, q_eval, u_eval, burn_in, H)
     if reference and model_name in ROLLOUT_REFERENCE:
@@ -136,6 +159,15 @@ def format_row(r: dict[str, Any]) -> str:
 
     return (f"{r['env']:28s} {r['model']:14s} params {r['params']:7d}  step {r['train_step_ms']:7.1f} ms"
             f"{ratio('train_step_ms')}  eval rollout {r['eval_rollout_s']:6.2f} s{ratio('eval_rollout_s')}")
+
+
+def format_total(rows: list[dict[str, Any]]) -> str:
+    """One env's training step summed over its models, against the same sum with the reference implementations
+    (the grid's cost per step; the target for the 10 models of the grid is 1.2 s on one thread)."""
+    env = rows[0]["env"]
+    fast = sum(r["train_step_ms"] for r in rows)
+    ref = sum(r.get("train_step_ms_ref", r["train_step_ms"]) for r in rows)
+    return f"{env:28s} sum of {len(rows)} models: step {fast:7.1f} ms (with the references {ref:.1f} ms, x{ref / fast:.2f})"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -159,9 +191,12 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     rows = []
     for e in envs:
+        env_rows = []
         for m in models:
-            rows.append(time_model(e, m, n_eval=args.n_eval, reps=args.reps, reference=not args.no_reference))
-            print(format_row(rows[-1]), flush=True)
+            env_rows.append(time_model(e, m, n_eval=args.n_eval, reps=args.reps, reference=not args.no_reference))
+            print(format_row(env_rows[-1]), flush=True)
+        print(format_total(env_rows), flush=True)
+        rows += env_rows
     if args.out:
         out = os.path.abspath(args.out)
         os.makedirs(os.path.dirname(out), exist_ok=True)

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from phast_model.baselines import BASELINES, DHNNBaseline, TransformerBaseline, make_baseline
-from phast_model.baselines.ssm import scan_2x2, scan_diag
+from phast_model.baselines.ssm import scan_2x2, scan_complex_diag, scan_diag
 from phast_model.baselines.transformer import sinusoidal_encoding
 from phast_model.interfaces import ForecastModel, coordinate_error
 
@@ -185,6 +185,35 @@ def test_scan_diag_matches_recurrence() -> None:
         x = a * x + b[:, t]
         ref.append(x)
     assert torch.allclose(scan_diag(a, b), torch.stack(ref, 1), atol=1e-5)
+
+
+@pytest.mark.parametrize("T", [1, 2, 37, 200])
+def test_complex_scan_equals_the_log_depth_scan_with_gradients(T: int) -> None:
+    """S5's scan as 2x2 rotation-scalings: the values and the gradients of scan_diag (float64, to 1e-10)."""
+    g = torch.Generator().manual_seed(T)
+    lam = torch.polar(0.5 + 0.5 * torch.rand(6, generator=g, dtype=torch.float64),
+                      3 * torch.rand(6, generator=g, dtype=torch.float64)).requires_grad_(True)
+    b = torch.randn(3, T, 6, dtype=torch.complex128, generator=g).requires_grad_(True)
+    w = torch.randn(3, T, 6, dtype=torch.complex128, generator=g)
+    x1, x2 = scan_diag(lam, b), scan_complex_diag(lam, b)
+    assert torch.allclose(x1, x2, atol=1e-10)
+    g1 = torch.autograd.grad((x1 * w).real.sum(), (lam, b), allow_unused=True)  # T = 1: lam is not used
+    g2 = torch.autograd.grad((x2 * w).real.sum(), (lam, b), allow_unused=True)
+    for a, c, ref in zip(g1, g2, (lam, b)):
+        zero = torch.zeros_like(ref)
+        assert torch.allclose(zero if a is None else a, zero if c is None else c, atol=1e-10)
+
+
+def test_s5_outputs_are_those_of_the_log_depth_scan(monkeypatch) -> None:
+    """The S5 baseline with the 2x2 scan gives the outputs of the earlier log-depth scan to 1e-6 (float32)."""
+    import phast_model.baselines.ssm as ssm
+
+    torch.manual_seed(0)
+    m = make_baseline("s5", 2, 1, (0,))
+    q, u = torch.randn(4, 50, 2), torch.randn(4, 50, 1)
+    fast = m(q, u)
+    monkeypatch.setattr(ssm, "scan_complex_diag", ssm.scan_diag)
+    assert torch.allclose(fast, m(q, u), atol=1e-6)
 
 
 def _naive_2x2(M: torch.Tensor, f: torch.Tensor) -> torch.Tensor:

@@ -63,6 +63,28 @@ def test_one_coordinate_damping_has_no_direction_gauge(cap):
 
 
 @FAST
+@given(n=st.integers(1, 5), n_angles=st.integers(0, 2), layers=st.integers(2, 4), seed=st.integers(0, 10_000))
+def test_neural_potential_gradient_is_autograds(n, n_angles, layers, seed):
+    """The written-out dV/dq equals autograd's, and so do the parameter gradients of a loss on it (what training
+    differentiates: a double backward for autograd's)."""
+    from phast_model.components.potentials import autograd_grad
+
+    torch.manual_seed(seed)
+    angles = tuple(range(min(n_angles, n)))
+    pot = NeuralPotential(n, angles, layers=layers, q_scale=0.5 + torch.rand(n - len(angles)), out_scale=3.0).double()
+    q = torch.randn(4, 6, n, dtype=torch.float64) * 2
+    w = torch.randn(4, 6, n, dtype=torch.float64)
+    fast, ref = pot.grad(q), autograd_grad(pot.energy, q)
+    assert torch.allclose(fast, ref, atol=1e-12, rtol=1e-10)
+    params = list(pot.parameters())  # the output bias does not enter dV/dq: its gradient is None in both
+    g_fast = torch.autograd.grad((fast * w).sum(), params, allow_unused=True)
+    g_ref = torch.autograd.grad((ref * w).sum(), params, allow_unused=True)
+    for a, b, p in zip(g_fast, g_ref, params):
+        zero = torch.zeros_like(p)
+        assert torch.allclose(zero if a is None else a, zero if b is None else b, atol=1e-12, rtol=1e-10)
+
+
+@FAST
 @given(n=st.integers(1, 6), rank=st.integers(1, 4), seed=st.integers(0, 10_000))
 def test_mass_spd_and_woodbury(n, rank, seed):
     torch.manual_seed(seed)

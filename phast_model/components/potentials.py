@@ -195,6 +195,39 @@ class NeuralPotential(Potential):
     def energy(self, q: torch.Tensor) -> torch.Tensor:
         return self.out_scale * self.net(self.features(q)).squeeze(-1)
 
+    def grad(self, q: torch.Tensor) -> torch.Tensor:
+        """dV/dq by the chain rule written out: one forward pass keeping SiLU'(z), then the transposed weights.
+        Equal to autograd's gradient; training differentiates through it with fewer, fused operations than
+        through a double backward (``benchmarks/bench_baselines.py`` times both)."""
+        linears = list(self.net)[::2]  # Linear, SiLU, Linear, SiLU, ..., Linear
+        x, slopes = self.features(q), []
+        for lin in linears[:-1]:
+            z = lin(x)
+            s = torch.sigmoid(z)
+            x = z * s  # SiLU(z)
+            slopes.append(torch.addcmul(s, x, 1.0 - s))  # SiLU'(z) = s + SiLU(z) (1 - s)
+        g = linears[-1].weight[0] * self.out_scale  # dV / d(last hidden layer)
+        for lin, slope in zip(reversed(linears[:-1]), reversed(slopes)):
+            g = (g * slope) @ lin.weight
+        return self.features_vjp(q, g)
+
+    def features_vjp(self, q: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
+        """dV/dq from dV/d(features) ``g``: the transposed Jacobian of :meth:`features` applied to ``g``."""
+        n_eu, na = self.n - len(self.angle_dims), len(self.angle_dims)
+        cols: dict[int, torch.Tensor] = {}
+        eu = [i for i in range(self.n) if i not in self.angle_dims]
+        for j, i in enumerate(eu):
+            cols[i] = g[..., j] / self.q_scale[j]
+        if na:
+            a = q[..., list(self.angle_dims)]
+            acc = torch.zeros_like(a)
+            for k in range(1, self.n_freq + 1):
+                c = n_eu + 2 * na * (k - 1)  # sin(k a) block, then cos(k a)
+                acc = acc + k * (g[..., c:c + na] * torch.cos(k * a) - g[..., c + na:c + 2 * na] * torch.sin(k * a))
+            for j, i in enumerate(self.angle_dims):
+                cols[i] = acc[..., j]
+        return torch.stack([cols[i] for i in range(self.n)], -1)
+
 
 class HybridPotential(Potential):
     """``V = V_template + softplus(rho) * V_neural`` with a small learnable scale (Eq. 84)."""
