@@ -216,6 +216,21 @@ def test_s5_outputs_are_those_of_the_log_depth_scan(monkeypatch) -> None:
     assert torch.allclose(fast, m(q, u), atol=1e-6)
 
 
+def test_vpt_attention_is_the_causal_mean_of_its_definition() -> None:
+    """VPT's skew attention, row by row: out_t = z_t + (1/t) sum_{s<t} tanh(z_{t-1}^T A z_s) z_s (out_0 = z_0)."""
+    from phast_model.baselines.transformer import _SkewCausalAttention
+
+    torch.manual_seed(0)
+    att = _SkewCausalAttention(8).double()
+    z = torch.randn(3, 11, 8, dtype=torch.float64)
+    A = att.skew(z)
+    ref = [z[:, 0]]
+    for t in range(1, 11):
+        c = torch.tanh(torch.einsum("bi,ij,bsj->bs", z[:, t - 1], A, z[:, :t]))
+        ref.append(z[:, t] + (c[..., None] * z[:, :t]).sum(1) / t)
+    assert torch.allclose(att(z), torch.stack(ref, 1), atol=1e-12)
+
+
 def _naive_2x2(M: torch.Tensor, f: torch.Tensor) -> torch.Tensor:
     """x_t = M x_{t-1} + f_t step by step; M (Q, 2, 2), f (2, N, T, Q) state-major."""
     x, out = torch.zeros_like(f[:, :, 0]), []

@@ -147,10 +147,10 @@ class _SkewCausalAttention(nn.Module):
         T = z.shape[1]
         z_prev = torch.cat([torch.zeros_like(z[:, :1]), z[:, :-1]], dim=1)
         C = torch.tanh(z_prev @ self.skew(z) @ z.transpose(1, 2))  # (B, T, T): row t uses z_{t-1}, column s uses z_s
-        strict = torch.tril(torch.ones(T, T, dtype=torch.bool, device=z.device), diagonal=-1)
+        # strictly causal mean: weight 1/t on the columns s < t of row t (one (T, T) factor, one multiply)
         count = torch.arange(T, device=z.device, dtype=z.dtype).clamp_min(1.0)[:, None]
-        W = torch.where(strict, C, torch.zeros_like(C)) / count
-        return z + W @ z
+        mean_mask = torch.tril(torch.ones(T, T, dtype=z.dtype, device=z.device), diagonal=-1) / count
+        return z + (C * mean_mask) @ z
 
     def step(self, z: torch.Tensor, past: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Output at the next position t = len(past) for its input z (B, d); ``past`` (B, t, d) holds z_0 .. z_{t-1}."""
