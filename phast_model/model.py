@@ -239,10 +239,8 @@ class PHAST(ForecastModel):
     def predict_next(self, hist: torch.Tensor, u_t: torch.Tensor | None = None) -> torch.Tensor:
         """One autoregressive step: history (B, >=1, n) (only the observer window is used) and u_t (B, m)
         held over [t, t+1] -> q_{t+1} (B, n), angles wrapped."""
-        hist = hist[:, -self.observer.window:]
-        v = self.observer(hist)[:, -1]
-        qt = hist[:, -1]
-        q1, _ = self.core(qt, self.canonicalize(qt, v), self.port_force(u_t), need_p=False)
+        qt, pt = self.infer_state(hist)
+        q1, _ = self.core(qt, pt, self.port_force(u_t), need_p=False)
         return wrap_angles(q1, self.angle_dims)
 
     @torch.no_grad()
@@ -540,6 +538,14 @@ class LatentODEModel(PHAST):
 
     def canonicalize(self, q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
         return self.core.field.latent(q, v)
+
+    def infer_state(self, q_hist: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(q, p) at the last sample; at a start-up step (t = len - 1 < ``loss_skip``) the start-up latent, as in
+        :meth:`forward` (so ``predict_next`` on t + 1 samples is forward's prediction at t)."""
+        if not hasattr(self, "prior_raw") or q_hist.shape[1] > self.loss_skip:
+            return super().infer_state(q_hist)
+        v = self.observer(q_hist)
+        return q_hist[:, -1], self.startup_latents(q_hist, v, self.canonicalize(q_hist, v))[:, -1]
 
     def forward(self, q: torch.Tensor, u: torch.Tensor | None = None) -> torch.Tensor:
         """Teacher-forced next-step predictions; the first sample of the sequence uses the learned latent prior."""

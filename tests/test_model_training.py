@@ -387,3 +387,21 @@ def test_damping_scores_r2_undefined_for_constant_truth():
         s = damping_scores(truth + 1e-3, truth)
         assert math.isnan(s["damping_r2"])
         assert math.isclose(s["damping_mae"], 1e-3, rel_tol=1e-9)
+
+
+@pytest.mark.parametrize(("env", "regime"), [("PHAST/WindyPendulum-v0", "unknown"), ("PHAST/WindyCartPole-v0", "unknown"),
+                                             ("PHAST/PredatorPrey-v0", "known"), ("PHAST/PredatorPrey-v0", "unknown")])
+def test_predict_next_on_a_prefix_is_forwards_prediction(env, regime):
+    """``predict_next(q[:, :t+1])`` (rollouts, ``phast_model.api.predict``) equals forward's teacher-forced
+    prediction at t for every prefix length, the start-up steps (shorter backward differences, the predator-prey
+    start-up latents) and a perturbed TCN head included."""
+    torch.manual_seed(0)
+    model = build_model(env, regime).eval()
+    with torch.no_grad():
+        for p in model.parameters():  # leave the zero-initialized corrections (TCN head, start-up nets) non-trivial
+            p.add_(0.01 * torch.randn_like(p))
+    q = torch.as_tensor(make_splits(env, 3, 1, 1, T=16, seed=5)["train"].q, dtype=torch.float32)
+    with torch.no_grad():
+        full = model(q)
+        for t in range(q.shape[1]):
+            assert torch.allclose(model.predict_next(q[:, :t + 1]), full[:, t], atol=1e-5), t
