@@ -10,7 +10,8 @@ Runs ``phast-bench`` one (env, model) block at a time (5 seeds, one worker, one 
 is never redone), refreshes ``summary.csv`` / ``tables.md`` (and, after a PHAST block, the error decomposition
 ``diagnostics.json`` / ``diagnostics.md`` of benchmarks/regime_diagnostics.py) after every block and, with ``--commit``, commits that
 directory (that path only; retried when another git command holds the index), so a session that ends loses at most
-the block in progress.  ``--dry-run`` lists what is left.
+the block in progress.  ``--dry-run`` lists what is left and estimates its CPU time from the measured cost of a
+training step (``docs/results/baselines_cost.json``, written by benchmarks/bench_baselines.py).
 """
 
 from __future__ import annotations
@@ -32,6 +33,34 @@ def pending(envs: list[str], models: tuple[str, ...], seeds: list[int], out: Pat
     """(env, model) blocks with at least one seed not finished in ``out``."""
     return [(e, m) for e in envs for m in models
             if any(load_result(out, RunSpec(env_id=e, model=m, seed=s)) is None for s in seeds)]
+
+
+def seeds_left(env: str, model: str, seeds: list[int], out: Path) -> int:
+    """How many of ``seeds`` of one block are not finished in ``out``."""
+    return sum(load_result(out, RunSpec(env_id=env, model=model, seed=s)) is None for s in seeds)
+
+
+def estimate_hours(todo: list[tuple[str, str, int]], cost_json: Path) -> float | None:
+    """CPU-hours of the (env, model, seeds left) blocks at the paper's protocol: steps per run (epochs x
+    ceil(n_train / batch)) x the measured training step, plus the evaluation rollouts; None without the cost file
+    or with a block it does not cover."""
+    import json
+    import math
+
+    from phast_model.training import TrainConfig
+
+    if not cost_json.exists():
+        return None
+    rows = {(r["env"], r["model"]): r for r in json.loads(cost_json.read_text())["rows"]}
+    spec = RunSpec(env_id="PHAST/Pendulum-v0", model="gru")
+    steps = spec.epochs * math.ceil(spec.n_train / TrainConfig().batch_size)
+    total = 0.0
+    for env, model, n in todo:
+        r = rows.get((env, model))
+        if r is None:
+            return None
+        total += n * (steps * r["train_step_ms"] / 1e3 + r["eval_rollout_s"])
+    return total / 3600
 
 
 def bench(args: list[str]) -> int:
@@ -66,7 +95,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", default="0-4")
     ap.add_argument("--out", default="docs/results/full")
     ap.add_argument("--commit", action="store_true", help="git-commit OUT after every finished block")
-    ap.add_argument("--dry-run", action="store_true")
+    ap.add_argument("--dry-run", action="store_true", help="list the blocks left and estimate their CPU time")
+    ap.add_argument("--cost", default="docs/results/baselines_cost.json",
+                    help="per-step costs for the --dry-run estimate (benchmarks/bench_baselines.py --envs all --out)")
     args = ap.parse_args(argv)
     models = GROUPS.get(args.models) or tuple(m.strip() for m in args.models.split(","))
     envs = list(PAPER) if args.envs == "all" else [e if e.startswith("PHAST/") else f"PHAST/{e}" for e in args.envs.split(",")]
@@ -74,7 +105,12 @@ def main(argv: list[str] | None = None) -> int:
     todo = pending(envs, models, seeds, out)
     print(f"grid: {len(todo)} (env, model) blocks left of {len(envs) * len(models)}", flush=True)
     if args.dry_run:
-        print("\n".join(f"  {e} {m}" for e, m in todo))
+        left = [(e, m, seeds_left(e, m, seeds, out)) for e, m in todo]
+        print("\n".join(f"  {e} {m} ({n} of {len(seeds)} seeds left)" for e, m, n in left))
+        cost = Path(args.cost)
+        hours = estimate_hours(left, cost)
+        print(f"grid: about {hours:.1f} CPU-hours left (training steps timed in {cost})" if hours is not None
+              else f"grid: no estimate ({cost} is missing or does not cover every block)")
         return 0
     # the summary always covers all 13 rows: drivers that split the rows between them share OUT's tables
     every = ["--envs", ",".join(PAPER), "--models", ",".join(ALL_MODELS), "--seeds", args.seeds, "--out", str(out)]

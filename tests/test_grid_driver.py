@@ -32,3 +32,20 @@ def test_driver_on_some_rows_summarizes_all_rows(grid_mod, monkeypatch: pytest.M
     for c in summaries:  # every refresh covers the 13 rows, not only this driver's two
         assert c[c.index("--envs") + 1].split(",") == list(PAPER)
     assert diagnosed == [("PHAST/Pendulum-v0", "phast-known"), ("PHAST/RLCCircuit-v0", "phast-known")]
+
+
+def test_dry_run_estimates_the_cpu_time_left(grid_mod, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Steps per run (50 epochs x 16 batches) x the measured step, plus the evaluation, for every seed left."""
+    import json
+
+    cost = tmp_path / "cost.json"
+    cost.write_text(json.dumps({"rows": [{"env": "PHAST/Pendulum-v0", "model": "gru", "train_step_ms": 90.0,
+                                          "eval_rollout_s": 36.0}]}))
+    rc = grid_mod.main(["--envs", "Pendulum-v0", "--models", "gru", "--seeds", "0-1", "--out", str(tmp_path / "out"),
+                        "--dry-run", "--cost", str(cost)])
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert "(2 of 2 seeds left)" in text
+    assert "about 0.1 CPU-hours left" in text  # 2 x (800 x 0.09 s + 36 s) = 216 s
+    assert grid_mod.estimate_hours([("PHAST/Pendulum-v0", "gru", 2)], cost) == pytest.approx(216 / 3600)
+    assert grid_mod.estimate_hours([("PHAST/Pendulum-v0", "lstm", 1)], cost) is None  # not timed: no guess
