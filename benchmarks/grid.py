@@ -17,6 +17,8 @@ training step (``docs/results/baselines_cost.json``, written by benchmarks/bench
 from __future__ import annotations
 
 import argparse
+import json
+import math
 import subprocess
 import sys
 import time
@@ -25,6 +27,7 @@ from pathlib import Path
 from phast_model.bench.paper import PAPER
 from phast_model.bench.runner import load_result
 from phast_model.bench.spec import ALL_MODELS, BASELINE_MODELS, PHAST_MODELS, RunSpec, parse_seeds
+from phast_model.training import TrainConfig
 
 GROUPS = {"baselines": BASELINE_MODELS, "phast": PHAST_MODELS, "all": ALL_MODELS}
 
@@ -44,11 +47,6 @@ def estimate_hours(todo: list[tuple[str, str, int]], cost_json: Path) -> float |
     """CPU-hours of the (env, model, seeds left) blocks at the paper's protocol: steps per run (epochs x
     ceil(n_train / batch)) x the measured training step, plus the evaluation rollouts; None without the cost file
     or with a block it does not cover."""
-    import json
-    import math
-
-    from phast_model.training import TrainConfig
-
     if not cost_json.exists():
         return None
     rows = {(r["env"], r["model"]): r for r in json.loads(cost_json.read_text())["rows"]}
