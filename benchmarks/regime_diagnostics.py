@@ -126,10 +126,11 @@ def diagnose(model: PHAST, spec: RunSpec, test: Any, recorded: float, H: int = 1
     with torch.no_grad():
         scored_pred = (model.rollout(q[:, :K], u, H) if rollout_row else model(q, u))
         scored_pred = scored_pred.numpy()[:, :target.shape[1]]
-        se_traj = _sq_err(scored_pred, target, ang).mean(axis=tuple(range(1, target.ndim)))
+        se = _sq_err(scored_pred, target, ang)
+        se_traj = se.mean(axis=tuple(range(1, target.ndim)))
         worst = np.sort(se_traj)[::-1][:WORST].sum() / max(se_traj.sum(), 1e-300)
         if not rollout_row:
-            se_t = _sq_err(scored_pred, target, ang).mean(axis=(0, 2))
+            se_t = se.mean(axis=(0, 2))
             res["startup_share"] = float(se_t[:model.loss_skip].sum() / max(se_t.sum(), 1e-300))
         v_all = _true_velocity(model.system, test.q_true, test.p)
         true_rate = float((v_all * np.asarray(test.damping) * v_all).sum() / (v_all * np.asarray(test.p)).sum())

@@ -104,8 +104,7 @@ class FDTCNObserver(nn.Module):
             x = nn.functional.silu(conv(x))
         delta = (self.head(x) * self.v_scale.unsqueeze(-1) + skip).transpose(1, 2)
         v = v_fd + delta
+        # start-up steps t < fd_order: plain backward difference of the order the history supports (0 at t = 0)
         k = min(self.fd_order, q.shape[1])
-        if k >= 1:  # start-up steps t < fd_order: plain backward difference of the order the history supports
-            v0 = torch.einsum("tj,bjn->btn", self.startup[:k, :k].to(v_fd.dtype), v_fd[:, :k])
-            v = torch.cat([v0, v[:, k:]], 1)
-        return v
+        v0 = torch.einsum("tj,bjn->btn", self.startup[:k, :k].to(v_fd.dtype), v_fd[:, :k])
+        return torch.cat([v0, v[:, k:]], 1)
