@@ -33,7 +33,8 @@ from tqdm.auto import tqdm
 from phast_model.checkpoint import atomic_write_json
 from phast_model.metrics import benchmark_metric
 from phast_model.provenance import code_commit
-from phast_model.runs import train_run
+from phast_model.runs import DataSpec, train_run
+from phast_model.training import TrainConfig
 
 DEFAULT_RUNS = [
     ("PHAST/WindyPendulum-v0", "known"),
@@ -217,7 +218,8 @@ def _one(env: str, regime: str, seed: int, runs_dir: str, epochs: int, n_train: 
     """One ``phast-train`` run (1 torch thread; also the worker of ``--jobs``)."""
     torch.set_num_threads(1)
     rd = Path(runs_dir) / f"{env.split('/')[-1]}_{regime}_s{seed}"
-    m = train_run(env, regime, rd, epochs=epochs, seed=seed, n_train=n_train, plots=False, progress=False)
+    m = train_run(env, regime, rd, data=DataSpec(n_train=n_train), train=TrainConfig(epochs=epochs, seed=seed, progress=False),
+                  plots=False)
     return {"env_id": env, "regime": regime, "seed": seed, "commit": git_commit(), "numerics": numerics(), **m}
 
 

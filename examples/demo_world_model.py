@@ -18,7 +18,8 @@ import torch
 
 from phast_gym.systems import NUMPY, split, stack
 from phast_model.checkpoint import load_model
-from phast_model.runs import train_run
+from phast_model.runs import DataSpec, train_run
+from phast_model.training import TrainConfig
 
 ENV = "PHAST/WindyPendulum-v0"
 
@@ -53,7 +54,8 @@ def run(out_dir: pathlib.Path) -> dict:
     headline numbers."""
     torch.set_num_threads(1)
     run_dir = pathlib.Path(out_dir) / "world_model"
-    m = train_run(ENV, "known", run_dir, epochs=30, seed=0, n_train=400, n_val=100, n_test=100, progress=False)
+    m = train_run(ENV, "known", run_dir, data=DataSpec(n_train=400, n_val=100, n_test=100),
+                  train=TrainConfig(epochs=30, seed=0, progress=False))
     fig = damping_figure(run_dir, run_dir / "damping_field.png")
     return {
         "env": ENV,

@@ -12,12 +12,14 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from phast_gym.datasets import PortExcitation
+
 if TYPE_CHECKING:
-    from phast_gym.datasets import PortExcitation
+    from .training import TrainConfig
 
 #: the run files :func:`train_run` writes besides the checkpoint
 METRICS_FILE, HISTORY_FILE = "metrics.json", "history.json"
@@ -54,41 +56,73 @@ def check_split_sizes(n_train: int, n_val: int, n_test: int, T: int) -> None:
         raise ValueError(f"--T must be an integer >= 2, got {T!r}")
 
 
-def train_run(env: str, regime: str, out: str | Path, *, epochs: int = 50, seed: int = 0, n_train: int = 1000,
-              n_val: int = 200, n_test: int = 200, T: int = 200, data_seed: int = 42, batch_size: int = 64,
-              lr: float = 1e-3, obs_noise_std: float = 0.0, overrides: dict[str, Any] | None = None,
-              resume: bool = False, plots: bool = True, progress: bool = True,
-              excitation: PortExcitation | None = None) -> dict[str, Any]:
+@dataclass(frozen=True)
+class DataSpec:
+    """The dataset of one run: split sizes, trajectory length, dataset seed, observation noise and an optional
+    port excitation.  Defaults = the paper's protocol (1000 / 200 / 200 trajectories of T = 200, seed 42, free
+    motion).  Checked on construction, so a bad value fails before anything is generated or written."""
+
+    n_train: int = 1000
+    n_val: int = 200
+    n_test: int = 200
+    T: int = 200
+    seed: int = 42
+    obs_noise_std: float = 0.0
+    excitation: PortExcitation | None = None
+
+    def __post_init__(self) -> None:
+        from phast_gym.datasets import _check_noise
+
+        check_split_sizes(self.n_train, self.n_val, self.n_test, self.T)
+        object.__setattr__(self, "obs_noise_std", _check_noise(self.obs_noise_std))
+
+    @property
+    def excited(self) -> bool:
+        """Whether the port is driven (free-motion runs record no excitation, so their identity is unchanged)."""
+        return self.excitation is not None and self.excitation.std > 0
+
+    def identity(self) -> dict[str, Any]:
+        """The JSON record of this dataset, kept in checkpoints and ``config.json``."""
+        d: dict[str, Any] = {"n_train": self.n_train, "n_val": self.n_val, "n_test": self.n_test, "T": self.T,
+                             "seed": self.seed, "obs_noise_std": self.obs_noise_std}
+        if self.excited:
+            d["port_excitation"] = asdict(self.excitation)
+        return d
+
+    def splits(self, env: str) -> dict[str, Any]:
+        """Generate (or load from the cache) the train / val / test splits of ``env``."""
+        from phast_gym import make_splits
+
+        kw: dict[str, Any] = {"obs_noise_std": self.obs_noise_std} if self.obs_noise_std > 0 else {}
+        if self.excited:
+            kw["u"] = self.excitation.for_env(env, self.n_train + self.n_val + self.n_test, self.T)
+        return make_splits(env, self.n_train, self.n_val, self.n_test, T=self.T, seed=self.seed, **kw)
+
+
+def train_run(env: str, regime: str, out: str | Path, *, data: DataSpec | None = None, train: TrainConfig | None = None,
+              overrides: dict[str, Any] | None = None, resume: bool = False, plots: bool = True) -> dict[str, Any]:
     """Train a PHAST model (``regime``: known / partial / unknown) on ``env`` and write the run directory ``out``.
 
-    The Python entry point of ``phast-train``; returns the metrics dict it writes to ``metrics.json``.  Every
-    argument is checked before any work (no dataset generated, nothing written), and one process at a time
-    may write ``out``.  ``excitation`` drives the port of every split with a random input (default: free
-    motion, as in the paper), which a model meant for control needs (:class:`phast_gym.datasets.PortExcitation`)."""
-    from phast_gym import make_splits, resolve_env_id
-    from phast_gym.datasets import _check_noise
+    The Python entry point of ``phast-train``; returns the metrics dict it writes to ``metrics.json``.  ``data``
+    (default: the paper's protocol) says which dataset, ``train`` (default: paper Table 13) how to train; its
+    ``seed`` also seeds the model's initialisation.  ``overrides`` are PHASTConfig fields.  Every argument is checked
+    before any work (no dataset generated, nothing written), and one process at a time may write ``out``."""
+    from phast_gym import resolve_env_id
     from phast_gym.fileio import dir_lock, ensure_writable_dir
 
     from .regimes import build_model
     from .training import CHECKPOINT, TrainConfig, check_resume
 
     env = resolve_env_id(env)
-    check_split_sizes(n_train, n_val, n_test, T)
-    noise = _check_noise(obs_noise_std)
-    cfg = TrainConfig(epochs=epochs, batch_size=batch_size, lr=lr, seed=seed, progress=progress)
-    model = build_model(env, regime, seed=seed, **(overrides or {}))
-    data = {"n_train": n_train, "n_val": n_val, "n_test": n_test, "T": T, "seed": data_seed, "obs_noise_std": noise}
-    if excitation is not None and excitation.std > 0:  # recorded only when used: free-motion runs keep their identity
-        data["port_excitation"] = asdict(excitation)
-    identity = {"env_id": env, "regime": regime, "data": data, "overrides": overrides or {}}
+    data = DataSpec() if data is None else data
+    cfg = TrainConfig() if train is None else train
+    model = build_model(env, regime, seed=cfg.seed, **(overrides or {}))
+    identity = {"env_id": env, "regime": regime, "data": data.identity(), "overrides": overrides or {}}
     out = ensure_writable_dir(out, "--out")
     with dir_lock(out):  # one writer per run directory
         if resume:
             check_resume(out / CHECKPOINT, cfg, identity)
-        kw: dict[str, Any] = {"obs_noise_std": noise} if noise > 0 else {}
-        if "port_excitation" in data:
-            kw["u"] = excitation.for_env(env, n_train + n_val + n_test, T)
-        splits = make_splits(env, n_train, n_val, n_test, T=T, seed=data_seed, **kw)
+        splits = data.splits(env)
         res, metrics = train_and_score(model, splits, cfg, out, identity, resume=resume)
         return _write_run(res, metrics, splits["test"], cfg, identity, out, plots)
 

@@ -405,3 +405,21 @@ def test_predict_next_on_a_prefix_is_forwards_prediction(env, regime):
         full = model(q)
         for t in range(q.shape[1]):
             assert torch.allclose(model.predict_next(q[:, :t + 1]), full[:, t], atol=1e-5), t
+
+
+def test_train_run_python_api_takes_typed_data_and_train_specs(tmp_path):
+    from phast_gym.datasets import PortExcitation
+    from phast_model.runs import DataSpec, train_run
+
+    data = DataSpec(n_train=8, n_val=4, n_test=4, T=120, seed=5)
+    # the record of a free-motion run has exactly the keys a run written before DataSpec had, so its resumes match
+    assert data.identity() == {"n_train": 8, "n_val": 4, "n_test": 4, "T": 120, "seed": 5, "obs_noise_std": 0.0}
+    assert "port_excitation" not in DataSpec(excitation=PortExcitation(0.0)).identity()
+    assert DataSpec(excitation=PortExcitation(1.5)).identity()["port_excitation"] == {"std": 1.5, "hold": 5, "seed": 0}
+    m = train_run(ENV, "known", tmp_path / "run", data=data, train=TrainConfig(epochs=1, seed=3, progress=False),
+                  plots=False)
+    cfg = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert cfg["data"] == data.identity() and cfg["train"]["seed"] == 3 and math.isfinite(m["benchmark_value"])
+    for bad, match in (({"n_val": 0}, "--n-val"), ({"T": 1}, "--T"), ({"obs_noise_std": float("nan")}, "obs_noise_std")):
+        with pytest.raises(ValueError, match=match):
+            DataSpec(**bad)

@@ -18,7 +18,7 @@ from typing import Any
 from phast_gym import env_ids
 from phast_gym.datasets import PortExcitation
 
-from ..runs import train_run
+from ..runs import DataSpec, train_run
 
 __all__ = ["main", "parse_args", "train_run"]
 
@@ -73,12 +73,15 @@ def main(argv: list[str] | None = None) -> int:
 
     torch.set_num_threads(max(1, args.threads))
     try:
-        excitation = PortExcitation(args.port_excitation, args.excitation_hold, args.excitation_seed)
-        metrics = train_run(args.env, args.regime, args.out, epochs=args.epochs, seed=args.seed, n_train=args.n_train,
-                            n_val=args.n_val, n_test=args.n_test, T=args.T, data_seed=args.data_seed,
-                            batch_size=args.batch_size, lr=args.lr, obs_noise_std=args.obs_noise_std,
-                            overrides=_overrides(args.set), resume=args.resume, plots=not args.no_plots,
-                            progress=not args.no_progress, excitation=excitation)
+        from ..training import TrainConfig
+
+        data = DataSpec(n_train=args.n_train, n_val=args.n_val, n_test=args.n_test, T=args.T, seed=args.data_seed,
+                        obs_noise_std=args.obs_noise_std,
+                        excitation=PortExcitation(args.port_excitation, args.excitation_hold, args.excitation_seed))
+        train = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, seed=args.seed,
+                            progress=not args.no_progress)
+        metrics = train_run(args.env, args.regime, args.out, data=data, train=train, overrides=_overrides(args.set),
+                            resume=args.resume, plots=not args.no_plots)
     except ValueError as exc:
         print(f"phast-train: error: {exc}", file=sys.stderr)
         return 2
