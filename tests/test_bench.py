@@ -375,3 +375,27 @@ def test_code_commit_names_the_imported_checkout() -> None:
         pytest.skip("phast_model is not in a git checkout")
     assert re.fullmatch(r"[0-9a-f]{40}", full) and re.fullmatch(r"[0-9a-f]{40}", _CODE_COMMIT)
     assert re.fullmatch(r"[0-9a-f]{4,40}(\+dirty)?", short) and full.startswith(short.split("+")[0])
+
+
+def test_acceptance_table_needs_a_complete_row_that_beats_baselines_and_the_paper():
+    from phast_model.bench.paper import PAPER
+    from phast_model.bench.spec import ALL_MODELS
+    from phast_model.bench.summary import acceptance_table
+
+    env = "PHAST/WindyPendulum-v0"
+    metric, paper = PAPER[env].metric, PAPER[env].best("phast-")[1]
+
+    def agg_with(phast: float, base: float, models: tuple[str, ...] = ALL_MODELS) -> dict:
+        return {(env, m): {"metrics": {metric: (phast if m.startswith("phast-") else base, 0.0, 5)},
+                           "seeds": [0, 1, 2, 3, 4]} for m in models}
+
+    def row(agg: dict) -> list[str]:
+        lines = acceptance_table(agg, [env])
+        return [c.strip() for c in lines[-3].strip("|").split("|")] + [lines[-1]]
+
+    assert row(agg_with(paper / 2, paper)) == [PAPER[env].benchmark, "yes", "yes", "yes", "**yes**",
+                                               "1 of 1 rows pass; 0 incomplete."]
+    assert row(agg_with(paper / 2, paper / 4))[2:5] == ["**no**", "yes", "no"]  # a baseline wins
+    assert row(agg_with(2 * paper, 4 * paper))[2:5] == ["yes", "**no**", "no"]  # worse than the paper's PHAST
+    short = row(agg_with(paper / 2, paper, ALL_MODELS[:3]))
+    assert short[1] == "no (7 models short)" and short[2].startswith("—") and short[-1].endswith("1 incomplete.")

@@ -4,8 +4,9 @@
   n_seeds, params.
 * ``tables.md``: a Table-4-shaped suite summary (best PHAST regime vs best baseline
   per benchmark, gain = best baseline / best PHAST, and our best PHAST / the paper's
-  PHAST number), then one Table-17-24-shaped block per benchmark (every model,
-  params, ours vs paper).
+  PHAST number), each PHAST regime next to the paper's (Tables 17-24), the N-body
+  floor rule, the acceptance verdict per row, then one Table-17-24-shaped block per
+  benchmark (every model, params, ours vs paper).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import io
 import math
 from collections import defaultdict
 from collections.abc import Callable
+from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -182,6 +184,7 @@ def markdown_tables(agg: dict[tuple[str, str], dict[str, Any]], title: str = "ph
             f"{fmt(pp[1]) + ' (' + DISPLAY[pp[0]] + ')' if pp else '—'} | {ratio} | {','.join(map(str, seeds)) or '—'} |")
     lines += regime_table(agg, envs)
     lines += floor_rule(agg, envs)
+    lines += acceptance_table(agg, envs)
     for env in envs:
         metric = env_metric(agg, env)
         paper = paper_row_for(env)
@@ -230,6 +233,44 @@ def regime_table(agg: dict[tuple[str, str], dict[str, Any]], envs: list[str]) ->
 FLOOR_RULE_ENVS = ("PHAST/NBody3-v0",)
 
 
+@dataclass(frozen=True)
+class FloorVerdict:
+    """The N-body rule on one row: the best PHAST and best baseline (model, (mean, std, n)) on Eq. 90 and after the
+    burn-in, against the information floor."""
+
+    floor: float
+    phast_eq90: tuple | None
+    phast_after: tuple | None
+    base_eq90: tuple | None
+    base_after: tuple | None
+    slack: float = 1.1
+
+    @property
+    def within(self) -> bool:
+        return self.phast_eq90 is not None and self.phast_eq90[1][0] <= self.slack * self.floor
+
+    @property
+    def beats(self) -> bool:
+        cells = (self.phast_eq90, self.phast_after, self.base_eq90, self.base_after)
+        return (all(c is not None for c in cells) and self.phast_eq90[1][0] < self.base_eq90[1][0]
+                and self.phast_after[1][0] < self.base_after[1][0])
+
+    @property
+    def passes(self) -> bool:
+        return self.within and self.beats
+
+
+def floor_verdict(agg: dict[tuple[str, str], dict[str, Any]], env: str, slack: float = 1.1) -> FloorVerdict:
+    """The N-body rule's numbers for ``env`` (see :func:`floor_rule`)."""
+    from .floor import first_step_floor
+
+    def best(metric: str, phast: bool) -> tuple | None:
+        return best_of(agg, env, metric, lambda m: m.startswith("phast-") == phast)
+
+    return FloorVerdict(first_step_floor(env)["floor_mse"], best("mse", True), best("mse_after_burnin", True),
+                        best("mse", False), best("mse_after_burnin", False), slack)
+
+
 def floor_rule(agg: dict[tuple[str, str], dict[str, Any]], envs: list[str], slack: float = 1.1) -> list[str]:
     """N-body: the paper's next-step MSE is below the floor no causal model can avoid (the t = 0 prediction,
     :func:`phast_model.bench.floor.first_step_floor`).  The row passes when the best PHAST is within ``slack`` x the
@@ -237,28 +278,60 @@ def floor_rule(agg: dict[tuple[str, str], dict[str, Any]], envs: list[str], slac
     rows = [e for e in envs if e in FLOOR_RULE_ENVS]
     if not rows:
         return []
-    from .floor import first_step_floor
-
     lines = ["", "## Next-step rows below the information floor (N-body rule)", "",
              "| benchmark | floor (Eq. 90) | best PHAST: Eq. 90 | after burn-in | best baseline: Eq. 90 | after burn-in "
-             "| within 1.1x floor | beats baselines on both | passes |", "|---|---|---|---|---|---|---|---|---|"]
+             f"| within {slack:g}x floor | beats baselines on both | passes |", "|---|---|---|---|---|---|---|---|---|"]
     for env in rows:
-        floor = first_step_floor(env)["floor_mse"]
-        cells = {}
-        for side, pick in (("phast", lambda m: m.startswith("phast-")), ("base", lambda m: not m.startswith("phast-"))):
-            for metric in ("mse", "mse_after_burnin"):
-                cells[side, metric] = best_of(agg, env, metric, pick)
-        p90, pab, b90, bab = (cells[k] for k in (("phast", "mse"), ("phast", "mse_after_burnin"), ("base", "mse"),
-                                                 ("base", "mse_after_burnin")))
-        within = p90 is not None and p90[1][0] <= slack * floor
-        beats = all(x is not None for x in (p90, pab, b90, bab)) and p90[1][0] < b90[1][0] and pab[1][0] < bab[1][0]
-        name = paper_row_for(env).benchmark if paper_row_for(env) else env
+        v = floor_verdict(agg, env, slack)
 
         def show(c: tuple | None) -> str:
             return "—" if c is None else f"{_ms(c[1])} ({DISPLAY.get(c[0], c[0])})"
 
-        lines.append(f"| {name} | {fmt(floor)} | {show(p90)} | {show(pab)} | {show(b90)} | {show(bab)} | "
-                     f"{'yes' if within else 'no'} | {'yes' if beats else 'no'} | {'**yes**' if within and beats else 'no'} |")
+        lines.append(f"| {_benchmark(env)} | {fmt(v.floor)} | {show(v.phast_eq90)} | {show(v.phast_after)} | "
+                     f"{show(v.base_eq90)} | {show(v.base_after)} | {'yes' if v.within else 'no'} | "
+                     f"{'yes' if v.beats else 'no'} | {'**yes**' if v.passes else 'no'} |")
+    return lines
+
+
+def _benchmark(env: str) -> str:
+    row = paper_row_for(env)
+    return row.benchmark if row else env
+
+
+def acceptance_table(agg: dict[tuple[str, str], dict[str, Any]], envs: list[str], n_seeds: int | None = None) -> list[str]:
+    """Each row judged as the grid's acceptance asks: complete (every model of the paper's grid over ``n_seeds``
+    seeds, default the most any model has), the best PHAST beats the best baseline of the same run, and it matches
+    or beats the paper's best PHAST (rows in ``FLOOR_RULE_ENVS``: the floor rule instead)."""
+    from .spec import ALL_MODELS
+
+    n = n_seeds or max((len(g["seeds"]) for g in agg.values() if "seeds" in g), default=0)
+    lines = ["", "## Acceptance", "",
+             f"A row passes when it is complete ({len(ALL_MODELS)} models x {n} seeds), its best PHAST beats its best "
+             "baseline, and it matches or beats the paper's best PHAST (N-body: the floor rule above).", "",
+             "| benchmark | complete | beats baselines | matches paper | passes |", "|---|---|---|---|---|"]
+    verdicts = []
+    for env in envs:
+        missing = [m for m in ALL_MODELS if len(agg.get((env, m), {}).get("seeds", [])) < n]
+        metric = env_metric(agg, env)
+        bp = best_of(agg, env, metric, lambda m: m.startswith("phast-"))
+        bb = best_of(agg, env, metric, lambda m: not m.startswith("phast-"))
+        paper = paper_row_for(env)
+        pp = paper.best("phast-") if paper is not None and paper.metric == metric else None
+        if env in FLOOR_RULE_ENVS:
+            v = floor_verdict(agg, env)
+            beats, matches, bb = v.beats, v.within, v.base_eq90
+        else:
+            beats = bool(bp and bb and bp[1][0] < bb[1][0])
+            matches = bool(bp and pp and bp[1][0] <= pp[1])
+        ok = not missing and beats and matches
+        verdicts.append((bool(missing), ok))
+        done = "yes" if not missing else f"no ({len(missing)} models short)"
+        beat_cell = "— (no baseline yet)" if bb is None else ("yes" if beats else "**no**")
+        lines.append(f"| {_benchmark(env)} | {done} | {beat_cell} | {'yes' if matches else '**no**'} | "
+                     f"{'**yes**' if ok else 'no'} |")
+    passed = sum(ok for _, ok in verdicts)
+    short = sum(m for m, _ in verdicts)
+    lines += ["", f"{passed} of {len(envs)} rows pass; {short} incomplete."]
     return lines
 
 
