@@ -222,7 +222,7 @@ def baseline_speedups(ref: str, ids: list[str], n_traj: int, T: int, repeats: in
     return out
 
 
-def main(argv: list[str] | None = None) -> int:
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--steps", type=int, default=5000, help="single-env steps per timing repeat")
     ap.add_argument("--n-traj", type=int, default=1400)
@@ -239,66 +239,51 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--baseline", default=None, metavar="GIT_REF",
                     help="also time every dataset against phast_gym at this git revision (interleaved)")
     ap.add_argument("--table", default=None, metavar="JSON", help="print the docs tables of a result file and exit")
-    args = ap.parse_args(argv)
-    if args.table:
-        print(markdown(json.loads(Path(args.table).read_text())))
-        return 0
-    os.environ.setdefault("PHAST_CACHE_DIR", tempfile.mkdtemp())
-    if args.compiled and not args.warm_cache:
-        os.environ["TORCHINDUCTOR_CACHE_DIR"] = tempfile.mkdtemp()  # before torch compiles anything: a cold compile
-    torch.set_num_threads(1)
-    load_before = os.getloadavg()
-    ids = phast_gym.env_ids() if args.envs == "all" else [phast_gym.resolve_env_id(e) for e in args.envs.split(",")]
+    return ap.parse_args(argv)
 
-    ref = steps_per_second("Pendulum-v1", args.steps, args.repeats)
-    rows = []
-    for env_id in tqdm(ids, desc="envs", file=sys.stderr):
-        sps = steps_per_second(env_id, args.steps, args.repeats)
-        wall, peak = dataset_cost(env_id, args.n_traj, args.T, args.repeats)
-        batched_sps = args.n_traj * (args.T - 1) / wall
-        limit = 10.0 if "LennardJones" in env_id else 2.0
-        rows.append({
-            "env_id": env_id, "steps_per_s": sps, "ratio_vs_pendulum_v1": sps / ref,
-            "dataset_wall_s": wall, "dataset_limit_s": limit, "dataset_peak_mb": peak,
-            "batched_steps_per_s": batched_sps, "batched_vs_single": batched_sps / sps,
-        })
-        if args.profile:
-            rows[-1]["profile"] = profile_dataset(env_id, args.n_traj, args.T)
-        if args.compiled:
-            c = compiled_cost(env_id, args.n_traj, args.T, args.repeats)
-            c["batched_steps_per_s"] = args.n_traj * (args.T - 1) / c["wall_s"]
-            c["batched_vs_single"] = c["batched_steps_per_s"] / sps
-            rows[-1]["compiled"] = c
-    ru = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KB -> MB on Linux
+
+def measure_env(env_id: str, args: argparse.Namespace) -> dict:
+    """One env's row: single-env steps/s, the batched dataset's wall time and peak memory (+ profile / compiled)."""
+    sps = steps_per_second(env_id, args.steps, args.repeats)
+    wall, peak = dataset_cost(env_id, args.n_traj, args.T, args.repeats)
+    batched_sps = args.n_traj * (args.T - 1) / wall
+    row = {"env_id": env_id, "steps_per_s": sps, "dataset_wall_s": wall,
+           "dataset_limit_s": 10.0 if "LennardJones" in env_id else 2.0, "dataset_peak_mb": peak,
+           "batched_steps_per_s": batched_sps, "batched_vs_single": batched_sps / sps}
+    if args.profile:
+        row["profile"] = profile_dataset(env_id, args.n_traj, args.T)
+    if args.compiled:
+        c = compiled_cost(env_id, args.n_traj, args.T, args.repeats)
+        c["batched_steps_per_s"] = args.n_traj * (args.T - 1) / c["wall_s"]
+        c["batched_vs_single"] = c["batched_steps_per_s"] / sps
+        row["compiled"] = c
+    return row
+
+
+def targets_met(rows: list[dict], peak_rss_mb: float, compiled: bool) -> dict[str, bool | None]:
+    """The suite's speed and memory targets (docs/envs.md) on the measured rows."""
     pend = next((r for r in rows if r["env_id"] == "PHAST/Pendulum-v0"), None)
-    targets = {
+    targets: dict[str, bool | None] = {
         "pendulum_ratio>=0.5": None if pend is None else pend["ratio_vs_pendulum_v1"] >= 0.5,
         "datasets_within_limit": all(r["dataset_wall_s"] <= r["dataset_limit_s"] for r in rows),
         "batched>=100x": all(r["batched_vs_single"] >= 100 for r in rows),
-        **({"batched_compiled>=100x": all(r["compiled"]["batched_vs_single"] >= 100 for r in rows)} if args.compiled else {}),
-        "peak_memory<1GB": ru < 1024,
     }
-    result = {
-        "command": "python benchmarks/envs.py " + " ".join(argv if argv is not None else sys.argv[1:]),
-        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "numpy": np.__version__,
-                    "torch": str(torch.__version__), "torch_threads": torch.get_num_threads(),
-                    "gymnasium": gym.__version__, "platform": platform.platform(),
-                    "loadavg_1min_before_after": [load_before[0], os.getloadavg()[0]]},
-        "pendulum_v1_steps_per_s": ref, "process_peak_rss_mb": ru, "rows": rows, "targets_met": targets,
-    }
-    if args.profile:
-        result["per_op_us_at_batch"] = {"batch": args.n_traj, **per_op_costs(args.n_traj)}
-    if args.baseline:
-        result["baseline"] = {"ref": args.baseline,
-                              "datasets": baseline_speedups(args.baseline, ids, args.n_traj, args.T, args.repeats)}
-    if args.compiled:
-        result["inductor_cache"] = "warm (reused)" if args.warm_cache else "cold (fresh directory)"
-    print(f"Gymnasium Pendulum-v1: {ref:,.0f} steps/s (reference, same run)")
+    if compiled:
+        targets["batched_compiled>=100x"] = all(r["compiled"]["batched_vs_single"] >= 100 for r in rows)
+    targets["peak_memory<1GB"] = peak_rss_mb < 1024
+    return targets
+
+
+def print_report(result: dict, args: argparse.Namespace) -> None:
+    """The human-readable tables of a result (the JSON holds the same numbers)."""
+    rows = result["rows"]
+    print(f"Gymnasium Pendulum-v1: {result['pendulum_v1_steps_per_s']:,.0f} steps/s (reference, same run)")
     print(f"{'env':32s} {'steps/s':>9s} {'x Pend-v1':>9s} {'dataset s':>9s} {'peak MB':>8s} {'batch/single':>12s}")
     for r in rows:
         print(f"{r['env_id']:32s} {r['steps_per_s']:9,.0f} {r['ratio_vs_pendulum_v1']:9.2f} {r['dataset_wall_s']:9.2f} "
               f"{r['dataset_peak_mb']:8.0f} {r['batched_vs_single']:12.0f}")
-    print(f"process peak RSS {ru:.0f} MB; targets: {targets}; load average {result['machine']['loadavg_1min_before_after']}")
+    print(f"process peak RSS {result['process_peak_rss_mb']:.0f} MB; targets: {result['targets_met']}; "
+          f"load average {result['machine']['loadavg_1min_before_after']}")
     if args.profile:
         print(f"{'env':32s} {'sin/cos share':>13s} {'crossing share':>14s} {'rhs calls':>9s}")
         for r in rows:
@@ -311,6 +296,41 @@ def main(argv: list[str] | None = None) -> int:
             c = r["compiled"]
             print(f"{r['env_id']:32s} {c['first_call_s']:12.1f} {c['wall_s']:10.3f} {c['batched_vs_single']:12.0f} "
                   f"{c['max_abs_diff_vs_numpy']:9.1e}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    if args.table:
+        print(markdown(json.loads(Path(args.table).read_text())))
+        return 0
+    os.environ.setdefault("PHAST_CACHE_DIR", tempfile.mkdtemp())
+    if args.compiled and not args.warm_cache:
+        os.environ["TORCHINDUCTOR_CACHE_DIR"] = tempfile.mkdtemp()  # before torch compiles anything: a cold compile
+    torch.set_num_threads(1)
+    load_before = os.getloadavg()
+    ids = phast_gym.env_ids() if args.envs == "all" else [phast_gym.resolve_env_id(e) for e in args.envs.split(",")]
+    ref = steps_per_second("Pendulum-v1", args.steps, args.repeats)
+    rows = [measure_env(env_id, args) for env_id in tqdm(ids, desc="envs", file=sys.stderr)]
+    for r in rows:
+        r["ratio_vs_pendulum_v1"] = r["steps_per_s"] / ref
+    ru = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KB -> MB on Linux
+    result = {
+        "command": "python benchmarks/envs.py " + " ".join(argv if argv is not None else sys.argv[1:]),
+        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "numpy": np.__version__,
+                    "torch": str(torch.__version__), "torch_threads": torch.get_num_threads(),
+                    "gymnasium": gym.__version__, "platform": platform.platform(),
+                    "loadavg_1min_before_after": [load_before[0], os.getloadavg()[0]]},
+        "pendulum_v1_steps_per_s": ref, "process_peak_rss_mb": ru, "rows": rows,
+        "targets_met": targets_met(rows, ru, args.compiled),
+    }
+    if args.profile:
+        result["per_op_us_at_batch"] = {"batch": args.n_traj, **per_op_costs(args.n_traj)}
+    if args.baseline:
+        result["baseline"] = {"ref": args.baseline,
+                              "datasets": baseline_speedups(args.baseline, ids, args.n_traj, args.T, args.repeats)}
+    if args.compiled:
+        result["inductor_cache"] = "warm (reused)" if args.warm_cache else "cold (fresh directory)"
+    print_report(result, args)
     if args.out:
         atomic_write_text(Path(args.out), json.dumps(result, indent=2))
     return 0
