@@ -6,6 +6,7 @@ vertical line across ``[-pi, pi)``.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +26,33 @@ def _angle_series(y: np.ndarray, is_angle: bool) -> np.ndarray:
     return break_at_wraps(y) if is_angle else y
 
 
+@dataclass(frozen=True)
+class RolloutView:
+    """The test trajectories a run's plots show, their open-loop rollouts after the burn-in, and how to draw them."""
+
+    q: np.ndarray  # (n_show, T, n) true positions
+    roll: np.ndarray  # (n_show, H, n) rollout after the burn-in
+    dt: float
+    burn_in: int
+    angles: tuple[int, ...]  # wrapped coordinates
+
+    @property
+    def H(self) -> int:
+        return self.roll.shape[1]
+
+    @property
+    def t(self) -> np.ndarray:
+        return np.arange(self.q.shape[1]) * self.dt
+
+    def series(self, y: np.ndarray, i: int) -> np.ndarray:
+        return _angle_series(y, i in self.angles)
+
+    def truth_and_rollout(self, b: int) -> tuple[np.ndarray, np.ndarray]:
+        """Trajectory b from the last burn-in sample on, and its rollout behind the same first sample (1, H+1, n)."""
+        truth = self.q[b:b + 1, self.burn_in - 1:self.burn_in + self.H]
+        return truth, np.concatenate([truth[:, :1], self.roll[b:b + 1]], 1)
+
+
 def make_plots(model: Any, test: Any, out: Path, burn_in: int = 10, H: int = 100, n_show: int = 4) -> list[Path]:
     """rollout.png (rollout vs truth), phase.png, damping.png (learned vs true), energy.png; returns the paths."""
     import matplotlib
@@ -32,68 +60,82 @@ def make_plots(model: Any, test: Any, out: Path, burn_in: int = 10, H: int = 100
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .metrics import env_energy
+    from phast_gym import make_env_system
+
     from .rollout import batched_rollout
 
     q = np.asarray(test.q[:n_show])
     H = min(H, q.shape[1] - burn_in)
-    roll = batched_rollout(model, q, test.u[:n_show], burn_in, H)
-    t = np.arange(q.shape[1]) * test.dt
-    ang = tuple(model.angle_dims)
-    paths = []
-    n = q.shape[-1]
+    view = RolloutView(q, batched_rollout(model, q, test.u[:n_show], burn_in, H), test.dt, burn_in,
+                       tuple(model.angle_dims))
+    paths = [_save(plt, plot_rollout(plt, view), out / "rollout.png"),
+             _save(plt, plot_phase(plt, view), out / "phase.png")]
+    if getattr(model, "damping", None) is not None:
+        paths.append(_save(plt, plot_damping(plt, model, test), out / "damping.png"))
+    if make_env_system(test.env_id).hamiltonian_system:
+        paths.append(_save(plt, plot_energy(plt, view, test.env_id), out / "energy.png"))
+    return paths
+
+
+def plot_rollout(plt: Any, view: RolloutView) -> Any:
+    """Each coordinate over time: truth (solid) and the rollout after the burn-in (dashed)."""
+    n, end = view.q.shape[-1], view.burn_in + view.H
     fig, axes = plt.subplots(n, 1, figsize=(8, 2.2 * n), squeeze=False)
     for i in range(n):
         ax = axes[i, 0]
-        for b in range(n_show):
-            ln, = ax.plot(t[: burn_in + H], _angle_series(q[b, : burn_in + H, i], i in ang), lw=1)
-            ax.plot(t[burn_in:burn_in + H], _angle_series(roll[b, :, i], i in ang), "--", color=ln.get_color(), lw=1)
-        ax.axvline(t[burn_in - 1], color="k", lw=0.5)
+        for b in range(len(view.q)):
+            ln, = ax.plot(view.t[:end], view.series(view.q[b, :end, i], i), lw=1)
+            ax.plot(view.t[view.burn_in:end], view.series(view.roll[b, :, i], i), "--", color=ln.get_color(), lw=1)
+        ax.axvline(view.t[view.burn_in - 1], color="k", lw=0.5)
         ax.set_ylabel(f"q{i}")
     axes[-1, 0].set_xlabel("t [s] (solid: truth, dashed: PHAST rollout after burn-in)")
-    paths.append(_save(plt, fig, out / "rollout.png"))
+    return fig
 
-    def truth_and_rollout(b: int) -> tuple[np.ndarray, np.ndarray]:
-        """Trajectory b from the last burn-in sample on, and its rollout behind the same first sample (1, H+1, n)."""
-        truth = q[b:b + 1, burn_in - 1:burn_in + H]
-        return truth, np.concatenate([truth[:, :1], roll[b:b + 1]], 1)
 
+def plot_phase(plt: Any, view: RolloutView) -> Any:
+    """Phase portrait of coordinate 0 (finite-difference velocity), truth against rollout."""
     fig, ax = plt.subplots(figsize=(5, 4))
-    for b in range(n_show):
-        truth, pred = truth_and_rollout(b)
-        ln, = ax.plot(_angle_series(truth[0, 1:, 0], 0 in ang), fd_velocity(truth, test.dt, ang)[0, :, 0], lw=1)
-        ax.plot(_angle_series(pred[0, 1:, 0], 0 in ang), fd_velocity(pred, test.dt, ang)[0, :, 0], "--", color=ln.get_color(), lw=1)
+    for b in range(len(view.q)):
+        truth, pred = view.truth_and_rollout(b)
+        ln, = ax.plot(view.series(truth[0, 1:, 0], 0), fd_velocity(truth, view.dt, view.angles)[0, :, 0], lw=1)
+        ax.plot(view.series(pred[0, 1:, 0], 0), fd_velocity(pred, view.dt, view.angles)[0, :, 0], "--",
+                color=ln.get_color(), lw=1)
     ax.set_xlabel("q0")
     ax.set_ylabel("finite-difference qdot0")
     ax.set_title("phase portrait (solid truth, dashed rollout)")
-    paths.append(_save(plt, fig, out / "phase.png"))
+    return fig
 
-    if getattr(model, "damping", None) is not None:
-        import torch
 
-        qa = np.asarray(test.q[: min(64, len(test.q))]).reshape(-1, n)
-        with torch.no_grad():
-            dh = model.damping_diag(torch.as_tensor(qa, dtype=next(model.parameters()).dtype)).numpy()
-        d = np.asarray(test.damping[: min(64, len(test.q))]).reshape(-1, n)
-        fig, axes = plt.subplots(1, n, figsize=(4 * n, 3.2), squeeze=False)
-        for i in range(n):
-            ax = axes[0, i]
-            ax.scatter(qa[:, i], d[:, i], s=2, label="true D_ii(q)")
-            ax.scatter(qa[:, i], dh[:, i], s=2, label="learned D_ii(q)")
-            ax.set_xlabel(f"q{i}")
-            ax.legend(markerscale=4, fontsize=7)
-        paths.append(_save(plt, fig, out / "damping.png"))
+def plot_damping(plt: Any, model: Any, test: Any, n_traj: int = 64) -> Any:
+    """The learned damping diagonal D_ii(q) against the env's true one along the test trajectories."""
+    import torch
 
-    from phast_gym import make_env_system
+    n = test.q.shape[-1]
+    qa = np.asarray(test.q[: min(n_traj, len(test.q))]).reshape(-1, n)
+    with torch.no_grad():
+        dh = model.damping_diag(torch.as_tensor(qa, dtype=next(model.parameters()).dtype)).numpy()
+    d = np.asarray(test.damping[: min(n_traj, len(test.q))]).reshape(-1, n)
+    fig, axes = plt.subplots(1, n, figsize=(4 * n, 3.2), squeeze=False)
+    for i in range(n):
+        ax = axes[0, i]
+        ax.scatter(qa[:, i], d[:, i], s=2, label="true D_ii(q)")
+        ax.scatter(qa[:, i], dh[:, i], s=2, label="learned D_ii(q)")
+        ax.set_xlabel(f"q{i}")
+        ax.legend(markerscale=4, fontsize=7)
+    return fig
 
-    if make_env_system(test.env_id).hamiltonian_system:
-        fig, ax = plt.subplots(figsize=(6, 3.5))
-        for b in range(n_show):
-            truth, pred = truth_and_rollout(b)
-            ln, = ax.plot(t[burn_in:burn_in + H], env_energy(test.env_id, truth, test.dt, ang)[0], lw=1)
-            ax.plot(t[burn_in:burn_in + H], env_energy(test.env_id, pred, test.dt, ang)[0], "--", color=ln.get_color(), lw=1)
-        ax.set_xlabel("t [s]")
-        ax.set_ylabel("env H (FD velocities)")
-        ax.set_title("energy along the rollout (solid truth, dashed PHAST)")
-        paths.append(_save(plt, fig, out / "energy.png"))
-    return paths
+
+def plot_energy(plt: Any, view: RolloutView, env_id: str) -> Any:
+    """The env's energy (finite-difference velocities) along truth and rollout."""
+    from .metrics import env_energy
+
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    t = view.t[view.burn_in:view.burn_in + view.H]
+    for b in range(len(view.q)):
+        truth, pred = view.truth_and_rollout(b)
+        ln, = ax.plot(t, env_energy(env_id, truth, view.dt, view.angles)[0], lw=1)
+        ax.plot(t, env_energy(env_id, pred, view.dt, view.angles)[0], "--", color=ln.get_color(), lw=1)
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("env H (FD velocities)")
+    ax.set_title("energy along the rollout (solid truth, dashed PHAST)")
+    return fig
