@@ -403,7 +403,7 @@ def write_tables(out: Path, meta: dict[str, Any]) -> None:
     atomic_write_text(out / "control_sac.md", "\n".join(lines) + "\n")
 
 
-def main() -> None:
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", required=True)
     ap.add_argument("--agents", default="sac-real,sac-world",
@@ -430,18 +430,38 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-progress", action="store_true")
     ap.add_argument("--tables-only", action="store_true", help="only rewrite OUT/control_sac.md from OUT/control_sac.json")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
+    for a in agents_of(args):
+        if a not in ("sac-real", "sac-world"):
+            ap.error(f"unknown agent {a!r}")
+        if a == "sac-world" and not args.phast_run:
+            ap.error("sac-world needs --phast-run")
+    return args
+
+
+def agents_of(args: argparse.Namespace) -> list[str]:
+    return [a for a in args.agents.split(",") if a and a != "none"]
+
+
+def energy_casimir_rows(protocol: Any, args: argparse.Namespace) -> dict[str, dict[str, Any]]:
+    """The Energy-Casimir reference rows, one per estimator (no real-env samples for training; the gains use the
+    plant's m g l only)."""
+    rows, _ = evaluate_estimators(protocol, args.ec_estimators.split(","), [args.sigma], args.trials_per_regime,
+                                  seed=args.seed, progress=not args.no_progress)
+    cmd = command_line(args, [])
+    keys = ("success_rate", "success_angle_rate", "effort", "final_error")
+    return {f"energy-casimir/{r['estimator']}": {
+        "method": f"energy-casimir/{r['estimator']}", **{k: r[k] for k in keys},
+        "u_rms_final": r.get("u_rms_final", float("nan")), "real_env_samples": 0, "decisions": 0, "flat": None,
+        "train_seconds": 0.0, "command": cmd} for r in rows if r["regime"] == "all"}
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = parse_args(argv)
     if args.tables_only:
         write_tables(Path(args.out), json.loads((Path(args.out) / "control_sac.json").read_text()))
         return
     torch.set_num_threads(1)
-    agents = [a for a in args.agents.split(",") if a and a != "none"]
-    for a in agents:
-        if a not in ("sac-real", "sac-world"):
-            raise SystemExit(f"unknown agent {a!r}")
-        if a == "sac-world" and not args.phast_run:
-            raise SystemExit("sac-world needs --phast-run")
-
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     protocol = make_protocol(args.q_star)
@@ -451,18 +471,7 @@ def main() -> None:
                  or meta.get("trials_per_regime") != args.trials_per_regime):
         raise SystemExit(f"{path} holds another setting (q_star/sigma/trials); use another --out")
     results: dict[str, dict[str, Any]] = {r["method"]: r for r in meta.get("results", [])}
-
-    # Energy-Casimir reference rows (no real-env samples for training; the gains use the plant's m g l only)
-    rows, _ = evaluate_estimators(protocol, args.ec_estimators.split(","), [args.sigma], args.trials_per_regime, seed=args.seed,
-                                  progress=not args.no_progress)
-    ec_cmd = command_line(args, [])
-    for r in rows:
-        if r["regime"] == "all":
-            results[f"energy-casimir/{r['estimator']}"] = {
-                "method": f"energy-casimir/{r['estimator']}", "success_rate": r["success_rate"],
-                "success_angle_rate": r["success_angle_rate"], "effort": r["effort"], "u_rms_final": r.get("u_rms_final", float("nan")),
-                "final_error": r["final_error"], "real_env_samples": 0, "decisions": 0, "flat": None, "train_seconds": 0.0,
-                "command": ec_cmd}
+    results.update(energy_casimir_rows(protocol, args))
 
     def save() -> None:
         order = sorted(results.values(), key=lambda r: (not r["method"].startswith("energy"), r["method"]))
@@ -472,7 +481,7 @@ def main() -> None:
         write_tables(out, meta)
 
     save()
-    for name in agents:
+    for name in agents_of(args):
         row = train_agent(name, args, out)
         results[row["method"]] = row
         print({k: v for k, v in row.items() if k != "command"}, flush=True)
