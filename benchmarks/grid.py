@@ -7,11 +7,12 @@ of one session: a sweep started from another shell or with ``setsid`` still take
 interactive work unless its autogroup is lowered too (the ``echo`` above; harmless where autogroups are off).
 Runs ``phast-bench`` one (env, model) block at a time (5 seeds, one worker, one torch thread) into
 ``docs/results/full`` (per-run JSON under ``runs/``, keyed by the hash of the full configuration, so a finished run
-is never redone), refreshes ``summary.csv`` / ``tables.md`` (and, after a PHAST block, the error decomposition
-``diagnostics.json`` / ``diagnostics.md`` of benchmarks/regime_diagnostics.py) after every block and, with ``--commit``, commits that
-directory (that path only; retried when another git command holds the index), so a session that ends loses at most
-the block in progress.  ``--dry-run`` lists what is left and estimates its CPU time from the measured cost of a
-training step (``docs/results/baselines_cost.json``, written by benchmarks/bench_baselines.py).
+is never redone), refreshes ``summary.csv`` / ``tables.md``, the block's figures under ``figures/`` (and, after a
+PHAST block, the error decomposition ``diagnostics.json`` / ``diagnostics.md`` of benchmarks/regime_diagnostics.py)
+after every block and, with ``--commit``, commits that directory (that path only; retried when another git command
+holds the index), so a session that ends loses at most the block in progress.  ``--dry-run`` lists what is left and
+estimates its CPU time from the measured cost of a training step (``docs/results/baselines_cost.json``, written by
+benchmarks/bench_baselines.py).
 """
 
 from __future__ import annotations
@@ -86,6 +87,20 @@ def commit(out: Path, message: str, tries: int = 20) -> bool:
     return False
 
 
+def draw_figures(envs: list[str], seeds: list[int], out: Path) -> list[Path]:
+    """``OUT/figures/<env>_rollout.png`` and ``<env>_damping_energy.png`` (paper Figs. 5-6 shape) of each env's best
+    PHAST regime and best baseline among the finished runs."""
+    from phast_model.bench.figures import make_figures
+
+    return make_figures(out, [RunSpec(env_id=e, model=m, seed=s) for e in envs for m in ALL_MODELS for s in seeds])
+
+
+def redraw_figures(env: str, seeds: str, out: Path) -> int:
+    """:func:`draw_figures` of one env in its own process (a figure error cannot stop the grid)."""
+    return subprocess.call([sys.executable, __file__, "--figures-only", "--envs", env, "--seeds", seeds, "--out",
+                            str(out)], stdout=subprocess.DEVNULL)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--models", default="baselines", help="baselines | phast | all | a comma list")
@@ -94,12 +109,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default="docs/results/full")
     ap.add_argument("--commit", action="store_true", help="git-commit OUT after every finished block")
     ap.add_argument("--dry-run", action="store_true", help="list the blocks left and estimate their CPU time")
+    ap.add_argument("--figures-only", action="store_true",
+                    help="train nothing: redraw the figures of ENVS from the finished runs (done after every block)")
     ap.add_argument("--cost", default="docs/results/baselines_cost.json",
                     help="per-step costs for the --dry-run estimate (benchmarks/bench_baselines.py --envs all --out)")
     args = ap.parse_args(argv)
     models = GROUPS.get(args.models) or tuple(m.strip() for m in args.models.split(","))
     envs = list(PAPER) if args.envs == "all" else [e if e.startswith("PHAST/") else f"PHAST/{e}" for e in args.envs.split(",")]
     seeds, out = parse_seeds(args.seeds), Path(args.out)
+    if args.figures_only:
+        print("\n".join(str(p) for p in draw_figures(envs, seeds, out)))
+        return 0
     todo = pending(envs, models, seeds, out)
     print(f"grid: {len(todo)} (env, model) blocks left of {len(envs) * len(models)}", flush=True)
     if args.dry_run:
@@ -118,6 +138,7 @@ def main(argv: list[str] | None = None) -> int:
                     "--threads", "1", "--no-progress"])
         bench([*every, "--summarize-only", "--title", "Paper protocol (1000/200/200, 50 epochs, seeds " + args.seeds + ")",
                "--note", "Written by benchmarks/grid.py as blocks finish; rows fill in across sessions."])
+        redraw_figures(env, args.seeds, out)
         if model in PHAST_MODELS:  # the error decomposition of docs/results.md, section 0, kept in step with the tables
             diagnose(env, model, args.seeds, out)
         print(f"grid: {env} {model} rc={rc} in {time.time() - t0:.0f} s", flush=True)

@@ -143,6 +143,21 @@ def test_tiny_sweep_resume_and_outputs(tmp_path: Path) -> None:
     assert sorted(p.name for p in figs) == ["WindyPendulum-v0_damping_energy.png", "WindyPendulum-v0_rollout.png"]
     assert all(p.stat().st_size > 1000 for p in figs)
 
+    # a run whose saved weights are gone (a machine reset) is drawn from its next seed
+    from phast_model.bench.figures import _pick, _rollouts
+    from phast_model.bench.runner import BENCH_MODEL_FILE, work_dir
+
+    gru1 = grid([ENV], ["gru"], [1], **TINY)
+    run_sweep(gru1, out, workers=1, progress=False)
+    gru0 = next(s for s in specs if s.model == "gru")
+    runs = _pick([load_result(out, s) for s in [*specs, *gru1]], ENV, False)
+    assert [(r["model"], r["seed"]) for r in runs] == [("gru", 0), ("gru", 1)]
+    (work_dir(out, gru0) / BENCH_MODEL_FILE).unlink()
+    assert set(_rollouts(out, ENV, [runs], n_traj=1, H=10).preds) == {"gru"}
+    (work_dir(out, gru1[0]) / BENCH_MODEL_FILE).unlink()
+    with pytest.warns(UserWarning, match="no saved weights load"):
+        assert _rollouts(out, ENV, [runs], n_traj=1, H=10) is None
+
 
 def test_cli(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     out = str(tmp_path / "cli")

@@ -20,6 +20,8 @@ def test_driver_on_some_rows_summarizes_all_rows(grid_mod, monkeypatch: pytest.M
     diagnosed: list[tuple[str, str]] = []
     monkeypatch.setattr(grid_mod, "bench", lambda args: calls.append(list(args)) or 0)
     monkeypatch.setattr(grid_mod, "diagnose", lambda env, model, seeds, out: diagnosed.append((env, model)) or 0)
+    drawn: list[str] = []
+    monkeypatch.setattr(grid_mod, "redraw_figures", lambda env, seeds, out: drawn.append(env) or 0)
     rc = grid_mod.main(["--envs", "Pendulum-v0,RLCCircuit-v0", "--models", "phast-known,gru", "--seeds", "0",
                         "--out", str(tmp_path)])
     assert rc == 0
@@ -32,6 +34,17 @@ def test_driver_on_some_rows_summarizes_all_rows(grid_mod, monkeypatch: pytest.M
     for c in summaries:  # every refresh covers the 13 rows, not only this driver's two
         assert c[c.index("--envs") + 1].split(",") == list(PAPER)
     assert diagnosed == [("PHAST/Pendulum-v0", "phast-known"), ("PHAST/RLCCircuit-v0", "phast-known")]
+    assert drawn == [e for e, _ in blocks]  # each block's row redrawn after it
+
+
+def test_figures_only_draws_from_finished_runs_and_trains_nothing(grid_mod, monkeypatch: pytest.MonkeyPatch,
+                                                                  tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    seen: list = []
+    monkeypatch.setattr(grid_mod, "bench", lambda args: pytest.fail("--figures-only trained"))
+    monkeypatch.setattr("phast_model.bench.figures.make_figures", lambda out, specs: seen.extend(specs) or [])
+    assert grid_mod.main(["--figures-only", "--envs", "RLCCircuit-v0", "--seeds", "0-1", "--out", str(tmp_path)]) == 0
+    assert {(s.env_id, s.seed) for s in seen} == {("PHAST/RLCCircuit-v0", 0), ("PHAST/RLCCircuit-v0", 1)}
+    assert len(seen) == 2 * 10  # every model of the grid: the best PHAST and the best baseline are picked from them
 
 
 def test_dry_run_estimates_the_cpu_time_left(grid_mod, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -1,7 +1,7 @@
 """Figures shaped like the paper's Figures 5-6, drawn from finished runs (matplotlib, Agg).
 
 For each env of the grid, the best PHAST regime and the best baseline (lowest mean
-row metric over seeds; their lowest seed is drawn) are reloaded from their saved
+row metric over seeds; their lowest seed whose saved weights load is drawn) are reloaded from their saved
 weights and rolled out open loop on test trajectories:
 
 * ``<env>_rollout.png`` (Fig. 5 shape): q(t) truth vs both models after the burn-in,
@@ -39,7 +39,8 @@ def load_model(out_dir: str | Path, spec: RunSpec, train: Any) -> Any:
     return model.eval()
 
 
-def _pick(records: list[dict], env: str, phast: bool) -> dict | None:
+def _pick(records: list[dict], env: str, phast: bool) -> list[dict]:
+    """The runs of ``env``'s best PHAST regime (or best baseline), lowest seed first (empty: none finished)."""
     agg = aggregate(records)
     metric = env_metric(agg, env)
     best = None
@@ -51,9 +52,9 @@ def _pick(records: list[dict], env: str, phast: bool) -> dict | None:
         if best is None or g["metrics"][metric][0] < best[1]:
             best = (m, g["metrics"][metric][0])
     if best is None:
-        return None
+        return []
     runs = [r for r in records if r["env"] == env and r["model"] == best[0] and not r["config"].get("full_state")]
-    return min(runs, key=lambda r: r["seed"])
+    return sorted(runs, key=lambda r: r["seed"])
 
 
 @dataclass
@@ -76,29 +77,34 @@ class EnvRollouts:
         return DISPLAY.get(name, name)
 
 
-def _rollouts(out_dir: Path, env: str, chosen: list[dict], n_traj: int, H: int) -> EnvRollouts | None:
-    """Reload each chosen run and roll it out open loop on the first ``n_traj`` test trajectories."""
+def _rollouts(out_dir: Path, env: str, chosen: list[list[dict]], n_traj: int, H: int) -> EnvRollouts | None:
+    """Reload each chosen model (its lowest seed whose saved weights load) and roll it out open loop on the first
+    ``n_traj`` test trajectories."""
     import torch
 
-    spec0 = RunSpec.from_config(chosen[0]["config"])
+    spec0 = RunSpec.from_config(chosen[0][0]["config"])
     splits = load_splits(spec0)
     test, K = splits["test"], spec0.burn_in
     idx = slice(0, min(n_traj, test.n_traj))
     ro = EnvRollouts(env, test, np.asarray(test.q[idx]), K, min(H, test.T - K))
     u = np.asarray(test.u[idx])
-    for rec in chosen:
-        spec = RunSpec.from_config(rec["config"])
-        try:
-            model = load_model(out_dir, spec, splits["train"])
-        except (RuntimeError, OSError, KeyError) as exc:  # weights from another version of the model code
-            warnings.warn(f"figures: skipping {env} {rec['model']} seed {rec['seed']}: saved weights do not load "
-                          f"into the current code ({str(exc).splitlines()[0]}); rerun that run to draw it", stacklevel=2)
+    for runs in chosen:
+        model, skipped = None, []
+        for rec in runs:
+            try:
+                model = load_model(out_dir, RunSpec.from_config(rec["config"]), splits["train"])
+                break
+            except (RuntimeError, OSError, KeyError) as exc:  # weights missing, or from another version of the code
+                skipped.append(f"seed {rec['seed']} ({str(exc).splitlines()[0]})")
+        if model is None:
+            warnings.warn(f"figures: skipping {env} {runs[0]['model']}: no saved weights load into the current code: "
+                          f"{'; '.join(skipped)}; rerun a run to draw it", stacklevel=2)
             continue
         dtype = next(model.parameters()).dtype
         with torch.no_grad():
-            ro.preds[rec["model"]] = model.rollout(torch.as_tensor(ro.q[:, :K], dtype=dtype),
-                                                   torch.as_tensor(u, dtype=dtype), ro.H).numpy()
-        ro.models[rec["model"]] = model
+            ro.preds[runs[0]["model"]] = model.rollout(torch.as_tensor(ro.q[:, :K], dtype=dtype),
+                                                       torch.as_tensor(u, dtype=dtype), ro.H).numpy()
+        ro.models[runs[0]["model"]] = model
     return ro if ro.preds else None
 
 
@@ -203,7 +209,7 @@ def make_figures(out_dir: str | Path, specs: list[RunSpec], n_traj: int = 3, H: 
     records = [r for s in specs if not s.full_state and (r := load_result(out_dir, s)) is not None]
     written: list[Path] = []
     for env in dict.fromkeys(s.env_id for s in specs if not s.full_state):
-        chosen = [r for r in (_pick(records, env, True), _pick(records, env, False)) if r is not None]
+        chosen = [runs for runs in (_pick(records, env, True), _pick(records, env, False)) if runs]
         ro = _rollouts(out_dir, env, chosen, n_traj, H) if chosen else None
         if ro is None:
             continue
