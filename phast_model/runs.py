@@ -16,7 +16,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from phast_gym.datasets import PortExcitation
+from phast_gym.datasets import PortExcitation, _check_noise
 
 if TYPE_CHECKING:
     from .training import TrainConfig
@@ -71,8 +71,6 @@ class DataSpec:
     excitation: PortExcitation | None = None
 
     def __post_init__(self) -> None:
-        from phast_gym.datasets import _check_noise
-
         check_split_sizes(self.n_train, self.n_val, self.n_test, self.T)
         object.__setattr__(self, "obs_noise_std", _check_noise(self.obs_noise_std))
 

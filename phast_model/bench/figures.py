@@ -29,11 +29,12 @@ from .summary import DISPLAY, aggregate, env_metric
 
 
 def load_model(out_dir: str | Path, spec: RunSpec, train: Any) -> Any:
-    """Rebuild a finished run's model and load its saved weights (weights_only)."""
-    import torch
+    """Rebuild a finished run's model and load its saved weights (``checkpoint.torch_load``: weights_only, and a
+    ValueError naming the problem when the file is missing or damaged)."""
+    from phast_model.checkpoint import torch_load
 
     model = build_run_model(spec, train)
-    state = torch.load(work_dir(out_dir, spec) / BENCH_MODEL_FILE, weights_only=True, map_location="cpu")
+    state = torch_load(work_dir(out_dir, spec) / BENCH_MODEL_FILE, "benchmark weights")
     model.to(next(iter(state.values())).dtype)
     model.load_state_dict(state)
     return model.eval()
@@ -94,7 +95,7 @@ def _rollouts(out_dir: Path, env: str, chosen: list[list[dict]], n_traj: int, H:
             try:
                 model = load_model(out_dir, RunSpec.from_config(rec["config"]), splits["train"])
                 break
-            except (RuntimeError, OSError, KeyError) as exc:  # weights missing, or from another version of the code
+            except (ValueError, RuntimeError, KeyError) as exc:  # weights missing, or from another version of the code
                 skipped.append(f"seed {rec['seed']} ({str(exc).splitlines()[0]})")
         if model is None:
             warnings.warn(f"figures: skipping {env} {runs[0]['model']}: no saved weights load into the current code: "

@@ -129,6 +129,12 @@ def best_of(agg: dict, env: str, metric: str, pick: Callable[[str], bool]) -> tu
     return min(rows, key=lambda r: r[1][0]) if rows else None
 
 
+def best_sides(agg: dict, env: str, metric: str) -> tuple[tuple[str, tuple] | None, tuple[str, tuple] | None]:
+    """(best PHAST regime, best baseline) of ``env`` on ``metric``, each (model, (mean, std, n)) or None."""
+    return (best_of(agg, env, metric, lambda m: m.startswith("phast-")),
+            best_of(agg, env, metric, lambda m: not m.startswith("phast-")))
+
+
 def metric_for(env: str) -> str:
     """The row metric: the paper table's key; falls back to ``benchmark_metric`` for envs without a paper row."""
     row = paper_row_for(env)
@@ -168,8 +174,7 @@ def markdown_tables(agg: dict[tuple[str, str], dict[str, Any]], title: str = "ph
               "|---|---|---|---|---|---|---|---|---|"]
     for env in envs:
         metric = env_metric(agg, env)
-        bp = best_of(agg, env, metric, lambda m: m.startswith("phast-"))
-        bb = best_of(agg, env, metric, lambda m: not m.startswith("phast-"))
+        bp, bb = best_sides(agg, env, metric)
         paper = paper_row_for(env)
         pp = paper.best("phast-") if paper else None
         gain = f"{bb[1][0] / bp[1][0]:.3g}×" if bp and bb and bp[1][0] > 0 else "—"
@@ -264,11 +269,8 @@ def floor_verdict(agg: dict[tuple[str, str], dict[str, Any]], env: str, slack: f
     """The N-body rule's numbers for ``env`` (see :func:`floor_rule`)."""
     from .floor import first_step_floor
 
-    def best(metric: str, phast: bool) -> tuple | None:
-        return best_of(agg, env, metric, lambda m: m.startswith("phast-") == phast)
-
-    return FloorVerdict(first_step_floor(env)["floor_mse"], best("mse", True), best("mse_after_burnin", True),
-                        best("mse", False), best("mse_after_burnin", False), slack)
+    (p90, b90), (pab, bab) = best_sides(agg, env, "mse"), best_sides(agg, env, "mse_after_burnin")
+    return FloorVerdict(first_step_floor(env)["floor_mse"], p90, pab, b90, bab, slack)
 
 
 def floor_rule(agg: dict[tuple[str, str], dict[str, Any]], envs: list[str], slack: float = 1.1) -> list[str]:
@@ -312,15 +314,14 @@ def acceptance_table(agg: dict[tuple[str, str], dict[str, Any]], envs: list[str]
     verdicts = []
     for env in envs:
         missing = [m for m in ALL_MODELS if len(agg.get((env, m), {}).get("seeds", [])) < n]
-        metric = env_metric(agg, env)
-        bp = best_of(agg, env, metric, lambda m: m.startswith("phast-"))
-        bb = best_of(agg, env, metric, lambda m: not m.startswith("phast-"))
-        paper = paper_row_for(env)
-        pp = paper.best("phast-") if paper is not None and paper.metric == metric else None
         if env in FLOOR_RULE_ENVS:
             v = floor_verdict(agg, env)
             beats, matches, bb = v.beats, v.within, v.base_eq90
         else:
+            metric = env_metric(agg, env)
+            bp, bb = best_sides(agg, env, metric)
+            paper = paper_row_for(env)
+            pp = paper.best("phast-") if paper is not None and paper.metric == metric else None
             beats = bool(bp and bb and bp[1][0] < bb[1][0])
             matches = bool(bp and pp and bp[1][0] <= pp[1])
         ok = not missing and beats and matches
