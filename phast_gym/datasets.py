@@ -120,7 +120,7 @@ def _load(path: Path, config: dict[str, Any]) -> Dataset:
                    actuated_dofs=tuple(meta["actuated_dofs"]), config=meta["config"], **arrays)
 
 
-def _check_noise(value: Any) -> float:
+def check_noise_std(value: Any) -> float:
     """``obs_noise_std`` as the env takes it: a real number >= 0 and finite, else ValueError (nothing generated or cached)."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise ValueError(f"obs_noise_std must be a real number >= 0, got {value!r}")
@@ -159,7 +159,7 @@ def make_dataset(
     """
     env_id = resolve_env_id(env_id)
     _check_request(n_traj, T, backend, env_kwargs)
-    noise = _check_noise(env_kwargs.get("obs_noise_std", 0.0))
+    noise = check_noise_std(env_kwargs.get("obs_noise_std", 0.0))
     system = make_env_system(env_id, **env_kwargs)
     actuated = parse_actuated_dofs(env_kwargs.get("actuated_dofs"), system.n)
     u_arr = _port_input(u, n_traj, T, len(actuated))

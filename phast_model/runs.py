@@ -16,7 +16,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from phast_gym.datasets import PortExcitation, _check_noise
+from phast_gym.datasets import PortExcitation, check_noise_std
 
 if TYPE_CHECKING:
     from .training import TrainConfig
@@ -72,7 +72,7 @@ class DataSpec:
 
     def __post_init__(self) -> None:
         check_split_sizes(self.n_train, self.n_val, self.n_test, self.T)
-        object.__setattr__(self, "obs_noise_std", _check_noise(self.obs_noise_std))
+        object.__setattr__(self, "obs_noise_std", check_noise_std(self.obs_noise_std))
 
     @property
     def excited(self) -> bool:
