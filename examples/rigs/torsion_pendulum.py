@@ -27,7 +27,7 @@ class TorsionPendulum(System):
         "inertia": Param(0.05, "moment of inertia about the pivot [kg m^2]"),
         "stiffness": Param(0.8, "torsion spring [N m / rad]", "nonnegative"),
         "friction": Param(0.01, "viscous bearing friction [N m s / rad]", "nonnegative"),
-        "gravity": Param(9.81, "gravitational acceleration [m/s^2]"),
+        "gravity": Param(9.81, "gravitational acceleration [m/s^2]", known=True),
     }
 
     def potential(self, q: Components, xp: Any = NUMPY) -> Any:

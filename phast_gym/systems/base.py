@@ -215,7 +215,9 @@ class Param:
     A parameter with ``choices`` is a string option (e.g. a coordinate convention) instead of a
     number; its value must be one of them.  ``extension`` marks a parameter that is not part of the
     benchmark envs' definition: while at its default it is left out of :meth:`System.key_params`, so the
-    dataset cache keys of the benchmark envs do not depend on it.
+    dataset cache keys of the benchmark envs do not depend on it.  ``known`` marks a constant of nature or a
+    value the user knows for certain (gravity): tools that calibrate a simulator (phast-mismatch) hold it fixed
+    unless the user frees it.
     """
 
     default: float | str | None
@@ -223,6 +225,7 @@ class Param:
     constraint: str = "positive"  # "positive", "nonnegative" or "any" (numbers only)
     choices: tuple[str, ...] = ()
     extension: bool = False
+    known: bool = False
 
     def __post_init__(self) -> None:
         if self.choices and self.default not in self.choices:

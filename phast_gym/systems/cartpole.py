@@ -32,7 +32,7 @@ class CartPole(System):
         "cart_mass": Param(1.0, "cart mass m_c [kg]"),
         "pole_mass": Param(1.0, "pole (bob) mass m_p [kg]"),
         "length": Param(1.0, "pole length l [m]"),
-        "gravity": Param(9.81, "gravitational acceleration g [m/s^2]"),
+        "gravity": Param(9.81, "gravitational acceleration g [m/s^2]", known=True),
         "d_cart": Param(0.3, "cart friction (diag variant)", "nonnegative"),
         "d0": Param(0.3, "base of the windy pole damping d0 + dd |sin theta|", "nonnegative"),
         "dd": Param(0.5, "amplitude of the windy pole damping", "nonnegative"),

@@ -42,7 +42,7 @@ class DoublePendulum(System):
         "mass2": Param(1.0, "mass of link 2 [kg]"),
         "length1": Param(1.0, "length of link 1, joint 1 to joint 2 [m]"),
         "length2": Param(1.0, "length of link 2 [m] (sets the default com2)"),
-        "gravity": Param(9.81, "gravitational acceleration [m/s^2]"),
+        "gravity": Param(9.81, "gravitational acceleration [m/s^2]", known=True),
         "b": Param(0.0, "viscous damping on both coordinate rates", "nonnegative"),
         "d0": Param(0.0, "base of the windy damping d0 + dd |sin q_i|", "nonnegative"),
         "dd": Param(0.0, "amplitude of the windy damping", "nonnegative"),

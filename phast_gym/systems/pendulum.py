@@ -27,7 +27,7 @@ class Pendulum(System):
     PARAMS = {
         "mass": Param(1.0, "bob mass m [kg]"),
         "length": Param(1.0, "rod length l [m]"),
-        "gravity": Param(9.81, "gravitational acceleration g [m/s^2]"),
+        "gravity": Param(9.81, "gravitational acceleration g [m/s^2]", known=True),
         "inertia": Param(None, "moment of inertia I about the pivot [kg m^2] (default m l^2)"),
         "gamma": Param(0.0, "constant viscous damping [N m s]", "nonnegative"),
         "d0": Param(0.0, "base of the windy damping d0 + dd |sin theta|", "nonnegative"),

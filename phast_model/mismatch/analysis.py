@@ -24,7 +24,7 @@ import numpy as np
 
 from phast_gym.systems.base import System
 
-from .calibrate import Calibration, calibrate, explained_share
+from .calibrate import Calibration, calibration, explained_share, screen_parameters
 from .candidates import candidates
 from .energy import energy_check
 from .evaluate import check_holdout_indices, check_holdout_range, held_out, split
@@ -33,7 +33,7 @@ from .options import Options, Progress
 from .problem import Problem, prepare
 from .recordings import Recordings, load_raw, validate
 from .report import Report, summary_text
-from .select import Selection, calibrated_rows, missing_rows, select_terms
+from .select import Selection, calibrated_rows, missing_rows, select
 from .shooting import ShootFit, _odd, time_scale
 from .simulators import Simulator, load_simulator
 from .systematic import SystematicContext, SystematicResult, systematic
@@ -44,10 +44,12 @@ __all__ = ["Options", "Report", "analyze"]
 
 def _options(options: Options | None, overrides: Mapping[str, Any]) -> Options:
     opts = options or Options()
-    for k, v in overrides.items():
-        if not hasattr(opts, k):
-            raise ValueError(f"unknown option {k!r}; valid: {sorted(Options.__dataclass_fields__)}")
-        setattr(opts, k, v)
+    bad = sorted(k for k in overrides if k not in Options.__dataclass_fields__)
+    if bad:
+        raise ValueError(f"unknown option(s) {bad}; valid: {sorted(Options.__dataclass_fields__)}")
+    opts = replace(opts, **overrides)
+    if isinstance(opts.free, str):
+        opts = replace(opts, free=(opts.free,))
     unknown = sorted(set(opts.terms or ()) - set(VOCABULARY))
     if unknown:
         raise ValueError(f"unknown term(s) {unknown}; the vocabulary is {sorted(VOCABULARY)}")
@@ -148,7 +150,8 @@ def _details(problem: Problem, cal: Calibration, sel: Selection, sysE: Systemati
             "n_windows_dropped_as_outliers": cal.n_dropped, "smoothing_window_samples": int(problem.sg),
             "coulomb_sign_smoothing": f"tanh(qdot/{problem.eps:.3g})", "threshold": opts.threshold,
             "chi2_per_dof": {"nominal": cal.fit_nominal.chi2_red, "calibrated": cal.fit.chi2_red, "augmented": final_fit.chi2_red},
-            "absorbed_candidates": sel.absorbed, "friction": sysE.info, "n_simulations": cal.shooter.n_sims,
+            "identifiability": cal.screen.identifiability.to_dict(), "held_out_check": sel.held_out,
+            "chi2_per_dof_every_pivot_fitted": cal.screen.fit_full.chi2_red, "friction": sysE.info, "n_simulations": cal.shooter.n_sims,
             "wall_time_s": problem.log.elapsed(), "calibrated_kwargs": dict(augmented.params)}
 
 
@@ -157,7 +160,8 @@ def _systematic(problem: Problem, cal: Calibration, sel: Selection, calibrated: 
     if not sel.fit.chi2_red > problem.opts.systematic_chi2:
         return SystematicResult({"used": False, "reason": f"shooting-augmented chi^2/dof {sel.fit.chi2_red:.3g} <= "
                                                           f"{problem.opts.systematic_chi2}: the shooting selection stands"})
-    return systematic(SystematicContext(problem, cal, sel.terms, sel.fit.chi2_red, calibrated))
+    params = list(cal.screen.identifiability.basis)
+    return systematic(SystematicContext(problem, cal, sel.terms, sel.fit.chi2_red, calibrated, params))
 
 
 def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mapping[str, Any] | Recordings,
@@ -186,15 +190,19 @@ def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mappin
     problem = prepare(simulator, sys0, train, opts, log)
     held = held_out(hold, evaluated_on, problem.sigma, problem.x_scale, problem.L, problem.sg, opts.rollout_window)
 
-    cal = calibrate(problem)
-    share = max(explained_share(cal.shooter, cal.fit_nominal), explained_share(cal.shooter, cal.fit))
-    if share < MIN_DESCRIBED:  # nothing to explain: no terms, no model-error regime
+    screen = screen_parameters(problem)
+    share = max(explained_share(screen.shooter, screen.fit_nominal), explained_share(screen.shooter, screen.fit_full))
+    if share < MIN_DESCRIBED:  # nothing to explain: no parameter change, no terms, no model-error regime
         problem = replace(problem, opts=replace(opts, max_terms=0, systematic_chi2=math.inf))
-    sel = select_terms(problem, cal, candidates(problem, cal.system))
-    calibrated, missing = calibrated_rows(problem, cal, sel), missing_rows(cal, sel)
+        screen = replace(screen, identifiability=replace(screen.identifiability, basis=(), independence=()))
+    sel = select(problem, screen, [*screen.candidates, *candidates(problem, problem.fam0.build(np.zeros(0)))])
+    cal = calibration(problem, screen, sel.params, sel.fit, len(sel.terms))
+    excess0 = cal.fit_nominal.cost - cal.fit_nominal.dof
+    calibrated, missing = calibrated_rows(problem, cal, sel), missing_rows(sel, excess0)
     models = {"nominal": problem.fam0.build(np.zeros(0)), "calibrated": cal.system, "augmented": sel.system}
     final_fit = sel.fit
     sysE = _systematic(problem, cal, sel, calibrated)
+    shooting_answer = (models["augmented"], final_fit, calibrated, missing)
     if sysE.replaces:
         models["augmented"], final_fit, calibrated, missing = sysE.system, sysE.fit, sysE.calibrated, sysE.missing
     if share < MIN_DESCRIBED:
@@ -204,6 +212,12 @@ def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mappin
 
     fitres, rollouts = held.fit_table({**models, **_compared(compare, sys0, simulator.name)})
     log(f"held-out: {fitres}")
+    if sysE.replaces and fitres["augmented"]["rollout_rmse"] >= fitres["calibrated"]["rollout_rmse"]:
+        # the weak-form answer (its parameters included) does not predict: it is not adopted, the shooting answer stands
+        sysE.info["not_adopted"] = (f"the weak-form answer does not improve the held-out prediction (rollout RMSE "
+                                    f"{fitres['augmented']['rollout_rmse']:.4g} >= calibrated {fitres['calibrated']['rollout_rmse']:.4g})")
+        models["augmented"], final_fit, calibrated, missing = shooting_answer
+        fitres, rollouts = held.fit_table({**models, **_compared(compare, sys0, simulator.name)})
     missing, unconfirmed = _confirmed(missing, fitres)
     if train.u is None and any(VOCABULARY[m["term"]][0] == "dissipation" for m in missing):  # a check, no fitting
         fitres["energy_check"] = {"model": "augmented", "training": energy_check(models["augmented"], train, problem.sg),

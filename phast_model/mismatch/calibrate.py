@@ -1,10 +1,15 @@
-"""Stage 1, calibrate: nominal window-state fit, outlier windows, identifiable parameters, calibrated fit.
+"""Stage 1: the nominal fit, and which combinations of the simulator's parameters the recordings determine.
 
-Every non-zero numeric parameter of the simulator is a candidate.  Its shooting
-column at the nominal fit (window states projected out) decides: taken in the
-system's order, mass-matrix parameters last; held at nominal when it does not
-move the fit beyond the noise (5% change), when it lies (85%) in the span of those
-already taken, or when it is visible only through the port u (an actuator gain).
+Every non-zero numeric parameter of the simulator is examined, except the known constants (``Param(known=True)``,
+gravity) that the user has not freed (``Options.free``).  Its shooting column at the nominal fit (window states
+projected out, log-relative change) is its sensitivity.  A rank-revealing QR factorisation with column pivoting of
+the unit-normalised columns gives the identifiable combinations (a rigid arm's base parameters): the pivot set is a
+full-rank set that spans them, and every other parameter's column is written in terms of the pivots (the change of
+that parameter the data cannot tell from a change of the pivots).
+
+Which parameters are *changed* is not decided here: every identifiable parameter is a candidate of the one selection
+of :mod:`.select`, where parameter changes and new terms compete (a parameter wins at equal evidence).
+:func:`calibration` then refits the chosen parameters alone: the report's "calibrated" model.
 """
 
 from __future__ import annotations
@@ -13,46 +18,93 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import scipy.linalg
 
-from phast_gym.systems.base import NUMPY
-
-from .candidates import Family, ScaledTerm
-from .linear import flat, rel_resid
+from .candidates import Family, ParamCandidate
+from .linear import flat
 from .problem import Problem
 from .shooting import Shooter, ShootFit
-from .simulators import Simulator
+from .simulators import known_params
 
 #: finite-difference step of a parameter column (log-relative)
 PARAM_STEP = 1e-3
+#: a pivot whose unit column keeps less than this share independent of the earlier pivots is not identifiable
+REL_TOL = 0.05
+#: a parameter is "determined" when a change of this size (relative) moves the fit by more than the noise
+VISIBLE_CHANGE = 0.05
+
+
+@dataclass(frozen=True)
+class Identifiability:
+    """Which parameter combinations the recordings fix (pivoted QR of the sensitivities at the nominal fit)."""
+
+    examined: tuple[str, ...]  # parameters with a visible column, in the system's order
+    basis: tuple[str, ...]  # pivots: a full-rank set spanning the identifiable combinations
+    independence: tuple[float, ...]  # |R_jj| of each pivot (share of its unit column independent of earlier pivots)
+    equivalents: dict[str, dict[str, float]]  # non-pivot parameter -> {pivot: d log pivot per d log parameter}
+
+    @property
+    def rank(self) -> int:
+        return len(self.basis)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"examined": list(self.examined), "rank": self.rank, "basis": list(self.basis),
+                "independence": dict(zip(self.basis, self.independence)),
+                "equivalents": {k: {p: round(v, 4) for p, v in e.items()} for k, e in self.equivalents.items()},
+                "method": "rank-revealing QR with column pivoting of the unit-normalised shooting sensitivities "
+                          "d q / d log(parameter) at the nominal fit (window states projected out)"}
+
+    def sentence(self, name: str) -> str | None:
+        """'a change of ``name`` acts like ...' for a parameter outside the basis, None otherwise."""
+        eq = {p: a for p, a in self.equivalents.get(name, {}).items() if abs(a) >= 0.02}
+        if not eq:
+            return None
+        parts = " ".join(f"{'+' if a >= 0 else '-'} {abs(a):.3g} x {p}" for p, a in eq.items()).lstrip("+ ")
+        return f"d log {name} acts on these recordings like {parts} (relative changes)"
 
 
 @dataclass
-class Calibration:
-    """Result of :func:`calibrate`."""
+class ParameterScreen:
+    """Result of :func:`screen_parameters`: the nominal fit and the parameter candidates of the selection."""
 
     shooter: Shooter  # on the windows kept after outlier rejection
     fit_nominal: ShootFit  # window states only, nominal parameters
     n_dropped: int  # windows the nominal model could not follow at all
-    selected: list[tuple[str, float]]  # fitted parameters (name, nominal value), in fit order
-    columns: np.ndarray  # (N, len(selected)) their projected columns at the nominal fit
-    notes: dict[str, str]  # parameters held at nominal, with the reason
-    family: Family  # the calibrated family (selected parameters, no terms)
-    fit: ShootFit  # the calibrated fit
+    candidates: list[ParamCandidate]  # identifiable parameters (every examined one; the selection keeps the parsimonious)
+    notes: dict[str, str]  # parameters not examined, with the reason
+    identifiability: Identifiability
+    fit_full: ShootFit  # every pivot fitted: the most a parameter change alone can do (for the explained share)
+    family_full: Family
+
+
+@dataclass
+class Calibration:
+    """The calibrated model: the parameters the selection changed, refitted without the terms."""
+
+    screen: ParameterScreen
+    selected: list[tuple[str, float]]  # changed parameters (name, nominal value), in fit order
+    family: Family
+    fit: ShootFit
+
+    @property
+    def shooter(self) -> Shooter:
+        return self.screen.shooter
+
+    @property
+    def fit_nominal(self) -> ShootFit:
+        return self.screen.fit_nominal
+
+    @property
+    def n_dropped(self) -> int:
+        return self.screen.n_dropped
+
+    @property
+    def notes(self) -> dict[str, str]:
+        return self.screen.notes
 
     @property
     def system(self) -> Any:
         return self.family.build(self.fit.g)
-
-
-def param_in_mass(sim: Simulator, kwargs: dict, name: str, q: np.ndarray) -> bool:
-    """Whether a 1% change of parameter ``name`` changes M(q) at the configurations ``q``."""
-    a = sim.build(**kwargs)
-    kw = dict(kwargs)
-    kw[name] = a.params[name] * 1.01
-    b = sim.build(**kw)
-    qc = tuple(q[:, i] for i in range(q.shape[1]))
-    Ma, Mb = a.mass_matrix(qc, NUMPY), b.mass_matrix(qc, NUMPY)
-    return any(not np.allclose(np.asarray(x), np.asarray(y)) for ra, rb in zip(Ma, Mb) for x, y in zip(ra, rb))
 
 
 def fit_nominal(problem: Problem) -> tuple[Shooter, ShootFit, int]:
@@ -70,68 +122,84 @@ def fit_nominal(problem: Problem) -> tuple[Shooter, ShootFit, int]:
     return shooter, fit, n_dropped
 
 
-def _parameter_columns(problem: Problem, shooter: Shooter, fitN: ShootFit,
-                       params: list[tuple[str, float]]) -> tuple[np.ndarray, np.ndarray | None]:
-    """Projected shooting columns of the parameters and of the actuator gains (where u acts) at the nominal fit."""
+def _parameter_columns(problem: Problem, shooter: Shooter, fitN: ShootFit, params: list[tuple[str, float]]) -> np.ndarray:
+    """(N, len(params)) projected shooting columns d r / d log(parameter) at the nominal fit."""
     fam0, h = problem.fam0, PARAM_STEP
-    if params:
-        builds = [lambda k=k, nom=nom: fam0.with_(params=[(k, nom)]).build(np.array([h])) for k, nom in params]
-        cols = shooter.columns(builds, fitN, fitN.r, [h] * len(params))
-    else:
-        cols = np.zeros(fitN.r.shape + (0,))
-    cols_p = flat(fitN.projected(cols)[1])
-    if not any(problem.has_u):
-        return cols_p, None
-    gains = [lambda i=i: fam0.with_(terms=[ScaledTerm("actuator_gain", i, 1.0)]).build(np.array([h]))
-             for i in range(problem.n) if problem.has_u[i]]
-    return cols_p, flat(fitN.projected(shooter.columns(gains, fitN, fitN.r, [h] * len(gains)))[1])
+    if not params:
+        return np.zeros((fitN.r.size, 0))
+    builds = [lambda k=k, nom=nom: fam0.with_(params=[(k, nom)]).build(np.array([h])) for k, nom in params]
+    return flat(fitN.projected(shooter.columns(builds, fitN, fitN.r, [h] * len(params)))[1])
 
 
-def _identifiable(problem: Problem, params: list[tuple[str, float]], cols: np.ndarray,
-                  port_cols: np.ndarray | None) -> tuple[list[tuple[str, float]], list[np.ndarray], dict[str, str]]:
-    """The parameters the recordings determine, their columns, and a note for each one held at nominal."""
-    selected: list[tuple[str, float]] = []
-    sel_cols: list[np.ndarray] = []
-    notes: dict[str, str] = {}
-    for j, (k, nom) in enumerate(params):
-        c = cols[:, j]
-        norm = float(np.linalg.norm(c))
-        if norm == 0.0:
-            notes[k] = "does not enter the dynamics of q (held at nominal)"
-            continue
-        if norm * 0.05 < 1.0:
-            notes[k] = "not determined by these recordings (a 5% change moves the fit by less than the noise)"
-            continue
-        basis = np.stack(sel_cols, 1) if sel_cols else None
-        rr = rel_resid(c, basis)
-        problem.log(f"param {k}: column norm {norm:.3g}, independent part {rr:.3g}")
-        if rr < 0.15:
-            notes[k] = f"enters only through a combination already fitted ({', '.join(s for s, _ in selected)}); held at nominal"
-            continue
-        if port_cols is not None:
-            pb = port_cols if basis is None else np.concatenate([basis, port_cols], 1)
-            if rel_resid(c, pb) < 0.15:
-                notes[k] = "visible only through the port u: a change is indistinguishable from an actuator_gain; held at nominal"
-                continue
-        selected.append((k, nom))
-        sel_cols.append(c)
-    return selected, sel_cols, notes
+def identifiability(names: list[str], cols: np.ndarray) -> Identifiability:
+    """Pivoted QR of the unit-normalised columns: the pivots above :data:`REL_TOL`, and every other parameter's
+    column in terms of them."""
+    if not names:
+        return Identifiability((), (), (), {})
+    norms = np.linalg.norm(cols, axis=0)
+    Q, R, piv = scipy.linalg.qr(cols / norms, mode="economic", pivoting=True)
+    d = np.abs(np.diag(R))
+    r = int(np.sum(d >= REL_TOL * max(d[0], 1e-300))) if d.size else 0
+    basis = [int(j) for j in piv[:r]]
+    equivalents: dict[str, dict[str, float]] = {}
+    if r:
+        R11 = R[:r, :r]
+        for m, j in enumerate(piv[r:], start=r):
+            a = scipy.linalg.solve_triangular(R11, R[:r, m])  # unit column j = sum_i a_i unit column basis_i
+            equivalents[names[j]] = {names[b]: float(a[i] * norms[j] / norms[b]) for i, b in enumerate(basis)}
+    order = sorted(basis)  # report the pivots in the system's order
+    indep = {b: float(d[i]) for i, b in enumerate(basis)}
+    return Identifiability(tuple(names), tuple(names[b] for b in order), tuple(indep[b] for b in order), equivalents)
 
 
-def calibrate(problem: Problem) -> Calibration:
-    """Fit the identifiable parameters of the nominal simulator by shooting."""
-    shooter, fitN, n_dropped = fit_nominal(problem)
+def _examined(problem: Problem, shooter: Shooter, fitN: ShootFit) -> tuple[list[tuple[str, float]], np.ndarray, dict[str, str]]:
+    """The free parameters whose change is visible in the recordings, their columns, and a note for every other one."""
+    known = known_params(problem.sys0) - set(problem.opts.free)
     params = [(k, v) for k, v in problem.sim.numeric_params(problem.sys0).items() if v != 0]
-    qsamp = problem.q_sample()
-    in_mass = {k: param_in_mass(problem.sim, problem.fam0.kwargs, k, qsamp) for k, _ in params}
-    params.sort(key=lambda kv: in_mass[kv[0]])  # stable: PARAMS order, mass-matrix parameters last
-    cols, port_cols = _parameter_columns(problem, shooter, fitN, params)
-    selected, sel_cols, notes = _identifiable(problem, params, cols, port_cols)
-    famC = problem.fam0.with_(params=selected)
-    fitC = shooter.fit(famC.build, fitN.X, np.zeros(len(selected)), max_iter=problem.opts.max_iter)
-    problem.log(f"calibrated {[k for k, _ in selected]}: chi2/dof = {fitC.chi2_red:.3g} ({fitC.iterations} it)")
-    columns = np.stack(sel_cols, 1) if sel_cols else np.zeros((cols.shape[0], 0))
-    return Calibration(shooter, fitN, n_dropped, selected, columns, notes, famC, fitC)
+    notes = {k: f"a known constant (held fixed; free it with --free {k} if it is not)" for k, _ in params if k in known}
+    params = [(k, v) for k, v in params if k not in known]
+    cols = _parameter_columns(problem, shooter, fitN, params)
+    keep = []
+    for j, (k, _) in enumerate(params):
+        norm = float(np.linalg.norm(cols[:, j]))
+        if norm == 0.0 or not np.isfinite(norm):
+            notes[k] = "does not enter the dynamics of q (held at nominal)"
+        elif norm * VISIBLE_CHANGE < 1.0:
+            notes[k] = f"not determined by these recordings (a {VISIBLE_CHANGE:.0%} change moves the fit by less than the noise)"
+        else:
+            keep.append(j)
+    return [params[j] for j in keep], cols[:, keep], notes
+
+
+def screen_parameters(problem: Problem) -> ParameterScreen:
+    """Nominal fit, parameter sensitivities, identifiable combinations, and the fit with every pivot free."""
+    shooter, fitN, n_dropped = fit_nominal(problem)
+    params, cols, notes = _examined(problem, shooter, fitN)
+    ident = identifiability([k for k, _ in params], cols)
+    problem.log(f"identifiable: rank {ident.rank} of {len(params)} examined parameters; basis {list(ident.basis)}")
+    nominal = dict(params)
+    for k in ident.equivalents:
+        if (s := ident.sentence(k)) is not None:
+            problem.log(f"  {s}")
+    famF = problem.fam0.with_(params=[(k, nominal[k]) for k in ident.basis])
+    fitF = shooter.fit(famF.build, fitN.X, np.zeros(ident.rank), max_iter=problem.opts.max_iter) if ident.rank else fitN
+    problem.log(f"every pivot fitted: chi2/dof = {fitF.chi2_red:.3g}")
+    cands = [ParamCandidate(k, v, PARAM_STEP) for k, v in params]
+    return ParameterScreen(shooter, fitN, n_dropped, cands, notes, ident, fitF, famF)
+
+
+def calibration(problem: Problem, screen: ParameterScreen, selected: list[tuple[str, float]], start: ShootFit,
+                n_terms: int) -> Calibration:
+    """The chosen parameters refitted without the ``n_terms`` terms of the selection's fit ``start`` (which is the
+    answer itself when there are none)."""
+    fam = problem.fam0.with_(params=list(selected))
+    if not selected:
+        return Calibration(screen, [], fam, screen.fit_nominal)
+    if n_terms == 0:
+        return Calibration(screen, list(selected), fam, start)
+    fit = screen.shooter.fit(fam.build, start.X, start.g[: len(selected)], max_iter=problem.opts.max_iter)
+    problem.log(f"calibrated {[k for k, _ in selected]}: chi2/dof = {fit.chi2_red:.3g} ({fit.iterations} it)")
+    return Calibration(screen, list(selected), fam, fit)
 
 
 def explained_share(shooter: Shooter, fit: ShootFit) -> float:
@@ -146,3 +214,4 @@ def explained_share(shooter: Shooter, fit: ShootFit) -> float:
     line = (A @ coef).reshape(len(t), q.shape[0], q.shape[2]).transpose(1, 0, 2)
     cost_line = float(np.sum(((q - line) / shooter.sigma) ** 2))
     return 1.0 - fit.cost / max(cost_line, 1e-300)
+

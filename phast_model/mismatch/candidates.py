@@ -89,6 +89,56 @@ class Candidate:
     def with_velocity(self, velocity: float) -> Candidate:
         return replace(self, velocity=velocity)
 
+    @property
+    def is_param(self) -> bool:
+        return False
+
+    def add_to(self, fam: Family, g: np.ndarray, z: float) -> tuple[Family, np.ndarray]:
+        """``fam`` and its global vector ``g`` with this term appended at scaled coefficient ``z``."""
+        return fam.plus(self), np.append(g, z)
+
+
+@dataclass(frozen=True)
+class ParamCandidate:
+    """A change of one of the simulator's own parameters, as a candidate of the same selection as the terms:
+    value = nominal * exp(z)."""
+
+    name: str
+    nominal: float
+    fd_step: float
+
+    @property
+    def key(self) -> tuple[str, int]:
+        return ("param:" + self.name, -1)
+
+    @property
+    def label(self) -> str:
+        return f"param {self.name}"
+
+    @property
+    def is_param(self) -> bool:
+        return True
+
+    @property
+    def must_be_positive(self) -> bool:
+        return False
+
+    @property
+    def vocabulary_rank(self) -> int:
+        return -1  # listed before every term: a parameter change wins at equal evidence
+
+    @property
+    def term(self) -> str:
+        return "param:" + self.name
+
+    def coefficient(self, z: float) -> float:
+        return self.nominal * math.exp(float(z))
+
+    def add_to(self, fam: Family, g: np.ndarray, z: float) -> tuple[Family, np.ndarray]:
+        """``fam`` with this parameter appended to its parameters, and ``g`` with ``z`` inserted after theirs."""
+        P = len(fam.params)
+        return fam.with_(params=fam.params + [(self.name, self.nominal)]), np.insert(np.asarray(g, float), P, z)
+
 
 @dataclass
 class Family:

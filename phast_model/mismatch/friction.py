@@ -847,6 +847,14 @@ def _choose(scores: list[CandidateScore], opts: LawSelectionOptions) -> tuple[Ca
     """The eligible law with the fewest parameters not significantly worse than the best; and the rule in words."""
     sig_ok = [s for s in scores if s.passive and (s.every_ci_excludes_zero or not opts.require_significant)]
     ok = [s for s in sig_ok if s.curve_agreement >= opts.min_agreement] or sig_ok or [s for s in scores if s.passive] or scores
+    scored = [s for s in ok if math.isfinite(s.mean)]
+    if not scored:  # e.g. a few short recordings: no fold could score any law
+        for s in scores:
+            s.not_worse = False
+        pick = min(ok, key=lambda s: s.n_params)
+        return pick, ("not enough data to decide: no candidate law could be scored on left-out recordings, so the one with "
+                      "the fewest parameters is kept")
+    ok = scored
     best = min(ok, key=lambda s: s.mean)
     for s in scores:  # paired standard error of the fold-wise difference to the best candidate
         d = np.asarray(s.fold_scores) - np.asarray(best.fold_scores)
@@ -854,7 +862,7 @@ def _choose(scores: list[CandidateScore], opts: LawSelectionOptions) -> tuple[Ca
     # not significantly worse than the best: one-sided paired t-test at 5% over the folds
     t_margin = float(student_t.ppf(0.95, max(len(best.fold_scores) - 1, 1)))
     for s in ok:
-        s.not_worse = s.mean - best.mean <= t_margin * s.diff_se
+        s.not_worse = s is best or s.mean - best.mean <= t_margin * s.diff_se
     pick = min([s for s in ok if s.not_worse], key=lambda s: (s.n_params, s.mean))
     sig_txt = (f", every coefficient |t| >= {opts.min_t:g} (95% interval excludes zero) and its rms force >= {opts.min_share:g} "
                "of the rms total friction force" if opts.require_significant else "")

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 Z95 = 1.959964
 
 
-@dataclass
+@dataclass(frozen=True)
 class Options:
     """Tuning knobs of :func:`analyze` (defaults are derived from the data when None)."""
 
@@ -28,6 +28,8 @@ class Options:
     # shooting chi^2/dof above this: the misfit is model error, not noise (a right model leaves ~1), and shooting gains
     # are no evidence; parameters, armature and the friction law then come from the weak form (systematic.py)
     systematic_chi2: float = 3.0
+    # parameters the user frees although the simulator declares them known (Param(known=True), e.g. gravity)
+    free: tuple[str, ...] = ()
 
 
 @dataclass

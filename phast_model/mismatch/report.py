@@ -120,7 +120,7 @@ def summary_text(name: str, calibrated: dict, missing: list[dict], located: list
         parts += _alternative_sentences(missing)
     elif chi2_calibrated < 1.5 and not verdicts:
         parts.append("No missing physics: the calibrated simulator agrees with the recordings within the noise.")
-    if located and chi2_augmented >= 1.5 and not verdicts:
+    if located and chi2_augmented >= 1.5 and not any("does not describe" in v for v in verdicts):
         loc = located[0]
         parts.append(f"Unexplained residual, located at coordinate {loc['coordinate']} ({loc['component']}), where {loc['where']}, "
                      f"{loc['when']}; no term of the vocabulary explains it.")

@@ -1,14 +1,19 @@
-"""Stage 2, explain: which candidate terms the recordings need (greedy forward selection by shooting).
+"""Stage 2, explain: one selection for parameter changes and new terms (greedy forward selection by shooting).
 
-Each round ranks the remaining candidates by the chi^2 gain of the linearized
-shooting problem (window states and current globals projected out; friction
-coefficients must come out positive), in the first round also at the nominal
-point (calibrated parameters may have absorbed part of a missing term), and
-confirms the best few by nonlinear refits.  A term is added when its chi^2 gain
-exceeds threshold^2 and |z| / std >= threshold; gains within 2 of each other
-prefer the term listed first in the vocabulary.  Earlier terms must stay
-significant once later ones are in; a chosen Stribeck term's velocity is refined
-by profiling the refit cost in quarter octaves.
+The pool holds every identifiable parameter of the simulator (:mod:`.calibrate`) and every candidate term.  Each
+round ranks the pool by the chi^2 gain of the linearized shooting problem (window states and the current globals
+projected out; friction coefficients must come out positive) and confirms the best few by nonlinear refits.  An item
+is added when its chi^2 gain exceeds threshold^2 and |z| / std >= threshold.  **At equal evidence a parameter change
+wins** (gains within :data:`EQUAL_EVIDENCE` of each other): a term is a discovery only when no change of the
+simulator's own parameters explains as much.  The one exception is an actuator gain, which is a uniform rescaling of
+the coordinate's dynamics: a parameter that does the same is that gain in disguise.  Between terms, gains within 2 prefer the term listed first in the
+vocabulary.
+
+Then every chosen item must predict recordings left out of its fit (:func:`_held_out_check`, two folds of the
+training recordings, the linearized problem at the final fit): an item whose removal does not make the left-out
+prediction worse is dropped; a sensor or port term needs a left-out gain of threshold^2 (local evidence), so a
+term never enters as compensation.  Earlier items must stay significant once later ones are in; a chosen Stribeck
+term's velocity is refined by profiling the refit cost in quarter octaves.
 """
 
 from __future__ import annotations
@@ -19,8 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from .calibrate import Calibration
-from .candidates import Candidate, Family
+from .calibrate import Calibration, ParameterScreen
+from .candidates import Candidate, Family, ParamCandidate
 from .linear import flat, orth_against
 from .options import Z95
 from .problem import Problem
@@ -29,25 +34,44 @@ from .terms import VOCABULARY
 
 #: refit iterations while confirming a shortlisted candidate (the winner is finished with Options.max_iter)
 CONFIRM_ITER = 6
+#: gains within this share of each other are equal evidence (a parameter change then wins over a term)
+EQUAL_EVIDENCE = 0.05
+#: components whose terms need local evidence (a left-out gain of threshold^2) to be adopted
+LOCAL_EVIDENCE = ("sensor", "port")
+
+AnyCandidate = Candidate | ParamCandidate
+
+
+def _component(cand: AnyCandidate) -> str:
+    return "parameter" if cand.is_param else VOCABULARY[cand.term][0]
 
 
 @dataclass
 class Selection:
-    """Result of :func:`select_terms`."""
+    """Result of :func:`select`: the chosen parameter changes and terms, fitted together."""
 
-    candidates: list[Candidate]  # as screened (a chosen Stribeck term carries its refined velocity)
-    usable: list[int]  # indices of candidates not absorbed by the calibrated parameters
-    columns: np.ndarray  # (N, len(candidates)) their shooting columns at the calibrated fit, parameters projected out
-    absorbed: dict[str, str]  # label -> why the candidate was not screened
-    chosen: list[int]  # indices of the selected terms, in fit order
+    candidates: list[AnyCandidate]  # as screened (a chosen Stribeck term carries its refined velocity)
+    usable: list[int]  # indices of candidates with a usable column
+    columns: np.ndarray  # (N, len(candidates)) their shooting columns at the nominal fit
+    chosen: list[int]  # indices of the selected items, in g order (parameters first, then terms)
     gains: dict[int, float]  # chi^2 drop when each was added
     family: Family
     fit: ShootFit
     cov: np.ndarray | None  # covariance of fit.g (None when nothing was chosen)
+    held_out: list[dict[str, Any]] = field(default_factory=list)  # the left-out check of every item examined
+
+    @property
+    def params(self) -> list[tuple[str, float]]:
+        """The changed parameters (name, nominal), in g order."""
+        return [(c.name, c.nominal) for c in (self.candidates[k] for k in self.chosen) if isinstance(c, ParamCandidate)]
 
     @property
     def terms(self) -> list[Candidate]:
-        return [self.candidates[k] for k in self.chosen]
+        return [c for c in (self.candidates[k] for k in self.chosen) if isinstance(c, Candidate)]
+
+    @property
+    def term_indices(self) -> list[int]:
+        return [k for k in self.chosen if not self.candidates[k].is_param]
 
     @property
     def system(self) -> Any:
@@ -56,26 +80,48 @@ class Selection:
 
 @dataclass
 class _Search:
-    """Shared state of one selection: the problem, the calibration and the (mutable) current model."""
+    """Shared state of one selection: the problem, the parameter screen and the (mutable) current model."""
 
     problem: Problem
-    cal: Calibration
-    cands: list[Candidate]
+    screen: ParameterScreen
+    cands: list[AnyCandidate]
     fit: ShootFit
     fam: Family
     cov: np.ndarray | None = None
-    chosen: list[int] = field(default_factory=list)
+    chosen: list[int] = field(default_factory=list)  # in g order: parameters, then terms
     gains: dict[int, float] = field(default_factory=dict)
+    raw: dict[int, np.ndarray] = field(default_factory=dict)  # unprojected columns of the last :meth:`columns` call
 
     @property
-    def P0(self) -> int:
-        return len(self.cal.selected)
+    def thr2(self) -> float:
+        return self.problem.opts.threshold ** 2
+
+    def pos(self, k: int) -> int:
+        return self.chosen.index(k)
+
+    def add(self, k: int, fam: Family, g: np.ndarray, z: float) -> tuple[Family, np.ndarray, list[int]]:
+        """Family, globals and g-ordered chosen list with candidate k added at ``z``."""
+        fam2, g2 = self.cands[k].add_to(fam, g, z)
+        n_par = sum(self.cands[j].is_param for j in self.chosen)
+        order = list(self.chosen)
+        order.insert(n_par if self.cands[k].is_param else len(order), k)
+        return fam2, g2, order
+
+    def family_of(self, order: list[int]) -> Family:
+        params = [(c.name, c.nominal) for c in (self.cands[k] for k in order) if isinstance(c, ParamCandidate)]
+        terms = [c.family_term for c in (self.cands[k] for k in order) if isinstance(c, Candidate)]
+        return self.problem.fam0.with_(params=params, terms=terms)
 
     def columns(self, fit: ShootFit, fam: Family, ks: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Residual and candidate columns at ``fit`` with window states and current globals projected out."""
-        zc = fit.g
-        builds = [(lambda c=self.cands[k]: fam.plus(c).build(np.concatenate([zc, [c.fd_step]]))) for k in ks]
-        cols = self.cal.shooter.columns(builds, fit, fit.r, [self.cands[k].fd_step for k in ks])
+        """Residual and candidate columns at ``fit`` with window states and current globals projected out; the raw
+        columns are kept in :attr:`raw` (for the window-state part of a linear step)."""
+        def build(k: int) -> Any:
+            fam2, g2 = self.cands[k].add_to(fam, fit.g, self.cands[k].fd_step)
+            return fam2.build(g2)
+
+        builds = [(lambda k=k: build(k)) for k in ks]
+        cols = self.screen.shooter.columns(builds, fit, fit.r, [self.cands[k].fd_step for k in ks])
+        self.raw = {k: cols[..., j] for j, k in enumerate(ks)}
         r_p, cols_p = fit.projected(cols)
         _, jg_p = fit.projected()
         G = flat(jg_p) if fit.g.size else None
@@ -85,50 +131,42 @@ class _Search:
             r_p = r_p - G @ np.linalg.lstsq(G, r_p, rcond=None)[0]
         return r_p, cols_p, orth_against(cols_p, G)
 
-    def term_ok(self, fit: ShootFit, cov: np.ndarray, j: int, k: int) -> bool:
-        """Term j of ``fit`` (candidate k) is significant (|z| / std >= threshold) and of the passive sign."""
+    def state_step(self, k: int, z: float) -> np.ndarray:
+        """Window states after the linear step that adds candidate k at ``z`` (each window's state re-fitted to the
+        change its column predicts): a start close to the new optimum when the change is large."""
+        fit, col = self.fit, self.raw.get(k)
+        if col is None:
+            return fit.X
+        JX = fit.JX
+        A = np.einsum("wla,wlb->wab", JX, JX) + 1e-12 * np.eye(JX.shape[2])
+        b = np.einsum("wla,wl->wa", JX, fit.r + col * z)
+        return fit.X - np.linalg.solve(A, b[..., None])[..., 0]
+
+    def item_ok(self, fit: ShootFit, cov: np.ndarray, order: list[int], k: int) -> bool:
+        """Item k of ``fit`` is significant (|z| / std >= threshold) and of the passive sign."""
+        j = order.index(k)
         cand = self.cands[k]
-        z, sd = fit.g[self.P0 + j], math.sqrt(max(cov[self.P0 + j, self.P0 + j], 1e-300))
+        z, sd = fit.g[j], math.sqrt(max(cov[j, j], 1e-300))
         wrong_sign = cand.must_be_positive and cand.coefficient(z) <= 0
         return abs(z) / sd >= self.problem.opts.threshold and not wrong_sign
 
+    def counts(self) -> tuple[int, int]:
+        n_par = sum(self.cands[k].is_param for k in self.chosen)
+        return n_par, len(self.chosen) - n_par
 
-def _screen(s: _Search) -> tuple[np.ndarray, np.ndarray, list[int], dict[str, str]]:
-    """Columns of all candidates at the calibrated fit; those the calibrated parameters absorb are set aside."""
-    r, cols, cols_o = s.columns(s.cal.fit, s.cal.family, list(range(len(s.cands))))
-    absorbed, usable = {}, []
-    for k, cand in enumerate(s.cands):
-        n0 = float(np.linalg.norm(cols[:, k]))
-        if n0 == 0 or not np.all(np.isfinite(cols[:, k])):
-            continue
-        if float(np.linalg.norm(cols_o[:, k])) / n0 < 0.05:
-            absorbed[cand.label] = f"indistinguishable from the calibrated parameter(s) {[p for p, _ in s.cal.selected]}"
-            continue
-        usable.append(k)
-    return r, cols_o, usable, absorbed
+    def room(self, k: int) -> bool:
+        """Parameters up to the identifiable rank, terms up to Options.max_terms."""
+        n_par, n_term = self.counts()
+        if self.cands[k].is_param:
+            return n_par < self.screen.identifiability.rank
+        return n_term < self.problem.opts.max_terms
 
 
-def _nominal_rank(s: _Search, usable: list[int]) -> tuple[list[int], dict[int, np.ndarray]]:
-    """The two best candidates ranked at the nominal point, with joint linear starts (parameters and the term)."""
-    cal = s.cal
-    if not cal.selected or not usable:
-        return [], {}
-    fitN = cal.fit_nominal
-    zN = np.zeros(len(cal.selected))
-    builds = [(lambda c=s.cands[k]: cal.family.plus(c).build(np.concatenate([zN, [c.fd_step]]))) for k in usable]
-    colsN = flat(fitN.projected(cal.shooter.columns(builds, fitN, fitN.r, [s.cands[k].fd_step for k in usable]))[1])
-    rN = flat(fitN.projected(np.zeros(fitN.r.shape + (1,)))[0]).reshape(-1)
-    Pm = cal.columns
-    rN0 = rN - Pm @ np.linalg.lstsq(Pm, rN, rcond=None)[0]
-    colsNo = orth_against(colsN, Pm)
-    gains, start = [], {}
-    for j, k in enumerate(usable):
-        cc = float(colsNo[:, j] @ colsNo[:, j])
-        if cc <= 0:
-            continue
-        gains.append((float(colsNo[:, j] @ rN0) ** 2 / cc, k))
-        start[k] = np.linalg.lstsq(np.concatenate([Pm, colsN[:, [j]]], 1), -rN, rcond=None)[0]
-    return [k for _, k in sorted(gains, reverse=True)[:2]], start
+def _screen(s: _Search) -> tuple[np.ndarray, np.ndarray, list[int]]:
+    """Columns of all candidates at the nominal fit (those without a finite, non-zero column are not usable)."""
+    r, cols, _ = s.columns(s.fit, s.fam, list(range(len(s.cands))))
+    usable = [k for k in range(len(s.cands)) if np.all(np.isfinite(cols[:, k])) and float(np.linalg.norm(cols[:, k])) > 0]
+    return r, cols, usable
 
 
 def _rank(s: _Search, pool: list[int], r_o: np.ndarray, cols_o: np.ndarray, col_of: dict[int, int],
@@ -138,7 +176,7 @@ def _rank(s: _Search, pool: list[int], r_o: np.ndarray, cols_o: np.ndarray, col_
     for k in pool:
         c = cols_o[:, col_of[k]]
         cc = float(c @ c)
-        if cc <= 0:
+        if cc <= 0 or not s.room(k):
             continue
         z = -float(c @ r_o) / cc
         if s.cands[k].must_be_positive and z <= 0:
@@ -150,88 +188,183 @@ def _rank(s: _Search, pool: list[int], r_o: np.ndarray, cols_o: np.ndarray, col_
     return ranked
 
 
-def _confirm(s: _Search, shortlist: list[tuple[int, np.ndarray, np.ndarray]], s2: float) -> tuple | None:
-    """Nonlinear refit with each shortlisted candidate: the best passing one as (gain, k, fit, family, cov), or None."""
-    shooter, thr2, best = s.cal.shooter, s.problem.opts.threshold**2, None
-    for k, g0, X_start in shortlist:
+def _shortlist(ranked: list[tuple[float, int, float]], thr2: float, s: _Search) -> list[tuple[int, float]]:
+    """The two best, plus the best parameter and the best term (so the equal-evidence rule can act)."""
+    out = [(k, z) for g, k, z in ranked[:2] if g >= thr2]
+    for want_param in (True, False):
+        best = next(((k, z) for g, k, z in ranked if g >= thr2 and s.cands[k].is_param == want_param), None)
+        if best is not None and best[0] not in [k for k, _ in out]:
+            out.append(best)
+    return out
+
+
+def _is_port_gain(cand: AnyCandidate) -> bool:
+    """An actuator gain: the one term that is a uniform rescaling of a coordinate's whole dynamics against u.  A
+    parameter change with the same effect (e.g. a pendulum's mass, which scales m g l and m l^2 together) is that
+    rescaling in disguise, so at equal evidence the port gain is reported and the parameter listed as equivalent."""
+    return not cand.is_param and cand.term == "actuator_gain"
+
+
+def _better(s: _Search, gain: float, k: int, best: tuple | None) -> bool:
+    """Whether candidate k with ``gain`` beats the best so far: a parameter at equal evidence wins over a term."""
+    if best is None:
+        return True
+    b_gain, b_k = best[0], best[1]
+    new, old = s.cands[k], s.cands[b_k]
+    margin = max(2.0, EQUAL_EVIDENCE * max(gain, b_gain))
+    if new.is_param != old.is_param:
+        param_wins = not _is_port_gain(old if new.is_param else new)
+        if new.is_param == param_wins:
+            return gain >= b_gain - margin
+        return gain > b_gain + margin
+    return gain > b_gain + 2.0 or (gain >= b_gain - 2.0 and new.vocabulary_rank < old.vocabulary_rank)
+
+
+def _confirm(s: _Search, shortlist: list[tuple[int, float]], s2: float) -> tuple | None:
+    """Nonlinear refit with each shortlisted candidate: the best passing one as (gain, k, fit, family, cov, order)."""
+    shooter, best = s.screen.shooter, None
+    for k, z0 in shortlist:
         cand = s.cands[k]
-        fam_new = s.fam.plus(cand)
+        fam_new, g0, order = s.add(k, s.fam, s.fit.g, z0)
+        X0 = s.state_step(k, z0)
         if cand.term == "actuator_deadzone":  # threshold: start from the best of a coarse grid (zero slope at c = 0)
+            j = order.index(k)
             grid = np.linspace(0.1, 1.5, 15)
-            costs = [float(np.sum(shooter.residual(fam_new.build(np.concatenate([g0[:-1], [zz]])), X_start) ** 2)) for zz in grid]
-            g0 = np.concatenate([g0[:-1], [grid[int(np.argmin(costs))]]])
-        fit_new = shooter.fit(fam_new.build, X_start, g0, max_iter=CONFIRM_ITER)
+            costs = [float(np.sum(shooter.residual(fam_new.build(np.concatenate([g0[:j], [zz], g0[j + 1:]])), X0) ** 2))
+                     for zz in grid]
+            g0[j] = grid[int(np.argmin(costs))]
+        fit_new = shooter.fit(fam_new.build, X0, g0, max_iter=CONFIRM_ITER)
         cov_new = fit_new.covariance()
         gain = (s.fit.cost - fit_new.cost) / s2
-        ok = s.term_ok(fit_new, cov_new, len(s.chosen), k) and gain >= thr2
+        ok = s.item_ok(fit_new, cov_new, order, k) and gain >= s.thr2
         if s.problem.opts.progress:
-            j = s.P0 + len(s.chosen)
+            j = order.index(k)
             zz, sd = fit_new.g[j], math.sqrt(max(cov_new[j, j], 1e-300))
-            s.problem.log(f"  refit with {cand.label}: chi^2 gain {gain:.3g}, coefficient "
+            s.problem.log(f"  refit with {cand.label}: chi^2 gain {gain:.3g}, value "
                           f"{cand.coefficient(zz):.4g}, |t| = {abs(zz) / sd:.3g}{'' if ok else ' (rejected)'}")
-        # statistically indistinguishable gains (chi^2 within 2): prefer the term listed first in the vocabulary
-        if ok and (best is None or gain > best[0] + 2.0
-                   or (gain >= best[0] - 2.0 and cand.vocabulary_rank < s.cands[best[1]].vocabulary_rank)):
-            best = (gain, k, fit_new, fam_new, cov_new)
+        if ok and _better(s, gain, k, best):
+            best = (gain, k, fit_new, fam_new, cov_new, order)
     return best
 
 
 def _forward(s: _Search, r_o: np.ndarray, cols_o: np.ndarray, usable: list[int]) -> None:
     """Greedy forward selection: rank on the linearized problem, confirm the best few by nonlinear refits."""
-    opts, thr2 = s.problem.opts, s.problem.opts.threshold**2
-    nominal_rank, nominal_start = _nominal_rank(s, usable)
+    opts = s.problem.opts
     pool = list(usable)
     col_of = {k: j for j, k in enumerate(pool)}
-    while len(s.chosen) < opts.max_terms and pool:
-        s2 = s.fit.cost / s.fit.dof
+    while pool:
+        s2 = max(s.fit.cost / s.fit.dof, 1e-300)
         ranked = _rank(s, pool, r_o, cols_o, col_of, s2)
-        shortlist = [(k, np.concatenate([s.fit.g, [z]]), s.fit.X) for g, k, z in ranked[:2] if g >= thr2]
-        if not s.chosen:
-            shortlist += [(k, nominal_start[k], s.cal.fit_nominal.X) for k in nominal_rank
-                          if k not in [kk for kk, _, _ in shortlist] and k in col_of]
+        shortlist = _shortlist(ranked, s.thr2, s)
         best = _confirm(s, shortlist, s2) if shortlist else None
         if best is None:
             break
-        _, k, fit_new, fam_new, cov_new = best
+        _, k, fit_new, fam_new, cov_new, order = best
         if fit_new.iterations >= CONFIRM_ITER:  # finish the winner's refit
-            fit_new = s.cal.shooter.fit(fam_new.build, fit_new.X, fit_new.g, max_iter=opts.max_iter)
+            fit_new = s.screen.shooter.fit(fam_new.build, fit_new.X, fit_new.g, max_iter=opts.max_iter)
             cov_new = fit_new.covariance()
         s.gains[k] = s.fit.cost - fit_new.cost
-        s.chosen.append(k)
-        s.fit, s.fam, s.cov = fit_new, fam_new, cov_new
+        s.chosen, s.fit, s.fam, s.cov = order, fit_new, fam_new, cov_new
         s.problem.log(f"added {s.cands[k].label}: chi2/dof = {s.fit.chi2_red:.3g} ({s.fit.iterations} it)")
-        rest = [kk for kk in pool if kk not in s.chosen]
-        if len(s.chosen) < opts.max_terms and rest:
-            r_o, cols_o, _ = s.columns(s.fit, s.fam, rest)
-            col_of = {kk: j for j, kk in enumerate(rest)}
-        pool = rest
+        pool = [kk for kk in pool if kk not in s.chosen and s.cands[kk].key != s.cands[k].key]
+        if pool:
+            r_o, cols_o, _ = s.columns(s.fit, s.fam, pool)
+            col_of = {kk: j for j, kk in enumerate(pool)}
+
+
+def _refit(s: _Search, keep: list[int]) -> None:
+    """Refit with the chosen items ``keep`` only (the others set to no effect)."""
+    g0 = np.array([s.fit.g[s.pos(k)] for k in keep])
+    s.chosen = list(keep)
+    s.fam = s.family_of(s.chosen)
+    s.fit = s.screen.shooter.fit(s.fam.build, s.fit.X, g0, max_iter=s.problem.opts.max_iter)
+    s.cov = s.fit.covariance() if s.chosen else None
 
 
 def _prune(s: _Search) -> None:
-    """Earlier terms must stay significant once later ones are in."""
-    if len(s.chosen) <= 1:
+    """Earlier items must stay significant once later ones are in."""
+    if len(s.chosen) <= 1 or s.cov is None:
         return
-    keep_idx = [j for j, k in enumerate(s.chosen) if s.term_ok(s.fit, s.cov, j, k)]
-    if len(keep_idx) == len(s.chosen):
-        return
-    s.chosen = [s.chosen[j] for j in keep_idx]
-    s.fam = s.cal.family.with_(terms=[s.cands[k].family_term for k in s.chosen])
-    g0 = np.concatenate([s.fit.g[: s.P0], s.fit.g[s.P0:][keep_idx]])
-    s.fit = s.cal.shooter.fit(s.fam.build, s.fit.X, g0, max_iter=s.problem.opts.max_iter)
-    s.cov = s.fit.covariance()
+    keep = [k for k in s.chosen if s.item_ok(s.fit, s.cov, s.chosen, k)]
+    if len(keep) < len(s.chosen):
+        _refit(s, keep)
+
+
+def _folds(s: _Search) -> tuple[np.ndarray, str] | None:
+    """Two folds of the windows: alternate training recordings, else the first and second half of the one recording."""
+    w = s.screen.shooter.w
+    trajs = np.unique(w.traj)
+    if len(trajs) >= 2:
+        rank = np.searchsorted(trajs, w.traj)
+        return rank % 2, f"two folds of the training recordings ({len(trajs)} recordings, alternating)"
+    if w.count >= 4:
+        return (w.start >= np.median(w.start)).astype(int), "two halves in time of the one training recording"
+    return None
+
+
+def _left_out_gains(s: _Search) -> tuple[dict[int, float], str] | None:
+    """Per chosen item: how much worse the left-out folds are predicted without it (chi^2 units, linearized problem:
+    every global refitted on one fold, window states of the other fold refitted, and back)."""
+    folds = _folds(s)
+    if folds is None or not s.chosen:
+        return None
+    fold, txt = folds
+    r_p, J_p = s.fit.projected()
+    s2 = max(s.fit.chi2_red, 1.0)
+    P = len(s.chosen)
+    gains = dict.fromkeys(s.chosen, 0.0)
+    for f in (0, 1):
+        A, B = fold != f, fold == f
+        rA, JA, rB, JB = flat(r_p[A]).reshape(-1), flat(J_p[A]), flat(r_p[B]).reshape(-1), flat(J_p[B])
+        d_all = np.linalg.lstsq(JA, -rA, rcond=None)[0]
+        with_all = float(np.sum((rB + JB @ d_all) ** 2))
+        for j, k in enumerate(s.chosen):
+            rest = [i for i in range(P) if i != j]
+            dj = -s.fit.g[j]  # back to "no effect" (z = 0: nominal value, or the term's default)
+            rA_j = rA + JA[:, j] * dj
+            d = np.linalg.lstsq(JA[:, rest], -rA_j, rcond=None)[0] if rest else np.zeros(0)
+            without = float(np.sum((rB + JB[:, j] * dj + JB[:, rest] @ d) ** 2))
+            gains[k] += (without - with_all) / s2
+    return gains, txt
+
+
+def _held_out_check(s: _Search) -> list[dict[str, Any]]:
+    """Drop, one at a time, the item that predicts the left-out fold least (sensor / port terms need threshold^2)."""
+    table: list[dict[str, Any]] = []
+    while s.chosen:
+        res = _left_out_gains(s)
+        if res is None:
+            for k in s.chosen:
+                table.append({"item": s.cands[k].label, "left_out_gain": None, "kept": True,
+                              "note": "not enough recordings to leave any out"})
+            return table
+        gains, txt = res
+        need = {k: s.thr2 if _component(s.cands[k]) in LOCAL_EVIDENCE else 0.0 for k in s.chosen}
+        worst = min(s.chosen, key=lambda k: gains[k] - need[k])
+        if gains[worst] > need[worst]:
+            table += [{"item": s.cands[k].label, "left_out_gain": gains[k], "required": need[k], "kept": True, "folds": txt}
+                      for k in s.chosen]
+            return table
+        table.append({"item": s.cands[worst].label, "left_out_gain": gains[worst], "required": need[worst], "kept": False,
+                      "folds": txt})
+        s.problem.log(f"dropped {s.cands[worst].label}: left-out chi^2 gain {gains[worst]:.3g} <= {need[worst]:.3g}")
+        _refit(s, [k for k in s.chosen if k != worst])
+    return table
 
 
 def _refine_stribeck(s: _Search) -> None:
     """A chosen Stribeck term: its velocity v_s around the grid value (profile of the refit cost, quarter octaves)."""
-    for j, k in enumerate(s.chosen):
-        if s.cands[k].term != "stribeck_friction":
+    for k in s.chosen:
+        cand = s.cands[k]
+        if not isinstance(cand, Candidate) or cand.term != "stribeck_friction":
             continue
         for step in (2**0.5, 2**0.25, 2**0.125):
             best = (s.fit.cost, s.cands[k], s.fit, s.fam)
             for f in (1 / step, step):
-                c_new = s.cands[k].with_velocity(s.cands[k].velocity * f)
-                fam_v = s.fam.with_(terms=[c_new.family_term if jj == j else t for jj, t in enumerate(s.fam.terms)])
-                fit_v = s.cal.shooter.fit(fam_v.build, s.fit.X, s.fit.g, max_iter=CONFIRM_ITER)
+                c_new = s.cands[k].with_velocity(s.cands[k].velocity * f)  # type: ignore[union-attr]
+                trial = [c_new if kk == k else s.cands[kk] for kk in range(len(s.cands))]
+                fam_v = _Search(s.problem, s.screen, trial, s.fit, s.fam).family_of(s.chosen)
+                fit_v = s.screen.shooter.fit(fam_v.build, s.fit.X, s.fit.g, max_iter=CONFIRM_ITER)
                 if fit_v.cost < best[0]:
                     best = (fit_v.cost, c_new, fit_v, fam_v)
             _, s.cands[k], s.fit, s.fam = best
@@ -239,37 +372,55 @@ def _refine_stribeck(s: _Search) -> None:
         s.problem.log(f"Stribeck velocity refined: {s.cands[k].label}, chi2/dof = {s.fit.chi2_red:.3g}")
 
 
-def select_terms(problem: Problem, cal: Calibration, cands: list[Candidate]) -> Selection:
-    """Screen ``cands`` at the calibrated fit, select terms greedily, prune, refine Stribeck velocities."""
-    s = _Search(problem, cal, list(cands), cal.fit, cal.family)
-    r, cols_o, usable, absorbed = _screen(s)
-    _forward(s, r, cols_o, usable)
+def select(problem: Problem, screen: ParameterScreen, cands: list[AnyCandidate]) -> Selection:
+    """Parameter changes and terms in one forward selection from the nominal fit; prune, check on left-out
+    recordings, refine Stribeck velocities."""
+    s = _Search(problem, screen, list(cands), screen.fit_nominal, problem.fam0)
+    r, cols, usable = _screen(s)
+    _forward(s, r, cols, usable)
     _prune(s)
+    held_out = _held_out_check(s)
     _refine_stribeck(s)
-    problem.log(f"augmented with {[s.cands[k].label for k in s.chosen]}: chi2/dof = {s.fit.chi2_red:.3g}")
-    return Selection(s.cands, usable, cols_o, absorbed, s.chosen, s.gains, s.fam, s.fit, s.cov)
+    problem.log(f"selected {[s.cands[k].label for k in s.chosen]}: chi2/dof = {s.fit.chi2_red:.3g}")
+    return Selection(s.cands, usable, cols, s.chosen, s.gains, s.fam, s.fit, s.cov, held_out)
 
 
 # --------------------------------------------------------------------------- report rows
 def calibrated_rows(problem: Problem, cal: Calibration, sel: Selection) -> dict[str, dict[str, Any]]:
-    """report.sim.calibrated: fitted parameters with 95% intervals (from the augmented fit when terms were added),
-    then the parameters held at nominal with the reason."""
-    covC = cal.fit.covariance()
-    g_src, cov_src = (sel.fit.g, sel.cov) if sel.chosen and sel.cov is not None else (cal.fit.g, covC)
+    """report.sim.calibrated: changed parameters with 95% intervals (from the augmented fit when terms were added) and
+    the combination the data fixed, then every other parameter held at nominal with the reason."""
+    ident = cal.screen.identifiability
+    if sel.chosen and sel.cov is not None:
+        g_src, cov_src = sel.fit.g, sel.cov
+    else:
+        g_src, cov_src = cal.fit.g, cal.fit.covariance()
     out: dict[str, dict[str, Any]] = {}
+    changed = [k for k, _ in cal.selected]
     for j, (k, nom) in enumerate(cal.selected):
         z, sd = g_src[j], math.sqrt(max(cov_src[j, j], 0.0))
-        out[k] = {"nominal": nom, "fitted": nom * math.exp(z), "ci95": [nom * math.exp(z - Z95 * sd), nom * math.exp(z + Z95 * sd)],
-                  "relative_change": math.exp(z) - 1.0}
+        row: dict[str, Any] = {"nominal": nom, "fitted": nom * math.exp(z),
+                               "ci95": [nom * math.exp(z - Z95 * sd), nom * math.exp(z + Z95 * sd)],
+                               "relative_change": math.exp(z) - 1.0}
+        same = [p for p, eq in ident.equivalents.items() if abs(eq.get(k, 0.0)) >= 0.5 and p not in changed]
+        if same:
+            row["equivalent_changes"] = ("the recordings fix a combination: the same fit follows from changes of "
+                                         + ", ".join(f"{p} ({ident.sentence(p)})" for p in same))
+        out[k] = row
     for k, note in cal.notes.items():
         out.setdefault(k, {"nominal": problem.sys0.params[k], "fitted": problem.sys0.params[k], "ci95": None, "note": note})
+    for k in ident.examined:
+        if k not in out:
+            note = "identifiable, but no change of it was needed (held at nominal)"
+            if (s := ident.sentence(k)) is not None:
+                note = f"held at nominal: {s}"
+            out[k] = {"nominal": problem.sys0.params[k], "fitted": problem.sys0.params[k], "ci95": None, "note": note}
     return out
 
 
-def _alternatives(cal: Calibration, sel: Selection, k: int, z: float, c: float) -> list[dict[str, Any]]:
-    """Candidates with (>= 97% cosine) the same signature as candidate k, and parameters equivalent to an actuator gain."""
+def _alternatives(sel: Selection, k: int, z: float) -> list[dict[str, Any]]:
+    """Candidates with (>= 97% cosine) the same signature as candidate k (parameters included)."""
     cands, cols = sel.candidates, sel.columns
-    alts = []
+    alts: list[dict[str, Any]] = []
     ck = cols[:, k]
     for kk in sel.usable:
         if kk == k or cands[kk].key == cands[k].key:  # (the same term at another Stribeck velocity)
@@ -278,31 +429,31 @@ def _alternatives(cal: Calibration, sel: Selection, k: int, z: float, c: float) 
         cos = float(ck @ ca) / (np.linalg.norm(ck) * np.linalg.norm(ca) + 1e-300)
         if abs(cos) > 0.97:
             za = z * float(ca @ ck) / float(ca @ ca)
-            alts.append({"term": cands[kk].term, "coordinate": cands[kk].coordinate, "coefficient": cands[kk].coefficient(za),
-                         "similarity": round(abs(cos), 4)})
-    if cands[k].term == "actuator_gain":
-        for p, note in cal.notes.items():
-            if "actuator_gain" in note:
-                alts.append({"parameter": p, "note": f"a {p} change is exactly equivalent with u (scale {p} by about {1.0 / c:.4g})"})
+            cand = cands[kk]
+            if isinstance(cand, ParamCandidate):
+                alts.append({"parameter": cand.name, "value": cand.coefficient(za), "similarity": round(abs(cos), 4),
+                             "note": "a parameter change with the same effect on these recordings"})
+            else:
+                alts.append({"term": cand.term, "coordinate": cand.coordinate, "coefficient": cand.coefficient(za),
+                             "similarity": round(abs(cos), 4)})
     return alts
 
 
-def missing_rows(cal: Calibration, sel: Selection) -> list[dict[str, Any]]:
+def missing_rows(sel: Selection, excess0: float) -> list[dict[str, Any]]:
     """report.missing_physics: each selected term with its coefficient, 95% interval, share of the excess chi^2 it
-    explains and its non-identifiable alternatives."""
-    P0 = len(cal.selected)
-    excess0 = max(cal.fit.cost - cal.fit.dof, 1e-300)
+    explains (``excess0``: excess chi^2 of the nominal fit) and its non-identifiable alternatives."""
     out = []
-    for j, k in enumerate(sel.chosen):
+    for k in sel.term_indices:
+        j = sel.chosen.index(k)
         cand = sel.candidates[k]
-        z = sel.fit.g[P0 + j]
-        sd = math.sqrt(max(sel.cov[P0 + j, P0 + j], 0.0))
+        assert isinstance(cand, Candidate)
+        z = sel.fit.g[j]
+        sd = math.sqrt(max(sel.cov[j, j], 0.0)) if sel.cov is not None else 0.0
         lo, hi = sorted([cand.coefficient(z - Z95 * sd), cand.coefficient(z + Z95 * sd)])
         term = cand.family_term.at(z)
         out.append({"term": cand.term, "coordinate": cand.coordinate, "component": VOCABULARY[cand.term][0],
                     "coefficient": term.coefficient, "ci95": [lo, hi],
                     **({"stribeck_velocity": term.velocity} if cand.term == "stribeck_friction" else {}),
-                    "expression": term.expression(), "explains": float(min(1.0, sel.gains.get(k, 0.0) / excess0)),
-                    "alternatives": _alternatives(cal, sel, k, z, term.coefficient)})
+                    "expression": term.expression(), "explains": float(min(1.0, sel.gains.get(k, 0.0) / max(excess0, 1e-300))),
+                    "alternatives": _alternatives(sel, k, z)})
     return out
-

@@ -53,6 +53,17 @@ class Simulator:
         return out
 
 
+#: parameter names held fixed as known constants even when a user's rig does not flag them (Param(known=True))
+KNOWN_NAMES = ("gravity", "g")
+
+
+def known_params(system: System) -> set[str]:
+    """Parameters of ``system`` that calibration holds fixed unless freed: flagged ``Param(known=True)``, or named like
+    a constant of nature (:data:`KNOWN_NAMES`)."""
+    specs = getattr(type(system), "PARAMS", {})
+    return {k for k in system.params if k in KNOWN_NAMES or (k in specs and getattr(specs[k], "known", False))}
+
+
 def _load_class(spec: str) -> type:
     """``module.path:Class`` or ``path/to/file.py:Class`` -> the class object."""
     target, _, cls_name = spec.rpartition(":")

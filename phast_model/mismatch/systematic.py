@@ -53,6 +53,7 @@ class SystematicContext:
     chosen: list[Candidate]  # the shooting selection (reported, not adopted)
     chi2_aug: float  # chi^2/dof of the shooting-augmented model
     calibrated: dict[str, dict[str, Any]]  # report rows of the shooting answer (parameters the weak form does not fit)
+    params: list[str]  # the parameters the weak form may calibrate (a full-rank set spanning the identifiable ones)
 
 
 @dataclass
@@ -110,7 +111,7 @@ def _weak_model(ctx: SystematicContext, window: int) -> WeakModel:
     problem = ctx.problem
     vocab = problem.opts.terms or tuple(VOCABULARY)
     arm = [i for i in range(problem.n) if problem.has_u[i]] if "armature" in vocab else []
-    return WeakModel(problem.sim, {}, [k for k, _ in ctx.cal.selected], [], arm, problem.eps, problem.fam0.deadzone_width, window)
+    return WeakModel(problem.sim, {}, list(ctx.params), [], arm, problem.eps, problem.fam0.deadzone_width, window)
 
 
 def _calibrated_rows(ctx: SystematicContext, fit: WeakFit, held: list[str], no_signal: list[str]) -> dict[str, dict[str, Any]]:
@@ -175,6 +176,6 @@ def systematic(ctx: SystematicContext) -> SystematicResult:
             "armature_absorbed_by_parameters": [int(k.split(":")[1]) for k in final.no_signal if k.startswith("armature:")],
             "curve": curve.to_dict(), "law_vs_curve": check_against_curve(final.law, curve),
             "chi2_per_dof_augmented": fit.chi2_red}
-    held_params = [k for k, _ in ctx.cal.selected if k not in pcheck.kept and k not in pcheck.no_signal]
+    held_params = [k for k in ctx.params if k not in pcheck.kept and k not in pcheck.no_signal]
     rows = _calibrated_rows(ctx, final, held_params, pcheck.no_signal)
     return SystematicResult(info, augmented, fit, rows, missing, curve, {f"chosen: {law.name}": final.law})
