@@ -5,6 +5,9 @@
 
 --out must be a new or empty directory, or a previous phast-mismatch report (which is replaced); anything else is
 refused, so the tool never deletes files it did not write.
+
+Exit status: 0 with a report; 2 for bad input (the message names the problem); 1 when the tool itself fails on valid
+input (a bug: the traceback is written to ``error.log`` in the report directory, please report it).
 """
 
 from __future__ import annotations
@@ -33,6 +36,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="held-out open-loop window in seconds (default: each held-out trajectory whole)")
     p.add_argument("--systematic-chi2", type=float, default=3.0,
                    help="shooting chi^2/dof above which model error dominates: parameters, armature and friction law from the weak form")
+    p.add_argument("--free", default="", help="comma-separated parameters to calibrate although the simulator declares them "
+                                               "known (Param(known=True), e.g. gravity): --free gravity")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     return p
@@ -70,6 +75,26 @@ def check_args(args: argparse.Namespace) -> None:
         raise ValueError(f"--systematic-chi2 must be a positive number, got {args.systematic_chi2}")
 
 
+def write_error_log(out_dir: str) -> str:
+    """The current exception's traceback in ``out_dir/error.log`` (atomically; beside the report files, never over
+    anything else), or in the working directory when ``out_dir`` cannot take it.  Returns its path."""
+    import traceback
+    from pathlib import Path
+
+    from phast_gym.fileio import atomic_write_text
+
+    text = traceback.format_exc()
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        path = out / "error.log"
+        atomic_write_text(path, text)
+    except OSError:
+        path = Path("phast-mismatch-error.log").absolute()
+        atomic_write_text(path, text)
+    return str(path)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     from phast_model.mismatch import Options, analyze
@@ -88,13 +113,19 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError("--sim-kwargs must be a JSON object, e.g. '{\"length\": 0.9}'")
         opts = Options(threshold=args.threshold, max_terms=args.max_terms, shoot_window=args.shoot_window,
                        smoothing_window=args.smoothing_window, progress=not args.quiet, rollout_window=args.rollout_window,
-                       systematic_chi2=args.systematic_chi2)
+                       systematic_chi2=args.systematic_chi2,
+                       free=tuple(x.strip() for x in args.free.split(",") if x.strip()))
         report = analyze(args.sim, args.recordings, sim_kwargs=kwargs, holdout_fraction=args.holdout_fraction, options=opts,
                          holdout_trajectories=holdout)
         out = report.write(args.out, plots=not args.no_plots)
     except ValueError as exc:
         print(f"phast-mismatch: error: {exc}", file=sys.stderr)
         return 2
+    except Exception as exc:  # noqa: BLE001 - an internal failure: exit 1 with the traceback kept for the bug report
+        log = write_error_log(args.out)
+        print(f"phast-mismatch: internal error: {type(exc).__name__}: {exc}\n(a bug, not a problem with the input; "
+              f"traceback in {log})", file=sys.stderr)
+        return 1
     print(report.summary)
     print(f"report written to {out}/report.json")
     return 0

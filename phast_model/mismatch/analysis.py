@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +27,7 @@ from phast_gym.systems.base import System
 from .calibrate import Calibration, calibration, explained_share, screen_parameters
 from .candidates import candidates
 from .energy import energy_check
-from .evaluate import check_holdout_indices, check_holdout_range, held_out, split
+from .evaluate import HeldOut, check_holdout_indices, check_holdout_range, held_out, split
 from .locate import locate
 from .options import Options, Progress
 from .problem import Problem, prepare
@@ -39,7 +39,7 @@ from .simulators import Simulator, load_simulator
 from .systematic import SystematicContext, SystematicResult, systematic
 from .terms import VOCABULARY
 
-__all__ = ["Options", "Report", "analyze"]
+__all__ = ["InternalError", "Options", "Report", "analyze"]
 
 
 def _options(options: Options | None, overrides: Mapping[str, Any]) -> Options:
@@ -150,7 +150,7 @@ def _details(problem: Problem, cal: Calibration, sel: Selection, sysE: Systemati
             "n_windows_dropped_as_outliers": cal.n_dropped, "smoothing_window_samples": int(problem.sg),
             "coulomb_sign_smoothing": f"tanh(qdot/{problem.eps:.3g})", "threshold": opts.threshold,
             "chi2_per_dof": {"nominal": cal.fit_nominal.chi2_red, "calibrated": cal.fit.chi2_red, "augmented": final_fit.chi2_red},
-            "identifiability": cal.screen.identifiability.to_dict(), "held_out_check": sel.held_out,
+            "identifiability": cal.screen.identifiability.to_dict(), "held_out_check": sel.held_out, "port_gain_swap": sel.port_gain_swap,
             "chi2_per_dof_every_pivot_fitted": cal.screen.fit_full.chi2_red, "friction": sysE.info, "n_simulations": cal.shooter.n_sims,
             "wall_time_s": problem.log.elapsed(), "calibrated_kwargs": dict(augmented.params)}
 
@@ -189,6 +189,42 @@ def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mappin
     log(f"{simulator.name}: {rec.n_traj} recordings x {rec.T} samples, dt={rec.dt}")
     problem = prepare(simulator, sys0, train, opts, log)
     held = held_out(hold, evaluated_on, problem.sigma, problem.x_scale, problem.L, problem.sg, opts.rollout_window)
+    check_free(opts.free, simulator.numeric_params(sys0))
+    comparison = _compared(compare, sys0, simulator.name)
+    inputs = _Inputs(simulator, given, dec, train, hold, held, comparison)
+    try:
+        return _explain(problem, inputs)
+    except ValueError as exc:  # the input was checked above: anything raised now is the tool's own failure
+        raise InternalError(f"internal failure of the analysis: {type(exc).__name__}: {exc}") from exc
+
+
+def check_free(free: Sequence[str], numeric: Mapping[str, float]) -> None:
+    """``Options.free`` names numeric parameters of the simulator (a typo must not silently free nothing)."""
+    bad = sorted(set(free) - set(numeric))
+    if bad:
+        raise ValueError(f"--free {bad}: not a numeric parameter of the simulator; its parameters are {sorted(numeric)}")
+
+
+class InternalError(RuntimeError):
+    """A failure of the tool itself on valid input (a bug: the CLI exits 1 and writes the traceback)."""
+
+
+@dataclass(frozen=True)
+class _Inputs:
+    """The checked inputs of one analysis (besides the fitting problem)."""
+
+    simulator: Simulator
+    given: Recordings  # as loaded, before decimation
+    dec: int
+    train: Recordings
+    hold: Recordings
+    held: HeldOut
+    compare: dict[str, System]
+
+
+def _explain(problem: Problem, inputs: _Inputs) -> Report:
+    """Parameters and terms (one selection), the model-error regime, the held-out fit, the residual map, the report."""
+    opts, log, simulator, train, hold, held = problem.opts, problem.log, inputs.simulator, inputs.train, inputs.hold, inputs.held
 
     screen = screen_parameters(problem)
     share = max(explained_share(screen.shooter, screen.fit_nominal), explained_share(screen.shooter, screen.fit_full))
@@ -210,14 +246,14 @@ def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mappin
                           "note": "not calibrated: the simulator does not describe these recordings"} for k, v in calibrated.items()}
         models["calibrated"] = models["augmented"] = models["nominal"]
 
-    fitres, rollouts = held.fit_table({**models, **_compared(compare, sys0, simulator.name)})
+    fitres, rollouts = held.fit_table({**models, **inputs.compare})
     log(f"held-out: {fitres}")
     if sysE.replaces and fitres["augmented"]["rollout_rmse"] >= fitres["calibrated"]["rollout_rmse"]:
         # the weak-form answer (its parameters included) does not predict: it is not adopted, the shooting answer stands
         sysE.info["not_adopted"] = (f"the weak-form answer does not improve the held-out prediction (rollout RMSE "
                                     f"{fitres['augmented']['rollout_rmse']:.4g} >= calibrated {fitres['calibrated']['rollout_rmse']:.4g})")
         models["augmented"], final_fit, calibrated, missing = shooting_answer
-        fitres, rollouts = held.fit_table({**models, **_compared(compare, sys0, simulator.name)})
+        fitres, rollouts = held.fit_table({**models, **inputs.compare})
     missing, unconfirmed = _confirmed(missing, fitres)
     if train.u is None and any(VOCABULARY[m["term"]][0] == "dissipation" for m in missing):  # a check, no fitting
         fitres["energy_check"] = {"model": "augmented", "training": energy_check(models["augmented"], train, problem.sg),
@@ -231,7 +267,7 @@ def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mappin
         located = []
     return Report(
         sim={"env_id": simulator.name, "kwargs": dict(simulator.kwargs), "calibrated": calibrated},
-        data=_data(given, dec, problem.sigma_raw),
+        data=_data(inputs.given, inputs.dec, problem.sigma_raw),
         located=located, missing_physics=missing, fit=fitres, summary=summary,
         details={**_details(problem, cal, sel, sysE, final_fit, models["augmented"]), "explained_share": share,
                  "unconfirmed_terms": unconfirmed},

@@ -34,7 +34,7 @@ PLOTS = ("residual_map.png", "heldout_fit.png", "decay.png")
 #: written when the report carries a friction curve
 CURVE_PLOT = "friction_curve.png"
 #: every file a report directory holds (nothing else may be there for it to be replaced)
-REPORT_FILES = ("report.json", "report.md", "report.html") + PLOTS + (CURVE_PLOT,)
+REPORT_FILES = ("report.json", "report.md", "report.html") + PLOTS + (CURVE_PLOT, "error.log")
 PLOTS_PREFIX = "Plots: "
 _MODELS = (("nominal", ":"), ("calibrated", "--"), ("augmented", "-"))
 
@@ -394,6 +394,8 @@ def is_report_dir(path: Path) -> bool:
     entries = list(path.iterdir())
     if not all(p.name in REPORT_FILES and p.is_file() and not p.is_symlink() for p in entries):
         return False
+    if [p.name for p in entries] == ["error.log"]:  # what a failed run left: its traceback only
+        return True
     if not (path / "report.json").is_file():
         return False
     try:

@@ -5,8 +5,11 @@ round ranks the pool by the chi^2 gain of the linearized shooting problem (windo
 projected out; friction coefficients must come out positive) and confirms the best few by nonlinear refits.  An item
 is added when its chi^2 gain exceeds threshold^2 and |z| / std >= threshold.  **At equal evidence a parameter change
 wins** (gains within :data:`EQUAL_EVIDENCE` of each other): a term is a discovery only when no change of the
-simulator's own parameters explains as much.  The one exception is an actuator gain, which is a uniform rescaling of
-the coordinate's dynamics: a parameter that does the same is that gain in disguise.  Between terms, gains within 2 prefer the term listed first in the
+simulator's own parameters explains as much; a term's screening gain is what it explains beyond every parameter
+change still open.  When the chosen parameter changes together act exactly like an actuator gain (a uniform
+rescaling of a coordinate's dynamics against u, e.g. a pendulum's mass scaling m g l and m l^2 alike), the gain is
+reported and the parameters kept (:func:`_port_gain_equivalent`): a datasheet error does not scale a whole
+coordinate.  Between terms, gains within 2 prefer the term listed first in the
 vocabulary.
 
 Then every chosen item must predict recordings left out of its fit (:func:`_held_out_check`, two folds of the
@@ -59,6 +62,7 @@ class Selection:
     fit: ShootFit
     cov: np.ndarray | None  # covariance of fit.g (None when nothing was chosen)
     held_out: list[dict[str, Any]] = field(default_factory=list)  # the left-out check of every item examined
+    port_gain_swap: dict[str, Any] | None = None  # parameter changes reported as the equivalent actuator gain
 
     @property
     def params(self) -> list[tuple[str, float]]:
@@ -91,6 +95,7 @@ class _Search:
     chosen: list[int] = field(default_factory=list)  # in g order: parameters, then terms
     gains: dict[int, float] = field(default_factory=dict)
     raw: dict[int, np.ndarray] = field(default_factory=dict)  # unprojected columns of the last :meth:`columns` call
+    swapped: set[int] = field(default_factory=set)  # parameters reported as their equivalent port gain
 
     @property
     def thr2(self) -> float:
@@ -171,17 +176,25 @@ def _screen(s: _Search) -> tuple[np.ndarray, np.ndarray, list[int]]:
 
 def _rank(s: _Search, pool: list[int], r_o: np.ndarray, cols_o: np.ndarray, col_of: dict[int, int],
           s2: float) -> list[tuple[float, int, float]]:
-    """(chi^2 gain, candidate, linear z) of each candidate of ``pool``, best first."""
+    """(chi^2 gain, candidate, linear z) of each candidate of ``pool``, best first.  A term's gain is what it explains
+    beyond every parameter change still open (its column and the residual with the open parameters' columns projected
+    out): a term that a parameter change could replace gains nothing."""
+    params = [col_of[k] for k in pool if s.cands[k].is_param]
+    P = cols_o[:, params] if params else None
+    r_t = orth_against(r_o[:, None], P)[:, 0]
+    cols_t = orth_against(cols_o, P)
     ranked = []
     for k in pool:
-        c = cols_o[:, col_of[k]]
+        is_param = s.cands[k].is_param
+        c = (cols_o if is_param else cols_t)[:, col_of[k]]
+        r = r_o if is_param else r_t
         cc = float(c @ c)
-        if cc <= 0 or not s.room(k):
+        if cc <= 1e-12 * float(cols_o[:, col_of[k]] @ cols_o[:, col_of[k]]) or not s.room(k):
             continue
-        z = -float(c @ r_o) / cc
-        if s.cands[k].must_be_positive and z <= 0:
+        z = -float(cols_o[:, col_of[k]] @ r_o) / float(cols_o[:, col_of[k]] @ cols_o[:, col_of[k]])
+        if s.cands[k].must_be_positive and -float(c @ r) <= 0:
             continue  # a friction coefficient must be positive (passivity)
-        ranked.append((float(c @ r_o) ** 2 / cc / s2, k, z))
+        ranked.append((float(c @ r) ** 2 / cc / s2, k, z))
     ranked.sort(reverse=True)
     if s.problem.opts.progress:
         s.problem.log("screening gains (chi^2): " + ", ".join(f"{s.cands[k].label} {g:.3g}" for g, k, _ in ranked[:6]))
@@ -198,13 +211,6 @@ def _shortlist(ranked: list[tuple[float, int, float]], thr2: float, s: _Search) 
     return out
 
 
-def _is_port_gain(cand: AnyCandidate) -> bool:
-    """An actuator gain: the one term that is a uniform rescaling of a coordinate's whole dynamics against u.  A
-    parameter change with the same effect (e.g. a pendulum's mass, which scales m g l and m l^2 together) is that
-    rescaling in disguise, so at equal evidence the port gain is reported and the parameter listed as equivalent."""
-    return not cand.is_param and cand.term == "actuator_gain"
-
-
 def _better(s: _Search, gain: float, k: int, best: tuple | None) -> bool:
     """Whether candidate k with ``gain`` beats the best so far: a parameter at equal evidence wins over a term."""
     if best is None:
@@ -213,10 +219,7 @@ def _better(s: _Search, gain: float, k: int, best: tuple | None) -> bool:
     new, old = s.cands[k], s.cands[b_k]
     margin = max(2.0, EQUAL_EVIDENCE * max(gain, b_gain))
     if new.is_param != old.is_param:
-        param_wins = not _is_port_gain(old if new.is_param else new)
-        if new.is_param == param_wins:
-            return gain >= b_gain - margin
-        return gain > b_gain + margin
+        return gain >= b_gain - margin if new.is_param else gain > b_gain + margin
     return gain > b_gain + 2.0 or (gain >= b_gain - 2.0 and new.vocabulary_rank < old.vocabulary_rank)
 
 
@@ -302,30 +305,73 @@ def _folds(s: _Search) -> tuple[np.ndarray, str] | None:
     return None
 
 
+def _open_parameter_columns(s: _Search) -> np.ndarray | None:
+    """(W, L*n, E) projected columns, at the current fit, of the examined parameters not chosen (None when none)."""
+    extra = [k for k, c in enumerate(s.cands) if c.is_param and k not in s.chosen and k not in s.swapped]
+    if not extra:
+        return None
+    _, cols_p, _ = s.columns(s.fit, s.fam, extra)
+    return cols_p.reshape(s.fit.r.shape + (len(extra),))
+
+
 def _left_out_gains(s: _Search) -> tuple[dict[int, float], str] | None:
     """Per chosen item: how much worse the left-out folds are predicted without it (chi^2 units, linearized problem:
-    every global refitted on one fold, window states of the other fold refitted, and back)."""
+    every global refitted on one fold, window states of the other fold refitted, and back).  A sensor or port term is
+    compared with every parameter change open (it must predict what no parameter change can: local evidence)."""
     folds = _folds(s)
     if folds is None or not s.chosen:
         return None
     fold, txt = folds
     r_p, J_p = s.fit.projected()
+    local = [k for k in s.chosen if _component(s.cands[k]) in LOCAL_EVIDENCE]
+    open_cols = _open_parameter_columns(s) if local else None
     s2 = max(s.fit.chi2_red, 1.0)
-    P = len(s.chosen)
     gains = dict.fromkeys(s.chosen, 0.0)
     for f in (0, 1):
         A, B = fold != f, fold == f
-        rA, JA, rB, JB = flat(r_p[A]).reshape(-1), flat(J_p[A]), flat(r_p[B]).reshape(-1), flat(J_p[B])
-        d_all = np.linalg.lstsq(JA, -rA, rcond=None)[0]
-        with_all = float(np.sum((rB + JB @ d_all) ** 2))
+        rA, rB = flat(r_p[A]).reshape(-1), flat(r_p[B]).reshape(-1)
         for j, k in enumerate(s.chosen):
-            rest = [i for i in range(P) if i != j]
+            J = J_p if open_cols is None or k not in local else np.concatenate([J_p, open_cols], axis=-1)
+            JA, JB = flat(J[A]), flat(J[B])
+            with_all = float(np.sum((rB + JB @ np.linalg.lstsq(JA, -rA, rcond=None)[0]) ** 2))
+            rest = [i for i in range(J.shape[-1]) if i != j]
             dj = -s.fit.g[j]  # back to "no effect" (z = 0: nominal value, or the term's default)
-            rA_j = rA + JA[:, j] * dj
-            d = np.linalg.lstsq(JA[:, rest], -rA_j, rcond=None)[0] if rest else np.zeros(0)
+            d = np.linalg.lstsq(JA[:, rest], -(rA + JA[:, j] * dj), rcond=None)[0] if rest else np.zeros(0)
             without = float(np.sum((rB + JB[:, j] * dj + JB[:, rest] @ d) ** 2))
             gains[k] += (without - with_all) / s2
     return gains, txt
+
+
+def _port_gain_equivalent(s: _Search) -> dict[str, Any] | None:
+    """When the chosen parameter changes act together exactly like an actuator gain (cosine >= 0.99 of their joint
+    effect with the gain's column), replace them by the gain if it fits as well: the equivalent that keeps the
+    simulator's parameters.  Returns the swap made (for the report), or None."""
+    params = [k for k in s.chosen if s.cands[k].is_param]
+    gains = [k for k, c in enumerate(s.cands) if not c.is_param and c.term == "actuator_gain" and k not in s.chosen]
+    if not params or not gains:
+        return None
+    _, J_p = s.fit.projected()
+    v = flat(J_p)[:, : len(params)] @ s.fit.g[: len(params)]  # the joint effect of the parameter changes
+    _, cols_p, _ = s.columns(s.fit, s.fam, gains)
+    for j, k in enumerate(gains):
+        c = cols_p[:, j]
+        cos = abs(float(c @ v)) / (float(np.linalg.norm(c) * np.linalg.norm(v)) + 1e-300)
+        if cos < 0.99:
+            continue
+        keep = [kk for kk in s.chosen if not s.cands[kk].is_param]
+        order = keep + [k]
+        g0 = np.array([s.fit.g[s.pos(kk)] for kk in keep] + [float(c @ v) / float(c @ c)])
+        fam = s.family_of(order)
+        fit = s.screen.shooter.fit(fam.build, s.fit.X, g0, max_iter=s.problem.opts.max_iter)
+        if fit.cost <= s.fit.cost + max(2.0 * max(s.fit.chi2_red, 1.0), 0.01 * s.fit.cost):
+            swap = {"replaced": [s.cands[kk].label for kk in params], "by": s.cands[k].label, "cosine": round(cos, 4),
+                    "chi2_per_dof": [s.fit.chi2_red, fit.chi2_red]}
+            s.problem.log(f"{swap['replaced']} act as {swap['by']} (cosine {cos:.4f}): the port gain is reported")
+            s.chosen, s.fam, s.fit = order, fam, fit
+            s.cov = fit.covariance()
+            s.swapped = set(params)
+            return swap
+    return None
 
 
 def _held_out_check(s: _Search) -> list[dict[str, Any]]:
@@ -379,10 +425,11 @@ def select(problem: Problem, screen: ParameterScreen, cands: list[AnyCandidate])
     r, cols, usable = _screen(s)
     _forward(s, r, cols, usable)
     _prune(s)
+    swap = _port_gain_equivalent(s)
     held_out = _held_out_check(s)
     _refine_stribeck(s)
     problem.log(f"selected {[s.cands[k].label for k in s.chosen]}: chi2/dof = {s.fit.chi2_red:.3g}")
-    return Selection(s.cands, usable, cols, s.chosen, s.gains, s.fam, s.fit, s.cov, held_out)
+    return Selection(s.cands, usable, cols, s.chosen, s.gains, s.fam, s.fit, s.cov, held_out, swap)
 
 
 # --------------------------------------------------------------------------- report rows

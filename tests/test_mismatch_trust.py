@@ -1,0 +1,117 @@
+"""Parameters before terms (docs/mismatch_claims.md): parameter errors are not turned into invented physics, known
+constants stay fixed, short real data get a report, and exit codes tell bad input from an internal failure."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from phast_model.cli.mismatch import main
+from phast_model.mismatch import Term, analyze, make_reality
+from phast_model.mismatch.calibrate import identifiability
+
+#: a two-motor arm in joint coordinates with compound links (the DFKI C.0 design's CAD values)
+ARM = {"coordinates": "relative", "mass1": 0.6417, "mass2": 0.5639, "length1": 0.2, "length2": 0.3,
+       "com1": 0.2, "com2": 0.3213, "inertia1": 0.02671, "inertia2": 0.05388, "gravity": 9.81}
+REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "multiarm_single_pendulum.npz"
+
+
+def _arm(true: dict, terms: list[Term], seed: int, n_traj: int = 16, T: int = 400) -> dict:
+    return make_reality("PHAST/DoublePendulum-v0", terms, {**ARM, **true}, n_traj=n_traj, T=T, noise_std=0.002, seed=seed,
+                        u_std=0.5)
+
+
+def test_identifiability_finds_the_combination_and_its_equivalents():
+    """Columns a = p0, b = 2 p0 (one combination), c independent: rank 2, b written in terms of the pivots."""
+    rng = np.random.default_rng(0)
+    a, c = rng.normal(size=50), rng.normal(size=50)
+    ident = identifiability(["a", "b", "c"], np.stack([a, 2 * a, c], 1))
+    assert ident.rank == 2
+    (other,) = ident.equivalents
+    pivot = "a" if other == "b" else "b"
+    assert set(ident.basis) == {pivot, "c"}
+    assert ident.equivalents[other][pivot] == pytest.approx(0.5 if other == "a" else 2.0, rel=1e-6)
+    assert abs(ident.equivalents[other]["c"]) < 1e-8
+
+
+def test_parameter_only_arm_gives_no_term():
+    """inertia2 10% high is a parameter change, reported as such, and no term is named."""
+    rep = analyze("PHAST/DoublePendulum-v0", _arm({"inertia2": ARM["inertia2"] * 1.1}, [], seed=3), sim_kwargs=ARM,
+                  rollout_window=1.0)
+    assert rep.missing_physics == []
+    changed = {k: v for k, v in rep.sim["calibrated"].items() if v.get("ci95")}
+    assert "inertia2" in changed and changed["inertia2"]["relative_change"] == pytest.approx(0.1, abs=0.02)
+    assert "gravity" not in changed
+    assert rep.details["identifiability"]["rank"] >= 4
+
+
+def test_cad_errors_and_one_coulomb_give_that_friction_and_parameter_changes_only():
+    """All six link parameters 3-8% off and a Coulomb friction at joint 2: the friction and parameter changes, nothing else."""
+    rng = np.random.default_rng(5)
+    true = {k: ARM[k] * (1 + rng.choice([-1, 1]) * rng.uniform(0.03, 0.08))
+            for k in ("mass1", "mass2", "com1", "com2", "inertia1", "inertia2")}
+    rep = analyze("PHAST/DoublePendulum-v0", _arm(true, [Term("coulomb_friction", 1, 0.08)], seed=5), sim_kwargs=ARM,
+                  rollout_window=1.0)
+    found = {(m["term"], m["coordinate"]) for m in rep.missing_physics}
+    assert ("coulomb_friction", 1) in found
+    assert found <= {("coulomb_friction", 1), ("stribeck_friction", 1)}  # (a sharper Coulomb edge than the tool's)
+    coulomb = next(m for m in rep.missing_physics if m["term"] == "coulomb_friction")
+    assert coulomb["coefficient"] == pytest.approx(0.08, rel=0.3)
+
+
+def test_gravity_stays_fixed_unless_freed():
+    """A pendulum whose port delivers 0.8 u: the port gain, with gravity at its known value; freed, gravity may move."""
+    rec = make_reality("PHAST/Pendulum-v0", [Term("actuator_gain", 0, 0.8)], n_traj=12, T=300, noise_std=0.002, seed=4,
+                       u_std=1.0)
+    rep = analyze("PHAST/Pendulum-v0", rec)
+    assert rep.sim["calibrated"]["gravity"]["fitted"] == 9.81
+    assert "known constant" in rep.sim["calibrated"]["gravity"]["note"]
+    assert [(m["term"], m["coordinate"]) for m in rep.missing_physics] == [("actuator_gain", 0)]
+    assert rep.missing_physics[0]["coefficient"] == pytest.approx(0.8, rel=0.02)
+    freed = analyze("PHAST/Pendulum-v0", rec, free=("gravity",))
+    assert "gravity" in freed.details["identifiability"]["examined"]
+    with pytest.raises(ValueError, match="not a numeric parameter"):
+        analyze("PHAST/Pendulum-v0", rec, free=("gravitation",))
+
+
+@pytest.mark.skipif(not REAL.exists(), reason="the real pendulum recordings are not beside the repository")
+def test_short_real_windows_give_a_report(tmp_path):
+    """Six 1-s windows of the real pendulum at 200 Hz (a case that once crashed in the law selection)."""
+    with np.load(REAL) as z:
+        q = np.stack([z["q"][5, i * 1000:(i + 1) * 1000:5] - math.pi for i in range(6)])
+        fit = dict(zip([str(s) for s in z["published_fit_names"]], [float(v) for v in z["published_fit"]]))
+    kw = {"mass": fit["m1_kg"], "length": fit["a1_m"], "gravity": fit["g"],
+          "inertia": fit["m1_kg"] * fit["a1_m"] ** 2 + fit["I1_kgm2"], "gamma": fit["k1_viscous"]}
+    np.savez(tmp_path / "rec.npz", q=q, dt=0.005, angle_dims=np.array([0]))
+    import json
+
+    rc = main(["--sim", "PHAST/DampedPendulum-v0", "--sim-kwargs", json.dumps(kw), "--recordings", str(tmp_path / "rec.npz"),
+               "--out", str(tmp_path / "out"), "--quiet", "--no-plots"])
+    assert rc == 0
+    assert (tmp_path / "out" / "report.json").is_file()
+
+
+def test_exit_codes_bad_input_2_internal_failure_1(tmp_path, monkeypatch, capsys):
+    rec = make_reality("PHAST/DampedPendulum-v0", [], n_traj=6, T=200, noise_std=0.01, seed=1)
+    np.savez(tmp_path / "rec.npz", **rec)
+    args = ["--sim", "PHAST/DampedPendulum-v0", "--recordings", str(tmp_path / "rec.npz"), "--quiet", "--no-plots"]
+    assert main(args + ["--out", str(tmp_path / "a"), "--free", "nope"]) == 2
+    assert "not a numeric parameter" in capsys.readouterr().err
+
+    import phast_model.mismatch.analysis as analysis
+
+    def broken(*a, **k):
+        raise ValueError("min() arg is an empty sequence")
+
+    monkeypatch.setattr(analysis, "screen_parameters", broken)
+    assert main(args + ["--out", str(tmp_path / "b")]) == 1
+    err = capsys.readouterr().err
+    assert "internal error" in err and "error.log" in err
+    log = (tmp_path / "b" / "error.log").read_text()
+    assert "Traceback" in log and "min() arg is an empty sequence" in log
+    monkeypatch.undo()
+    assert main(args + ["--out", str(tmp_path / "b")]) == 0  # a rerun replaces what the failed run left
+    assert not (tmp_path / "b" / "error.log").exists()
