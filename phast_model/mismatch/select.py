@@ -5,8 +5,8 @@ round ranks the pool by the chi^2 gain of the linearized shooting problem (windo
 projected out; friction coefficients must come out positive) and confirms the best few by nonlinear refits.  An item
 is added when its chi^2 gain exceeds threshold^2 and |z| / std >= threshold.  **At equal evidence a parameter change
 wins** (gains within :data:`EQUAL_EVIDENCE` of each other): a term is a discovery only when no change of the
-simulator's own parameters explains as much; a term's screening gain is what it explains beyond every parameter
-change still open.  When the chosen parameter changes together act exactly like an actuator gain (a uniform
+simulator's own parameters explains as much, and a term is screened only when it also explains something beyond
+every parameter change still open.  When the chosen parameter changes together act exactly like an actuator gain (a uniform
 rescaling of a coordinate's dynamics against u, e.g. a pendulum's mass scaling m g l and m l^2 alike), the gain is
 reported and the parameters kept (:func:`_port_gain_equivalent`): a datasheet error does not scale a whole
 coordinate.  Between terms, gains within 2 prefer the term listed first in the
@@ -176,34 +176,47 @@ def _screen(s: _Search) -> tuple[np.ndarray, np.ndarray, list[int]]:
 
 def _rank(s: _Search, pool: list[int], r_o: np.ndarray, cols_o: np.ndarray, col_of: dict[int, int],
           s2: float) -> list[tuple[float, int, float]]:
-    """(chi^2 gain, candidate, linear z) of each candidate of ``pool``, best first.  A term's gain is what it explains
-    beyond every parameter change still open (its column and the residual with the open parameters' columns projected
-    out): a term that a parameter change could replace gains nothing."""
+    """(chi^2 gain, candidate, linear z) of each candidate of ``pool``, best first.  A term is ranked only when it also
+    explains something beyond every parameter change still open (its column and the residual with the open
+    parameters' columns projected out gain threshold^2): a term that a parameter change could replace is no
+    discovery."""
     params = [col_of[k] for k in pool if s.cands[k].is_param]
     P = cols_o[:, params] if params else None
     r_t = orth_against(r_o[:, None], P)[:, 0]
     cols_t = orth_against(cols_o, P)
     ranked = []
     for k in pool:
-        is_param = s.cands[k].is_param
-        c = (cols_o if is_param else cols_t)[:, col_of[k]]
-        r = r_o if is_param else r_t
+        c = cols_o[:, col_of[k]]
         cc = float(c @ c)
-        if cc <= 1e-12 * float(cols_o[:, col_of[k]] @ cols_o[:, col_of[k]]) or not s.room(k):
+        if cc <= 0 or not s.room(k):
             continue
-        z = -float(cols_o[:, col_of[k]] @ r_o) / float(cols_o[:, col_of[k]] @ cols_o[:, col_of[k]])
-        if s.cands[k].must_be_positive and -float(c @ r) <= 0:
+        z = -float(c @ r_o) / cc
+        if s.cands[k].must_be_positive and z <= 0:
             continue  # a friction coefficient must be positive (passivity)
-        ranked.append((float(c @ r) ** 2 / cc / s2, k, z))
+        if not s.cands[k].is_param and P is not None:
+            ct = cols_t[:, col_of[k]]
+            ctt = float(ct @ ct)
+            if ctt <= 1e-12 * cc or float(ct @ r_t) ** 2 / ctt / s2 < s.thr2:
+                continue  # what it explains, a parameter change explains as well
+        ranked.append((float(c @ r_o) ** 2 / cc / s2, k, z))
     ranked.sort(reverse=True)
     if s.problem.opts.progress:
         s.problem.log("screening gains (chi^2): " + ", ".join(f"{s.cands[k].label} {g:.3g}" for g, k, _ in ranked[:6]))
     return ranked
 
 
+#: most candidates refitted in one round
+MAX_SHORTLIST = 6
+
+
 def _shortlist(ranked: list[tuple[float, int, float]], thr2: float, s: _Search) -> list[tuple[int, float]]:
-    """The two best, plus the best parameter and the best term (so the equal-evidence rule can act)."""
-    out = [(k, z) for g, k, z in ranked[:2] if g >= thr2]
+    """The two best, every candidate of equal evidence with the best (so that equivalent explanations are compared by
+    their refits), plus the best parameter and the best term."""
+    if not ranked or ranked[0][0] < thr2:
+        return []
+    top = ranked[0][0]
+    equal = top - max(2.0, EQUAL_EVIDENCE * top)
+    out = [(k, z) for i, (g, k, z) in enumerate(ranked[:MAX_SHORTLIST]) if g >= thr2 and (i < 2 or g >= equal)]
     for want_param in (True, False):
         best = next(((k, z) for g, k, z in ranked if g >= thr2 and s.cands[k].is_param == want_param), None)
         if best is not None and best[0] not in [k for k, _ in out]:
@@ -211,15 +224,28 @@ def _shortlist(ranked: list[tuple[float, int, float]], thr2: float, s: _Search) 
     return out
 
 
-def _better(s: _Search, gain: float, k: int, best: tuple | None) -> bool:
-    """Whether candidate k with ``gain`` beats the best so far: a parameter at equal evidence wins over a term."""
+def _displacement(s: _Search, fit: ShootFit, cov: np.ndarray, order: list[int]) -> float:
+    """How far a fit moves the simulator's parameters from their nominal values: sum of (z / std)^2."""
+    out = 0.0
+    for j, k in enumerate(order):
+        if s.cands[k].is_param:
+            out += float(fit.g[j]) ** 2 / max(float(cov[j, j]), 1e-300)
+    return out
+
+
+def _better(s: _Search, gain: float, k: int, disp: float, best: tuple | None) -> bool:
+    """Whether candidate k (chi^2 ``gain``, parameter displacement ``disp``) beats the best so far.  A parameter at
+    equal evidence wins over a term; between terms of equal evidence, the one that keeps the parameters nearer their
+    nominal values (an equivalent explanation that needs fewer parameter changes), then the one listed first."""
     if best is None:
         return True
-    b_gain, b_k = best[0], best[1]
+    b_gain, b_k, b_disp = best[0], best[1], best[6]
     new, old = s.cands[k], s.cands[b_k]
     margin = max(2.0, EQUAL_EVIDENCE * max(gain, b_gain))
     if new.is_param != old.is_param:
         return gain >= b_gain - margin if new.is_param else gain > b_gain + margin
+    if abs(gain - b_gain) <= margin and max(disp, b_disp) > s.thr2 and (disp < 0.5 * b_disp or b_disp < 0.5 * disp):
+        return disp < b_disp
     return gain > b_gain + 2.0 or (gain >= b_gain - 2.0 and new.vocabulary_rank < old.vocabulary_rank)
 
 
@@ -245,16 +271,15 @@ def _confirm(s: _Search, shortlist: list[tuple[int, float]], s2: float) -> tuple
             zz, sd = fit_new.g[j], math.sqrt(max(cov_new[j, j], 1e-300))
             s.problem.log(f"  refit with {cand.label}: chi^2 gain {gain:.3g}, value "
                           f"{cand.coefficient(zz):.4g}, |t| = {abs(zz) / sd:.3g}{'' if ok else ' (rejected)'}")
-        if ok and _better(s, gain, k, best):
-            best = (gain, k, fit_new, fam_new, cov_new, order)
+        disp = _displacement(s, fit_new, cov_new, order)
+        if ok and _better(s, gain, k, disp, best):
+            best = (gain, k, fit_new, fam_new, cov_new, order, disp)
     return best
 
 
-def _forward(s: _Search, r_o: np.ndarray, cols_o: np.ndarray, usable: list[int]) -> None:
+def _forward(s: _Search, r_o: np.ndarray, cols_o: np.ndarray, pool: list[int], col_of: dict[int, int]) -> None:
     """Greedy forward selection: rank on the linearized problem, confirm the best few by nonlinear refits."""
     opts = s.problem.opts
-    pool = list(usable)
-    col_of = {k: j for j, k in enumerate(pool)}
     while pool:
         s2 = max(s.fit.cost / s.fit.dof, 1e-300)
         ranked = _rank(s, pool, r_o, cols_o, col_of, s2)
@@ -262,7 +287,7 @@ def _forward(s: _Search, r_o: np.ndarray, cols_o: np.ndarray, usable: list[int])
         best = _confirm(s, shortlist, s2) if shortlist else None
         if best is None:
             break
-        _, k, fit_new, fam_new, cov_new, order = best
+        _, k, fit_new, fam_new, cov_new, order, _ = best
         if fit_new.iterations >= CONFIRM_ITER:  # finish the winner's refit
             fit_new = s.screen.shooter.fit(fam_new.build, fit_new.X, fit_new.g, max_iter=opts.max_iter)
             cov_new = fit_new.covariance()
@@ -271,7 +296,7 @@ def _forward(s: _Search, r_o: np.ndarray, cols_o: np.ndarray, usable: list[int])
         s.problem.log(f"added {s.cands[k].label}: chi2/dof = {s.fit.chi2_red:.3g} ({s.fit.iterations} it)")
         pool = [kk for kk in pool if kk not in s.chosen and s.cands[kk].key != s.cands[k].key]
         if pool:
-            r_o, cols_o, _ = s.columns(s.fit, s.fam, pool)
+            r_o, _, cols_o = s.columns(s.fit, s.fam, pool)
             col_of = {kk: j for j, kk in enumerate(pool)}
 
 
@@ -418,12 +443,41 @@ def _refine_stribeck(s: _Search) -> None:
         s.problem.log(f"Stribeck velocity refined: {s.cands[k].label}, chi2/dof = {s.fit.chi2_red:.3g}")
 
 
+def _start_calibrated(s: _Search) -> None:
+    """Start from the fit with every pivot free (a full-rank set spanning the identifiable combinations)."""
+    basis = s.screen.identifiability.basis
+    by_name = {c.name: k for k, c in enumerate(s.cands) if isinstance(c, ParamCandidate)}
+    s.chosen = [by_name[b] for b in basis if b in by_name]
+    s.fit, s.fam = s.screen.fit_full, s.screen.family_full
+    s.cov = s.fit.covariance() if s.chosen else None
+
+
+def _prune_parameters(s: _Search) -> None:
+    """Backward elimination of the parameter changes (with the terms in): the least significant one goes while its
+    |z| / std < threshold, so only the changes the recordings need are reported."""
+    while s.cov is not None:
+        params = [k for k in s.chosen if s.cands[k].is_param]
+        if not params:
+            return
+        t = {k: abs(s.fit.g[s.pos(k)]) / math.sqrt(max(s.cov[s.pos(k), s.pos(k)], 1e-300)) for k in params}
+        worst = min(params, key=t.get)
+        if t[worst] >= s.problem.opts.threshold:
+            return
+        s.problem.log(f"parameter {s.cands[worst].label} not needed (|t| = {t[worst]:.3g}): held at nominal")
+        _refit(s, [k for k in s.chosen if k != worst])
+
+
 def select(problem: Problem, screen: ParameterScreen, cands: list[AnyCandidate]) -> Selection:
-    """Parameter changes and terms in one forward selection from the nominal fit; prune, check on left-out
-    recordings, refine Stribeck velocities."""
+    """Terms by forward selection on top of a full-rank calibration, then the parameter changes pruned to those the
+    recordings need; prune terms, the port-gain equivalent, the left-out check, Stribeck velocities."""
     s = _Search(problem, screen, list(cands), screen.fit_nominal, problem.fam0)
-    r, cols, usable = _screen(s)
-    _forward(s, r, cols, usable)
+    _, cols, usable = _screen(s)  # at the nominal fit: the signatures behind the reported alternatives
+    _start_calibrated(s)
+    terms = [k for k in usable if not s.cands[k].is_param]
+    if terms:
+        r, _, cols_o = s.columns(s.fit, s.fam, terms)
+        _forward(s, r, cols_o, terms, {k: j for j, k in enumerate(terms)})
+    _prune_parameters(s)
     _prune(s)
     swap = _port_gain_equivalent(s)
     held_out = _held_out_check(s)
