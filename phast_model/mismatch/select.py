@@ -62,7 +62,7 @@ class Selection:
     fit: ShootFit
     cov: np.ndarray | None  # covariance of fit.g (None when nothing was chosen)
     held_out: list[dict[str, Any]] = field(default_factory=list)  # the left-out check of every item examined
-    port_gain_swap: dict[str, Any] | None = None  # parameter changes reported as the equivalent actuator gain
+    equivalent_swap: dict[str, Any] | None = None  # parameter changes reported as an equivalent (one parameter, a port gain)
 
     @property
     def params(self) -> list[tuple[str, float]]:
@@ -367,6 +367,38 @@ def _left_out_gains(s: _Search) -> tuple[dict[int, float], str] | None:
     return gains, txt
 
 
+def _sparser_parameters(s: _Search) -> dict[str, Any] | None:
+    """When the chosen parameter changes (two or more) act together exactly like a change of one parameter (cosine
+    >= 0.99 of their joint effect with its column; e.g. an RLC circuit's resistance and inductance moved together are
+    its capacitance), report that one change if it fits as well: the sparsest equivalent."""
+    params = [k for k in s.chosen if s.cands[k].is_param]
+    if len(params) < 2:
+        return None
+    _, J_p = s.fit.projected()
+    v = flat(J_p)[:, : len(params)] @ s.fit.g[: len(params)]
+    others = [k for k, c in enumerate(s.cands) if c.is_param]
+    _, cols_p, _ = s.columns(s.fit, s.fam, others)
+    cos = [abs(float(cols_p[:, j] @ v)) / (float(np.linalg.norm(cols_p[:, j]) * np.linalg.norm(v)) + 1e-300)
+           for j in range(len(others))]
+    j = int(np.argmax(cos))
+    if cos[j] < 0.99:
+        return None
+    k, c = others[j], cols_p[:, j]
+    terms = [kk for kk in s.chosen if not s.cands[kk].is_param]
+    order = [k] + terms
+    g0 = np.array([float(c @ v) / float(c @ c)] + [s.fit.g[s.pos(kk)] for kk in terms])
+    fam = s.family_of(order)
+    fit = s.screen.shooter.fit(fam.build, s.fit.X, g0, max_iter=s.problem.opts.max_iter)
+    if fit.cost > s.fit.cost + max(2.0 * max(s.fit.chi2_red, 1.0), 0.01 * s.fit.cost):
+        return None
+    swap = {"replaced": [s.cands[kk].label for kk in params], "by": s.cands[k].label, "cosine": round(cos[j], 4),
+            "chi2_per_dof": [s.fit.chi2_red, fit.chi2_red]}
+    s.problem.log(f"{swap['replaced']} act as {swap['by']} (cosine {cos[j]:.4f}): the one change is reported")
+    s.chosen, s.fam, s.fit = order, fam, fit
+    s.cov = fit.covariance()
+    return swap
+
+
 def _port_gain_equivalent(s: _Search) -> dict[str, Any] | None:
     """When the chosen parameter changes act together exactly like an actuator gain (cosine >= 0.99 of their joint
     effect with the gain's column), replace them by the gain if it fits as well: the equivalent that keeps the
@@ -454,7 +486,11 @@ def _start_calibrated(s: _Search) -> None:
 
 def _prune_parameters(s: _Search) -> None:
     """Backward elimination of the parameter changes (with the terms in): the least significant one goes while its
-    |z| / std < threshold, so only the changes the recordings need are reported."""
+    |z| / std < threshold, so only the changes the recordings need are reported.  Skipped when model error dominates
+    (chi^2/dof above ``Options.systematic_chi2``): the weak form then checks the parameters on left-out recordings."""
+    if s.fit.chi2_red > s.problem.opts.systematic_chi2:
+        s.problem.log("model error dominates: the weak form decides the parameters (no shooting pruning)")
+        return
     while s.cov is not None:
         params = [k for k in s.chosen if s.cands[k].is_param]
         if not params:
@@ -479,7 +515,8 @@ def select(problem: Problem, screen: ParameterScreen, cands: list[AnyCandidate])
         _forward(s, r, cols_o, terms, {k: j for j, k in enumerate(terms)})
     _prune_parameters(s)
     _prune(s)
-    swap = _port_gain_equivalent(s)
+    sparser = _sparser_parameters(s)
+    swap = _port_gain_equivalent(s) or sparser
     held_out = _held_out_check(s)
     _refine_stribeck(s)
     problem.log(f"selected {[s.cands[k].label for k in s.chosen]}: chi2/dof = {s.fit.chi2_red:.3g}")
