@@ -23,6 +23,9 @@ from .terms import FORCE_TERMS, VOCABULARY, AugmentedSystem, Term, default_value
 
 #: Stribeck velocities of the shooting candidates, as fractions of the coordinate's rms speed (a chosen one is refined)
 STRIBECK_FRACTIONS = tuple(0.05 * 2.0**k for k in range(4))  # 0.05, 0.1, 0.2, 0.4
+#: smallest Stribeck velocity, in units of the tanh smoothing of sign(qdot): below it a "Stribeck" term only reshapes
+#: the smoothed Coulomb edge (a sharper real edge than the model's), which is not physics the data can name
+MIN_STRIBECK_OVER_EPS = 4.0
 
 if TYPE_CHECKING:
     from .problem import Problem
@@ -213,6 +216,8 @@ def candidates(problem: Problem, system: System) -> list[Candidate]:
             elif name == "stribeck_friction":  # one candidate per Stribeck velocity of a coarse grid
                 for f in STRIBECK_FRACTIONS:
                     w = float(f * vi_rms)
+                    if w < MIN_STRIBECK_OVER_EPS * eps:
+                        continue
                     b = float(np.sqrt(np.mean(np.asarray(friction_basis(name, qi, vi, eps, w, NUMPY)) ** 2)))
                     if b > 1e-12:
                         out.append(Candidate(name, i, float(force_rms[i] / b), h, w))

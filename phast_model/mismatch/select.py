@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from .calibrate import Calibration, ParameterScreen
-from .candidates import Candidate, Family, ParamCandidate
+from .candidates import MIN_STRIBECK_OVER_EPS, Candidate, Family, ParamCandidate
 from .linear import flat, orth_against
 from .options import Z95
 from .problem import Problem
@@ -55,7 +55,7 @@ class Selection:
 
     candidates: list[AnyCandidate]  # as screened (a chosen Stribeck term carries its refined velocity)
     usable: list[int]  # indices of candidates with a usable column
-    columns: np.ndarray  # (N, len(candidates)) their shooting columns at the nominal fit
+    columns: np.ndarray  # (N, len(candidates)) the terms' shooting columns at the full-rank calibration (parameters: 0)
     chosen: list[int]  # indices of the selected items, in g order (parameters first, then terms)
     gains: dict[int, float]  # chi^2 drop when each was added
     family: Family
@@ -167,13 +167,6 @@ class _Search:
         return n_term < self.problem.opts.max_terms
 
 
-def _screen(s: _Search) -> tuple[np.ndarray, np.ndarray, list[int]]:
-    """Columns of all candidates at the nominal fit (those without a finite, non-zero column are not usable)."""
-    r, cols, _ = s.columns(s.fit, s.fam, list(range(len(s.cands))))
-    usable = [k for k in range(len(s.cands)) if np.all(np.isfinite(cols[:, k])) and float(np.linalg.norm(cols[:, k])) > 0]
-    return r, cols, usable
-
-
 def _rank(s: _Search, pool: list[int], r_o: np.ndarray, cols_o: np.ndarray, col_of: dict[int, int],
           s2: float) -> list[tuple[float, int, float]]:
     """(chi^2 gain, candidate, linear z) of each candidate of ``pool``, best first.  A term is ranked only when it also
@@ -249,11 +242,19 @@ def _better(s: _Search, gain: float, k: int, disp: float, best: tuple | None) ->
     return gain > b_gain + 2.0 or (gain >= b_gain - 2.0 and new.vocabulary_rank < old.vocabulary_rank)
 
 
-def _confirm(s: _Search, shortlist: list[tuple[int, float]], s2: float) -> tuple | None:
-    """Nonlinear refit with each shortlisted candidate: the best passing one as (gain, k, fit, family, cov, order)."""
+#: a shortlisted candidate whose linear gain is below this share of the best confirmed gain is not refitted
+CATCH_UP = 0.5
+
+
+def _confirm(s: _Search, shortlist: list[tuple[int, float]], s2: float, linear: dict[int, float]) -> tuple | None:
+    """Nonlinear refit with each shortlisted candidate: the best passing one as (gain, k, fit, family, cov, order,
+    parameter displacement).  A candidate whose linear gain ``linear[k]`` cannot catch up with the best refit so far
+    (below :data:`CATCH_UP` of it, and not a parameter) is not refitted."""
     shooter, best = s.screen.shooter, None
     for k, z0 in shortlist:
         cand = s.cands[k]
+        if best is not None and not cand.is_param and linear.get(k, math.inf) < CATCH_UP * best[0]:
+            continue
         fam_new, g0, order = s.add(k, s.fam, s.fit.g, z0)
         X0 = s.state_step(k, z0)
         if cand.term == "actuator_deadzone":  # threshold: start from the best of a coarse grid (zero slope at c = 0)
@@ -284,7 +285,7 @@ def _forward(s: _Search, r_o: np.ndarray, cols_o: np.ndarray, pool: list[int], c
         s2 = max(s.fit.cost / s.fit.dof, 1e-300)
         ranked = _rank(s, pool, r_o, cols_o, col_of, s2)
         shortlist = _shortlist(ranked, s.thr2, s)
-        best = _confirm(s, shortlist, s2) if shortlist else None
+        best = _confirm(s, shortlist, s2, {k: g for g, k, _ in ranked}) if shortlist else None
         if best is None:
             break
         _, k, fit_new, fam_new, cov_new, order, _ = best
@@ -465,6 +466,8 @@ def _refine_stribeck(s: _Search) -> None:
             best = (s.fit.cost, s.cands[k], s.fit, s.fam)
             for f in (1 / step, step):
                 c_new = s.cands[k].with_velocity(s.cands[k].velocity * f)  # type: ignore[union-attr]
+                if c_new.velocity < MIN_STRIBECK_OVER_EPS * s.problem.eps:
+                    continue
                 trial = [c_new if kk == k else s.cands[kk] for kk in range(len(s.cands))]
                 fam_v = _Search(s.problem, s.screen, trial, s.fit, s.fam).family_of(s.chosen)
                 fit_v = s.screen.shooter.fit(fam_v.build, s.fit.X, s.fit.g, max_iter=CONFIRM_ITER)
@@ -507,12 +510,16 @@ def select(problem: Problem, screen: ParameterScreen, cands: list[AnyCandidate])
     """Terms by forward selection on top of a full-rank calibration, then the parameter changes pruned to those the
     recordings need; prune terms, the port-gain equivalent, the left-out check, Stribeck velocities."""
     s = _Search(problem, screen, list(cands), screen.fit_nominal, problem.fam0)
-    _, cols, usable = _screen(s)  # at the nominal fit: the signatures behind the reported alternatives
     _start_calibrated(s)
-    terms = [k for k in usable if not s.cands[k].is_param]
+    terms = [k for k in range(len(s.cands)) if not s.cands[k].is_param]
+    cols = np.zeros((s.fit.r.size, len(s.cands)))
+    usable: list[int] = []
     if terms:
-        r, _, cols_o = s.columns(s.fit, s.fam, terms)
-        _forward(s, r, cols_o, terms, {k: j for j, k in enumerate(terms)})
+        r, cols_p, cols_o = s.columns(s.fit, s.fam, terms)
+        cols[:, terms] = cols_p  # the signatures behind the reported alternatives
+        usable = [k for j, k in enumerate(terms) if np.all(np.isfinite(cols_p[:, j])) and np.linalg.norm(cols_p[:, j]) > 0]
+        keep = [terms.index(k) for k in usable]
+        _forward(s, r, cols_o[:, keep], usable, {k: j for j, k in enumerate(usable)})
     _prune_parameters(s)
     _prune(s)
     sparser = _sparser_parameters(s)

@@ -7,15 +7,19 @@ from typing import Any
 import numpy as np
 
 from phast_gym.integrate import simulate
-from phast_gym.registry import make_env_system
+from phast_gym.systems.base import System
 
+from .simulators import load_simulator
 from .terms import AugmentedSystem, Term
 
 
-def make_reality(env_id: str, terms: list[Term] | tuple[Term, ...] = (), true_kwargs: dict[str, Any] | None = None,
+def make_reality(env_id: str | type[System], terms: list[Term] | tuple[Term, ...] = (), true_kwargs: dict[str, Any] | None = None,
                  n_traj: int = 40, T: int = 400, noise_std: float = 0.01, seed: int = 0, u_std: float = 0.0,
                  x0_scale: float = 1.0, coulomb_eps: float = 1e-3) -> dict[str, Any]:
     """Recordings dict (docs/mismatch.md keys) of ``env_id`` with hidden ``terms`` and parameter changes.
+
+    ``env_id``: an env id, ``path/to/rig.py:MyRig`` / ``module:MyRig`` or a System subclass (a user's rig), built with
+    ``true_kwargs`` (the reality's parameter values).
 
     Initial states come from the system's own sampler (scaled by ``x0_scale``);
     ``u_std > 0`` adds a smooth random port input on every coordinate; q gets
@@ -23,7 +27,7 @@ def make_reality(env_id: str, terms: list[Term] | tuple[Term, ...] = (), true_kw
     (``coulomb_eps``) so the tool meets a model that is not its own.
     """
     rng = np.random.default_rng(seed)
-    base = make_env_system(env_id, **(true_kwargs or {}))
+    base = load_simulator(env_id, true_kwargs).build()
     system = AugmentedSystem(base, list(terms), coulomb_eps=coulomb_eps)
     x0 = system.sample_initial(rng, n_traj) * x0_scale  # the base's draws; with armature, the same rates
     u = None
