@@ -4,8 +4,9 @@ Every non-zero numeric parameter of the simulator is examined, except the known 
 gravity) that the user has not freed (``Options.free``).  Its shooting column at the nominal fit (window states
 projected out, log-relative change) is its sensitivity.  A rank-revealing QR factorisation with column pivoting of
 the unit-normalised columns gives the identifiable combinations (a rigid arm's base parameters): the pivot set is a
-full-rank set that spans them, and every other parameter's column is written in terms of the pivots (the change of
-that parameter the data cannot tell from a change of the pivots).
+full-rank set that spans them (taken in order of preference: parameters outside M(q) first, then the system's order),
+and every other parameter's column is written in terms of the pivots (the change of that parameter the data cannot
+tell from a change of the pivots).
 
 Which parameters are *changed* is not decided here: every identifiable parameter is a candidate of the one selection
 of :mod:`.select`, where parameter changes and new terms compete (a parameter wins at equal evidence).
@@ -21,7 +22,7 @@ import numpy as np
 import scipy.linalg
 
 from .candidates import Family, ParamCandidate
-from .linear import flat
+from .linear import flat, rel_resid
 from .problem import Problem
 from .shooting import Shooter, ShootFit
 from .simulators import known_params
@@ -132,24 +133,40 @@ def _parameter_columns(problem: Problem, shooter: Shooter, fitN: ShootFit, param
 
 
 def identifiability(names: list[str], cols: np.ndarray) -> Identifiability:
-    """Pivoted QR of the unit-normalised columns: the pivots above :data:`REL_TOL`, and every other parameter's
-    column in terms of them."""
+    """The rank from a pivoted QR of the unit-normalised columns; the pivots then taken in the order of ``names``
+    (the preferred parameters first) as long as a column keeps :data:`REL_TOL` of itself independent of those taken;
+    every other parameter's column written in terms of them."""
     if not names:
         return Identifiability((), (), (), {})
     norms = np.linalg.norm(cols, axis=0)
-    Q, R, piv = scipy.linalg.qr(cols / norms, mode="economic", pivoting=True)
+    unit = cols / norms
+    R = scipy.linalg.qr(unit, mode="r", pivoting=True)[0]
     d = np.abs(np.diag(R))
-    r = int(np.sum(d >= REL_TOL * max(d[0], 1e-300))) if d.size else 0
-    basis = [int(j) for j in piv[:r]]
+    rank = int(np.sum(d >= REL_TOL * max(d[0], 1e-300))) if d.size else 0
+    basis: list[int] = []
+    for j in range(len(names)):
+        if len(basis) == rank:
+            break
+        if rel_resid(unit[:, j], unit[:, basis] if basis else None) >= REL_TOL:
+            basis.append(j)
     equivalents: dict[str, dict[str, float]] = {}
-    if r:
-        R11 = R[:r, :r]
-        for m, j in enumerate(piv[r:], start=r):
-            a = scipy.linalg.solve_triangular(R11, R[:r, m])  # unit column j = sum_i a_i unit column basis_i
+    for j in range(len(names)):
+        if j not in basis and basis:
+            a = np.linalg.lstsq(unit[:, basis], unit[:, j], rcond=None)[0]
             equivalents[names[j]] = {names[b]: float(a[i] * norms[j] / norms[b]) for i, b in enumerate(basis)}
-    order = sorted(basis)  # report the pivots in the system's order
-    indep = {b: float(d[i]) for i, b in enumerate(basis)}
-    return Identifiability(tuple(names), tuple(names[b] for b in order), tuple(indep[b] for b in order), equivalents)
+    indep = [rel_resid(unit[:, b], unit[:, [c for c in basis if c != b]] if len(basis) > 1 else None) for b in basis]
+    return Identifiability(tuple(names), tuple(names[b] for b in basis), tuple(indep), equivalents)
+
+
+def param_in_mass(problem: Problem, name: str, nominal: float) -> bool:
+    """Whether a 1% change of parameter ``name`` changes M(q) at about 200 recorded configurations."""
+    from phast_gym.systems.base import NUMPY
+
+    q = problem.q_sample()
+    a, b = problem.sim.build(), problem.sim.build(**{name: nominal * 1.01})
+    qc = tuple(q[:, i] for i in range(q.shape[1]))
+    Ma, Mb = a.mass_matrix(qc, NUMPY), b.mass_matrix(qc, NUMPY)
+    return any(not np.allclose(np.asarray(x), np.asarray(y)) for ra, rb in zip(Ma, Mb) for x, y in zip(ra, rb))
 
 
 def _examined(problem: Problem, shooter: Shooter, fitN: ShootFit) -> tuple[list[tuple[str, float]], np.ndarray, dict[str, str]]:
@@ -158,6 +175,9 @@ def _examined(problem: Problem, shooter: Shooter, fitN: ShootFit) -> tuple[list[
     params = [(k, v) for k, v in problem.sim.numeric_params(problem.sys0).items() if v != 0]
     notes = {k: f"a known constant (held fixed; free it with --free {k} if it is not)" for k, _ in params if k in known}
     params = [(k, v) for k, v in params if k not in known]
+    # preference among equivalent parameters: those outside M(q) first (a mass change that acts like a damping change
+    # on a free pendulum is reported as the damping), then the system's order
+    params.sort(key=lambda kv: param_in_mass(problem, *kv))
     cols = _parameter_columns(problem, shooter, fitN, params)
     keep = []
     for j, (k, _) in enumerate(params):

@@ -96,6 +96,7 @@ class _Search:
     gains: dict[int, float] = field(default_factory=dict)
     raw: dict[int, np.ndarray] = field(default_factory=dict)  # unprojected columns of the last :meth:`columns` call
     swapped: set[int] = field(default_factory=set)  # parameters reported as their equivalent port gain
+    refined: set[int] = field(default_factory=set)  # Stribeck terms whose velocity was refined
 
     @property
     def thr2(self) -> float:
@@ -295,6 +296,8 @@ def _forward(s: _Search, r_o: np.ndarray, cols_o: np.ndarray, pool: list[int], c
         s.gains[k] = s.fit.cost - fit_new.cost
         s.chosen, s.fit, s.fam, s.cov = order, fit_new, fam_new, cov_new
         s.problem.log(f"added {s.cands[k].label}: chi2/dof = {s.fit.chi2_red:.3g} ({s.fit.iterations} it)")
+        if s.cands[k].term == "stribeck_friction":  # its velocity before the next round: a wrong v_s leaves a
+            _refine_stribeck(s)                      # residual that another term would then absorb
         pool = [kk for kk in pool if kk not in s.chosen and s.cands[kk].key != s.cands[k].key]
         if pool:
             r_o, _, cols_o = s.columns(s.fit, s.fam, pool)
@@ -460,8 +463,9 @@ def _refine_stribeck(s: _Search) -> None:
     """A chosen Stribeck term: its velocity v_s around the grid value (profile of the refit cost, quarter octaves)."""
     for k in s.chosen:
         cand = s.cands[k]
-        if not isinstance(cand, Candidate) or cand.term != "stribeck_friction":
+        if not isinstance(cand, Candidate) or cand.term != "stribeck_friction" or k in s.refined:
             continue
+        s.refined.add(k)
         for step in (2**0.5, 2**0.25, 2**0.125):
             best = (s.fit.cost, s.cands[k], s.fit, s.fam)
             for f in (1 / step, step):
