@@ -604,5 +604,14 @@ def missing_rows(sel: Selection, excess0: float) -> list[dict[str, Any]]:
                     "coefficient": term.coefficient, "ci95": [lo, hi],
                     **({"stribeck_velocity": term.velocity} if cand.term == "stribeck_friction" else {}),
                     "expression": term.expression(), "explains": float(min(1.0, sel.gains.get(k, 0.0) / max(excess0, 1e-300))),
-                    "alternatives": _alternatives(sel, k, z)})
+                    "alternatives": _alternatives(sel, k, z) + _swap_alternatives(sel, k)})
     return out
+
+
+def _swap_alternatives(sel: Selection, k: int) -> list[dict[str, Any]]:
+    """The parameter changes a reported port gain stands for (an equivalent answer that the tool did not choose)."""
+    swap = sel.equivalent_swap
+    if not swap or swap["by"] != sel.candidates[k].label:
+        return []
+    return [{"parameter": label.removeprefix("param "), "note": "changes of these parameters fit as well (cosine "
+             f"{swap['cosine']}); the port gain keeps the simulator's values"} for label in swap["replaced"]]
