@@ -115,3 +115,35 @@ def test_exit_codes_bad_input_2_internal_failure_1(tmp_path, monkeypatch, capsys
     monkeypatch.undo()
     assert main(args + ["--out", str(tmp_path / "b")]) == 0  # a rerun replaces what the failed run left
     assert not (tmp_path / "b" / "error.log").exists()
+
+
+def test_joint_change_that_is_one_parameter_is_reported_as_it():
+    """A free RLC circuit whose capacitor is 8% low: the data fix R/L and 1/(LC); the pivots (resistance, inductance)
+    moved together are exactly a capacitance change, which is what is reported."""
+    rec = make_reality("PHAST/RLCCircuit-v0", [], {"capacitance": 0.92}, n_traj=16, T=200, noise_std=0.01, seed=6)
+    rep = analyze("PHAST/RLCCircuit-v0", rec)
+    changed = {k: v["fitted"] for k, v in rep.sim["calibrated"].items() if v.get("ci95")}
+    assert list(changed) == ["capacitance"] and changed["capacitance"] == pytest.approx(0.92, rel=0.02)
+    assert rep.missing_physics == []
+
+
+def test_three_link_rig_example_is_exact_physics():
+    """examples/rigs/triple_pendulum.py: dH/dq matches finite differences of H and a free swing keeps its energy."""
+    from phast_gym.integrate import simulate
+    from phast_model.mismatch.simulators import load_simulator
+
+    rig = Path(__file__).resolve().parents[1] / "examples" / "rigs" / "triple_pendulum.py"
+    s = load_simulator(f"{rig}:TriplePendulum", {"friction": 0.0}).build()
+    x0 = s.sample_initial(np.random.default_rng(0), 4)
+    q, p = tuple(x0[:, i] for i in range(3)), tuple(x0[:, 3 + i] for i in range(3))
+
+    def energy(q, p):
+        return 0.5 * sum(a * b for a, b in zip(p, s.velocity(q, p))) + s.potential(q)
+
+    g, h = s.dH_dq(q, p), 1e-6
+    for k in range(3):
+        qk = tuple(qi + (h if i == k else 0.0) for i, qi in enumerate(q))
+        np.testing.assert_allclose((energy(qk, p) - energy(q, p)) / h, g[k], atol=1e-5)
+    x = simulate(s, x0, 1000)
+    e0, e1 = energy(q, p), energy(tuple(x[:, -1, i] for i in range(3)), tuple(x[:, -1, 3 + i] for i in range(3)))
+    np.testing.assert_allclose(e1, e0, rtol=1e-6, atol=1e-8)
