@@ -148,7 +148,8 @@ def _details(problem: Problem, cal: Calibration, sel: Selection, sysE: Systemati
     method = METHOD + (METHOD_SYSTEMATIC if sysE.info.get("used") else "")
     return {"method": method, "shoot_window_samples": int(win.length), "n_windows": int(win.count),
             "n_windows_dropped_as_outliers": cal.n_dropped, "smoothing_window_samples": int(problem.sg),
-            "coulomb_sign_smoothing": f"tanh(qdot/{problem.eps:.3g})", "threshold": opts.threshold,
+            "coulomb_sign_smoothing": f"tanh(qdot/{problem.eps:.3g})",
+            "coulomb_sign_smoothing_per_coordinate": list(problem.eps_coord), "threshold": opts.threshold,
             "chi2_per_dof": {"nominal": cal.fit_nominal.chi2_red, "calibrated": cal.fit.chi2_red, "augmented": final_fit.chi2_red},
             "identifiability": cal.screen.identifiability.to_dict(), "held_out_check": sel.held_out, "equivalent_swap": sel.equivalent_swap,
             "chi2_per_dof_every_pivot_fitted": cal.screen.fit_full.chi2_red, "friction": sysE.info, "n_simulations": cal.shooter.n_sims,

@@ -151,7 +151,7 @@ class Family:
     kwargs: dict[str, Any]  # overrides of the simulator's kwargs
     params: list[tuple[str, float]]  # (name, nominal value); value = nominal * exp(z)
     terms: list[ScaledTerm]
-    eps: float
+    eps: float | tuple[float, ...]  # Coulomb smoothing, one or one per coordinate
     deadzone_width: float = 0.0
 
     def kwargs_of(self, g: np.ndarray) -> dict[str, Any]:
@@ -195,7 +195,7 @@ def _coordinate_scales(problem: Problem, system: System) -> tuple[np.ndarray, np
 
 def candidates(problem: Problem, system: System) -> list[Candidate]:
     """Every term of the vocabulary (``Options.terms``) on every coordinate where it can act, at the calibrated ``system``."""
-    qs, vs, train, eps = problem.qs, problem.vs, problem.train, problem.eps
+    qs, vs, train = problem.qs, problem.vs, problem.train
     force_rms, mass_rms = _coordinate_scales(problem, system)
     sensor_scale = problem.sigma * 10 + 1e-3 * problem.q_std
     h = FD_STEP
@@ -216,9 +216,9 @@ def candidates(problem: Problem, system: System) -> list[Candidate]:
             elif name == "stribeck_friction":  # one candidate per Stribeck velocity of a coarse grid
                 for f in STRIBECK_FRACTIONS:
                     w = float(f * vi_rms)
-                    if w < MIN_STRIBECK_OVER_EPS * eps:
+                    if w < MIN_STRIBECK_OVER_EPS * problem.eps_coord[i]:
                         continue
-                    b = float(np.sqrt(np.mean(np.asarray(friction_basis(name, qi, vi, eps, w, NUMPY)) ** 2)))
+                    b = float(np.sqrt(np.mean(np.asarray(friction_basis(name, qi, vi, problem.eps_coord[i], w, NUMPY)) ** 2)))
                     if b > 1e-12:
                         out.append(Candidate(name, i, float(force_rms[i] / b), h, w))
             elif name == "armature" and name in VOCABULARY:  # c added to M_ii (c >= 0): z = 1 is 5% of the coordinate's inertia

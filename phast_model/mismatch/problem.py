@@ -33,7 +33,8 @@ class Problem:
     qs: np.ndarray  # smoothed q of the training recordings
     vs: np.ndarray  # smoothed qdot
     x_scale: np.ndarray  # (2n,) typical |q|, |qdot|
-    eps: float  # tanh smoothing of sign(qdot)
+    eps: float  # tanh smoothing of sign(qdot) in the weak form and the residual map (one for all coordinates)
+    eps_coord: tuple[float, ...]  # tanh smoothing of each coordinate's Coulomb edge in the fits by simulation
     windows: Windows  # shooting windows (before outlier rejection)
     substeps: int
     X0: np.ndarray  # smoothed window initial states
@@ -84,11 +85,13 @@ def prepare(sim: Simulator, sys0: System, train: Recordings, opts: Options, log:
     v_rms = np.sqrt(np.mean(vs**2, axis=(0, 1))) + 1e-12
     x_scale = np.concatenate([np.sqrt(np.mean(qs**2, axis=(0, 1))) + 1e-9, v_rms])
     eps = float(opts.coulomb_eps_rel * np.median(v_rms))
+    # per coordinate: 0.005 x its own rms speed (a slow cart's edge is not set by a fast pole), never below eps / 5
+    eps_coord = tuple(float(e) for e in np.maximum(opts.coulomb_eps_rel * v_rms, 0.2 * eps))
     win = _windows(train, L, comparison_stride(train, period), opts)
     X0 = np.concatenate([qs[win.traj, win.start], vs[win.traj, win.start]], axis=1)
     u = train.u
     u_med = float(np.median(np.abs(u[u != 0]))) if u is not None and np.any(u != 0) else 1.0
     has_u = [bool(u is not None and np.any(u[..., i] != 0)) for i in range(n)]
-    fam0 = Family(sim, {}, [], [], eps, 0.05 * u_med)
-    return Problem(sim, sys0, train, opts, log, sigma_raw, sigma, q_std, sg, L, qs, vs, x_scale, eps, win,
+    fam0 = Family(sim, {}, [], [], eps_coord, 0.05 * u_med)
+    return Problem(sim, sys0, train, opts, log, sigma_raw, sigma, q_std, sg, L, qs, vs, x_scale, eps, eps_coord, win,
                    substeps_for(sys0, dt), X0, fam0, has_u)

@@ -470,7 +470,7 @@ def _refine_stribeck(s: _Search) -> None:
             best = (s.fit.cost, s.cands[k], s.fit, s.fam)
             for f in (1 / step, step):
                 c_new = s.cands[k].with_velocity(s.cands[k].velocity * f)  # type: ignore[union-attr]
-                if c_new.velocity < MIN_STRIBECK_OVER_EPS * s.problem.eps:
+                if c_new.velocity < MIN_STRIBECK_OVER_EPS * s.problem.eps_coord[cand.coordinate]:
                     continue
                 trial = [c_new if kk == k else s.cands[kk] for kk in range(len(s.cands))]
                 fam_v = _Search(s.problem, s.screen, trial, s.fit, s.fam).family_of(s.chosen)

@@ -124,17 +124,22 @@ def default_value(name: str) -> float:
 class AugmentedSystem(System):
     """A base system plus named terms, in the right port-Hamiltonian place.
 
-    ``coulomb_eps`` smooths ``sign(qdot)`` as ``tanh(qdot / eps)`` (docs/mismatch.md
+    ``coulomb_eps`` (one value, or one per coordinate) smooths ``sign(qdot)`` as ``tanh(qdot / eps)`` (docs/mismatch.md
     allows smoothing near 0); it keeps explicit RK4 stable at the env's steps.
     ``deadzone_width > 0`` smooths the deadzone edge so its threshold can be fitted.
     """
 
-    def __init__(self, base: System, terms: list[Term] | tuple[Term, ...] = (), coulomb_eps: float = 1e-2,
+    def __init__(self, base: System, terms: list[Term] | tuple[Term, ...] = (), coulomb_eps: float | tuple[float, ...] = 1e-2,
                  deadzone_width: float = 0.0) -> None:
         # no System.__init__: parameters belong to the base system
         self.base = base
         self.terms = tuple(terms)
-        self.coulomb_eps = float(coulomb_eps)
+        # one smoothing per coordinate (a slow cart and a fast pole need different edges), or one for all
+        eps = tuple(float(e) for e in coulomb_eps) if isinstance(coulomb_eps, (tuple, list)) else (float(coulomb_eps),) * base.n
+        if len(eps) != base.n:
+            raise ValueError(f"coulomb_eps has {len(eps)} entries for {base.n} coordinates")
+        self.coulomb_eps_per_coordinate = eps
+        self.coulomb_eps = float(max(eps))
         self.deadzone_width = float(deadzone_width)
         self.params = dict(base.params)
         for attr in ("name", "n", "angle_dims", "dt", "substeps", "default_max_action", "separable",
@@ -285,7 +290,8 @@ class AugmentedSystem(System):
         for t in self.terms:
             if t.component == "dissipation":
                 i = t.coordinate
-                f[i] = f[i] - t.coefficient * friction_basis(t.name, q[i], v[i], self.coulomb_eps, t.velocity, xp)
+                eps = self.coulomb_eps_per_coordinate[i]
+                f[i] = f[i] - t.coefficient * friction_basis(t.name, q[i], v[i], eps, t.velocity, xp)
         return f
 
     def rhs(self, q: Components, p: Components, u: Components | None, xp: Any = NUMPY) -> tuple[tuple, tuple]:
