@@ -31,6 +31,8 @@ from .simulators import known_params
 PARAM_STEP = 1e-3
 #: a pivot whose unit column keeps less than this share independent of the earlier pivots is not identifiable
 REL_TOL = 0.05
+#: a pivot is the preferred column among those keeping at least this share of the largest remaining residual
+PIVOT_SLACK = 0.5
 #: a parameter is "determined" when a change of this size (relative) moves the fit by more than the noise
 VISIBLE_CHANGE = 0.05
 
@@ -133,9 +135,9 @@ def _parameter_columns(problem: Problem, shooter: Shooter, fitN: ShootFit, param
 
 
 def identifiability(names: list[str], cols: np.ndarray) -> Identifiability:
-    """The rank from a pivoted QR of the unit-normalised columns; the pivots then taken in the order of ``names``
-    (the preferred parameters first) as long as a column keeps :data:`REL_TOL` of itself independent of those taken;
-    every other parameter's column written in terms of them."""
+    """The rank from a pivoted QR of the unit-normalised columns; the pivots then taken one at a time like column
+    pivoting, but among the columns within :data:`PIVOT_SLACK` of the largest remaining residual the first in the
+    order of ``names`` (the preferred parameters) is taken; every other parameter's column written in the pivots."""
     if not names:
         return Identifiability((), (), (), {})
     norms = np.linalg.norm(cols, axis=0)
@@ -144,11 +146,11 @@ def identifiability(names: list[str], cols: np.ndarray) -> Identifiability:
     d = np.abs(np.diag(R))
     rank = int(np.sum(d >= REL_TOL * max(d[0], 1e-300))) if d.size else 0
     basis: list[int] = []
-    for j in range(len(names)):
-        if len(basis) == rank:
-            break
-        if rel_resid(unit[:, j], unit[:, basis] if basis else None) >= REL_TOL:
-            basis.append(j)
+    for _ in range(rank):  # Gram-Schmidt with a preference: among the columns within PIVOT_SLACK of the largest
+        rest = [j for j in range(len(names)) if j not in basis]  # remaining residual, the first in ``names`` order
+        res = [rel_resid(unit[:, j], unit[:, basis] if basis else None) for j in rest]
+        top = max(res)
+        basis.append(next(j for j, r in zip(rest, res) if r >= PIVOT_SLACK * top))
     equivalents: dict[str, dict[str, float]] = {}
     for j in range(len(names)):
         if j not in basis and basis:

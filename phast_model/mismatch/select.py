@@ -403,6 +403,30 @@ def _sparser_parameters(s: _Search) -> dict[str, Any] | None:
     return swap
 
 
+def _compensating_terms(s: _Search) -> list[str]:
+    """Sensor and port terms that only stand in for parameter changes: refit without them, every pivot parameter free
+    from the current values (the nonlinear check; the selection's screening is linear around the calibration).
+    When that fits as well, the terms go and the parameters stay free (pruned again).  Returns the dropped labels."""
+    local = [k for k in s.chosen if _component(s.cands[k]) in LOCAL_EVIDENCE]
+    if not local:
+        return []
+    basis = s.screen.identifiability.basis
+    params = [k for k, c in enumerate(s.cands) if isinstance(c, ParamCandidate) and (c.name in basis or k in s.chosen)]
+    keep_terms = [k for k in s.chosen if not s.cands[k].is_param and k not in local]
+    order = params + keep_terms
+    g0 = np.array([s.fit.g[s.pos(k)] if k in s.chosen else 0.0 for k in order])
+    fam = s.family_of(order)
+    fit = s.screen.shooter.fit(fam.build, s.fit.X, g0, max_iter=s.problem.opts.max_iter)
+    if fit.cost > s.fit.cost + max(2.0 * max(s.fit.chi2_red, 1.0), 0.01 * s.fit.cost):
+        return []
+    dropped = [s.cands[k].label for k in local]
+    s.problem.log(f"{dropped} only stand in for parameter changes (chi2/dof {fit.chi2_red:.3g} without them): dropped")
+    s.chosen, s.fam, s.fit = order, fam, fit
+    s.cov = fit.covariance()
+    _prune_parameters(s)
+    return dropped
+
+
 def _port_gain_equivalent(s: _Search) -> dict[str, Any] | None:
     """When the chosen parameter changes act together exactly like an actuator gain (cosine >= 0.99 of their joint
     effect with the gain's column), replace them by the gain if it fits as well: the equivalent that keeps the
@@ -526,11 +550,14 @@ def select(problem: Problem, screen: ParameterScreen, cands: list[AnyCandidate])
         _forward(s, r, cols_o[:, keep], usable, {k: j for j, k in enumerate(usable)})
     _prune_parameters(s)
     _prune(s)
+    compensating = _compensating_terms(s)
     sparser = _sparser_parameters(s)
     swap = _port_gain_equivalent(s) or sparser
     held_out = _held_out_check(s)
     _refine_stribeck(s)
     problem.log(f"selected {[s.cands[k].label for k in s.chosen]}: chi2/dof = {s.fit.chi2_red:.3g}")
+    held_out += [{"item": label, "kept": False, "note": "only stands in for parameter changes (nonlinear refit without it, "
+                  "every pivot free, fits as well)"} for label in compensating]
     return Selection(s.cands, usable, cols, s.chosen, s.gains, s.fam, s.fit, s.cov, held_out, swap)
 
 
