@@ -1,22 +1,19 @@
-"""Stage 2, explain: one selection for parameter changes and new terms (greedy forward selection by shooting).
+"""Stage 2, explain: parameter changes and new terms in one selection (forward selection by shooting).
 
-The pool holds every identifiable parameter of the simulator (:mod:`.calibrate`) and every candidate term.  Each
-round ranks the pool by the chi^2 gain of the linearized shooting problem (window states and the current globals
-projected out; friction coefficients must come out positive) and confirms the best few by nonlinear refits.  An item
-is added when its chi^2 gain exceeds threshold^2 and |z| / std >= threshold.  **At equal evidence a parameter change
-wins** (gains within :data:`EQUAL_EVIDENCE` of each other): a term is a discovery only when no change of the
-simulator's own parameters explains as much, and a term is screened only when it also explains something beyond
-every parameter change still open.  When the chosen parameter changes together act exactly like an actuator gain (a uniform
-rescaling of a coordinate's dynamics against u, e.g. a pendulum's mass scaling m g l and m l^2 alike), the gain is
-reported and the parameters kept (:func:`_port_gain_equivalent`): a datasheet error does not scale a whole
-coordinate.  Between terms, gains within 2 prefer the term listed first in the
-vocabulary.
+Parameters before terms: the search starts from the fit with every pivot parameter free (a full-rank calibration,
+:mod:`.calibrate`), so a term is judged only on what no change of the simulator's parameters explains.  Each round
+ranks the candidate terms by the chi^2 gain of the linearized shooting problem (window states and the current
+globals projected out; friction coefficients must come out positive) and confirms the best few, and every one of
+equal evidence with the best (:data:`EQUAL_EVIDENCE`), by nonlinear refits.  A term is added when its chi^2 gain
+exceeds threshold^2 and |z| / std >= threshold; between terms of equal evidence the one that keeps the parameters
+nearer their nominal values wins, then the one listed first in the vocabulary.
 
-Then every chosen item must predict recordings left out of its fit (:func:`_held_out_check`, two folds of the
-training recordings, the linearized problem at the final fit): an item whose removal does not make the left-out
-prediction worse is dropped; a sensor or port term needs a left-out gain of threshold^2 (local evidence), so a
-term never enters as compensation.  Earlier items must stay significant once later ones are in; a chosen Stribeck
-term's velocity is refined by profiling the refit cost in quarter octaves.
+Then the parameter changes are pruned to those the recordings need; sensor / port terms that a nonlinear refit with
+every pivot free replaces are dropped; changes that act as one parameter are reported as it, and changes that act
+as an actuator gain as that gain (:func:`_port_gain_equivalent`: a datasheet error does not scale a whole
+coordinate).  Every chosen item must predict recordings left out of its fit (:func:`_held_out_check`); a sensor or
+port term needs a left-out gain of threshold^2 over every parameter change open (local evidence).  A chosen
+Stribeck term's velocity is refined by profiling the refit cost in quarter octaves.
 """
 
 from __future__ import annotations
@@ -108,14 +105,15 @@ class _Search:
     def add(self, k: int, fam: Family, g: np.ndarray, z: float) -> tuple[Family, np.ndarray, list[int]]:
         """Family, globals and g-ordered chosen list with candidate k added at ``z``."""
         fam2, g2 = self.cands[k].add_to(fam, g, z)
-        n_par = sum(self.cands[j].is_param for j in self.chosen)
         order = list(self.chosen)
-        order.insert(n_par if self.cands[k].is_param else len(order), k)
+        order.insert(self.n_params() if self.cands[k].is_param else len(order), k)
         return fam2, g2, order
 
-    def family_of(self, order: list[int]) -> Family:
-        params = [(c.name, c.nominal) for c in (self.cands[k] for k in order) if isinstance(c, ParamCandidate)]
-        terms = [c.family_term for c in (self.cands[k] for k in order) if isinstance(c, Candidate)]
+    def family_of(self, order: list[int], cands: list[AnyCandidate] | None = None) -> Family:
+        """The family of the items ``order`` (of ``cands``, default the search's candidates), in g order."""
+        pool = self.cands if cands is None else cands
+        params = [(c.name, c.nominal) for c in (pool[k] for k in order) if isinstance(c, ParamCandidate)]
+        terms = [c.family_term for c in (pool[k] for k in order) if isinstance(c, Candidate)]
         return self.problem.fam0.with_(params=params, terms=terms)
 
     def columns(self, fit: ShootFit, fam: Family, ks: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -156,42 +154,22 @@ class _Search:
         wrong_sign = cand.must_be_positive and cand.coefficient(z) <= 0
         return abs(z) / sd >= self.problem.opts.threshold and not wrong_sign
 
-    def counts(self) -> tuple[int, int]:
-        n_par = sum(self.cands[k].is_param for k in self.chosen)
-        return n_par, len(self.chosen) - n_par
-
-    def room(self, k: int) -> bool:
-        """Parameters up to the identifiable rank, terms up to Options.max_terms."""
-        n_par, n_term = self.counts()
-        if self.cands[k].is_param:
-            return n_par < self.screen.identifiability.rank
-        return n_term < self.problem.opts.max_terms
+    def n_params(self) -> int:
+        return sum(self.cands[k].is_param for k in self.chosen)
 
 
 def _rank(s: _Search, pool: list[int], r_o: np.ndarray, cols_o: np.ndarray, col_of: dict[int, int],
           s2: float) -> list[tuple[float, int, float]]:
-    """(chi^2 gain, candidate, linear z) of each candidate of ``pool``, best first.  A term is ranked only when it also
-    explains something beyond every parameter change still open (its column and the residual with the open
-    parameters' columns projected out gain threshold^2): a term that a parameter change could replace is no
-    discovery."""
-    params = [col_of[k] for k in pool if s.cands[k].is_param]
-    P = cols_o[:, params] if params else None
-    r_t = orth_against(r_o[:, None], P)[:, 0]
-    cols_t = orth_against(cols_o, P)
+    """(chi^2 gain, candidate, linear z) of each candidate term of ``pool``, best first."""
     ranked = []
     for k in pool:
         c = cols_o[:, col_of[k]]
         cc = float(c @ c)
-        if cc <= 0 or not s.room(k):
+        if cc <= 0 or len(s.chosen) - s.n_params() >= s.problem.opts.max_terms:
             continue
         z = -float(c @ r_o) / cc
         if s.cands[k].must_be_positive and z <= 0:
             continue  # a friction coefficient must be positive (passivity)
-        if not s.cands[k].is_param and P is not None:
-            ct = cols_t[:, col_of[k]]
-            ctt = float(ct @ ct)
-            if ctt <= 1e-12 * cc or float(ct @ r_t) ** 2 / ctt / s2 < s.thr2:
-                continue  # what it explains, a parameter change explains as well
         ranked.append((float(c @ r_o) ** 2 / cc / s2, k, z))
     ranked.sort(reverse=True)
     if s.problem.opts.progress:
@@ -203,19 +181,14 @@ def _rank(s: _Search, pool: list[int], r_o: np.ndarray, cols_o: np.ndarray, col_
 MAX_SHORTLIST = 6
 
 
-def _shortlist(ranked: list[tuple[float, int, float]], thr2: float, s: _Search) -> list[tuple[int, float]]:
-    """The two best, every candidate of equal evidence with the best (so that equivalent explanations are compared by
-    their refits), plus the best parameter and the best term."""
+def _shortlist(ranked: list[tuple[float, int, float]], thr2: float) -> list[tuple[int, float]]:
+    """The two best, and every candidate of equal evidence with the best (so that equivalent explanations are
+    compared by their refits)."""
     if not ranked or ranked[0][0] < thr2:
         return []
     top = ranked[0][0]
     equal = top - max(2.0, EQUAL_EVIDENCE * top)
-    out = [(k, z) for i, (g, k, z) in enumerate(ranked[:MAX_SHORTLIST]) if g >= thr2 and (i < 2 or g >= equal)]
-    for want_param in (True, False):
-        best = next(((k, z) for g, k, z in ranked if g >= thr2 and s.cands[k].is_param == want_param), None)
-        if best is not None and best[0] not in [k for k, _ in out]:
-            out.append(best)
-    return out
+    return [(k, z) for i, (g, k, z) in enumerate(ranked[:MAX_SHORTLIST]) if g >= thr2 and (i < 2 or g >= equal)]
 
 
 def _displacement(s: _Search, fit: ShootFit, cov: np.ndarray, order: list[int]) -> float:
@@ -228,19 +201,16 @@ def _displacement(s: _Search, fit: ShootFit, cov: np.ndarray, order: list[int]) 
 
 
 def _better(s: _Search, gain: float, k: int, disp: float, best: tuple | None) -> bool:
-    """Whether candidate k (chi^2 ``gain``, parameter displacement ``disp``) beats the best so far.  A parameter at
-    equal evidence wins over a term; between terms of equal evidence, the one that keeps the parameters nearer their
-    nominal values (an equivalent explanation that needs fewer parameter changes), then the one listed first."""
+    """Whether term k (chi^2 ``gain``, parameter displacement ``disp``) beats the best so far: between terms of equal
+    evidence the one that keeps the parameters nearer their nominal values (an equivalent explanation that needs
+    fewer parameter changes), then the one listed first in the vocabulary."""
     if best is None:
         return True
     b_gain, b_k, b_disp = best[0], best[1], best[6]
-    new, old = s.cands[k], s.cands[b_k]
     margin = max(2.0, EQUAL_EVIDENCE * max(gain, b_gain))
-    if new.is_param != old.is_param:
-        return gain >= b_gain - margin if new.is_param else gain > b_gain + margin
     if abs(gain - b_gain) <= margin and max(disp, b_disp) > s.thr2 and (disp < 0.5 * b_disp or b_disp < 0.5 * disp):
         return disp < b_disp
-    return gain > b_gain + 2.0 or (gain >= b_gain - 2.0 and new.vocabulary_rank < old.vocabulary_rank)
+    return gain > b_gain + 2.0 or (gain >= b_gain - 2.0 and s.cands[k].vocabulary_rank < s.cands[b_k].vocabulary_rank)
 
 
 #: a shortlisted candidate whose linear gain is below this share of the best confirmed gain is not refitted
@@ -250,11 +220,11 @@ CATCH_UP = 0.5
 def _confirm(s: _Search, shortlist: list[tuple[int, float]], s2: float, linear: dict[int, float]) -> tuple | None:
     """Nonlinear refit with each shortlisted candidate: the best passing one as (gain, k, fit, family, cov, order,
     parameter displacement).  A candidate whose linear gain ``linear[k]`` cannot catch up with the best refit so far
-    (below :data:`CATCH_UP` of it, and not a parameter) is not refitted."""
+    (below :data:`CATCH_UP` of it) is not refitted."""
     shooter, best = s.screen.shooter, None
     for k, z0 in shortlist:
         cand = s.cands[k]
-        if best is not None and not cand.is_param and linear.get(k, math.inf) < CATCH_UP * best[0]:
+        if best is not None and linear.get(k, math.inf) < CATCH_UP * best[0]:
             continue
         fam_new, g0, order = s.add(k, s.fam, s.fit.g, z0)
         X0 = s.state_step(k, z0)
@@ -285,7 +255,7 @@ def _forward(s: _Search, r_o: np.ndarray, cols_o: np.ndarray, pool: list[int], c
     while pool:
         s2 = max(s.fit.cost / s.fit.dof, 1e-300)
         ranked = _rank(s, pool, r_o, cols_o, col_of, s2)
-        shortlist = _shortlist(ranked, s.thr2, s)
+        shortlist = _shortlist(ranked, s.thr2)
         best = _confirm(s, shortlist, s2, {k: g for g, k, _ in ranked}) if shortlist else None
         if best is None:
             break
@@ -371,6 +341,25 @@ def _left_out_gains(s: _Search) -> tuple[dict[int, float], str] | None:
     return gains, txt
 
 
+def _parameter_effect(s: _Search) -> np.ndarray:
+    """The joint effect of the chosen parameter changes on the projected residual (linear)."""
+    n = s.n_params()
+    _, J_p = s.fit.projected()
+    return flat(J_p)[:, :n] @ s.fit.g[:n]
+
+
+def _replace_if_as_good(s: _Search, order: list[int], g0: np.ndarray) -> ShootFit | None:
+    """Refit with the items ``order`` from ``g0``; adopt it when it fits as well as the current model (equal evidence:
+    chi^2 within 2 x chi^2/dof or 1%).  Returns the new fit, or None (nothing changed)."""
+    fam = s.family_of(order)
+    fit = s.screen.shooter.fit(fam.build, s.fit.X, g0, max_iter=s.problem.opts.max_iter)
+    if fit.cost > s.fit.cost + max(2.0 * max(s.fit.chi2_red, 1.0), 0.01 * s.fit.cost):
+        return None
+    s.chosen, s.fam, s.fit = order, fam, fit
+    s.cov = fit.covariance()
+    return fit
+
+
 def _sparser_parameters(s: _Search) -> dict[str, Any] | None:
     """When the chosen parameter changes (two or more) act together exactly like a change of one parameter (cosine
     >= 0.99 of their joint effect with its column; e.g. an RLC circuit's resistance and inductance moved together are
@@ -378,8 +367,7 @@ def _sparser_parameters(s: _Search) -> dict[str, Any] | None:
     params = [k for k in s.chosen if s.cands[k].is_param]
     if len(params) < 2:
         return None
-    _, J_p = s.fit.projected()
-    v = flat(J_p)[:, : len(params)] @ s.fit.g[: len(params)]
+    v = _parameter_effect(s)
     others = [k for k, c in enumerate(s.cands) if c.is_param]
     _, cols_p, _ = s.columns(s.fit, s.fam, others)
     cos = [abs(float(cols_p[:, j] @ v)) / (float(np.linalg.norm(cols_p[:, j]) * np.linalg.norm(v)) + 1e-300)
@@ -389,17 +377,13 @@ def _sparser_parameters(s: _Search) -> dict[str, Any] | None:
         return None
     k, c = others[j], cols_p[:, j]
     terms = [kk for kk in s.chosen if not s.cands[kk].is_param]
-    order = [k] + terms
+    before = s.fit.chi2_red
     g0 = np.array([float(c @ v) / float(c @ c)] + [s.fit.g[s.pos(kk)] for kk in terms])
-    fam = s.family_of(order)
-    fit = s.screen.shooter.fit(fam.build, s.fit.X, g0, max_iter=s.problem.opts.max_iter)
-    if fit.cost > s.fit.cost + max(2.0 * max(s.fit.chi2_red, 1.0), 0.01 * s.fit.cost):
+    if _replace_if_as_good(s, [k] + terms, g0) is None:
         return None
     swap = {"replaced": [s.cands[kk].label for kk in params], "by": s.cands[k].label, "cosine": round(cos[j], 4),
-            "chi2_per_dof": [s.fit.chi2_red, fit.chi2_red]}
+            "chi2_per_dof": [before, s.fit.chi2_red]}
     s.problem.log(f"{swap['replaced']} act as {swap['by']} (cosine {cos[j]:.4f}): the one change is reported")
-    s.chosen, s.fam, s.fit = order, fam, fit
-    s.cov = fit.covariance()
     return swap
 
 
@@ -415,14 +399,10 @@ def _compensating_terms(s: _Search) -> list[str]:
     keep_terms = [k for k in s.chosen if not s.cands[k].is_param and k not in local]
     order = params + keep_terms
     g0 = np.array([s.fit.g[s.pos(k)] if k in s.chosen else 0.0 for k in order])
-    fam = s.family_of(order)
-    fit = s.screen.shooter.fit(fam.build, s.fit.X, g0, max_iter=s.problem.opts.max_iter)
-    if fit.cost > s.fit.cost + max(2.0 * max(s.fit.chi2_red, 1.0), 0.01 * s.fit.cost):
+    if _replace_if_as_good(s, order, g0) is None:
         return []
     dropped = [s.cands[k].label for k in local]
-    s.problem.log(f"{dropped} only stand in for parameter changes (chi2/dof {fit.chi2_red:.3g} without them): dropped")
-    s.chosen, s.fam, s.fit = order, fam, fit
-    s.cov = fit.covariance()
+    s.problem.log(f"{dropped} only stand in for parameter changes (chi2/dof {s.fit.chi2_red:.3g} without them): dropped")
     _prune_parameters(s)
     return dropped
 
@@ -435,8 +415,7 @@ def _port_gain_equivalent(s: _Search) -> dict[str, Any] | None:
     gains = [k for k, c in enumerate(s.cands) if not c.is_param and c.term == "actuator_gain" and k not in s.chosen]
     if not params or not gains:
         return None
-    _, J_p = s.fit.projected()
-    v = flat(J_p)[:, : len(params)] @ s.fit.g[: len(params)]  # the joint effect of the parameter changes
+    v = _parameter_effect(s)
     _, cols_p, _ = s.columns(s.fit, s.fam, gains)
     for j, k in enumerate(gains):
         c = cols_p[:, j]
@@ -444,16 +423,12 @@ def _port_gain_equivalent(s: _Search) -> dict[str, Any] | None:
         if cos < 0.99:
             continue
         keep = [kk for kk in s.chosen if not s.cands[kk].is_param]
-        order = keep + [k]
+        before = s.fit.chi2_red
         g0 = np.array([s.fit.g[s.pos(kk)] for kk in keep] + [float(c @ v) / float(c @ c)])
-        fam = s.family_of(order)
-        fit = s.screen.shooter.fit(fam.build, s.fit.X, g0, max_iter=s.problem.opts.max_iter)
-        if fit.cost <= s.fit.cost + max(2.0 * max(s.fit.chi2_red, 1.0), 0.01 * s.fit.cost):
+        if _replace_if_as_good(s, keep + [k], g0) is not None:
             swap = {"replaced": [s.cands[kk].label for kk in params], "by": s.cands[k].label, "cosine": round(cos, 4),
-                    "chi2_per_dof": [s.fit.chi2_red, fit.chi2_red]}
+                    "chi2_per_dof": [before, s.fit.chi2_red]}
             s.problem.log(f"{swap['replaced']} act as {swap['by']} (cosine {cos:.4f}): the port gain is reported")
-            s.chosen, s.fam, s.fit = order, fam, fit
-            s.cov = fit.covariance()
             s.swapped = set(params)
             return swap
     return None
@@ -497,7 +472,7 @@ def _refine_stribeck(s: _Search) -> None:
                 if c_new.velocity < MIN_STRIBECK_OVER_EPS * s.problem.eps_coord[cand.coordinate]:
                     continue
                 trial = [c_new if kk == k else s.cands[kk] for kk in range(len(s.cands))]
-                fam_v = _Search(s.problem, s.screen, trial, s.fit, s.fam).family_of(s.chosen)
+                fam_v = s.family_of(s.chosen, trial)
                 fit_v = s.screen.shooter.fit(fam_v.build, s.fit.X, s.fit.g, max_iter=CONFIRM_ITER)
                 if fit_v.cost < best[0]:
                     best = (fit_v.cost, c_new, fit_v, fam_v)
