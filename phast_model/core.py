@@ -4,7 +4,8 @@ One observation step is ``L`` substeps of the Strang splitting
 
     Phi_h = Phi_D(h/2) o Phi_H(h) o Phi_D(h/2),     h = dt_model / L   (Eq. 78)
 
-* dissipation half-step, q fixed: ``p <- p - (h/2) D(q) M^-1 p`` (Eq. 42);
+* dissipation half-step, q fixed: ``p <- p - (h/2) D(q) M^-1 p`` (Eq. 42), then, with a velocity-dependent
+  joint friction f(v), its backward-Euler step ``p <- p - (h/2) f(M^-1 p_new)`` (issue 30, passive for any stiffness);
 * conservative step ``Phi_H``: leapfrog / Stormer-Verlet when H is separable
   (constant M), implicit midpoint with fixed-point iterations for M(q);
 * the port force ``G u`` is held over the step and enters the momentum
@@ -22,6 +23,7 @@ import torch
 from torch import nn
 
 from .components.damping import Damping
+from .components.friction import JointFriction
 from .components.mass import Mass
 from .components.potentials import Potential
 
@@ -49,16 +51,21 @@ class SubstepCore(nn.Module):
 
 
 class PHASTCore(SubstepCore):
-    """``(q, p, G u) -> (q', p')`` with potential V, mass M and damping D."""
+    """``(q, p, G u) -> (q', p')`` with potential V, mass M, damping D and optional joint friction f(v).
+
+    ``friction`` is registered after the other components (before ``log_dt``), so models without it keep their
+    parameter order and state-dict keys."""
 
     def __init__(self, potential: Potential, mass: Mass, damping: Damping | None, dt: float, substeps: int = 1,
-                 learn_dt: bool = True, integrator: str = "auto", midpoint_iters: int = 4) -> None:
+                 learn_dt: bool = True, integrator: str = "auto", midpoint_iters: int = 4, *,
+                 friction: JointFriction | None = None) -> None:
         if integrator not in ("auto", "leapfrog", "implicit_midpoint"):
             raise ValueError(f"integrator must be 'auto', 'leapfrog' or 'implicit_midpoint', got {integrator!r}")
         super().__init__()
         self.potential, self.mass, self.damping = potential, mass, damping
         self.integrator = ("leapfrog" if mass.constant else "implicit_midpoint") if integrator == "auto" else integrator
         self.midpoint_iters = int(midpoint_iters)
+        self.friction = friction
         self.init_substeps(dt, substeps, learn_dt)
 
     # ---- energy --------------------------------------------------------------
@@ -73,11 +80,15 @@ class PHASTCore(SubstepCore):
     def damping_half_step(self, q: torch.Tensor, p: torch.Tensor, h: torch.Tensor,
                           d_at_q: Callable[[torch.Tensor], torch.Tensor] | None = None) -> torch.Tensor:
         """Phi_D(h/2): p <- p - (h/2) D(q) M^-1 p (Eq. 42); energy non-increasing when
-        h lambda_max(D) / (2 lambda_min(M)) <= 2 (Eq. 44).  ``d_at_q`` = ``damping.at(q)`` when already built."""
-        if self.damping is None:
-            return p
-        d_at_q = self.damping.at(q) if d_at_q is None else d_at_q
-        return p - 0.5 * h * d_at_q(self.mass.velocity(q, p))
+        h lambda_max(D) / (2 lambda_min(M)) <= 2 (Eq. 44).  ``d_at_q`` = ``damping.at(q)`` when already built.
+        Then the joint friction's backward-Euler half-step (:meth:`JointFriction.half_step`), which never raises
+        the kinetic energy at any step size."""
+        if self.damping is not None:
+            d_at_q = self.damping.at(q) if d_at_q is None else d_at_q
+            p = p - 0.5 * h * d_at_q(self.mass.velocity(q, p))
+        if self.friction is not None:
+            p = self.friction.half_step(self.mass, q, p, 0.5 * h)
+        return p
 
     def conservative_step(self, q: torch.Tensor, p: torch.Tensor, f: torch.Tensor | None, h: torch.Tensor,
                           need_p: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
@@ -130,11 +141,13 @@ class PHASTCore(SubstepCore):
     forward = strang_step
 
     def power(self, q: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
-        """Continuous-time dH/dt at u = 0: -v^T D(q) v <= 0 (Theorem A.1)."""
+        """Continuous-time dH/dt at u = 0: -v^T D(q) v - f(v)^T v <= 0 (Theorem A.1 plus the joint friction)."""
         v = self.mass.velocity(q, p)
         if self.damping is None:
-            return torch.zeros_like(q[..., 0])
-        return -(v * self.damping.apply(q, v)).sum(-1)
+            out = torch.zeros_like(q[..., 0])
+        else:
+            out = -(v * self.damping.apply(q, v)).sum(-1)
+        return out if self.friction is None else out - self.friction.power(v)
 
 
 def composed_strang_step(core: PHASTCore, q: torch.Tensor, p: torch.Tensor, f: torch.Tensor | None = None,

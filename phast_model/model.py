@@ -35,6 +35,7 @@ from .components import (
     make_template,
 )
 from .components.features import coordinate_features, n_features
+from .components.friction import JointFriction
 from .components.potentials import TemplatePotential
 from .core import PHASTCore, SubstepCore
 from .interfaces import ForecastModel, coordinate_error, wrap_angles
@@ -56,7 +57,8 @@ class PHASTConfig:
     mass_hidden: int = 32  # mass="cholesky": hidden width of the factor network
     #: where learned physics starts: "data" (least squares on the training set at the start of training,
     #: :mod:`phast_model.data_init`), "physics" (template and mass fitted to the env's true V and M: the
-    #: "V given" variant) or "none" (unit coefficients, identity mass)
+    #: "V given" variant), "rig" (a recordings run: the rig's nominal V and M at the recorded configurations,
+    #: :func:`phast_model.rig.fit_recordings`) or "none" (unit coefficients, identity mass)
     init_from: str = "data"
     damping: str = "householder"  # householder | known | none
     damping_rank: int = 2
@@ -93,8 +95,32 @@ class PHASTConfig:
     #: "observer" (the autoregressive rollout the benchmark scores: the observer re-run on the predicted window)
     roll_mode: str = "core"
     env_kwargs: dict[str, Any] = field(default_factory=dict)
+    #: a user rig or env id for recordings (``path.py:Class``, ``module:Class`` or an env id, with ``env_kwargs``);
+    #: None: ``env_id`` names the system (phast_model.mismatch.simulators.load_simulator resolves it)
+    sim: str | None = None
+    #: the model's sampling step when it differs from the system's own ``dt`` (recordings: their grid)
+    dt: float | None = None
+    #: RMS scales of the Euclidean coordinates / of the velocities that normalize neural inputs (None: from the
+    #: system's initial-state distribution, :func:`system_scales`; recordings: from the data)
+    q_scale: list[float] | None = None
+    v_scale: list[float] | None = None
+    #: the port's bound per input (a recordings run: the largest recorded |u| unless the user gives one); the world
+    #: env's action space.  None: the registered env's
+    action_bound: list[float] | None = None
     actuated_dofs: list[int] | None = None
     seed: int = 0
+    #: velocity-dependent joint friction (issue 30): "none" or "joint" (:class:`JointFriction`, a backward-Euler
+    #: step in each dissipation half-step); its shapes (coulomb | viscous | quadratic | stribeck), the Coulomb
+    #: tanh smoothing and Stribeck velocities (one value or one per joint), the coordinates with friction (None:
+    #: all) and the initial coefficient of every law
+    friction: str = "none"
+    friction_laws: list[str] = field(default_factory=lambda: ["coulomb", "viscous"])
+    friction_eps: float | list[float] = 0.01
+    friction_vs: float | list[float] = 0.1
+    friction_joints: list[int] | None = None
+    friction_init: float = 1e-3
+    #: damped Newton iterations of the backward-Euler friction step (fewer: faster, the passivity guard still holds)
+    friction_newton_iters: int = 8
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -155,6 +181,11 @@ class PHAST(ForecastModel):
     @property
     def damping(self):  # noqa: ANN201
         return self.core.damping
+
+    @property
+    def friction(self) -> JointFriction | None:
+        """The core's joint friction (None without one); its ``coefficients()`` are the identified laws."""
+        return getattr(self.core, "friction", None)
 
     def port_force(self, u: torch.Tensor | None) -> torch.Tensor | None:
         """G u: (..., m) -> (..., n)."""
@@ -613,9 +644,31 @@ class _EnvScales:
     v_scale: np.ndarray
 
 
-def _env_scales(env_id: str, system: System) -> _EnvScales:
-    """The :class:`_EnvScales` of ``system`` (numpy RNG only: leaves the torch RNG alone)."""
-    q_scale, v_scale = system_scales(system)
+def config_system(cfg: PHASTConfig) -> tuple[str, System]:
+    """(name, system) of a config: the registered env ``env_id``, or the rig ``sim`` (a user's System class or an env
+    id, with ``env_kwargs``), at the config's ``dt`` when it sets one (an instance attribute: the class keeps its own)."""
+    if cfg.sim is None:
+        name = resolve_env_id(cfg.env_id)
+        system = make_env_system(name, **cfg.env_kwargs)
+    else:
+        from .mismatch.simulators import load_simulator
+
+        name, system = cfg.sim, load_simulator(cfg.sim, cfg.env_kwargs).build()
+    if cfg.dt is not None:
+        if not (cfg.dt > 0 and math.isfinite(cfg.dt)):
+            raise ValueError(f"dt must be positive and finite, got {cfg.dt!r}")
+        system.dt = float(cfg.dt)
+    return name, system
+
+
+def _env_scales(env_id: str, system: System, cfg: PHASTConfig | None = None) -> _EnvScales:
+    """The :class:`_EnvScales` of ``system`` (numpy RNG only: leaves the torch RNG alone); the config's own scales
+    (recordings) replace the ones of the system's initial-state distribution."""
+    if cfg is not None and cfg.v_scale is not None:
+        q_scale = np.asarray(cfg.q_scale or [], dtype=np.float32)
+        v_scale = np.asarray(cfg.v_scale, dtype=np.float32)
+    else:
+        q_scale, v_scale = system_scales(system)
     return _EnvScales(env_id, system, system.n, tuple(system.angle_dims), q_scale, v_scale)
 
 
@@ -649,7 +702,7 @@ def _latent_ode_model(cfg: PHASTConfig, env: _EnvScales, observer: FDTCNObserver
 def _check_phast_config(cfg: PHASTConfig, env: _EnvScales) -> None:
     """ValueError for a PHAST config that cannot be built: unknown ``init_from`` or ``kind``, or an env that is not
     port-Hamiltonian."""
-    if cfg.init_from not in ("data", "physics", "none"):
+    if cfg.init_from not in ("data", "physics", "none", "rig"):
         raise ValueError(f"init_from must be data, physics or none, got {cfg.init_from!r}")
     if cfg.kind != "phast":
         raise ValueError(f"kind must be 'phast' or 'latent_ode', got {cfg.kind!r}")
@@ -748,13 +801,28 @@ def _damping(cfg: PHASTConfig, env: _EnvScales) -> nn.Module | None:
     return _component("damping", DAMPINGS, cfg.damping, cfg, env)
 
 
+#: ``PHASTConfig.friction`` -> builder (``none``: no velocity-dependent friction)
+FRICTIONS: dict[str, Callable[[PHASTConfig, _EnvScales], nn.Module | None]] = {
+    "joint": lambda cfg, env: JointFriction(
+        env.n, cfg.friction_joints, tuple(cfg.friction_laws), cfg.friction_eps, cfg.friction_vs, cfg.friction_init,
+        newton_iters=cfg.friction_newton_iters),
+    "none": lambda cfg, env: None}
+
+
+def _friction(cfg: PHASTConfig, env: _EnvScales) -> nn.Module | None:
+    """The joint friction f(v) of ``cfg.friction``: joint or none."""
+    return _component("friction", FRICTIONS, cfg.friction, cfg, env)
+
+
 def _phast_core(cfg: PHASTConfig, env: _EnvScales) -> PHASTCore:
-    """The Strang-splitting core; potential, mass and damping are created in this order (it fixes their initial
-    weights)."""
+    """The Strang-splitting core; potential, mass, damping and friction are created in this order (it fixes their
+    initial weights)."""
     pot = _potential(cfg, env)
     mass = _mass(cfg, env)
     damp = _damping(cfg, env)
-    return PHASTCore(pot, mass, damp, env.system.dt, cfg.substeps, cfg.learn_dt, cfg.integrator, cfg.midpoint_iters)
+    fric = _friction(cfg, env)
+    return PHASTCore(pot, mass, damp, env.system.dt, cfg.substeps, cfg.learn_dt, cfg.integrator, cfg.midpoint_iters,
+                     friction=fric)
 
 
 def build_from_config(cfg: PHASTConfig) -> PHAST:
@@ -762,11 +830,10 @@ def build_from_config(cfg: PHASTConfig) -> PHAST:
 
     Every module draws its initial weights from the torch RNG seeded here, so the creation order (observer, then
     potential, mass, damping; or the latent-ODE field) is part of the model's definition."""
-    env_id = resolve_env_id(cfg.env_id)
-    system = make_env_system(env_id, **cfg.env_kwargs)
+    env_id, system = config_system(cfg)
     actuated = tuple(cfg.actuated_dofs) if cfg.actuated_dofs is not None else tuple(range(system.n))
     torch.manual_seed(cfg.seed)
-    env = _env_scales(env_id, system)
+    env = _env_scales(env_id, system, cfg)
     observer = _observer(cfg, env)
     if cfg.kind == "latent_ode":
         return _latent_ode_model(cfg, env, observer, actuated)

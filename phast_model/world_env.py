@@ -39,17 +39,32 @@ class PHASTWorldModelEnv(gym.Env):
         if int(burn_in) < 1:
             raise ValueError(f"burn_in must be >= 1, got {burn_in!r}")
         self.burn_in, self.max_episode_steps = int(burn_in), int(max_episode_steps)
-        self.real = gym.make(self.env_id, **env_kwargs).unwrapped
-        if self.real.n != self.model.n or self.real.m != self.model.m:
-            raise ValueError(f"model (n={self.model.n}, m={self.model.m}) does not match {self.env_id} "
-                             f"(n={self.real.n}, m={self.real.m})")
-        self.observation_space = self.real.observation_space
-        self.action_space = self.real.action_space
+        if getattr(self.model.config, "sim", None) is not None and env_id is None:
+            self._rig_spaces()  # a model of a rig's recordings: no simulator to reset from
+        else:
+            self.real = gym.make(self.env_id, **env_kwargs).unwrapped
+            if self.real.n != self.model.n or self.real.m != self.model.m:
+                raise ValueError(f"model (n={self.model.n}, m={self.model.m}) does not match {self.env_id} "
+                                 f"(n={self.real.n}, m={self.real.m})")
+            self.observation_space = self.real.observation_space
+            self.action_space = self.real.action_space
         self.dataset = dataset
         self.target = np.zeros(self.model.n) if target is None else np.asarray(target, dtype=np.float64)
         self._dtype = next(self.model.parameters()).dtype
         self._hist: torch.Tensor | None = None
         self._t = 0
+
+    def _rig_spaces(self) -> None:
+        """Spaces of a recordings model: q unbounded (angles wrapped), u within the config's ``action_bound`` (the
+        largest recorded |u| per input, or the user's bound); episodes start from ``options["q_burn"]`` or the
+        ``dataset``."""
+        m = self.model.m
+        bound = np.asarray(self.model.config.action_bound or [np.inf] * m, dtype=np.float32).reshape(-1)
+        if bound.size != m:
+            bound = np.full(m, float(bound.max()), dtype=np.float32)
+        self.real = None
+        self.observation_space = gym.spaces.Box(-np.inf, np.inf, (self.model.n,), np.float32)
+        self.action_space = gym.spaces.Box(-bound, bound, (m,), np.float32)
 
     def _obs(self) -> np.ndarray:
         q = self._hist[0, -1].numpy().astype(self.observation_space.dtype)
@@ -66,6 +81,9 @@ class PHASTWorldModelEnv(gym.Env):
         if self.dataset is not None:
             i = int(self.np_random.integers(len(self.dataset.q)))
             return np.asarray(self.dataset.q[i, : self.burn_in], dtype=np.float64)
+        if self.real is None:
+            raise ValueError("a world model of recordings has no simulator to start from: pass "
+                             "reset(options={'q_burn': (K, n) measured q}) or a dataset")
         obs, _ = self.real.reset(seed=int(self.np_random.integers(2**31)))
         qs = [obs[: self.model.n]]
         zero = np.zeros(self.real.m, dtype=self.real.action_space.dtype)

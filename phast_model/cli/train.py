@@ -1,7 +1,14 @@
-"""``phast-train``: train a PHAST model on a registered env and write a run directory.
+"""``phast-train``: train a PHAST model on a registered env, or on a rig's recordings, and write a run directory.
 
     phast-train --env PHAST/WindyPendulum-v0 --regime partial --epochs 50 --seed 0 \\
         --n-train 1000 --out runs/windy_partial [--resume]
+    phast-train --recordings arm.npz --sim PHAST/DoublePendulum-v0 --sim-kwargs '{"coordinates": "relative"}' \\
+        --holdout-trajectories 2,4,6 --rollout-window-s 1 --regime partial --out runs/arm
+
+With ``--recordings`` (the ``phast-mismatch`` format: q, t or dt, u, angle_dims, angle_offset) the rig ``--sim``
+(an env id or ``path/to/rig.py:Class``) gives the V and M templates and the port; the model learns joint friction
+and is scored on the held-out recordings against the nominal rig (``metrics.json["heldout"]``):
+:func:`phast_model.rig_run.train_recordings_run`.
 
 Writes ``model.pt``, ``config.json``, ``metrics.json`` (Table 16 keys on the test split
 plus the training wall time), ``history.json``, ``checkpoint.pt`` and plots
@@ -26,7 +33,17 @@ __all__ = ["main", "parse_args", "train_run"]
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(prog="phast-train", description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--env", required=True, help=f"env id, one of {env_ids()}")
+    ap.add_argument("--env", help=f"env id, one of {env_ids()} (or --recordings)")
+    rec = ap.add_argument_group("recordings of a rig (instead of --env)")
+    rec.add_argument("--recordings", metavar="FILE", help=".npz / .csv recordings (the phast-mismatch format)")
+    rec.add_argument("--sim", help="the rig: an env id or path/to/rig.py:Class (with --recordings)")
+    rec.add_argument("--sim-kwargs", default="{}", metavar="JSON", help="the rig's constructor kwargs (JSON object)")
+    rec.add_argument("--holdout-trajectories", metavar="I,J", help="0-based trajectories held out for the score")
+    rec.add_argument("--rollout-window-s", type=float, default=None, metavar="S",
+                     help="held-out open-loop windows of S seconds, each after a 0.1 s burn-in (default: whole recordings)")
+    rec.add_argument("--window-s", type=float, default=0.25, metavar="S", help="training (multiple-shooting) window")
+    rec.add_argument("--action-bound", type=float, nargs="+", default=None, metavar="U",
+                     help="the world env's torque bound per input (default: the largest recorded |u|)")
     ap.add_argument("--regime", default="partial", choices=("known", "partial", "unknown"))
     ap.add_argument("--epochs", type=int, default=50)
     ap.add_argument("--seed", type=int, default=0, help="model / training seed")
@@ -67,11 +84,61 @@ def _overrides(items: list[str]) -> dict[str, Any]:
     return out
 
 
+def _int_list(text: str | None, flag: str) -> tuple[int, ...] | None:
+    if text is None:
+        return None
+    try:
+        return tuple(int(x) for x in text.replace(" ", "").split(",") if x != "")
+    except ValueError:
+        raise ValueError(f"{flag} expects comma-separated integers, got {text!r}") from None
+
+
+def _json_object(text: str, flag: str) -> dict[str, Any]:
+    try:
+        obj = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{flag} is not valid JSON ({exc.msg})") from None
+    if not isinstance(obj, dict):
+        raise ValueError(f"{flag} must be a JSON object, got {type(obj).__name__}")
+    return obj
+
+
+def _recordings_main(args: argparse.Namespace) -> dict[str, Any]:
+    """The ``--recordings`` path: checks, training, held-out score; returns what to print."""
+    from ..rig import RigTrainConfig
+    from ..rig_run import RecordingsSpec, heldout_summary, train_recordings_run
+
+    if args.env is not None:
+        raise ValueError("give either --env or --recordings, not both")
+    if not args.sim:
+        raise ValueError("--recordings needs --sim (an env id or path/to/rig.py:Class)")
+    if args.resume:
+        raise ValueError("--resume is not supported with --recordings (a run takes minutes; start it again)")
+    spec = RecordingsSpec(args.recordings, args.sim, _json_object(args.sim_kwargs, "--sim-kwargs"), args.regime,
+                          _int_list(args.holdout_trajectories, "--holdout-trajectories"), args.rollout_window_s,
+                          tuple(args.action_bound) if args.action_bound else None)
+    train = RigTrainConfig(epochs=args.epochs, window_s=args.window_s, lr=args.lr if args.lr != 1e-3 else 2e-2,
+                           seed=args.seed, progress=not args.no_progress)
+    metrics = train_recordings_run(spec, args.out, train, _overrides(args.set), plots=not args.no_plots)
+    return heldout_summary(metrics)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
+    import gymnasium as gym
     import torch
 
     torch.set_num_threads(max(1, args.threads))
+    if args.recordings is not None:
+        try:
+            print(json.dumps(_recordings_main(args)))
+        except (ValueError, gym.error.Error) as exc:
+            print(f"phast-train: error: {exc}", file=sys.stderr)
+            return 2
+        return 0
+    if args.env is None:
+        print("phast-train: error: give --env (a registered env id) or --recordings FILE --sim SIM", file=sys.stderr)
+        return 2
     try:
         from ..training import TrainConfig
 
@@ -82,7 +149,7 @@ def main(argv: list[str] | None = None) -> int:
                             progress=not args.no_progress)
         metrics = train_run(args.env, args.regime, args.out, data=data, train=train, overrides=_overrides(args.set),
                             resume=args.resume, plots=not args.no_plots)
-    except ValueError as exc:
+    except (ValueError, gym.error.Error) as exc:
         print(f"phast-train: error: {exc}", file=sys.stderr)
         return 2
     keys = [metrics["benchmark_metric"], "damping_r2", "train_wall_time_s"]

@@ -71,13 +71,14 @@ def _pairs(q: torch.Tensor, n_particles: int, dim: int = 2) -> torch.Tensor:
 class TemplatePotential(Potential):
     """Structured potential ``V = sum_k c_k phi_k(q)`` with learnable coefficients c.
 
-    kinds: ``cosine`` (``sum_i a_i (1 - cos q_i)`` over ``dims``, Eq. 80),
+    kinds: ``cosine`` (``sum_i a_i (1 - cos q_i)`` over ``dims``, Eq. 80), ``chain_cosine`` (the gravity regressor
+    of a planar chain in joint coordinates: ``sum_i a_i (1 - cos(q_1 + ... + q_i))``, the absolute link angles),
     ``quadratic`` (``q^T K q / 2``, K symmetric, Eq. 81), ``lennard_jones``
     (``c1 sum r^-12 - c2 sum r^-6``), ``gravity`` (``-c sum (r^2 + eps^2)^-1/2``,
     eps learnable).
     """
 
-    KINDS = ("cosine", "quadratic", "lennard_jones", "gravity")
+    KINDS = ("cosine", "chain_cosine", "quadratic", "lennard_jones", "gravity")
 
     def __init__(self, kind: str, n: int, dims: tuple[int, ...] | None = None, softening: float = 0.1) -> None:
         super().__init__()
@@ -85,7 +86,7 @@ class TemplatePotential(Potential):
             raise ValueError(f"unknown potential template {kind!r}; known: {self.KINDS}")
         self.kind, self.n = kind, int(n)
         self.dims = tuple(range(n)) if dims is None else tuple(int(i) for i in dims)
-        if kind == "cosine":
+        if kind in ("cosine", "chain_cosine"):
             k = len(self.dims)
         elif kind == "quadratic":
             self.tri = [(i, j) for i in range(n) for j in range(i, n)]
@@ -102,6 +103,8 @@ class TemplatePotential(Potential):
         """(..., n) -> (..., K) basis functions phi_k(q)."""
         if self.kind == "cosine":
             return 1.0 - torch.cos(q[..., list(self.dims)])
+        if self.kind == "chain_cosine":
+            return 1.0 - torch.cos(torch.cumsum(q, -1)[..., list(self.dims)])
         if self.kind == "quadratic":
             return torch.stack([(0.5 if i == j else 1.0) * q[..., i] * q[..., j] for i, j in self.tri], -1)
         r2 = _pairs(q, self.n_particles)
@@ -118,6 +121,11 @@ class TemplatePotential(Potential):
             g = torch.zeros_like(q)
             g = g.index_copy(-1, torch.tensor(self.dims, device=q.device), self.coef * torch.sin(q[..., list(self.dims)]))
             return g
+        if self.kind == "chain_cosine":  # dV/dq_j = sum_{i >= j} a_i sin(Q_i), Q = cumsum(q)
+            g = torch.zeros_like(q)
+            Q = torch.cumsum(q, -1)
+            g = g.index_copy(-1, torch.tensor(self.dims, device=q.device), self.coef * torch.sin(Q[..., list(self.dims)]))
+            return torch.flip(torch.cumsum(torch.flip(g, (-1,)), -1), (-1,))
         return autograd_grad(self.energy, q)
 
     def gradient_basis(self, q: torch.Tensor) -> torch.Tensor:

@@ -1,0 +1,440 @@
+"""A PHAST world model of the user's rig, learned from real recordings (docs/rig_world_model.md).
+
+The recordings are the ``phast-mismatch`` format, read by the same loader (:mod:`phast_model.mismatch.recordings`):
+q (N, T, n), recorded times ``t`` (jitter allowed) or ``dt``, the measured port input u, ``angle_dims``,
+``angle_offset``.  The rig (an env id or a user's ``path.py:Class``) gives the template: V and M forms and the port.
+
+* :func:`load_rig_data`: validate, split off the held-out trajectories, put both parts on one uniform grid (the
+  PHAST core steps at a fixed dt; q by cubic spline, u held per interval).
+* :func:`rig_config`: KNOWN (the rig's V and M), PARTIAL (the rig's templates, coefficients fitted from the data),
+  UNKNOWN (neural V and M); dissipation learned in every regime as a passive per-joint friction
+  ``f_i(qdot_i)`` (:class:`phast_model.components.friction.JointFriction`).
+* :func:`fit_recordings`: multiple shooting.  A real encoder is quantized (the DFKI arm: 3.8e-4 rad at 2 ms), so
+  a finite-difference velocity is too noisy to start a one-step prediction from; each training window instead
+  gets its own initial state, refitted by Gauss-Newton with the model fixed, and the model is trained by AdamW
+  on the open-loop error over the windows.
+* :func:`heldout_rollouts`: the held-out score, computed by the same code for every model (PHAST, the nominal rig
+  as a KNOWN model without dissipation): each window's state is fitted to its burn-in, then the model runs open
+  loop with the recorded u; RMSE of q, wrapped on angles.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from .interfaces import coordinate_error, wrap_angles
+from .mismatch.evaluate import check_holdout_indices, split
+from .mismatch.recordings import Recordings, load_raw, validate
+from .mismatch.shooting import smooth
+from .mismatch.simulators import load_simulator
+from .model import PHAST, PHASTConfig, build_from_config
+
+REGIMES = ("known", "partial", "unknown")
+#: burn-in before each held-out window [s] (the state is fitted to it)
+BURN_IN_S = 0.1
+#: starting value of every friction coefficient (SI units of the rig; trained at FRICTION_LR_MULT x the lr)
+FRICTION_INIT = 0.01
+#: Coulomb smoothing velocity of the learned friction, as a fraction of the coordinate's RMS speed in the data
+FRICTION_EPS = 0.05
+#: Savitzky-Golay window for the starting states [s]
+SMOOTH_S = 0.03
+
+
+# --------------------------------------------------------------------------- data
+@dataclass(frozen=True)
+class RigData:
+    """Training and held-out recordings on one uniform grid of step ``dt``."""
+
+    train: Recordings
+    heldout: Recordings | None
+    dt: float
+    holdout: tuple[int, ...]
+    source: str
+    u_bound: tuple[float, ...]  # largest |u| recorded per coordinate (the world env's action bound)
+
+    @property
+    def driven(self) -> bool:
+        return self.train.u is not None
+
+
+def load_rig_data(recordings: str | Path | dict[str, Any], sim: str, sim_kwargs: dict[str, Any] | None = None,
+                  holdout: list[int] | None = None) -> RigData:
+    """Read and check the recordings against the rig ``sim`` (shapes, u width, angles), hold out ``holdout``
+    (trajectory indices) and resample both parts onto the uniform grid of their median step."""
+    system = load_simulator(sim, sim_kwargs or {}).build()
+    holdout = check_holdout_indices(holdout)
+    raw, src = load_raw(recordings)
+    rec = validate(raw, system.n, tuple(system.angle_dims), src)
+    if holdout:
+        train, held, _ = split(rec, 0.0, holdout)
+    else:
+        train, held = rec, None
+    train = train.resampled()
+    held = None if held is None else held.resampled()
+    u_all = rec.u if rec.u is not None else np.zeros((1, 1, system.n))
+    bound = tuple(float(b) for b in np.max(np.abs(u_all), axis=(0, 1)))
+    return RigData(train, held, float(rec.dt), tuple(holdout or ()), src, bound)
+
+
+def _check_window_room(rec: Recordings, samples: int, what: str) -> None:
+    if rec.T < samples:
+        raise ValueError(f"{rec.source}: recordings of T={rec.T} samples at dt={rec.dt:.4g} s are too short for {what} "
+                         f"({samples} samples)")
+
+
+# --------------------------------------------------------------------------- regimes
+def _template(system: Any) -> tuple[str, list[int] | None, str | None]:
+    """(potential template, its dims, mass template) of a rig: the class's ``PHAST_TEMPLATES`` when it declares
+    them, else the suite's defaults for its kind (a pendulum, a relative or absolute double pendulum)."""
+    declared = getattr(system, "PHAST_TEMPLATES", None)
+    if declared is not None:
+        return declared["potential"], declared.get("dims"), declared.get("mass")
+    name = getattr(system, "name", "")
+    if "double_pendulum" in name and system.params.get("coordinates") == "relative":
+        return "chain_cosine", [0, 1], "double_pendulum_relative"
+    if "double_pendulum" in name:
+        return "cosine", [0, 1], "double_pendulum"
+    if "pendulum" in name and system.n == 1:
+        return "cosine", [0], None
+    raise ValueError(f"the rig {type(system).__name__} declares no PARTIAL templates: set a class attribute "
+                     "PHAST_TEMPLATES = {'potential': 'cosine' | 'chain_cosine' | 'quadratic', 'dims': [...], "
+                     "'mass': None | 'double_pendulum_relative' | ...}, or use --regime known / unknown")
+
+
+def data_scales(rec: Recordings) -> tuple[list[float], list[float]]:
+    """RMS of the Euclidean coordinates and of the (smoothed) velocities of the recordings."""
+    _, v = smooth(rec.q, rec.dt, _odd_samples(SMOOTH_S, rec.dt))
+    eu = [i for i in range(rec.n) if i not in rec.angle_dims]
+    q_scale = [float(np.sqrt(np.mean(rec.q[..., i] ** 2)) + 1e-3) for i in eu]
+    return q_scale, [float(np.sqrt(np.mean(v[..., i] ** 2)) + 1e-3) for i in range(rec.n)]
+
+
+def rig_config(sim: str, sim_kwargs: dict[str, Any], regime: str, data: RigData, **overrides: Any) -> PHASTConfig:
+    """The PHAST configuration of ``regime`` on the rig ``sim`` at the data's grid; ``overrides`` replace fields."""
+    regime = regime.lower()
+    if regime not in REGIMES:
+        raise ValueError(f"regime must be one of {REGIMES}, got {regime!r}")
+    system = load_simulator(sim, sim_kwargs).build()
+    q_scale, v_scale = data_scales(data.train)
+    base = PHASTConfig(env_id=sim, sim=sim, regime=regime, env_kwargs=dict(sim_kwargs), dt=data.train.dt,
+                       q_scale=q_scale, v_scale=v_scale, damping="none", canonicalizer="mass", substeps=1,
+                       learn_dt=False, observer_trainable=False, friction="joint", friction_init=FRICTION_INIT,
+                       friction_newton_iters=0, midpoint_iters=1,
+                       friction_eps=[FRICTION_EPS * v for v in v_scale], friction_vs=[0.2 * v for v in v_scale])
+    if regime == "known":
+        cfg = replace(base, potential="known", mass="known")
+    elif regime == "partial":
+        tmpl, dims, mass_t = _template(system)
+        mass: dict[str, Any] = {"mass": "template", "mass_template": mass_t} if mass_t else {"mass": "lowrank",
+                                                                                             "mass_rank": min(4, system.n)}
+        cfg = replace(base, potential="template", template=tmpl, template_dims=dims, init_from="rig", **mass)
+    else:
+        mass = {"mass": "lowrank", "mass_rank": min(4, system.n)} if system.separable else {"mass": "cholesky"}
+        cfg = replace(base, potential="neural", init_from="none", **mass)
+    return replace(cfg, **overrides)
+
+
+def nominal_config(cfg: PHASTConfig) -> PHASTConfig:
+    """The rig itself as a model: its V and M, no dissipation beyond its own (scored by the same code as PHAST)."""
+    return replace(cfg, regime="nominal", potential="known", mass="known", damping="known", friction="none",
+                   init_from="none")
+
+
+def _odd_samples(seconds: float, dt: float) -> int:
+    k = max(5, int(round(seconds / dt)))
+    return k if k % 2 else k + 1
+
+
+# --------------------------------------------------------------------------- shooting
+@dataclass
+class ShootWindows:
+    """Equal windows of the recordings with one initial state (q, qdot) each (the state at the first sample)."""
+
+    q: torch.Tensor  # (W, L, n)
+    u: torch.Tensor | None  # (W, L-1, n) generalized force held over each interval
+    X: torch.Tensor  # (W, 2n) initial (q, qdot)
+
+    @property
+    def length(self) -> int:
+        return self.q.shape[1]
+
+
+def cut_windows(rec: Recordings, length: int, dtype: torch.dtype = torch.float64) -> ShootWindows:
+    """Consecutive windows of ``length`` samples; states start from Savitzky-Golay smoothing."""
+    _check_window_room(rec, length, "one window")
+    qs, vs = smooth(rec.q, rec.dt, _odd_samples(SMOOTH_S, rec.dt))
+    k = rec.T // length
+    starts = np.arange(k) * length
+    idx = starts[:, None] + np.arange(length)[None, :]
+    q = rec.q[:, idx].reshape(-1, length, rec.n)
+    u = None if rec.u is None else rec.u[:, idx[:, :-1]].reshape(-1, length - 1, rec.n)
+    X = np.concatenate([qs[:, starts], vs[:, starts]], -1).reshape(-1, 2 * rec.n)
+    t = lambda a: None if a is None else torch.as_tensor(a, dtype=dtype)  # noqa: E731
+    return ShootWindows(t(q), t(u), t(X))
+
+
+def simulate(model: PHAST, X: torch.Tensor, u: torch.Tensor | None, steps: int) -> torch.Tensor:
+    """(W, steps+1, n) unwrapped q of the core from the states X = (q0, qdot0) with u (W, >=steps, n) held."""
+    n = model.n
+    q = X[:, :n]
+    p = model.canonicalize(q, X[:, n:])
+    out = [q]
+    for k in range(steps):
+        f = None if u is None else u[:, k]
+        q, p = model.core(q, p, f)
+        out.append(q)
+    return torch.stack(out, 1)
+
+
+def _residual(model: PHAST, X: torch.Tensor, q: torch.Tensor, u: torch.Tensor | None) -> torch.Tensor:
+    sim = simulate(model, X, u, q.shape[1] - 1)
+    return coordinate_error(sim, q, model.angle_dims)
+
+
+@torch.no_grad()
+def fit_states(model: PHAST, X: torch.Tensor, q: torch.Tensor, u: torch.Tensor | None, iters: int = 3) -> torch.Tensor:
+    """Gauss-Newton (Levenberg-damped) refit of each window's initial state to its samples, the model fixed; all
+    windows and all 2n finite-difference directions in one batch."""
+    W, two_n = X.shape
+    scale = torch.cat([torch.full((two_n // 2,), 1e-6), torch.full((two_n // 2,), 1e-4)]).to(X)
+    for _ in range(iters):
+        Xs = X.unsqueeze(0).repeat(two_n + 1, 1, 1)
+        Xs[1:, :, :] += torch.diag_embed(scale).unsqueeze(1).expand(two_n, W, two_n)
+        qs = q.repeat(two_n + 1, 1, 1)
+        us = None if u is None else u.repeat(two_n + 1, 1, 1)
+        r = _residual(model, Xs.reshape(-1, two_n), qs, us).reshape(two_n + 1, W, -1)
+        J = ((r[1:] - r[:1]) / scale[:, None, None]).permute(1, 2, 0)  # (W, L n, 2n)
+        r0 = r[0]
+        A = J.transpose(1, 2) @ J
+        A = A + 1e-6 * torch.diag_embed(torch.diagonal(A, dim1=1, dim2=2)) + 1e-12 * torch.eye(two_n).to(X)
+        dx = torch.linalg.solve(A, -(J.transpose(1, 2) @ r0.unsqueeze(-1))).squeeze(-1)
+        X_new = X + dx
+        better = (_residual(model, X_new, q, u) ** 2).sum((1, 2)) < (r0 ** 2).sum(-1)
+        X = torch.where(better.unsqueeze(-1), X_new, X)
+    return X
+
+
+# --------------------------------------------------------------------------- training
+@dataclass(frozen=True)
+class RigTrainConfig:
+    """Multiple-shooting training: windows of ``window_s`` seconds, ``epochs`` passes of AdamW over minibatches of
+    ``batch_windows`` windows, window states refitted every ``refit_every`` epochs, validation on ``val_fraction`` of
+    the windows (best-validation weights kept)."""
+
+    epochs: int = 40
+    window_s: float = 0.2
+    batch_windows: int = 64
+    lr: float = 2e-2
+    weight_decay: float = 0.0
+    refit_every: int = 1
+    val_fraction: float = 0.15
+    friction_lr_mult: float = 5.0
+    seed: int = 0
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        if int(self.epochs) != self.epochs or self.epochs < 1:
+            raise ValueError(f"epochs must be a positive integer, got {self.epochs!r}")
+        if not (self.window_s > 0 and math.isfinite(self.window_s)):
+            raise ValueError(f"window_s must be positive, got {self.window_s!r}")
+        if not 0.0 <= self.val_fraction < 1.0:
+            raise ValueError(f"val_fraction must be in [0, 1), got {self.val_fraction!r}")
+
+
+@dataclass
+class RigFit:
+    """What :func:`fit_recordings` returns: the best-validation model and the learning curve."""
+
+    model: PHAST
+    history: list[dict[str, float]] = field(default_factory=list)
+    best_val: float = math.inf
+    best_epoch: int = -1
+    wall_time_s: float = 0.0
+    init: dict[str, float] = field(default_factory=dict)
+
+
+def _template_start(model: PHAST, rec: Recordings) -> dict[str, float]:
+    """PARTIAL's template and mass coefficients from the rig's nominal V and M, by least squares at the recorded
+    configurations (the data then refit every coefficient).  A start from the measured motion alone (the envs'
+    :func:`phast_model.data_init.initialize_partial`) is not usable on a real arm: on the DFKI C.0 runs its force
+    balance leaves 66% of the force unexplained (finite differences of a 3.8e-4 rad encoder, a torque held per
+    interval, unmodelled Coulomb friction) and every coefficient comes out 5-10x too small."""
+    from phast_gym.systems import TORCH, split, stack
+
+    system = model.system
+    q = torch.as_tensor(rec.q.reshape(-1, rec.n)[:: max(1, rec.q.shape[0] * rec.T // 4000)], dtype=torch.float64)
+    out: dict[str, float] = {}
+    template = model.potential
+    target = stack(system.grad_potential(split(q), TORCH)).reshape(-1)
+    A = template.gradient_basis(q).to(q.dtype).reshape(-1, template.coef.numel())
+    sol = torch.linalg.lstsq(A, target.unsqueeze(-1)).solution.squeeze(-1)
+    with torch.no_grad():
+        template.coef.copy_(sol.to(template.coef.dtype))
+    out["potential_fit_residual"] = float(torch.linalg.norm(A @ sol - target) / torch.linalg.norm(target).clamp_min(1e-12))
+    mass = model.mass
+    if hasattr(mass, "linear_basis"):
+        rows = system.mass_matrix(split(q), TORCH)
+        Mq = torch.stack([torch.stack([torch.as_tensor(e, dtype=q.dtype).expand(q.shape[0]) for e in r], -1)
+                          for r in rows], -2)
+        B = mass.linear_basis(q).to(q.dtype)  # (S, J, n, n)
+        Bm = B.permute(0, 2, 3, 1).reshape(-1, B.shape[1])
+        th = torch.linalg.lstsq(Bm, Mq.reshape(-1, 1)).solution.squeeze(-1)
+        mass.set_linear(th)
+        out["mass_fit_residual"] = float(torch.linalg.norm(Bm @ th - Mq.reshape(-1)) / torch.linalg.norm(Mq))
+    return out
+
+
+def _param_groups(model: PHAST, cfg: RigTrainConfig) -> list[dict[str, Any]]:
+    """The friction coefficients at ``friction_lr_mult`` x lr (their softplus makes Adam's steps relative: at the base
+    lr a coefficient moves by ~e^(lr x steps), too little to reach a real joint's level from a small start), the
+    rest at lr."""
+    fric = {id(p) for p in model.friction.parameters()} if model.friction is not None else set()
+    rest = [p for p in model.parameters() if p.requires_grad and id(p) not in fric]
+    groups = [{"params": rest, "lr": cfg.lr}] if rest else []
+    fp = [p for p in model.parameters() if p.requires_grad and id(p) in fric]
+    if fp:
+        groups.append({"params": fp, "lr": cfg.lr * cfg.friction_lr_mult})
+    return groups
+
+
+def _split_windows(w: ShootWindows, frac: float, seed: int) -> tuple[ShootWindows, ShootWindows | None]:
+    W = w.q.shape[0]
+    k = int(round(frac * W))
+    if k == 0 or W - k < 1:
+        return w, None
+    perm = torch.randperm(W, generator=torch.Generator().manual_seed(seed))
+    va, tr = perm[:k], perm[k:]
+    pick = lambda idx: ShootWindows(w.q[idx], None if w.u is None else w.u[idx], w.X[idx])  # noqa: E731
+    return pick(tr), pick(va)
+
+
+def _loss(model: PHAST, w: ShootWindows, idx: torch.Tensor | None = None) -> torch.Tensor:
+    q, X = (w.q, w.X) if idx is None else (w.q[idx], w.X[idx])
+    u = None if w.u is None else (w.u if idx is None else w.u[idx])
+    return (_residual(model, X, q, u) ** 2).mean()
+
+
+def fit_recordings(model: PHAST, data: RigData, cfg: RigTrainConfig | None = None) -> RigFit:
+    """Train ``model`` on ``data.train`` by multiple shooting (see the module docstring)."""
+    cfg = cfg or RigTrainConfig()
+    model = model.double()
+    length = max(5, int(round(cfg.window_s / data.train.dt)) + 1)
+    windows = cut_windows(data.train, length)
+    init = _template_start(model, data.train) if model.config.init_from == "rig" else {}
+    train, val = _split_windows(windows, cfg.val_fraction, cfg.seed)
+    torch.manual_seed(cfg.seed)
+    params = [p for p in model.parameters() if p.requires_grad]
+    opt = torch.optim.AdamW(_param_groups(model, cfg), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    n_batches = max(1, math.ceil(train.q.shape[0] / cfg.batch_windows))
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=cfg.epochs * n_batches)
+    gen = torch.Generator().manual_seed(cfg.seed)
+    res = RigFit(model, init=init)
+    best_state = {k: v.clone() for k, v in model.state_dict().items()}
+    t0 = time.perf_counter()
+    for epoch in tqdm(range(cfg.epochs), desc="fit rig (multiple shooting)", disable=not cfg.progress):
+        if epoch % cfg.refit_every == 0:  # the states move little between epochs: one Gauss-Newton step after the first
+            iters = 3 if epoch == 0 else 1
+            train.X = fit_states(model, train.X, train.q, train.u, iters)
+            if val is not None:
+                val.X = fit_states(model, val.X, val.q, val.u, iters)
+        perm = torch.randperm(train.q.shape[0], generator=gen)
+        tot = 0.0
+        for b in range(n_batches):
+            idx = perm[b * cfg.batch_windows:(b + 1) * cfg.batch_windows]
+            loss = _loss(model, train, idx)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(params, 10.0)
+            opt.step()
+            sched.step()
+            tot += float(loss.detach()) * len(idx)
+        rec = {"epoch": epoch + 1, "train_rmse": math.sqrt(tot / train.q.shape[0]), "time_s": time.perf_counter() - t0}
+        with torch.no_grad():
+            vl = float(_loss(model, val if val is not None else train))
+        rec["val_rmse"] = math.sqrt(vl)
+        if math.isfinite(vl) and vl < res.best_val:
+            res.best_val, res.best_epoch = vl, epoch + 1
+            best_state = {k: v.clone() for k, v in model.state_dict().items()}
+        res.history.append(rec)
+    model.load_state_dict(best_state)
+    model.eval()
+    res.wall_time_s = time.perf_counter() - t0
+    res.best_val = math.sqrt(res.best_val)
+    return res
+
+
+# --------------------------------------------------------------------------- held-out evaluation
+@dataclass(frozen=True)
+class HeldoutWindows:
+    """Held-out windows: ``burn`` samples to fit the state to, then ``H`` samples scored open loop."""
+
+    q: torch.Tensor  # (W, burn + H, n)
+    u: torch.Tensor | None
+    burn: int
+    H: int
+    trajectory: np.ndarray  # (W,) held-out trajectory of each window
+    start: np.ndarray  # (W,) first (burn-in) sample
+
+
+def heldout_windows(rec: Recordings, window_s: float | None, burn_s: float = BURN_IN_S) -> HeldoutWindows:
+    """Windows of ``window_s`` seconds (None: each whole recording after its burn-in), each after a burn-in."""
+    burn = max(5, int(round(burn_s / rec.dt)))
+    H = rec.T - burn if window_s is None else int(round(window_s / rec.dt))
+    _check_window_room(rec, burn + H, f"a {burn_s:g} s burn-in plus one {window_s if window_s else 'whole'} s window")
+    starts = np.arange(0, rec.T - (burn + H) + 1, H)
+    idx = starts[:, None] + np.arange(burn + H)[None, :]
+    q = rec.q[:, idx].reshape(-1, burn + H, rec.n)
+    u = None if rec.u is None else np.concatenate([rec.u, rec.u[:, -1:]], 1)[:, idx[:, :-1]].reshape(-1, burn + H - 1, rec.n)
+    traj = np.repeat(np.arange(rec.n_traj), len(starts))
+    return HeldoutWindows(torch.as_tensor(q), None if u is None else torch.as_tensor(u), burn, H, traj,
+                          np.tile(starts, rec.n_traj))
+
+
+@torch.no_grad()
+def rollout_windows(model: PHAST, w: HeldoutWindows, dt: float) -> torch.Tensor:
+    """(W, burn + H, n) open-loop q of ``model`` on the windows: the state fitted to the burn-in (started from
+    Savitzky-Golay smoothing of it), then the recorded u."""
+    model = model.double()
+    qb = w.q[:, : w.burn].numpy()
+    qs, vs = smooth(qb, dt, min(_odd_samples(SMOOTH_S, dt), w.burn - (1 - w.burn % 2)))
+    X = torch.as_tensor(np.concatenate([qs[:, 0], vs[:, 0]], -1))
+    ub = None if w.u is None else w.u[:, : w.burn - 1]
+    X = fit_states(model, X, w.q[:, : w.burn], ub, iters=4)
+    return simulate(model, X, w.u, w.burn + w.H - 1)
+
+
+def heldout_rollouts(models: dict[str, PHAST], rec: Recordings, window_s: float | None,
+                     burn_s: float = BURN_IN_S) -> tuple[dict[str, Any], dict[str, np.ndarray], HeldoutWindows]:
+    """``{name: {"rollout_rmse", "per_window_rmse"}}`` of every model on the held-out windows (the same windows,
+    the same state fit, the same error), plus the rollouts themselves (plots) and the windows."""
+    w = heldout_windows(rec, window_s, burn_s)
+    out: dict[str, Any] = {}
+    rolls: dict[str, np.ndarray] = {}
+    for name, model in models.items():
+        sim = rollout_windows(model, w, rec.dt)
+        err = coordinate_error(sim[:, w.burn:], w.q[:, w.burn:], model.angle_dims)
+        per = torch.sqrt((err ** 2).mean((1, 2)))
+        rmse = float(torch.sqrt((err ** 2).mean()))
+        out[name] = {"rollout_rmse": rmse if math.isfinite(rmse) else float("inf"),
+                     "per_window_rmse": [float(x) for x in per]}
+        rolls[name] = wrap_angles(sim, model.angle_dims).numpy()
+    meta = {"n_windows": int(w.q.shape[0]), "window_s": None if window_s is None else float(window_s),
+            "burn_in_s": float(burn_s), "window_samples": int(w.H), "burn_in_samples": int(w.burn),
+            "dt": float(rec.dt)}
+    return {**out, **meta}, rolls, w
+
+
+def build(cfg: PHASTConfig) -> PHAST:
+    """The model of a rig config, in float64 (the shooting fits difference rollouts)."""
+    model = build_from_config(cfg)
+    if not isinstance(model, PHAST):
+        raise ValueError("recordings runs need a port-Hamiltonian rig")
+    return model.double()

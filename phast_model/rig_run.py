@@ -1,0 +1,174 @@
+"""``phast-train --recordings``: a run directory of a world model learned from a rig's recordings.
+
+:func:`train_recordings_run` checks everything first (recordings, rig, held-out indices, room for the held-out
+windows), trains by multiple shooting (:func:`phast_model.rig.fit_recordings`), scores PHAST and the nominal rig on
+the held-out recordings by the same code (:func:`phast_model.rig.heldout_rollouts`) and writes ``model.pt`` +
+``config.json`` (opened by :func:`phast_model.api.load_run` and
+:class:`phast_model.world_env.PHASTWorldModelEnv`), ``metrics.json`` (key ``heldout``), ``history.json`` and the
+plots ``heldout_rollout.png`` and ``friction.png``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any
+
+from .rig import (
+    BURN_IN_S,
+    RigData,
+    RigFit,
+    RigTrainConfig,
+    build,
+    fit_recordings,
+    heldout_rollouts,
+    heldout_windows,
+    load_rig_data,
+    nominal_config,
+    rig_config,
+)
+
+METRICS_FILE, HISTORY_FILE = "metrics.json", "history.json"
+
+
+@dataclass(frozen=True)
+class RecordingsSpec:
+    """What a recordings run learns from: the file, the rig (env id or ``path.py:Class``) with its kwargs, the regime,
+    the held-out trajectories and the held-out window length (None: whole recordings)."""
+
+    recordings: str | dict[str, Any]  # a path, or the arrays themselves
+    sim: str
+    sim_kwargs: dict[str, Any]
+    regime: str = "partial"
+    holdout: tuple[int, ...] | None = None
+    rollout_window_s: float | None = None
+    action_bound: tuple[float, ...] | None = None  # the world env's torque bound (None: the largest recorded |u|)
+
+    def __post_init__(self) -> None:
+        w = self.rollout_window_s
+        if w is not None and not (w > 0 and math.isfinite(w)):
+            raise ValueError(f"--rollout-window-s must be a positive number of seconds, got {w!r}")
+
+
+def _sim_name(sim: str) -> str:
+    """A rig file path made absolute, so the run opens from any working directory."""
+    path, sep, cls = sim.rpartition(":")
+    if sep and path.endswith(".py"):
+        return f"{Path(path).resolve()}:{cls}"
+    return sim
+
+
+def _source(recordings: str | dict[str, Any]) -> Any:
+    return recordings if isinstance(recordings, dict) else str(recordings)
+
+
+def prepare(spec: RecordingsSpec) -> RigData:
+    """Load and check the recordings; ValueError (a message naming the problem) before any training."""
+    data = load_rig_data(_source(spec.recordings), spec.sim, spec.sim_kwargs,
+                         list(spec.holdout) if spec.holdout else None)
+    if data.heldout is None:
+        raise ValueError("give --holdout-trajectories: the held-out score needs recordings the model is not trained on")
+    heldout_windows(data.heldout, spec.rollout_window_s, BURN_IN_S)  # room for a burn-in plus one window
+    return data
+
+
+def train_recordings_run(spec: RecordingsSpec, out: str | Path, train: RigTrainConfig | None = None,
+                         overrides: dict[str, Any] | None = None, plots: bool = True) -> dict[str, Any]:
+    """Train on ``spec``'s recordings and write the run directory ``out``; returns the metrics written."""
+    from phast_gym.fileio import dir_lock, ensure_writable_dir
+
+    train = train or RigTrainConfig()
+    spec = replace(spec, sim=_sim_name(spec.sim))
+    data = prepare(spec)
+    bound = list(spec.action_bound) if spec.action_bound else [max(b, 1e-6) for b in data.u_bound]
+    cfg = rig_config(spec.sim, spec.sim_kwargs, spec.regime, data, seed=train.seed, action_bound=bound,
+                     **(overrides or {}))
+    out = ensure_writable_dir(out, "--out")
+    with dir_lock(out):
+        model = build(cfg)
+        fit = fit_recordings(model, data, train)
+        nominal = build(nominal_config(cfg))
+        scores, rolls, windows = heldout_rollouts({"phast": fit.model, "nominal": nominal}, data.heldout,
+                                                  spec.rollout_window_s)
+        metrics = _metrics(spec, data, fit, scores)
+        _write(fit, metrics, spec, train, out)
+        if plots:
+            from .rig_plots import plot_friction, plot_heldout
+
+            plot_heldout(windows, rolls, data.heldout.dt, out / "heldout_rollout.png")
+            metrics["friction_check"] = plot_friction(fit.model, nominal.system, data.train, out / "friction.png")
+            from .checkpoint import atomic_write_json
+
+            atomic_write_json(out / METRICS_FILE, metrics)
+    return metrics
+
+
+def _metrics(spec: RecordingsSpec, data: RigData, fit: RigFit, scores: dict[str, Any]) -> dict[str, Any]:
+    """metrics.json: the held-out scores (``heldout.phast.rollout_rmse``, ``heldout.nominal.rollout_rmse``), the
+    learned friction and the training record."""
+    ph, nom = scores["phast"]["rollout_rmse"], scores["nominal"]["rollout_rmse"]
+    friction = fit.model.friction
+    return {
+        "sim": spec.sim, "regime": spec.regime, "recordings": str(data.source), "holdout_trajectories": list(data.holdout),
+        "dt": data.train.dt, "train_trajectories": int(data.train.n_traj), "train_samples": int(data.train.T),
+        "heldout": {**scores, "phast_over_nominal": ph / nom if nom > 0 else float("nan")},
+        "friction": None if friction is None else {k: v.detach().tolist() for k, v in friction.coefficients().items()},
+        "train_wall_time_s": fit.wall_time_s, "best_val_rmse": fit.best_val, "best_epoch": fit.best_epoch,
+        "init": fit.init,
+    }
+
+
+def _write(fit: RigFit, metrics: dict[str, Any], spec: RecordingsSpec, train: RigTrainConfig, out: Path) -> None:
+    from .checkpoint import atomic_write_json, save_run
+
+    rec = {**asdict(spec), "recordings": metrics["recordings"], "holdout": list(spec.holdout or ())}
+    save_run(fit.model, out, {"train": asdict(train), "recordings": rec})
+    atomic_write_json(out / METRICS_FILE, metrics)
+    atomic_write_json(out / HISTORY_FILE, fit.history)
+
+
+def heldout_summary(metrics: dict[str, Any]) -> dict[str, float]:
+    """The headline numbers of a recordings run (what the CLI prints)."""
+    h = metrics["heldout"]
+    return {"heldout_phast_rmse": h["phast"]["rollout_rmse"], "heldout_nominal_rmse": h["nominal"]["rollout_rmse"],
+            "phast_over_nominal": h["phast_over_nominal"], "train_wall_time_s": metrics["train_wall_time_s"]}
+
+
+__all__ = ["RecordingsSpec", "train_recordings_run", "prepare", "heldout_summary"]
+
+
+def headline(metrics: dict[str, Any], regime: str, reference: dict[str, float], out: Path) -> dict[str, Any]:
+    """What the real-rig examples print and store: the held-out scores, the learned friction, the friction check."""
+    check = {k: {kk: v[kk] for kk in ("bands_inside_ci95", "bands", "fraction_inside")}
+             for k, v in metrics.get("friction_check", {}).items()}
+    return {**heldout_summary(metrics), "regime": regime, "friction": metrics["friction"], "friction_check": check,
+            "reference": reference, "run_dir": str(out)}
+
+
+def example_cli(argv: list[str] | None, description: str, default_data: Path, run: Any, name: str) -> int:
+    """The command line of a real-rig example: ``--data --out --regime --epochs --json --quiet``; ``run(data, out,
+    regime, epochs, progress)`` returns the headline dict."""
+    import argparse
+    import json
+    import sys
+
+    from phast_gym.fileio import atomic_write_json
+
+    ap = argparse.ArgumentParser(description=description)
+    ap.add_argument("--data", type=Path, default=default_data)
+    ap.add_argument("--out", type=Path, required=True, help="run directory")
+    ap.add_argument("--regime", default="partial", choices=("known", "partial", "unknown"))
+    ap.add_argument("--epochs", type=int, default=RigTrainConfig().epochs)
+    ap.add_argument("--json", type=Path, help="write the headline numbers here")
+    ap.add_argument("--quiet", action="store_true")
+    args = ap.parse_args(argv)
+    try:
+        res = run(args.data, args.out, args.regime, args.epochs, progress=not args.quiet)
+    except ValueError as exc:
+        print(f"{name}: error: {exc}", file=sys.stderr)
+        return 2
+    print(json.dumps(res, indent=1))
+    if args.json:
+        atomic_write_json(args.json, res)
+    return 0

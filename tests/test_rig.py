@@ -1,0 +1,118 @@
+"""PHAST on recordings of a rig (phast_model.rig, rig_run, ``phast-train --recordings``): data checks, the
+multiple-shooting fit recovering a hidden Coulomb friction, the held-out score, the run directory and the world env."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from phast_model.cli.train import main as train_main
+from phast_model.mismatch.synth import make_reality
+from phast_model.mismatch.terms import Term
+from phast_model.rig import RigTrainConfig, build, fit_recordings, heldout_rollouts, load_rig_data, nominal_config, rig_config
+
+SIM = "PHAST/DampedPendulum-v0"
+COULOMB = 0.4
+
+
+@pytest.fixture(scope="module")
+def recordings() -> dict:
+    """A damped pendulum driven by smooth torques, with a hidden Coulomb friction of 0.4 N m."""
+    return make_reality(SIM, [Term("coulomb_friction", 0, COULOMB)], n_traj=10, T=240, noise_std=0.002, seed=3,
+                        u_std=1.5)
+
+
+@pytest.fixture(scope="module")
+def trained(recordings: dict) -> tuple:
+    torch.set_num_threads(1)
+    data = load_rig_data(recordings, SIM, {}, [8, 9])
+    cfg = rig_config(SIM, {}, "partial", data, friction_laws=["coulomb", "viscous"])
+    fit = fit_recordings(build(cfg), data, RigTrainConfig(epochs=30, window_s=1.0, lr=4e-2, progress=False))
+    return data, cfg, fit
+
+
+def test_shooting_fit_finds_the_hidden_coulomb_friction(trained: tuple) -> None:
+    data, cfg, fit = trained
+    c = {k: v.detach() for k, v in fit.model.friction.coefficients().items()}
+    assert abs(float(c["coulomb"][0]) - COULOMB) < 0.3 * COULOMB, c
+    assert fit.history[-1]["train_rmse"] < 0.3 * fit.history[0]["train_rmse"]
+
+
+def test_heldout_score_beats_the_nominal_rig_by_the_same_code(trained: tuple) -> None:
+    data, cfg, fit = trained
+    scores, rolls, w = heldout_rollouts({"phast": fit.model, "nominal": build(nominal_config(cfg))}, data.heldout, 2.0)
+    assert scores["n_windows"] == w.q.shape[0] >= 2
+    assert scores["phast"]["rollout_rmse"] < 0.5 * scores["nominal"]["rollout_rmse"]
+    assert rolls["phast"].shape == tuple(w.q.shape)
+
+
+def test_recordings_with_the_wrong_input_width_are_refused(recordings: dict) -> None:
+    bad = {**recordings, "u": np.concatenate([recordings["u"], recordings["u"]], -1)}
+    with pytest.raises(ValueError, match="'u' has m=2 inputs"):
+        load_rig_data(bad, SIM, {}, [9])
+
+
+def test_free_motion_recordings_are_accepted(recordings: dict) -> None:
+    free = {k: v for k, v in recordings.items() if k != "u"}
+    data = load_rig_data(free, SIM, {}, [9])
+    assert data.train.u is None and not data.driven
+
+
+def test_too_short_for_a_burn_in_and_a_window_is_a_clear_error(tmp_path, recordings: dict, capsys) -> None:  # noqa: ANN001
+    path = tmp_path / "rec.npz"
+    np.savez(path, **recordings)
+    rc = train_main(["--recordings", str(path), "--sim", SIM, "--holdout-trajectories", "9", "--rollout-window-s", "60",
+                     "--out", str(tmp_path / "run"), "--no-progress"])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert "too short" in err and "burn-in" in err
+    assert not (tmp_path / "run" / "model.pt").exists()
+
+
+def test_unknown_env_or_rig_is_one_line(tmp_path, capsys) -> None:  # noqa: ANN001
+    assert train_main(["--env", "PHAST/Nope-v0", "--out", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "PHAST/Pendulum-v0" in err
+    np.savez(tmp_path / "rec.npz", q=np.zeros((2, 100, 1)), dt=0.05)
+    assert train_main(["--recordings", str(tmp_path / "rec.npz"), "--sim", "PHAST/Nope-v0", "--holdout-trajectories",
+                       "1", "--out", str(tmp_path / "r2")]) == 2
+    assert "PHAST/Pendulum-v0" in capsys.readouterr().err
+
+
+def test_cli_run_directory_opens_with_load_run_and_the_world_env(tmp_path, recordings: dict) -> None:  # noqa: ANN001
+    from phast_model.api import load_run
+    from phast_model.world_env import PHASTWorldModelEnv
+
+    path = tmp_path / "rec.npz"
+    np.savez(path, **recordings)
+    out = tmp_path / "run"
+    rc = train_main(["--recordings", str(path), "--sim", SIM, "--holdout-trajectories", "8,9", "--rollout-window-s", "2",
+                     "--window-s", "1.0", "--epochs", "3", "--regime", "partial", "--out", str(out), "--no-progress"])
+    assert rc == 0
+    m = json.loads((out / "metrics.json").read_text())
+    h = m["heldout"]
+    assert math.isfinite(h["phast"]["rollout_rmse"]) and math.isfinite(h["nominal"]["rollout_rmse"])
+    assert h["burn_in_s"] == 0.1 and h["window_s"] == 2.0
+    assert set(m["friction"]) == {"coulomb", "viscous"}
+    assert (out / "heldout_rollout.png").exists() and (out / "friction.png").exists()
+    model = load_run(out)
+    assert model.config.sim == SIM and model.dt == pytest.approx(0.05)
+    env = PHASTWorldModelEnv(model, burn_in=5)
+    bound = float(np.max(np.abs(recordings["u"])))
+    assert env.action_space.high[0] == pytest.approx(bound, rel=1e-6)
+    obs, _ = env.reset(options={"q_burn": recordings["q"][0, :5]})
+    obs, r, term, trunc, info = env.step(np.array([0.5]))
+    assert obs.shape == (1,) and np.isfinite(r)
+    with pytest.raises(ValueError, match="q_burn"):
+        env.reset()
+
+
+def test_known_regime_learns_only_the_friction(recordings: dict) -> None:
+    data = load_rig_data(recordings, SIM, {}, [9])
+    model = build(rig_config(SIM, {}, "known", data))
+    names = {n for n, p in model.named_parameters() if p.requires_grad}
+    assert names == {"core.friction.raw"}
