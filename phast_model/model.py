@@ -118,7 +118,7 @@ class PHASTConfig:
     friction_eps: float | list[float] = 0.01
     friction_vs: float | list[float] = 0.1
     friction_joints: list[int] | None = None
-    friction_init: float = 1e-3
+    friction_init: float | dict[str, float] = 1e-3  # one value, or law -> value
     #: damped Newton iterations of the backward-Euler friction step (fewer: faster, the passivity guard still holds)
     friction_newton_iters: int = 8
 

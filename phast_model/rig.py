@@ -30,6 +30,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from .components.mass import LowRankMass
 from .interfaces import coordinate_error, wrap_angles
 from .mismatch.evaluate import check_holdout_indices, split
 from .mismatch.recordings import Recordings, load_raw, validate
@@ -40,7 +41,7 @@ from .model import PHAST, PHASTConfig, build_from_config
 REGIMES = ("known", "partial", "unknown")
 #: burn-in before each held-out window [s] (the state is fitted to it)
 BURN_IN_S = 0.1
-#: starting value of every friction coefficient (SI units of the rig; trained at FRICTION_LR_MULT x the lr)
+#: starting friction force, as a fraction of the rig's typical force (RMS of dV/dq and of u over the recordings)
 FRICTION_INIT = 0.01
 #: Coulomb smoothing velocity of the learned friction, as a fraction of the coordinate's RMS speed in the data
 FRICTION_EPS = 0.05
@@ -66,9 +67,10 @@ class RigData:
 
 
 def load_rig_data(recordings: str | Path | dict[str, Any], sim: str, sim_kwargs: dict[str, Any] | None = None,
-                  holdout: list[int] | None = None) -> RigData:
+                  holdout: list[int] | None = None, decimate: int = 1) -> RigData:
     """Read and check the recordings against the rig ``sim`` (shapes, u width, angles), hold out ``holdout``
-    (trajectory indices) and resample both parts onto the uniform grid of their median step."""
+    (trajectory indices) and resample both parts onto the uniform grid of their median step; ``decimate`` keeps every
+    k-th sample of free-motion recordings (a 1 kHz encoder on a 1 Hz pendulum: the model then steps at k dt)."""
     system = load_simulator(sim, sim_kwargs or {}).build()
     holdout = check_holdout_indices(holdout)
     raw, src = load_raw(recordings)
@@ -77,11 +79,11 @@ def load_rig_data(recordings: str | Path | dict[str, Any], sim: str, sim_kwargs:
         train, held, _ = split(rec, 0.0, holdout)
     else:
         train, held = rec, None
-    train = train.resampled()
-    held = None if held is None else held.resampled()
+    train = train.resampled().decimate(decimate)
+    held = None if held is None else held.resampled().decimate(decimate)
     u_all = rec.u if rec.u is not None else np.zeros((1, 1, system.n))
     bound = tuple(float(b) for b in np.max(np.abs(u_all), axis=(0, 1)))
-    return RigData(train, held, float(rec.dt), tuple(holdout or ()), src, bound)
+    return RigData(train, held, float(train.dt), tuple(holdout or ()), src, bound)
 
 
 def _check_window_room(rec: Recordings, samples: int, what: str) -> None:
@@ -117,6 +119,23 @@ def data_scales(rec: Recordings) -> tuple[list[float], list[float]]:
     return q_scale, [float(np.sqrt(np.mean(v[..., i] ** 2)) + 1e-3) for i in range(rec.n)]
 
 
+def friction_start(system: Any, rec: Recordings, v_scale: list[float]) -> dict[str, float]:
+    """Starting coefficient of each friction law: a force of FRICTION_INIT x the rig's typical force F (the larger of
+    the RMS of dV/dq under the rig and of u, averaged over the coordinates) at the typical speed V: Coulomb and
+    Stribeck F, viscous F / V, quadratic F / V^2.  A real pendulum's friction is ~1e-4 N m, an arm joint's ~0.1 N m:
+    one fixed start is far off on one of them."""
+    from phast_gym.systems import NUMPY, split
+
+    q = rec.q.reshape(-1, rec.n)[:: max(1, rec.n_traj * rec.T // 4000)]
+    dv = np.stack([np.broadcast_to(np.asarray(g, dtype=float), (q.shape[0],))
+                   for g in system.grad_potential(split(q), NUMPY)], -1)
+    F = np.sqrt(np.mean(dv**2, 0))
+    if rec.u is not None:
+        F = np.maximum(F, np.sqrt(np.mean(rec.u.reshape(-1, rec.n) ** 2, 0)))
+    F0, V = FRICTION_INIT * max(float(np.mean(F)), 1e-9), float(np.mean(v_scale))
+    return {"coulomb": F0, "stribeck": F0, "viscous": F0 / V, "quadratic": F0 / V**2}
+
+
 def rig_config(sim: str, sim_kwargs: dict[str, Any], regime: str, data: RigData, **overrides: Any) -> PHASTConfig:
     """The PHAST configuration of ``regime`` on the rig ``sim`` at the data's grid; ``overrides`` replace fields."""
     regime = regime.lower()
@@ -124,9 +143,10 @@ def rig_config(sim: str, sim_kwargs: dict[str, Any], regime: str, data: RigData,
         raise ValueError(f"regime must be one of {REGIMES}, got {regime!r}")
     system = load_simulator(sim, sim_kwargs).build()
     q_scale, v_scale = data_scales(data.train)
+    init = friction_start(system, data.train, v_scale)
     base = PHASTConfig(env_id=sim, sim=sim, regime=regime, env_kwargs=dict(sim_kwargs), dt=data.train.dt,
                        q_scale=q_scale, v_scale=v_scale, damping="none", canonicalizer="mass", substeps=1,
-                       learn_dt=False, observer_trainable=False, friction="joint", friction_init=FRICTION_INIT,
+                       learn_dt=False, observer_trainable=False, friction="joint", friction_init=init,
                        friction_newton_iters=0, midpoint_iters=1,
                        friction_eps=[FRICTION_EPS * v for v in v_scale], friction_vs=[0.2 * v for v in v_scale])
     if regime == "known":
@@ -287,22 +307,41 @@ def _template_start(model: PHAST, rec: Recordings) -> dict[str, float]:
         B = mass.linear_basis(q).to(q.dtype)  # (S, J, n, n)
         Bm = B.permute(0, 2, 3, 1).reshape(-1, B.shape[1])
         th = torch.linalg.lstsq(Bm, Mq.reshape(-1, 1)).solution.squeeze(-1)
-        mass.set_linear(th)
+        if isinstance(mass, LowRankMass):
+            _set_lowrank(mass, th)
+        else:
+            mass.set_linear(th)
         out["mass_fit_residual"] = float(torch.linalg.norm(Bm @ th - Mq.reshape(-1)) / torch.linalg.norm(Mq))
     return out
 
 
 def _param_groups(model: PHAST, cfg: RigTrainConfig) -> list[dict[str, Any]]:
-    """The friction coefficients at ``friction_lr_mult`` x lr (their softplus makes Adam's steps relative: at the base
-    lr a coefficient moves by ~e^(lr x steps), too little to reach a real joint's level from a small start), the
-    rest at lr."""
+    """One group per parameter tensor.  Friction coefficients at ``friction_lr_mult`` x lr: their softplus makes Adam's
+    steps relative, and at the base lr a coefficient moves by ~e^(lr x steps), too little to reach a real joint's level
+    from its start.  A small physics coefficient (at most 16 entries, mean |p| < 1) at lr x mean |p|: Adam's steps
+    are absolute, and lr 0.02 on a real pendulum's template coefficient (0.21 N m) or on the low-rank mass factor of
+    a 0.005 kg m^2 inertia is a 10-40% jump per step.  Networks and O(1) coefficients keep the base lr."""
     fric = {id(p) for p in model.friction.parameters()} if model.friction is not None else set()
-    rest = [p for p in model.parameters() if p.requires_grad and id(p) not in fric]
-    groups = [{"params": rest, "lr": cfg.lr}] if rest else []
-    fp = [p for p in model.parameters() if p.requires_grad and id(p) in fric]
-    if fp:
-        groups.append({"params": fp, "lr": cfg.lr * cfg.friction_lr_mult})
+    groups = []
+    for p in model.parameters():
+        if not p.requires_grad:
+            continue
+        lr = cfg.lr * cfg.friction_lr_mult if id(p) in fric else cfg.lr
+        if id(p) not in fric and p.numel() <= 16:
+            lr *= min(1.0, max(float(p.detach().abs().mean()), 1e-3))
+        groups.append({"params": [p], "lr": lr})
     return groups
+
+
+@torch.no_grad()
+def _set_lowrank(mass: LowRankMass, diag: torch.Tensor) -> None:
+    """diag(softplus(d)) + U U^T = diag(diag) up to U's off-diagonal part, with U shrunk to 1% of the diagonal: its
+    initial draw (0.05) is comparable to a real rig's inertia (a 0.15 kg arm: 0.003 kg m^2), and set_linear clips the
+    diagonal at 1e-3 for the envs' O(1) masses."""
+    d = diag.to(mass.raw_d.dtype)
+    mass.U.mul_(torch.sqrt(0.01 * d.mean()) / mass.U.pow(2).sum(-1).sqrt().max().clamp_min(1e-12))
+    rest = (d - mass.U.pow(2).sum(-1) - 1e-4).clamp_min(1e-12)  # diag() adds 1e-4
+    mass.raw_d.copy_(torch.log(torch.expm1(rest)))
 
 
 def _split_windows(w: ShootWindows, frac: float, seed: int) -> tuple[ShootWindows, ShootWindows | None]:

@@ -44,6 +44,7 @@ class RecordingsSpec:
     holdout: tuple[int, ...] | None = None
     rollout_window_s: float | None = None
     action_bound: tuple[float, ...] | None = None  # the world env's torque bound (None: the largest recorded |u|)
+    decimate: int = 1  # keep every k-th sample (free motion only)
 
     def __post_init__(self) -> None:
         w = self.rollout_window_s
@@ -66,7 +67,7 @@ def _source(recordings: str | dict[str, Any]) -> Any:
 def prepare(spec: RecordingsSpec) -> RigData:
     """Load and check the recordings; ValueError (a message naming the problem) before any training."""
     data = load_rig_data(_source(spec.recordings), spec.sim, spec.sim_kwargs,
-                         list(spec.holdout) if spec.holdout else None)
+                         list(spec.holdout) if spec.holdout else None, spec.decimate)
     if data.heldout is None:
         raise ValueError("give --holdout-trajectories: the held-out score needs recordings the model is not trained on")
     heldout_windows(data.heldout, spec.rollout_window_s, BURN_IN_S)  # room for a burn-in plus one window

@@ -42,6 +42,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     rec.add_argument("--rollout-window-s", type=float, default=None, metavar="S",
                      help="held-out open-loop windows of S seconds, each after a 0.1 s burn-in (default: whole recordings)")
     rec.add_argument("--window-s", type=float, default=0.25, metavar="S", help="training (multiple-shooting) window")
+    rec.add_argument("--decimate", type=int, default=1, metavar="K",
+                     help="keep every K-th sample (free-motion recordings sampled much faster than the dynamics)")
     rec.add_argument("--action-bound", type=float, nargs="+", default=None, metavar="U",
                      help="the world env's torque bound per input (default: the largest recorded |u|)")
     ap.add_argument("--regime", default="partial", choices=("known", "partial", "unknown"))
@@ -116,7 +118,7 @@ def _recordings_main(args: argparse.Namespace) -> dict[str, Any]:
         raise ValueError("--resume is not supported with --recordings (a run takes minutes; start it again)")
     spec = RecordingsSpec(args.recordings, args.sim, _json_object(args.sim_kwargs, "--sim-kwargs"), args.regime,
                           _int_list(args.holdout_trajectories, "--holdout-trajectories"), args.rollout_window_s,
-                          tuple(args.action_bound) if args.action_bound else None)
+                          tuple(args.action_bound) if args.action_bound else None, args.decimate)
     train = RigTrainConfig(epochs=args.epochs, window_s=args.window_s, lr=args.lr if args.lr != 1e-3 else 2e-2,
                            seed=args.seed, progress=not args.no_progress)
     metrics = train_recordings_run(spec, args.out, train, _overrides(args.set), plots=not args.no_plots)
