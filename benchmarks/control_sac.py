@@ -21,7 +21,15 @@ settled and quiet, effort ``sum_t u_t^2`` over plant steps) and compared with En
 ``OUT/control_sac.json`` / ``OUT/control_sac.md`` (one process per agent is fine); learning curves go to
 ``OUT/curve_<agent>.json`` and ``OUT/curve_<agent>.png``.
 
+* ``sac-gym`` (alone): the same SAC construction and training loop on a Gymnasium env (``--gym-env``, default
+  ``Pendulum-v1``) as a harness check (rows in ``OUT/gym_sac.json`` / ``OUT/gym_sac.md``).
+
+Ablations: ``--obs`` (true-velocity / true-state observations), ``--quiet-weight`` (0.5 at ``q* = 0``; 0.05 at the
+upright, below :func:`max_quiet_weight`), ``--reward precise``, ``--curve`` (fixed budget with a learning curve);
+see docs/control_results/sac/DIAGNOSIS.md.
+
     python benchmarks/control_sac.py --out OUT --agents sac-real --until-flat --reward quiet --q-star 0
+    python benchmarks/control_sac.py --out OUT --agents sac-gym --steps 20000 --curve --seed 0
 """
 
 from __future__ import annotations
@@ -51,24 +59,53 @@ ZOO_PENDULUM_SAC: dict[str, Any] = {
     "policy_kwargs": {"net_arch": [256, 256]},
 }
 
-REWARDS = ("zoo", "quiet")
+REWARDS = ("zoo", "quiet", "precise")
 #: the quiet reward's extra torque weight and the angle scale of the region where it applies
 QUIET_WEIGHT, QUIET_SCALE = 0.5, 0.3
+#: the precise reward's extra angle well: depth and width (the success rule's 0.05 rad tolerance)
+PRECISE_WEIGHT, PRECISE_SCALE = 0.1, 0.05
 
 
-def pendulum_reward(err: float, v: float, u: float, kind: str = "zoo") -> float:
+def pendulum_reward(err: float, v: float, u: float, kind: str = "zoo", quiet_weight: float = QUIET_WEIGHT) -> float:
     """Per-step reward from the wrapped angle error ``err`` (rad), velocity ``v`` and torque ``u`` (N m).
 
     ``zoo``: the Gymnasium Pendulum shape ``-(err^2 + 0.1 v^2 + 0.001 u^2)``.
-    ``quiet``: that minus ``QUIET_WEIGHT u^2 exp(-(err / QUIET_SCALE)^2)``: a torque penalty that is 500x larger
-    near the target, so holding the target with a quiet actuator (the success rule's RMS torque) pays.
+    ``quiet``: that minus ``quiet_weight u^2 exp(-(err / QUIET_SCALE)^2)``: a torque penalty that is 500x larger
+    (``quiet_weight`` 0.5) near the target, so holding the target with a quiet actuator (the success rule's RMS
+    torque) pays.  At an unstable target the weight must stay below :func:`max_quiet_weight` (see there).
+    ``precise``: ``quiet`` minus ``PRECISE_WEIGHT (1 - exp(-(err / PRECISE_SCALE)^2))``: a narrow angle well as wide as
+    the success tolerance, whose slope at a few 0.01 rad is ~30x that of ``err^2``, so a steady offset of the held angle
+    costs (at the upright a 0.03 rad offset needs 0.3 N m of holding torque, over the 0.25 N m RMS limit).
     """
     r = -(err * err + 0.1 * v * v + 0.001 * u * u)
-    if kind == "quiet":
-        r -= QUIET_WEIGHT * u * u * math.exp(-((err / QUIET_SCALE) ** 2))
-    elif kind != "zoo":
+    if kind in ("quiet", "precise"):
+        r -= quiet_weight * u * u * math.exp(-((err / QUIET_SCALE) ** 2))
+    if kind == "precise":
+        r -= PRECISE_WEIGHT * (1.0 - math.exp(-((err / PRECISE_SCALE) ** 2)))
+    elif kind not in ("zoo", "quiet"):
         raise ValueError(f"reward must be one of {REWARDS}, got {kind!r}")
     return r
+
+
+def max_quiet_weight(mgl: float) -> float:
+    """The largest ``quiet_weight`` for which holding a pendulum still at an angle error ``e`` from an *unstable* target
+    costs more the larger ``e`` is.
+
+    Holding still at ``e`` needs the gravity torque ``u = m g l sin e`` (zero only at the target), so the quiet
+    reward's static cost is ``h(e) = e^2 + w (m g l sin e)^2 exp(-(e / s)^2)``.  For small ``e`` that is
+    ``e^2 (1 + c exp(-x))`` with ``c = w (m g l)^2``, ``x = (e / s)^2``, whose derivative ``2 e (1 + c exp(-x) (1 - x))``
+    stays positive for every ``x`` iff ``c < e^2 = 7.39`` (the minimum of ``exp(-x) (1 - x)`` is ``-exp(-2)``, at
+    ``x = 2``), whatever the scale ``s``.  Above it ``h`` has a spurious minimum away from the target (with
+    ``w = 0.5``, ``m g l = 9.81``: at ``e = 0.7`` rad, cost 0.62 per step behind a barrier of 1.64 at ``e = 0.3``).
+    At a stable target (hanging) no holding torque is needed and the bound does not apply.
+    """
+    return math.exp(2.0) / mgl**2
+
+
+def upright_quiet_weight(mgl: float) -> float:
+    """The quiet weight used at the upright by default: ``0.05 (9.81 / m g l)^2`` (0.05 for our plant, 0.65 of
+    :func:`max_quiet_weight`, 10x below :data:`QUIET_WEIGHT`).  The reward only reads ``m g l`` to set this weight."""
+    return 0.05 * (9.81 / mgl) ** 2
 
 
 def is_flat(curve: Sequence[float], window: int = 4, rel_tol: float = 0.05, abs_tol: float = 0.05) -> bool:
@@ -88,27 +125,70 @@ def stack_frames(buf: Sequence[np.ndarray]) -> np.ndarray:
     return np.concatenate([np.sin(q), np.cos(q)]).astype(np.float32)
 
 
-class FrameObs(gym.ObservationWrapper):
-    """q-only observation -> (sin q, cos q) of the last ``frames`` measurements (velocity is implicit).
+#: policy observations: ``frames`` (the default, q-only): (sin q, cos q) of the last ``frames`` noisy measurements;
+#: ``frames+qdot``: that plus the true velocity (oracle-velocity ablation); ``state``: (sin q, cos q, qdot) of the true,
+#: noise-free state (Gymnasium Pendulum-v1's observation, measured from our q; ablation).
+OBS_MODES = ("frames", "frames+qdot", "state")
+
+
+class ObsBuilder:
+    """The policy observation of :data:`OBS_MODES` from the noisy measurement and the true state; one instance per
+    episode stream, used by training (:class:`FrameObs`) and by :func:`evaluate_policy_on_plant` alike."""
+
+    def __init__(self, frames: int = 3, mode: str = "frames", inertia: float = 1.0) -> None:
+        if mode not in OBS_MODES:
+            raise ValueError(f"obs must be one of {OBS_MODES}, got {mode!r}")
+        self.frames, self.mode, self.inertia = frames, mode, inertia
+        self._buf: deque[np.ndarray] = deque(maxlen=frames)
+
+    @property
+    def size(self) -> int:
+        return {"frames": 2 * self.frames, "frames+qdot": 2 * self.frames + 1, "state": 3}[self.mode]
+
+    def reset(self, meas: np.ndarray, state: np.ndarray | None = None) -> np.ndarray:
+        """Clear the buffer and fill it with ``frames`` copies of the first measurement."""
+        self._buf.clear()
+        self._buf.extend([np.asarray(meas, dtype=np.float64)] * self.frames)
+        return self._obs(state)
+
+    def push(self, meas: np.ndarray, state: np.ndarray | None = None) -> np.ndarray:
+        self._buf.append(np.asarray(meas, dtype=np.float64))
+        return self._obs(state)
+
+    def _obs(self, state: np.ndarray | None) -> np.ndarray:
+        if self.mode == "frames":
+            return stack_frames(self._buf)
+        if state is None:
+            raise ValueError(f"obs {self.mode!r} needs the true state (info['state'])")
+        q, p = float(state[0]), float(state[1])
+        qdot = p / self.inertia  # the pendulum's velocity (p = I qdot)
+        if self.mode == "state":
+            return np.array([math.sin(q), math.cos(q), qdot], dtype=np.float32)
+        return np.concatenate([stack_frames(self._buf), np.array([qdot], dtype=np.float32)])
+
+
+class FrameObs(gym.Wrapper):
+    """q-only observation -> (sin q, cos q) of the last ``frames`` measurements (velocity is implicit), or another
+    :data:`OBS_MODES` observation (ablations that read the true state from ``info['state']``).
 
     At reset the buffer is cleared and filled with ``frames`` copies of the first measurement.
     """
 
-    def __init__(self, env: gym.Env, frames: int = 3) -> None:
+    def __init__(self, env: gym.Env, frames: int = 3, obs: str = "frames") -> None:
         super().__init__(env)
         self.frames = frames
-        self._buf: deque[np.ndarray] = deque(maxlen=frames)
-        self.observation_space = gym.spaces.Box(-1.0, 1.0, shape=(2 * frames,), dtype=np.float32)
+        system = getattr(env.unwrapped, "system", None)
+        self.builder = ObsBuilder(frames, obs, float(getattr(system, "inertia", 1.0) or 1.0))
+        lim = 1.0 if obs == "frames" else np.inf
+        self.observation_space = gym.spaces.Box(-lim, lim, shape=(self.builder.size,), dtype=np.float32)
 
     def reset(self, **kwargs: Any) -> tuple[np.ndarray, dict]:
         obs, info = self.env.reset(**kwargs)
-        self._buf.clear()
-        self._buf.extend([np.asarray(obs, dtype=np.float64)] * self.frames)
-        return stack_frames(self._buf), info
+        return self.builder.reset(obs, info.get("state")), info
 
-    def observation(self, obs: np.ndarray) -> np.ndarray:
-        self._buf.append(np.asarray(obs, dtype=np.float64))
-        return stack_frames(self._buf)
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
+        obs, r, term, trunc, info = self.env.step(action)
+        return self.builder.push(obs, info.get("state")), r, term, trunc, info
 
 
 class RepeatRegimeEnv(gym.Wrapper):
@@ -120,11 +200,11 @@ class RepeatRegimeEnv(gym.Wrapper):
     """
 
     def __init__(self, env: gym.Env, repeat: int, episode_decisions: int, max_action: float, q_star: float = 0.0,
-                 reward: str = "zoo", seed: int | None = None) -> None:
+                 reward: str = "zoo", seed: int | None = None, quiet_weight: float = QUIET_WEIGHT) -> None:
         super().__init__(env)
         if reward not in REWARDS:
             raise ValueError(f"reward must be one of {REWARDS}, got {reward!r}")
-        self.q_star, self.reward_kind = q_star, reward
+        self.q_star, self.reward_kind, self.quiet_weight = q_star, reward, quiet_weight
         self.repeat, self.episode_decisions = repeat, episode_decisions
         self.action_space = gym.spaces.Box(-1.0, 1.0, shape=env.action_space.shape, dtype=np.float32)
         self.max_action = max_action
@@ -152,7 +232,7 @@ class RepeatRegimeEnv(gym.Wrapper):
             x = info["state"]
             (v,) = system.velocity([float(x[0])], [float(x[1])], SCALAR)
             err = float(wrap(x[0] - self.q_star))
-            total += pendulum_reward(err, v, float(u[0]), self.reward_kind)
+            total += pendulum_reward(err, v, float(u[0]), self.reward_kind, self.quiet_weight)
             us.append(float(u[0]))
             errs.append(abs(err))
             self.plant_steps += 1
@@ -172,11 +252,12 @@ class RegimeWorldEnv(gym.Wrapper):
     """
 
     def __init__(self, env: gym.Env, max_action: float, q_star: float, reward: str, sigma: float, burn_in: int,
-                 seed: int | None = None) -> None:
+                 seed: int | None = None, quiet_weight: float = QUIET_WEIGHT) -> None:
         super().__init__(env)
         if reward not in REWARDS:
             raise ValueError(f"reward must be one of {REWARDS}, got {reward!r}")
         self.max_action, self.q_star, self.reward_kind, self.sigma, self.burn_in = max_action, q_star, reward, sigma, burn_in
+        self.quiet_weight = quiet_weight
         self.action_space = gym.spaces.Box(-1.0, 1.0, shape=env.action_space.shape, dtype=np.float32)
         self._rng = np.random.default_rng(seed)
         self._plant = make_control_env(ControlProtocol(dt=float(env.unwrapped.real.dt), horizon=10**9), sigma)
@@ -211,7 +292,7 @@ class RegimeWorldEnv(gym.Wrapper):
         obs, r, term, trunc, info = self.env.step(u.astype(np.float32))
         if not term:
             err = float(wrap(float(obs[0]) - self.q_star))
-            r = pendulum_reward(err, float(info["velocity"][0]), float(u[0]), self.reward_kind)
+            r = pendulum_reward(err, float(info["velocity"][0]), float(u[0]), self.reward_kind, self.quiet_weight)
         return self._noisy(obs), float(r), term, trunc, info
 
 
@@ -228,7 +309,7 @@ def episode_return(model: Any, env: gym.Env, seed: int, options: dict | None = N
 
 
 def evaluate_policy_on_plant(model: Any, protocol: ControlProtocol, sigma: float, trials: int, repeat: int, frames: int,
-                             max_action: float, seed: int = 0) -> dict[str, float]:
+                             max_action: float, seed: int = 0, obs_mode: str = "frames") -> dict[str, float]:
     """The phast-control-eval metrics for an SB3 policy on the real plant (same initial states and noise seeds).
 
     The frame buffer holds measurements at the decision rate (every ``repeat`` plant steps, as in training) and is
@@ -237,19 +318,20 @@ def evaluate_policy_on_plant(model: Any, protocol: ControlProtocol, sigma: float
     from phast_gym.control.evaluation import _stable_seed
 
     env = make_control_env(protocol, sigma)
+    builder = ObsBuilder(frames, obs_mode, float(getattr(env.unwrapped.system, "inertia", 1.0) or 1.0))
     states = start_states(protocol, trials, seed)
     succ, succ_angle, eff, fin, rms = [], [], [], [], []
     for regime, x0s in states.items():
         for i, x0 in enumerate(x0s):
             obs, info = env.reset(seed=_stable_seed(seed, "noise", regime, i), options={"state": x0})
-            buf: deque[np.ndarray] = deque([obs] * frames, maxlen=frames)
+            pobs = builder.reset(obs, info["state"])
             us, errs = [], []
             u = np.zeros(1)
             for t in range(protocol.horizon):
                 if t % repeat == 0:
                     if t > 0:
-                        buf.append(obs)
-                    a, _ = model.predict(stack_frames(buf), deterministic=True)
+                        pobs = builder.push(obs, info["state"])
+                    a, _ = model.predict(pobs, deterministic=True)
                     u = np.clip(a, -1, 1) * max_action
                 obs, _, _, _, info = env.step(u)
                 us.append(float(u[0]))
@@ -276,13 +358,20 @@ def plot_curve(curve: dict[str, Any], path: Path) -> None:
 
     fig, ax = plt.subplots(figsize=(6.4, 3.8))
     x = np.array(curve["decisions"])
-    ax.plot(x, curve["train_env_return"], "o-", ms=3, label=f"{curve['train_env']} (stopping rule)")
-    if curve["agent"] != "sac-real":
+    rule = curve.get("until_flat", True)
+    ax.plot(x, curve["train_env_return"], "o-", ms=3, label=curve["train_env"] + (" (stopping rule)" if rule else ""))
+    if curve["agent"] == "sac-world":
         ax.plot(x, curve["plant_return"], "s--", ms=3, label="real plant (monitoring)")
     ax.set_xlabel("SAC decisions (env steps)")
     ax.set_ylabel(f"mean eval return ({curve['n_eval_episodes']} episodes)")
-    stop = f"flat at {x[-1]}" if curve["flat"] else f"cap {x[-1]} (not flat)"
-    ax.set_title(f"{curve['agent']}, q* = {curve['q_star']:.3g}, reward {curve['reward']}: {stop}", fontsize=9)
+    stop = (f"flat at {x[-1]}" if curve["flat"] else f"cap {x[-1]} (not flat)") if rule else f"fixed budget {x[-1]}"
+    if curve["agent"] == "sac-gym":
+        ax.set_title(f"sac-gym on {curve['train_env']}, seed {curve.get('seed', 0)}: {x[-1]} steps", fontsize=9)
+    else:
+        extra = "" if curve.get("obs", "frames") == "frames" else f", obs {curve['obs']}"
+        if curve["reward"] != "zoo" and curve.get("quiet_weight", QUIET_WEIGHT) != QUIET_WEIGHT:
+            extra += f", w {curve['quiet_weight']:g}"
+        ax.set_title(f"{curve['agent']}, q* = {curve['q_star']:.3g}, reward {curve['reward']}{extra}: {stop}", fontsize=9)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
@@ -290,20 +379,95 @@ def plot_curve(curve: dict[str, Any], path: Path) -> None:
     plt.close(fig)
 
 
+class StepCounter(gym.Wrapper):
+    """Counts the env steps taken (``plant_steps``, as :class:`RepeatRegimeEnv`): the sample counter of ``sac-gym``."""
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        self.plant_steps = 0
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
+        self.plant_steps += 1
+        return self.env.step(action)
+
+
+def evaluate_gym_policy(model: Any, env_id: str, episodes: int, seed: int = 0, window: int = 20,
+                        tol: float = 0.05) -> dict[str, float]:
+    """Deterministic returns of ``model`` on ``episodes`` seeded episodes of a Gymnasium env (the zoo's metric), and for
+    ``Pendulum-v1`` (observation cos, sin, thetadot; theta = 0 upright) the analogue of our success rule over the last
+    ``window`` steps (1 s): the share of episodes with ``|theta| < tol`` throughout, mean final ``|theta|`` and the
+    mean RMS torque over the window."""
+    env = gym.make(env_id)
+    rets, settled, fin, rms = [], [], [], []
+    for i in range(episodes):
+        obs, _ = env.reset(seed=seed * 1000 + 50_000 + i)
+        total, done, ths, us = 0.0, False, [], []
+        while not done:
+            a, _ = model.predict(obs, deterministic=True)
+            obs, r, term, trunc, _ = env.step(a)
+            total += float(r)
+            ths.append(abs(math.atan2(float(obs[1]), float(obs[0]))) if len(obs) == 3 else float("nan"))
+            us.append(float(np.clip(a, env.action_space.low, env.action_space.high)[0]))
+            done = term or trunc
+        rets.append(total)
+        settled.append(bool(np.all(np.array(ths[-window:]) < tol)))
+        fin.append(ths[-1])
+        rms.append(float(np.sqrt(np.mean(np.square(us[-window:])))))
+    return {"mean_return": float(np.mean(rets)), "std_return": float(np.std(rets)), "episodes": episodes,
+            "settled_rate": float(np.mean(settled)), "final_abs_theta": float(np.mean(fin)), "u_rms_final": float(np.mean(rms))}
+
+
 def make_agent_env(name: str, args: argparse.Namespace, seed: int) -> tuple[gym.Env, gym.Env]:
-    """(FrameObs env, inner env with the sample counter) of an agent's training environment."""
+    """(observation env, inner env with the sample counter) of an agent's training environment."""
+    if name == "sac-gym":
+        env = StepCounter(gym.make(args.gym_env))
+        return env, env
     if name == "sac-real":
         inner: gym.Env = RepeatRegimeEnv(make_control_env(ControlProtocol(horizon=10**9), args.sigma), args.repeat,
-                                         args.episode_decisions, args.max_action, args.q_star, args.reward, seed=seed)
-        return FrameObs(inner, args.frames), inner
+                                         args.episode_decisions, args.max_action, args.q_star, args.reward, seed=seed,
+                                         quiet_weight=quiet_weight_of(args))
+        return FrameObs(inner, args.frames, args.obs), inner
     from phast_model.world_env import PHASTWorldModelEnv
 
     wm = PHASTWorldModelEnv(args.phast_run, burn_in=args.burn_in, max_episode_steps=args.episode_decisions,
                             target=np.array([args.q_star]))
     if abs(wm.real.dt - ControlProtocol.dt * args.repeat) > 1e-9:
         raise ValueError(f"world model dt {wm.real.dt} != repeat * plant dt {ControlProtocol.dt * args.repeat}")
-    inner = RegimeWorldEnv(wm, args.max_action, args.q_star, args.reward, args.sigma, args.burn_in, seed=seed)
+    inner = RegimeWorldEnv(wm, args.max_action, args.q_star, args.reward, args.sigma, args.burn_in, seed=seed,
+                           quiet_weight=quiet_weight_of(args))
     return FrameObs(inner, args.frames), inner
+
+
+def quiet_weight_of(args: argparse.Namespace) -> float:
+    """``--quiet-weight``, or its default: :data:`QUIET_WEIGHT` at the hanging target ``q_star = 0`` (no holding torque
+    needed), :func:`upright_quiet_weight` of the plant's ``m g l`` at any other target (see :func:`max_quiet_weight`)."""
+    w = getattr(args, "quiet_weight", None)
+    if w is not None:
+        return float(w)
+    if abs(float(wrap(float(args.q_star)))) < 1e-9:
+        return QUIET_WEIGHT
+    from phast_gym.control.evaluation import control_system
+
+    return upright_quiet_weight(float(control_system(ControlProtocol()).mgl))
+
+
+def method_tag(name: str, args: argparse.Namespace) -> str:
+    """Row name: ``agent/reward``, plus the non-default observation and quiet weight; ``sac-gym/<env id>``."""
+    if name == "sac-gym":
+        return f"sac-gym/{args.gym_env}"
+    tag = f"{name}/{args.reward}"
+    if args.reward != "zoo" and quiet_weight_of(args) != QUIET_WEIGHT:
+        tag += f"/w{quiet_weight_of(args):g}"
+    if args.obs != "frames":
+        tag += f"/obs={args.obs}"
+    return tag
+
+
+def curve_stem(name: str, args: argparse.Namespace) -> str:
+    """File stem of an agent's learning curve (``curve_<agent>_<reward>`` as before for the default options)."""
+    if name == "sac-gym":
+        return f"curve_sac-gym_{args.gym_env}_s{args.seed}"
+    return "curve_" + method_tag(name, args).replace("/", "_").replace("=", "-")
 
 
 def train_agent(name: str, args: argparse.Namespace, out: Path) -> dict[str, Any]:
@@ -314,20 +478,27 @@ def train_agent(name: str, args: argparse.Namespace, out: Path) -> dict[str, Any
     t0 = time.time()
     train_env, counter = make_agent_env(name, args, args.seed)
     eval_env, eval_inner = make_agent_env(name, args, args.seed + 1)
-    plant_eval, _ = make_agent_env("sac-real", args, args.seed + 2)
+    plant_eval = None if name != "sac-world" else make_agent_env("sac-real", args, args.seed + 2)[0]
     n_eval = args.eval_episodes
     eval_seeds = [args.seed * 1000 + 10_000 + i for i in range(n_eval)]
-    # fixed evaluation starts: the same seeded states (plant) or burn-ins (world model, drawn once: real samples)
-    if name == "sac-real":
+    world = name == "sac-world"
+    # fixed evaluation starts: the same seeded states (plant, Gymnasium env) or burn-ins (world model, drawn once:
+    # real samples)
+    if not world:
         eval_opts: list[dict | None] = [None] * n_eval
     else:
         eval_opts = [{"q_burn": eval_inner.burn_in_window(np.random.default_rng(s))} for s in eval_seeds]
     hp = dict(ZOO_PENDULUM_SAC)
     model = SAC("MlpPolicy", train_env, seed=args.seed, verbose=0, **hp)
     budget = args.max_steps if args.until_flat else args.steps
-    chunk = args.eval_every if args.until_flat else budget
+    record = args.until_flat or args.curve  # --curve: a learning curve at a fixed budget (no stopping rule)
+    chunk = args.eval_every if record else budget
+    stem = curve_stem(name, args)
+    train_env_name = {"sac-real": "real plant", "sac-world": "PHAST world model"}.get(name, args.gym_env)
     curve: dict[str, Any] = {"agent": name, "q_star": args.q_star, "reward": args.reward, "sigma": args.sigma,
-                             "train_env": "real plant" if name == "sac-real" else "PHAST world model",
+                             "obs": args.obs, "quiet_weight": quiet_weight_of(args), "seed": args.seed,
+                             "until_flat": bool(args.until_flat),
+                             "train_env": train_env_name,
                              "n_eval_episodes": n_eval, "rule": {"window": args.flat_window, "rel_tol": args.flat_rel_tol,
                                                                  "abs_tol": args.flat_abs_tol},
                              "decisions": [], "train_env_return": [], "plant_return": [], "real_env_samples": [],
@@ -339,31 +510,33 @@ def train_agent(name: str, args: argparse.Namespace, out: Path) -> dict[str, Any
         model.learn(total_timesteps=n, reset_num_timesteps=done == 0, progress_bar=False)
         done += n
         bar.update(n)
-        if not args.until_flat:
+        if not record:
             break
         ret = float(np.mean([episode_return(model, eval_env, s, o) for s, o in zip(eval_seeds, eval_opts)]))
-        plant = ret if name == "sac-real" else float(np.mean([episode_return(model, plant_eval, s) for s in eval_seeds]))
-        real = counter.plant_steps if name == "sac-real" else counter.real_samples + eval_inner.real_samples
+        plant = ret if not world else float(np.mean([episode_return(model, plant_eval, s) for s in eval_seeds]))
+        real = counter.plant_steps if not world else counter.real_samples + eval_inner.real_samples
         for k, v in (("decisions", done), ("train_env_return", ret), ("plant_return", plant), ("real_env_samples", int(real)),
                      ("seconds", round(time.time() - t0, 1))):
             curve[k].append(v)
         bar.set_postfix(ret=f"{ret:.2f}", plant=f"{plant:.2f}")
-        atomic_write_text(out / f"curve_{name}_{args.reward}.json", json.dumps(curve, indent=1))  # partial curve
-        if is_flat(curve["train_env_return"], args.flat_window, args.flat_rel_tol, args.flat_abs_tol):
+        atomic_write_text(out / f"{stem}.json", json.dumps(curve, indent=1))  # partial curve
+        if args.until_flat and is_flat(curve["train_env_return"], args.flat_window, args.flat_rel_tol, args.flat_abs_tol):
             curve["flat"] = True
             break
     bar.close()
     secs = time.time() - t0
-    real = counter.plant_steps if name == "sac-real" else counter.real_samples + eval_inner.real_samples
-    protocol = make_protocol(args.q_star)
-    m = evaluate_policy_on_plant(model, protocol, args.sigma, args.trials_per_regime, args.repeat, args.frames,
-                                 args.max_action, args.seed)
-    tag = f"{name}/{args.reward}"
-    row = {"method": tag, **m, "real_env_samples": int(real), "decisions": done, "flat": curve["flat"] if args.until_flat else None,
-           "train_seconds": round(secs, 1), "command": command_line(args, [name])}
-    if args.until_flat:
-        atomic_write_text(out / f"curve_{name}_{args.reward}.json", json.dumps(curve, indent=1))
-        plot_curve(curve, out / f"curve_{name}_{args.reward}.png")
+    real = counter.plant_steps if not world else counter.real_samples + eval_inner.real_samples
+    if name == "sac-gym":
+        m = evaluate_gym_policy(model, args.gym_env, args.gym_eval_episodes, args.seed)
+    else:
+        m = evaluate_policy_on_plant(model, make_protocol(args.q_star), args.sigma, args.trials_per_regime, args.repeat,
+                                     args.frames, args.max_action, args.seed, args.obs)
+    row = {"method": method_tag(name, args), **m, "real_env_samples": int(real), "decisions": done,
+           "flat": curve["flat"] if args.until_flat else None, "train_seconds": round(secs, 1), "seed": args.seed,
+           "command": command_line(args, [name])}
+    if record:
+        atomic_write_text(out / f"{stem}.json", json.dumps(curve, indent=1))
+        plot_curve(curve, out / f"{stem}.png")
     return row
 
 
@@ -374,6 +547,11 @@ def make_protocol(q_star: float) -> ControlProtocol:
                            d_inj=3.0 if upright else ControlProtocol.d_inj)
 
 
+#: options that only the plant agents (sac-real / sac-world) and the Energy-Casimir rows read
+SAC_PLANT_ONLY = ("obs", "reward", "quiet_weight", "sigma", "trials_per_regime", "repeat", "episode_decisions", "frames", "burn_in",
+                  "max_action", "phast_run", "ec_estimators", "q_star")
+
+
 def command_line(args: argparse.Namespace, agents: Sequence[str] | None = None) -> str:
     """The command that reproduces ``args`` (with ``agents`` in place of ``--agents``)."""
     parts = ["python benchmarks/control_sac.py"]
@@ -382,6 +560,9 @@ def command_line(args: argparse.Namespace, agents: Sequence[str] | None = None) 
             v = ",".join(agents) or "none"
         if v is None or v is False or k in ("no_progress", "tables_only"):
             continue
+        gym_only = agents is not None and list(agents) == ["sac-gym"]
+        if agents is not None and ((k in ("gym_env", "gym_eval_episodes") and not gym_only) or (k in SAC_PLANT_ONLY and gym_only)):
+            continue  # options the command's agents do not read
         parts.append(f"--{k.replace('_', '-')}" + ("" if v is True else f" {v}"))
     return " ".join(parts)
 
@@ -407,7 +588,16 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", required=True)
     ap.add_argument("--agents", default="sac-real,sac-world",
-                    help="comma list of sac-real, sac-world (needs --phast-run); none: Energy-Casimir rows only")
+                    help="comma list of sac-real, sac-world (needs --phast-run); none: Energy-Casimir rows only; "
+                         "sac-gym (alone): the same SAC on the Gymnasium env --gym-env (harness check, rows in OUT/gym_sac.json)")
+    ap.add_argument("--gym-env", default="Pendulum-v1", help="Gymnasium env id of sac-gym")
+    ap.add_argument("--gym-eval-episodes", type=int, default=20, help="seeded episodes of sac-gym's final evaluation")
+    ap.add_argument("--curve", action="store_true", help="fixed budget --steps, with a learning curve every --eval-every")
+    ap.add_argument("--obs", choices=OBS_MODES, default="frames",
+                    help="policy observation: frames (q-only, default); frames+qdot / state: true-velocity ablations (sac-real)")
+    ap.add_argument("--quiet-weight", type=float, default=None,
+                    help=f"weight of the quiet reward's torque term (default {QUIET_WEIGHT} at q* = 0, 0.05 otherwise: "
+                         "upright_quiet_weight)")
     ap.add_argument("--steps", type=int, default=20000, help="SAC decisions per agent without --until-flat (zoo: 20k)")
     ap.add_argument("--until-flat", action="store_true", help="train until the learning curve is flat (is_flat) or --max-steps")
     ap.add_argument("--max-steps", type=int, default=150000, help="cap on SAC decisions with --until-flat")
@@ -431,11 +621,16 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--no-progress", action="store_true")
     ap.add_argument("--tables-only", action="store_true", help="only rewrite OUT/control_sac.md from OUT/control_sac.json")
     args = ap.parse_args(argv)
-    for a in agents_of(args):
-        if a not in ("sac-real", "sac-world"):
+    agents = agents_of(args)
+    for a in agents:
+        if a not in ("sac-real", "sac-world", "sac-gym"):
             ap.error(f"unknown agent {a!r}")
         if a == "sac-world" and not args.phast_run:
             ap.error("sac-world needs --phast-run")
+        if a == "sac-world" and args.obs != "frames":
+            ap.error("sac-world observes frames only (the world model has no true state)")
+    if "sac-gym" in agents and len(agents) > 1:
+        ap.error("sac-gym runs alone")
     return args
 
 
@@ -456,6 +651,30 @@ def energy_casimir_rows(protocol: Any, args: argparse.Namespace) -> dict[str, di
         "train_seconds": 0.0, "command": cmd} for r in rows if r["regime"] == "all"}
 
 
+def run_gym(args: argparse.Namespace, out: Path) -> None:
+    """sac-gym: train, merge the row (one per env and seed) into ``OUT/gym_sac.json``, write ``OUT/gym_sac.md``."""
+    path = out / "gym_sac.json"
+    meta: dict[str, Any] = json.loads(path.read_text()) if path.exists() else {"hyperparameters": ZOO_PENDULUM_SAC, "results": []}
+    row = train_agent("sac-gym", args, out)
+    print({k: v for k, v in row.items() if k != "command"}, flush=True)
+    rows = [r for r in meta["results"] if (r["method"], r["seed"]) != (row["method"], row["seed"])] + [row]
+    meta["results"] = sorted(rows, key=lambda r: (r["method"], r["seed"]))
+    atomic_write_text(path, json.dumps(meta, indent=1))
+    lines = ["SB3 SAC (zoo Pendulum-v1 hyperparameters) on Gymnasium envs: deterministic return on "
+             f"{row['episodes']} seeded episodes; settled: |theta| < 0.05 rad over the last 20 steps (1 s)", "",
+             "| Method | Seed | Steps | Mean return | Std | Settled | Final abs(theta) | RMS torque, last 20 | Train s |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for r in meta["results"]:
+        lines.append(f"| {r['method']} | {r['seed']} | {r['decisions']} | {r['mean_return']:.1f} | {r['std_return']:.1f} | "
+                     f"{r['settled_rate']:.2f} | {r['final_abs_theta']:.3g} | {r['u_rms_final']:.3f} | {r['train_seconds']} |")
+    by: dict[str, list[float]] = {}
+    for r in meta["results"]:
+        by.setdefault(r["method"], []).append(r["mean_return"])
+    lines += [""] + [f"{m}: mean over {len(v)} seeds {np.mean(v):.1f} (min {min(v):.1f}, max {max(v):.1f})" for m, v in by.items()]
+    lines += ["", "Commands:", ""] + [f"* seed {r['seed']}: `{r['command']}`" for r in meta["results"]]
+    atomic_write_text(out / "gym_sac.md", "\n".join(lines) + "\n")
+
+
 def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
     if args.tables_only:
@@ -464,6 +683,9 @@ def main(argv: list[str] | None = None) -> None:
     torch.set_num_threads(1)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    if agents_of(args) == ["sac-gym"]:
+        run_gym(args, out)
+        return
     protocol = make_protocol(args.q_star)
     path = out / "control_sac.json"
     meta: dict[str, Any] = json.loads(path.read_text()) if path.exists() else {}

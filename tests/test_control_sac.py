@@ -118,3 +118,121 @@ def test_tiny_end_to_end(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Non
     assert curve["decisions"] == [100, 200] and len(curve["train_env_return"]) == 2
     assert (tmp_path / "curve_sac-real_quiet.png").stat().st_size > 0
     assert "--agents sac-real" in row["command"] and "sac-real/quiet" in (tmp_path / "control_sac.md").read_text()
+
+
+# --- issue 29, item 1: the upright (q_star = pi) diagnosis (docs/control_results/sac/DIAGNOSIS.md) -------------------
+
+def test_plant_angle_convention_and_upright_reward() -> None:
+    """q = 0 hangs (stable), q = pi is upright (unstable); the reward's error is wrap(q - q_star) at q_star = pi."""
+    env = make_control_env(ControlProtocol(horizon=10**9), 0.0)
+    system = env.unwrapped.system
+    assert system.mgl == pytest.approx(9.81) and system.inertia == pytest.approx(1.0)
+    assert system.mgl < 10.0  # the 10 N m bound can hold the pendulum at any angle
+    for q0, centre, stays in ((0.3, 0.0, True), (math.pi - 0.01, math.pi, False)):  # 2 s at u = 0
+        env.reset(seed=0, options={"state": np.array([q0, 0.0])})
+        qs = np.array([env.step(np.zeros(1))[4]["state"][0] for _ in range(200)])
+        assert bool(np.max(np.abs(cs.wrap(qs - centre))) < 0.31) is stays, q0
+    upright = cs.RepeatRegimeEnv(make_control_env(ControlProtocol(horizon=10**9), 0.0), 5, 200, 10.0, q_star=math.pi)
+    for q0, err in ((math.pi, 0.0), (-math.pi + 0.01, 0.01), (math.pi - 0.01, 0.01), (0.0, math.pi)):
+        upright.reset(seed=0, options={"state": np.array([q0, 0.0])})
+        _, r, *_, info = upright.step(np.zeros(1))
+        assert info["plant_err"][0] == pytest.approx(err, abs=1e-4), q0  # same error on both sides of the +-pi cut
+        assert r == pytest.approx(-(err**2), abs=2e-3 + 0.2 * err**2)
+
+
+def static_hold_cost(e: np.ndarray, weight: float, mgl: float = 9.81) -> np.ndarray:
+    """Per-step quiet-reward cost of holding the pendulum still at an error e from the upright (u = m g l sin e)."""
+    return np.array([-cs.pendulum_reward(float(x), 0.0, mgl * math.sin(float(x)), "quiet", weight) for x in e])
+
+
+def test_quiet_weight_bound_at_the_upright() -> None:
+    """The old quiet weight (0.5) makes holding 0.6-0.7 rad off the upright cheaper than holding 0.3 rad off: a spurious
+    optimum (the measured upright quiet policies ended 0.62 rad off with RMS torque 6.3 N m ~ m g l sin 0.62 = 5.7);
+    below max_quiet_weight the cost rises monotonically with the error."""
+    e = np.linspace(1e-3, 1.2, 600)
+    bound = cs.max_quiet_weight(9.81)
+    assert bound == pytest.approx(math.exp(2) / 9.81**2)
+    old = static_hold_cost(e, cs.QUIET_WEIGHT)
+    assert not np.all(np.diff(old) > 0)
+    local_min = e[1:-1][(old[1:-1] < old[:-2]) & (old[1:-1] < old[2:])]
+    assert len(local_min) == 1 and 0.6 < local_min[0] < 0.75
+    assert np.interp(0.3, e, old) > 2.5 * np.interp(0.68, e, old)
+    for w in (0.99 * bound, cs.upright_quiet_weight(9.81)):
+        assert np.all(np.diff(static_hold_cost(e, w)) > 0), w
+    assert not np.all(np.diff(static_hold_cost(e, 1.3 * bound)) > 0)
+
+
+def test_default_quiet_weight_by_target() -> None:
+    """--quiet-weight defaults to QUIET_WEIGHT at the hanging target (the q* = 0 results are unchanged) and to the
+    upright weight (below the bound) at q* = pi."""
+    hang = cs.parse_args(["--out", "x", "--agents", "none", "--reward", "quiet", "--q-star", "0"])
+    up = cs.parse_args(["--out", "x", "--agents", "none", "--reward", "quiet", "--q-star", str(math.pi)])
+    assert cs.quiet_weight_of(hang) == cs.QUIET_WEIGHT
+    assert cs.quiet_weight_of(up) == pytest.approx(cs.upright_quiet_weight(9.81)) == pytest.approx(0.05)
+    assert cs.quiet_weight_of(up) < cs.max_quiet_weight(9.81)
+    explicit = cs.parse_args(["--out", "x", "--agents", "none", "--q-star", str(math.pi), "--quiet-weight", "0.5"])
+    assert cs.quiet_weight_of(explicit) == 0.5
+    assert cs.method_tag("sac-real", hang) == "sac-real/quiet" and cs.curve_stem("sac-real", hang) == "curve_sac-real_quiet"
+    assert cs.method_tag("sac-real", up) == "sac-real/quiet/w0.05" and cs.method_tag("sac-real", explicit) == "sac-real/zoo"
+
+
+def test_state_observation_ablation_matches_evaluation() -> None:
+    """obs 'state' = (sin q, cos q, qdot) of the true state, the same in training and in the plant evaluation."""
+    protocol = ControlProtocol(horizon=30, settle_steps=10)
+    seen: list[np.ndarray] = []
+
+    class Recorder:
+        def predict(self, obs: np.ndarray, deterministic: bool = True) -> tuple[np.ndarray, None]:
+            seen.append(np.array(obs))
+            return np.array([0.2], dtype=np.float32), None
+
+    cs.evaluate_policy_on_plant(Recorder(), protocol, 0.01, 1, repeat=5, frames=3, max_action=10.0, obs_mode="state")
+    from phast_gym.control import start_states
+    from phast_gym.control.evaluation import _stable_seed
+
+    x0 = next(iter(start_states(protocol, 1, 0).values()))[0]
+    fo = cs.FrameObs(cs.RepeatRegimeEnv(make_control_env(ControlProtocol(horizon=10**9), 0.01), 5, 6, 10.0), 3, "state")
+    assert fo.observation_space.shape == (3,)
+    obs, info = fo.reset(seed=_stable_seed(0, "noise", "near_stable", 0), options={"state": x0})
+    assert np.allclose(obs, [math.sin(x0[0]), math.cos(x0[0]), x0[1]], atol=1e-6)
+    for k in range(6):
+        assert np.allclose(seen[k], obs, atol=1e-6), k
+        obs, _, _, _, info = fo.step(np.array([0.2], dtype=np.float32))  # the Recorder's action
+        q, p = info["state"]
+        assert np.allclose(obs, [math.sin(q), math.cos(q), p], atol=1e-6)  # I = 1: qdot = p
+    plus = cs.ObsBuilder(3, "frames+qdot")
+    assert plus.size == 7 and plus.reset(np.array([0.1]), np.array([0.1, 2.0]))[-1] == pytest.approx(2.0)
+    with pytest.raises(ValueError):
+        cs.ObsBuilder(3, "nope")
+
+
+def test_sac_gym_tiny(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """sac-gym: the same SAC construction and training loop on Gymnasium's Pendulum-v1 (rows in gym_sac.json)."""
+    pytest.importorskip("stable_baselines3")
+    monkeypatch.setattr(cs, "ZOO_PENDULUM_SAC", {**cs.ZOO_PENDULUM_SAC, "policy_kwargs": {"net_arch": [16, 16]},
+                                                 "batch_size": 32, "learning_starts": 50})
+    cs.main(["--out", str(tmp_path), "--agents", "sac-gym", "--steps", "200", "--curve", "--eval-every", "100",
+             "--eval-episodes", "1", "--gym-eval-episodes", "2", "--no-progress"])
+    meta = json.loads((tmp_path / "gym_sac.json").read_text())
+    (row,) = meta["results"]
+    assert row["method"] == "sac-gym/Pendulum-v1" and row["decisions"] == 200 and row["real_env_samples"] == 200
+    assert row["episodes"] == 2 and -2000 < row["mean_return"] <= 0 and 0 <= row["settled_rate"] <= 1
+    curve = json.loads((tmp_path / "curve_sac-gym_Pendulum-v1_s0.json").read_text())
+    assert curve["decisions"] == [100, 200] and curve["flat"] is False
+    assert "sac-gym/Pendulum-v1" in (tmp_path / "gym_sac.md").read_text()
+    with pytest.raises(SystemExit):
+        cs.parse_args(["--out", "x", "--agents", "sac-gym,sac-real"])
+
+
+def test_precise_reward() -> None:
+    """precise = quiet minus a narrow angle well (depth PRECISE_WEIGHT, width the 0.05 rad tolerance): much steeper than
+    err^2 at a few 0.01 rad, unchanged far away, and its static holding cost at the upright is monotone."""
+    w = cs.upright_quiet_weight(9.81)
+    assert cs.pendulum_reward(0.0, 0.0, 0.0, "precise", w) == 0.0
+    assert cs.pendulum_reward(math.pi, 0.0, 0.0, "precise", w) == pytest.approx(
+        cs.pendulum_reward(math.pi, 0.0, 0.0, "quiet", w) - cs.PRECISE_WEIGHT)
+    d = 1e-4
+    slope = lambda kind, e: (cs.pendulum_reward(e, 0.0, 0.0, kind, w) - cs.pendulum_reward(e + d, 0.0, 0.0, kind, w)) / d  # noqa: E731
+    assert slope("precise", 0.03) > 20 * slope("zoo", 0.03)
+    e = np.linspace(1e-3, 1.2, 600)
+    assert np.all(np.diff([-cs.pendulum_reward(float(x), 0.0, 9.81 * math.sin(float(x)), "precise", w) for x in e]) > 0)
