@@ -255,6 +255,7 @@ class RigTrainConfig:
     lr: float = 2e-2
     weight_decay: float = 0.0
     refit_every: int = 1
+    state_iters: int = 1  # Gauss-Newton iterations of the window states per refit after the first epoch (3)
     val_fraction: float = 0.15
     friction_lr_mult: float = 5.0
     seed: int = 0
@@ -380,7 +381,7 @@ def fit_recordings(model: PHAST, data: RigData, cfg: RigTrainConfig | None = Non
     t0 = time.perf_counter()
     for epoch in tqdm(range(cfg.epochs), desc="fit rig (multiple shooting)", disable=not cfg.progress):
         if epoch % cfg.refit_every == 0:  # the states move little between epochs: one Gauss-Newton step after the first
-            iters = 3 if epoch == 0 else 1
+            iters = 3 if epoch == 0 else cfg.state_iters
             train.X = fit_states(model, train.X, train.q, train.u, iters)
             if val is not None:
                 val.X = fit_states(model, val.X, val.q, val.u, iters)
