@@ -30,7 +30,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from .components.mass import LowRankMass
+from .components.mass import KnownMass, LowRankMass
 from .interfaces import coordinate_error, wrap_angles
 from .mismatch.evaluate import check_holdout_indices, split
 from .mismatch.recordings import Recordings, load_raw, validate
@@ -56,10 +56,13 @@ class RigData:
 
     train: Recordings
     heldout: Recordings | None
-    dt: float
     holdout: tuple[int, ...]
     source: str
     u_bound: tuple[float, ...]  # largest |u| recorded per coordinate (the world env's action bound)
+
+    @property
+    def dt(self) -> float:
+        return float(self.train.dt)
 
     @property
     def driven(self) -> bool:
@@ -83,7 +86,7 @@ def load_rig_data(recordings: str | Path | dict[str, Any], sim: str, sim_kwargs:
     held = None if held is None else held.resampled().decimate(decimate)
     u_all = rec.u if rec.u is not None else np.zeros((1, 1, system.n))
     bound = tuple(float(b) for b in np.max(np.abs(u_all), axis=(0, 1)))
-    return RigData(train, held, float(train.dt), tuple(holdout or ()), src, bound)
+    return RigData(train, held, tuple(holdout or ()), src, bound)
 
 
 def _check_window_room(rec: Recordings, samples: int, what: str) -> None:
@@ -288,23 +291,12 @@ def _template_start(model: PHAST, rec: Recordings) -> dict[str, float]:
     :func:`phast_model.data_init.initialize_partial`) is not usable on a real arm: on the DFKI C.0 runs its force
     balance leaves 66% of the force unexplained (finite differences of a 3.8e-4 rad encoder, a torque held per
     interval, unmodelled Coulomb friction) and every coefficient comes out 5-10x too small."""
-    from phast_gym.systems import TORCH, split, stack
-
     system = model.system
     q = torch.as_tensor(rec.q.reshape(-1, rec.n)[:: max(1, rec.q.shape[0] * rec.T // 4000)], dtype=torch.float64)
-    out: dict[str, float] = {}
-    template = model.potential
-    target = stack(system.grad_potential(split(q), TORCH)).reshape(-1)
-    A = template.gradient_basis(q).to(q.dtype).reshape(-1, template.coef.numel())
-    sol = torch.linalg.lstsq(A, target.unsqueeze(-1)).solution.squeeze(-1)
-    with torch.no_grad():
-        template.coef.copy_(sol.to(template.coef.dtype))
-    out["potential_fit_residual"] = float(torch.linalg.norm(A @ sol - target) / torch.linalg.norm(target).clamp_min(1e-12))
+    out = {"potential_fit_residual": model.potential.fit_to(system, q=q)}
     mass = model.mass
     if hasattr(mass, "linear_basis"):
-        rows = system.mass_matrix(split(q), TORCH)
-        Mq = torch.stack([torch.stack([torch.as_tensor(e, dtype=q.dtype).expand(q.shape[0]) for e in r], -1)
-                          for r in rows], -2)
+        Mq = KnownMass(system).matrix(q)  # (S, n, n): the rig's M at the recorded configurations
         B = mass.linear_basis(q).to(q.dtype)  # (S, J, n, n)
         Bm = B.permute(0, 2, 3, 1).reshape(-1, B.shape[1])
         th = torch.linalg.lstsq(Bm, Mq.reshape(-1, 1)).solution.squeeze(-1)
@@ -432,7 +424,7 @@ def heldout_windows(rec: Recordings, window_s: float | None, burn_s: float = BUR
     starts = np.arange(0, rec.T - (burn + H) + 1, H)
     idx = starts[:, None] + np.arange(burn + H)[None, :]
     q = rec.q[:, idx].reshape(-1, burn + H, rec.n)
-    u = None if rec.u is None else np.concatenate([rec.u, rec.u[:, -1:]], 1)[:, idx[:, :-1]].reshape(-1, burn + H - 1, rec.n)
+    u = None if rec.u is None else rec.u[:, idx[:, :-1]].reshape(-1, burn + H - 1, rec.n)
     traj = np.repeat(np.arange(rec.n_traj), len(starts))
     return HeldoutWindows(torch.as_tensor(q), None if u is None else torch.as_tensor(u), burn, H, traj,
                           np.tile(starts, rec.n_traj))

@@ -142,11 +142,14 @@ class TemplatePotential(Potential):
         return torch.stack(cols, -1).detach()
 
     @torch.no_grad()
-    def fit_to(self, system: System, n_samples: int = 512, seed: int = 0) -> float:
+    def fit_to(self, system: System, n_samples: int = 512, seed: int = 0, q: torch.Tensor | None = None) -> float:
         """Least-squares init of the coefficients from ``system.grad_potential`` on its initial-state
-        distribution (PARTIAL: the template is given, coefficients stay learnable). Returns the relative residual."""
-        rng = np.random.default_rng(seed)
-        q = torch.as_tensor(system.sample_initial(rng, n_samples)[:, : self.n], dtype=torch.float64)
+        distribution, or at the configurations ``q`` (M, n) when given (a rig: the recorded ones) (PARTIAL: the
+        template is given, coefficients stay learnable). Returns the relative residual."""
+        if q is None:
+            rng = np.random.default_rng(seed)
+            q = torch.as_tensor(system.sample_initial(rng, n_samples)[:, : self.n], dtype=torch.float64)
+        q = torch.as_tensor(q, dtype=torch.float64)
         target = stack(system.grad_potential(split(q), TORCH)).reshape(-1)
         eps_grid = [None] if self.kind != "gravity" else list(np.logspace(-2, 0, 21))
         best = (math.inf, None, None)

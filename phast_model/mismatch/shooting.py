@@ -355,8 +355,8 @@ class Shooter:
         dt, sub = self._time_base()
         if np.ndim(dt) == 2 and K > 1:
             dt = np.tile(dt, (K, 1))
-        u = None if w.u is None or K == 1 else np.tile(w.u, (K, 1, 1))
-        sim = simulate_qv(system, X[:, :n], X[:, n:], w.length - 1, w.u if K == 1 else u, dt, sub)
+        u = w.u if w.u is None or K == 1 else np.tile(w.u, (K, 1, 1))
+        sim = simulate_qv(system, X[:, :n], X[:, n:], w.length - 1, u, dt, sub)
         sim = sim.reshape((K, -1) + sim.shape[1:])
         if w.stride == 1:
             d = angle_diff(sim, w.q[None], w.angle_dims) / self.sigma
