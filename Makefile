@@ -4,7 +4,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 OUT    ?= demo_out
 
-.PHONY: install test demo lint format bench-envs check-results clean
+.PHONY: install test demo lint typecheck format bench-envs check-results clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -23,6 +23,9 @@ demo: install
 
 lint: install
 	$(PY) -m ruff check phast_gym phast_model tests examples benchmarks
+
+typecheck: install
+	$(PY) -m mypy
 
 format: install
 	$(PY) -m ruff format phast_gym phast_model tests examples benchmarks
