@@ -20,8 +20,8 @@ from pathlib import Path
 
 from phast_gym.fileio import atomic_write_text
 
-#: estimators reported (the plant-physics UKF is registered as "ekf")
-PLANT_UKF, LEARNED_UKF = "ekf", "phast-ukf"
+#: estimators reported: the plant-physics UKF ("ukf"; stored results before the rename call it "ekf") and phast-ukf
+PLANT_UKFS, LEARNED_UKF = ("ukf", "ekf"), "phast-ukf"
 
 
 @dataclass(frozen=True)
@@ -58,9 +58,9 @@ def _rows(sub: Path, regime: str) -> list[Row]:
     protocol = json.loads((sub / "protocol.json").read_text())
     out = []
     for r in json.loads((sub / "results.json").read_text()):
-        if r["regime"] != "all" or r["estimator"] not in (PLANT_UKF, LEARNED_UKF):
+        if r["regime"] != "all" or r["estimator"] not in (*PLANT_UKFS, LEARNED_UKF):
             continue
-        model = "plant physics" if r["estimator"] == PLANT_UKF else label(regime)
+        model = "plant physics" if r["estimator"] in PLANT_UKFS else label(regime)
         out.append(Row(_target(protocol), float(r["sigma"]), model, int(r["n_trials"]), r["success_rate"],
                        r["success_angle_rate"], r["u_rms_final"], r["effort"], r["velocity_error"]))
     return out

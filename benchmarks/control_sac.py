@@ -615,7 +615,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--burn-in", type=int, default=10, help="real measurements per world-model episode")
     ap.add_argument("--max-action", type=float, default=10.0, help="SAC torque bound (N m)")
     ap.add_argument("--phast-run", default=None, help="PHAST run for SAC inside PHASTWorldModelEnv")
-    ap.add_argument("--ec-estimators", default="oracle,map,ekf")
+    ap.add_argument("--ec-estimators", default="oracle,map,ukf")
     ap.add_argument("--q-star", type=float, default=0.0, help="target angle (pi: upright; EC gains k_c = 20, d_inj = 3)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-progress", action="store_true")

@@ -18,7 +18,7 @@ from phast_gym.control import ControlProtocol, evaluate_estimators
 from phast_gym.control.report import plot_success_by_regime, plot_traces, results_markdown
 from phast_gym.fileio import atomic_write_text
 
-ESTIMATORS = ("oracle", "fd", "map", "ekf")
+ESTIMATORS = ("oracle", "fd", "map", "ukf")
 SIGMA = 0.05
 
 

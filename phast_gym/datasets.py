@@ -17,7 +17,7 @@ import math
 import os
 import warnings
 import zipfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -49,6 +49,9 @@ class Dataset:
     u : (N, T-1, m) port input applied over each interval [t, t+1].
     damping : (N, T, n) diagonal of the true D(q_t).
     dt : sampling interval.
+    system : the :class:`~phast_gym.systems.System` that generated the data (its kwargs), built once by
+        :func:`make_dataset` and shared by every subset, so metrics, plots and energy diagnostics use the data's
+        own physics without rebuilding it (None for a dataset assembled by hand).
     """
 
     env_id: str
@@ -61,6 +64,7 @@ class Dataset:
     angle_dims: tuple[int, ...]
     actuated_dofs: tuple[int, ...]
     config: dict[str, Any] = field(default_factory=dict)
+    system: System | None = field(default=None, repr=False, compare=False)
 
     @property
     def n_traj(self) -> int:
@@ -77,7 +81,7 @@ class Dataset:
         """Trajectories ``idx`` (slice or index array) as a new dataset."""
         kw = {k: getattr(self, k)[idx] for k in _ARRAYS}
         return Dataset(self.env_id, dt=self.dt, angle_dims=self.angle_dims, actuated_dofs=self.actuated_dofs,
-                       config=dict(self.config), **kw)
+                       config=dict(self.config), system=self.system, **kw)
 
 
 def _config_key(config: dict[str, Any]) -> str:
@@ -174,7 +178,7 @@ def make_dataset(
     path = cache_dir() / f"{env_id.replace('/', '_')}-{_config_key(config)}.npz"
     if cache and path.exists():
         try:
-            return _load(path, config)
+            return replace(_load(path, config), system=system)
         except ValueError as exc:
             warnings.warn(f"{exc}; regenerating the dataset", RuntimeWarning, stacklevel=2)
     ds = _generate(system, u_arr, actuated, config, backend, env_kwargs.get("substeps"))
@@ -236,7 +240,8 @@ def _generate(system: System, u_arr: np.ndarray, actuated: tuple[int, ...], conf
     for i in system.angle_dims:
         q[..., i] = wrap(q[..., i])
     return Dataset(config["env_id"], q=q, q_true=q_true, p=p, u=u_arr, damping=_true_damping(system, q_true),
-                   dt=float(system.dt), angle_dims=tuple(system.angle_dims), actuated_dofs=actuated, config=config)
+                   dt=float(system.dt), angle_dims=tuple(system.angle_dims), actuated_dofs=actuated, config=config,
+                   system=system)
 
 
 def _true_damping(system: System, q_true: np.ndarray) -> np.ndarray:

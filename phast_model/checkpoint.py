@@ -66,6 +66,22 @@ def _identity_json(meta: dict[str, Any]) -> str:
     return json.dumps(_identity(meta), sort_keys=True, default=str)
 
 
+#: fields compared (and so named) first: the ones a person recognizes
+_FIRST = ("env_id", "regime", "model", "data", "train")
+
+
+def first_difference(stored: Any, wanted: Any, prefix: str = "") -> tuple[str, Any, Any] | None:
+    """(dotted field, stored value, wanted value) of the first field where two JSON values differ (env, regime,
+    model, data and training fields first), else None."""
+    if isinstance(stored, dict) and isinstance(wanted, dict):
+        for k in sorted(set(stored) | set(wanted), key=lambda k: (k not in _FIRST, _FIRST.index(k) if k in _FIRST else 0, k)):
+            d = first_difference(stored.get(k, "<absent>"), wanted.get(k, "<absent>"), f"{prefix}{k}.")
+            if d is not None:
+                return d
+        return None
+    return None if stored == wanted else (prefix.rstrip("."), stored, wanted)
+
+
 def read_config(run_dir: str | Path) -> dict[str, Any]:
     """The run's ``config.json`` after format checks."""
     path = Path(run_dir) / CONFIG_FILE
@@ -129,8 +145,6 @@ def load_model(run_dir: str | Path) -> PHAST:
     state = load_state(Path(run_dir) / MODEL_FILE)
     ident = state.pop(IDENTITY_KEY, None)  # a model.pt of the format's first release has none: loaded unchecked
     if ident is not None:
-        from .training import first_difference
-
         try:
             stored = json.loads(bytes(ident.to(torch.uint8).tolist()).decode())
         except (ValueError, UnicodeDecodeError):

@@ -52,21 +52,21 @@ def _fd_energy(system: System, q: np.ndarray, dt: float, angle_dims: tuple[int, 
     return H * np.ones(v.shape[:-1]), v
 
 
-def env_energy(env_id: str, q: np.ndarray, dt: float, angle_dims: tuple[int, ...],
+def env_energy(env: System | str, q: np.ndarray, dt: float, angle_dims: tuple[int, ...],
                env_kwargs: dict[str, Any] | None = None) -> np.ndarray:
     """The env's energy H(q, M(q) qdot_fd) along trajectories (..., T, n) -> (..., T-1), through the system's own
-    functions (finite-difference velocities, wrapped on angles); ValueError for a system with no mechanical energy."""
-    system = make_env_system(env_id, **(env_kwargs or {}))
+    functions (finite-difference velocities, wrapped on angles); ``env`` is the system (e.g. a dataset's
+    ``system``) or an env id built with ``env_kwargs``.  ValueError for a system with no mechanical energy."""
+    system = make_env_system(env, **(env_kwargs or {})) if isinstance(env, str) else env
     if not system.hamiltonian_system:  # e.g. predator-prey: no M(q), its invariant needs the unobserved latent
-        raise ValueError(f"{env_id} is not port-Hamiltonian: no energy H(q, M(q) qdot)")
+        raise ValueError(f"{env if isinstance(env, str) else system.name} is not port-Hamiltonian: no energy H(q, M(q) qdot)")
     return _fd_energy(system, q, dt, angle_dims)[0]
 
 
-def energy_diagnostics(env_id: str, q_roll: np.ndarray, dt: float, angle_dims: tuple[int, ...],
-                       env_kwargs: dict[str, Any] | None = None, tol: float = 1e-6) -> tuple[float, float]:
+def energy_diagnostics(system: System, q_roll: np.ndarray, dt: float, angle_dims: tuple[int, ...],
+                       tol: float = 1e-6) -> tuple[float, float]:
     """(energy-budget residual Eq. 96, passivity-violation rate Eq. 94) of rollouts q_roll (N, H+1, n),
-    from finite-difference velocities and the env's analytic H and D."""
-    system = make_env_system(env_id, **(env_kwargs or {}))
+    from finite-difference velocities and ``system``'s analytic H and D (the data's physics: ``Dataset.system``)."""
     Hh, v = _fd_energy(system, q_roll, dt, angle_dims)  # H_env(q_{h+1}, v_h), (N, H)
     dH = Hh[:, 1:] - Hh[:, :-1]
     d = np.stack(np.broadcast_arrays(*system.damping(split(q_roll[:, 1:-1]), NUMPY)), -1)
@@ -75,11 +75,22 @@ def energy_diagnostics(env_id: str, q_roll: np.ndarray, dt: float, angle_dims: t
     return float(np.abs(rho).mean()), float((dH > tol).mean())
 
 
+def data_system(ds: Any) -> System | None:
+    """The physics that generated dataset ``ds``: its ``system`` (built once by :func:`phast_gym.make_dataset`),
+    else one built from its ``env_id`` and the parameters in its ``config``; None without an env id."""
+    system = getattr(ds, "system", None)
+    if system is not None:
+        return system
+    env_id = getattr(ds, "env_id", None)
+    return make_env_system(env_id, **_env_kwargs(ds)) if env_id else None
+
+
 def forecast_metrics(model: ForecastModel, test: Any, horizons: tuple[int, ...] = (10, 50, 100), burn_in: int = 10,
                      batch_size: int = 256, takeover: bool = True, energy: bool = True) -> dict[str, float]:
     """Table 16 metrics of ``model`` on ``test`` (a Dataset): one-step, autoregressive and takeover
     rollouts at each H, damping R^2 / MAE (models with a damping field), energy-budget residual and
-    passivity violations from the env's H and D, and the trainable parameter count."""
+    passivity violations from the data's H and D (:func:`data_system`; ``energy=False`` switches them off, e.g. for
+    full-state inputs whose q are not positions), and the trainable parameter count."""
     q = np.asarray(test.q)
     u = getattr(test, "u", None)
     T = q.shape[1]
@@ -97,17 +108,16 @@ def forecast_metrics(model: ForecastModel, test: Any, horizons: tuple[int, ...] 
     modes = [("rollout_", "autoregressive")]
     if takeover and hasattr(model, "rollout_takeover"):
         modes.append(("rollout_takeover_", "takeover"))
-    env_id = getattr(test, "env_id", None)
-    system = make_env_system(env_id) if env_id else None
+    system = data_system(test) if energy else None
     for prefix, mode in modes:
         roll = batched_rollout(model, q, u, burn_in, Hmax, mode, batch_size)
         se = _sq_err(roll, q[:, burn_in:burn_in + Hmax], ang)
         for H in horizons:
             out.update(_error_keys(prefix, se[:, :H], ang, f"_h{H}"))
-            if energy and mode == "autoregressive" and system is not None and system.hamiltonian_system and H >= 3:
+            if mode == "autoregressive" and system is not None and system.hamiltonian_system and H >= 3:
                 full = np.concatenate([q[:, burn_in - 1:burn_in], roll[:, :H]], 1)
                 full = np.where(np.isfinite(full), full, np.nan)
-                res, viol = energy_diagnostics(env_id, full, float(test.dt), ang, _env_kwargs(test))
+                res, viol = energy_diagnostics(system, full, float(test.dt), ang)
                 out[f"rollout_energy_budget_resid_h{H}"] = res
                 out[f"rollout_passivity_violations_h{H}"] = viol
     if getattr(model, "damping", None) is not None and hasattr(model, "damping_diag") and hasattr(test, "damping"):

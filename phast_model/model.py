@@ -3,21 +3,22 @@
 :class:`PHAST` is a :class:`~phast_model.interfaces.ForecastModel`; its parts are
 composed from a :class:`PHASTConfig` by :func:`build_from_config` (the regimes
 of :mod:`phast_model.regimes` are such configs).  :class:`LatentODEModel` is the
-structured model of the non-Hamiltonian predator-prey env (see its docstring).
+structured model of the non-Hamiltonian predator-prey env (see its docstring).  The configuration itself
+(:class:`PHASTConfig`, :func:`config_system`, :func:`system_scales`) lives in :mod:`phast_model.config` and is
+re-exported here.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import torch
 from torch import nn
 
-from phast_gym import make_env_system, resolve_env_id
 from phast_gym.systems import NUMPY, TORCH, System, split, stack
 
 from . import data_init
@@ -37,114 +38,9 @@ from .components import (
 from .components.features import coordinate_features, n_features
 from .components.friction import JointFriction
 from .components.potentials import TemplatePotential
+from .config import PHASTConfig, config_system, system_scales
 from .core import PHASTCore, SubstepCore
 from .interfaces import ForecastModel, coordinate_error, wrap_angles
-
-
-@dataclass
-class PHASTConfig:
-    """Everything needed to rebuild a PHAST model (saved as ``config.json``)."""
-
-    env_id: str
-    regime: str = "custom"
-    kind: str = "phast"  # "phast" or "latent_ode" (predator-prey)
-    potential: str = "known"  # known | template | neural | hybrid
-    template: str | None = None  # cosine | quadratic | lennard_jones | gravity
-    template_dims: list[int] | None = None
-    mass: str = "known"  # known | lowrank | template | cholesky
-    mass_rank: int = 1
-    mass_template: str | None = None  # mass="template": cartpole | double_pendulum | double_pendulum_relative
-    mass_hidden: int = 32  # mass="cholesky": hidden width of the factor network
-    #: where learned physics starts: "data" (least squares on the training set at the start of training,
-    #: :mod:`phast_model.data_init`), "physics" (template and mass fitted to the env's true V and M: the
-    #: "V given" variant), "rig" (a recordings run: the rig's nominal V and M at the recorded configurations,
-    #: :func:`phast_model.rig.fit_recordings`) or "none" (unit coefficients, identity mass)
-    init_from: str = "data"
-    damping: str = "householder"  # householder | known | none
-    damping_rank: int = 2
-    damping_hidden: int = 32
-    damping_cap: float | None = None
-    d0: float = 0.0
-    learn_d0: bool = True
-    canonicalizer: str = "identity"  # identity | mass
-    integrator: str = "auto"
-    substeps: int = 1
-    learn_dt: bool = True
-    midpoint_iters: int = 4
-    observer_hidden: int = 32
-    observer_layers: int = 2
-    use_tcn: bool = True
-    observer_fd_order: int = 4
-    observer_trainable: bool = True  # False: the observer stays the backward-difference formula it starts as
-    damping_lr_mult: float = 1.0  # learning-rate multiplier of the damping parameters (see param_groups)
-    #: trainer defaults this model asks for (a TrainConfig value overrides them; None: the trainer's own)
-    adam_eps: float | None = None
-    warmup_epochs: float | None = None
-    potential_hidden: int = 64
-    potential_layers: int = 3
-    hybrid_eps: float = 0.01
-    ode_field: str = "known"  # latent_ode only: known | template | neural
-    #: latent_ode only: the latents of the start-up steps (history shorter than the backward difference):
-    #: "constant" (a learned constant at t = 0, the latent map after) or "learned" (LatentODEModel.init_prior)
-    latent_prior: str = "constant"
-    lambda_pass: float = 0.0
-    lambda_energy: float = 0.0
-    lambda_roll: float = 0.0
-    roll_horizon: int = 10
-    #: what L_roll unrolls: "core" (paper Eq. 88: the core alone from the observer's state at a random start) or
-    #: "observer" (the autoregressive rollout the benchmark scores: the observer re-run on the predicted window)
-    roll_mode: str = "core"
-    env_kwargs: dict[str, Any] = field(default_factory=dict)
-    #: a user rig or env id for recordings (``path.py:Class``, ``module:Class`` or an env id, with ``env_kwargs``);
-    #: None: ``env_id`` names the system (phast_model.mismatch.simulators.load_simulator resolves it)
-    sim: str | None = None
-    #: the model's sampling step when it differs from the system's own ``dt`` (recordings: their grid)
-    dt: float | None = None
-    #: RMS scales of the Euclidean coordinates / of the velocities that normalize neural inputs (None: from the
-    #: system's initial-state distribution, :func:`system_scales`; recordings: from the data)
-    q_scale: list[float] | None = None
-    v_scale: list[float] | None = None
-    #: the port's bound per input (a recordings run: the largest recorded |u| unless the user gives one); the world
-    #: env's action space.  None: the registered env's
-    action_bound: list[float] | None = None
-    actuated_dofs: list[int] | None = None
-    seed: int = 0
-    #: velocity-dependent joint friction (issue 30): "none" or "joint" (:class:`JointFriction`, a backward-Euler
-    #: step in each dissipation half-step); its shapes (coulomb | viscous | quadratic | stribeck), the Coulomb
-    #: tanh smoothing and Stribeck velocities (one value or one per joint), the coordinates with friction (None:
-    #: all) and the initial coefficient of every law
-    friction: str = "none"
-    friction_laws: list[str] = field(default_factory=lambda: ["coulomb", "viscous"])
-    friction_eps: float | list[float] = 0.01
-    friction_vs: float | list[float] = 0.1
-    friction_joints: list[int] | None = None
-    friction_init: float | dict[str, float] = 1e-3  # one value, or law -> value
-    #: damped Newton iterations of the backward-Euler friction step (fewer: faster, the passivity guard still holds)
-    friction_newton_iters: int = 8
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> PHASTConfig:
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - names)
-        if unknown:
-            raise ValueError(f"unknown PHASTConfig field(s) {unknown}; valid: {sorted(names)}")
-        return cls(**d)
-
-
-def system_scales(system: System, n_samples: int = 512, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """RMS scale of the Euclidean coordinates and of the velocities under the env's initial distribution
-    (normalizes the neural inputs; computed from the system, not retyped)."""
-    x = system.sample_initial(np.random.default_rng(seed), n_samples)
-    n = system.n
-    q, p = x[:, :n], x[:, n:]
-    eu = [i for i in range(n) if i not in system.angle_dims]
-    q_scale = np.sqrt((q[:, eu] ** 2).mean(0)) + 1e-3 if eu else np.zeros(0)
-    v = stack(system.velocity(split(q), split(p), NUMPY))
-    v_scale = np.sqrt((np.asarray(v) ** 2).mean(0)) + 1e-3
-    return q_scale.astype(np.float32), v_scale.astype(np.float32)
 
 
 class PHAST(ForecastModel):
@@ -644,23 +540,6 @@ class _EnvScales:
     v_scale: np.ndarray
 
 
-def config_system(cfg: PHASTConfig) -> tuple[str, System]:
-    """(name, system) of a config: the registered env ``env_id``, or the rig ``sim`` (a user's System class or an env
-    id, with ``env_kwargs``), at the config's ``dt`` when it sets one (an instance attribute: the class keeps its own)."""
-    if cfg.sim is None:
-        name = resolve_env_id(cfg.env_id)
-        system = make_env_system(name, **cfg.env_kwargs)
-    else:
-        from .mismatch.simulators import load_simulator
-
-        name, system = cfg.sim, load_simulator(cfg.sim, cfg.env_kwargs).build()
-    if cfg.dt is not None:
-        if not (cfg.dt > 0 and math.isfinite(cfg.dt)):
-            raise ValueError(f"dt must be positive and finite, got {cfg.dt!r}")
-        system.dt = float(cfg.dt)
-    return name, system
-
-
 def _env_scales(env_id: str, system: System, cfg: PHASTConfig | None = None) -> _EnvScales:
     """The :class:`_EnvScales` of ``system`` (numpy RNG only: leaves the torch RNG alone); the config's own scales
     (recordings) replace the ones of the system's initial-state distribution."""
@@ -825,12 +704,13 @@ def _phast_core(cfg: PHASTConfig, env: _EnvScales) -> PHASTCore:
                      friction=fric)
 
 
-def build_from_config(cfg: PHASTConfig) -> PHAST:
-    """Compose a PHAST (or predator-prey latent ODE) model from its configuration.
+def build_from_config(cfg: PHASTConfig, system: System | None = None) -> PHAST:
+    """Compose a PHAST (or predator-prey latent ODE) model from its configuration; ``system``: the config's env
+    system when the caller has already built it (:func:`config_system`; the model then owns it).
 
     Every module draws its initial weights from the torch RNG seeded here, so the creation order (observer, then
     potential, mass, damping; or the latent-ODE field) is part of the model's definition."""
-    env_id, system = config_system(cfg)
+    env_id, system = config_system(cfg, system)
     actuated = tuple(cfg.actuated_dofs) if cfg.actuated_dofs is not None else tuple(range(system.n))
     torch.manual_seed(cfg.seed)
     env = _env_scales(env_id, system, cfg)
@@ -844,5 +724,5 @@ def build_from_config(cfg: PHASTConfig) -> PHAST:
     return PHAST(cfg, observer, core, system, actuated)
 
 
-__all__ = ["PHAST", "PHASTConfig", "LatentODEModel", "build_from_config", "system_scales", "n_features",
+__all__ = ["PHAST", "PHASTConfig", "LatentODEModel", "build_from_config", "config_system", "system_scales", "n_features",
            "coordinate_features"]

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from phast_gym.systems import break_at_wraps, fd_velocity
+from phast_gym.systems import System, break_at_wraps, fd_velocity
 
 
 def _save(plt: Any, fig: Any, path: Path) -> Path:
@@ -60,8 +60,7 @@ def make_plots(model: Any, test: Any, out: Path, burn_in: int = 10, H: int = 100
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from phast_gym import make_env_system
-
+    from .metrics import data_system
     from .rollout import batched_rollout
 
     q = np.asarray(test.q[:n_show])
@@ -72,8 +71,9 @@ def make_plots(model: Any, test: Any, out: Path, burn_in: int = 10, H: int = 100
              _save(plt, plot_phase(plt, view), out / "phase.png")]
     if getattr(model, "damping", None) is not None:
         paths.append(_save(plt, plot_damping(plt, model, test), out / "damping.png"))
-    if make_env_system(test.env_id).hamiltonian_system:
-        paths.append(_save(plt, plot_energy(plt, view, test.env_id), out / "energy.png"))
+    system = data_system(test)  # the data's own physics (its kwargs), built once by make_dataset
+    if system is not None and system.hamiltonian_system:
+        paths.append(_save(plt, plot_energy(plt, view, system), out / "energy.png"))
     return paths
 
 
@@ -125,16 +125,16 @@ def plot_damping(plt: Any, model: Any, test: Any, n_traj: int = 64) -> Any:
     return fig
 
 
-def plot_energy(plt: Any, view: RolloutView, env_id: str) -> Any:
-    """The env's energy (finite-difference velocities) along truth and rollout."""
+def plot_energy(plt: Any, view: RolloutView, system: System) -> Any:
+    """The energy of the data's ``system`` (finite-difference velocities) along truth and rollout."""
     from .metrics import env_energy
 
     fig, ax = plt.subplots(figsize=(6, 3.5))
     t = view.t[view.burn_in:view.burn_in + view.H]
     for b in range(len(view.q)):
         truth, pred = view.truth_and_rollout(b)
-        ln, = ax.plot(t, env_energy(env_id, truth, view.dt, view.angles)[0], lw=1)
-        ax.plot(t, env_energy(env_id, pred, view.dt, view.angles)[0], "--", color=ln.get_color(), lw=1)
+        ln, = ax.plot(t, env_energy(system, truth, view.dt, view.angles)[0], lw=1)
+        ax.plot(t, env_energy(system, pred, view.dt, view.angles)[0], "--", color=ln.get_color(), lw=1)
     ax.set_xlabel("t [s]")
     ax.set_ylabel("env H (FD velocities)")
     ax.set_title("energy along the rollout (solid truth, dashed PHAST)")

@@ -29,7 +29,8 @@ from __future__ import annotations
 from dataclasses import fields, replace
 from typing import Any
 
-from phast_gym import env_ids, make_env_system, resolve_env_id
+from phast_gym import make_env_system, resolve_env_id
+from phast_gym.systems import System
 
 from . import data_init
 from .envinfo import ENV_INFO
@@ -57,32 +58,40 @@ def _windy(params: dict[str, Any]) -> tuple[float | None, float]:
     return None, 0.0
 
 
-def default_config(env_id: str, regime: str, **env_kwargs: Any) -> PHASTConfig:
-    """The default :class:`PHASTConfig` of ``regime`` for ``env_id``."""
-    env_id = resolve_env_id(env_id)
+def _check_regime(regime: str) -> str:
     regime = regime.lower()
     if regime not in REGIMES:
         raise ValueError(f"regime must be one of {REGIMES}, got {regime!r}")
-    system = make_env_system(env_id, **env_kwargs)
+    return regime
+
+
+def default_config(env_id: str, regime: str, **env_kwargs: Any) -> PHASTConfig:
+    """The default :class:`PHASTConfig` of ``regime`` for ``env_id``."""
+    env_id = resolve_env_id(env_id)
+    regime = _check_regime(regime)
+    return _default_config(env_id, regime, make_env_system(env_id, **env_kwargs), env_kwargs)
+
+
+def _default_config(env_id: str, regime: str, system: System, env_kwargs: dict[str, Any]) -> PHASTConfig:
+    """:func:`default_config` of a resolved ``env_id`` and checked ``regime`` whose ``system`` is already built.
+
+    The measurements behind each choice are in docs/phast_model.md ("Design notes: the regime defaults")."""
     base = PHASTConfig(env_id=env_id, regime=regime, env_kwargs=dict(env_kwargs))
     if not system.hamiltonian_system:
         # learned start-up latents: Eq. 90 scores the first predictions too, where the history is shorter than
-        # the backward difference (docs/results.md: predator-prey UNKNOWN 0.029 -> 0.011, first-step floor 0.0106)
+        # the backward difference
         return replace(base, kind="latent_ode", ode_field={"known": "known", "partial": "template", "unknown": "neural"}[regime],
                        potential="none", mass="none", damping="none", latent_prior="learned")
     n = system.n
     info = ENV_INFO[env_id]
     tmpl, dims = info.template, None if info.template_dims is None else list(info.template_dims)
     if regime == "known":
-        # identification settings (measured, docs/phast_model.md): with V and M known the only unknowns are D and
-        # the observer; a trainable observer can absorb D under the one-step loss (gauge: only v_hat (1 - dt/2 D)
-        # enters q_{t+1} when L = 1), and the L = 1 splitting error is O(dt) relative to D v.  KNOWN therefore keeps
-        # the observer at its 4th-order backward-difference init, uses L >= 4 substeps, the env dt, a 100x
-        # learning rate on the damping network (the only physics left to learn; not on its floor d0, which at x 100
-        # overshot min_q D and killed the softplus terms below it: PHAST.param_groups) and KNOWN_TRAIN_DEFAULTS.
-        # L = 8 on the cheap explicit (separable, Strang) core: halving the splitting error moved the windy pendulum's
-        # best-achievable R^2 (Fourier-basis least squares under the same loss) from 0.994 to 0.996 and seed 4 from
-        # 0.985 to 0.995; configuration-dependent M(q) (implicit midpoint, costlier per substep) keeps L = 4.
+        # identification settings: with V and M known the only unknowns are D and the observer, and a trainable
+        # observer can absorb D under the one-step loss (only v_hat (1 - dt/2 D) enters q_{t+1} when L = 1), with an
+        # O(dt) splitting error relative to D v at L = 1.  So: the observer frozen at its 4th-order backward
+        # difference, the env dt, a 100x learning rate on the damping network (not on its floor d0:
+        # PHAST.param_groups), KNOWN_TRAIN_DEFAULTS, and L = 8 substeps on the cheap separable (Strang) core, L = 4
+        # on the costlier implicit midpoint of a configuration-dependent M(q).
         return replace(base, potential="known", mass="known", damping="householder", damping_cap=None, d0=0.0,
                        learn_d0=True, canonicalizer="mass", substeps=8 if system.separable else 4, **IDENTIFICATION)
     mass_tmpl = info.partial_mass_template(system)
@@ -91,47 +100,37 @@ def default_config(env_id: str, regime: str, **env_kwargs: Any) -> PHASTConfig:
         mass = {"mass": "template", "mass_template": mass_tmpl} if mass_tmpl else {"mass": "lowrank", "mass_rank": min(4, n)}
         cfg = replace(base, potential="hybrid", template=tmpl, template_dims=dims, **mass,
                       damping_cap=cap, d0=base_d, learn_d0=cap is None, canonicalizer="mass")
-        # identification settings on every row: with a trainable observer, a learnable dt and L = 1 the observer
-        # absorbs D under the one-step loss (the gauge of the KNOWN comment above), and the core alone is no model
-        # of the system.  Seed 0 at the paper's protocol, PARTIAL before -> after (benchmarks/regime_diagnostics.py,
-        # docs/results.md "Why each regime's number is what it is"): learned dissipation rate on the pendulum
-        # 0.30 -> 0.001 (true 0), damped pendulum 0.30 -> 0.50 (true 0.5); takeover rollout 1.52 -> 0.017 and
-        # 0.22 -> 3.2e-4; the scored rollout 0.020 -> 0.012 and 7.8e-4 -> 8.4e-4; double pendulum: rate 0.28 ->
-        # 0.0014 (true 0), scored 0.0059 -> 2.5e-4; windy cart-pole (capped D): damping R^2 0.025 -> 0.899, rollout
-        # mixed MSE 0.0059 -> 5.7e-4.  On the windy pendulum the cap
-        # anchors D as well (damping R^2 0.88 against -1.61 before).  L = 4 (0.88) beat L = 8 (0.84) there at half
-        # the cost of the learned potential's autograd gradients.  A learned floor d0 starts from the least
-        # squares (data_init.initialize_partial).
+        # the identification settings on every row (a trainable observer, a learnable dt and L = 1 let the observer
+        # absorb D, as for KNOWN), at L = 4; D capped at dd on windy systems, whose cap also anchors D.  A learned
+        # floor d0 starts from the least squares (data_init.initialize_partial).
         return replace(cfg, substeps=4, **IDENTIFICATION)
     if not system.separable:
         # a neural M(q) = L L^T; p = M(q) qdot keeps the canonical state consistent with it.  The one-step loss
         # constrains the learned force only at O(dt^2) (q_{t+1} - q_t - dt v ~ dt^2 M^-1 F / 2), so it is joined by
         # L_roll over the scored autoregressive rollout (roll_mode "observer", 10 steps, weight 0.1), and the factor
-        # network is wider (128): windy cart-pole rollout mixed MSE(H=100), seed 0 (seeds 1, 2), measured in
-        # docs/phast_model.md: 0.138 (0.198, -) before, 0.078 (0.099, 0.123) with L_roll, 0.096 (0.120, -) with the
-        # wider factor, 0.070 with both; L_roll over the core alone (Eq. 88) gave 1.02
+        # network is wider (128)
         return replace(base, potential="neural", mass="cholesky", mass_hidden=128, damping_cap=None, d0=0.0,
                        learn_d0=True, canonicalizer="mass", lambda_roll=0.1, roll_mode="observer", roll_horizon=10)
     # the identification settings, as PARTIAL (frozen observer, so p = M qdot_hat), with the floor d0 starting at
-    # MIN_D0 (no physics to fit a floor under): seed 0, pendulum, before -> after: learned dissipation rate 0.30 ->
-    # 0.001 (true 0), takeover rollout 2.11 -> 0.018, scored 0.041 -> 0.016; damped pendulum 0.30 -> 0.50 (true
-    # 0.5), 2.03 -> 0.0017, 0.0044 -> 0.0022
+    # MIN_D0 (no physics to fit a floor under)
     return replace(base, potential="neural", mass="lowrank", mass_rank=min(4, n), damping_cap=None,
                    d0=data_init.MIN_D0, learn_d0=True, canonicalizer="mass", substeps=4, **IDENTIFICATION)
 
 
 def build_model(env_id: str, regime: str, **overrides: Any) -> ForecastModel:
     """PHAST model of ``regime`` ("known", "partial", "unknown") for ``env_id``; ``overrides`` replace
-    :class:`PHASTConfig` fields (e.g. ``damping_cap=1.0``, ``substeps=4``, ``seed=1``, ``env_kwargs={...}``)."""
+    :class:`PHASTConfig` fields (e.g. ``damping_cap=1.0``, ``substeps=4``, ``seed=1``, ``env_kwargs={...}``).
+
+    The env's system is built once: the default config reads it and the model is built on it (unless the overrides
+    name another system: ``env_id``, ``env_kwargs`` or ``sim``)."""
     names = {f.name for f in fields(PHASTConfig)}
     bad = sorted(set(overrides) - names)
     if bad:
         raise ValueError(f"unknown override(s) {bad}; valid PHASTConfig fields: {sorted(names)}")
-    cfg = default_config(env_id, regime, **overrides.get("env_kwargs", {}))
-    cfg = replace(cfg, **overrides)
-    return build_from_config(cfg)
-
-
-def all_defaults() -> dict[str, dict[str, PHASTConfig]]:
-    """Every env id x regime default config (documentation and tests)."""
-    return {e: {r: default_config(e, r) for r in REGIMES} for e in env_ids()}
+    env_id = resolve_env_id(env_id)
+    regime = _check_regime(regime)
+    env_kwargs = dict(overrides.get("env_kwargs", {}))
+    system = make_env_system(env_id, **env_kwargs)
+    cfg = replace(_default_config(env_id, regime, system, env_kwargs), **overrides)
+    same = cfg.sim is None and cfg.env_id == env_id and cfg.env_kwargs == env_kwargs
+    return build_from_config(cfg, system=system if same else None)

@@ -27,13 +27,13 @@ METRICS_FILE, HISTORY_FILE = "metrics.json", "history.json"
 
 def train_and_score(model: Any, splits: dict[str, Any], cfg: Any, run_dir: str | Path, identity: dict[str, Any],
                     resume: bool = False, test: Any = None, horizons: tuple[int, ...] = (10, 50, 100),
-                    burn_in: int = 10) -> tuple[Any, dict[str, float]]:
+                    burn_in: int = 10, energy: bool = True) -> tuple[Any, dict[str, float]]:
     """Train ``model`` on ``splits["train"]`` with best-validation selection on ``splits["val"]``, then score it.
 
     ``run_dir`` holds the resumable ``checkpoint.pt`` (``resume=True`` continues from it; ``identity`` is recorded
     in it and checked on resume).  Non-finite trained weights raise RuntimeError.  ``test`` (default
-    ``splits["test"]``) is scored at ``horizons`` after ``burn_in`` true samples.  Returns
-    ``(FitResult, metrics)``."""
+    ``splits["test"]``) is scored at ``horizons`` after ``burn_in`` true samples, with the energy diagnostics of the
+    data's physics unless ``energy=False``.  Returns ``(FitResult, metrics)``."""
     import torch
 
     from .metrics import forecast_metrics
@@ -42,7 +42,8 @@ def train_and_score(model: Any, splits: dict[str, Any], cfg: Any, run_dir: str |
     res = fit(model, splits["train"], splits["val"], cfg, run_dir=run_dir, resume=resume, identity=identity)
     if not all(bool(torch.isfinite(p).all()) for p in res.model.parameters()):
         raise RuntimeError("training produced non-finite parameters; nothing saved")
-    metrics = forecast_metrics(res.model, splits["test"] if test is None else test, horizons=horizons, burn_in=burn_in)
+    metrics = forecast_metrics(res.model, splits["test"] if test is None else test, horizons=horizons, burn_in=burn_in,
+                               energy=energy)
     return res, metrics
 
 

@@ -23,7 +23,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from .checkpoint import atomic_torch_save
+from .checkpoint import atomic_torch_save, first_difference
 from .interfaces import ForecastModel, coordinate_error
 
 CHECKPOINT = "checkpoint.pt"
@@ -154,22 +154,6 @@ def run_identity(cfg: TrainConfig, identity: dict[str, Any] | None = None) -> di
     ``identity`` (env, regime, data, model overrides ...), as canonical JSON values."""
     train = {k: v for k, v in asdict(cfg).items() if k not in _NOT_IDENTITY}
     return _canonical({"train": train, **(identity or {})})
-
-
-#: fields compared (and so named) first: the ones a person recognizes
-_FIRST = ("env_id", "regime", "model", "data", "train")
-
-
-def first_difference(stored: Any, wanted: Any, prefix: str = "") -> tuple[str, Any, Any] | None:
-    """(dotted field, stored value, wanted value) of the first field where two JSON values differ (env, regime,
-    model, data and training fields first), else None."""
-    if isinstance(stored, dict) and isinstance(wanted, dict):
-        for k in sorted(set(stored) | set(wanted), key=lambda k: (k not in _FIRST, _FIRST.index(k) if k in _FIRST else 0, k)):
-            d = first_difference(stored.get(k, "<absent>"), wanted.get(k, "<absent>"), f"{prefix}{k}.")
-            if d is not None:
-                return d
-        return None
-    return None if stored == wanted else (prefix.rstrip("."), stored, wanted)
 
 
 def check_resume(ckpt_path: str | Path, cfg: TrainConfig, identity: dict[str, Any] | None = None,

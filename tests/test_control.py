@@ -78,7 +78,7 @@ def test_q_estimates_and_filtered_xi_feedback() -> None:
         est.update(np.array([0.3 + 1.7 * i * dt]))
     np.testing.assert_allclose(est.q_estimate(), [0.3 + 1.7 * 19 * dt], atol=1e-9)
     # UKF: the posterior q is much closer to the truth than the noisy measurement
-    ep, _ = _loop("PHAST/DampedPendulum-v0", k_xi=5.0, steps=300, sigma=0.05, estimator="ekf", xi_feedback="filtered")
+    ep, _ = _loop("PHAST/DampedPendulum-v0", k_xi=5.0, steps=300, sigma=0.05, estimator="ukf", xi_feedback="filtered")
     meas_err = np.std(phast_gym.wrap(ep.q_meas[100:, 0] - ep.q[100:-1, 0]))
     xi_err = np.std(ep.xi[101:, 0] - ep.q[101:, 0])
     assert xi_err < 0.3 * meas_err, (xi_err, meas_err)
@@ -142,17 +142,30 @@ def test_finite_difference_wrap_aware() -> None:
 
 
 def test_ukf_tracks_velocity_under_noise() -> None:
-    ep, _ = _loop("PHAST/DampedPendulum-v0", k_xi=5.0, steps=300, sigma=0.05, estimator="ekf")
+    ep, _ = _loop("PHAST/DampedPendulum-v0", k_xi=5.0, steps=300, sigma=0.05, estimator="ukf")
     assert np.mean(np.abs(ep.y_hat[50:, 0] - ep.qdot[50:, 0])) < 0.1
 
 
-def test_fd_noise_vs_ekf_in_evaluation() -> None:
+def test_ekf_is_a_deprecated_alias_of_ukf() -> None:
+    """The estimator registered as "ekf" was always an unscented Kalman filter: "ukf" is its name, "ekf" still builds
+    it, with a DeprecationWarning, and is no longer listed."""
+    from phast_gym import make_env_system
+    from phast_gym.control import UKFEstimator, estimator_names, make_estimator
+
+    system = make_env_system("PHAST/DampedPendulum-v0")
+    assert make_estimator("ukf", system, 0.05).name == "ukf" and "ekf" not in estimator_names()
+    with pytest.warns(DeprecationWarning, match="'ekf' is deprecated.*'ukf'"):
+        est = make_estimator("ekf", system, 0.05, sigma=0.01)
+    assert isinstance(est, UKFEstimator)
+
+
+def test_fd_noise_vs_ukf_in_evaluation() -> None:
     protocol = ControlProtocol(horizon=600, settle_steps=100)
-    rows, _ = evaluate_estimators(protocol, ["fd", "ekf"], [0.05], trials_per_regime=1, progress=False)
+    rows, _ = evaluate_estimators(protocol, ["fd", "ukf"], [0.05], trials_per_regime=1, progress=False)
     by = {(r["estimator"], r["regime"]): r for r in rows}
     assert len(rows) == 12 and by[("fd", "all")]["n_trials"] == 5
-    assert by[("fd", "all")]["velocity_error"] > 10 * by[("ekf", "all")]["velocity_error"]
-    assert by[("fd", "all")]["effort"] > by[("ekf", "all")]["effort"]
+    assert by[("fd", "all")]["velocity_error"] > 10 * by[("ukf", "all")]["velocity_error"]
+    assert by[("fd", "all")]["effort"] > by[("ukf", "all")]["effort"]
 
 
 def test_wrapper_passes_env_checker_and_runs() -> None:
@@ -351,12 +364,13 @@ def test_learned_model_summary_reads_the_eval_directories(tmp_path) -> None:
                 "success_angle_rate": 1.0, "u_rms_final": 0.1, "effort": 1.0, "velocity_error": 0.01}
 
     for name, q_star, rows in [("windy_q0_known", 0.0, [row("ekf", 1.0), row("phast-ukf", 0.9), row("map", 1.0)]),
-                               ("windy_up_partial_excited", math.pi, [row("phast-ukf", 0.5)])]:
+                               ("windy_up_partial_excited", math.pi, [row("ukf", 0.7), row("phast-ukf", 0.5)])]:
         (tmp_path / name).mkdir()
         (tmp_path / name / "protocol.json").write_text(json.dumps({"q_star": q_star}))
         (tmp_path / name / "results.json").write_text(json.dumps(rows))
     got = {(r.target, r.process_model): r.success for r in mod.summarize(tmp_path, {})[0]}
     assert got == {("hanging (q* = 0)", "plant physics"): 1.0, ("hanging (q* = 0)", "PHAST KNOWN"): 0.9,
+                   ("upright (q* = pi)", "plant physics"): 0.7,  # stored results name it "ekf" (before) or "ukf"
                    ("upright (q* = pi)", "PHAST PARTIAL, excited port"): 0.5}
     from phast_model.checkpoint import save_run
     from phast_model.regimes import build_model

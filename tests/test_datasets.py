@@ -279,3 +279,24 @@ def test_port_excitation_is_held_seeded_and_checked():
                       cache=False)
     free = make_dataset("PHAST/DampedPendulum-v0", 8, T=11, seed=0, cache=False)
     assert not np.allclose(ds.q, free.q)  # the input drives the data
+
+
+def test_dataset_carries_the_system_of_its_kwargs(tmp_path, monkeypatch) -> None:
+    """The System that generated a dataset (non-default kwargs) is built once and shared by its splits, whether the
+    dataset is generated or read from the cache; metrics and plots read it (phast_model.metrics.data_system)."""
+    import dataclasses
+
+    from phast_model.metrics import data_system, energy_diagnostics
+
+    monkeypatch.setenv("PHAST_CACHE_DIR", str(tmp_path))
+    for _ in range(2):  # generated, then from the cache
+        splits = make_splits("PHAST/Pendulum-v0", 2, 1, 1, T=20, seed=3, mass=2.0)
+        system = splits["train"].system
+        assert system is not None and system.key_params()["mass"] == 2.0
+        assert all(s.system is system for s in splits.values()) and data_system(splits["test"]) is system
+    test = splits["test"]
+    rebuilt = data_system(dataclasses.replace(test, system=None))  # a dataset without one: from its config
+    assert rebuilt is not system and rebuilt.key_params() == system.key_params()
+    q = test.q[:, :8]
+    assert energy_diagnostics(system, q, test.dt, test.angle_dims) == energy_diagnostics(rebuilt, q, test.dt,
+                                                                                         test.angle_dims)

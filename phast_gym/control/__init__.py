@@ -2,7 +2,7 @@
 
 * :class:`EnergyCasimirController` / :class:`EnergyCasimirWrapper`: paper Eq. 28-31;
 * port (velocity) estimators behind one interface, built by name with :func:`make_estimator`
-  (``oracle``, ``fd``, ``map``, ``ekf``/``ukf``; packages above this one register their own,
+  (``oracle``, ``fd``, ``map``, ``ukf``, with ``ekf`` a deprecated alias of ``ukf``; packages above this one register their own,
   see :func:`register_estimator_provider`);
 * :mod:`.evaluation`: the closed-loop protocol of paper Sec. 4.2 (start regimes, metrics);
 * :mod:`.report`: its tables and plots.
@@ -16,11 +16,13 @@ from .estimators import (
     OracleEstimator,
     PortEstimator,
     UKFEstimator,
+    UnscentedParams,
     estimator_names,
     make_estimator,
     map_smoother_weights,
     register_estimator,
     register_estimator_provider,
+    resolve_estimator_name,
 )
 from .evaluation import (
     START_REGIMES,
@@ -35,7 +37,8 @@ from .evaluation import (
 
 __all__ = [
     "XI_FEEDBACK", "EnergyCasimirController", "EnergyCasimirWrapper", "validate_gains", "ESTIMATORS", "PortEstimator", "OracleEstimator",
-    "FiniteDifferenceEstimator", "MAPSmootherEstimator", "UKFEstimator", "estimator_names", "make_estimator",
-    "map_smoother_weights", "register_estimator", "register_estimator_provider", "START_REGIMES", "ControlProtocol", "Episode",
+    "FiniteDifferenceEstimator", "MAPSmootherEstimator", "UKFEstimator", "UnscentedParams", "estimator_names", "make_estimator",
+    "map_smoother_weights", "register_estimator", "register_estimator_provider", "resolve_estimator_name",
+    "START_REGIMES", "ControlProtocol", "Episode",
     "evaluate_estimators", "make_control_env", "run_episode", "sample_start_states", "start_states",
 ]

@@ -24,9 +24,10 @@ first use.
 from __future__ import annotations
 
 import math
+import warnings
 from collections import deque
 from collections.abc import Callable, Iterable
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -224,6 +225,18 @@ class PlantPhysics(ProcessModel):
         return np.array([float(v) for v in self.system.velocity(list(x[:n]), list(x[n:]), SCALAR)])
 
 
+class UnscentedParams(NamedTuple):
+    """The sigma-point spread ``alpha``, secondary scaling ``kappa`` and prior-distribution ``beta`` (2: Gaussian)
+    of the unscented transform."""
+
+    alpha: float = 1.0
+    kappa: float = 0.0
+    beta: float = 2.0
+
+
+DEFAULT_UNSCENTED = UnscentedParams()
+
+
 class UKFEstimator(PortEstimator):
     """Unscented Kalman filter on (q, p) with a :class:`ProcessModel` (default: the plant's own physics).
 
@@ -231,10 +244,11 @@ class UKFEstimator(PortEstimator):
     the measurement is the wrapped q.  Returns ``qdot_hat = dH/dp`` of the process model at the
     posterior mean.  With ``process=None`` it assumes the physics of ``system`` (exact for the simulated
     plant; see the mismatch tool for real hardware); ``process_std`` is the (q, p) random-walk noise
-    per sqrt(s) that absorbs the process model's error.
+    per sqrt(s) that absorbs the process model's error; ``unscented`` the transform's (alpha, kappa, beta).
+    Registered as ``"ukf"`` (``"ekf"``: a deprecated alias).
     """
 
-    name = "ekf"
+    name = "ukf"
 
     def __init__(
         self,
@@ -245,9 +259,7 @@ class UKFEstimator(PortEstimator):
         p0_std: float = 10.0,
         process_std: tuple[float, float] = (1e-5, 1e-2),
         min_meas_std: float = 1e-3,
-        alpha: float = 1.0,
-        kappa: float = 0.0,
-        beta: float = 2.0,
+        unscented: UnscentedParams = DEFAULT_UNSCENTED,
         process: ProcessModel | None = None,
     ) -> None:
         super().__init__(system, dt)
@@ -259,6 +271,7 @@ class UKFEstimator(PortEstimator):
         self.p0_std = float(p0_std)
         qs, ps = process_std
         self.Q = np.diag([qs**2 * self.dt] * n + [ps**2 * self.dt] * n)
+        alpha, kappa, beta = unscented
         d = 2 * n
         lam = alpha**2 * (d + kappa) - d
         self._gamma = math.sqrt(d + lam)
@@ -321,6 +334,8 @@ class UKFEstimator(PortEstimator):
 # --------------------------------------------------------------------------- registry
 #: name -> factory(system, dt, sigma=..., **kwargs) -> PortEstimator
 ESTIMATORS: dict[str, Callable[..., PortEstimator]] = {}
+#: deprecated name -> the estimator's name now ("ekf" has always built the unscented Kalman filter)
+DEPRECATED_NAMES: dict[str, str] = {"ekf": "ukf"}
 #: name -> module whose import registers it (declared by the providing package, see register_estimator_provider)
 PROVIDERS: dict[str, str] = {}
 
@@ -347,8 +362,17 @@ def register_estimator_provider(module: str, names: Iterable[str]) -> None:
 register_estimator("oracle", lambda system, dt, sigma=0.0, **kw: OracleEstimator(system, dt, **kw))
 register_estimator("fd", lambda system, dt, sigma=0.0, **kw: FiniteDifferenceEstimator(system, dt, **kw))
 register_estimator("map", lambda system, dt, sigma=0.0, **kw: MAPSmootherEstimator(system, dt, sigma=sigma, **kw))
-register_estimator("ekf", lambda system, dt, sigma=0.0, **kw: UKFEstimator(system, dt, sigma=sigma, **kw))
 register_estimator("ukf", lambda system, dt, sigma=0.0, **kw: UKFEstimator(system, dt, sigma=sigma, **kw))
+
+
+def resolve_estimator_name(name: str) -> str:
+    """``name``, or the current name of a deprecated one, with a DeprecationWarning (``"ekf"`` -> ``"ukf"``)."""
+    new = DEPRECATED_NAMES.get(name)
+    if new is None:
+        return name
+    warnings.warn(f"estimator name {name!r} is deprecated: it is an unscented Kalman filter, use {new!r}",
+                  DeprecationWarning, stacklevel=3)
+    return new
 
 
 def estimator_names() -> list[str]:
@@ -361,8 +385,9 @@ def make_estimator(name: str, system: System, dt: float, sigma: float = 0.0, **k
 
     ``sigma`` is the assumed noise scale (used by the MAP smoother, the Kalman filter and
     noise-conditioned observers; ignored by the others).  Unknown names raise ValueError listing
-    the valid ones.
+    the valid ones; a deprecated name (``"ekf"``) builds its successor with a DeprecationWarning.
     """
+    name = resolve_estimator_name(name)
     if name not in ESTIMATORS and name in PROVIDERS:
         import importlib
 

@@ -172,15 +172,17 @@ def _damping_panel(ax: Any, ro: EnvRollouts) -> None:
 
 def _energy_panel(ax: Any, ro: EnvRollouts) -> None:
     """The env's energy along the true and the predicted trajectories (n/a for systems without one)."""
-    from ..metrics import env_energy
+    from ..metrics import data_system, env_energy
 
     q, K, Hh, ang, dt = ro.q, ro.K, ro.H, ro.angle_dims, ro.test.dt
     tr = (np.arange(q.shape[1]) * dt)[K:K + Hh]
+    system = data_system(ro.test)  # the data's physics, built once
+    env = ro.env if system is None else system
     try:
-        ax.plot(tr, env_energy(ro.env, q[0:1, K - 1:K + Hh], dt, ang)[0], "k-", lw=2, label="truth")
+        ax.plot(tr, env_energy(env, q[0:1, K - 1:K + Hh], dt, ang)[0], "k-", lw=2, label="truth")
         for name, roll in ro.preds.items():
             full = np.concatenate([q[0:1, K - 1:K], roll[0:1]], 1)
-            ax.plot(tr, env_energy(ro.env, full, dt, ang)[0], "--", label=ro.label(name))
+            ax.plot(tr, env_energy(env, full, dt, ang)[0], "--", label=ro.label(name))
         ax.set_xlabel("t")
         ax.set_ylabel("env energy H(q, M(q) qdot_fd)")
         ax.legend(fontsize=7)

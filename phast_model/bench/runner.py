@@ -207,11 +207,9 @@ def _train_and_score(spec: RunSpec, out_dir: str, wdir: Path) -> dict[str, Any]:
     torch.manual_seed(spec.seed)
     np.random.seed(spec.seed)
     model = build_run_model(spec, splits["train"])
-    test = splits["test"]
-    if spec.full_state:  # the env's energy diagnostics read q as positions: not defined for (q, p) inputs
-        test = dataclasses.replace(test, env_id="")
-    fit_res, metrics = train_and_score(model, splits, make_train_config(spec), wdir, spec.config(), resume=True, test=test,
-                                       horizons=tuple(spec.horizons), burn_in=spec.burn_in)
+    # the energy diagnostics read q as positions: not defined for full-state (q, p) inputs
+    fit_res, metrics = train_and_score(model, splits, make_train_config(spec), wdir, spec.config(), resume=True,
+                                       horizons=tuple(spec.horizons), burn_in=spec.burn_in, energy=not spec.full_state)
     fitted = fit_res.model
     # the weights the metrics came from, for figures (state_dict only: torch.load(weights_only=True))
     atomic_torch_save(fitted.state_dict(), wdir / BENCH_MODEL_FILE)

@@ -19,19 +19,10 @@ from typing import Any
 HARNESS_VERSION = 1
 
 #: per model, bumped when a code change alters what its runs train or output (absent = 1); it enters the hash of
-#: that model's runs only, so their stored results are redone and every other model's stay valid.
-#: transformer 2: no dropout on the attention weights (fused attention); PHAST 2: least-squares start from the
-#: training data, learned M(q), Householder directions starting on the axes; PHAST 3: the run's seed also seeds the
-#: model's initial weights (before, every seed started from the weights of seed 0 and only the batch order varied);
-#: PARTIAL 5 and UNKNOWN 5 (constant M): the identification settings on every row (frozen observer, fixed dt,
-#: L = 4, damping network lr x 100) and a learned floor d0 that starts from the data (PARTIAL) or at MIN_D0 (UNKNOWN)
+#: that model's runs only, so their stored results are redone and every other model's stay valid.  What each bump
+#: was: docs/phast_model.md, "Benchmark model revisions".
 MODEL_REVISIONS: dict[str, int] = {"transformer": 2, "phast-known": 3, "phast-partial": 5, "phast-unknown": 5}
-#: (model, env id) -> revision, where a change touches one env's runs of a model only (overrides MODEL_REVISIONS).
-#: phast-partial on the windy pendulum: 3 (it had the identification settings and a fixed floor before PARTIAL 5);
-#: on predator-prey (a latent ODE, untouched by PARTIAL 5): 3 = the Lotka-Volterra template starts from the observed
-#: prey, not the env's rhs; 4 = the PHAST 3 change.  phast-unknown 4 on the rows with a learned M(q): L_roll over
-#: the scored rollout and a 128-wide Cholesky factor (848cd4d); 3 on predator-prey (untouched by UNKNOWN 5).
-#: Predator-prey 6 (every regime): learned start-up latents (``latent_prior = "learned"``)
+#: (model, env id) -> revision, where a change touches one env's runs of a model only (overrides MODEL_REVISIONS)
 ENV_MODEL_REVISIONS: dict[tuple[str, str], int] = {
     ("phast-partial", "PHAST/WindyPendulum-v0"): 3,
     **{(m, "PHAST/PredatorPrey-v0"): 6 for m in ("phast-known", "phast-partial", "phast-unknown")},

@@ -9,7 +9,7 @@ through the plant env's ``reset``/``step`` (paper Sec. 4.2, Tables 7-11) and wri
 * ``DIR/results.md``: tables shaped like the paper's Tables 7-11;
 * ``DIR/traces_sigma<s>.png`` (angle and torque traces) and ``DIR/success_by_regime.png`` (Fig. 8).
 
-Example: ``phast-control-eval --estimators oracle,fd,map,tcn,ekf --sigma 0,0.01,0.05 --out runs/control``.
+Example: ``phast-control-eval --estimators oracle,fd,map,tcn,ukf --sigma 0,0.01,0.05 --out runs/control``.
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from phast_gym.control import START_REGIMES, XI_FEEDBACK, ControlProtocol, estimator_names, evaluate_estimators, make_estimator
+from phast_gym.control.estimators import resolve_estimator_name
 from phast_gym.control.report import plot_success_by_regime, plot_traces, results_markdown
 from phast_gym.fileio import atomic_write_text, ensure_writable_dir
 
@@ -45,7 +46,7 @@ def _parse_floats(text: str, what: str) -> list[float]:
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="phast-control-eval", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--estimators", default="oracle,fd,map,tcn,ekf",
+    p.add_argument("--estimators", default="oracle,fd,map,tcn,ukf",
                    help=f"comma-separated port estimators, from {estimator_names()}")
     p.add_argument("--sigma", default="0,0.01,0.05", help="comma-separated measurement noise std levels (rad)")
     p.add_argument("--trials-per-regime", type=int, default=20, help="trials per initial-condition regime (5 regimes)")
@@ -78,7 +79,7 @@ def run(args: argparse.Namespace) -> list[dict[str, Any]]:
     if any(s < 0 or not math.isfinite(s) for s in sigmas):
         raise ValueError(f"--sigma values must be >= 0, got {sigmas}")
     (q_star,) = _parse_floats(args.q_star, "--q-star")
-    names = [s.strip() for s in args.estimators.split(",") if s.strip()]
+    names = [resolve_estimator_name(s.strip()) for s in args.estimators.split(",") if s.strip()]  # ekf -> ukf
     if not names:
         raise ValueError(f"--estimators is empty: give a comma-separated list from {estimator_names()}")
     if args.trials_per_regime < 1:

@@ -127,7 +127,7 @@ def phast_ukf(system: System, dt: float, run: str | Path | torch.nn.Module | Non
               **kw: object) -> UKFEstimator:
     """The q-only UKF with a trained PHAST run as process model (``--estimators phast-ukf --phast-run DIR``).
 
-    Everything but the process model is the plant-physics UKF's (``ekf``), its process noise included: on
+    Everything but the process model is the plant-physics UKF's (``ukf``), its process noise included: on
     the windy pendulum (calibration seed 100, KNOWN and PARTIAL runs, docs/control.md) larger process noise
     only raised the velocity error and the upright torque."""
     model = _load(run)
