@@ -49,6 +49,7 @@ def _gathered_substep(system: System, q: list, p: list, u: list | None, h: float
     k1 = system.rhs(q, p, u, TORCH)
     qn, pn = rk4(system, q, p, u, h, TORCH, k1)
     s1 = system.switching(qn, pn, TORCH)
+    assert s1 is not None  # only systems with a kink come here
     cross = s0 * s1 < 0
     overflow = cross.sum() > capacity
     # stream compaction by a prefix sum (static shapes; fuses, unlike nonzero): slot j <- j-th crossing sample.
@@ -78,7 +79,8 @@ def _interval_fn(system: System, k: int, with_u: bool) -> Any:
     h = system.dt / k
     smooth = system.switching([0.0] * system.n, [0.0] * system.n, SCALAR) is None
 
-    def interval(q: torch.Tensor, p: torch.Tensor, u: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def interval(q: torch.Tensor, p: torch.Tensor, u: torch.Tensor | None
+                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         qs, ps = list(q.unbind(0)), list(p.unbind(0))
         us = None if u is None else list(u.unbind(0))
         s = None if smooth else system.switching(qs, ps, TORCH)
@@ -145,6 +147,7 @@ def simulate_compiled(
                 q, p = (torch.from_numpy(np.stack(np.broadcast_arrays(*c, subok=False))) for c in (qs, ps))
                 x = None
             if system.stochastic:
+                assert rng is not None  # check_batch demands one of a stochastic system
                 p = torch.from_numpy(np.ascontiguousarray(system.stochastic_kick(p.numpy().T, rng).T))
                 x = None
             if x is None:

@@ -46,7 +46,7 @@ def remove_stale_temps(path: str | Path, max_age_s: float = STALE_TMP_S) -> list
     """Remove the temp files of earlier writes of ``path`` whose writer is gone (a process of this host that no
     longer runs, or any writer older than ``max_age_s``); returns what was removed.  Live writers' temps are kept."""
     path = Path(path)
-    removed = []
+    removed: list[Path] = []
     pat = re.compile(rf"^\.{re.escape(path.name)}\.(?P<host>[A-Za-z0-9_]+)-(?P<pid>\d+)\.[^.]*\.tmp$")
     legacy = re.compile(rf"^(\.{re.escape(path.name)}\.[^.]*\.tmp|tmp[^.]*\.tmp)$")  # pre-pid names (and torch's tmp*.tmp)
     try:

@@ -24,11 +24,34 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Protocol
 
 import numpy as np
 
 Components = Sequence[Any]
+
+
+class ArrayNamespace(Protocol):
+    """The array namespace ``xp`` the physics formulas are written over: :data:`SCALAR` (Python floats),
+    :data:`NUMPY` (NumPy arrays) or :data:`TORCH` (torch tensors).
+
+    A coordinate is a float, an ndarray or a tensor (phast_gym never imports torch), so the element
+    type stays ``Any``; the protocol fixes which functions a formula may call on ``xp``.
+    """
+
+    name: str
+
+    def sin(self, x: Any, /) -> Any: ...
+    def cos(self, x: Any, /) -> Any: ...
+    def sqrt(self, x: Any, /) -> Any: ...
+    def exp(self, x: Any, /) -> Any: ...
+    def tanh(self, x: Any, /) -> Any: ...
+    def abs(self, x: Any, /) -> Any: ...
+    def log(self, x: Any, /) -> Any: ...
+    def sign(self, x: Any, /) -> Any: ...
+    def where(self, c: Any, a: Any, b: Any, /) -> Any: ...
+    def clip_min(self, x: Any, lo: float, /) -> Any:
+        """``max(x, lo)`` elementwise."""
 
 
 # --------------------------------------------------------------------------- namespaces
@@ -94,10 +117,11 @@ class _TorchNamespace:
 
 SCALAR = _ScalarNamespace()
 NUMPY = _NumpyNamespace()
-TORCH = _TorchNamespace()
+TORCH: ArrayNamespace = _TorchNamespace()  # torch's own functions (through __getattr__) but clip_min
+_NAMESPACES: tuple[ArrayNamespace, ...] = (SCALAR, NUMPY, TORCH)  # mypy checks that each implements the protocol
 
 
-def namespace(x: Any) -> Any:
+def namespace(x: Any) -> ArrayNamespace:
     """Pick the namespace matching one coordinate ``x`` (float, ndarray or tensor)."""
     if isinstance(x, (float, int)):
         return SCALAR
@@ -257,9 +281,11 @@ class System:
     separable: ClassVar[bool] = True
     #: True for port-Hamiltonian systems (False: a plain ODE such as predator-prey)
     hamiltonian_system: ClassVar[bool] = True
-    #: names of the coordinates, for plots and docs
-    coordinate_names: ClassVar[tuple[str, ...]] = ("q",)
+    #: names of the coordinates, for plots and docs (an instance may override it: DoublePendulum's relative angles)
+    coordinate_names: tuple[str, ...] = ("q",)
     #: physical parameters (constructor kwargs) with defaults and constraints
+    #: physical parameters (constructor kwargs) with defaults and constraints; the constructor sets each as an
+    #: attribute of the same name, so a subclass declares their types too (``mass: float``; a choice is ``str``)
     PARAMS: ClassVar[dict[str, Param]] = {}
 
     def __init__(self, **params: Any) -> None:
@@ -310,49 +336,49 @@ class System:
         return f"{type(self).__name__}({kw})"
 
     # ---- energy ------------------------------------------------------------
-    def potential(self, q: Components, xp: Any = NUMPY) -> Any:
+    def potential(self, q: Components, xp: ArrayNamespace = NUMPY) -> Any:
         """Potential energy V(q)."""
         raise NotImplementedError
 
-    def grad_potential(self, q: Components, xp: Any = NUMPY) -> tuple:
+    def grad_potential(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         """dV/dq, as n components."""
         raise NotImplementedError
 
-    def mass_matrix(self, q: Components, xp: Any = NUMPY) -> tuple[tuple, ...]:
+    def mass_matrix(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple[tuple, ...]:
         """Mass matrix M(q) as an n x n nested tuple of components."""
         raise NotImplementedError
 
-    def velocity(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
+    def velocity(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         """Generalized velocity qdot = dH/dp = M(q)^-1 p."""
         raise NotImplementedError
 
-    def momentum(self, q: Components, v: Components, xp: Any = NUMPY) -> tuple:
+    def momentum(self, q: Components, v: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         """Canonical momentum p = M(q) qdot for the generalized velocity ``v`` (the inverse of :meth:`velocity`)."""
         return tuple(sum(mij * vj for mij, vj in zip(row, v)) for row in self.mass_matrix(q, xp))
 
-    def kinetic(self, q: Components, p: Components, xp: Any = NUMPY) -> Any:
+    def kinetic(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> Any:
         """Kinetic energy p^T M(q)^-1 p / 2."""
         v = self.velocity(q, p, xp)
         return 0.5 * sum(pi * vi for pi, vi in zip(p, v))
 
-    def hamiltonian(self, q: Components, p: Components, xp: Any = NUMPY) -> Any:
+    def hamiltonian(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> Any:
         """Total energy H(q, p) = kinetic + potential."""
         return self.kinetic(q, p, xp) + self.potential(q, xp)
 
-    def energy(self, q: Components, p: Components, xp: Any = NUMPY) -> Any:
+    def energy(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> Any:
         """The energy reported in ``info["energy"]`` (H, or a Lyapunov function for ODEs)."""
         return self.hamiltonian(q, p, xp)
 
-    def dH_dq(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
+    def dH_dq(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         """dH/dq at fixed p; equals dV/dq when M is constant."""
         return self.grad_potential(q, xp)
 
-    def dH_dp(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
+    def dH_dp(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         """dH/dp = M(q)^-1 p."""
         return self.velocity(q, p, xp)
 
     # ---- dissipation and port -------------------------------------------
-    def damping(self, q: Components, xp: Any = NUMPY) -> tuple:
+    def damping(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         """Diagonal of D(q) (every system of the suite has a diagonal D)."""
         return tuple(const_like(qi, 0.0) for qi in q)
 
@@ -368,7 +394,7 @@ class System:
         """
         return None
 
-    def switching(self, q: Components, p: Components, xp: Any = NUMPY) -> Any | None:
+    def switching(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> Any | None:
         """A scalar whose sign changes where the vector field has a kink (or None).
 
         The integrator splits a substep at such a crossing so RK4 keeps its
@@ -377,7 +403,7 @@ class System:
         return None
 
     # ---- dynamics ------------------------------------------------------------
-    def rhs(self, q: Components, p: Components, u: Components | None, xp: Any = NUMPY) -> tuple[tuple, tuple]:
+    def rhs(self, q: Components, p: Components, u: Components | None, xp: ArrayNamespace = NUMPY) -> tuple[tuple, tuple]:
         """Vector field (qdot, pdot) with the port force ``u`` = G u (n components), Eq. 1-3.
 
         Hot path of both the single env and the batched simulator: one call per RK4 stage.
@@ -394,7 +420,7 @@ class System:
             return tuple(v), tuple([-a for a in dq])
         return tuple(v), tuple([f - a for a, f in zip(dq, u)])
 
-    def power_balance(self, q: Components, p: Components, u: Components | None, xp: Any = NUMPY) -> tuple[Any, Any]:
+    def power_balance(self, q: Components, p: Components, u: Components | None, xp: ArrayNamespace = NUMPY) -> tuple[Any, Any]:
         """(dissipated power v^T D v, supplied power v^T G u): dH/dt = -first + second."""
         v = self.velocity(q, p, xp)
         d = self.damping(q, xp)
@@ -402,7 +428,7 @@ class System:
         supplied = sum(vi * ui for vi, ui in zip(v, u)) if u is not None else 0.0 * diss
         return diss, supplied
 
-    def post_step(self, q: list, p: list, xp: Any = NUMPY) -> tuple[list, list]:
+    def post_step(self, q: list, p: list, xp: ArrayNamespace = NUMPY) -> tuple[list, list]:
         """Projection applied after every step (e.g. populations stay >= 0)."""
         return q, p
 

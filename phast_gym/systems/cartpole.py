@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from .base import NUMPY, Components, Param, ParameterError, System, const_like
+from .base import NUMPY, ArrayNamespace, Components, Param, ParameterError, System, const_like
 
 
 class CartPole(System):
@@ -37,15 +37,22 @@ class CartPole(System):
         "d0": Param(0.3, "base of the windy pole damping d0 + dd |sin theta|", "nonnegative"),
         "dd": Param(0.5, "amplitude of the windy pole damping", "nonnegative"),
     }
+    cart_mass: float
+    pole_mass: float
+    length: float
+    gravity: float
+    d_cart: float
+    d0: float
+    dd: float
 
     def __init__(self, damping: str = "diag", **params: Any) -> None:
         if damping not in ("diag", "scalar"):
             raise ParameterError(f"CartPole: damping must be 'diag' or 'scalar', got {damping!r}")
         self.damping_kind = damping
         super().__init__(**params)
-        self.params["damping"] = damping  # type: ignore[assignment]
+        self.params["damping"] = damping
 
-    def potential(self, q: Components, xp: Any = NUMPY) -> Any:
+    def potential(self, q: Components, xp: ArrayNamespace = NUMPY) -> Any:
         return self.pole_mass * self.gravity * self.length * (1.0 - xp.cos(q[1]))
 
     # Each formula below is written once; the public methods and the fused ``rhs`` share them.
@@ -53,10 +60,10 @@ class CartPole(System):
         """dV/dtheta from s = sin(theta) (dV/dx = 0)."""
         return self.pole_mass * self.gravity * self.length * s
 
-    def grad_potential(self, q: Components, xp: Any = NUMPY) -> tuple:
+    def grad_potential(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         return (const_like(q[0], 0.0), self._dV_theta(xp.sin(q[1])))
 
-    def mass_matrix(self, q: Components, xp: Any = NUMPY) -> tuple:
+    def mass_matrix(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         m12 = self.pole_mass * self.length * xp.cos(q[1])
         return (
             (const_like(q[0], self.cart_mass + self.pole_mass), m12),
@@ -70,7 +77,7 @@ class CartPole(System):
         det = m11 * m22 - m12 * m12
         return ((m22 * p[0] - m12 * p[1]) / det, (m11 * p[1] - m12 * p[0]) / det)
 
-    def velocity(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
+    def velocity(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         return self._velocity(xp.cos(q[1]), p)
 
     def _dH_dtheta(self, s: Any, v: Sequence) -> Any:
@@ -78,20 +85,20 @@ class CartPole(System):
         mpl = self.pole_mass * self.length
         return mpl * s * (self.gravity + v[0] * v[1])
 
-    def dH_dq(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
+    def dH_dq(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         return (const_like(q[0], 0.0), self._dH_dtheta(xp.sin(q[1]), self.velocity(q, p, xp)))
 
-    def _pole_damping(self, s: Any, xp: Any) -> Any:
+    def _pole_damping(self, s: Any, xp: ArrayNamespace) -> Any:
         """d0 + dd |sin theta| from s = sin(theta)."""
         return self.d0 + self.dd * xp.abs(s)
 
-    def damping(self, q: Components, xp: Any = NUMPY) -> tuple:
+    def damping(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         pole = self._pole_damping(xp.sin(q[1]), xp)
         if self.damping_kind == "scalar":
             return (pole, pole)
         return (const_like(q[0], self.d_cart), pole)
 
-    def rhs(self, q: Components, p: Components, u: Components | None, xp: Any = NUMPY) -> tuple[tuple, tuple]:
+    def rhs(self, q: Components, p: Components, u: Components | None, xp: ArrayNamespace = NUMPY) -> tuple[tuple, tuple]:
         """:meth:`System.rhs` (Eq. 1-3) with cos/sin(theta) evaluated once per call.
 
         dH/dx = 0, so pdot_x = u_x - d_x v_x (the same value as ``u_x - 0 - d_x v_x``)."""
@@ -104,7 +111,7 @@ class CartPole(System):
             return (v0, v1), (-(d0 * v0), -a1 - pole * v1)
         return (v0, v1), (u[0] - d0 * v0, u[1] - a1 - pole * v1)
 
-    def switching(self, q: Components, p: Components, xp: Any = NUMPY) -> Any | None:
+    def switching(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> Any | None:
         return xp.sin(q[1]) if self.dd != 0.0 else None
 
     def sample_initial(self, rng: np.random.Generator, size: int) -> np.ndarray:

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from .base import NUMPY, Components, Param, ParameterError, System, const_like
+from .base import NUMPY, ArrayNamespace, Components, Param, ParameterError, System, const_like
 
 COORDINATES = ("absolute", "relative")
 
@@ -53,6 +53,19 @@ class DoublePendulum(System):
         "coordinates": Param("absolute", "'absolute': both angles from hanging; 'relative': q2 = link 2 relative to link 1, "
                              "u_i = torque of the motor at joint i", choices=COORDINATES, extension=True),
     }
+    mass1: float
+    mass2: float
+    length1: float
+    length2: float
+    gravity: float
+    b: float
+    d0: float
+    dd: float
+    com1: float | None  # None: the defaults below (c1, c2, i1, i2 hold the values used)
+    com2: float | None
+    inertia1: float | None
+    inertia2: float | None
+    coordinates: str
 
     def _finalize(self) -> None:
         """The constants of M, V and their derivatives (each written once, used by every method)."""
@@ -90,7 +103,7 @@ class DoublePendulum(System):
         """Link 2's angle from hanging."""
         return q[0] + q[1] if self.relative else q[1]
 
-    def potential(self, q: Components, xp: Any = NUMPY) -> Any:
+    def potential(self, q: Components, xp: ArrayNamespace = NUMPY) -> Any:
         return -self._g1 * xp.cos(q[0]) - self._g2 * xp.cos(self._link2(q))
 
     def _dV(self, s1: Any, s2: Any) -> tuple:
@@ -98,7 +111,7 @@ class DoublePendulum(System):
         g2 = self._g2 * s2
         return (self._g1 * s1 + g2, g2) if self.relative else (self._g1 * s1, g2)
 
-    def grad_potential(self, q: Components, xp: Any = NUMPY) -> tuple:
+    def grad_potential(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         return self._dV(xp.sin(q[0]), xp.sin(self._link2(q)))
 
     def _mass(self, c: Any) -> tuple:
@@ -108,7 +121,7 @@ class DoublePendulum(System):
             return self._m11 + 2.0 * m12, self._m22 + m12, self._m22
         return self._m11, m12, self._m22
 
-    def mass_matrix(self, q: Components, xp: Any = NUMPY) -> tuple:
+    def mass_matrix(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         m11, m12, m22 = self._mass(xp.cos(self._phi(q)))
         if not self.relative:
             m11 = const_like(q[0], m11)
@@ -120,7 +133,7 @@ class DoublePendulum(System):
         det = m11 * m22 - m12 * m12
         return ((m22 * p[0] - m12 * p[1]) / det, (m11 * p[1] - m12 * p[0]) / det)
 
-    def velocity(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
+    def velocity(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         return self._velocity(xp.cos(self._phi(q)), p)
 
     def _dH_dq(self, g: tuple, s: Any, v: Sequence) -> tuple:
@@ -131,16 +144,17 @@ class DoublePendulum(System):
         cross = self._k * s * v[0] * v[1]
         return (g[0] + cross, g[1] - cross)
 
-    def dH_dq(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
+    def dH_dq(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         return self._dH_dq(self.grad_potential(q, xp), xp.sin(self._phi(q)), self.velocity(q, p, xp))
 
-    def _wind(self, s: Any, xp: Any) -> Any:
+    def _wind(self, s: Any, xp: ArrayNamespace) -> Any:
         """b + d0 + dd |sin q_i| from s = sin(q_i) (dd > 0)."""
         return self.b + self.d0 + self.dd * xp.abs(s)
 
-    def damping(self, q: Components, xp: Any = NUMPY) -> tuple:
-        if self.dd == 0.0:
-            return tuple(const_like(qi, c) for qi, c in zip(q, self.constant_damping()))
+    def damping(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple:
+        d = self.constant_damping()
+        if d is not None:
+            return tuple(const_like(qi, c) for qi, c in zip(q, d))
         return tuple(self._wind(xp.sin(qi), xp) for qi in q)
 
     def constant_damping(self) -> tuple[float, ...] | None:
@@ -149,7 +163,7 @@ class DoublePendulum(System):
     def has_damping(self) -> bool:
         return self.b + self.d0 + self.dd > 0.0
 
-    def rhs(self, q: Components, p: Components, u: Components | None, xp: Any = NUMPY) -> tuple[tuple, tuple]:
+    def rhs(self, q: Components, p: Components, u: Components | None, xp: ArrayNamespace = NUMPY) -> tuple[tuple, tuple]:
         """:meth:`System.rhs` (Eq. 1-3) with each sin/cos evaluated once per call."""
         phi = self._phi(q)
         s1, sphi = xp.sin(q[0]), xp.sin(phi)
@@ -169,7 +183,7 @@ class DoublePendulum(System):
             return v, (-a[0] - d[0] * v[0], -a[1] - d[1] * v[1])
         return v, (u[0] - a[0] - d[0] * v[0], u[1] - a[1] - d[1] * v[1])
 
-    def switching(self, q: Components, p: Components, xp: Any = NUMPY) -> Any | None:
+    def switching(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> Any | None:
         return xp.sin(q[0]) * xp.sin(q[1]) if self.dd != 0.0 else None
 
     def sample_initial(self, rng: np.random.Generator, size: int) -> np.ndarray:

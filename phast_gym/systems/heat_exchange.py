@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from .base import NUMPY, Components, Param, System, const_like
+from .base import NUMPY, ArrayNamespace, Components, Param, System, const_like
 
 
 class HeatExchange(System):
@@ -29,23 +29,28 @@ class HeatExchange(System):
         "tau": Param(1.0, "time constant (plays the role of M)"),
         "kloss": Param(0.1, "heat loss (plays the role of D)", "nonnegative"),
     }
+    c1: float
+    c2: float
+    kc: float
+    tau: float
+    kloss: float
 
-    def potential(self, q: Components, xp: Any = NUMPY) -> Any:
+    def potential(self, q: Components, xp: ArrayNamespace = NUMPY) -> Any:
         d = q[0] - q[1]
         return 0.5 * self.c1 * q[0] * q[0] + 0.5 * self.c2 * q[1] * q[1] + 0.5 * self.kc * d * d
 
-    def grad_potential(self, q: Components, xp: Any = NUMPY) -> tuple:
+    def grad_potential(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         d = q[0] - q[1]
         return (self.c1 * q[0] + self.kc * d, self.c2 * q[1] - self.kc * d)
 
-    def mass_matrix(self, q: Components, xp: Any = NUMPY) -> tuple:
+    def mass_matrix(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         z, t = const_like(q[0], 0.0), const_like(q[0], self.tau)
         return ((t, z), (z, t))
 
-    def velocity(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
+    def velocity(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         return tuple(pi / self.tau for pi in p)
 
-    def damping(self, q: Components, xp: Any = NUMPY) -> tuple:
+    def damping(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         return tuple(const_like(qi, c) for qi, c in zip(q, self.constant_damping()))
 
     def constant_damping(self) -> tuple[float, ...]:

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from .base import NUMPY, Components, Param, System, const_like
+from .base import NUMPY, ArrayNamespace, Components, Param, System, const_like
 
 
 class Oscillator(System):
@@ -27,24 +27,27 @@ class Oscillator(System):
         "mass": Param(1.0, "mass m"),
         "gamma": Param(0.0, "viscous damping on both coordinates", "nonnegative"),
     }
+    omega: float
+    mass: float
+    gamma: float
 
-    def potential(self, q: Components, xp: Any = NUMPY) -> Any:
+    def potential(self, q: Components, xp: ArrayNamespace = NUMPY) -> Any:
         k = self.mass * self.omega**2
         return 0.5 * k * sum(qi * qi for qi in q)
 
-    def grad_potential(self, q: Components, xp: Any = NUMPY) -> tuple:
+    def grad_potential(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         k = self.mass * self.omega**2
         return tuple(k * qi for qi in q)
 
-    def mass_matrix(self, q: Components, xp: Any = NUMPY) -> tuple:
+    def mass_matrix(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         z = const_like(q[0], 0.0)
         m = const_like(q[0], self.mass)
         return ((m, z), (z, m))
 
-    def velocity(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
+    def velocity(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         return tuple(pi / self.mass for pi in p)
 
-    def damping(self, q: Components, xp: Any = NUMPY) -> tuple:
+    def damping(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         return tuple(const_like(qi, c) for qi, c in zip(q, self.constant_damping()))
 
     def constant_damping(self) -> tuple[float, ...]:

@@ -8,12 +8,13 @@ derivative with respect to r^2.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from itertools import combinations
 from typing import Any
 
 import numpy as np
 
-from .base import NUMPY, Components, Param, System, const_like
+from .base import NUMPY, ArrayNamespace, Components, Param, System, const_like
 
 
 class PairParticles(System):
@@ -25,25 +26,28 @@ class PairParticles(System):
     #: radius of the triangle the initial state is drawn around, and noise scales
     init_q_std: float = 0.0
     init_p_std: float = 0.0
+    #: the parameters every subclass has (in its PARAMS)
+    mass: float
+    gamma: float
 
-    def _pairs(self, q: Components):
+    def _pairs(self, q: Components) -> Iterator[tuple[int, int, Any, Any, Any]]:
         for i, j in combinations(range(self.n_particles), 2):
             dx = q[2 * i] - q[2 * j]
             dy = q[2 * i + 1] - q[2 * j + 1]
             yield i, j, dx, dy, dx * dx + dy * dy
 
-    def pair_energy(self, r2: Any, xp: Any) -> Any:
+    def pair_energy(self, r2: Any, xp: ArrayNamespace) -> Any:
         """phi as a function of the squared distance."""
         raise NotImplementedError
 
-    def pair_denergy(self, r2: Any, xp: Any) -> Any:
+    def pair_denergy(self, r2: Any, xp: ArrayNamespace) -> Any:
         """d phi / d(r^2)."""
         raise NotImplementedError
 
-    def potential(self, q: Components, xp: Any = NUMPY) -> Any:
+    def potential(self, q: Components, xp: ArrayNamespace = NUMPY) -> Any:
         return sum(self.pair_energy(r2, xp) for *_, r2 in self._pairs(q))
 
-    def grad_potential(self, q: Components, xp: Any = NUMPY) -> tuple:
+    def grad_potential(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         # accumulators start as the float 0.0 (0.0 + x == x): no constant arrays per RK4 stage
         g: list = [0.0] * self.n
         for i, j, dx, dy, r2 in self._pairs(q):
@@ -55,14 +59,14 @@ class PairParticles(System):
             g[2 * j + 1] = g[2 * j + 1] - fy
         return tuple(g)  # every particle is in a pair, so every entry has q's type
 
-    def mass_matrix(self, q: Components, xp: Any = NUMPY) -> tuple:
+    def mass_matrix(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         z, m = const_like(q[0], 0.0), const_like(q[0], self.mass)
         return tuple(tuple(m if a == b else z for b in range(self.n)) for a in range(self.n))
 
-    def velocity(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
+    def velocity(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         return tuple(pi / self.mass for pi in p)
 
-    def damping(self, q: Components, xp: Any = NUMPY) -> tuple:
+    def damping(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         return tuple(const_like(qi, c) for qi, c in zip(q, self.constant_damping()))
 
     def constant_damping(self) -> tuple[float, ...]:
@@ -102,14 +106,17 @@ class LennardJones3(PairParticles):
         "gamma": Param(0.1, "isotropic friction", "nonnegative"),
         "temperature": Param(0.0, "Langevin temperature T (noise sqrt(2 gamma T dt) per step)", "nonnegative"),
     }
+    epsilon: float
+    sigma: float
+    temperature: float
 
     # (s / r)^6 as x * x * x with x = (s / r)^2: a float power is ~5x slower on arrays
-    def pair_energy(self, r2: Any, xp: Any) -> Any:
+    def pair_energy(self, r2: Any, xp: ArrayNamespace) -> Any:
         x = self.sigma * self.sigma / r2
         s6 = x * x * x
         return 4.0 * self.epsilon * (s6 * s6 - s6)
 
-    def pair_denergy(self, r2: Any, xp: Any) -> Any:
+    def pair_denergy(self, r2: Any, xp: ArrayNamespace) -> Any:
         x = self.sigma * self.sigma / r2
         s6 = x * x * x
         return 4.0 * self.epsilon * (-6.0 * s6 * s6 + 3.0 * s6) / r2
@@ -143,11 +150,14 @@ class NBody3(PairParticles):
         "gamma": Param(0.05, "isotropic friction", "nonnegative"),
         "radius": Param(2.0, "radius of the initial triangle"),
     }
+    grav_const: float
+    softening: float
+    radius: float
 
-    def pair_energy(self, r2: Any, xp: Any) -> Any:
+    def pair_energy(self, r2: Any, xp: ArrayNamespace) -> Any:
         return -self.grav_const * self.mass * self.mass / xp.sqrt(r2 + self.softening**2)
 
-    def pair_denergy(self, r2: Any, xp: Any) -> Any:
+    def pair_denergy(self, r2: Any, xp: ArrayNamespace) -> Any:
         s = r2 + self.softening**2
         return 0.5 * self.grav_const * self.mass * self.mass / (s * xp.sqrt(s))
 

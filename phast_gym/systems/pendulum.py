@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from .base import NUMPY, Components, Param, System, const_like
+from .base import NUMPY, ArrayNamespace, Components, Param, System, const_like
 
 
 class Pendulum(System):
@@ -34,6 +34,14 @@ class Pendulum(System):
         "dd": Param(0.0, "amplitude of the windy damping d0 + dd |sin theta|", "nonnegative"),
         "init_p_std": Param(3.0, "std of the initial momentum p0 ~ N(0, s^2)", "nonnegative"),
     }
+    mass: float
+    length: float
+    gravity: float
+    inertia: float  # None (the default m l^2) only until _finalize
+    gamma: float
+    d0: float
+    dd: float
+    init_p_std: float
 
     def _finalize(self) -> None:
         if self.inertia is None:
@@ -42,29 +50,30 @@ class Pendulum(System):
         self.mgl = self.mass * self.gravity * self.length
 
     # Each formula below is written once; the public methods and the fused ``rhs`` share them.
-    def potential(self, q: Components, xp: Any = NUMPY) -> Any:
+    def potential(self, q: Components, xp: ArrayNamespace = NUMPY) -> Any:
         return self.mgl * (1.0 - xp.cos(q[0]))
 
     def _dV(self, s: Any) -> Any:
         """dV/dtheta from s = sin(theta)."""
         return self.mgl * s
 
-    def grad_potential(self, q: Components, xp: Any = NUMPY) -> tuple:
+    def grad_potential(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         return (self._dV(xp.sin(q[0])),)
 
-    def mass_matrix(self, q: Components, xp: Any = NUMPY) -> tuple:
+    def mass_matrix(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         return ((const_like(q[0], self.inertia),),)
 
-    def velocity(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
+    def velocity(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         return (p[0] / self.inertia,)
 
-    def _wind(self, s: Any, xp: Any) -> Any:
+    def _wind(self, s: Any, xp: ArrayNamespace) -> Any:
         """D(theta) from s = sin(theta) when dd > 0 (the kinked wind law)."""
         return self.gamma + self.d0 + self.dd * xp.abs(s)
 
-    def damping(self, q: Components, xp: Any = NUMPY) -> tuple:
-        if self.dd == 0.0:
-            return (const_like(q[0], self.constant_damping()[0]),)
+    def damping(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple:
+        d = self.constant_damping()
+        if d is not None:
+            return (const_like(q[0], d[0]),)
         return (self._wind(xp.sin(q[0]), xp),)
 
     def constant_damping(self) -> tuple[float, ...] | None:
@@ -73,7 +82,7 @@ class Pendulum(System):
     def has_damping(self) -> bool:
         return self.gamma + self.d0 + self.dd > 0.0
 
-    def rhs(self, q: Components, p: Components, u: Components | None, xp: Any = NUMPY) -> tuple[tuple, tuple]:
+    def rhs(self, q: Components, p: Components, u: Components | None, xp: ArrayNamespace = NUMPY) -> tuple[tuple, tuple]:
         """:meth:`System.rhs` (Eq. 1-3) with sin(theta) evaluated once for dV/dq and D(q)."""
         s = xp.sin(q[0])
         (v,) = self.velocity(q, p, xp)
@@ -83,7 +92,7 @@ class Pendulum(System):
             return (v,), ((-a - d * v) if u is None else (u[0] - a - d * v),)
         return (v,), ((-a) if u is None else (u[0] - a),)
 
-    def switching(self, q: Components, p: Components, xp: Any = NUMPY) -> Any | None:
+    def switching(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> Any | None:
         return xp.sin(q[0]) if self.dd != 0.0 else None
 
     def sample_initial(self, rng: np.random.Generator, size: int) -> np.ndarray:

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from .base import NUMPY, Components, Param, System, const_like
+from .base import NUMPY, ArrayNamespace, Components, Param, System, const_like
 
 
 class PredatorPrey(System):
@@ -35,8 +35,14 @@ class PredatorPrey(System):
         "K": Param(100.0, "prey carrying capacity"),
         "mu": Param(0.01, "extra mortality of both species", "nonnegative"),
     }
+    a: float
+    b: float
+    c: float
+    d: float
+    K: float
+    mu: float
 
-    def rhs(self, q: Components, p: Components, u: Components | None, xp: Any = NUMPY) -> tuple[tuple, tuple]:
+    def rhs(self, q: Components, p: Components, u: Components | None, xp: ArrayNamespace = NUMPY) -> tuple[tuple, tuple]:
         n1, n2 = q[0], p[0]
         dn1 = self.a * n1 * (1.0 - n1 / self.K) - self.b * n1 * n2 - self.mu * n1
         dn2 = self.d * n1 * n2 - self.c * n2 - self.mu * n2
@@ -44,17 +50,17 @@ class PredatorPrey(System):
             dn2 = dn2 + u[0]
         return (dn1,), (dn2,)
 
-    def velocity(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
+    def velocity(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         return self.rhs(q, p, None, xp)[0]
 
-    def energy(self, q: Components, p: Components, xp: Any = NUMPY) -> Any:
+    def energy(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> Any:
         n1 = xp.clip_min(q[0], 1e-12)
         n2 = xp.clip_min(p[0], 1e-12)
         return self.d * n1 - self.c * xp.log(n1) + self.b * n2 - self.a * xp.log(n2)
 
     hamiltonian = energy
 
-    def damping(self, q: Components, xp: Any = NUMPY) -> tuple:
+    def damping(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         return (const_like(q[0], 0.0),)
 
     def has_damping(self) -> bool:
@@ -63,7 +69,7 @@ class PredatorPrey(System):
     def power_balance(self, q, p, u, xp=NUMPY):  # noqa: ANN001, ANN201
         raise NotImplementedError("predator-prey is not a port-Hamiltonian system")
 
-    def post_step(self, q: list, p: list, xp: Any = NUMPY) -> tuple[list, list]:
+    def post_step(self, q: list, p: list, xp: ArrayNamespace = NUMPY) -> tuple[list, list]:
         return [xp.clip_min(q[0], 0.0)], [xp.clip_min(p[0], 0.0)]
 
     def sample_initial(self, rng: np.random.Generator, size: int) -> np.ndarray:

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from .base import NUMPY, Components, Param, System, const_like
+from .base import NUMPY, ArrayNamespace, Components, Param, System, const_like
 
 
 class RLCCircuit(System):
@@ -27,20 +27,23 @@ class RLCCircuit(System):
         "inductance": Param(1.0, "inductance L [H]"),
         "capacitance": Param(1.0, "capacitance C [F]"),
     }
+    resistance: float
+    inductance: float
+    capacitance: float
 
-    def potential(self, q: Components, xp: Any = NUMPY) -> Any:
+    def potential(self, q: Components, xp: ArrayNamespace = NUMPY) -> Any:
         return q[0] * q[0] / (2.0 * self.capacitance)
 
-    def grad_potential(self, q: Components, xp: Any = NUMPY) -> tuple:
+    def grad_potential(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         return (q[0] / self.capacitance,)
 
-    def mass_matrix(self, q: Components, xp: Any = NUMPY) -> tuple:
+    def mass_matrix(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         return ((const_like(q[0], self.inductance),),)
 
-    def velocity(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
+    def velocity(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         return (p[0] / self.inductance,)
 
-    def damping(self, q: Components, xp: Any = NUMPY) -> tuple:
+    def damping(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         return (const_like(q[0], self.constant_damping()[0]),)
 
     def constant_damping(self) -> tuple[float, ...]:

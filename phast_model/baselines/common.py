@@ -41,6 +41,10 @@ class SeqBaseline(ForecastModel):
     """
 
     stateful: bool = False
+    q_mean: torch.Tensor  # buffers: input normalization and the increment scale (fit_normalizer)
+    q_std: torch.Tensor
+    u_std: torch.Tensor
+    dq_scale: torch.Tensor
 
     def __init__(self, n: int, m: int, angle_dims: tuple[int, ...] = (), d_model: int = 64) -> None:
         super().__init__(n, m, angle_dims)

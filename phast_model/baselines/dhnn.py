@@ -32,6 +32,9 @@ def _mlp(d_in: int, hidden: int, depth: int) -> nn.Sequential:
 class DHNNBaseline(ForecastModel):
     """Full-state DHNN next-step predictor: q input is the (B, T, 2k) state (q, p)."""
 
+    x_mean: torch.Tensor  # buffers: input standardization (fit_normalizer)
+    x_std: torch.Tensor
+
     def __init__(self, n: int, m: int, angle_dims: tuple[int, ...] = (), dt: float = 0.05, hidden: int = 200,
                  depth: int = 2) -> None:
         super().__init__(n, m, angle_dims)

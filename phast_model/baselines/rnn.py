@@ -18,7 +18,7 @@ from .common import SeqBaseline
 
 class _RNNBaseline(SeqBaseline):
     stateful = True
-    cell: type[nn.RNNBase] = nn.GRU
+    cell: type[nn.GRU] | type[nn.LSTM] = nn.GRU
 
     def __init__(self, n: int, m: int, angle_dims: tuple[int, ...] = (), d_model: int = 64, depth: int = 2,
                  dropout: float = 0.0) -> None:

@@ -31,7 +31,7 @@ Each layer is pre-norm residual: ``h <- h + post(SSM(LayerNorm(h)))`` with GELU
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, cast
 
 import torch
 import torch.nn.functional as F
@@ -72,7 +72,8 @@ def _powers(m: Coef, n: int) -> Coef:
     for _ in range(n - 1):
         A, B, C, D = out[-1]
         out.append((A * a + B * c, A * b + B * d, C * a + D * c, C * b + D * d))
-    return tuple(torch.stack(p) for p in zip(*out))  # type: ignore[return-value]
+    pa, pb, pc, pd = (torch.stack(p) for p in zip(*out))
+    return pa, pb, pc, pd
 
 
 def _chunked_scan(m: Coef, f: torch.Tensor, reverse: bool = False) -> torch.Tensor:
@@ -95,12 +96,12 @@ def _chunked_scan(m: Coef, f: torch.Tensor, reverse: bool = False) -> torch.Tens
     for i in range(1, L):
         _mul_add_(xc[0, :, :, i], xc[1, :, :, i], m, xc[0, :, :, i - 1], xc[1, :, :, i - 1])
     if C > 1:
-        pw = _powers(m, L)
-        m_L = tuple(p[-1] for p in pw)
+        pa, pb, pc, pd = _powers(m, L)
+        m_L = (pa[-1], pb[-1], pc[-1], pd[-1])
         for c in range(1, C):
             _mul_add_(xc[0, :, c, -1], xc[1, :, c, -1], m_L, xc[0, :, c - 1, -1], xc[1, :, c - 1, -1])
         ends = xc[0, :, :-1, -1:], xc[1, :, :-1, -1:]  # true end states of chunks 0 .. C-2
-        _mul_add_(xc[0, :, 1:, :-1], xc[1, :, 1:, :-1], tuple(p[:-1] for p in pw), *ends)  # type: ignore[arg-type]
+        _mul_add_(xc[0, :, 1:, :-1], xc[1, :, 1:, :-1], (pa[:-1], pb[:-1], pc[:-1], pd[:-1]), *ends)
     x = x[:, :, :T]
     return x.flip(2) if reverse else x
 
@@ -292,7 +293,7 @@ class DLinOSSLayer(_OscLayer):
 class _SSMModel(SeqBaseline):
     stateful = True
 
-    def __init__(self, n: int, m: int, angle_dims: tuple[int, ...], d_model: int, layers: list[nn.Module]) -> None:
+    def __init__(self, n: int, m: int, angle_dims: tuple[int, ...], d_model: int, layers: list[_SSMLayer]) -> None:
         super().__init__(n, m, angle_dims, d_model)
         self.encoder = nn.Linear(self.in_dim, self.d_model)
         self.layers = nn.ModuleList(layers)
@@ -310,7 +311,7 @@ class _SSMModel(SeqBaseline):
     def step(self, x: torch.Tensor, state: list[torch.Tensor]) -> tuple[torch.Tensor, list[torch.Tensor]]:
         h, new = self.encoder(x), []
         for layer, s in zip(self.layers, state):
-            h, s = layer.step(h, s)
+            h, s = cast(_SSMLayer, layer).step(h, s)  # self.layers holds the _SSMLayers given
             new.append(s)
         return h, new
 

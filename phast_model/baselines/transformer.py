@@ -31,6 +31,7 @@
 from __future__ import annotations
 
 import math
+from typing import cast
 
 import torch
 import torch.nn.functional as F
@@ -114,6 +115,8 @@ class TransformerBaseline(SeqBaseline):
 class _TriangularResidual(nn.Module):
     """``x + tanh(W x + b)`` with W strictly lower (or upper) triangular: Jacobian determinant 1."""
 
+    idx: torch.Tensor  # buffer: the (2, K) indices of W's free entries
+
     def __init__(self, d: int, upper: bool) -> None:
         super().__init__()
         self.upper = upper
@@ -130,6 +133,8 @@ class _TriangularResidual(nn.Module):
 
 class _SkewCausalAttention(nn.Module):
     """Causal unit-lower-triangular time mixing with weights from a skew-symmetric form."""
+
+    idx: torch.Tensor  # buffer: the (2, K) indices of A's upper triangle
 
     def __init__(self, d: int) -> None:
         super().__init__()
@@ -191,8 +196,9 @@ class VPTBaseline(SeqBaseline):
     def step(self, x: torch.Tensor, state: list[torch.Tensor]) -> tuple[torch.Tensor, list[torch.Tensor]]:
         h, new = self.embed(x), []
         for block, past in zip(self.blocks, state):
-            h, past = block[0].step(h, past)
-            for ff in block[1:]:
+            attention, *ffs = cast(nn.Sequential, block)  # _SkewCausalAttention, then the feed-forwards
+            h, past = cast(_SkewCausalAttention, attention).step(h, past)
+            for ff in ffs:
                 h = ff(h)
             new.append(past)
         return h, new

@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from functools import partial
+from typing import cast
 
 import torch
 from torch import nn
@@ -27,9 +28,12 @@ from .features import coordinate_features, n_features
 
 
 class Damping(nn.Module):
-    """Interface: ``apply(q, v) = D(q) v`` and ``diag(q)`` (diagonal of D, for metrics)."""
+    """Interface: ``apply(q, v) = D(q) v`` and ``diag(q)`` (diagonal of D, for metrics).
 
-    def apply(self, q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    ``apply`` shadows :meth:`torch.nn.Module.apply` (the model never calls the module one on a damping);
+    hence the ``override`` ignores below."""
+
+    def apply(self, q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:  # type: ignore[override]  # D(q) v, see above
         raise NotImplementedError
 
     def at(self, q: torch.Tensor) -> Callable[[torch.Tensor], torch.Tensor]:
@@ -47,6 +51,9 @@ class Damping(nn.Module):
 class HouseholderDamping(Damping):
     """Low-rank PSD damping with normalized directions, O(n r) application."""
 
+    q_scale: torch.Tensor  # buffers
+    fixed_d0: torch.Tensor  # only when d0 is not learned
+
     def __init__(self, n: int, angle_dims: tuple[int, ...] = (), rank: int = 2, hidden: int = 32,
                  cap: float | None = None, d0: float = 0.0, learn_d0: bool = True, beta_init: float = 0.1,
                  q_scale: torch.Tensor | float = 1.0) -> None:
@@ -62,7 +69,7 @@ class HouseholderDamping(Damping):
         self.net = nn.Sequential(nn.Linear(n_features(n, self.angle_dims), hidden), nn.SiLU(),
                                  nn.Linear(hidden, hidden), nn.SiLU(), nn.Linear(hidden, self.rank * n + n_logit))
         with torch.no_grad():
-            last = self.net[-1]
+            last = cast(nn.Linear, self.net[-1])
             last.weight[self.rank * n:].mul_(0.1)
             # directions start near the coordinate axes k_i = e_(i mod n): most mechanical damping acts per
             # coordinate, and a weakly excited coordinate (a heavy cart) gives too little gradient to rotate a
@@ -115,7 +122,7 @@ class HouseholderDamping(Damping):
 
         return d_times
 
-    def apply(self, q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    def apply(self, q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:  # type: ignore[override]  # D(q) v (Damping)
         return self.at(q)(v)
 
     def diag(self, q: torch.Tensor) -> torch.Tensor:
@@ -143,7 +150,7 @@ class KnownDamping(Damping):
     def diag(self, q: torch.Tensor) -> torch.Tensor:
         return stack(self.system.damping(split(q), TORCH)) + 0.0 * q
 
-    def apply(self, q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    def apply(self, q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:  # type: ignore[override]  # D(q) v (Damping)
         return self.diag(q) * v
 
     def bound(self, q: torch.Tensor) -> torch.Tensor:

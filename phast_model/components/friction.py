@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from typing import Literal, overload
 
 import torch
 from torch import nn
@@ -84,6 +85,10 @@ class JointFriction(nn.Module):
     coefficients (a scalar, one per law, or a dict law -> value; > 0); ``newton_iters`` / ``line_search`` the
     fixed work of the backward-Euler solve in :meth:`half_step`."""
 
+    index: torch.Tensor  # buffers: the joints' coordinates, their Coulomb smoothing and Stribeck velocities
+    eps: torch.Tensor
+    vs: torch.Tensor
+
     def __init__(self, n: int, joints: Sequence[int] | None = None, laws: Sequence[str] = ("coulomb", "viscous"),
                  eps: float | Sequence[float] = DEFAULT_EPS, vs: float | Sequence[float] = DEFAULT_VS,
                  init: float | Sequence[float] | Mapping[str, float] = DEFAULT_INIT, newton_iters: int = 8,
@@ -115,6 +120,11 @@ class JointFriction(nn.Module):
         """A per-joint (J,) or (K, J) tensor spread onto the n coordinates (``fill`` elsewhere)."""
         full = torch.full((*t.shape[:-1], self.n), fill, dtype=dtype, device=t.device)
         return full.index_copy(-1, self.index, t.to(dtype))
+
+    @overload
+    def _law(self, v: torch.Tensor, slope: Literal[False] = False) -> tuple[torch.Tensor, None]: ...
+    @overload
+    def _law(self, v: torch.Tensor, slope: Literal[True]) -> tuple[torch.Tensor, torch.Tensor]: ...
 
     def _law(self, v: torch.Tensor, slope: bool = False) -> tuple[torch.Tensor, torch.Tensor | None]:
         """f(v) and, with ``slope``, the diagonal f'(v): (..., n) -> (..., n), zero off the joints.  Evaluated on all n
@@ -182,10 +192,9 @@ class JointFriction(nn.Module):
         max(f', 0), so it is approximate where the total friction slope is negative)."""
         tau = torch.as_tensor(tau, dtype=p.dtype, device=p.device)
         v0 = mass.velocity(q, p)
-        m = None if self.newton_iters == 0 else mass.matrix(q).to(p.dtype)
         # newton_iters = 0: the explicit step p - tau f(M^-1 p) (accurate while tau c / (eps lambda_min(M)) << 1, as on
         # rigs sampled at a few ms), kept passive by the same guard
-        v = v0 if self.newton_iters == 0 else self._solve(m, p, v0, tau)
+        v = v0 if self.newton_iters == 0 else self._solve(mass.matrix(q).to(p.dtype), p, v0, tau)
         p_new = p - tau * self.force(v)
         return self._guard(mass, q, p, v0, p_new - p)
 

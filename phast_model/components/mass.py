@@ -11,6 +11,7 @@ M = sum_j theta_j B_j) and ``set_linear(theta)``, used by the least-squares init
 from __future__ import annotations
 
 import math
+from typing import cast
 
 import torch
 from torch import nn
@@ -124,6 +125,7 @@ class TemplateMass(Mass):
 
     constant = False
     KINDS = ("cartpole", "double_pendulum", "double_pendulum_relative")
+    dphi: torch.Tensor  # buffer: d phi / dq
 
     def __init__(self, kind: str, diag_init: float = 1.0) -> None:
         super().__init__()
@@ -203,6 +205,7 @@ class CholeskyMass(Mass):
     symmetric positive definite at every q (UNKNOWN regime with a configuration-dependent mass)."""
 
     constant = False
+    q_scale: torch.Tensor  # buffer
 
     def __init__(self, n: int, angle_dims: tuple[int, ...] = (), hidden: int = 32, diag_init: float = 1.0,
                  q_scale: torch.Tensor | float = 1.0) -> None:
@@ -214,7 +217,7 @@ class CholeskyMass(Mass):
         self.net = nn.Sequential(nn.Linear(n_features(n, self.angle_dims), hidden), nn.SiLU(),
                                  nn.Linear(hidden, len(self.rows)))
         with torch.no_grad():  # start at M = diag_init I, a small q-dependence
-            last = self.net[-1]
+            last = cast(nn.Linear, self.net[-1])
             last.weight.mul_(0.01)
             last.bias.zero_()
             last.bias[self.rows == self.cols] = _inv_softplus(math.sqrt(diag_init) - 1e-3)

@@ -53,6 +53,10 @@ class CausalConv1d(nn.Conv1d):
 class FDTCNObserver(nn.Module):
     """q history (B, T, n) -> velocity estimates (B, T, n), causal (FD + TCN)."""
 
+    q_scale: torch.Tensor  # buffers: input scales and the start-up rows (below)
+    v_scale: torch.Tensor
+    startup: torch.Tensor
+
     def __init__(self, n: int, dt: float, angle_dims: tuple[int, ...] = (), hidden: int = 32, layers: int = 2,
                  kernel_size: int = 3, q_scale: torch.Tensor | float = 1.0, v_scale: torch.Tensor | float = 1.0,
                  use_tcn: bool = True, fd_order: int = 4) -> None:
@@ -73,6 +77,7 @@ class FDTCNObserver(nn.Module):
         self.window = self.receptive_field + 1
         self.head = nn.Conv1d(hidden, n, 1)
         nn.init.zeros_(self.head.weight)  # start as the plain finite-difference observer
+        assert self.head.bias is not None  # a Conv1d has one by default
         nn.init.zeros_(self.head.bias)
         # linear skip path of the TCN over qdot_fd (a learnable causal FIR filter), initialized so that
         # qdot_fd + skip is the backward-difference formula of order ``fd_order`` (order 2:

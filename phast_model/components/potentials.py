@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from itertools import combinations
+from typing import cast
 
 import numpy as np
 import torch
@@ -152,7 +153,7 @@ class TemplatePotential(Potential):
         q = torch.as_tensor(q, dtype=torch.float64)
         target = stack(system.grad_potential(split(q), TORCH)).reshape(-1)
         eps_grid = [None] if self.kind != "gravity" else list(np.logspace(-2, 0, 21))
-        best = (math.inf, None, None)
+        best: tuple[float, torch.Tensor | None, float | None] = (math.inf, None, None)  # (residual, coef, eps)
         for eps in eps_grid:
             if eps is not None:
                 self.log_eps.fill_(math.log(eps))
@@ -161,6 +162,7 @@ class TemplatePotential(Potential):
             res = float(torch.linalg.norm(A @ sol - target) / (torch.linalg.norm(target) + 1e-12))
             if res < best[0]:
                 best = (res, sol, eps)
+        assert best[1] is not None, f"fit_to: no finite least-squares residual for {system.name}"
         self.coef.copy_(best[1].to(self.coef.dtype))
         if best[2] is not None:
             self.log_eps.fill_(math.log(best[2]))
@@ -177,6 +179,8 @@ def make_template(kind: str, n: int, dims: tuple[int, ...] | None = None) -> Tem
 # --------------------------------------------------------------------------- neural
 class NeuralPotential(Potential):
     """MLP potential (3 layers, SiLU, hidden 64; Eq. 82) with Fourier features on angles (Eq. 83)."""
+
+    q_scale: torch.Tensor  # buffer
 
     def __init__(self, n: int, angle_dims: tuple[int, ...] = (), hidden: int = 64, layers: int = 3,
                  n_freq: int = 2, q_scale: torch.Tensor | float = 1.0, out_scale: float = 1.0) -> None:
@@ -210,7 +214,7 @@ class NeuralPotential(Potential):
         """dV/dq by the chain rule written out: one forward pass keeping SiLU'(z), then the transposed weights.
         Equal to autograd's gradient; training differentiates through it with fewer, fused operations than
         through a double backward (``benchmarks/bench_baselines.py`` times both)."""
-        linears = list(self.net)[::2]  # Linear, SiLU, Linear, SiLU, ..., Linear
+        linears = cast(list[nn.Linear], list(self.net)[::2])  # Linear, SiLU, Linear, SiLU, ..., Linear
         x, slopes = self.features(q), []
         for lin in linears[:-1]:
             z = lin(x)
