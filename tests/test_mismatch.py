@@ -423,16 +423,16 @@ def test_markdown_to_html_subset():
 # --------------------------------------------------------------------------- candidates
 def test_armature_candidate():
     """The inertia term (c added to M_ii) gets a candidate scaled to 5% of the rms of M_ii."""
-    from phast_model.mismatch.candidates import candidates
     from phast_model.mismatch.options import Options, Progress
     from phast_model.mismatch.problem import prepare
+    from phast_model.mismatch.screening import candidates
     from phast_model.mismatch.simulators import load_simulator
 
     sim = load_simulator("PHAST/Pendulum-v0")
     sys0 = sim.build()
     rec = validate(make_reality("PHAST/Pendulum-v0", [], n_traj=3, T=100, noise_std=0.01, seed=1), 1, (0,))
     problem = prepare(sim, sys0, rec, Options(terms=("armature", "viscous_damping")), Progress())
-    system = problem.fam0.build(np.zeros(0))
+    system = problem.nominal_family.build(np.zeros(0))
     (arm,) = [c for c in candidates(problem, system) if c.term == "armature"]
     M = float(np.asarray(sys0.mass_matrix((rec.q[..., 0],))[0][0]).mean())
     assert arm.coordinate == 0 and arm.must_be_positive and abs(arm.scale - 0.05 * M) < 1e-12 * M

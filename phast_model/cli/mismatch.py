@@ -111,10 +111,10 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError(f"--sim-kwargs is not valid JSON: {exc}") from None
         if not isinstance(kwargs, dict):
             raise ValueError("--sim-kwargs must be a JSON object, e.g. '{\"length\": 0.9}'")
-        opts = Options(threshold=args.threshold, max_terms=args.max_terms, shoot_window=args.shoot_window,
-                       smoothing_window=args.smoothing_window, progress=not args.quiet, rollout_window=args.rollout_window,
-                       systematic_chi2=args.systematic_chi2,
-                       free=tuple(x.strip() for x in args.free.split(",") if x.strip()))
+        opts = Options().with_(threshold=args.threshold, max_terms=args.max_terms, shoot_window=args.shoot_window,
+                               smoothing_window=args.smoothing_window, progress=not args.quiet, rollout_window=args.rollout_window,
+                               systematic_chi2=args.systematic_chi2,
+                               free=tuple(x.strip() for x in args.free.split(",") if x.strip()))
         report = analyze(args.sim, args.recordings, sim_kwargs=kwargs, holdout_fraction=args.holdout_fraction, options=opts,
                          holdout_trajectories=holdout)
         out = report.write(args.out, plots=not args.no_plots)

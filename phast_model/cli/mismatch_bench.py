@@ -40,7 +40,7 @@ class Case:
 
 
 #: a two-motor arm in joint coordinates with compound links: the CAD values of the DFKI C.0 design
-ARM = {"coordinates": "relative", "mass1": 0.6417, "mass2": 0.5639, "length1": 0.2, "length2": 0.3,
+ARM: dict[str, Any] = {"coordinates": "relative", "mass1": 0.6417, "mass2": 0.5639, "length1": 0.2, "length2": 0.3,
        "com1": 0.2, "com2": 0.3213, "inertia1": 0.02671, "inertia2": 0.05388, "gravity": 9.81}
 #: the same arm with every link parameter 3-8% off its CAD value (a real rig's datasheet errors)
 ARM_OFF = {"mass1": ARM["mass1"] * 1.05, "mass2": ARM["mass2"] * 0.96, "com1": ARM["com1"] * 1.07,
@@ -198,7 +198,7 @@ def effect_size(case: Case, n_traj: int, T: int, seed: int, window: int = 100) -
     """
     from phast_model.mismatch import Term, make_reality
 
-    kw = dict(n_traj=n_traj, T=min(T, window), noise_std=0.0, seed=seed, u_std=case.u_std, x0_scale=case.x0_scale)
+    kw: dict[str, Any] = dict(n_traj=n_traj, T=min(T, window), noise_std=0.0, seed=seed, u_std=case.u_std, x0_scale=case.x0_scale)
     a = make_reality(case.env_id, [Term(*t) for t in case.terms], true_kwargs={**case.sim_kwargs, **case.params}, **kw)["q"]
     b = make_reality(case.env_id, [], true_kwargs=case.sim_kwargs, **kw)["q"]
     d = a - b

@@ -25,7 +25,6 @@ import numpy as np
 from phast_gym.systems.base import System
 
 from .calibrate import Calibration, calibration, explained_share, screen_parameters
-from .candidates import candidates
 from .energy import energy_check
 from .evaluate import HeldOut, check_holdout_indices, check_holdout_range, held_out, split
 from .locate import locate
@@ -33,8 +32,9 @@ from .options import Options, Progress
 from .problem import Problem, prepare
 from .recordings import Recordings, load_raw, validate
 from .report import Report, summary_text
+from .screening import candidates
 from .select import Selection, calibrated_rows, missing_rows, select
-from .shooting import ShootFit, _odd, time_scale
+from .shooting import ShootFit, odd, time_scale
 from .simulators import Simulator, load_simulator
 from .systematic import SystematicContext, SystematicResult, systematic
 from .terms import VOCABULARY
@@ -44,10 +44,10 @@ __all__ = ["InternalError", "Options", "Report", "analyze"]
 
 def _options(options: Options | None, overrides: Mapping[str, Any]) -> Options:
     opts = options or Options()
-    bad = sorted(k for k in overrides if k not in Options.__dataclass_fields__)
+    bad = sorted(k for k in overrides if k not in Options.flat_names())
     if bad:
-        raise ValueError(f"unknown option(s) {bad}; valid: {sorted(Options.__dataclass_fields__)}")
-    opts = replace(opts, **overrides)
+        raise ValueError(f"unknown option(s) {bad}; valid: {sorted(Options.flat_names())}")
+    opts = opts.with_(**overrides)
     if isinstance(opts.free, str):
         opts = replace(opts, free=(opts.free,))
     unknown = sorted(set(opts.terms or ()) - set(VOCABULARY))
@@ -141,18 +141,19 @@ METHOD_SYSTEMATIC = ("; model error >> noise, so the dissipation law was chosen 
                      "shooting selection's other terms held fixed")
 
 
-def _details(problem: Problem, cal: Calibration, sel: Selection, sysE: SystematicResult, final_fit: ShootFit,
+def _details(problem: Problem, cal: Calibration, sel: Selection, weak_answer: SystematicResult, final_fit: ShootFit,
              augmented: System) -> dict[str, Any]:
     """report.details: method, windows, chi^2/dof of each stage, what was set aside, cost."""
     opts, win = problem.opts, cal.shooter.w
-    method = METHOD + (METHOD_SYSTEMATIC if sysE.info.get("used") else "")
+    method = METHOD + (METHOD_SYSTEMATIC if weak_answer.info.get("used") else "")
     return {"method": method, "shoot_window_samples": int(win.length), "n_windows": int(win.count),
-            "n_windows_dropped_as_outliers": cal.n_dropped, "smoothing_window_samples": int(problem.sg),
+            "n_windows_dropped_as_outliers": cal.n_dropped, "smoothing_window_samples": int(problem.smoothing_window),
             "coulomb_sign_smoothing": f"tanh(qdot/{problem.eps:.3g})",
             "coulomb_sign_smoothing_per_coordinate": list(problem.eps_coord), "threshold": opts.threshold,
             "chi2_per_dof": {"nominal": cal.fit_nominal.chi2_red, "calibrated": cal.fit.chi2_red, "augmented": final_fit.chi2_red},
             "identifiability": cal.screen.identifiability.to_dict(), "held_out_check": sel.held_out, "equivalent_swap": sel.equivalent_swap,
-            "chi2_per_dof_every_pivot_fitted": cal.screen.fit_full.chi2_red, "friction": sysE.info, "n_simulations": cal.shooter.n_sims,
+            "chi2_per_dof_every_pivot_fitted": cal.screen.fit_full.chi2_red, "friction": weak_answer.info,
+            "n_simulations": cal.shooter.n_sims,
             "wall_time_s": problem.log.elapsed(), "calibrated_kwargs": dict(augmented.params)}
 
 
@@ -189,7 +190,7 @@ def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mappin
     train, hold, evaluated_on = split(rec, holdout_fraction, holdout)
     log(f"{simulator.name}: {rec.n_traj} recordings x {rec.T} samples, dt={rec.dt}")
     problem = prepare(simulator, sys0, train, opts, log)
-    held = held_out(hold, evaluated_on, problem.sigma, problem.x_scale, problem.L, problem.sg, opts.rollout_window)
+    held = held_out(hold, evaluated_on, problem.sigma, problem.x_scale, problem.shoot_window, problem.smoothing_window, opts.rollout_window)
     check_free(opts.free, simulator.numeric_params(sys0))
     comparison = _compared(compare, sys0, simulator.name)
     inputs = _Inputs(simulator, given, dec, train, hold, held, comparison)
@@ -232,16 +233,18 @@ def _explain(problem: Problem, inputs: _Inputs) -> Report:
     if share < MIN_DESCRIBED:  # nothing to explain: no parameter change, no terms, no model-error regime
         problem = replace(problem, opts=replace(opts, max_terms=0, systematic_chi2=math.inf))
         screen = replace(screen, identifiability=replace(screen.identifiability, basis=(), independence=()))
-    sel = select(problem, screen, [*screen.candidates, *candidates(problem, problem.fam0.build(np.zeros(0)))])
+    sel = select(problem, screen, [*screen.candidates, *candidates(problem, problem.nominal_family.build(np.zeros(0)))])
     cal = calibration(problem, screen, sel.params, sel.fit, len(sel.terms))
     excess0 = cal.fit_nominal.cost - cal.fit_nominal.dof
     calibrated, missing = calibrated_rows(problem, cal, sel), missing_rows(sel, excess0)
-    models = {"nominal": problem.fam0.build(np.zeros(0)), "calibrated": cal.system, "augmented": sel.system}
+    models = {"nominal": problem.nominal_family.build(np.zeros(0)), "calibrated": cal.system, "augmented": sel.system}
     final_fit = sel.fit
-    sysE = _systematic(problem, cal, sel, calibrated)
+    weak_answer = _systematic(problem, cal, sel, calibrated)
     shooting_answer = (models["augmented"], final_fit, calibrated, missing)
-    if sysE.replaces:
-        models["augmented"], final_fit, calibrated, missing = sysE.system, sysE.fit, sysE.calibrated, sysE.missing
+    if weak_answer.replaces:
+        assert weak_answer.system is not None and weak_answer.fit is not None
+        models["augmented"], final_fit = weak_answer.system, weak_answer.fit
+        calibrated, missing = weak_answer.calibrated, weak_answer.missing
     if share < MIN_DESCRIBED:
         calibrated = {k: {"nominal": v["nominal"], "fitted": v["nominal"], "ci95": None,
                           "note": "not calibrated: the simulator does not describe these recordings"} for k, v in calibrated.items()}
@@ -249,17 +252,17 @@ def _explain(problem: Problem, inputs: _Inputs) -> Report:
 
     fitres, rollouts = held.fit_table({**models, **inputs.compare})
     log(f"held-out: {fitres}")
-    if sysE.replaces and fitres["augmented"]["rollout_rmse"] >= fitres["calibrated"]["rollout_rmse"]:
+    if weak_answer.replaces and fitres["augmented"]["rollout_rmse"] >= fitres["calibrated"]["rollout_rmse"]:
         # the weak-form answer (its parameters included) does not predict: it is not adopted, the shooting answer stands
-        sysE.info["not_adopted"] = (f"the weak-form answer does not improve the held-out prediction (rollout RMSE "
+        weak_answer.info["not_adopted"] = (f"the weak-form answer does not improve the held-out prediction (rollout RMSE "
                                     f"{fitres['augmented']['rollout_rmse']:.4g} >= calibrated {fitres['calibrated']['rollout_rmse']:.4g})")
         models["augmented"], final_fit, calibrated, missing = shooting_answer
         fitres, rollouts = held.fit_table({**models, **inputs.compare})
     missing, unconfirmed = _confirmed(missing, fitres)
-    if train.u is None and any(VOCABULARY[m["term"]][0] == "dissipation" for m in missing):  # a check, no fitting
-        fitres["energy_check"] = {"model": "augmented", "training": energy_check(models["augmented"], train, problem.sg),
-                                  "held_out": energy_check(models["augmented"], hold, min(problem.sg, _odd(hold.T // 2 - 1)))}
-    located, resid_map = locate(models["calibrated"], train.resampled(), problem.sg, problem.eps)
+    if train.u is None and any(VOCABULARY[m["term"]].component == "dissipation" for m in missing):  # a check, no fitting
+        fitres["energy_check"] = {"model": "augmented", "training": energy_check(models["augmented"], train, problem.smoothing_window),
+                                  "held_out": energy_check(models["augmented"], hold, min(problem.smoothing_window, odd(hold.T // 2 - 1)))}
+    located, resid_map = locate(models["calibrated"], train.resampled(), problem.smoothing_window, problem.eps)
     if not missing and cal.fit.chi2_red < 1.5:  # within the noise
         located = []
     summary = summary_text(simulator.name, calibrated, missing, located, fitres, cal.fit.chi2_red, final_fit.chi2_red,
@@ -270,9 +273,9 @@ def _explain(problem: Problem, inputs: _Inputs) -> Report:
         sim={"env_id": simulator.name, "kwargs": dict(simulator.kwargs), "calibrated": calibrated},
         data=_data(inputs.given, inputs.dec, problem.sigma_raw),
         located=located, missing_physics=missing, fit=fitres, summary=summary,
-        details={**_details(problem, cal, sel, sysE, final_fit, models["augmented"]), "explained_share": share,
+        details={**_details(problem, cal, sel, weak_answer, final_fit, models["augmented"]), "explained_share": share,
                  "unconfirmed_terms": unconfirmed},
         plot_data={"hold": held.rec, "rollouts": rollouts, "resid_map": resid_map, "train": train,
                    "augmented_system": models["augmented"], "calibrated_system": models["calibrated"],
-                   "nominal_system": models["nominal"], "friction_curve": sysE.curve, "friction_laws": sysE.laws},
+                   "nominal_system": models["nominal"], "friction_curve": weak_answer.curve, "friction_laws": weak_answer.laws},
     )

@@ -15,11 +15,15 @@ of :mod:`.select`, where parameter changes and new terms compete (a parameter wi
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from typing import Any
 
 import numpy as np
 import scipy.linalg
+
+from phast_gym.systems.base import System
 
 from .candidates import Family, ParamCandidate
 from .linear import flat, rel_resid
@@ -112,25 +116,29 @@ class Calibration:
 
 def fit_nominal(problem: Problem) -> tuple[Shooter, ShootFit, int]:
     """Window states of the nominal model; windows it cannot follow at all (e.g. a separatrix crossing) are dropped."""
-    opts, fam0 = problem.opts, problem.fam0
-    shooter = problem.shooter(problem.windows)
-    fit = shooter.fit_states(fam0.build(np.zeros(0)), problem.X0, max_iter=opts.max_iter)
+    opts, nominal = problem.opts, problem.nominal_family
+    shooter = problem.shooter(problem.shooting.windows)
+    fit = shooter.fit_states(nominal.build(np.zeros(0)), problem.shooting.X0, max_iter=opts.max_iter)
     per_win = np.mean(fit.r**2, axis=1)
     keep = per_win <= max(30.0 * float(np.median(per_win)), 50.0)
     n_dropped = int(np.sum(~keep))
     if n_dropped and np.sum(keep) >= 2:
-        shooter = problem.shooter(problem.windows.select(keep))
-        fit = shooter.fit(lambda g: fam0.build(g), fit.X[keep], np.zeros(0), max_iter=opts.max_iter)
+        shooter = problem.shooter(problem.shooting.windows.select(keep))
+        fit = shooter.fit(lambda g: nominal.build(g), fit.X[keep], np.zeros(0), max_iter=opts.max_iter)
     problem.log(f"nominal fit: chi2/dof = {fit.chi2_red:.3g} ({fit.iterations} it)")
     return shooter, fit, n_dropped
 
 
 def _parameter_columns(problem: Problem, shooter: Shooter, fitN: ShootFit, params: list[tuple[str, float]]) -> np.ndarray:
     """(N, len(params)) projected shooting columns d r / d log(parameter) at the nominal fit."""
-    fam0, h = problem.fam0, PARAM_STEP
+    nominal, h = problem.nominal_family, PARAM_STEP
     if not params:
         return np.zeros((fitN.r.size, 0))
-    builds = [lambda k=k, nom=nom: fam0.with_(params=[(k, nom)]).build(np.array([h])) for k, nom in params]
+
+    def build(k: str, nom: float) -> System:
+        return nominal.with_(params=[(k, nom)]).build(np.array([h]))
+
+    builds: list[Callable[[], System]] = [partial(build, k, nom) for k, nom in params]
     return flat(fitN.projected(shooter.columns(builds, fitN, fitN.r, [h] * len(params)))[1])
 
 
@@ -203,7 +211,7 @@ def screen_parameters(problem: Problem) -> ParameterScreen:
     for k in ident.equivalents:
         if (s := ident.sentence(k)) is not None:
             problem.log(f"  {s}")
-    famF = problem.fam0.with_(params=[(k, nominal[k]) for k in ident.basis])
+    famF = problem.nominal_family.with_(params=[(k, nominal[k]) for k in ident.basis])
     fitF = shooter.fit(famF.build, fitN.X, np.zeros(ident.rank), max_iter=problem.opts.max_iter) if ident.rank else fitN
     problem.log(f"every pivot fitted: chi2/dof = {fitF.chi2_red:.3g}")
     cands = [ParamCandidate(k, v, PARAM_STEP) for k, v in params]
@@ -214,7 +222,7 @@ def calibration(problem: Problem, screen: ParameterScreen, selected: list[tuple[
                 n_terms: int) -> Calibration:
     """The chosen parameters refitted without the ``n_terms`` terms of the selection's fit ``start`` (which is the
     answer itself when there are none)."""
-    fam = problem.fam0.with_(params=list(selected))
+    fam = problem.nominal_family.with_(params=list(selected))
     if not selected:
         return Calibration(screen, [], fam, screen.fit_nominal)
     if n_terms == 0:

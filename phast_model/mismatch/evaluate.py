@@ -12,7 +12,7 @@ import numpy as np
 from phast_gym.systems.base import System
 
 from .recordings import Recordings
-from .shooting import Shooter, Windows, _odd, angle_diff, simulate_qv, smooth, substeps_for
+from .shooting import Shooter, Windows, angle_diff, odd, simulate_qv, smooth, substeps_for
 
 #: fewest samples of a held-out rollout window
 MIN_ROLLOUT_SAMPLES = 20
@@ -120,12 +120,13 @@ class HeldOut:
     x_scale: np.ndarray
     scale: np.ndarray  # per-coordinate RMSE scale (std of q when angles and lengths mix, else 1)
     K: int  # samples each initial state is fitted to
-    sg: int  # smoothing window of the one-step seeds
+    smoothing_window: int  # smoothing window of the one-step seeds
     mixed: bool
     windowed: bool
 
     def evaluate(self, models: dict[str, System], rec: Recordings | None = None) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
-        return evaluate_models(models, self.rec if rec is None else rec, self.sigma, self.x_scale, self.K, self.sg, self.scale)
+        return evaluate_models(models, self.rec if rec is None else rec, self.sigma, self.x_scale, self.K, self.smoothing_window,
+                               self.scale)
 
     def rollout_rmse(self, system: System, rec: Recordings) -> float:
         return self.evaluate({"m": system}, rec)[0]["m"]["rollout_rmse"]
@@ -147,7 +148,7 @@ class HeldOut:
         return fitres, rollouts
 
 
-def held_out(hold: Recordings, evaluated_on: str, sigma: np.ndarray, x_scale: np.ndarray, shoot_window: int, sg: int,
+def held_out(hold: Recordings, evaluated_on: str, sigma: np.ndarray, x_scale: np.ndarray, shoot_window: int, smoothing_window: int,
              rollout_window: float | None) -> HeldOut:
     """The held-out comparison: rollout windows of ``rollout_window`` seconds (default: whole trajectories), initial
     states fitted to a quarter shooting window."""
@@ -161,4 +162,5 @@ def held_out(hold: Recordings, evaluated_on: str, sigma: np.ndarray, x_scale: np
             raise ValueError(f"rollout_window {rollout_window} s is shorter than {MIN_ROLLOUT_SAMPLES} samples (dt={dt})")
         rec = hold.windows(W)
     K = int(min(rec.T, max(10, shoot_window // 4)))
-    return HeldOut(rec, hold, evaluated_on, sigma, x_scale, scale, K, min(sg, _odd(rec.T // 2 - 1)), mixed, rollout_window is not None)
+    return HeldOut(rec, hold, evaluated_on, sigma, x_scale, scale, K, min(smoothing_window, odd(rec.T // 2 - 1)), mixed,
+                   rollout_window is not None)

@@ -24,3 +24,14 @@ def rel_resid(col: np.ndarray, basis: np.ndarray | None) -> float:
     if n0 == 0:
         return 0.0
     return float(np.linalg.norm(orth_against(col[:, None], basis))) / n0
+
+
+def cluster_cov(X: np.ndarray, r: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, int]:
+    """Cluster-robust (CR1) covariance of least-squares coefficients of X with residual r, clusters g; and the cluster count."""
+    XtXi = np.linalg.pinv(X.T @ X)
+    G = np.unique(g)
+    s = np.stack([X[g == k].T @ r[g == k] for k in G]) if len(G) else np.zeros((0, X.shape[1]))
+    meat = s.T @ s
+    n, p = X.shape
+    corr = len(G) / max(len(G) - 1, 1) * (n - 1) / max(n - p, 1)
+    return corr * XtXi @ meat @ XtXi, len(G)

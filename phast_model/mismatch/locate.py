@@ -8,6 +8,8 @@ mismatch (and draws the residual map); nothing is fitted to it.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from scipy.signal import savgol_filter
 
@@ -16,13 +18,13 @@ from phast_gym.systems.base import System
 
 from .friction import momentum_balance
 from .recordings import Recordings
-from .shooting import _odd
+from .shooting import odd
 
 
 def residual_force(system: System, rec: Recordings, sg_window: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, slice]:
     """(r, q, qdot, qddot, kept samples): the filtered residual force and the smoothed states, filter edges dropped."""
     dt = rec.dt
-    w = _odd(min(max(sg_window, 5), rec.T - 1 + rec.T % 2 - 1))
+    w = odd(min(max(sg_window, 5), rec.T - 1 + rec.T % 2 - 1))
     bal = momentum_balance(system, rec, w)
     qs, vs = bal.qs, bal.vs
     r = bal.dp - savgol_filter(bal.pdot, w, 3, axis=1, mode="interp")
@@ -83,7 +85,7 @@ def locate(system: System, rec: Recordings, sg_window: int, eps: float, share_fl
     and the residual map data {"q", "v", "r"}."""
     r, qv, vv, a, sl = residual_force(system, rec, sg_window)
     total = float(np.sum(r**2)) + 1e-300
-    located = []
+    located: list[dict[str, Any]] = []
     for i in range(rec.n):
         ri = r[..., i].reshape(-1)
         qi = qv[..., i].reshape(-1)
@@ -103,7 +105,7 @@ def locate(system: System, rec: Recordings, sg_window: int, eps: float, share_fl
         r2 = _component_r2(groups, ri)
         where, where_share = _region(i, qi, vi, ri**2)
         diss = float(np.mean(ri * vi))
-        located.append({"coordinate": i, "component": max(r2, key=r2.get), "where": where, "when": _when(r[..., i]),
+        located.append({"coordinate": i, "component": max(r2, key=lambda k: r2[k]), "where": where, "when": _when(r[..., i]),
                         "share": round(share_i * where_share, 4), "residual_power": diss, "removes_energy": bool(diss < 0),
                         "component_r2": {k: round(v, 4) for k, v in r2.items()}})
     located.sort(key=lambda d: -d["share"])

@@ -12,11 +12,43 @@ from phast_gym.systems.base import System
 from .candidates import Family
 from .options import Options, Progress
 from .recordings import Recordings
-from .shooting import Shooter, Windows, _odd, estimate_noise, smooth, substeps_for, time_scale
+from .shooting import Shooter, Windows, estimate_noise, odd, smooth, substeps_for, time_scale
 from .simulators import Simulator
+from .weakform import rms_speed, sign_smoothing, smoothing_window
 
 
-@dataclass
+@dataclass(frozen=True)
+class Noise:
+    """Measurement noise of the training recordings, per coordinate."""
+
+    sigma_raw: np.ndarray  # (n,) estimated measurement noise std
+    sigma: np.ndarray  # (n,) noise std used to standardize residuals (floored)
+    q_std: np.ndarray  # (n,) std of q
+
+
+@dataclass(frozen=True)
+class Smoothing:
+    """The smoothed training recordings and the smoothing behind them."""
+
+    window: int  # Savitzky-Golay window [samples] (seeds, residual map, weak form)
+    qs: np.ndarray  # smoothed q of the training recordings
+    vs: np.ndarray  # smoothed qdot
+    x_scale: np.ndarray  # (2n,) typical |q|, |qdot|
+    eps: float  # tanh smoothing of sign(qdot) in the weak form and the residual map (one for all coordinates)
+    eps_coord: tuple[float, ...]  # tanh smoothing of each coordinate's Coulomb edge in the fits by simulation
+
+
+@dataclass(frozen=True)
+class ShootingSetup:
+    """The shooting windows (before outlier rejection) and their smoothed initial states."""
+
+    window: int  # shooting window [samples]
+    windows: Windows
+    substeps: int
+    X0: np.ndarray  # smoothed window initial states
+
+
+@dataclass(frozen=True)
 class Problem:
     """The fitting problem on the training recordings (read-only once built by :func:`prepare`)."""
 
@@ -25,28 +57,64 @@ class Problem:
     train: Recordings
     opts: Options
     log: Progress
-    sigma_raw: np.ndarray  # (n,) estimated measurement noise std
-    sigma: np.ndarray  # (n,) noise std used to standardize residuals (floored)
-    q_std: np.ndarray  # (n,) std of q
-    sg: int  # Savitzky-Golay window [samples] (seeds, residual map)
-    L: int  # shooting window [samples]
-    qs: np.ndarray  # smoothed q of the training recordings
-    vs: np.ndarray  # smoothed qdot
-    x_scale: np.ndarray  # (2n,) typical |q|, |qdot|
-    eps: float  # tanh smoothing of sign(qdot) in the weak form and the residual map (one for all coordinates)
-    eps_coord: tuple[float, ...]  # tanh smoothing of each coordinate's Coulomb edge in the fits by simulation
-    windows: Windows  # shooting windows (before outlier rejection)
-    substeps: int
-    X0: np.ndarray  # smoothed window initial states
-    fam0: Family  # the nominal family (no parameters, no terms)
-    has_u: list[bool]  # per coordinate: a non-zero port input acts on it
+    noise: Noise
+    smoothing: Smoothing
+    shooting: ShootingSetup
+    nominal_family: Family  # the nominal family (no parameters, no terms)
+
+    @property
+    def has_u(self) -> list[bool]:
+        """Per coordinate: a non-zero port input acts on it."""
+        u = self.train.u
+        return [bool(u is not None and np.any(u[..., i] != 0)) for i in range(self.n)]
+
+    # the groups' fields by the names the stages use
+    @property
+    def sigma(self) -> np.ndarray:
+        return self.noise.sigma
+
+    @property
+    def sigma_raw(self) -> np.ndarray:
+        return self.noise.sigma_raw
+
+    @property
+    def q_std(self) -> np.ndarray:
+        return self.noise.q_std
+
+    @property
+    def smoothing_window(self) -> int:
+        return self.smoothing.window
+
+    @property
+    def qs(self) -> np.ndarray:
+        return self.smoothing.qs
+
+    @property
+    def vs(self) -> np.ndarray:
+        return self.smoothing.vs
+
+    @property
+    def x_scale(self) -> np.ndarray:
+        return self.smoothing.x_scale
+
+    @property
+    def eps(self) -> float:
+        return self.smoothing.eps
+
+    @property
+    def eps_coord(self) -> tuple[float, ...]:
+        return self.smoothing.eps_coord
+
+    @property
+    def shoot_window(self) -> int:
+        return self.shooting.window
 
     @property
     def n(self) -> int:
         return self.train.n
 
     def shooter(self, windows: Windows) -> Shooter:
-        return Shooter(windows, self.sigma, self.substeps, self.x_scale)
+        return Shooter(windows, self.sigma, self.shooting.substeps, self.x_scale)
 
     def q_sample(self) -> np.ndarray:
         """About 200 recorded configurations (parameter-structure probes)."""
@@ -54,9 +122,9 @@ class Problem:
         return train.q.reshape(-1, train.n)[:: max(1, train.q.shape[0] * train.T // 200)]
 
 
-def _windows(train: Recordings, L: int, stride: int, opts: Options) -> Windows:
-    """Shooting windows of L samples (every ``stride``-th compared), subsampled evenly to the caps of ``opts``."""
-    win = Windows.cut(train, L, stride=stride)
+def _windows(train: Recordings, length: int, stride: int, opts: Options) -> Windows:
+    """Shooting windows of ``length`` samples (every ``stride``-th compared), subsampled evenly to the caps of ``opts``."""
+    win = Windows.cut(train, length, stride=stride)
     max_w = int(min(opts.max_windows, max(40, opts.max_residuals // (len(win.obs) * train.n))))
     if win.count > max_w:
         win = win.select(np.unique(np.linspace(0, win.count - 1, max_w).round().astype(int)))
@@ -75,23 +143,22 @@ def prepare(sim: Simulator, sys0: System, train: Recordings, opts: Options, log:
     n, dt = train.n, train.dt
     sigma_raw = estimate_noise(train.q, train.t)
     q_std = train.q.reshape(-1, n).std(0) + 1e-12
-    sigma = np.maximum(sigma_raw, 1e-6 * q_std)
+    noise = Noise(sigma_raw, np.maximum(sigma_raw, 1e-6 * q_std), q_std)
     period = 2 * math.pi * time_scale(train.resampled().q, dt)
-    sg = _odd(opts.smoothing_window or max(7, int(round(0.15 * period / dt))))
-    sg = min(sg, _odd(train.T // 2 - 1))
-    L = int(opts.shoot_window or int(np.clip(round(0.5 * period / dt), 20, train.T)))
-    L = min(L, train.T)
-    qs, vs = smooth(train.q, dt, sg, train.t)
-    v_rms = np.sqrt(np.mean(vs**2, axis=(0, 1))) + 1e-12
+    window = odd(opts.smoothing_window) if opts.smoothing_window else smoothing_window(period, dt)
+    window = min(window, odd(train.T // 2 - 1))
+    shoot_window = int(opts.shoot_window or int(np.clip(round(0.5 * period / dt), 20, train.T)))
+    shoot_window = min(shoot_window, train.T)
+    qs, vs = smooth(train.q, dt, window, train.t)
+    v_rms = rms_speed(vs)
     x_scale = np.concatenate([np.sqrt(np.mean(qs**2, axis=(0, 1))) + 1e-9, v_rms])
-    eps = float(opts.coulomb_eps_rel * np.median(v_rms))
+    eps = sign_smoothing(v_rms, opts.coulomb_eps_rel)
     # per coordinate: 0.005 x its own rms speed (a slow cart's edge is not set by a fast pole), never below eps / 5
     eps_coord = tuple(float(e) for e in np.maximum(opts.coulomb_eps_rel * v_rms, 0.2 * eps))
-    win = _windows(train, L, comparison_stride(train, period), opts)
+    win = _windows(train, shoot_window, comparison_stride(train, period), opts)
     X0 = np.concatenate([qs[win.traj, win.start], vs[win.traj, win.start]], axis=1)
     u = train.u
     u_med = float(np.median(np.abs(u[u != 0]))) if u is not None and np.any(u != 0) else 1.0
-    has_u = [bool(u is not None and np.any(u[..., i] != 0)) for i in range(n)]
-    fam0 = Family(sim, {}, [], [], eps_coord, 0.05 * u_med)
-    return Problem(sim, sys0, train, opts, log, sigma_raw, sigma, q_std, sg, L, qs, vs, x_scale, eps, eps_coord, win,
-                   substeps_for(sys0, dt), X0, fam0, has_u)
+    nominal = Family(sim, {}, [], [], eps_coord, 0.05 * u_med)
+    return Problem(sim, sys0, train, opts, log, noise, Smoothing(window, qs, vs, x_scale, eps, eps_coord),
+                   ShootingSetup(shoot_window, win, int(substeps_for(sys0, dt)), X0), nominal)

@@ -160,6 +160,7 @@ class Recordings:
         from scipy.interpolate import CubicSpline
 
         t = self.t
+        assert t is not None  # (non-uniform sampling carries its times)
         span = float(np.min(t[:, -1] - t[:, 0]))
         T2 = int(math.floor(span / self.dt + 1e-9)) + 1
         grid = t[:, :1] + np.arange(T2)[None, :] * self.dt  # (N, T2)

@@ -17,6 +17,7 @@ import os
 import re
 import shutil
 import tempfile
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -102,7 +103,7 @@ def _alternative_sentences(missing: list[dict]) -> list[str]:
 
 
 def summary_text(name: str, calibrated: dict, missing: list[dict], located: list[dict], fitres: dict, chi2_calibrated: float,
-                 chi2_augmented: float, sigma: np.ndarray, verdicts: list[str] = ()) -> str:
+                 chi2_augmented: float, sigma: np.ndarray, verdicts: Sequence[str] = ()) -> str:
     """The report's plain-language summary (the chi^2/dof of the calibrated and augmented shooting fits decide what is said)."""
     parts = [f"Compared {name} with the recordings (estimated measurement noise {float(np.sqrt(np.mean(sigma**2))):.3g})."]
     cal = [f"{k} {v['nominal']:.4g} -> {v['fitted']:.4g}{_fmt_ci(v.get('ci95'))}" for k, v in calibrated.items() if v.get("ci95")]

@@ -19,18 +19,22 @@ Stribeck term's velocity is refined by profiling the refit cost in quarter octav
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 import numpy as np
 
+from phast_gym.systems.base import System
+
 from .calibrate import Calibration, ParameterScreen
-from .candidates import MIN_STRIBECK_OVER_EPS, Candidate, Family, ParamCandidate
+from .candidates import Candidate, Family, ParamCandidate
 from .linear import flat, orth_against
 from .options import Z95
 from .problem import Problem
+from .registry import ACTUATOR_GAIN, STRIBECK, ActuatorDeadzone
 from .shooting import ShootFit
-from .terms import VOCABULARY
 
 #: refit iterations while confirming a shortlisted candidate (the winner is finished with Options.max_iter)
 CONFIRM_ITER = 6
@@ -43,7 +47,7 @@ AnyCandidate = Candidate | ParamCandidate
 
 
 def _component(cand: AnyCandidate) -> str:
-    return "parameter" if cand.is_param else VOCABULARY[cand.term][0]
+    return "parameter" if isinstance(cand, ParamCandidate) else cand.component
 
 
 @dataclass
@@ -80,6 +84,14 @@ class Selection:
 
 
 @dataclass
+class _Marks:
+    """Items already handled: parameters reported as their equivalent port gain, terms whose velocity was refined."""
+
+    swapped: set[int] = field(default_factory=set)
+    refined: set[int] = field(default_factory=set)
+
+
+@dataclass
 class _Search:
     """Shared state of one selection: the problem, the parameter screen and the (mutable) current model."""
 
@@ -92,8 +104,7 @@ class _Search:
     chosen: list[int] = field(default_factory=list)  # in g order: parameters, then terms
     gains: dict[int, float] = field(default_factory=dict)
     raw: dict[int, np.ndarray] = field(default_factory=dict)  # unprojected columns of the last :meth:`columns` call
-    swapped: set[int] = field(default_factory=set)  # parameters reported as their equivalent port gain
-    refined: set[int] = field(default_factory=set)  # Stribeck terms whose velocity was refined
+    marks: _Marks = field(default_factory=_Marks)
 
     @property
     def thr2(self) -> float:
@@ -114,16 +125,16 @@ class _Search:
         pool = self.cands if cands is None else cands
         params = [(c.name, c.nominal) for c in (pool[k] for k in order) if isinstance(c, ParamCandidate)]
         terms = [c.family_term for c in (pool[k] for k in order) if isinstance(c, Candidate)]
-        return self.problem.fam0.with_(params=params, terms=terms)
+        return self.problem.nominal_family.with_(params=params, terms=terms)
 
     def columns(self, fit: ShootFit, fam: Family, ks: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Residual and candidate columns at ``fit`` with window states and current globals projected out; the raw
         columns are kept in :attr:`raw` (for the window-state part of a linear step)."""
-        def build(k: int) -> Any:
+        def build(k: int) -> System:
             fam2, g2 = self.cands[k].add_to(fam, fit.g, self.cands[k].fd_step)
             return fam2.build(g2)
 
-        builds = [(lambda k=k: build(k)) for k in ks]
+        builds: list[Callable[[], System]] = [partial(build, k) for k in ks]
         cols = self.screen.shooter.columns(builds, fit, fit.r, [self.cands[k].fd_step for k in ks])
         self.raw = {k: cols[..., j] for j, k in enumerate(ks)}
         r_p, cols_p = fit.projected(cols)
@@ -228,9 +239,9 @@ def _confirm(s: _Search, shortlist: list[tuple[int, float]], s2: float, linear: 
             continue
         fam_new, g0, order = s.add(k, s.fam, s.fit.g, z0)
         X0 = s.state_step(k, z0)
-        if cand.term == "actuator_deadzone":  # threshold: start from the best of a coarse grid (zero slope at c = 0)
-            j = order.index(k)
-            grid = np.linspace(0.1, 1.5, 15)
+        if isinstance(cand, Candidate) and isinstance(cand.kind, ActuatorDeadzone):  # threshold: start from the best of a
+            j = order.index(k)                                                       # coarse grid (zero slope at c = 0)
+            grid = np.linspace(*ActuatorDeadzone.START_GRID)
             costs = [float(np.sum(shooter.residual(fam_new.build(np.concatenate([g0[:j], [zz], g0[j + 1:]])), X0) ** 2))
                      for zz in grid]
             g0[j] = grid[int(np.argmin(costs))]
@@ -266,8 +277,8 @@ def _forward(s: _Search, r_o: np.ndarray, cols_o: np.ndarray, pool: list[int], c
         s.gains[k] = s.fit.cost - fit_new.cost
         s.chosen, s.fit, s.fam, s.cov = order, fit_new, fam_new, cov_new
         s.problem.log(f"added {s.cands[k].label}: chi2/dof = {s.fit.chi2_red:.3g} ({s.fit.iterations} it)")
-        if s.cands[k].term == "stribeck_friction":  # its velocity before the next round: a wrong v_s leaves a
-            _refine_stribeck(s)                      # residual that another term would then absorb
+        if s.cands[k].term == STRIBECK.name:  # its velocity before the next round: a wrong v_s leaves a
+            _refine_stribeck(s)               # residual that another term would then absorb
         pool = [kk for kk in pool if kk not in s.chosen and s.cands[kk].key != s.cands[k].key]
         if pool:
             r_o, _, cols_o = s.columns(s.fit, s.fam, pool)
@@ -306,7 +317,7 @@ def _folds(s: _Search) -> tuple[np.ndarray, str] | None:
 
 def _open_parameter_columns(s: _Search) -> np.ndarray | None:
     """(W, L*n, E) projected columns, at the current fit, of the examined parameters not chosen (None when none)."""
-    extra = [k for k, c in enumerate(s.cands) if c.is_param and k not in s.chosen and k not in s.swapped]
+    extra = [k for k, c in enumerate(s.cands) if c.is_param and k not in s.chosen and k not in s.marks.swapped]
     if not extra:
         return None
     _, cols_p, _ = s.columns(s.fit, s.fam, extra)
@@ -412,7 +423,7 @@ def _port_gain_equivalent(s: _Search) -> dict[str, Any] | None:
     effect with the gain's column), replace them by the gain if it fits as well: the equivalent that keeps the
     simulator's parameters.  Returns the swap made (for the report), or None."""
     params = [k for k in s.chosen if s.cands[k].is_param]
-    gains = [k for k, c in enumerate(s.cands) if not c.is_param and c.term == "actuator_gain" and k not in s.chosen]
+    gains = [k for k, c in enumerate(s.cands) if not c.is_param and c.term == ACTUATOR_GAIN.name and k not in s.chosen]
     if not params or not gains:
         return None
     v = _parameter_effect(s)
@@ -429,7 +440,7 @@ def _port_gain_equivalent(s: _Search) -> dict[str, Any] | None:
             swap = {"replaced": [s.cands[kk].label for kk in params], "by": s.cands[k].label, "cosine": round(cos, 4),
                     "chi2_per_dof": [before, s.fit.chi2_red]}
             s.problem.log(f"{swap['replaced']} act as {swap['by']} (cosine {cos:.4f}): the port gain is reported")
-            s.swapped = set(params)
+            s.marks.swapped = set(params)
             return swap
     return None
 
@@ -462,15 +473,18 @@ def _refine_stribeck(s: _Search) -> None:
     """A chosen Stribeck term: its velocity v_s around the grid value (profile of the refit cost, quarter octaves)."""
     for k in s.chosen:
         cand = s.cands[k]
-        if not isinstance(cand, Candidate) or cand.term != "stribeck_friction" or k in s.refined:
+        if not isinstance(cand, Candidate) or cand.term != STRIBECK.name or k in s.marks.refined:
             continue
-        s.refined.add(k)
+        s.marks.refined.add(k)
         for step in (2**0.5, 2**0.25, 2**0.125):
             best = (s.fit.cost, s.cands[k], s.fit, s.fam)
+            current = s.cands[k]
+            assert isinstance(current, Candidate) and current.velocity is not None
             for f in (1 / step, step):
-                c_new = s.cands[k].with_velocity(s.cands[k].velocity * f)  # type: ignore[union-attr]
-                if c_new.velocity < MIN_STRIBECK_OVER_EPS * s.problem.eps_coord[cand.coordinate]:
+                velocity = current.velocity * f
+                if velocity < STRIBECK.MIN_OVER_EPS * s.problem.eps_coord[cand.coordinate]:
                     continue
+                c_new = current.with_velocity(velocity)
                 trial = [c_new if kk == k else s.cands[kk] for kk in range(len(s.cands))]
                 fam_v = s.family_of(s.chosen, trial)
                 fit_v = s.screen.shooter.fit(fam_v.build, s.fit.X, s.fit.g, max_iter=CONFIRM_ITER)
@@ -502,7 +516,7 @@ def _prune_parameters(s: _Search) -> None:
         if not params:
             return
         t = {k: abs(s.fit.g[s.pos(k)]) / math.sqrt(max(s.cov[s.pos(k), s.pos(k)], 1e-300)) for k in params}
-        worst = min(params, key=t.get)
+        worst = min(params, key=lambda k: t[k])
         if t[worst] >= s.problem.opts.threshold:
             return
         s.problem.log(f"parameter {s.cands[worst].label} not needed (|t| = {t[worst]:.3g}): held at nominal")
@@ -512,7 +526,7 @@ def _prune_parameters(s: _Search) -> None:
 def select(problem: Problem, screen: ParameterScreen, cands: list[AnyCandidate]) -> Selection:
     """Terms by forward selection on top of a full-rank calibration, then the parameter changes pruned to those the
     recordings need; prune terms, the port-gain equivalent, the left-out check, Stribeck velocities."""
-    s = _Search(problem, screen, list(cands), screen.fit_nominal, problem.fam0)
+    s = _Search(problem, screen, list(cands), screen.fit_nominal, problem.nominal_family)
     _start_calibrated(s)
     terms = [k for k in range(len(s.cands)) if not s.cands[k].is_param]
     cols = np.zeros((s.fit.r.size, len(s.cands)))
@@ -602,9 +616,9 @@ def missing_rows(sel: Selection, excess0: float) -> list[dict[str, Any]]:
         sd = math.sqrt(max(sel.cov[j, j], 0.0)) if sel.cov is not None else 0.0
         lo, hi = sorted([cand.coefficient(z - Z95 * sd), cand.coefficient(z + Z95 * sd)])
         term = cand.family_term.at(z)
-        out.append({"term": cand.term, "coordinate": cand.coordinate, "component": VOCABULARY[cand.term][0],
+        out.append({"term": cand.term, "coordinate": cand.coordinate, "component": cand.component,
                     "coefficient": term.coefficient, "ci95": [lo, hi],
-                    **({"stribeck_velocity": term.velocity} if cand.term == "stribeck_friction" else {}),
+                    **({"stribeck_velocity": term.velocity} if cand.kind.has_velocity else {}),
                     "expression": term.expression(), "explains": float(min(1.0, sel.gains.get(k, 0.0) / max(excess0, 1e-300))),
                     "alternatives": _alternatives(sel, k, z) + _swap_alternatives(sel, k)})
     return out

@@ -79,9 +79,13 @@ def time_scale(q: np.ndarray, dt: float) -> float:
     return float(np.clip(min(cands), 2 * dt, dt * q.shape[1]))
 
 
-def _odd(k: int) -> int:
+def odd(k: int) -> int:
+    """``k`` rounded up to an odd number (a Savitzky-Golay window)."""
     k = int(k)
     return k if k % 2 else k + 1
+
+
+_odd = odd  # the name this module uses
 
 
 def smooth(q: np.ndarray, dt: float, window: int, t: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:

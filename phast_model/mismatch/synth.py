@@ -37,9 +37,9 @@ def make_reality(env_id: str | type[System], terms: list[Term] | tuple[Term, ...
         freqs = rng.uniform(0.2, 1.5, size=(n_traj, 3, base.n))
         phases = rng.uniform(0, 2 * np.pi, size=(n_traj, 3, base.n))
         u = u_std * np.sum(np.sin(2 * np.pi * freqs[:, :, None, :] * t[None, None, :, None] + phases[:, :, None, :]), axis=1) / np.sqrt(1.5)
-    # a nearly sharp Coulomb edge is stiff (force slope c / coulomb_eps): RK4 needs short substeps there, or the
+    # a nearly sharp Coulomb edge (a kind's ``stiff_edge``) is stiff (force slope c / coulomb_eps): RK4 needs short substeps there, or the
     # "reality" chatters at velocity reversals and holds an integration artefact instead of the stated friction law
-    sub = base.substeps * 8 if any(t.name == "coulomb_friction" for t in terms) else None
+    sub = base.substeps * 8 if any(t.kind.stiff_edge for t in terms) else None
     x = simulate(system, x0, T - 1, u=u, substeps=sub)
     q = system.measure(x[..., : base.n])
     q = q + rng.normal(0.0, noise_std, size=q.shape)

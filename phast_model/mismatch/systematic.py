@@ -7,7 +7,7 @@ loop, which large swings' phase drift dominates) need not predict anything.
 So the answer is built from time-resolved, local evidence instead, every choice
 made by prediction on recordings not used for the fit:
 
-* the weak-form momentum balance (one filter on both sides, :mod:`.friction`)
+* the weak-form momentum balance (one filter on both sides, :mod:`.weakform`)
   under the simulator at the user's values (a shooting calibration made before
   any friction term may have absorbed friction);
 * which parameters to calibrate (:func:`.weakid.check_parameters`): those whose
@@ -37,8 +37,12 @@ from phast_gym.systems.base import System
 
 from .calibrate import Calibration
 from .candidates import Candidate
-from .friction import FrictionCurve, FrictionLaw, Selection, check_against_curve, friction_curve, is_passive, select_friction
+from .frictioncurve import FrictionCurve, friction_curve
+from .laws import FrictionLaw, spec_of
+from .lawselect import LawSelection, select_friction
+from .passivity import check_against_curve, is_passive
 from .problem import Problem
+from .registry import ARMATURE, COULOMB, VISCOUS
 from .shooting import ShootFit
 from .terms import VOCABULARY, AugmentedSystem, Term
 from .weakid import WeakFit, WeakModel, check_parameters, identify
@@ -73,7 +77,7 @@ class SystematicResult:
         return self.system is not None
 
 
-def _law_rows(law: FrictionLaw, sels: list[Selection], passive: dict[str, Any], own: dict[int, float]) -> list[dict[str, Any]]:
+def _law_rows(law: FrictionLaw, sels: list[LawSelection], passive: dict[str, Any], own: dict[int, float]) -> list[dict[str, Any]]:
     """report.missing_physics rows of the chosen law: coefficient, 95% interval, the evidence, near alternatives."""
     rows = []
     for t in law.terms:
@@ -82,13 +86,13 @@ def _law_rows(law: FrictionLaw, sels: list[Selection], passive: dict[str, Any], 
         near = [s.law for s in sel.scores if s.law != sel.chosen_name and s.not_worse]
         note = ""
         if t.coefficient < 0:
-            total = own.get(t.coordinate, 0.0) + t.coefficient if t.term == "viscous_damping" else None
+            total = own.get(t.coordinate, 0.0) + t.coefficient if t.term == VISCOUS.name else None
             note = ("negative coefficient: the *total* friction force stays passive at every observed speed "
                     f"(min {passive['per_coordinate'][t.coordinate]['min_force']:.3g} >= 0)"
                     + (f"; total viscous coefficient with the model's own damping {total:.4g}" if total is not None else ""))
-        rows.append({"term": t.term, "coordinate": t.coordinate, "component": VOCABULARY[t.term][0],
+        rows.append({"term": t.term, "coordinate": t.coordinate, "component": term.component,
                      "coefficient": t.coefficient, "ci95": list(t.ci95), "expression": term.expression(),
-                     **({"stribeck_velocity": t.velocity} if t.term == "stribeck_friction" else {}),
+                     **({"stribeck_velocity": t.velocity} if term.kind.has_velocity else {}),
                      "explains": None, "alternatives": [{"law": n, "note": "as good at predicting left-out friction curves"}
                                                         for n in near[:3]],
                      "evidence": f"weak-form force balance; law chosen by {sel.folds}, score: left-out friction curve; "
@@ -110,8 +114,8 @@ def _weak_model(ctx: SystematicContext, window: int) -> WeakModel:
     which then bend the masses; on the real pendulum its sensor terms make the held-out prediction worse)."""
     problem = ctx.problem
     vocab = problem.opts.terms or tuple(VOCABULARY)
-    arm = [i for i in range(problem.n) if problem.has_u[i]] if "armature" in vocab else []
-    return WeakModel(problem.sim, {}, list(ctx.params), [], arm, problem.eps, problem.fam0.deadzone_width, window)
+    arm = [i for i in range(problem.n) if problem.has_u[i]] if ARMATURE.name in vocab else []
+    return WeakModel(problem.sim, {}, list(ctx.params), [], arm, problem.eps, problem.nominal_family.deadzone_width, window)
 
 
 def _calibrated_rows(ctx: SystematicContext, fit: WeakFit, held: list[str], no_signal: list[str]) -> dict[str, dict[str, Any]]:
@@ -130,14 +134,14 @@ def _calibrated_rows(ctx: SystematicContext, fit: WeakFit, held: list[str], no_s
 
 
 def _armature_rows(fit: WeakFit) -> list[dict[str, Any]]:
-    return [{"term": "armature", "coordinate": t.coordinate, "component": "inertia", "coefficient": t.coefficient,
+    return [{"term": ARMATURE.name, "coordinate": t.coordinate, "component": ARMATURE.component, "coefficient": t.coefficient,
              "ci95": list(t.ci95), "expression": t.to_term().expression(), "explains": None, "alternatives": [],
              "evidence": f"weak-form fit jointly with the parameters and the friction law, |t| = {abs(t.t):.3g}"}
             for t in fit.armature if t.coefficient > 0 and t.excludes_zero]
 
 
 #: a generous law for the first joint fit, so that parameters cannot absorb friction while the law is not yet chosen
-PROVISIONAL_LAW = ("viscous_damping", "coulomb_friction")
+PROVISIONAL_LAW = (VISCOUS.name, COULOMB.name)
 
 
 def systematic(ctx: SystematicContext) -> SystematicResult:
@@ -145,7 +149,7 @@ def systematic(ctx: SystematicContext) -> SystematicResult:
     weak form, as the module docstring says."""
     problem = ctx.problem
     train = problem.train.resampled()  # the filters need uniform samples; shooting keeps the recorded times
-    window = problem.sg
+    window = problem.smoothing_window
     problem.log(f"model error dominates (chi2/dof {ctx.chi2_aug:.3g}): weak-form identification, window {window} samples")
     model = _weak_model(ctx, window)
     provisional = [(nm, i) for i in range(problem.n) for nm in PROVISIONAL_LAW]
@@ -156,7 +160,7 @@ def systematic(ctx: SystematicContext) -> SystematicResult:
     base = model.build(first.kwargs, first.armature_terms())
     law, sels = select_friction(base, train, window=window, eps=problem.eps)
     problem.log(f"friction law: {law.name}; parameters {first.kwargs}")
-    specs = [(t.term, t.coordinate) + ((t.velocity,) if t.term == "stribeck_friction" else ()) for t in law.terms]
+    specs = [spec_of(t.term, t.coordinate, t.velocity) for t in law.terms]
     final = identify(replace(model, kwargs=first.kwargs), train, specs)
     augmented = final.system(model)
     curve = friction_curve(model.build(final.kwargs, final.armature_terms()), train, window=window, eps=problem.eps)
@@ -171,7 +175,7 @@ def systematic(ctx: SystematicContext) -> SystematicResult:
             "shooting_selection_note": "chosen by chi^2 gains that measure misfit in this regime; not adopted",
             "window_samples": int(window),
             "law": final.law.to_dict(), "passivity": passive, "selection": [s.to_dict() for s in sels],
-            "armature": [{"coordinate": a.coordinate, "coefficient": a.coefficient, "ci95": list(a.ci95)} for a in final.armature],
+            ARMATURE.name: [{"coordinate": a.coordinate, "coefficient": a.coefficient, "ci95": list(a.ci95)} for a in final.armature],
             "parameter_check": pcheck.to_dict(),
             "armature_absorbed_by_parameters": [int(k.split(":")[1]) for k in final.no_signal if k.startswith("armature:")],
             "curve": curve.to_dict(), "law_vs_curve": check_against_curve(final.law, curve),

@@ -1,30 +1,9 @@
-"""The named term vocabulary of docs/mismatch.md and the augmented port-Hamiltonian model.
+"""Terms (a registered kind on one coordinate with its coefficient) and the augmented port-Hamiltonian model.
 
-Each term adds a force to ``pdot_i`` (or changes the port / the sensor) and sits
-in one component of the port-Hamiltonian structure:
-
-* dissipation (``viscous_damping``, ``coulomb_friction``, ``quadratic_drag``,
-  ``position_dependent_damping``, and one addition documented the same way:
-  ``stribeck_friction`` ``-c * sign(qdot_i) * exp(-(qdot_i / v_s)**2)``, the extra
-  static friction a bearing shows near velocity reversals, with its Stribeck velocity
-  ``v_s`` carried by the term): a force ``-c * f(qdot_i)`` with ``f`` odd and
-  ``c >= 0``, so ``qdot_i * force <= 0``: the augmented model stays passive
-  (paper Eq. 4, dH/dt = -v^T D v + v^T u);
-* potential (``linear_stiffness``, ``cubic_stiffness``, ``constant_force``):
-  an extra potential V_extra(q_i) added to H, force ``-dV_extra/dq_i``;
-* port (``actuator_gain``, ``actuator_deadzone``): the delivered port force;
-* inertia (``armature``): the reflected rotor inertia ``c`` of the motor behind joint i,
-  added to ``M_ii``; its kinetic energy is part of H, so the model stays passive, and
-  ``c >= 0`` keeps ``M + A`` positive definite;
-* sensor (``sensor_offset``, and two additions documented the same way:
-  ``sensor_gain`` ``q_meas = c q`` and ``sensor_eccentricity``
-  ``q_meas = q + c (1 - cos q)``, the even part of an off-centre encoder): the
-  measurement map.
-
-All formulas are written in component form over an array namespace ``xp`` so the
-augmented model runs with numpy (batched simulation) or torch, like the systems.
-The nominal physics is never retyped: :class:`AugmentedSystem` calls the base
-system for H, M, D and adds only the named terms.
+The vocabulary itself (which terms exist, their components, formulas and sign rules) is :mod:`.registry`.
+All formulas are written in component form over an array namespace ``xp`` so the augmented model runs with numpy
+(batched simulation) or torch, like the systems.  The nominal physics is never retyped: :class:`AugmentedSystem`
+calls the base system for H, M, D and adds only the named terms, each through its kind's component hook.
 """
 
 from __future__ import annotations
@@ -32,37 +11,18 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from phast_gym.systems.base import NUMPY, Components, System, solve_spd
+from phast_gym.systems.base import NUMPY, ArrayNamespace, Components, System, solve_spd
 
-#: term name -> (component, basis force text with c, whether c must be >= 0)
-VOCABULARY: dict[str, tuple[str, str, bool]] = {
-    "viscous_damping": ("dissipation", "-c*qdot{i}", True),
-    "coulomb_friction": ("dissipation", "-c*sign(qdot{i})", True),
-    "quadratic_drag": ("dissipation", "-c*abs(qdot{i})*qdot{i}", True),
-    "position_dependent_damping": ("dissipation", "-c*abs(sin(q{i}))*qdot{i}", True),
-    # addition (dissipation): Stribeck friction, v_s = the term's ``velocity`` (qdot units)
-    "stribeck_friction": ("dissipation", "-c*sign(qdot{i})*exp(-(qdot{i}/v_s)**2)", True),
-    "linear_stiffness": ("potential", "-c*q{i}", False),
-    "cubic_stiffness": ("potential", "-c*q{i}**3", False),
-    "constant_force": ("potential", "c", False),
-    "armature": ("inertia", "M{i}{i} += c (reflected rotor inertia)", True),
-    "actuator_gain": ("port", "(c-1)*u{i}", True),
-    "actuator_deadzone": ("port", "port delivers 0 when abs(u{i}) < c", True),
-    "sensor_offset": ("sensor", "measured q{i} = true q{i} + c", False),
-    # additions to the docs/mismatch.md vocabulary, documented the same way (sensor component):
-    "sensor_gain": ("sensor", "measured q{i} = c * true q{i}", False),
-    "sensor_eccentricity": ("sensor", "measured q{i} = true q{i} + c*(1 - cos(true q{i})) (angles only)", False),
-}
-SENSOR_TERMS = ("sensor_offset", "sensor_gain", "sensor_eccentricity")
-FORCE_TERMS = ("viscous_damping", "coulomb_friction", "quadratic_drag", "position_dependent_damping",
-               "linear_stiffness", "cubic_stiffness", "constant_force")  # stribeck_friction: energy balance only (needs v_s)
+from .registry import VOCABULARY, Maps, TermKind, kind
+
+__all__ = ["VOCABULARY", "AugmentedSystem", "Term", "default_value", "friction_basis"]
 
 
 @dataclass(frozen=True)
 class Term:
     """One named term on one coordinate with its coefficient (docs/mismatch.md units).
 
-    ``velocity`` is the Stribeck velocity v_s of ``stribeck_friction`` (unused by other terms)."""
+    ``velocity`` is the velocity parameter of a kind that carries one (the Stribeck v_s; unused by other terms)."""
 
     name: str
     coordinate: int
@@ -70,55 +30,31 @@ class Term:
     velocity: float = 0.0
 
     def __post_init__(self) -> None:
-        if self.name not in VOCABULARY:
-            raise ValueError(f"unknown term {self.name!r}; the vocabulary is {sorted(VOCABULARY)}")
-        if self.name == "stribeck_friction" and not self.velocity > 0:
-            raise ValueError(f"stribeck_friction needs a Stribeck velocity > 0, got {self.velocity!r}")
-        if self.name == "armature" and not self.coefficient >= 0:  # (also rejects NaN)
-            raise ValueError(f"armature is a rotor inertia added to M_ii: its coefficient must be >= 0, got {self.coefficient!r}")
+        kind(self.name).check(self.coefficient, self.velocity)
+
+    @property
+    def kind(self) -> TermKind:
+        return VOCABULARY[self.name]
 
     @property
     def component(self) -> str:
-        return VOCABULARY[self.name][0]
+        return self.kind.component
 
     def expression(self) -> str:
         """Human-readable force / map with the coefficient filled in."""
-        c, i = self.coefficient, self.coordinate
-        text = VOCABULARY[self.name][1].format(i=i)
-        if self.name == "actuator_gain":
-            return f"({c:.4g}-1)*u{i}"
-        if self.name == "constant_force":
-            return f"{c:+.4g}"
-        if self.name == "armature":
-            return text.replace("+= c", f"+= {c:.4g}")
-        neg = f"{-c:+.4g}*"  # -c* with the sign folded in (a negative friction coefficient reads +|c|*)
-        if self.name == "stribeck_friction":
-            return text.replace("-c*", neg).replace("v_s", f"{self.velocity:.4g}")
-        if self.name in ("actuator_deadzone", "sensor_offset", "sensor_gain", "sensor_eccentricity"):
-            return text.replace("+ c", f"+ {c:.4g}").replace("< c", f"< {c:.4g}").replace("= c *", f"= {c:.4g} *")
-        return text.replace("-c*", neg)
+        return self.kind.expression(self.coefficient, self.coordinate, self.velocity)
 
 
-def friction_basis(name: str, q: Any, v: Any, eps: float, velocity: float = 0.0, xp: Any = NUMPY) -> Any:
-    """f(q_i, qdot_i) of a dissipative term (the force is -c f, f odd in qdot): the one place the friction laws are written.
+def friction_basis(name: str, q: Any, v: Any, eps: float, velocity: float = 0.0, xp: ArrayNamespace = NUMPY) -> Any:
+    """f(q_i, qdot_i) of a dissipative term (the force is -c f, f odd in qdot), as its kind writes it.
 
     ``eps`` smooths sign(qdot) as tanh(qdot / eps); ``velocity`` is the Stribeck velocity v_s."""
-    if name == "viscous_damping":
-        return v
-    if name == "coulomb_friction":
-        return xp.tanh(v / eps)
-    if name == "quadratic_drag":
-        return xp.abs(v) * v
-    if name == "position_dependent_damping":
-        return xp.abs(xp.sin(q)) * v
-    if name == "stribeck_friction":
-        return xp.tanh(v / eps) * xp.exp(-((v / velocity) ** 2))
-    raise ValueError(f"{name!r} is not a dissipative term")
+    return kind(name).basis(q, v, eps, velocity, xp)
 
 
 def default_value(name: str) -> float:
     """The coefficient at which a term has no effect."""
-    return 1.0 if name in ("actuator_gain", "sensor_gain") else 0.0
+    return kind(name).default
 
 
 class AugmentedSystem(System):
@@ -145,26 +81,19 @@ class AugmentedSystem(System):
         for attr in ("name", "n", "angle_dims", "dt", "substeps", "default_max_action", "separable",
                      "hamiltonian_system", "coordinate_names"):
             setattr(self, attr, getattr(base, attr))
-        self.sensor_offset = [0.0] * base.n
-        self.sensor_gain = [1.0] * base.n
-        self.sensor_ecc = [0.0] * base.n
-        self.armature = [0.0] * base.n  # A = diag(armature): H = p^T (M(q) + A)^-1 p / 2 + V
+        maps = Maps.identity(base.n)
         for t in self.terms:
             if not 0 <= t.coordinate < base.n:
                 raise ValueError(f"term {t.name} on coordinate {t.coordinate}: {base.name} has coordinates 0..{base.n - 1}")
-            if t.name == "armature":
-                self.armature[t.coordinate] += t.coefficient
-            elif t.name == "sensor_offset":
-                self.sensor_offset[t.coordinate] += t.coefficient
-            elif t.name == "sensor_gain":
-                self.sensor_gain[t.coordinate] *= t.coefficient
-            elif t.name == "sensor_eccentricity":
-                self.sensor_ecc[t.coordinate] += t.coefficient
+            if t.component in ("inertia", "sensor"):
+                t.kind.set_map(maps, t.coordinate, t.coefficient)
+        self.armature = maps.armature  # A = diag(armature): H = p^T (M(q) + A)^-1 p / 2 + V
+        self.sensor_offset, self.sensor_gain, self.sensor_ecc = maps.sensor_offset, maps.sensor_gain, maps.sensor_eccentricity
         self.has_armature = any(a != 0.0 for a in self.armature)
 
     @property
     def has_sensor_terms(self) -> bool:
-        return any(t.name in SENSOR_TERMS for t in self.terms)
+        return any(t.component == "sensor" for t in self.terms)
 
     def measure(self, q: Any) -> Any:
         """The measurement map: (..., n) true coordinates -> what the sensor reports."""
@@ -195,64 +124,55 @@ class AugmentedSystem(System):
         return f"AugmentedSystem({self.base!r}, terms={list(self.terms)})"
 
     # ---- energy: base H plus the extra potential of conservative terms ----
-    def _extra_potential(self, q: Components, xp: Any) -> Any:
+    def _extra_potential(self, q: Components, xp: ArrayNamespace) -> Any:
         v = 0.0 * q[0]
         for t in self.terms:
-            qi, c = q[t.coordinate], t.coefficient
-            if t.name == "linear_stiffness":
-                v = v + 0.5 * c * qi * qi
-            elif t.name == "cubic_stiffness":
-                v = v + 0.25 * c * qi**4
-            elif t.name == "constant_force":
-                v = v - c * qi
+            if t.component == "potential":
+                v = v + t.kind.potential(q[t.coordinate], t.coefficient)
         return v
 
-    def _extra_grad(self, q: Components, xp: Any) -> list:
+    def _extra_grad(self, q: Components, xp: ArrayNamespace) -> list:
         g = [0.0 * qi for qi in q]
         for t in self.terms:
-            i, c = t.coordinate, t.coefficient
-            if t.name == "linear_stiffness":
-                g[i] = g[i] + c * q[i]
-            elif t.name == "cubic_stiffness":
-                g[i] = g[i] + c * q[i] ** 3
-            elif t.name == "constant_force":
-                g[i] = g[i] - c + 0.0 * q[i]
+            if t.component == "potential":
+                g[t.coordinate] = g[t.coordinate] + t.kind.gradient(q[t.coordinate], t.coefficient)
         return g
 
-    def potential(self, q: Components, xp: Any = NUMPY) -> Any:
+    def potential(self, q: Components, xp: ArrayNamespace = NUMPY) -> Any:
         return self.base.potential(q, xp) + self._extra_potential(q, xp)
 
-    def grad_potential(self, q: Components, xp: Any = NUMPY) -> tuple:
+    def grad_potential(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         return tuple(a + b for a, b in zip(self.base.grad_potential(q, xp), self._extra_grad(q, xp)))
 
-    def _dH_dq_at(self, q: Components, p: Components, v: Components, xp: Any) -> tuple:
+    def _dH_dq_at(self, q: Components, p: Components, v: Components | None, xp: ArrayNamespace) -> tuple:
         """dH/dq|_p given v = dH/dp.  With armature A (constant): dH/dq|_p = dV/dq - v^T (dM/dq) v / 2, which is the
         base's dH/dq at the base momentum p' = M(q) v (same v, same dM/dq), plus the extra potential's gradient."""
         if self.has_armature:
+            assert v is not None, "with an armature, dH/dq needs the velocity"
             p = self.base.momentum(q, v, xp)
         return tuple(a + b for a, b in zip(self.base.dH_dq(q, p, xp), self._extra_grad(q, xp)))
 
-    def dH_dq(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
+    def dH_dq(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         return self._dH_dq_at(q, p, self.velocity(q, p, xp) if self.has_armature else None, xp)
 
-    def mass_matrix(self, q: Components, xp: Any = NUMPY) -> tuple:
+    def mass_matrix(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         M = self.base.mass_matrix(q, xp)
         if not self.has_armature:
             return M
         return tuple(tuple(mij + self.armature[i] if i == j else mij for j, mij in enumerate(row)) for i, row in enumerate(M))
 
-    def velocity(self, q: Components, p: Components, xp: Any = NUMPY) -> tuple:
+    def velocity(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         if not self.has_armature:
             return self.base.velocity(q, p, xp)
         return solve_spd(self.mass_matrix(q, xp), p)
 
-    def damping(self, q: Components, xp: Any = NUMPY) -> tuple:
+    def damping(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         return self.base.damping(q, xp)
 
     def has_damping(self) -> bool:
         return self.base.has_damping()
 
-    def switching(self, q: Components, p: Components, xp: Any = NUMPY) -> Any | None:
+    def switching(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> Any | None:
         return self.base.switching(q, p, xp)
 
     def sample_initial(self, rng: Any, size: int) -> Any:
@@ -268,33 +188,27 @@ class AugmentedSystem(System):
         return x
 
     # ---- port and dissipation -------------------------------------------------
-    def port(self, u: Components | None, xp: Any) -> Components | None:
+    def port(self, u: Components | None, xp: ArrayNamespace) -> Components | None:
         """The port force actually delivered (actuator gain and deadzone)."""
         if u is None:
             return None
         u = list(u)
         for t in self.terms:
-            i, c = t.coordinate, t.coefficient
-            if t.name == "actuator_gain":
-                u[i] = c * u[i]
-            elif t.name == "actuator_deadzone":
-                if self.deadzone_width > 0:  # smooth edge (differentiable in the threshold c) for fitting
-                    u[i] = u[i] * (0.5 + 0.5 * xp.tanh((xp.abs(u[i]) - c) / self.deadzone_width))
-                else:
-                    u[i] = xp.where(xp.abs(u[i]) < c, 0.0 * u[i], u[i])
+            if t.component == "port":
+                u[t.coordinate] = t.kind.port(u[t.coordinate], t.coefficient, self.deadzone_width, xp)
         return u
 
-    def extra_dissipation(self, q: Components, v: Components, xp: Any) -> list:
+    def extra_dissipation(self, q: Components, v: Components, xp: ArrayNamespace) -> list:
         """Passive friction forces -c f(v_i), f odd, c >= 0 (enters pdot like -D v)."""
         f = [0.0 * vi for vi in v]
         for t in self.terms:
             if t.component == "dissipation":
                 i = t.coordinate
                 eps = self.coulomb_eps_per_coordinate[i]
-                f[i] = f[i] - t.coefficient * friction_basis(t.name, q[i], v[i], eps, t.velocity, xp)
+                f[i] = f[i] - t.coefficient * t.kind.basis(q[i], v[i], eps, t.velocity, xp)
         return f
 
-    def rhs(self, q: Components, p: Components, u: Components | None, xp: Any = NUMPY) -> tuple[tuple, tuple]:
+    def rhs(self, q: Components, p: Components, u: Components | None, xp: ArrayNamespace = NUMPY) -> tuple[tuple, tuple]:
         uu = self.port(u, xp)
         if self.has_armature:  # the base's (fused) vector field assumes its own M: the generic Eq. 1-3 instead
             qdot = self.velocity(q, p, xp)
@@ -308,7 +222,7 @@ class AugmentedSystem(System):
         f = self.extra_dissipation(q, qdot, xp)
         return tuple(qdot), tuple(a + c for a, c in zip(pdot, f))
 
-    def power_balance(self, q: Components, p: Components, u: Components | None, xp: Any = NUMPY) -> tuple[Any, Any]:
+    def power_balance(self, q: Components, p: Components, u: Components | None, xp: ArrayNamespace = NUMPY) -> tuple[Any, Any]:
         """(v^T D v + the terms' friction power, v^T u delivered) with v = (M + A)^-1 p."""
         diss, supplied = super().power_balance(q, p, self.port(u, xp), xp)
         v = self.velocity(q, p, xp)

@@ -1,7 +1,7 @@
 """Weak-form identification: the simulator's parameters, the reflected rotor inertia and a friction law in one
 least-squares problem.
 
-The filtered momentum balance of :mod:`.friction` (one Savitzky-Golay filter S on both sides),
+The filtered momentum balance of :mod:`.weakform` (one Savitzky-Golay filter S on both sides),
 
     f~(theta) = S * (F_cons(theta) + u) - d/dt S * (M(q; theta) qdot),
 
@@ -20,6 +20,8 @@ over time blocks within recordings (every coordinate of a block in one cluster).
 from __future__ import annotations
 
 import math
+import numbers
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -29,11 +31,13 @@ from scipy.stats import t as student_t
 
 from phast_gym.systems.base import System
 
-from .friction import FrictionLaw, LawTerm, Spec, WeakForm, _cluster_cov, _own_samples, _own_terms, weak_form
-from .linear import rel_resid
+from .laws import FrictionLaw, LawTerm, Spec, own_samples, own_terms
+from .linear import cluster_cov, rel_resid
 from .recordings import Recordings
+from .registry import ARMATURE
 from .simulators import Simulator
 from .terms import AugmentedSystem, Term
+from .weakform import WeakForm, weak_form
 
 #: log-relative finite-difference step of a parameter column
 PARAM_STEP = 1e-3
@@ -57,7 +61,7 @@ class WeakModel:
     deadzone_width: float
     window: int  # weak-form filter window [samples]
 
-    def build(self, kwargs: dict[str, Any], extra: list[Term] = ()) -> System:
+    def build(self, kwargs: dict[str, Any], extra: Sequence[Term] = ()) -> System:
         terms = list(self.fixed_terms) + list(extra)
         base = self.sim.build(**kwargs)
         return AugmentedSystem(base, terms, self.eps, self.deadzone_width) if terms else base
@@ -76,12 +80,19 @@ class WeakFit:
 
     def armature_terms(self, significant_only: bool = True) -> list[Term]:
         """Positive armature terms (whose interval excludes zero, by default)."""
-        return [Term("armature", a.coordinate, a.coefficient) for a in self.armature
+        return [Term(ARMATURE.name, a.coordinate, a.coefficient) for a in self.armature
                 if a.coefficient > 0 and (a.excludes_zero or not significant_only)]
 
     def system(self, model: WeakModel) -> System:
         """The identified simulator: parameters, fixed terms, armature and the friction law."""
         return self.law.augmented(model.build(self.kwargs, self.armature_terms()))
+
+
+def _number(value: object) -> float:
+    """A parameter's value as a float (a fitted parameter is numeric)."""
+    if not isinstance(value, numbers.Real):
+        raise ValueError(f"parameter value {value!r} is not a number")
+    return float(value)
 
 
 def _accel(wf: WeakForm, i: int) -> np.ndarray:
@@ -105,7 +116,7 @@ def _columns(model: WeakModel, kwargs: dict[str, Any], rec: Recordings,
     names, cols, none = [], [], []
     for k in model.params:
         kw = dict(kwargs)
-        kw[k] = float(system.base.params[k] if isinstance(system, AugmentedSystem) else system.params[k]) * math.exp(PARAM_STEP)
+        kw[k] = _number(system.params[k]) * math.exp(PARAM_STEP)
         col = -(weak_form(model.build(kw), rec, model.window, model.eps).total - wf.total) / PARAM_STEP
         names.append(f"param:{k}")
         cols.append(col)
@@ -137,7 +148,7 @@ def _solve(wf: WeakForm, cols: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray
     sc = np.linalg.norm(X, axis=0) + 1e-300
     coef = np.linalg.lstsq(X / sc, y, rcond=None)[0] / sc
     r = y - X @ coef
-    V, G = _cluster_cov(X, r, g)
+    V, G = cluster_cov(X, r, g)
     return coef, V, G, float(r @ r)
 
 
@@ -147,7 +158,7 @@ def identify(model: WeakModel, rec: Recordings, law: list[Spec], iterations: int
     sampled."""
     nominal = model.sim.build()  # the user's values: intervals and relative changes are reported against them
     start = model.sim.build(**model.kwargs)
-    kw = {k: float(start.params[k]) for k in model.params}
+    kw = {k: _number(start.params[k]) for k in model.params}
     for _ in range(iterations):
         wf, names, cols, none = _columns(model, {**model.kwargs, **kw}, rec, law)
         coef, V, G, rss = _solve(wf, cols)
@@ -159,12 +170,13 @@ def identify(model: WeakModel, rec: Recordings, law: list[Spec], iterations: int
     for j, nm in enumerate(names):
         kind, rest = nm.split(":", 1)
         if kind == "param":
-            nom = float(nominal.params[rest])
+            nom = _number(nominal.params[rest])
             z = math.log(kw[rest] / nom)  # the last step's interval, about the converged value
             params[rest] = {"nominal": nom, "fitted": kw[rest], "ci95": [nom * math.exp(z - tq * sd[j]), nom * math.exp(z + tq * sd[j])],
                             "relative_change": kw[rest] / nom - 1.0}
-        elif kind == "armature":
-            arm.append(LawTerm("armature", int(rest), float(coef[j]), (float(coef[j] - tq * sd[j]), float(coef[j] + tq * sd[j])), 0.0, tq))
+        elif kind == ARMATURE.name:
+            ci = (float(coef[j] - tq * sd[j]), float(coef[j] + tq * sd[j]))
+            arm.append(LawTerm(ARMATURE.name, int(rest), float(coef[j]), ci, 0.0, tq))
         else:
             name, i = rest.split(":")
             s = next(s for s in law if s[0] == name and s[1] == int(i))
@@ -173,7 +185,7 @@ def identify(model: WeakModel, rec: Recordings, law: list[Spec], iterations: int
     interval = f"cluster-robust (CR1) over {G} clusters (time blocks within recordings), t({G - 1}) quantile"
     final = model.build({**model.kwargs, **kw})
     wf_final = weak_form(final, rec, model.window, model.eps)
-    fl = FrictionLaw(terms, model.eps, rec.n, rss, int(wf.total.size), interval, _own_samples(final, wf_final), _own_terms(final))
+    fl = FrictionLaw(terms, model.eps, rec.n, rss, int(wf.total.size), interval, own_samples(final, wf_final), own_terms(final))
     return WeakFit({**model.kwargs, **kw}, params, arm, fl, none, interval)
 
 
@@ -235,7 +247,7 @@ def check_parameters(model: WeakModel, rec: Recordings, law: list[Spec]) -> Para
             d = _left_out_rms(X, y, fl, [k for k in kept if k != j] + rest) - base
             se = float(np.std(d, ddof=1) / math.sqrt(len(d))) if len(d) > 1 else 0.0
             ts[j] = float(np.mean(d)) / max(se, 1e-300)
-        worst = min(ts, key=ts.get)
+        worst = min(ts, key=lambda j: ts[j])
         for j, t in ts.items():
             table[names[j].split(":", 1)[1]] = t
         if ts[worst] >= tq:

@@ -1,0 +1,429 @@
+"""The term registry: one small class per term kind of the docs/mismatch.md vocabulary (PySINDy feature-library style).
+
+A kind owns everything the tool knows about a term: its port-Hamiltonian component, its basis ``f(q, v, xp)`` (a
+dissipative term's force is ``-c f``), its expression, short name and default coefficient, its sign constraint, its
+cost in the law selection's parsimony rule and the scale of its shooting candidate.  The augmented model
+(:class:`.terms.AugmentedSystem`), the candidates, the friction laws and the report iterate over :data:`VOCABULARY`,
+so a new friction law is one class registered from anywhere::
+
+    class CubicDrag(DissipationKind):
+        name, short, formula = "cubic_drag", "cubic", "-c*qdot{i}**3"
+
+        def basis(self, q, v, eps, velocity, xp):
+            return v**3
+
+    register(CubicDrag())
+
+Components:
+
+* dissipation (``viscous_damping``, ``coulomb_friction``, ``quadratic_drag``, ``position_dependent_damping`` and
+  ``stribeck_friction`` ``-c * sign(qdot_i) * exp(-(qdot_i / v_s)**2)``, the extra static friction a bearing shows
+  near velocity reversals, with its Stribeck velocity ``v_s`` carried by the term): a force ``-c * f(qdot_i)`` with
+  ``f`` odd and ``c >= 0``, so ``qdot_i * force <= 0``: the augmented model stays passive (paper Eq. 4);
+* potential (``linear_stiffness``, ``cubic_stiffness``, ``constant_force``): an extra potential V_extra(q_i) added
+  to H, force ``-dV_extra/dq_i``;
+* port (``actuator_gain``, ``actuator_deadzone``): the delivered port force;
+* inertia (``armature``): the reflected rotor inertia ``c`` of the motor behind joint i, added to ``M_ii``; its
+  kinetic energy is part of H, so the model stays passive, and ``c >= 0`` keeps ``M + A`` positive definite;
+* sensor (``sensor_offset``, ``sensor_gain`` ``q_meas = c q`` and ``sensor_eccentricity``
+  ``q_meas = q + c (1 - cos q)``, the even part of an off-centre encoder): the measurement map.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, NamedTuple, TypeVar
+
+import numpy as np
+
+from phast_gym.systems.base import NUMPY, ArrayNamespace
+
+#: the ports of the augmented model a term kind can act through
+COMPONENTS = ("dissipation", "potential", "port", "inertia", "sensor")
+
+
+@dataclass
+class Maps:
+    """The per-coordinate maps that inertia and sensor terms set on an augmented model (identity: no effect)."""
+
+    armature: list[float]
+    sensor_offset: list[float]
+    sensor_gain: list[float]
+    sensor_eccentricity: list[float] = field(default_factory=list)
+
+    @classmethod
+    def identity(cls, n: int) -> Maps:
+        return cls([0.0] * n, [0.0] * n, [1.0] * n, [0.0] * n)
+
+
+@dataclass(frozen=True)
+class ScaleContext:
+    """What a kind needs to scale its shooting candidate on one coordinate: z = 1 is about the coordinate's force scale."""
+
+    q: np.ndarray  # smoothed q_i of the training recordings
+    v: np.ndarray  # smoothed qdot_i
+    force_rms: float  # rms conservative (+ port) force on the coordinate
+    mass_rms: float  # rms of M_ii (1 when no inertia kind is screened)
+    sensor_scale: float  # 10 x the noise + 1e-3 x the spread of q_i
+    eps: float  # the coordinate's tanh smoothing of sign(qdot)
+    u: np.ndarray | None  # the port input on the coordinate (None when none acts on it)
+    is_angle: bool
+
+
+class Scale(NamedTuple):
+    """A shooting candidate of a kind: coefficient = default + scale * z; its finite-difference step; its v_s."""
+
+    scale: float
+    fd_step: float
+    velocity: float | None = None
+
+
+#: finite-difference step in z of a candidate's shooting column
+FD_STEP = 1e-3
+
+
+class TermKind:
+    """One named term kind.  Subclasses set the class attributes and the hooks of their component."""
+
+    name: ClassVar[str]
+    component: ClassVar[str]
+    formula: ClassVar[str]  # the force / map with the coefficient c, ``{i}`` the coordinate
+    short: ClassVar[str] = ""  # the name in a friction law's name (dissipation)
+    default: ClassVar[float] = 0.0  # the coefficient at which the term has no effect
+    positive: ClassVar[bool] = False  # c must be >= 0 (the docs' sign constraint)
+    cost: ClassVar[int] = 1  # parameters the term costs in the law selection's parsimony rule
+    has_velocity: ClassVar[bool] = False  # carries a velocity parameter (the Stribeck v_s)
+    magnitude: ClassVar[bool] = False  # the fitted coefficient is |c| (a threshold, an inertia)
+    stiff_edge: ClassVar[bool] = False  # a sharp sign(qdot): simulate the "reality" with short substeps
+
+    @property
+    def fit_positive(self) -> bool:
+        """The selection keeps only c > 0 (passivity); an actuator gain's sign is free around 1."""
+        return self.positive
+
+    def check(self, coefficient: float, velocity: float) -> None:
+        """Raise ValueError for a coefficient / velocity the term cannot have."""
+
+    def expression(self, c: float, i: int, velocity: float) -> str:
+        """Human-readable force / map with the coefficient filled in (-c* with the sign folded in)."""
+        return self.formula.format(i=i).replace("-c*", f"{-c:+.4g}*")
+
+    def scales(self, ctx: ScaleContext) -> list[Scale]:
+        """Shooting candidates of this kind on one coordinate (none: it cannot act there)."""
+        return []
+
+    # ---- the component hooks (only the component's own are called) ----
+    def basis(self, q: Any, v: Any, eps: float, velocity: float, xp: ArrayNamespace) -> Any:
+        """Dissipation: f(q_i, qdot_i), odd in qdot (force -c f); ``eps`` smooths sign(qdot) as tanh(qdot / eps)."""
+        raise ValueError(f"{self.name!r} is not a dissipative term")
+
+    def potential(self, q: Any, c: float) -> Any:
+        """Potential: V_extra(q_i)."""
+        raise ValueError(f"{self.name!r} is not a potential term")
+
+    def gradient(self, q: Any, c: float) -> Any:
+        """Potential: dV_extra/dq_i."""
+        raise ValueError(f"{self.name!r} is not a potential term")
+
+    def port(self, u: Any, c: float, deadzone_width: float, xp: ArrayNamespace) -> Any:
+        """Port: the delivered port force."""
+        raise ValueError(f"{self.name!r} is not a port term")
+
+    def set_map(self, maps: Maps, i: int, c: float) -> None:
+        """Inertia / sensor: change the model's per-coordinate map."""
+        raise ValueError(f"{self.name!r} sets no map")
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.name!r})"
+
+
+# --------------------------------------------------------------------------- dissipation
+class DissipationKind(TermKind):
+    """A passive friction force -c f(q_i, qdot_i), f odd in qdot, c >= 0.  A subclass sets ``name``, ``short``,
+    ``formula`` and :meth:`basis`; its shooting candidate is scaled by the rms of its basis unless it says otherwise."""
+
+    component = "dissipation"
+    positive = True
+
+    def basis_rms(self, q: np.ndarray, v: np.ndarray, eps: float) -> float:
+        return float(np.sqrt(np.mean(np.asarray(self.basis(q, v, eps, 0.0, NUMPY)) ** 2)))
+
+    def scales(self, ctx: ScaleContext) -> list[Scale]:
+        b = float(self.basis_rms(ctx.q, ctx.v, ctx.eps))
+        return [Scale(float(ctx.force_rms / b), FD_STEP)] if b > 1e-12 else []
+
+
+class Viscous(DissipationKind):
+    name, short, formula = "viscous_damping", "viscous", "-c*qdot{i}"
+
+    def basis(self, q: Any, v: Any, eps: float, velocity: float, xp: ArrayNamespace) -> Any:
+        return v
+
+    def basis_rms(self, q: np.ndarray, v: np.ndarray, eps: float) -> float:
+        return np.sqrt(np.mean(v**2))
+
+
+class Coulomb(DissipationKind):
+    name, short, formula = "coulomb_friction", "coulomb", "-c*sign(qdot{i})"
+    stiff_edge = True
+
+    def basis(self, q: Any, v: Any, eps: float, velocity: float, xp: ArrayNamespace) -> Any:
+        return xp.tanh(v / eps)
+
+    def basis_rms(self, q: np.ndarray, v: np.ndarray, eps: float) -> float:
+        return 1.0
+
+
+class QuadraticDrag(DissipationKind):
+    name, short, formula = "quadratic_drag", "quadratic", "-c*abs(qdot{i})*qdot{i}"
+
+    def basis(self, q: Any, v: Any, eps: float, velocity: float, xp: ArrayNamespace) -> Any:
+        return xp.abs(v) * v
+
+    def basis_rms(self, q: np.ndarray, v: np.ndarray, eps: float) -> float:
+        return np.sqrt(np.mean(v**4))
+
+
+class PositionDependentDamping(DissipationKind):
+    name, short, formula = "position_dependent_damping", "position_dependent", "-c*abs(sin(q{i}))*qdot{i}"
+
+    def basis(self, q: Any, v: Any, eps: float, velocity: float, xp: ArrayNamespace) -> Any:
+        return xp.abs(xp.sin(q)) * v
+
+    def basis_rms(self, q: np.ndarray, v: np.ndarray, eps: float) -> float:
+        return np.sqrt(np.mean((np.abs(np.sin(q)) * v) ** 2))
+
+
+class Stribeck(DissipationKind):
+    """Stribeck friction, v_s = the term's ``velocity`` (qdot units); its v_s counts as a second parameter."""
+
+    name, short, formula = "stribeck_friction", "stribeck", "-c*sign(qdot{i})*exp(-(qdot{i}/v_s)**2)"
+    cost = 2
+    has_velocity = True
+    #: Stribeck velocities of the shooting candidates, as fractions of the coordinate's rms speed (a chosen one is refined)
+    SHOOTING_FRACTIONS = tuple(0.05 * 2.0**k for k in range(4))  # 0.05, 0.1, 0.2, 0.4
+    #: smallest v_s, in units of the tanh smoothing of sign(qdot): below it a "Stribeck" term only reshapes the smoothed
+    #: Coulomb edge (a sharper real edge than the model's), which is not physics the data can name
+    MIN_OVER_EPS = 4.0
+
+    def check(self, coefficient: float, velocity: float) -> None:
+        if not velocity > 0:
+            raise ValueError(f"{self.name} needs a Stribeck velocity > 0, got {velocity!r}")
+
+    def basis(self, q: Any, v: Any, eps: float, velocity: float, xp: ArrayNamespace) -> Any:
+        return xp.tanh(v / eps) * xp.exp(-((v / velocity) ** 2))
+
+    def expression(self, c: float, i: int, velocity: float) -> str:
+        return super().expression(c, i, velocity).replace("v_s", f"{velocity:.4g}")
+
+    def scales(self, ctx: ScaleContext) -> list[Scale]:
+        """One candidate per Stribeck velocity of a coarse grid."""
+        out = []
+        v_rms = float(np.sqrt(np.mean(ctx.v**2)))
+        for f in self.SHOOTING_FRACTIONS:
+            w = float(f * v_rms)
+            if w < self.MIN_OVER_EPS * ctx.eps:
+                continue
+            b = float(np.sqrt(np.mean(np.asarray(self.basis(ctx.q, ctx.v, ctx.eps, w, NUMPY)) ** 2)))
+            if b > 1e-12:
+                out.append(Scale(float(ctx.force_rms / b), FD_STEP, w))
+        return out
+
+
+# --------------------------------------------------------------------------- potential
+class PotentialKind(TermKind):
+    """An extra potential V_extra(q_i) added to H (force -dV_extra/dq_i); scaled by the rms of that force at c = 1."""
+
+    component = "potential"
+
+    def basis_rms(self, q: np.ndarray) -> float:
+        raise NotImplementedError
+
+    def scales(self, ctx: ScaleContext) -> list[Scale]:
+        b = float(self.basis_rms(ctx.q))
+        return [Scale(float(ctx.force_rms / b), FD_STEP)] if b > 1e-12 else []
+
+
+class LinearStiffness(PotentialKind):
+    name, formula = "linear_stiffness", "-c*q{i}"
+
+    def potential(self, q: Any, c: float) -> Any:
+        return 0.5 * c * q * q
+
+    def gradient(self, q: Any, c: float) -> Any:
+        return c * q
+
+    def basis_rms(self, q: np.ndarray) -> float:
+        return np.sqrt(np.mean(q**2))
+
+
+class CubicStiffness(PotentialKind):
+    name, formula = "cubic_stiffness", "-c*q{i}**3"
+
+    def potential(self, q: Any, c: float) -> Any:
+        return 0.25 * c * q**4
+
+    def gradient(self, q: Any, c: float) -> Any:
+        return c * q**3
+
+    def basis_rms(self, q: np.ndarray) -> float:
+        return np.sqrt(np.mean(q**6))
+
+
+class ConstantForce(PotentialKind):
+    name, formula = "constant_force", "c"
+
+    def potential(self, q: Any, c: float) -> Any:
+        return -c * q
+
+    def gradient(self, q: Any, c: float) -> Any:
+        return -c + 0.0 * q
+
+    def basis_rms(self, q: np.ndarray) -> float:
+        return 1.0
+
+    def expression(self, c: float, i: int, velocity: float) -> str:
+        return f"{c:+.4g}"
+
+
+# --------------------------------------------------------------------------- inertia, port, sensor
+def _fill(text: str, c: float) -> str:
+    """A map's text with its coefficient filled in."""
+    return text.replace("+ c", f"+ {c:.4g}").replace("< c", f"< {c:.4g}").replace("= c *", f"= {c:.4g} *")
+
+
+class Armature(TermKind):
+    name, component, formula = "armature", "inertia", "M{i}{i} += c (reflected rotor inertia)"
+    positive = True
+    magnitude = True
+
+    def check(self, coefficient: float, velocity: float) -> None:
+        if not coefficient >= 0:  # (also rejects NaN)
+            raise ValueError(f"{self.name} is a rotor inertia added to M_ii: its coefficient must be >= 0, got {coefficient!r}")
+
+    def expression(self, c: float, i: int, velocity: float) -> str:
+        return self.formula.format(i=i).replace("+= c", f"+= {c:.4g}")
+
+    def set_map(self, maps: Maps, i: int, c: float) -> None:
+        maps.armature[i] += c
+
+    def scales(self, ctx: ScaleContext) -> list[Scale]:
+        return [Scale(0.05 * float(ctx.mass_rms), FD_STEP)]  # z = 1 is 5% of the coordinate's inertia
+
+
+class ActuatorGain(TermKind):
+    name, component, formula = "actuator_gain", "port", "(c-1)*u{i}"
+    default = 1.0
+    positive = True
+
+    @property
+    def fit_positive(self) -> bool:
+        return False
+
+    def expression(self, c: float, i: int, velocity: float) -> str:
+        return f"({c:.4g}-1)*u{i}"
+
+    def port(self, u: Any, c: float, deadzone_width: float, xp: ArrayNamespace) -> Any:
+        return c * u
+
+    def scales(self, ctx: ScaleContext) -> list[Scale]:
+        return [Scale(0.1, FD_STEP)] if ctx.u is not None else []
+
+
+class ActuatorDeadzone(TermKind):
+    name, component, formula = "actuator_deadzone", "port", "port delivers 0 when abs(u{i}) < c"
+    positive = True
+    magnitude = True
+    #: the threshold's start values tried before its refit (z; zero slope at c = 0)
+    START_GRID = (0.1, 1.5, 15)
+
+    def expression(self, c: float, i: int, velocity: float) -> str:
+        return _fill(self.formula.format(i=i), c)
+
+    def port(self, u: Any, c: float, deadzone_width: float, xp: ArrayNamespace) -> Any:
+        if deadzone_width > 0:  # smooth edge (differentiable in the threshold c) for fitting
+            return u * (0.5 + 0.5 * xp.tanh((xp.abs(u) - c) / deadzone_width))
+        return xp.where(xp.abs(u) < c, 0.0 * u, u)
+
+    def scales(self, ctx: ScaleContext) -> list[Scale]:
+        return [Scale(float(np.median(np.abs(ctx.u))), 0.3)] if ctx.u is not None else []
+
+
+class SensorOffset(TermKind):
+    name, component, formula = "sensor_offset", "sensor", "measured q{i} = true q{i} + c"
+
+    def expression(self, c: float, i: int, velocity: float) -> str:
+        return _fill(self.formula.format(i=i), c)
+
+    def set_map(self, maps: Maps, i: int, c: float) -> None:
+        maps.sensor_offset[i] += c
+
+    def scales(self, ctx: ScaleContext) -> list[Scale]:
+        return [Scale(float(ctx.sensor_scale), FD_STEP)]
+
+
+class SensorGain(SensorOffset):
+    name, formula = "sensor_gain", "measured q{i} = c * true q{i}"
+    default = 1.0
+
+    def set_map(self, maps: Maps, i: int, c: float) -> None:
+        maps.sensor_gain[i] *= c
+
+    def scales(self, ctx: ScaleContext) -> list[Scale]:
+        return [Scale(0.01, FD_STEP)]
+
+
+class SensorEccentricity(SensorOffset):
+    name, formula = "sensor_eccentricity", "measured q{i} = true q{i} + c*(1 - cos(true q{i})) (angles only)"
+
+    def set_map(self, maps: Maps, i: int, c: float) -> None:
+        maps.sensor_eccentricity[i] += c
+
+    def scales(self, ctx: ScaleContext) -> list[Scale]:
+        return [Scale(float(ctx.sensor_scale), FD_STEP)] if ctx.is_angle else []
+
+
+# --------------------------------------------------------------------------- the registry
+#: term name -> kind, in vocabulary order (the order breaks ties between terms of equal evidence)
+VOCABULARY: dict[str, TermKind] = {}
+
+
+K = TypeVar("K", bound="TermKind")
+
+
+def register(kind: K) -> K:
+    """Add ``kind`` to the vocabulary (after the built-in terms); returns it."""
+    if not isinstance(kind, TermKind):
+        raise TypeError(f"register() takes a TermKind instance, got {kind!r}")
+    if kind.component not in COMPONENTS:
+        raise ValueError(f"{kind.name}: component {kind.component!r} is not one of {COMPONENTS}")
+    if kind.name in VOCABULARY:
+        raise ValueError(f"a term named {kind.name!r} is already registered")
+    VOCABULARY[kind.name] = kind
+    return kind
+
+
+def unregister(name: str) -> TermKind:
+    """Remove a registered term kind (e.g. one a test added); returns it."""
+    return VOCABULARY.pop(name)
+
+
+def kind(name: str) -> TermKind:
+    try:
+        return VOCABULARY[name]
+    except KeyError:
+        raise ValueError(f"unknown term {name!r}; the vocabulary is {sorted(VOCABULARY)}") from None
+
+
+def law_terms() -> tuple[str, ...]:
+    """The dissipative terms a friction law is built from, in vocabulary order."""
+    return tuple(k.name for k in VOCABULARY.values() if k.component == "dissipation")
+
+
+#: the built-in kinds other modules refer to by object (their names live here only)
+VISCOUS, COULOMB, STRIBECK, ARMATURE, ACTUATOR_GAIN = Viscous(), Coulomb(), Stribeck(), Armature(), ActuatorGain()
+_BUILT_IN: tuple[TermKind, ...] = (VISCOUS, COULOMB, QuadraticDrag(), PositionDependentDamping(), STRIBECK, LinearStiffness(),
+                                   CubicStiffness(), ConstantForce(), ARMATURE, ACTUATOR_GAIN, ActuatorDeadzone(), SensorOffset(),
+                                   SensorGain(), SensorEccentricity())
+for _kind in _BUILT_IN:
+    register(_kind)

@@ -1,0 +1,188 @@
+"""The weak form of the momentum balance: the total dissipative force f~ the recordings ask of a model.
+
+The momentum balance of a port-Hamiltonian model, d/dt p = F_cons(q, p) + u - f(q, qdot), with F_cons = -dH/dq and
+f the *total* dissipative generalized force (the model's own D(q) qdot plus whatever it leaves out), is used in
+weak form: one smooth filter (cubic Savitzky-Golay, window ``window`` samples) is applied to both sides,
+
+    f~(t) = [S * (F_cons + u)](t) - d/dt [S * p](t),
+
+so the noisy second derivative of q never appears alone and a law's force is compared after the *same* filter
+(``S * f_law``).  p = M(q) qdot through the system's own mass matrix (:func:`.shooting.momentum`), q and qdot from the
+same filter, u the recorded port force held over each interval.  Everything here is per coordinate (friction is
+diagonal, as in the vocabulary).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.signal import savgol_filter
+
+from phast_gym.systems.base import NUMPY, System
+
+from .options import SIGN_SMOOTHING_REL
+from .recordings import Recordings
+from .shooting import momentum, odd, smooth, time_scale
+from .terms import AugmentedSystem, friction_basis
+
+
+@dataclass(frozen=True)
+class WeakFilter:
+    """The weak form's filter: Savitzky-Golay window [samples], sample time, tanh smoothing of sign(qdot), trimmed edge."""
+
+    window: int
+    dt: float
+    eps: float
+    trim: int
+
+
+@dataclass
+class WeakForm:
+    """Filtered momentum balance of recordings under a system (edges of the filter trimmed).
+
+    Arrays are (N, T', n): ``qs``, ``vs`` the smoothed state, ``total`` the filtered total dissipative force f~
+    (positive along +qdot means it decelerates +qdot motion), ``own`` the filtered dissipative force of the model
+    itself (D(q) qdot plus the friction terms of an :class:`AugmentedSystem`).  ``blocks`` (N, T') cluster labels."""
+
+    qs: np.ndarray
+    vs: np.ndarray
+    total: np.ndarray
+    own: np.ndarray
+    blocks: np.ndarray
+    filter: WeakFilter
+    q_raw: np.ndarray = field(repr=False)  # (N, T, n) smoothed untrimmed (for filtering law forces)
+    v_raw: np.ndarray = field(repr=False)
+
+    @property
+    def n(self) -> int:
+        return self.qs.shape[2]
+
+    @property
+    def window(self) -> int:
+        return self.filter.window
+
+    @property
+    def dt(self) -> float:
+        return self.filter.dt
+
+    @property
+    def eps(self) -> float:
+        return self.filter.eps
+
+    @property
+    def trim(self) -> int:
+        return self.filter.trim
+
+    def filt(self, x: np.ndarray) -> np.ndarray:
+        """The weak-form filter S along time of an untrimmed (N, T, ...) array, then trimmed."""
+        y = savgol_filter(x, self.window, 3, axis=1, mode="interp")
+        return y[:, self.trim: x.shape[1] - self.trim]
+
+    def basis(self, name: str, i: int, velocity: float = 0.0) -> np.ndarray:
+        """S * f(q_i, qdot_i) of a vocabulary term, (N, T')."""
+        return self.filt(np.asarray(friction_basis(name, self.q_raw[..., i], self.v_raw[..., i], self.eps, velocity, NUMPY)))
+
+
+def own_dissipation(system: System, qc: tuple, v: np.ndarray) -> np.ndarray:
+    """The model's dissipative force (positive opposes motion): D(q) qdot (+ friction terms of an AugmentedSystem)."""
+    shape = v.shape[:-1]
+    d = system.damping(qc, NUMPY)
+    own = np.stack([np.broadcast_to(np.asarray(d[i], dtype=float), shape) * v[..., i] for i in range(v.shape[-1])], -1)
+    if isinstance(system, AugmentedSystem):
+        extra = system.extra_dissipation(qc, tuple(v[..., i] for i in range(v.shape[-1])), NUMPY)
+        own = own - np.stack([np.broadcast_to(np.asarray(e, dtype=float), shape) for e in extra], -1)
+    return own
+
+
+def smoothing_window(period: float, dt: float) -> int:
+    """The Savitzky-Golay window [samples] of the tool (seeds, residual map, weak form): 0.15 of an oscillation period,
+    odd, >= 7."""
+    return odd(max(7, int(round(0.15 * period / dt))))
+
+
+def sign_smoothing(v_rms: np.ndarray, rel: float = SIGN_SMOOTHING_REL) -> float:
+    """The tanh smoothing of sign(qdot) for all coordinates: ``rel`` x the median of the coordinates' rms speeds."""
+    return float(rel * np.median(v_rms))
+
+
+def rms_speed(vs: np.ndarray) -> np.ndarray:
+    """(n,) rms of smoothed qdot (N, T, n) per coordinate (never 0)."""
+    return np.sqrt(np.mean(vs**2, axis=(0, 1))) + 1e-12
+
+
+def default_window(rec: Recordings) -> int:
+    """Filter window [samples]: 0.15 of an oscillation period, as the mismatch tool smooths (>= 7)."""
+    return smoothing_window(2 * math.pi * time_scale(rec.q, rec.dt), rec.dt)
+
+
+def default_eps(rec: Recordings, window: int) -> float:
+    """tanh smoothing of sign(qdot), as the mismatch tool smooths (``Options.coulomb_eps_rel``)."""
+    _, vs = smooth(rec.q, rec.dt, window)
+    return sign_smoothing(rms_speed(vs))
+
+
+def _block_labels(N: int, T: int, block: int) -> np.ndarray:
+    """(N, T) cluster label: recording x consecutive time block of ``block`` samples (a short tail joins the last)."""
+    nb = max(1, T // max(block, 1))
+    b = np.minimum(np.arange(T) // max(block, 1), nb - 1)
+    return np.arange(N)[:, None] * nb + b[None, :]
+
+
+@dataclass
+class Balance:
+    """The momentum balance along the smoothed recordings, untrimmed (N, T, n): q, qdot, d/dt S*p and the model's pdot."""
+
+    qs: np.ndarray
+    vs: np.ndarray
+    dp: np.ndarray
+    pdot: np.ndarray
+
+    @property
+    def qc(self) -> tuple:
+        return tuple(self.qs[..., i] for i in range(self.qs.shape[-1]))
+
+
+def momentum_balance(system: System, rec: Recordings, window: int) -> Balance:
+    """Smoothed q, qdot (measurement map undone), d/dt of the filtered momentum p = M(q) qdot, and the model's pdot
+    (conservative, port and dissipative force) at those states with the recorded u held per interval."""
+    n, dt = rec.n, rec.dt
+    qs, vs = smooth(rec.q, dt, window)
+    qs = getattr(system, "unmeasure", lambda y: y)(qs)
+    p = momentum(system, qs, vs)
+    dp = savgol_filter(p, window, 3, deriv=1, delta=dt, axis=1, mode="interp")
+    u = None
+    if rec.u is not None:
+        uu = np.concatenate([rec.u, rec.u[:, -1:]], axis=1)
+        u = tuple(uu[..., i] for i in range(n))
+    qc, pc = tuple(qs[..., i] for i in range(n)), tuple(p[..., i] for i in range(n))
+    pdot = np.stack([np.broadcast_to(f, qs.shape[:-1]) for f in system.rhs(qc, pc, u, NUMPY)[1]], -1)
+    return Balance(qs, vs, dp, pdot)
+
+
+def weak_form(system: System, rec: Recordings, window: int | None = None, eps: float | None = None,
+              block: int | None = None) -> WeakForm:
+    """The filtered momentum balance of ``rec`` under ``system`` (see the module docstring).
+
+    ``block``: cluster length [samples] for intervals (default: the larger of 2 oscillation periods and 5 windows;
+    each recording is cut into such blocks; with many recordings one may pass ``block=rec.T`` for recording clusters)."""
+    window = odd(window or default_window(rec))
+    window = min(window, odd(rec.T // 3))
+    eps = float(eps if eps is not None else (system.coulomb_eps if isinstance(system, AugmentedSystem) else default_eps(rec, window)))
+    dt = rec.dt
+    bal = momentum_balance(system, rec, window)
+    qs, vs, dp = bal.qs, bal.vs, bal.dp
+    own = own_dissipation(system, bal.qc, vs)
+    cons = bal.pdot + own  # conservative + port force (the model's dissipation added back)
+    tr = window // 2
+    sl = slice(tr, rec.T - tr)
+    total = savgol_filter(cons, window, 3, axis=1, mode="interp")[:, sl] - dp[:, sl]
+    own_f = savgol_filter(own, window, 3, axis=1, mode="interp")[:, sl]
+    if block is None:
+        period = 2 * math.pi * time_scale(rec.q, dt)
+        block = max(int(round(2 * period / dt)), 5 * window)
+    Tt = rec.T - 2 * tr
+    return WeakForm(qs[:, sl], vs[:, sl], total, own_f, _block_labels(rec.n_traj, Tt, int(block)),
+                    WeakFilter(window, dt, eps, tr), qs, vs)
+
