@@ -495,11 +495,13 @@ def test_real_system_is_described(coulomb_report):
 
 def test_terms_that_do_not_improve_held_out_prediction_are_not_reported():
     from phast_model.mismatch.analysis import _confirmed, _verdicts
+    from phast_model.mismatch.evaluate import FitTable, ModelScore, RolloutSetup
 
     row = {"term": "cubic_stiffness", "coordinate": 0}
-    fit = {"calibrated": {"rollout_rmse": 1.818}, "augmented": {"rollout_rmse": 1.855}}
+    setup = RolloutSetup(100, 4, 5.0, 10, "")
+    fit = FitTable({"calibrated": ModelScore(0.1, 1.818), "augmented": ModelScore(0.1, 1.855)}, "held-out", setup)
     missing, unconfirmed = _confirmed([row], fit)
     assert missing == [] and unconfirmed == [row]
     assert "not reported as missing physics" in " ".join(_verdicts(1.0, unconfirmed, fit))
-    fit["augmented"]["rollout_rmse"] = 1.0
+    fit.models["augmented"] = ModelScore(0.1, 1.0)
     assert _confirmed([row], fit) == ([row], [])

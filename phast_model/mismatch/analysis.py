@@ -26,7 +26,7 @@ from phast_gym.systems.base import System
 
 from .calibrate import Calibration, calibration, explained_share, screen_parameters
 from .energy import energy_check
-from .evaluate import HeldOut, check_holdout_indices, check_holdout_range, held_out, split
+from .evaluate import FitTable, HeldOut, check_holdout_indices, check_holdout_range, held_out, split
 from .locate import locate
 from .options import Options, Progress
 from .problem import Problem, prepare
@@ -100,14 +100,14 @@ def _compared(compare: Mapping[str, System] | None, sys0: System, name: str) -> 
 MIN_DESCRIBED = 0.5
 
 
-def _confirmed(missing: list[dict], fitres: dict) -> tuple[list[dict], list[dict]]:
+def _confirmed(missing: list[dict], fitres: FitTable) -> tuple[list[dict], list[dict]]:
     """A term that does not improve the prediction of the held-out recordings is not a discovery: (confirmed, not)."""
-    if missing and fitres["augmented"]["rollout_rmse"] >= fitres["calibrated"]["rollout_rmse"]:
+    if missing and fitres.rmse("augmented") >= fitres.rmse("calibrated"):
         return [], missing
     return missing, []
 
 
-def _verdicts(share: float, unconfirmed: list[dict], fitres: dict) -> list[str]:
+def _verdicts(share: float, unconfirmed: list[dict], fitres: FitTable) -> list[str]:
     """Sentences for the summary when the simulator does not describe the recordings or the found terms do not predict."""
     out = []
     if share < MIN_DESCRIBED:
@@ -118,8 +118,8 @@ def _verdicts(share: float, unconfirmed: list[dict], fitres: dict) -> list[str]:
     if unconfirmed:
         names = ", ".join(f"{m['term']}[{m['coordinate']}]" for m in unconfirmed)
         out.append(f"Terms that fit the training recordings ({names}) do not improve the prediction of the held-out recordings "
-                   f"(rollout RMSE calibrated {fitres['calibrated']['rollout_rmse']:.4g}, with them "
-                   f"{fitres['augmented']['rollout_rmse']:.4g}), so they are not reported as missing physics "
+                   f"(rollout RMSE calibrated {fitres.rmse('calibrated'):.4g}, with them "
+                   f"{fitres.rmse('augmented'):.4g}), so they are not reported as missing physics "
                    "(details.unconfirmed_terms).")
     return out
 
@@ -251,16 +251,16 @@ def _explain(problem: Problem, inputs: _Inputs) -> Report:
         models["calibrated"] = models["augmented"] = models["nominal"]
 
     fitres, rollouts = held.fit_table({**models, **inputs.compare})
-    log(f"held-out: {fitres}")
-    if weak_answer.replaces and fitres["augmented"]["rollout_rmse"] >= fitres["calibrated"]["rollout_rmse"]:
+    log(f"held-out: {fitres.to_dict()}")
+    if weak_answer.replaces and fitres.rmse("augmented") >= fitres.rmse("calibrated"):
         # the weak-form answer (its parameters included) does not predict: it is not adopted, the shooting answer stands
         weak_answer.info["not_adopted"] = (f"the weak-form answer does not improve the held-out prediction (rollout RMSE "
-                                    f"{fitres['augmented']['rollout_rmse']:.4g} >= calibrated {fitres['calibrated']['rollout_rmse']:.4g})")
+                                    f"{fitres.rmse('augmented'):.4g} >= calibrated {fitres.rmse('calibrated'):.4g})")
         models["augmented"], final_fit, calibrated, missing = shooting_answer
         fitres, rollouts = held.fit_table({**models, **inputs.compare})
     missing, unconfirmed = _confirmed(missing, fitres)
     if train.u is None and any(VOCABULARY[m["term"]].component == "dissipation" for m in missing):  # a check, no fitting
-        fitres["energy_check"] = {"model": "augmented", "training": energy_check(models["augmented"], train, problem.smoothing_window),
+        fitres.energy_check = {"model": "augmented", "training": energy_check(models["augmented"], train, problem.smoothing_window),
                                   "held_out": energy_check(models["augmented"], hold, min(problem.smoothing_window, odd(hold.T // 2 - 1)))}
     located, resid_map = locate(models["calibrated"], train.resampled(), problem.smoothing_window, problem.eps)
     if not missing and cal.fit.chi2_red < 1.5:  # within the noise
@@ -272,7 +272,7 @@ def _explain(problem: Problem, inputs: _Inputs) -> Report:
     return Report(
         sim={"env_id": simulator.name, "kwargs": dict(simulator.kwargs), "calibrated": calibrated},
         data=_data(inputs.given, inputs.dec, problem.sigma_raw),
-        located=located, missing_physics=missing, fit=fitres, summary=summary,
+        located=located, missing_physics=missing, fit=fitres.to_dict(), summary=summary,
         details={**_details(problem, cal, sel, weak_answer, final_fit, models["augmented"]), "explained_share": share,
                  "unconfirmed_terms": unconfirmed},
         plot_data={"hold": held.rec, "rollouts": rollouts, "resid_map": resid_map, "train": train,

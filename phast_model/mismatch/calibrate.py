@@ -129,17 +129,17 @@ def fit_nominal(problem: Problem) -> tuple[Shooter, ShootFit, int]:
     return shooter, fit, n_dropped
 
 
-def _parameter_columns(problem: Problem, shooter: Shooter, fitN: ShootFit, params: list[tuple[str, float]]) -> np.ndarray:
+def _parameter_columns(problem: Problem, shooter: Shooter, nominal_fit: ShootFit, params: list[tuple[str, float]]) -> np.ndarray:
     """(N, len(params)) projected shooting columns d r / d log(parameter) at the nominal fit."""
     nominal, h = problem.nominal_family, PARAM_STEP
     if not params:
-        return np.zeros((fitN.r.size, 0))
+        return np.zeros((nominal_fit.r.size, 0))
 
     def build(k: str, nom: float) -> System:
         return nominal.with_(params=[(k, nom)]).build(np.array([h]))
 
     builds: list[Callable[[], System]] = [partial(build, k, nom) for k, nom in params]
-    return flat(fitN.projected(shooter.columns(builds, fitN, fitN.r, [h] * len(params)))[1])
+    return flat(nominal_fit.projected(shooter.columns(builds, nominal_fit, nominal_fit.r, [h] * len(params)))[1])
 
 
 def identifiability(names: list[str], cols: np.ndarray) -> Identifiability:
@@ -179,7 +179,7 @@ def param_in_mass(problem: Problem, name: str, nominal: float) -> bool:
     return any(not np.allclose(np.asarray(x), np.asarray(y)) for ra, rb in zip(Ma, Mb) for x, y in zip(ra, rb))
 
 
-def _examined(problem: Problem, shooter: Shooter, fitN: ShootFit) -> tuple[list[tuple[str, float]], np.ndarray, dict[str, str]]:
+def _examined(problem: Problem, shooter: Shooter, nominal_fit: ShootFit) -> tuple[list[tuple[str, float]], np.ndarray, dict[str, str]]:
     """The free parameters whose change is visible in the recordings, their columns, and a note for every other one."""
     known = known_params(problem.sys0) - set(problem.opts.free)
     params = [(k, v) for k, v in problem.sim.numeric_params(problem.sys0).items() if v != 0]
@@ -188,7 +188,7 @@ def _examined(problem: Problem, shooter: Shooter, fitN: ShootFit) -> tuple[list[
     # preference among equivalent parameters: those outside M(q) first (a mass change that acts like a damping change
     # on a free pendulum is reported as the damping), then the system's order
     params.sort(key=lambda kv: param_in_mass(problem, *kv))
-    cols = _parameter_columns(problem, shooter, fitN, params)
+    cols = _parameter_columns(problem, shooter, nominal_fit, params)
     keep = []
     for j, (k, _) in enumerate(params):
         norm = float(np.linalg.norm(cols[:, j]))
@@ -203,19 +203,21 @@ def _examined(problem: Problem, shooter: Shooter, fitN: ShootFit) -> tuple[list[
 
 def screen_parameters(problem: Problem) -> ParameterScreen:
     """Nominal fit, parameter sensitivities, identifiable combinations, and the fit with every pivot free."""
-    shooter, fitN, n_dropped = fit_nominal(problem)
-    params, cols, notes = _examined(problem, shooter, fitN)
+    shooter, nominal_fit, n_dropped = fit_nominal(problem)
+    params, cols, notes = _examined(problem, shooter, nominal_fit)
     ident = identifiability([k for k, _ in params], cols)
     problem.log(f"identifiable: rank {ident.rank} of {len(params)} examined parameters; basis {list(ident.basis)}")
     nominal = dict(params)
     for k in ident.equivalents:
         if (s := ident.sentence(k)) is not None:
             problem.log(f"  {s}")
-    famF = problem.nominal_family.with_(params=[(k, nominal[k]) for k in ident.basis])
-    fitF = shooter.fit(famF.build, fitN.X, np.zeros(ident.rank), max_iter=problem.opts.max_iter) if ident.rank else fitN
-    problem.log(f"every pivot fitted: chi2/dof = {fitF.chi2_red:.3g}")
+    family_full = problem.nominal_family.with_(params=[(k, nominal[k]) for k in ident.basis])
+    fit_full = nominal_fit
+    if ident.rank:
+        fit_full = shooter.fit(family_full.build, nominal_fit.X, np.zeros(ident.rank), max_iter=problem.opts.max_iter)
+    problem.log(f"every pivot fitted: chi2/dof = {fit_full.chi2_red:.3g}")
     cands = [ParamCandidate(k, v, PARAM_STEP) for k, v in params]
-    return ParameterScreen(shooter, fitN, n_dropped, cands, notes, ident, fitF, famF)
+    return ParameterScreen(shooter, nominal_fit, n_dropped, cands, notes, ident, fit_full, family_full)
 
 
 def calibration(problem: Problem, screen: ParameterScreen, selected: list[tuple[str, float]], start: ShootFit,

@@ -109,6 +109,48 @@ def evaluate_models(models: dict[str, System], rec: Recordings, sigma: np.ndarra
 
 
 # --------------------------------------------------------------------------- the held-out comparison
+@dataclass(frozen=True)
+class ModelScore:
+    """One model's metrics on the held-out recordings (docs/mismatch.md)."""
+
+    one_step_mse: float
+    rollout_rmse: float
+
+
+@dataclass(frozen=True)
+class RolloutSetup:
+    """How the held-out rollouts were made (the same for all models)."""
+
+    window_samples: int  # open-loop window
+    n_windows: int
+    window_s: float
+    init_samples: int
+    text: str
+
+
+@dataclass
+class FitTable:
+    """report.fit: the metrics of each model (ours, then any compared ones) and what they were computed on."""
+
+    models: dict[str, ModelScore]
+    evaluated_on: str
+    rollout: RolloutSetup
+    energy_check: dict[str, Any] | None = None  # set by the analysis when the augmented model adds dissipation
+
+    def rmse(self, name: str) -> float:
+        return self.models[name].rollout_rmse
+
+    def to_dict(self) -> dict[str, Any]:
+        """The report.json ``fit`` object."""
+        out: dict[str, Any] = {k: {"one_step_mse": m.one_step_mse, "rollout_rmse": m.rollout_rmse} for k, m in self.models.items()}
+        ro = self.rollout
+        out.update({"evaluated_on": self.evaluated_on, "rollout_window_samples": ro.window_samples, "rollout_n_windows": ro.n_windows,
+                    "rollout_window_s": ro.window_s, "rollout_init_samples": ro.init_samples, "rollout": ro.text})
+        if self.energy_check is not None:
+            out["energy_check"] = self.energy_check
+        return out
+
+
 @dataclass
 class HeldOut:
     """How models are compared on the held-out recordings (and, for the systematic regime, on the training ones)."""
@@ -119,33 +161,30 @@ class HeldOut:
     sigma: np.ndarray
     x_scale: np.ndarray
     scale: np.ndarray  # per-coordinate RMSE scale (std of q when angles and lengths mix, else 1)
-    K: int  # samples each initial state is fitted to
+    init_samples: int  # samples each initial state is fitted to
     smoothing_window: int  # smoothing window of the one-step seeds
     mixed: bool
     windowed: bool
 
     def evaluate(self, models: dict[str, System], rec: Recordings | None = None) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
-        return evaluate_models(models, self.rec if rec is None else rec, self.sigma, self.x_scale, self.K, self.smoothing_window,
+        return evaluate_models(models, self.rec if rec is None else rec, self.sigma, self.x_scale, self.init_samples, self.smoothing_window,
                                self.scale)
 
     def rollout_rmse(self, system: System, rec: Recordings) -> float:
         return self.evaluate({"m": system}, rec)[0]["m"]["rollout_rmse"]
 
-    def fit_table(self, models: dict[str, System]) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    def fit_table(self, models: dict[str, System]) -> tuple[FitTable, dict[str, np.ndarray]]:
         """report.fit: the metrics of each model plus what they were computed on; and the rollouts (plots)."""
-        hold, K = self.rec, self.K
-        fitres, rollouts = self.evaluate(models)
-        fitres["evaluated_on"] = self.evaluated_on
-        fitres["rollout_window_samples"] = int(hold.T)  # open-loop window (the same for all models)
-        fitres["rollout_n_windows"] = int(hold.n_traj)
-        fitres["rollout_window_s"] = float(np.median(hold.times()[:, -1] - hold.times()[:, 0]))
-        fitres["rollout_init_samples"] = K
+        hold, init_samples = self.rec, self.init_samples
+        metrics, rollouts = self.evaluate(models)
         win_txt = f"held-out recordings cut into {hold.n_traj} consecutive windows of {hold.T} samples; " if self.windowed else ""
-        fitres["rollout"] = (win_txt + f"per held-out trajectory / window: initial state fitted to its first {K} samples, open-loop "
-                             f"simulation over all {hold.T} samples with the recorded u; RMSE of q"
-                             + (" scaled per coordinate by its std" if self.mixed else "")
-                             + (" (angles wrapped)" if hold.angle_dims else ""))
-        return fitres, rollouts
+        text = (win_txt + f"per held-out trajectory / window: initial state fitted to its first {init_samples} samples, open-loop "
+                f"simulation over all {hold.T} samples with the recorded u; RMSE of q"
+                + (" scaled per coordinate by its std" if self.mixed else "")
+                + (" (angles wrapped)" if hold.angle_dims else ""))
+        setup = RolloutSetup(int(hold.T), int(hold.n_traj), float(np.median(hold.times()[:, -1] - hold.times()[:, 0])), init_samples, text)
+        scores = {k: ModelScore(m["one_step_mse"], m["rollout_rmse"]) for k, m in metrics.items()}
+        return FitTable(scores, self.evaluated_on, setup), rollouts
 
 
 def held_out(hold: Recordings, evaluated_on: str, sigma: np.ndarray, x_scale: np.ndarray, shoot_window: int, smoothing_window: int,
@@ -161,6 +200,6 @@ def held_out(hold: Recordings, evaluated_on: str, sigma: np.ndarray, x_scale: np
         if W < MIN_ROLLOUT_SAMPLES:
             raise ValueError(f"rollout_window {rollout_window} s is shorter than {MIN_ROLLOUT_SAMPLES} samples (dt={dt})")
         rec = hold.windows(W)
-    K = int(min(rec.T, max(10, shoot_window // 4)))
-    return HeldOut(rec, hold, evaluated_on, sigma, x_scale, scale, K, min(smoothing_window, odd(rec.T // 2 - 1)), mixed,
+    init_samples = int(min(rec.T, max(10, shoot_window // 4)))
+    return HeldOut(rec, hold, evaluated_on, sigma, x_scale, scale, init_samples, min(smoothing_window, odd(rec.T // 2 - 1)), mixed,
                    rollout_window is not None)

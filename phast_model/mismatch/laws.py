@@ -25,7 +25,7 @@ from .weakform import WeakForm, weak_form
 
 #: Stribeck velocities tried, as fractions of the coordinate's rms speed (log grid).  Stribeck friction is the excess
 #: friction near rest; a "Stribeck" term whose v_s reaches the typical speed is a curve-fitting device, not that effect
-#: (on the real pendulum such terms fit segments 1-4 as well as physical laws and predict held-out swings erratically).
+#: (docs/mismatch.md, design notes).
 STRIBECK_FRACTIONS = tuple(float(x) for x in np.geomspace(0.03, 0.3, 7))
 
 

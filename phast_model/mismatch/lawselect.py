@@ -403,8 +403,8 @@ def select_law(system: System, rec: Recordings, candidates: Sequence[Sequence[An
 
     * ``"curve"`` (default): how well the law predicts the left-out recording's friction curve: rms over speed bands
       (quantile bands of the pooled |qdot|, or ``bands="log"``) of (law - curve) / |pooled curve|, law and curve through
-      the same filter.  Every speed range weighs the same; no simulation, so phase drift cannot enter.  On the real
-      pendulum this is the criterion whose ranking follows the held-out rollout improvement;
+      the same filter.  Every speed range weighs the same; no simulation, so phase drift cannot enter (why it is the
+      default: docs/mismatch.md, design notes);
     * ``"window_rollout"``: open-loop rollouts over consecutive windows of ``rollout_window`` seconds (default 3
       periods) of the left-out recording, initial state re-fitted per window (:func:`.analysis.evaluate_models`), RMSE
       relative to each window's amplitude.  Short windows barely see the friction law (they favour the shooting-

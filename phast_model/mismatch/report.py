@@ -27,6 +27,7 @@ import numpy as np
 from phast_gym.fileio import jsonable as _jsonable
 from phast_gym.systems import break_at_wraps, wrap
 
+from .evaluate import FitTable
 from .terms import AugmentedSystem
 
 #: report.json's marker of a directory this tool wrote
@@ -71,9 +72,9 @@ def _fmt_ci(ci: list[float] | None) -> str:
     return "" if not ci else f" [95% CI {ci[0]:.4g}, {ci[1]:.4g}]"
 
 
-def _energy_check_sentence(fitres: dict[str, Any]) -> str | None:
+def _energy_check_sentence(fitres: FitTable) -> str | None:
     """The held-out energy check, when the held-out recordings lose clearly more (or less) energy than predicted."""
-    ec = fitres.get("energy_check") or {}
+    ec = fitres.energy_check or {}
     tr, ho = ec.get("training"), ec.get("held_out")
     if ho is None:
         return None
@@ -102,7 +103,7 @@ def _alternative_sentences(missing: list[dict]) -> list[str]:
     return out
 
 
-def summary_text(name: str, calibrated: dict, missing: list[dict], located: list[dict], fitres: dict, chi2_calibrated: float,
+def summary_text(name: str, calibrated: dict, missing: list[dict], located: list[dict], fitres: FitTable, chi2_calibrated: float,
                  chi2_augmented: float, sigma: np.ndarray, verdicts: Sequence[str] = ()) -> str:
     """The report's plain-language summary (the chi^2/dof of the calibrated and augmented shooting fits decide what is said)."""
     parts = [f"Compared {name} with the recordings (estimated measurement noise {float(np.sqrt(np.mean(sigma**2))):.3g})."]
@@ -125,9 +126,8 @@ def summary_text(name: str, calibrated: dict, missing: list[dict], located: list
         loc = located[0]
         parts.append(f"Unexplained residual, located at coordinate {loc['coordinate']} ({loc['component']}), where {loc['where']}, "
                      f"{loc['when']}; no term of the vocabulary explains it.")
-    b, c, a = fitres["nominal"], fitres["calibrated"], fitres["augmented"]
-    parts.append(f"On {fitres['evaluated_on']}: rollout RMSE nominal {b['rollout_rmse']:.4g}, calibrated {c['rollout_rmse']:.4g}, "
-                 f"augmented {a['rollout_rmse']:.4g}.")
+    b, c, a = fitres.rmse("nominal"), fitres.rmse("calibrated"), fitres.rmse("augmented")
+    parts.append(f"On {fitres.evaluated_on}: rollout RMSE nominal {b:.4g}, calibrated {c:.4g}, augmented {a:.4g}.")
     sentence = _energy_check_sentence(fitres)
     if sentence:
         parts.append(sentence)

@@ -110,8 +110,7 @@ def _own_viscous(system: System, rec_q: np.ndarray) -> dict[int, float]:
 def _weak_model(ctx: SystematicContext, window: int) -> WeakModel:
     """Start at the user's nominal values (a shooting calibration made before any friction term may have absorbed
     friction); armature estimated where u drives.  The shooting selection's terms are not carried over: in this regime
-    their chi^2 gains measure misfit (on a two-motor arm it picks a sensor gain of 0.86 and an actuator gain of 0.92,
-    which then bend the masses; on the real pendulum its sensor terms make the held-out prediction worse)."""
+    their chi^2 gains measure misfit, and its terms bend the parameters (docs/mismatch.md, design notes)."""
     problem = ctx.problem
     vocab = problem.opts.terms or tuple(VOCABULARY)
     arm = [i for i in range(problem.n) if problem.has_u[i]] if ARMATURE.name in vocab else []
