@@ -51,8 +51,9 @@ def predict(run: PHAST | str | Path, q_history: np.ndarray, u_seq: np.ndarray | 
     if H is None or H < 1:
         raise ValueError("H must be a positive integer (or pass u_seq)")
     dtype = next(model.parameters()).dtype
-    fn = model.rollout if mode == "autoregressive" else model.rollout_takeover
+    qt, ut = torch.as_tensor(q, dtype=dtype), None if u_full is None else torch.as_tensor(u_full, dtype=dtype)
     with torch.no_grad():
-        out = fn(torch.as_tensor(q, dtype=dtype), None if u_full is None else torch.as_tensor(u_full, dtype=dtype), int(H))
-    out = out.cpu().numpy().astype(np.float64)
+        roll = model.rollout(qt, ut, int(H)) if mode == "autoregressive" else model.rollout_takeover(qt, ut, int(H))
+    assert isinstance(roll, torch.Tensor)  # positions only (return_p=False)
+    out = roll.cpu().numpy().astype(np.float64)
     return out[0] if single else out

@@ -115,7 +115,7 @@ def torch_load(path: str | Path, what: str = "checkpoint") -> Any:
     except ValueError as exc:
         if str(exc).startswith("corrupted or unreadable"):
             raise
-        reason = exc
+        reason: Exception = exc
     except (RuntimeError, EOFError, pickle.UnpicklingError, zipfile.BadZipFile, OSError, AttributeError, KeyError) as exc:
         reason = exc
     text = getattr(reason, "strerror", None) or (str(reason).splitlines() or [""])[0]

@@ -15,6 +15,8 @@ Time alignment, shared by datasets, training and rollouts:
 
 from __future__ import annotations
 
+from typing import Any, Protocol, runtime_checkable
+
 import torch
 from torch import nn
 
@@ -72,3 +74,40 @@ class ForecastModel(nn.Module):
     def n_parameters(self) -> int:
         """Trainable parameter count (reported in tables)."""
         return sum(p.numel() for p in self.parameters() if p.requires_grad)
+
+
+# ---- optional hooks a model may have (runtime-checkable: ``isinstance`` is the ``hasattr`` test, typed) ----------
+@runtime_checkable
+class TakeoverModel(Protocol):
+    """A model with a takeover rollout (Eq. 8: one inferred state, then the core alone)."""
+
+    def rollout_takeover(self, q_burn: torch.Tensor, u: torch.Tensor | None, H: int) -> torch.Tensor: ...
+
+
+@runtime_checkable
+class DampingModel(Protocol):
+    """A model with a learned damping field whose diagonal can be scored (``damping_r2``, ``damping_mae``)."""
+
+    def damping_diag(self, q: torch.Tensor) -> torch.Tensor: ...
+
+
+@runtime_checkable
+class ParamGroupsModel(Protocol):
+    """A model that chooses its own optimizer parameter groups."""
+
+    def param_groups(self, lr: float) -> list[dict[str, Any]]: ...
+
+
+@runtime_checkable
+class DataInitModel(Protocol):
+    """A model whose learned physics starts from a least squares on the training set."""
+
+    def initialize_from_data(self, q: torch.Tensor, u: torch.Tensor | None) -> dict[str, float]: ...
+
+
+@runtime_checkable
+class NormalizedModel(Protocol):
+    """A model that fits its input normalization to the training data before training."""
+
+    def fit_normalizer(self, q: Any, u: Any) -> None: ...
+

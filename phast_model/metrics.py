@@ -17,7 +17,7 @@ from phast_gym import make_env_system, resolve_env_id
 from phast_gym.systems import NUMPY, System, angle_diff, fd_velocity, split
 
 from .envinfo import ENV_INFO
-from .interfaces import ForecastModel
+from .interfaces import DampingModel, ForecastModel
 from .rollout import batched_predict, batched_rollout
 
 
@@ -120,7 +120,7 @@ def forecast_metrics(model: ForecastModel, test: Any, horizons: tuple[int, ...] 
                 res, viol = energy_diagnostics(system, full, float(test.dt), ang)
                 out[f"rollout_energy_budget_resid_h{H}"] = res
                 out[f"rollout_passivity_violations_h{H}"] = viol
-    if getattr(model, "damping", None) is not None and hasattr(model, "damping_diag") and hasattr(test, "damping"):
+    if getattr(model, "damping", None) is not None and isinstance(model, DampingModel) and hasattr(test, "damping"):
         with torch.no_grad():
             dtype = next(model.parameters()).dtype
             d_hat = np.concatenate([model.damping_diag(torch.as_tensor(q[i:i + batch_size], dtype=dtype)).numpy()

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
 import torch
@@ -35,9 +35,11 @@ from .components import (
     TemplateMass,
     make_template,
 )
+from .components.damping import Damping
 from .components.features import coordinate_features, n_features
 from .components.friction import JointFriction
-from .components.potentials import TemplatePotential
+from .components.mass import Mass
+from .components.potentials import Potential, TemplatePotential
 from .config import PHASTConfig, config_system, system_scales
 from .core import PHASTCore, SubstepCore
 from .interfaces import ForecastModel, coordinate_error, wrap_angles
@@ -46,14 +48,18 @@ from .interfaces import ForecastModel, coordinate_error, wrap_angles
 class PHAST(ForecastModel):
     """q-only port-Hamiltonian forecaster (paper Sec. 3, Algorithm 1)."""
 
-    def __init__(self, config: PHASTConfig, observer: FDTCNObserver, core: PHASTCore, system: System,
+    core: PHASTCore
+    G: torch.Tensor  # buffer: the port's input matrix (identity columns of the actuated coordinates)
+
+    def __init__(self, config: PHASTConfig, observer: FDTCNObserver, core: SubstepCore, system: System,
                  actuated_dofs: tuple[int, ...]) -> None:
         super().__init__(system.n, len(actuated_dofs), system.angle_dims)
         self.config = config
         self.system = system  # the env's physics (metrics, known parts); not a parameter
         self.dt = float(system.dt)
         self.observer = observer
-        self.core = core
+        # a PHASTCore here; LatentODEModel passes its LatentODECore (and annotates core as one)
+        self.core = core  # type: ignore[assignment]
         self.actuated_dofs = tuple(actuated_dofs)
         self.register_buffer("G", torch.eye(self.n)[:, list(self.actuated_dofs)])
         #: training leaves out predictions made before the backward difference has all its samples
@@ -67,15 +73,15 @@ class PHAST(ForecastModel):
 
     # ---- public pieces (control and mismatch reuse these) --------------------
     @property
-    def potential(self):  # noqa: ANN201
+    def potential(self) -> Potential:
         return self.core.potential
 
     @property
-    def mass(self):  # noqa: ANN201
+    def mass(self) -> Mass:
         return self.core.mass
 
     @property
-    def damping(self):  # noqa: ANN201
+    def damping(self) -> Damping | None:
         return self.core.damping
 
     @property
@@ -241,6 +247,7 @@ class PHAST(ForecastModel):
         p = self.canonicalize(q, self.observer(q)) if needs_p else None  # the observer-mode L_roll infers its own
         f = self.port_force(u)
         if cfg.lambda_pass > 0 or cfg.lambda_energy > 0:
+            assert p is not None  # needs_p
             q1, p1 = self.core(q[:, :-1], p[:, :-1], None if f is None else f[:, :-1])
             H0, H1 = self.hamiltonian(q[:, :-1], p[:, :-1]), self.hamiltonian(q1, p1)
             if cfg.lambda_pass > 0:  # Eq. 86 (u = 0 benchmarks; with u the port power is not subtracted)
@@ -268,6 +275,7 @@ class PHAST(ForecastModel):
             start = t0 + 1 - self.observer.window
             pred = self.differentiable_rollout(q[:, start:t0 + 1], None if u is None else u[:, start:], Hr)
             return (coordinate_error(pred, target, self.angle_dims) ** 2).mean()
+        assert p is not None  # roll_mode "core": extra_losses inferred p
         qq, pp = q[:, t0], p[:, t0]
         errs = []
         for h in range(Hr):
@@ -279,8 +287,10 @@ class PHAST(ForecastModel):
 # ------------------------------------------------------------------------------ predator-prey
 def _zero_last(net: nn.Sequential) -> nn.Sequential:
     """``net`` with its last layer zeroed: it starts as the constant 0 (a correction that starts as none)."""
-    nn.init.zeros_(net[-1].weight)
-    nn.init.zeros_(net[-1].bias)
+    last = net[-1]
+    assert isinstance(last, nn.Linear)
+    nn.init.zeros_(last.weight)
+    nn.init.zeros_(last.bias)
     return net
 
 
@@ -368,11 +378,15 @@ class NeuralField(nn.Module):
         return self.g(torch.cat([q / self.qs, v / self.vs], -1)) * self.qs
 
 
+#: the vector fields a :class:`LatentODECore` integrates (each with ``rhs`` and the latent map ``latent``)
+LatentField = SystemField | LVTemplateField | NeuralField
+
+
 class LatentODECore(SubstepCore):
     """RK4 on a (q, p) vector field with L substeps and a learnable log dt (predator-prey is not Hamiltonian,
     so no symplectic/dissipative split applies)."""
 
-    def __init__(self, field_: nn.Module, dt: float, substeps: int = 1, learn_dt: bool = True) -> None:
+    def __init__(self, field_: LatentField, dt: float, substeps: int = 1, learn_dt: bool = True) -> None:
         super().__init__()
         self.field = field_
         self.init_substeps(dt, substeps, learn_dt)
@@ -400,6 +414,8 @@ class LatentODEModel(PHAST):
     KNOWN uses the env's rhs, PARTIAL a Lotka-Volterra template with learnable coefficients plus a small
     neural correction, UNKNOWN a neural field with a learned latent map. ``hamiltonian`` returns the env's
     Lotka-Volterra invariant (a Lyapunov-like energy), ``damping_diag`` is zero (no dissipation structure)."""
+
+    core: LatentODECore  # type: ignore[assignment]  # the predator-prey core replaces PHAST's PHASTCore
 
     #: learning-rate multiplier of the latent prior (one scalar per latent, trained on the t = 0 step only)
     prior_lr_mult = 100.0
@@ -562,7 +578,7 @@ def _latent_ode_model(cfg: PHASTConfig, env: _EnvScales, observer: FDTCNObserver
                       actuated: tuple[int, ...]) -> LatentODEModel:
     """The latent-ODE model (non-Hamiltonian envs): ``cfg.ode_field`` as vector field, prior fitted to typical q."""
     qs, vs = float(np.mean(env.q_scale)) if len(env.q_scale) else 1.0, float(np.mean(env.v_scale))
-    fld: nn.Module
+    fld: LatentField
     if cfg.ode_field == "known":
         fld = SystemField(env.system)
     elif cfg.ode_field == "template":
@@ -612,14 +628,28 @@ def _hybrid_potential(cfg: PHASTConfig, env: _EnvScales) -> HybridPotential:
     return HybridPotential(_template_potential(cfg, env), neural, cfg.hybrid_eps)
 
 
+_C = TypeVar("_C")
+#: a component builder: (config, env scales) -> the component (or None: no such component)
+Builder = Callable[[PHASTConfig, _EnvScales], _C]
+
+
+class Components(NamedTuple):
+    """The physics a :class:`PHASTCore` is composed of, built by the registries below from a :class:`PHASTConfig`
+    (:func:`build_components`)."""
+
+    potential: Potential
+    mass: Mass
+    damping: Damping | None
+    friction: JointFriction | None
+
+
 #: ``PHASTConfig.potential`` -> builder
-POTENTIALS: dict[str, Callable[[PHASTConfig, _EnvScales], nn.Module]] = {
+POTENTIALS: dict[str, Builder[Potential]] = {
     "known": lambda cfg, env: KnownPotential(env.system), "template": _template_potential,
     "neural": _neural_potential, "hybrid": _hybrid_potential}
 
 
-def _component(kind: str, registry: dict[str, Callable[[PHASTConfig, _EnvScales], Any]], name: str,
-               cfg: PHASTConfig, env: _EnvScales) -> Any:
+def _component(kind: str, registry: dict[str, Builder[_C]], name: str, cfg: PHASTConfig, env: _EnvScales) -> _C:
     """Build the ``kind`` component registered as ``name``; an unknown name is a ValueError listing the choices."""
     if name not in registry:
         raise ValueError(f"{kind} must be {_choices(list(registry))}, got {name!r}")
@@ -630,7 +660,7 @@ def _choices(names: list[str]) -> str:
     return ", ".join(names[:-1]) + " or " + names[-1]
 
 
-def _potential(cfg: PHASTConfig, env: _EnvScales) -> nn.Module:
+def _potential(cfg: PHASTConfig, env: _EnvScales) -> Potential:
     """V(q) of ``cfg.potential``: known, template, neural or hybrid (template + eps * neural)."""
     return _component("potential", POTENTIALS, cfg.potential, cfg, env)
 
@@ -657,51 +687,55 @@ def _template_mass(cfg: PHASTConfig, env: _EnvScales) -> TemplateMass:
 
 
 #: ``PHASTConfig.mass`` -> builder
-MASSES: dict[str, Callable[[PHASTConfig, _EnvScales], nn.Module]] = {
+MASSES: dict[str, Builder[Mass]] = {
     "known": lambda cfg, env: KnownMass(env.system), "lowrank": _lowrank_mass, "template": _template_mass,
     "cholesky": lambda cfg, env: CholeskyMass(env.n, env.angle, cfg.mass_hidden, q_scale=torch.as_tensor(env.q_scale))}
 
 
-def _mass(cfg: PHASTConfig, env: _EnvScales) -> nn.Module:
+def _mass(cfg: PHASTConfig, env: _EnvScales) -> Mass:
     """M(q) of ``cfg.mass``: known, lowrank, template or cholesky."""
     return _component("mass", MASSES, cfg.mass, cfg, env)
 
 
 #: ``PHASTConfig.damping`` -> builder (``none``: no dissipation)
-DAMPINGS: dict[str, Callable[[PHASTConfig, _EnvScales], nn.Module | None]] = {
+DAMPINGS: dict[str, Builder[Damping | None]] = {
     "householder": lambda cfg, env: HouseholderDamping(
         env.n, env.angle, cfg.damping_rank, hidden=cfg.damping_hidden, cap=cfg.damping_cap, d0=cfg.d0,
         learn_d0=cfg.learn_d0, q_scale=torch.as_tensor(env.q_scale)),
     "known": lambda cfg, env: KnownDamping(env.system), "none": lambda cfg, env: None}
 
 
-def _damping(cfg: PHASTConfig, env: _EnvScales) -> nn.Module | None:
+def _damping(cfg: PHASTConfig, env: _EnvScales) -> Damping | None:
     """D(q) of ``cfg.damping``: householder (learned), known or none."""
     return _component("damping", DAMPINGS, cfg.damping, cfg, env)
 
 
 #: ``PHASTConfig.friction`` -> builder (``none``: no velocity-dependent friction)
-FRICTIONS: dict[str, Callable[[PHASTConfig, _EnvScales], nn.Module | None]] = {
+FRICTIONS: dict[str, Builder[JointFriction | None]] = {
     "joint": lambda cfg, env: JointFriction(
         env.n, cfg.friction_joints, tuple(cfg.friction_laws), cfg.friction_eps, cfg.friction_vs, cfg.friction_init,
         newton_iters=cfg.friction_newton_iters),
     "none": lambda cfg, env: None}
 
 
-def _friction(cfg: PHASTConfig, env: _EnvScales) -> nn.Module | None:
+def _friction(cfg: PHASTConfig, env: _EnvScales) -> JointFriction | None:
     """The joint friction f(v) of ``cfg.friction``: joint or none."""
     return _component("friction", FRICTIONS, cfg.friction, cfg, env)
 
 
-def _phast_core(cfg: PHASTConfig, env: _EnvScales) -> PHASTCore:
-    """The Strang-splitting core; potential, mass, damping and friction are created in this order (it fixes their
-    initial weights)."""
+def build_components(cfg: PHASTConfig, env: _EnvScales) -> Components:
+    """Potential, mass, damping and friction of ``cfg``, created in this order (it fixes their initial weights)."""
     pot = _potential(cfg, env)
     mass = _mass(cfg, env)
     damp = _damping(cfg, env)
-    fric = _friction(cfg, env)
-    return PHASTCore(pot, mass, damp, env.system.dt, cfg.substeps, cfg.learn_dt, cfg.integrator, cfg.midpoint_iters,
-                     friction=fric)
+    return Components(pot, mass, damp, _friction(cfg, env))
+
+
+def _phast_core(cfg: PHASTConfig, env: _EnvScales) -> PHASTCore:
+    """The Strang-splitting core on the :class:`Components` of ``cfg``."""
+    c = build_components(cfg, env)
+    return PHASTCore(c.potential, c.mass, c.damping, env.system.dt, cfg.substeps, cfg.learn_dt, cfg.integrator,
+                     cfg.midpoint_iters, friction=c.friction)
 
 
 def build_from_config(cfg: PHASTConfig, system: System | None = None) -> PHAST:

@@ -34,8 +34,7 @@ from phast_gym.systems import System
 
 from . import data_init
 from .envinfo import ENV_INFO
-from .interfaces import ForecastModel
-from .model import PHASTConfig, build_from_config
+from .model import PHAST, PHASTConfig, build_from_config
 
 REGIMES = ("known", "partial", "unknown")
 
@@ -117,7 +116,7 @@ def _default_config(env_id: str, regime: str, system: System, env_kwargs: dict[s
                    d0=data_init.MIN_D0, learn_d0=True, canonicalizer="mass", substeps=4, **IDENTIFICATION)
 
 
-def build_model(env_id: str, regime: str, **overrides: Any) -> ForecastModel:
+def build_model(env_id: str, regime: str, **overrides: Any) -> PHAST:
     """PHAST model of ``regime`` ("known", "partial", "unknown") for ``env_id``; ``overrides`` replace
     :class:`PHASTConfig` fields (e.g. ``damping_cap=1.0``, ``substeps=4``, ``seed=1``, ``env_kwargs={...}``).
 

@@ -7,13 +7,15 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import torch
 
-from .interfaces import ForecastModel
+from .interfaces import ForecastModel, TakeoverModel
 
 
-def _u(u: np.ndarray | torch.Tensor | None, sl: slice, dtype: torch.dtype) -> torch.Tensor | None:
+def _u(u: np.ndarray | torch.Tensor | None, sl: Any, dtype: torch.dtype) -> torch.Tensor | None:
     if u is None or np.size(u) == 0:
         return None
     return torch.as_tensor(np.asarray(u[sl]), dtype=dtype)
@@ -40,8 +42,12 @@ def batched_rollout(model: ForecastModel, q: np.ndarray | torch.Tensor, u: np.nd
     for i in range(0, q.shape[0], batch_size):
         qb = torch.as_tensor(q[i:i + batch_size, :burn_in], dtype=dtype)
         ub = _u(u, np.s_[i:i + batch_size, : burn_in - 1 + H], dtype) if u is not None else None
-        fn = model.rollout if mode == "autoregressive" else model.rollout_takeover
-        outs.append(fn(qb, ub, H).cpu().numpy())
+        if mode == "autoregressive":
+            roll = model.rollout(qb, ub, H)
+        else:
+            assert isinstance(model, TakeoverModel)  # checked above
+            roll = model.rollout_takeover(qb, ub, H)
+        outs.append(roll.cpu().numpy())
     model.train(was)
     return np.concatenate(outs, 0)
 

@@ -84,7 +84,7 @@ class DataSpec:
         """The JSON record of this dataset, kept in checkpoints and ``config.json``."""
         d: dict[str, Any] = {"n_train": self.n_train, "n_val": self.n_val, "n_test": self.n_test, "T": self.T,
                              "seed": self.seed, "obs_noise_std": self.obs_noise_std}
-        if self.excited:
+        if self.excitation is not None and self.excited:
             d["port_excitation"] = asdict(self.excitation)
         return d
 
@@ -93,7 +93,7 @@ class DataSpec:
         from phast_gym import make_splits
 
         kw: dict[str, Any] = {"obs_noise_std": self.obs_noise_std} if self.obs_noise_std > 0 else {}
-        if self.excited:
+        if self.excitation is not None and self.excited:
             kw["u"] = self.excitation.for_env(env, self.n_train + self.n_val + self.n_test, self.T)
         return make_splits(env, self.n_train, self.n_val, self.n_test, T=self.T, seed=self.seed, **kw)
 

@@ -24,7 +24,7 @@ import torch
 from tqdm.auto import tqdm
 
 from .checkpoint import atomic_torch_save, first_difference
-from .interfaces import ForecastModel, coordinate_error
+from .interfaces import DataInitModel, ForecastModel, ParamGroupsModel, coordinate_error
 
 CHECKPOINT = "checkpoint.pt"
 
@@ -238,7 +238,7 @@ def _data(model: ForecastModel, train: Any, val: Any, cfg: TrainConfig, dtype: t
 
 def _param_groups(model: ForecastModel, lr: float) -> list[dict[str, Any]]:
     """The model's own optimizer groups (``model.param_groups``), else one group of its trainable parameters."""
-    if hasattr(model, "param_groups"):
+    if isinstance(model, ParamGroupsModel):
         return model.param_groups(lr)
     return [{"params": [p for p in model.parameters() if p.requires_grad], "lr": lr}]
 
@@ -410,10 +410,11 @@ def fit(model: ForecastModel, train: Any, val: Any, cfg: TrainConfig | None = No
     data = _data(model, train, val, cfg, dtype)
     ckpt_path = Path(run_dir) / CHECKPOINT if run_dir is not None else None
     resuming = resume and ckpt_path is not None and ckpt_path.exists()
-    if not resuming and hasattr(model, "initialize_from_data"):  # least-squares start of the learned physics
+    if not resuming and isinstance(model, DataInitModel):  # least-squares start of the learned physics
         model.initialize_from_data(data.train.q, data.train.u)
     state = _new_state(model, cfg, data.n_batches)
     if resuming:
+        assert ckpt_path is not None  # resuming needs an existing checkpoint
         _restore(state, ckpt_path, cfg, identity)
     state.t0 = time.perf_counter() - state.elapsed0
     _run_epochs(state, data, cfg, ckpt_path, identity)

@@ -87,15 +87,16 @@ class OracleEstimator(PortEstimator):
             raise ValueError("the oracle estimator needs the env's info['state'] (true (q, p)); pass info to update()")
         x = np.asarray(info["state"], dtype=np.float64)
         n = self.n
-        self._q = x[:n].copy()
+        self._q: np.ndarray | None = x[:n].copy()
         return np.array([float(v) for v in self.system.velocity(list(x[:n]), list(x[n:]), SCALAR)])
 
     def reset(self) -> None:
-        self._q: np.ndarray | None = None
+        self._q = None
 
     def q_estimate(self) -> np.ndarray | None:
         """The true q (simulation only)."""
-        return None if getattr(self, "_q", None) is None else self._q.copy()
+        q: np.ndarray | None = getattr(self, "_q", None)
+        return None if q is None else q.copy()
 
 
 class FiniteDifferenceEstimator(PortEstimator):
@@ -288,6 +289,7 @@ class UKFEstimator(PortEstimator):
         self._last_q: np.ndarray | None = None
 
     def _sigma_points(self) -> np.ndarray:
+        assert self._x is not None and self._P is not None  # after the first update
         P = 0.5 * (self._P + self._P.T)
         try:
             L = np.linalg.cholesky(P)

@@ -24,7 +24,7 @@ NEXT_STEP_ENVS = ("PHAST/RLCCircuit-v0", "PHAST/LennardJones3-v0", "PHAST/HeatEx
 
 
 def first_step_floor(env_id: str, n_train: int = 200, n_val: int = 50, n_test: int = 50, T: int = 200,
-                     data_seed: int = 42, draws: int = 256, seed: int = 0) -> dict[str, float]:
+                     data_seed: int = 42, draws: int = 256, seed: int = 0) -> dict[str, float | int | str]:
     """Floor of the t = 0 term of the next-step MSE on the test split of the benchmark's splits: ``draws``
     momenta p_0 from the env's own initial distribution for every test q_0, one step of the env's own
     integrator each (see the module docstring)."""

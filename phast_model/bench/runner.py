@@ -140,13 +140,14 @@ def build_run_model(spec: RunSpec, train: Any) -> Any:
         from phast_model.regimes import build_model
 
         # the run's seed is the model's seed (its initial weights), as in ``phast-train --seed``
-        model = build_model(spec.env_id, spec.model.split("-", 1)[1], **{"seed": spec.seed, **spec.model_kw})
+        phast = build_model(spec.env_id, spec.model.split("-", 1)[1], **{"seed": spec.seed, **spec.model_kw})
         if spec.full_state:  # p observed: the core on (q, p), no observer (paper Table 25)
             from phast_model.fullstate import FullStatePHAST
 
-            model = FullStatePHAST(model)
-        return model
+            return FullStatePHAST(phast)
+        return phast
     from phast_model.baselines import make_baseline
+    from phast_model.interfaces import NormalizedModel
 
     n, m = train.q.shape[-1], train.u.shape[-1]
     kw = dict(spec.model_kw)
@@ -155,7 +156,7 @@ def build_run_model(spec: RunSpec, train: Any) -> Any:
             raise ValueError("dhnn is the full-state ablation: run it with full_state=True (--full-state)")
         kw.setdefault("dt", float(train.dt))
     model = make_baseline(spec.model, n, m, tuple(train.angle_dims), **kw)
-    if hasattr(model, "fit_normalizer"):
+    if isinstance(model, NormalizedModel):
         model.fit_normalizer(train.q, train.u)
     return model
 

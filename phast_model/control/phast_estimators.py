@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 import torch
@@ -22,10 +23,13 @@ import torch
 from phast_gym.control.estimators import PortEstimator, ProcessModel, UKFEstimator
 from phast_gym.systems.base import System
 
+if TYPE_CHECKING:
+    from ..model import PHAST
 
-def _load(run: str | Path | torch.nn.Module | None) -> torch.nn.Module:
+
+def _load(run: str | Path | torch.nn.Module | None) -> PHAST:
     if isinstance(run, torch.nn.Module):
-        return run.eval()
+        return cast("PHAST", run.eval())  # a PHAST model (or one with its interface) given in memory
     if run is None:
         raise ValueError("PHAST-based estimators need a trained run: pass --phast-run DIR (a phast-train run directory)")
     from ..api import load_run
@@ -53,13 +57,14 @@ class PHASTObserverEstimator(PortEstimator):
         self.reset()
 
     def reset(self) -> None:
-        self._hist: deque[np.ndarray] = deque(maxlen=(self.window - 1) * self.stride + 1)
+        self._len = (self.window - 1) * self.stride + 1
+        self._hist: deque[np.ndarray] = deque(maxlen=self._len)
 
     @torch.no_grad()
     def update(self, q_meas: np.ndarray, info: dict | None = None, u_prev: np.ndarray | None = None) -> np.ndarray:
         q_meas = np.asarray(q_meas, dtype=np.float64).reshape(self.n)
         if not self._hist:
-            self._hist.extend([q_meas] * (self._hist.maxlen - 1))
+            self._hist.extend([q_meas] * (self._len - 1))
         self._hist.append(q_meas)
         h = np.stack(self._hist)[:: -self.stride][::-1]  # every stride-th sample, ending now
         v = self.model.observer(torch.as_tensor(h, dtype=self._dtype)[None])[0, -1]
@@ -95,7 +100,7 @@ class PHASTProcess(ProcessModel):
     run's G (``PHAST.port_force``).  All sigma points go through the network in one batch.
     """
 
-    def __init__(self, model: torch.nn.Module, dt: float) -> None:
+    def __init__(self, model: PHAST, dt: float) -> None:
         from ..core import PHASTCore
 
         if not isinstance(getattr(model, "core", None), PHASTCore):
@@ -124,7 +129,7 @@ class PHASTProcess(ProcessModel):
 
 
 def phast_ukf(system: System, dt: float, run: str | Path | torch.nn.Module | None, sigma: float = 0.0,
-              **kw: object) -> UKFEstimator:
+              **kw: Any) -> UKFEstimator:
     """The q-only UKF with a trained PHAST run as process model (``--estimators phast-ukf --phast-run DIR``).
 
     Everything but the process model is the plant-physics UKF's (``ukf``), its process noise included: on
