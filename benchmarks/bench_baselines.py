@@ -7,7 +7,7 @@ For each (env, model), on one torch thread: trainable parameters; milliseconds
 per optimizer step on a batch of 64 trajectories x T = 200 (forward + backward
 + AdamW, min over ``--reps`` after one warm-up step); seconds for the
 evaluation's open-loop rollouts (``n_eval`` = 200 test trajectories, burn-in 10,
-H = 100, as :func:`phast_model.metrics.evaluate` runs them).
+H = 100, as :func:`phast_model.train.metrics.evaluate` runs them).
 
 Where a slower reference of the same computation exists it is timed in the
 same run and the ratio printed:
@@ -17,7 +17,7 @@ same run and the ratio printed:
 * Transformer and VPT rollouts: :meth:`ForecastModel.rollout`, the interface's
   definition that re-runs the whole prefix at every step;
 * PHAST (all regimes but the predator-prey latent ODE) training step:
-  :func:`phast_model.core.composed_strang_step`, the Strang step that
+  :func:`phast_model.world.core.composed_strang_step`, the Strang step that
   evaluates D(q) and dV/dq afresh in every splitting piece instead of reusing
   them at each substep's end point, with the neural potential's gradient by
   autograd (a double backward in training) instead of its written-out chain rule;
@@ -46,8 +46,8 @@ from phast_gym.datasets import make_dataset
 from phast_gym.registry import resolve_env_id
 from phast_model.bench import ALL_MODELS, TABLE4_ENVS, RunSpec
 from phast_model.bench.runner import build_run_model, full_state_view
-from phast_model.interfaces import ForecastModel, coordinate_error
-from phast_model.rollout import batched_rollout
+from phast_model.world.interfaces import ForecastModel, coordinate_error
+from phast_model.world.rollout import batched_rollout
 
 #: models whose evaluation rollout has a prefix-recomputing reference worth timing
 ROLLOUT_REFERENCE = frozenset({"transformer", "vpt"})
@@ -95,7 +95,7 @@ def _compose_core_steps(model: Any) -> None:
     """Make ``model``'s core step by :func:`composed_strang_step` and its neural potentials' gradients by autograd
     (the reference without the reuse and the written-out gradient)."""
     from phast_model.components.potentials import NeuralPotential, Potential
-    from phast_model.core import composed_strang_step
+    from phast_model.world.core import composed_strang_step
 
     core = model.core
     core.forward = lambda q, p, f=None, need_p=True: composed_strang_step(core, q, p, f, need_p)

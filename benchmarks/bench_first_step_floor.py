@@ -1,6 +1,6 @@
 """Information floor of the next-step MSE rows (paper Table 4: RLC, LJ-3, heat exchange, N-body, predator-prey).
 
-The next-step MSE (paper Eq. 90, ``phast_model.metrics.forecast_metrics`` key ``mse``) averages over t = 0..T-2, so it
+The next-step MSE (paper Eq. 90, ``phast_model.train.metrics.forecast_metrics`` key ``mse``) averages over t = 0..T-2, so it
 includes the prediction of q_1 from q_0 alone.  No causal model can know the velocity then: the best possible
 first prediction is E[q_1 | q_0], and the unavoidable part of the metric is
 

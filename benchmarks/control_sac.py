@@ -5,7 +5,7 @@ Agents (CPU, one torch thread):
 * ``sac-real``: SAC trained on the real plant (the control env of :class:`ControlProtocol`, decisions
   every ``repeat`` plant steps with the torque held), observation = (sin q, cos q) of the last
   ``frames`` noisy measurements taken at the decision rate;
-* ``sac-world`` (with ``--phast-run``): SAC trained inside :class:`phast_model.world_env.PHASTWorldModelEnv`
+* ``sac-world`` (with ``--phast-run``): SAC trained inside :class:`phast_model.world.gym_env.PHASTWorldModelEnv`
   (the learned PHAST model, dt = the run's env dt = ``repeat`` plant steps; every episode starts from a
   burn-in window of ``burn_in`` real noisy measurements from a start-regime state) and deployed on the real plant.
 
@@ -427,7 +427,7 @@ def make_agent_env(name: str, args: argparse.Namespace, seed: int) -> tuple[gym.
                                          args.episode_decisions, args.max_action, args.q_star, args.reward, seed=seed,
                                          quiet_weight=quiet_weight_of(args))
         return FrameObs(inner, args.frames, args.obs), inner
-    from phast_model.world_env import PHASTWorldModelEnv
+    from phast_model.world.gym_env import PHASTWorldModelEnv
 
     wm = PHASTWorldModelEnv(args.phast_run, burn_in=args.burn_in, max_episode_steps=args.episode_decisions,
                             target=np.array([args.q_star]))

@@ -1,4 +1,4 @@
-"""KNOWN's least-squares damping floor (phast_model.data_init.damping_floor) with its basis against plain
+"""KNOWN's least-squares damping floor (phast_model.world.data_init.damping_floor) with its basis against plain
 harmonics, on the windy and damped envs (256 training trajectories, dataset seed 42).
 
     .venv/bin/python benchmarks/damping_floor_basis.py
@@ -10,8 +10,8 @@ import numpy as np
 import torch
 
 from phast_gym.datasets import make_dataset
-from phast_model import data_init
-from phast_model.regimes import build_model
+from phast_model.world import data_init
+from phast_model.world.regimes import build_model
 
 ENVS = ("PHAST/WindyPendulum-v0", "PHAST/WindyCartPole-v0", "PHAST/WindyDoublePendulum-v0", "PHAST/DampedPendulum-v0")
 

@@ -28,7 +28,7 @@ from pathlib import Path
 from phast_model.bench.paper import PAPER
 from phast_model.bench.runner import load_result
 from phast_model.bench.spec import ALL_MODELS, BASELINE_MODELS, PHAST_MODELS, RunSpec, parse_seeds
-from phast_model.training import TrainConfig
+from phast_model.train.fit import TrainConfig
 
 GROUPS = {"baselines": BASELINE_MODELS, "phast": PHAST_MODELS, "all": ALL_MODELS}
 

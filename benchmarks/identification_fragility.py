@@ -20,6 +20,7 @@ import argparse
 import json
 import subprocess
 import tempfile
+import warnings
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -30,11 +31,15 @@ from tqdm.auto import tqdm
 
 import phast_model
 from phast_gym import make_splits, resolve_env_id
-from phast_model.checkpoint import atomic_write_json
-from phast_model.metrics import benchmark_metric
-from phast_model.regimes import build_model
-from phast_model.runs import train_and_score
-from phast_model.training import TrainConfig
+
+# the pre-layout module paths on purpose: this script also runs against checkouts older than phast_model's
+# packages (world/, train/), where only these exist; newer checkouts map them to the new modules
+warnings.filterwarnings("ignore", message=r"phast_model\.\w+ moved to", category=DeprecationWarning)
+from phast_model.checkpoint import atomic_write_json  # noqa: E402
+from phast_model.metrics import benchmark_metric  # noqa: E402
+from phast_model.regimes import build_model  # noqa: E402
+from phast_model.runs import train_and_score  # noqa: E402
+from phast_model.training import TrainConfig  # noqa: E402
 
 
 @dataclass

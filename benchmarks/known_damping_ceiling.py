@@ -22,8 +22,8 @@ from torch import nn
 
 from phast_gym import make_env_system, make_splits
 from phast_model.components.damping import Damping, KnownDamping
-from phast_model.regimes import build_model
-from phast_model.training import next_step_loss
+from phast_model.train.fit import next_step_loss
+from phast_model.world.regimes import build_model
 
 ENV = "PHAST/WindyPendulum-v0"
 

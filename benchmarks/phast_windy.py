@@ -30,11 +30,11 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from phast_model.checkpoint import atomic_write_json
-from phast_model.metrics import benchmark_metric
-from phast_model.provenance import code_commit
-from phast_model.runs import DataSpec, train_run
-from phast_model.training import TrainConfig
+from phast_model.train.checkpoint import atomic_write_json
+from phast_model.train.fit import TrainConfig
+from phast_model.train.metrics import benchmark_metric
+from phast_model.train.provenance import code_commit
+from phast_model.train.runs import DataSpec, train_run
 
 DEFAULT_RUNS = [
     ("PHAST/WindyPendulum-v0", "known"),

@@ -47,8 +47,8 @@ from phast_model.bench.paper import PAPER
 from phast_model.bench.runner import BENCH_MODEL_FILE, load_result, load_splits, work_dir
 from phast_model.bench.spec import PHAST_MODELS, RunSpec, parse_seeds, run_key
 from phast_model.cli.bench import parse_kv
-from phast_model.metrics import _error_keys, _sq_err, benchmark_metric
-from phast_model.model import PHAST, LatentODEModel
+from phast_model.train.metrics import _error_keys, _sq_err, benchmark_metric
+from phast_model.world.model import PHAST, LatentODEModel
 
 FINER = 4  # oracle_state_fine: this many times the model's substeps
 WORST = 5
@@ -146,7 +146,7 @@ def diagnose(model: PHAST, spec: RunSpec, test: Any, recorded: float, H: int = 1
 def _oracle_parts(model: PHAST, test: Any, q: torch.Tensor, u: torch.Tensor | None, K: int, H: int,
                   rollout_row: bool, score: Any) -> dict[str, Any]:
     from phast_model.components.damping import KnownDamping
-    from phast_model.interfaces import wrap_angles
+    from phast_model.world.interfaces import wrap_angles
 
     out: dict[str, Any] = {}
     qa, pa = true_state(model, test, slice(None))

@@ -17,9 +17,9 @@ import numpy as np
 import torch
 
 from phast_gym.systems import NUMPY, split, stack
-from phast_model.checkpoint import load_model
-from phast_model.runs import DataSpec, train_run
-from phast_model.training import TrainConfig
+from phast_model.train.checkpoint import load_model
+from phast_model.train.fit import TrainConfig
+from phast_model.train.runs import DataSpec, train_run
 
 ENV = "PHAST/WindyPendulum-v0"
 

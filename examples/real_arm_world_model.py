@@ -18,8 +18,8 @@ from pathlib import Path
 
 from real_double_pendulum_mismatch import DEFAULT_DATA, DEFAULT_HOLDOUT, ROLLOUT_WINDOW_S, load
 
-from phast_model.rig import RigTrainConfig
-from phast_model.rig_run import RecordingsSpec, example_cli, headline, train_recordings_run
+from phast_model.rig.fit import RigTrainConfig
+from phast_model.rig.run import RecordingsSpec, example_cli, headline, train_recordings_run
 
 #: phast-mismatch's augmented model and the authors' identified model on the same held-out runs and window length
 #: (docs/mismatch.md, "A real two-motor arm"; their own held-out code: the state fitted to each window's start)

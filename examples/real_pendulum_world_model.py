@@ -17,8 +17,8 @@ from pathlib import Path
 
 from real_pendulum_mismatch import DEFAULT_DATA, load
 
-from phast_model.rig import RigTrainConfig
-from phast_model.rig_run import RecordingsSpec, example_cli, headline, train_recordings_run
+from phast_model.rig.fit import RigTrainConfig
+from phast_model.rig.run import RecordingsSpec, example_cli, headline, train_recordings_run
 
 #: segments 5-6 (0-based 4, 5)
 HOLDOUT = (4, 5)

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .checkpoint import load_model
-from .model import PHAST
-from .runs import train_run
+from .train.checkpoint import load_model
+from .train.runs import train_run
+from .world.model import PHAST
 
 __all__ = ["load_run", "predict", "train_run"]
 

@@ -8,7 +8,7 @@ import torch
 from phast_model.baselines import BASELINES, DHNNBaseline, TransformerBaseline, make_baseline
 from phast_model.baselines.ssm import scan_2x2, scan_complex_diag, scan_diag
 from phast_model.baselines.transformer import sinusoidal_encoding
-from phast_model.interfaces import ForecastModel, coordinate_error
+from phast_model.world.interfaces import ForecastModel, coordinate_error
 
 SEQ = [k for k in BASELINES if k != "dhnn"]
 torch.set_num_threads(1)

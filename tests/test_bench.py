@@ -218,7 +218,7 @@ def test_env_energy_rejects_non_hamiltonian_env() -> None:
     """Figures: predator-prey has no mechanical energy; env_energy says so (the figure code catches ValueError)."""
     import numpy as np
 
-    from phast_model.metrics import env_energy
+    from phast_model.train.metrics import env_energy
 
     q = np.ones((1, 5, 1))
     with pytest.raises(ValueError, match="not port-Hamiltonian"):
@@ -347,7 +347,7 @@ def test_phast_run_seed_seeds_the_model_weights() -> None:
     # the run's seed is the PHAST model's seed, as with phast-train --seed: seeds differ in their initial weights,
     # an explicit model_kw seed wins, and the weights of a seed match build_model(..., seed=seed)
     from phast_model.bench.runner import build_run_model
-    from phast_model.regimes import build_model
+    from phast_model.world.regimes import build_model
 
     def weights(model) -> list:  # noqa: ANN001
         return [t.detach().clone() for t in model.state_dict().values()]
@@ -383,7 +383,7 @@ def test_code_commit_names_the_imported_checkout() -> None:
     import re
 
     from phast_model.bench.runner import _CODE_COMMIT
-    from phast_model.provenance import code_commit
+    from phast_model.train.provenance import code_commit
 
     full, short = code_commit(), code_commit(short=True, dirty=True)
     if full is None:  # not a git checkout (an installed wheel): nothing to name

@@ -256,7 +256,7 @@ def test_cli_writes_results(tmp_path) -> None:
 def test_phast_estimators_with_untrained_model() -> None:
     torch = pytest.importorskip("torch")
     from phast_model.control import PHASTModelEstimator, PHASTObserverEstimator
-    from phast_model.regimes import build_model
+    from phast_model.world.regimes import build_model
 
     model = build_model("PHAST/DampedPendulum-v0", "known").eval()
     system = make_control_env(ControlProtocol()).unwrapped.system
@@ -286,7 +286,7 @@ def test_phast_ukf_process_model_is_the_learned_core() -> None:
     torch = pytest.importorskip("torch")
     from phast_gym.control.estimators import PlantPhysics
     from phast_model.control import PHASTProcess, phast_ukf
-    from phast_model.regimes import build_model
+    from phast_model.world.regimes import build_model
 
     model = build_model("PHAST/Pendulum-v0", "known", damping="none").eval()
     dtype = next(model.parameters()).dtype
@@ -372,8 +372,8 @@ def test_learned_model_summary_reads_the_eval_directories(tmp_path) -> None:
     assert got == {("hanging (q* = 0)", "plant physics"): 1.0, ("hanging (q* = 0)", "PHAST KNOWN"): 0.9,
                    ("upright (q* = pi)", "plant physics"): 0.7,  # stored results name it "ekf" (before) or "ukf"
                    ("upright (q* = pi)", "PHAST PARTIAL, excited port"): 0.5}
-    from phast_model.checkpoint import save_run
-    from phast_model.regimes import build_model
+    from phast_model.train.checkpoint import save_run
+    from phast_model.world.regimes import build_model
 
     save_run(build_model("PHAST/WindyPendulum-v0", "known"), tmp_path / "run")
     lin = mod.linearised(tmp_path / "run")  # KNOWN's V and M are the plant's

@@ -283,10 +283,10 @@ def test_port_excitation_is_held_seeded_and_checked():
 
 def test_dataset_carries_the_system_of_its_kwargs(tmp_path, monkeypatch) -> None:
     """The System that generated a dataset (non-default kwargs) is built once and shared by its splits, whether the
-    dataset is generated or read from the cache; metrics and plots read it (phast_model.metrics.data_system)."""
+    dataset is generated or read from the cache; metrics and plots read it (phast_model.train.metrics.data_system)."""
     import dataclasses
 
-    from phast_model.metrics import data_system, energy_diagnostics
+    from phast_model.train.metrics import data_system, energy_diagnostics
 
     monkeypatch.setenv("PHAST_CACHE_DIR", str(tmp_path))
     for _ in range(2):  # generated, then from the cache

@@ -1,15 +1,15 @@
-"""The per-env registry phast_model.envinfo.ENV_INFO and the views derived from it (regimes, metrics, bench)."""
+"""The per-env registry phast_model.world.envinfo.ENV_INFO and the views derived from it (regimes, metrics, bench)."""
 
 from __future__ import annotations
 
 import pytest
 
 from phast_gym import env_ids, make_env_system
-from phast_model import envinfo
 from phast_model.bench.paper import PAPER, PAPER_FULL_STATE, TABLE4_ENVS
-from phast_model.envinfo import ENV_INFO, EnvInfo
-from phast_model.metrics import benchmark_metric
-from phast_model.regimes import default_config
+from phast_model.train.metrics import benchmark_metric
+from phast_model.world import envinfo
+from phast_model.world.envinfo import ENV_INFO, EnvInfo
+from phast_model.world.regimes import default_config
 
 W, X, R, N = "rollout_theta_wrap_mse_h100", "rollout_mixed_mse_h100", "rollout_mse_h100", "mse"
 

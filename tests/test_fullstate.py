@@ -7,8 +7,8 @@ import pytest
 import torch
 
 from phast_gym.datasets import make_dataset
-from phast_model.fullstate import FullStatePHAST
-from phast_model.regimes import build_model
+from phast_model.world.fullstate import FullStatePHAST
+from phast_model.world.regimes import build_model
 
 
 @pytest.fixture(scope="module")
@@ -46,7 +46,7 @@ def test_bad_input_width_is_a_clear_error(data):
 
 
 def test_training_on_full_state_lowers_the_loss(data):
-    from phast_model.training import TrainConfig, fit
+    from phast_model.train.fit import TrainConfig, fit
 
     torch.manual_seed(0)
     ds = make_dataset("PHAST/WindyPendulum-v0", 24, T=40, seed=4)

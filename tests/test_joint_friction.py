@@ -13,8 +13,8 @@ from hypothesis import strategies as st
 from phast_model.components.friction import LAWS, JointFriction
 from phast_model.components.mass import LowRankMass, TemplateMass
 from phast_model.components.potentials import Potential
-from phast_model.core import PHASTCore
-from phast_model.regimes import build_model
+from phast_model.world.core import PHASTCore
+from phast_model.world.regimes import build_model
 
 FAST = settings(max_examples=25, deadline=None)
 law_sets = st.lists(st.sampled_from(LAWS), min_size=1, max_size=len(LAWS), unique=True).map(tuple)

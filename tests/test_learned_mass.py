@@ -1,5 +1,5 @@
 """Learned configuration-dependent mass (PARTIAL templates, UNKNOWN Cholesky factor) and the least-squares start
-of the learned physics from q-only data (phast_model.data_init)."""
+of the learned physics from q-only data (phast_model.world.data_init)."""
 
 from __future__ import annotations
 
@@ -12,10 +12,10 @@ from hypothesis import strategies as st
 from phast_gym import make_env_system
 from phast_gym.datasets import make_dataset
 from phast_gym.systems import NUMPY, split
-from phast_model import data_init
 from phast_model.components import CholeskyMass, TemplateMass
-from phast_model.core import PHASTCore
-from phast_model.regimes import build_model
+from phast_model.world import data_init
+from phast_model.world.core import PHASTCore
+from phast_model.world.regimes import build_model
 
 torch.set_num_threads(1)
 FAST = settings(max_examples=20, deadline=None)

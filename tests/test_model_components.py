@@ -14,8 +14,8 @@ from phast_gym import env_ids, make_env_system
 from phast_gym.integrate import simulate
 from phast_model.components import FDTCNObserver, HouseholderDamping, LowRankMass, NeuralPotential
 from phast_model.components.observer import backward_difference_weights
-from phast_model.core import PHASTCore, composed_strang_step
-from phast_model.regimes import REGIMES, build_model
+from phast_model.world.core import PHASTCore, composed_strang_step
+from phast_model.world.regimes import REGIMES, build_model
 
 torch.set_num_threads(1)
 FAST = settings(max_examples=15, deadline=None)
@@ -262,8 +262,8 @@ def test_observer_roll_loss_is_the_scored_rollout() -> None:
     import torch
 
     from phast_gym import make_dataset
-    from phast_model.interfaces import coordinate_error
-    from phast_model.regimes import build_model
+    from phast_model.world.interfaces import coordinate_error
+    from phast_model.world.regimes import build_model
 
     ds = make_dataset("PHAST/WindyCartPole-v0", n_traj=3, T=40, seed=5)
     model = build_model("PHAST/WindyCartPole-v0", "unknown", lambda_roll=1.0, roll_horizon=1, roll_mode="observer")

@@ -11,10 +11,10 @@ import torch
 
 from phast_gym import make_splits
 from phast_model.api import load_run, predict
-from phast_model.checkpoint import save_run
-from phast_model.metrics import benchmark_metric, damping_scores, forecast_metrics
-from phast_model.regimes import build_model
-from phast_model.training import TrainConfig, fit, next_step_loss
+from phast_model.train.checkpoint import save_run
+from phast_model.train.fit import TrainConfig, fit, next_step_loss
+from phast_model.train.metrics import benchmark_metric, damping_scores, forecast_metrics
+from phast_model.world.regimes import build_model
 
 torch.set_num_threads(1)
 ENV = "PHAST/WindyPendulum-v0"
@@ -158,7 +158,7 @@ def test_corrupted_and_foreign_checkpoints(tmp_path):
 def test_world_model_env_passes_check_env(splits):
     from gymnasium.utils.env_checker import check_env
 
-    from phast_model.world_env import PHASTWorldModelEnv
+    from phast_model.world.gym_env import PHASTWorldModelEnv
 
     env = PHASTWorldModelEnv(build_model(ENV, "known"), dataset=splits["test"], max_episode_steps=20)
     check_env(env, skip_render_check=True)
@@ -356,8 +356,8 @@ def test_identification_settings_on_every_partial_and_constant_mass_unknown_row(
     """A trainable observer absorbs D under the one-step loss (docs/results.md, section 0): PARTIAL everywhere and
     UNKNOWN with a constant M freeze it, fix dt and take 4 substeps; UNKNOWN with a learned M(q) keeps its own."""
     from phast_gym import env_ids, make_env_system
-    from phast_model.data_init import MIN_D0
-    from phast_model.regimes import IDENTIFICATION, default_config
+    from phast_model.world.data_init import MIN_D0
+    from phast_model.world.regimes import IDENTIFICATION, default_config
 
     for env in env_ids():
         system = make_env_system(env)
@@ -409,7 +409,7 @@ def test_predict_next_on_a_prefix_is_forwards_prediction(env, regime):
 
 def test_train_run_python_api_takes_typed_data_and_train_specs(tmp_path):
     from phast_gym.datasets import PortExcitation
-    from phast_model.runs import DataSpec, train_run
+    from phast_model.train.runs import DataSpec, train_run
 
     data = DataSpec(n_train=8, n_val=4, n_test=4, T=120, seed=5)
     # the record of a free-motion run has exactly the keys a run written before DataSpec had, so its resumes match

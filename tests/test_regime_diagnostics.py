@@ -9,8 +9,8 @@ from repo_scripts import load_script
 
 from phast_gym.datasets import make_splits
 from phast_model.bench.spec import RunSpec
-from phast_model.metrics import forecast_metrics
-from phast_model.regimes import build_model
+from phast_model.train.metrics import forecast_metrics
+from phast_model.world.regimes import build_model
 
 ENV = "PHAST/DampedPendulum-v0"
 

@@ -13,7 +13,7 @@ import torch
 from phast_model.cli.train import main as train_main
 from phast_model.mismatch.synth import make_reality
 from phast_model.mismatch.terms import Term
-from phast_model.rig import RigTrainConfig, build, fit_recordings, heldout_rollouts, load_rig_data, nominal_config, rig_config
+from phast_model.rig.fit import RigTrainConfig, build, fit_recordings, heldout_rollouts, load_rig_data, nominal_config, rig_config
 
 SIM = "PHAST/DampedPendulum-v0"
 COULOMB = 0.4
@@ -85,7 +85,7 @@ def test_unknown_env_or_rig_is_one_line(tmp_path, capsys) -> None:  # noqa: ANN0
 
 def test_cli_run_directory_opens_with_load_run_and_the_world_env(tmp_path, recordings: dict) -> None:  # noqa: ANN001
     from phast_model.api import load_run
-    from phast_model.world_env import PHASTWorldModelEnv
+    from phast_model.world.gym_env import PHASTWorldModelEnv
 
     path = tmp_path / "rec.npz"
     np.savez(path, **recordings)

@@ -3,7 +3,7 @@
 >>> from phast_model.baselines import make_baseline
 >>> model = make_baseline("gru", n=1, m=1, angle_dims=(0,))
 
-All are :class:`phast_model.interfaces.ForecastModel` subclasses: causal
+All are :class:`phast_model.world.interfaces.ForecastModel` subclasses: causal
 seq2seq next-step predictors with d = 64, depth 2 unless overridden by ``**kw``.
 """
 
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..interfaces import ForecastModel
+from ..world.interfaces import ForecastModel
 from .common import SeqBaseline
 from .dhnn import DHNNBaseline
 from .rnn import GRUBaseline, LSTMBaseline

@@ -25,7 +25,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..interfaces import ForecastModel, wrap_angles
+from ..world.interfaces import ForecastModel, wrap_angles
 
 
 def _as_tensor(x: Any) -> torch.Tensor:

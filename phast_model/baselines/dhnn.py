@@ -18,7 +18,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from ..interfaces import ForecastModel, wrap_angles
+from ..world.interfaces import ForecastModel, wrap_angles
 
 
 def _mlp(d_in: int, hidden: int, depth: int) -> nn.Sequential:

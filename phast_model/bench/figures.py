@@ -31,7 +31,7 @@ from .summary import DISPLAY, aggregate, env_metric
 def load_model(out_dir: str | Path, spec: RunSpec, train: Any) -> Any:
     """Rebuild a finished run's model and load its saved weights (``checkpoint.torch_load``: weights_only, and a
     ValueError naming the problem when the file is missing or damaged)."""
-    from phast_model.checkpoint import torch_load
+    from phast_model.train.checkpoint import torch_load
 
     model = build_run_model(spec, train)
     state = torch_load(work_dir(out_dir, spec) / BENCH_MODEL_FILE, "benchmark weights")
@@ -172,7 +172,7 @@ def _damping_panel(ax: Any, ro: EnvRollouts) -> None:
 
 def _energy_panel(ax: Any, ro: EnvRollouts) -> None:
     """The env's energy along the true and the predicted trajectories (n/a for systems without one)."""
-    from ..metrics import data_system, env_energy
+    from ..train.metrics import data_system, env_energy
 
     q, K, Hh, ang, dt = ro.q, ro.K, ro.H, ro.angle_dims, ro.test.dt
     tr = (np.arange(q.shape[1]) * dt)[K:K + Hh]

@@ -1,9 +1,9 @@
 """The one run function shared by every executor, and the sweep driver.
 
 ``run_one(config, out_dir)`` trains and scores one (env, model, seed) with
-:func:`phast_model.runs.train_and_score`, the function behind ``phast-train`` too (same
+:func:`phast_model.train.runs.train_and_score`, the function behind ``phast-train`` too (same
 optimizer, schedule, epochs and best-validation selection for PHAST and baselines, the
-metrics of :func:`phast_model.metrics.forecast_metrics`); the result JSON is written atomically under
+metrics of :func:`phast_model.train.metrics.forecast_metrics`); the result JSON is written atomically under
 ``out_dir/runs/`` and named by the configuration hash, so a finished run is
 never redone and an interrupted sweep resumes where it stopped.
 
@@ -29,7 +29,7 @@ import numpy as np
 from phast_gym.fileio import atomic_write_text, dir_lock
 from phast_gym.fileio import jsonable as _jsonable
 
-from ..provenance import code_commit
+from ..train.provenance import code_commit
 from .spec import RunSpec, run_key
 
 
@@ -135,19 +135,19 @@ def full_state_view(ds: Any) -> Any:
 
 
 def build_run_model(spec: RunSpec, train: Any) -> Any:
-    """PHAST (via :func:`phast_model.regimes.build_model`) or a baseline (via :func:`make_baseline`)."""
+    """PHAST (via :func:`phast_model.world.regimes.build_model`) or a baseline (via :func:`make_baseline`)."""
     if spec.model.startswith("phast-"):
-        from phast_model.regimes import build_model
+        from phast_model.world.regimes import build_model
 
         # the run's seed is the model's seed (its initial weights), as in ``phast-train --seed``
         phast = build_model(spec.env_id, spec.model.split("-", 1)[1], **{"seed": spec.seed, **spec.model_kw})
         if spec.full_state:  # p observed: the core on (q, p), no observer (paper Table 25)
-            from phast_model.fullstate import FullStatePHAST
+            from phast_model.world.fullstate import FullStatePHAST
 
             return FullStatePHAST(phast)
         return phast
     from phast_model.baselines import make_baseline
-    from phast_model.interfaces import NormalizedModel
+    from phast_model.world.interfaces import NormalizedModel
 
     n, m = train.q.shape[-1], train.u.shape[-1]
     kw = dict(spec.model_kw)
@@ -163,7 +163,7 @@ def build_run_model(spec: RunSpec, train: Any) -> Any:
 
 def make_train_config(spec: RunSpec) -> Any:
     """``TrainConfig(epochs, seed, progress=False, **spec.train)``; unknown fields are a clear error."""
-    from phast_model.training import TrainConfig
+    from phast_model.train.fit import TrainConfig
 
     names = {f.name for f in dataclasses.fields(TrainConfig)}
     bad = sorted(set(spec.train) - names)
@@ -200,8 +200,8 @@ def run_one(config: dict[str, Any], out_dir: str, threads: int = 1, lock_wait_s:
 def _train_and_score(spec: RunSpec, out_dir: str, wdir: Path) -> dict[str, Any]:
     import torch
 
-    from phast_model.checkpoint import atomic_torch_save
-    from phast_model.runs import train_and_score
+    from phast_model.train.checkpoint import atomic_torch_save
+    from phast_model.train.runs import train_and_score
 
     t0 = time.perf_counter()
     splits = load_splits(spec)

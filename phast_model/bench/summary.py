@@ -52,7 +52,7 @@ def _metric_value(env_id: str, key: str, value: Any) -> float | None:
     """A record's metric as it enters the mean: a finite float, NaN (for None), or None (left out).
 
     ``damping_r2`` is left out where the true D is constant: its denominator is then round-off (records written
-    before :func:`phast_model.metrics.damping_scores` returned NaN there hold values like -1e12)."""
+    before :func:`phast_model.train.metrics.damping_scores` returned NaN there hold values like -1e12)."""
     if value is None:
         return float("nan")
     if not isinstance(value, (int, float)) or not math.isfinite(float(value)):
@@ -140,7 +140,7 @@ def metric_for(env: str) -> str:
     row = paper_row_for(env)
     if row is not None:
         return row.metric
-    from phast_model.metrics import benchmark_metric
+    from phast_model.train.metrics import benchmark_metric
 
     return benchmark_metric(env.replace(" (full state)", ""))
 

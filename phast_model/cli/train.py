@@ -8,11 +8,11 @@
 With ``--recordings`` (the ``phast-mismatch`` format: q, t or dt, u, angle_dims, angle_offset) the rig ``--sim``
 (an env id or ``path/to/rig.py:Class``) gives the V and M templates and the port; the model learns joint friction
 and is scored on the held-out recordings against the nominal rig (``metrics.json["heldout"]``):
-:func:`phast_model.rig_run.train_recordings_run`.
+:func:`phast_model.rig.run.train_recordings_run`.
 
 Writes ``model.pt``, ``config.json``, ``metrics.json`` (Table 16 keys on the test split
 plus the training wall time), ``history.json``, ``checkpoint.pt`` and plots
-(``rollout.png``, ``phase.png``, ``damping.png``, ``energy.png``): :func:`phast_model.runs.train_run`.
+(``rollout.png``, ``phase.png``, ``damping.png``, ``energy.png``): :func:`phast_model.train.runs.train_run`.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from typing import Any
 from phast_gym import env_ids
 from phast_gym.datasets import PortExcitation
 
-from ..runs import DataSpec, train_run
+from ..train.runs import DataSpec, train_run
 
 __all__ = ["main", "parse_args", "train_run"]
 
@@ -107,8 +107,8 @@ def _json_object(text: str, flag: str) -> dict[str, Any]:
 
 def _recordings_main(args: argparse.Namespace) -> dict[str, Any]:
     """The ``--recordings`` path: checks, training, held-out score; returns what to print."""
-    from ..rig import RigTrainConfig
-    from ..rig_run import RecordingsSpec, heldout_summary, train_recordings_run
+    from ..rig.fit import RigTrainConfig
+    from ..rig.run import RecordingsSpec, heldout_summary, train_recordings_run
 
     if args.env is not None:
         raise ValueError("give either --env or --recordings, not both")
@@ -142,7 +142,7 @@ def main(argv: list[str] | None = None) -> int:
         print("phast-train: error: give --env (a registered env id) or --recordings FILE --sim SIM", file=sys.stderr)
         return 2
     try:
-        from ..training import TrainConfig
+        from ..train.fit import TrainConfig
 
         data = DataSpec(n_train=args.n_train, n_val=args.n_val, n_test=args.n_test, T=args.T, seed=args.data_seed,
                         obs_noise_std=args.obs_noise_std,

@@ -5,7 +5,7 @@ Interface (:class:`Mass`): ``velocity(q, p) = M^-1 p`` (= dH/dp), ``momentum(q, 
 ``matrix(q)``, ``kinetic_dq(q, p) = d/dq (p^T M(q)^-1 p / 2)`` and ``constant``.  Learned masses with
 coefficients that enter M linearly also expose ``linear_basis(q)`` (the matrices B_j(q) with
 M = sum_j theta_j B_j) and ``set_linear(theta)``, used by the least-squares initialization
-(:mod:`phast_model.data_init`).
+(:mod:`phast_model.world.data_init`).
 """
 
 from __future__ import annotations

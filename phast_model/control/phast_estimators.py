@@ -24,7 +24,7 @@ from phast_gym.control.estimators import PortEstimator, ProcessModel, UKFEstimat
 from phast_gym.systems.base import System
 
 if TYPE_CHECKING:
-    from ..model import PHAST
+    from ..world.model import PHAST
 
 
 def _load(run: str | Path | torch.nn.Module | None) -> PHAST:
@@ -101,7 +101,7 @@ class PHASTProcess(ProcessModel):
     """
 
     def __init__(self, model: PHAST, dt: float) -> None:
-        from ..core import PHASTCore
+        from ..world.core import PHASTCore
 
         if not isinstance(getattr(model, "core", None), PHASTCore):
             raise ValueError(f"phast-ukf needs a Hamiltonian PHAST run (PHASTCore); this run's core is "

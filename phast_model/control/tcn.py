@@ -30,8 +30,8 @@ from phast_gym.control.estimators import PortEstimator
 from phast_gym.control.evaluation import START_REGIMES, ControlProtocol, control_system, sample_start_states
 from phast_gym.systems.base import NUMPY, System, split, stack, wrap
 
-from ..checkpoint import atomic_torch_save, atomic_write_json
 from ..components.observer import CausalConv1d, finite_difference
+from ..train.checkpoint import atomic_torch_save, atomic_write_json
 
 NOISE_MODES = ("fixed", "uniform", "conditioned")
 

@@ -3,8 +3,8 @@
 In the q-only setting the observer infers p from the position history (paper Sec. 3.1).  When p is
 measured too (the full-state ablation of Appendix H.1, where DHNN is the baseline), the observer
 and canonicalizer are not needed: the state (q_t, p_t) is read off the data and the same Strang
-core (Eq. 42 / 78) advances it.  :class:`FullStatePHAST` wraps a regime-built :class:`~phast_model.model.PHAST`
-(KNOWN / PARTIAL / UNKNOWN, :func:`phast_model.regimes.build_model`) and exposes the
+core (Eq. 42 / 78) advances it.  :class:`FullStatePHAST` wraps a regime-built :class:`~phast_model.world.model.PHAST`
+(KNOWN / PARTIAL / UNKNOWN, :func:`phast_model.world.regimes.build_model`) and exposes the
 ``ForecastModel`` interface on the stacked state ``x = (q, p)`` of shape (B, T, 2n), the input
 format of :func:`phast_model.bench.runner.full_state_view` and of DHNN.  The wrapped model's
 observer is frozen and not counted (it is never called).

@@ -16,9 +16,9 @@ import torch
 from phast_gym import make_env_system, resolve_env_id
 from phast_gym.systems import NUMPY, System, angle_diff, fd_velocity, split
 
-from .envinfo import ENV_INFO
-from .interfaces import DampingModel, ForecastModel
-from .rollout import batched_predict, batched_rollout
+from ..world.envinfo import ENV_INFO
+from ..world.interfaces import DampingModel, ForecastModel
+from ..world.rollout import batched_predict, batched_rollout
 
 
 def benchmark_metric(env_id: str) -> str:

@@ -1,4 +1,4 @@
-"""Generic trainer for any :class:`~phast_model.interfaces.ForecastModel` (PHAST and baselines).
+"""Generic trainer for any :class:`~phast_model.world.interfaces.ForecastModel` (PHAST and baselines).
 
 Teacher-forced next-step loss over whole trajectories at once (paper Eq. 85, wrapped on
 angles), AdamW + cosine schedule (optional linear warm-up; eps and warm-up may default from the
@@ -23,8 +23,8 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from ..world.interfaces import DataInitModel, ForecastModel, ParamGroupsModel, coordinate_error
 from .checkpoint import atomic_torch_save, first_difference
-from .interfaces import DataInitModel, ForecastModel, ParamGroupsModel, coordinate_error
 
 CHECKPOINT = "checkpoint.pt"
 
@@ -117,7 +117,7 @@ def validation_loss(model: ForecastModel, q: torch.Tensor, u: torch.Tensor | Non
 
 def _resolved(cfg: TrainConfig, model: Any, name: str, default: float) -> float:
     """A TrainConfig value, else the model's own default (``model.train_defaults[name]``, set e.g. by
-    :func:`phast_model.regimes.build_model` for KNOWN), else ``default``."""
+    :func:`phast_model.world.regimes.build_model` for KNOWN), else ``default``."""
     v = getattr(cfg, name)
     if v is None:
         v = getattr(model, "train_defaults", {}).get(name, default)

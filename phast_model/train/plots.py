@@ -60,8 +60,8 @@ def make_plots(model: Any, test: Any, out: Path, burn_in: int = 10, H: int = 100
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from ..world.rollout import batched_rollout
     from .metrics import data_system
-    from .rollout import batched_rollout
 
     q = np.asarray(test.q[:n_show])
     H = min(H, q.shape[1] - burn_in)

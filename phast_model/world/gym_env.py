@@ -21,7 +21,7 @@ import torch
 import phast_gym  # noqa: F401  (registers the ids)
 from phast_gym.systems import wrap
 
-from .api import load_run
+from ..api import load_run
 from .model import PHAST
 
 

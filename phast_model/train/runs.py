@@ -1,13 +1,13 @@
 """Train one run and score it: the library function behind ``phast-train``, the benchmark harness and the examples.
 
-* :func:`train_and_score` is the shared core: :func:`phast_model.training.fit` (checkpoints in the run's
+* :func:`train_and_score` is the shared core: :func:`phast_model.train.fit.fit` (checkpoints in the run's
   directory, resumable), a refusal of non-finite weights, then the test metrics of
-  :func:`phast_model.metrics.forecast_metrics`.  ``phast-train`` and every benchmark run
+  :func:`phast_model.train.metrics.forecast_metrics`.  ``phast-train`` and every benchmark run
   (:func:`phast_model.bench.runner.run_one`, PHAST and baselines alike) train through it.
 * :func:`train_run` is a whole PHAST run directory (what ``phast-train`` writes): checks, the dataset,
-  :func:`train_and_score`, then ``model.pt`` + ``config.json`` (:func:`phast_model.checkpoint.save_run`,
+  :func:`train_and_score`, then ``model.pt`` + ``config.json`` (:func:`phast_model.train.checkpoint.save_run`,
   read back by :func:`phast_model.api.load_run`), ``metrics.json``, ``history.json`` and the plots of
-  :func:`phast_model.plots.make_plots`.
+  :func:`phast_model.train.plots.make_plots`.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 from phast_gym.datasets import PortExcitation, check_noise_std
 
 if TYPE_CHECKING:
-    from .training import TrainConfig
+    from .fit import TrainConfig
 
 #: the run files :func:`train_run` writes besides the checkpoint
 METRICS_FILE, HISTORY_FILE = "metrics.json", "history.json"
@@ -36,8 +36,8 @@ def train_and_score(model: Any, splits: dict[str, Any], cfg: Any, run_dir: str |
     data's physics unless ``energy=False``.  Returns ``(FitResult, metrics)``."""
     import torch
 
+    from .fit import fit
     from .metrics import forecast_metrics
-    from .training import fit
 
     res = fit(model, splits["train"], splits["val"], cfg, run_dir=run_dir, resume=resume, identity=identity)
     if not all(bool(torch.isfinite(p).all()) for p in res.model.parameters()):
@@ -109,8 +109,8 @@ def train_run(env: str, regime: str, out: str | Path, *, data: DataSpec | None =
     from phast_gym import resolve_env_id
     from phast_gym.fileio import dir_lock, ensure_writable_dir
 
-    from .regimes import build_model
-    from .training import CHECKPOINT, TrainConfig, check_resume
+    from ..world.regimes import build_model
+    from .fit import CHECKPOINT, TrainConfig, check_resume
 
     env = resolve_env_id(env)
     data = DataSpec() if data is None else data

@@ -3,8 +3,8 @@
 Each :class:`EnvInfo` holds the env's benchmark metric (paper Table 4 / Table 16 key), its PARTIAL potential
 template (paper Table 1 / Appendix D), the PARTIAL mass template of a configuration-dependent M(q) and the
 paper's reported row (Tables 3, 17-24; mean, std over 5 seeds) when the paper has one.  Everything else is
-derived from it: :func:`phast_model.metrics.benchmark_metric`, the templates of
-:func:`phast_model.regimes.default_config` and the harness's :data:`phast_model.bench.paper.PAPER`.
+derived from it: :func:`phast_model.train.metrics.benchmark_metric`, the templates of
+:func:`phast_model.world.regimes.default_config` and the harness's :data:`phast_model.bench.paper.PAPER`.
 Every paper number in the code base is typed here (with :data:`PAPER_FULL_STATE`, Table 25).
 """
 
@@ -131,7 +131,7 @@ _ENTRIES: tuple[EnvInfo, ...] = (
         (7.18e-3, 1.79e-3), (4.64e-2, 8.17e-3), (1.47e-2, 1.30e-2), (1.83e-3, 6.88e-4)),
         {"phast-known": 4489, "phast-partial": 13323, "phast-unknown": 13355, "s5": 17734, "linoss": 17734, "gru": 39174,
          "lstm": 52102, "vpt": 17478, "transformer": 100806})),
-    # not port-Hamiltonian (a latent ODE, phast_model.regimes): no potential or mass template
+    # not port-Hamiltonian (a latent ODE, phast_model.world.regimes): no potential or mass template
     _env("PHAST/PredatorPrey-v0", NEXT, paper=("Predator-prey (UNKNOWN)", "Table 24", _nx(
         (0.0203, 0.0002), (0.0203, 0.0002), (0.0199, 0.0004), (6.12, 0.58), (3.53, 0.70), (4.72, 0.23), (5.85, 0.14),
         (0.226, 0.012), (0.179, 0.014)),

@@ -2,9 +2,9 @@
 
 :func:`train_recordings_run` checks everything first (recordings, rig, held-out indices, room for the held-out
 windows), trains by multiple shooting (:func:`phast_model.rig.fit_recordings`), scores PHAST and the nominal rig on
-the held-out recordings by the same code (:func:`phast_model.rig.heldout_rollouts`) and writes ``model.pt`` +
+the held-out recordings by the same code (:func:`phast_model.rig.fit.heldout_rollouts`) and writes ``model.pt`` +
 ``config.json`` (opened by :func:`phast_model.api.load_run` and
-:class:`phast_model.world_env.PHASTWorldModelEnv`), ``metrics.json`` (key ``heldout``), ``history.json`` and the
+:class:`phast_model.world.gym_env.PHASTWorldModelEnv`), ``metrics.json`` (key ``heldout``), ``history.json`` and the
 plots ``heldout_rollout.png`` and ``friction.png``.
 """
 
@@ -15,7 +15,7 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from .rig import (
+from .fit import (
     BURN_IN_S,
     RigData,
     RigFit,
@@ -95,11 +95,11 @@ def train_recordings_run(spec: RecordingsSpec, out: str | Path, train: RigTrainC
         metrics = _metrics(spec, data, fit, scores)
         _write(fit, metrics, spec, train, out)
         if plots:
-            from .rig_plots import plot_friction, plot_heldout
+            from .plots import plot_friction, plot_heldout
 
             plot_heldout(windows, rolls, data.heldout.dt, out / "heldout_rollout.png")
             metrics["friction_check"] = plot_friction(fit.model, nominal.system, data.train, out / "friction.png")
-            from .checkpoint import atomic_write_json
+            from ..train.checkpoint import atomic_write_json
 
             atomic_write_json(out / METRICS_FILE, metrics)
     return metrics
@@ -121,7 +121,7 @@ def _metrics(spec: RecordingsSpec, data: RigData, fit: RigFit, scores: dict[str,
 
 
 def _write(fit: RigFit, metrics: dict[str, Any], spec: RecordingsSpec, train: RigTrainConfig, out: Path) -> None:
-    from .checkpoint import atomic_write_json, save_run
+    from ..train.checkpoint import atomic_write_json, save_run
 
     rec = {**asdict(spec), "recordings": metrics["recordings"], "holdout": list(spec.holdout or ())}
     save_run(fit.model, out, {"train": asdict(train), "recordings": rec})

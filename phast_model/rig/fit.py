@@ -30,13 +30,13 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from .components.mass import KnownMass, LowRankMass
-from .interfaces import coordinate_error, wrap_angles
-from .mismatch.evaluate import check_holdout_indices, split
-from .mismatch.recordings import Recordings, load_raw, validate
-from .mismatch.shooting import smooth
-from .mismatch.simulators import load_simulator
-from .model import PHAST, PHASTConfig, build_from_config
+from ..components.mass import KnownMass, LowRankMass
+from ..mismatch.evaluate import check_holdout_indices, split
+from ..mismatch.recordings import Recordings, load_raw, validate
+from ..mismatch.shooting import smooth
+from ..mismatch.simulators import load_simulator
+from ..world.interfaces import coordinate_error, wrap_angles
+from ..world.model import PHAST, PHASTConfig, build_from_config
 
 REGIMES = ("known", "partial", "unknown")
 #: burn-in before each held-out window [s] (the state is fitted to it)
@@ -288,7 +288,7 @@ class RigFit:
 def _template_start(model: PHAST, rec: Recordings) -> dict[str, float]:
     """PARTIAL's template and mass coefficients from the rig's nominal V and M, by least squares at the recorded
     configurations (the data then refit every coefficient).  A start from the measured motion alone (the envs'
-    :func:`phast_model.data_init.initialize_partial`) is not usable on a real arm: on the DFKI C.0 runs its force
+    :func:`phast_model.world.data_init.initialize_partial`) is not usable on a real arm: on the DFKI C.0 runs its force
     balance leaves 66% of the force unexplained (finite differences of a 3.8e-4 rad encoder, a torque held per
     interval, unmodelled Coulomb friction) and every coefficient comes out 5-10x too small."""
     system = model.system

@@ -22,10 +22,10 @@ from collections.abc import Callable
 import torch
 from torch import nn
 
-from .components.damping import Damping
-from .components.friction import JointFriction
-from .components.mass import Mass
-from .components.potentials import Potential
+from ..components.damping import Damping
+from ..components.friction import JointFriction
+from ..components.mass import Mass
+from ..components.potentials import Potential
 
 
 class SubstepCore(nn.Module):

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from .components.potentials import HybridPotential, TemplatePotential
+from ..components.potentials import HybridPotential, TemplatePotential
 
 #: the smallest starting value of a learned damping floor d0 (the softplus of a smaller one hardly moves)
 MIN_D0 = 1e-3

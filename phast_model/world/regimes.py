@@ -5,13 +5,13 @@
   least-squares floor of the training data),
   with the identification settings explained in :func:`default_config` (frozen 4th-order
   backward-difference observer, L = 8 (L = 4 with configuration-dependent M), fixed dt, damping-network lr x 100
-  (the floor d0 keeps the base lr, see :meth:`phast_model.model.PHAST.param_groups`),
+  (the floor d0 keeps the base lr, see :meth:`phast_model.world.model.PHAST.param_groups`),
   AdamW eps 1e-15 and a 1-epoch lr warm-up: ``KNOWN_TRAIN_DEFAULTS``).
   Configuration-dependent M(q) (cart-pole, double pendulum) uses the implicit-midpoint core.
 * PARTIAL: V = template with learnable coefficients + softplus(rho) * MLP; M = diag + low rank (constant M) or the
   system's mass template ``M0 + cos(phi(q)) M1`` (configuration-dependent M, :class:`TemplateMass`, implicit
   midpoint), with ``p = M(q) qdot``.  Template and mass coefficients, and a learned damping floor d0, start from one
-  least squares on the training data (``init_from="data"``, :mod:`phast_model.data_init`); ``init_from="physics"``
+  least squares on the training data (``init_from="data"``, :mod:`phast_model.world.data_init`); ``init_from="physics"``
   is the "V given" variant that fits them to the env's true V and M.  D capped at ``beta_bar = dd`` with d0 fixed
   to the env's base damping on windy systems (Table 13), unbounded with learned d0 otherwise.  KNOWN's
   identification settings with L = 4 on every row (a trainable observer absorbs D).

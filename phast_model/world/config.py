@@ -1,7 +1,7 @@
 """The configuration of a PHAST model: :class:`PHASTConfig` (everything saved in ``config.json``), the system it
 names (:func:`config_system`) and the scales its neural inputs are normalized by (:func:`system_scales`).
 
-Split out of :mod:`phast_model.model`, which re-exports all three.
+Split out of :mod:`phast_model.world.model`, which re-exports all three.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ class PHASTConfig:
     mass_template: str | None = None  # mass="template": cartpole | double_pendulum | double_pendulum_relative
     mass_hidden: int = 32  # mass="cholesky": hidden width of the factor network
     #: where learned physics starts: "data" (least squares on the training set at the start of training,
-    #: :mod:`phast_model.data_init`), "physics" (template and mass fitted to the env's true V and M: the
+    #: :mod:`phast_model.world.data_init`), "physics" (template and mass fitted to the env's true V and M: the
     #: "V given" variant), "rig" (a recordings run: the rig's nominal V and M at the recorded configurations,
     #: :func:`phast_model.rig.fit_recordings`) or "none" (unit coefficients, identity mass)
     init_from: str = "data"
@@ -131,7 +131,7 @@ def config_system(cfg: PHASTConfig, system: System | None = None) -> tuple[str, 
         name = resolve_env_id(cfg.env_id)
         system = make_env_system(name, **cfg.env_kwargs) if system is None else system
     else:
-        from .mismatch.simulators import load_simulator
+        from ..mismatch.simulators import load_simulator
 
         name, system = cfg.sim, load_simulator(cfg.sim, cfg.env_kwargs).build()
     if cfg.dt is not None:

@@ -1,10 +1,10 @@
 """The PHAST world model: observer -> canonicalizer -> Strang-splitting core.
 
-:class:`PHAST` is a :class:`~phast_model.interfaces.ForecastModel`; its parts are
+:class:`PHAST` is a :class:`~phast_model.world.interfaces.ForecastModel`; its parts are
 composed from a :class:`PHASTConfig` by :func:`build_from_config` (the regimes
-of :mod:`phast_model.regimes` are such configs).  :class:`LatentODEModel` is the
+of :mod:`phast_model.world.regimes` are such configs).  :class:`LatentODEModel` is the
 structured model of the non-Hamiltonian predator-prey env (see its docstring).  The configuration itself
-(:class:`PHASTConfig`, :func:`config_system`, :func:`system_scales`) lives in :mod:`phast_model.config` and is
+(:class:`PHASTConfig`, :func:`config_system`, :func:`system_scales`) lives in :mod:`phast_model.world.config` and is
 re-exported here.
 """
 
@@ -21,8 +21,7 @@ from torch import nn
 
 from phast_gym.systems import NUMPY, TORCH, System, split, stack
 
-from . import data_init
-from .components import (
+from ..components import (
     CholeskyMass,
     FDTCNObserver,
     HouseholderDamping,
@@ -35,11 +34,12 @@ from .components import (
     TemplateMass,
     make_template,
 )
-from .components.damping import Damping
-from .components.features import coordinate_features, n_features
-from .components.friction import JointFriction
-from .components.mass import Mass
-from .components.potentials import Potential, TemplatePotential
+from ..components.damping import Damping
+from ..components.features import coordinate_features, n_features
+from ..components.friction import JointFriction
+from ..components.mass import Mass
+from ..components.potentials import Potential, TemplatePotential
+from . import data_init
 from .config import PHASTConfig, config_system, system_scales
 from .core import PHASTCore, SubstepCore
 from .interfaces import ForecastModel, coordinate_error, wrap_angles
@@ -68,7 +68,7 @@ class PHAST(ForecastModel):
     @property
     def train_defaults(self) -> dict[str, float]:
         """The config's trainer defaults (``adam_eps``, ``warmup_epochs``) that are set; read by
-        :func:`phast_model.training.fit` where its TrainConfig leaves them None."""
+        :func:`phast_model.train.fit.fit` where its TrainConfig leaves them None."""
         return {k: float(v) for k in ("adam_eps", "warmup_epochs") if (v := getattr(self.config, k)) is not None}
 
     # ---- public pieces (control and mismatch reuse these) --------------------
@@ -127,9 +127,9 @@ class PHAST(ForecastModel):
 
     @torch.no_grad()
     def initialize_from_data(self, q: torch.Tensor, u: torch.Tensor | None) -> dict[str, float]:
-        """Start the learned physics from one least squares on the training set (:mod:`phast_model.data_init`):
+        """Start the learned physics from one least squares on the training set (:mod:`phast_model.world.data_init`):
         PARTIAL's template and mass coefficients, KNOWN's damping floor d0.  Called by
-        :func:`phast_model.training.fit` before the first epoch (not on resume); a no-op unless
+        :func:`phast_model.train.fit.fit` before the first epoch (not on resume); a no-op unless
         ``init_from == "data"``.  Returns what it set."""
         if self.config.init_from != "data" or not isinstance(self.core, PHASTCore):
             return {}
@@ -321,7 +321,7 @@ class LVTemplateField(nn.Module):
     plus ``softplus(rho) * MLP`` on pdot.
 
     ``init_from``: "data" (the default) starts from a neutral c that :meth:`LatentODEModel.initialize_from_data`
-    replaces by a least squares on the observed prey (:func:`phast_model.data_init.lotka_volterra_start`);
+    replaces by a least squares on the observed prey (:func:`phast_model.world.data_init.lotka_volterra_start`);
     "physics" fits c to the env's ``rhs`` (the "template given" variant); "none" keeps the neutral c."""
 
     #: neutral start: no growth, no interaction, predation of unit strength (so the latent map is defined)
@@ -466,7 +466,7 @@ class LatentODEModel(PHAST):
     @torch.no_grad()
     def initialize_from_data(self, q: torch.Tensor, u: torch.Tensor | None) -> dict[str, float]:
         """PARTIAL: the Lotka-Volterra coefficients from one least squares on the observed prey
-        (:func:`phast_model.data_init.lotka_volterra_start`), then the latent prior from the training data's
+        (:func:`phast_model.world.data_init.lotka_volterra_start`), then the latent prior from the training data's
         first samples.  A no-op for KNOWN / UNKNOWN or unless ``init_from == "data"``."""
         fld = self.core.field
         if self.config.init_from != "data" or not isinstance(fld, LVTemplateField):

@@ -18,7 +18,7 @@ import torch
 from phast_gym.fileio import atomic_write_bytes, jsonable
 from phast_gym.fileio import atomic_write_json as _atomic_write_json
 
-from .model import PHAST, PHASTConfig, build_from_config
+from ..world.model import PHAST, PHASTConfig, build_from_config
 
 FORMAT = "phast-run"
 VERSION = 1

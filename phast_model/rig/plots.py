@@ -9,9 +9,9 @@ from typing import Any
 import numpy as np
 import torch
 
-from .mismatch.friction import FrictionCurve, friction_curve
-from .mismatch.recordings import Recordings
-from .rig import HeldoutWindows
+from ..mismatch.friction import FrictionCurve, friction_curve
+from ..mismatch.recordings import Recordings
+from .fit import HeldoutWindows
 
 
 def _pyplot() -> Any:
