@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from .integrate import _split_at_crossing, check_batch, rk4, step
+from .integrate import _Crossing, _split_at_crossing, check_batch, rk4, step
 from .systems.base import NUMPY, SCALAR, TORCH, System
 
 #: compiled one-interval functions, keyed by the system's identity and the integration settings
@@ -59,9 +59,10 @@ def _gathered_substep(system: System, q: list, p: list, u: list | None, h: float
     full = lambda c: torch.broadcast_to(torch.as_tensor(c, dtype=s0.dtype), s0.shape)  # noqa: E731
     sel = lambda c: full(c)[idx]  # noqa: E731
     cs = cross[idx]
-    qc, pc = _split_at_crossing(system, [sel(c) for c in q], [sel(c) for c in p], None if u is None else [sel(c) for c in u],
-                                h, ([sel(c) for c in k1[0]], [sel(c) for c in k1[1]]), [sel(c) for c in qn], [sel(c) for c in pn],
-                                torch.where(cs, s0[idx], -1.0), torch.where(cs, s1[idx], 1.0), TORCH, mask=cs)
+    qc, pc = _split_at_crossing(system, _Crossing(
+        [sel(c) for c in q], [sel(c) for c in p], None if u is None else [sel(c) for c in u], h,
+        ([sel(c) for c in k1[0]], [sel(c) for c in k1[1]]), [sel(c) for c in qn], [sel(c) for c in pn],
+        torch.where(cs, s0[idx], -1.0), torch.where(cs, s1[idx], 1.0)), TORCH, mask=cs)
     qn = [full(a).index_put((idx,), torch.as_tensor(b)) for a, b in zip(qn, qc)]
     pn = [full(a).index_put((idx,), torch.as_tensor(b)) for a, b in zip(pn, pc)]
     return qn, pn, s1.index_put((idx,), torch.as_tensor(system.switching(qc, pc, TORCH))), overflow

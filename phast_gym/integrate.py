@@ -18,7 +18,7 @@ Each state's switching value is computed once and carried to the next substep.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -64,12 +64,12 @@ def _substep(system: System, q: Sequence, p: Sequence, u: Sequence | None, h: An
     qn, pn = rk4(system, q, p, u, h, xp, k1)
     if s0 is None:
         return qn, pn, None
-    s1 = system.switching(qn, pn, xp)
+    s1: Any = system.switching(qn, pn, xp)
     cross = s0 * s1 < 0
     if not _any(cross):
         return qn, pn, s1
     if xp is SCALAR:
-        qn, pn = _split_at_crossing(system, q, p, u, h, k1, qn, pn, s0, s1, xp)
+        qn, pn = _split_at_crossing(system, _Crossing(q, p, u, h, k1, qn, pn, s0, s1), xp)
         return qn, pn, system.switching(qn, pn, xp)
     if isinstance(s0, np.ndarray):
         # refine only the samples that cross; the rest keep their plain RK4 step
@@ -78,19 +78,22 @@ def _substep(system: System, q: Sequence, p: Sequence, u: Sequence | None, h: An
         sel = lambda c: c[idx] if np.ndim(c) else c  # noqa: E731
         qs, ps, qns, pns = ([sel(c) for c in comps] for comps in (q, p, qn, pn))
         k1s = ([sel(c) for c in k1[0]], [sel(c) for c in k1[1]])
-        qc, pc = _split_at_crossing(system, qs, ps, None if u is None else [sel(c) for c in u], sel(h), k1s,
-                                    qns, pns, s0[idx], s1[idx], xp)
+        # a system with per-sample parameters (several systems as one batch) gives the crossing samples' own
+        take = getattr(system, "select_samples", None)
+        sys_c = system if take is None else take(idx)
+        qc, pc = _split_at_crossing(sys_c, _Crossing(qs, ps, None if u is None else [sel(c) for c in u], sel(h), k1s,
+                                                     qns, pns, s0[idx], s1[idx]), xp)
         # rk4 returned fresh arrays: overwrite the crossing samples in place (copy only broadcast scalars)
         qn, pn = ([c if np.shape(c) == shape else np.array(np.broadcast_to(c, shape), dtype=float) for c in comps]
                   for comps in (qn, pn))
         for dst, src_ in zip(qn + pn, qc + pc):
             dst[idx] = src_
         s1 = np.array(s1, dtype=float)  # the system's array: do not write into it
-        s1[idx] = system.switching(qc, pc, xp)
+        s1[idx] = sys_c.switching(qc, pc, xp)
         return qn, pn, s1
     # torch: every sample takes two pieces; non-crossing ones split at tau = h (second piece of length 0)
-    qc, pc = _split_at_crossing(system, q, p, u, h, k1, qn, pn, xp.where(cross, s0, -1.0), xp.where(cross, s1, 1.0), xp,
-                                mask=cross)
+    qc, pc = _split_at_crossing(system, _Crossing(q, p, u, h, k1, qn, pn, xp.where(cross, s0, -1.0), xp.where(cross, s1, 1.0)),
+                                xp, mask=cross)
     return qc, pc, system.switching(qc, pc, xp)
 
 
@@ -98,8 +101,22 @@ def _substep(system: System, q: Sequence, p: Sequence, u: Sequence | None, h: An
 CROSSING_ITERATIONS = 4
 
 
-def _split_at_crossing(system: System, q: Sequence, p: Sequence, u: Sequence | None, h: float, k1: tuple,
-                       qn: Sequence, pn: Sequence, s0: Any, s1: Any, xp: Any, mask: Any = None) -> tuple[list, list]:
+class _Crossing(NamedTuple):
+    """A plain RK4 substep of length ``h`` from (q, p) to (qn, pn) under ``u`` whose switching values ``s0``, ``s1``
+    at its ends have opposite signs; ``k1``: the vector field at the start.  (A named tuple: torch.compile traces it.)"""
+
+    q: Sequence
+    p: Sequence
+    u: Sequence | None
+    h: Any
+    k1: tuple
+    qn: Sequence
+    pn: Sequence
+    s0: Any
+    s1: Any
+
+
+def _split_at_crossing(system: System, c: _Crossing, xp: Any, mask: Any = None) -> tuple[list, list]:
     """Integrate a substep known to cross the switching surface in two smooth pieces.
 
     The crossing time is located on the cubic Hermite interpolant of q over the plain RK4 substep
@@ -109,11 +126,12 @@ def _split_at_crossing(system: System, q: Sequence, p: Sequence, u: Sequence | N
     samples that really cross (the others take the whole substep as the first piece).
     """
     where = xp.where
+    q, p, u, h, k1 = c.q, c.p, c.u, c.h, c.k1
     v0 = k1[0]
-    v1 = system.velocity(qn, pn, xp)
+    v1 = system.velocity(c.qn, c.pn, xp)
     # q(th) = q + th (c1 + th (c2 + th c3)) on th = t / h in [0, 1] (cubic Hermite)
     coef = []
-    for a, b, va, vb in zip(q, qn, v0, v1):
+    for a, b, va, vb in zip(q, c.qn, v0, v1):
         d, c1, hv1 = b - a, h * va, h * vb
         coef.append((a, c1, 3.0 * d - 2.0 * c1 - hv1, c1 + hv1 - 2.0 * d))
 
@@ -122,7 +140,8 @@ def _split_at_crossing(system: System, q: Sequence, p: Sequence, u: Sequence | N
         return system.switching([a + th * (c1 + th * (c2 + th * c3)) for a, c1, c2, c3 in coef], p, xp)
 
     # regula falsi (Illinois) on th in [a, b]
-    a, sa, b, sb = 0.0 * s0, s0, 1.0 + 0.0 * s0, s1
+    s0 = c.s0
+    a, sa, b, sb = 0.0 * s0, s0, 1.0 + 0.0 * s0, c.s1
     for _ in range(CROSSING_ITERATIONS):
         th = a + (b - a) * sa / (sa - sb)
         st = s_at(th)
@@ -142,7 +161,7 @@ def step(
     p: Sequence,
     u: Sequence | None,
     xp: Any = SCALAR,
-    dt: float | None = None,
+    dt: float | np.ndarray | None = None,
     substeps: int | None = None,
 ) -> tuple[list, list]:
     """Advance (q, p) by one sampling interval ``dt`` with ``u`` held (zero-order hold).
@@ -162,10 +181,10 @@ def step(
         else:
             for _ in range(k):
                 q, p = rk4(system, q, p, u, h, xp)
-        return system.post_step(q, p, xp)
+        return system.post_step(list(q), list(p), xp)
     for _ in range(k):
         q, p, s = _substep(system, q, p, u, h, xp, s)
-    return system.post_step(q, p, xp)
+    return system.post_step(list(q), list(p), xp)
 
 
 def _rk4_1(f: Any, q: Sequence, p: Sequence, u: Sequence | None, h: Any, xp: Any = SCALAR,
@@ -246,6 +265,7 @@ def simulate(
             q, p, s = _substep(system, q, p, ut, h, xp, s)
         q, p = system.post_step(q, p, xp)
         if system.stochastic:
+            assert rng is not None  # check_batch demands one of a stochastic system
             pk = system.stochastic_kick(np.stack(p, -1), rng)
             p = [pk[:, i] for i in range(n)]
         if fresh_s:

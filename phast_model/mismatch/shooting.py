@@ -15,9 +15,12 @@ cost of a step grows linearly with the number of windows.
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.signal import savgol_filter
@@ -168,7 +171,7 @@ def simulate_qv(system: System, q0: np.ndarray, v0: np.ndarray, n_steps: int, u:
         with np.errstate(all="ignore"):
             for t in range(n_steps):
                 ut = None if u is None else [u[:, t, i] for i in range(n)]
-                q, p = step(system, q, p, ut, NUMPY, dt=dt, substeps=substeps)
+                q, p = step(system, q, p, ut, NUMPY, dt=dt, substeps=int(substeps))
                 q = [np.broadcast_to(c, (B,)) for c in q]
                 p = [np.broadcast_to(c, (B,)) for c in p]
                 out[:, t + 1] = np.stack(q, -1)
@@ -189,6 +192,168 @@ def simulate_qv(system: System, q0: np.ndarray, v0: np.ndarray, n_steps: int, u:
                 out[:, t + 1] = np.stack(q, -1)
     measure = getattr(system, "measure", None)
     return measure(out) if measure is not None else out
+
+
+# --------------------------------------------------------------------------- several systems as one batch
+class _Unmergeable(Exception):
+    """The systems differ in something other than numbers (a flag, a term list): simulate them one by one."""
+
+
+def _merge_values(vals: Sequence[Any], reps: int) -> Any:
+    """One value standing for ``vals`` (one per system), each system's value repeated over its ``reps`` samples.
+
+    Equal values stay as they are (the same arithmetic as a single system); differing floats become a (K*reps,)
+    array; tuples, lists, dicts, systems and dataclasses (terms) are merged field by field.
+    """
+    v0 = vals[0]
+    t = type(v0)
+    if all(v is v0 for v in vals):
+        return v0
+    if any(type(v) is not t for v in vals):
+        raise _Unmergeable
+    if t is float or issubclass(t, np.floating):
+        if all(v == v0 for v in vals):
+            return v0
+        return np.repeat(np.asarray(vals, dtype=float), reps)
+    if t is tuple or t is list:
+        if any(len(v) != len(v0) for v in vals):
+            raise _Unmergeable
+        return t(_merge_values([v[i] for v in vals], reps) for i in range(len(v0)))
+    if t is dict:
+        if any(v.keys() != v0.keys() for v in vals):
+            raise _Unmergeable
+        return {k: _merge_values([v[k] for v in vals], reps) for k in v0}
+    if isinstance(v0, System) or (dataclasses.is_dataclass(v0) and not isinstance(v0, type)):
+        if any(vars(v).keys() != vars(v0).keys() for v in vals):
+            raise _Unmergeable
+        out = copy.copy(v0)  # no __init__ / __post_init__: they validate scalars
+        for k in vars(v0):
+            object.__setattr__(out, k, _merge_values([vars(v)[k] for v in vals], reps))
+        return out
+    if t is np.ndarray and all(v.shape == v0.shape and np.array_equal(v, v0) for v in vals):
+        return v0
+    if t in (str, bool, int) and all(v == v0 for v in vals):  # a differing int or flag is structure, not a number
+        return v0
+    raise _Unmergeable
+
+
+def merge_systems(systems: Sequence[System], reps: int) -> System | None:
+    """One system that simulates ``len(systems)`` batches of ``reps`` samples, the k-th with ``systems[k]``.
+
+    The systems must be of one class and differ only in float attributes (parameters, coefficients and what
+    is derived from them): those become per-sample arrays, so each sample sees its own system's numbers in
+    the same operations.  The measurement map runs per system.  None when the systems cannot be merged.
+    """
+    merged: Any
+    try:
+        merged = _merge_values(list(systems), reps)
+    except (_Unmergeable, TypeError):  # TypeError: no instance __dict__ (slots)
+        return None
+    measures: list[Any] = [getattr(s, "measure", None) for s in systems]
+    if measures[0] is not None:
+        def measure(out: np.ndarray) -> np.ndarray:
+            return np.concatenate([m(out[k * reps: (k + 1) * reps]) for k, m in enumerate(measures)])
+        merged.measure = measure
+    size = len(systems) * reps
+    plan: dict[int, list] = {}
+    _take_plan(merged, size, plan)
+    # the integrator refines the samples that cross a switching surface on their own: the system of those samples
+    merged.select_samples = lambda idx: _take_values(merged, idx, size, plan)
+    return merged
+
+
+def _take_plan(v: Any, size: int, plan: dict[int, list]) -> bool:
+    """Whether ``v`` (a merged value of :func:`_merge_values`) holds a per-sample (size,) array; ``plan`` gets, for
+    each container that does (by id), the keys or indices of its items that do."""
+    t = type(v)
+    if t is np.ndarray:
+        return v.shape == (size,)
+    if t is tuple or t is list:
+        items: Any = enumerate(v)
+    elif t is dict:
+        items = v.items()
+    elif isinstance(v, System) or (dataclasses.is_dataclass(v) and not isinstance(v, type)):
+        items = vars(v).items()
+    else:
+        return False
+    keys = [k for k, x in items if _take_plan(x, size, plan)]
+    if keys:
+        plan[id(v)] = keys
+    return bool(keys)
+
+
+def _take_values(v: Any, idx: np.ndarray, size: int, plan: dict[int, list]) -> Any:
+    """``v`` restricted to the samples ``idx`` of its ``size``: the containers in ``plan`` (:func:`_take_plan`)
+    are copied with their per-sample arrays indexed."""
+    t = type(v)
+    if t is np.ndarray:
+        return v[idx] if v.shape == (size,) else v
+    keys = plan.get(id(v))
+    if keys is None:
+        return v
+    if t is tuple or t is list:
+        items = list(v)
+        for i in keys:
+            items[i] = _take_values(items[i], idx, size, plan)
+        return t(items)
+    d = dict(v) if t is dict else dict(vars(v))
+    for k in keys:
+        d[k] = _take_values(d[k], idx, size, plan)
+    if t is dict:
+        return d
+    d.pop("select_samples", None)
+    out = object.__new__(t)  # a system or a (frozen) dataclass: no __init__, the fields are set here
+    out.__dict__.update(d)
+    return out
+
+
+def _merged_field_ok(merged: System, systems: Sequence[System], q: list, p: list, u: list | None) -> bool:
+    """Whether the merged system's vector field, switching value and momentum at (q, p, u) (one batch of
+    len(systems) x reps samples) equal each system's on its own samples: a cheap guard against a system that
+    folds a parameter into something other than elementwise arithmetic.
+
+    A switching function that branches on a parameter in Python (``sin q if dd != 0 else None``) cannot take
+    an array parameter: the merged system then uses the first system's, if it gives every system's values here.
+    """
+    try:
+        return _same_field(merged, systems, q, p, u)
+    except (ValueError, TypeError, AttributeError, IndexError):  # e.g. `if param != 0` on an array: not mergeable
+        return False
+
+
+def _same_field(merged: System, systems: Sequence[System], q: list, p: list, u: list | None) -> bool:
+    """:func:`_merged_field_ok` (raises where the merged system cannot evaluate)."""
+    K = len(systems)
+    B = len(q[0])
+    reps = B // K
+
+    def flat(x: Any) -> list:
+        if x is None:
+            return []
+        if isinstance(x, (tuple, list)):
+            return [c for xi in x for c in flat(xi)]
+        return [x]
+
+    with np.errstate(all="ignore"):
+        try:
+            s_whole = merged.switching(q, p, NUMPY)
+        except (ValueError, TypeError):
+            merged.switching = systems[0].switching  # type: ignore[method-assign]
+            s_whole = merged.switching(q, p, NUMPY)
+        whole = flat((merged.rhs(q, p, u, NUMPY), s_whole, merged.momentum(q, p, NUMPY)))
+        for k, s in enumerate(systems):
+            sl = slice(k * reps, (k + 1) * reps)
+            qs, ps = [c[sl] for c in q], [c[sl] for c in p]
+            us = None if u is None else [c[sl] for c in u]
+            part = flat((s.rhs(qs, ps, us, NUMPY), s.switching(qs, ps, NUMPY), s.momentum(qs, ps, NUMPY)))
+            if len(part) != len(whole):
+                return False
+            for a, b in zip(whole, part):
+                a = np.broadcast_to(np.asarray(a, dtype=float), (B,))[sl]
+                b = np.broadcast_to(np.asarray(b, dtype=float), (reps,))
+                if not np.allclose(a, b, rtol=1e-12, atol=0.0, equal_nan=True):
+                    return False
+    return True
 
 
 # --------------------------------------------------------------------------- windows
@@ -380,13 +545,35 @@ class Shooter:
         return np.moveaxis((R - r0[None]) / h[:, None, None], 0, -1)
 
     def _jac_params(self, build: Callable[[np.ndarray], System], g: np.ndarray, X: np.ndarray, r: np.ndarray, g_step: float) -> np.ndarray:
-        """Forward-difference Jacobian of the residual w.r.t. the global parameters g: (..., P)."""
-        Jg = np.empty(r.shape + (g.size,))
-        for j in range(g.size):
+        """Forward-difference Jacobian of the residual w.r.t. the global parameters g: (..., P).
+
+        The P perturbed systems are simulated as one batch of P*W samples when they merge
+        (:func:`merge_systems`: per-sample parameter arrays, the same arithmetic per sample as P simulations).
+        """
+        P = g.size
+        systems = []
+        for j in range(P):
             gp = g.copy()
             gp[j] += g_step
-            Jg[..., j] = (self.residual(build(gp), X) - r) / g_step
-        return Jg
+            systems.append(build(gp))
+        if not P:
+            return np.empty(r.shape + (0,))
+        # contiguous (..., P) as the column-by-column fill gave: the normal equations' sums then round the same way
+        return np.ascontiguousarray(np.moveaxis((self.residuals_of(systems, X) - r[None]) / g_step, 0, -1))
+
+    def residuals_of(self, systems: Sequence[System], X: np.ndarray) -> np.ndarray:
+        """(K, W, L*n) residuals of K systems at the same window states X: one batch of K*W samples when the
+        systems merge (and the merged vector field checks out at the windows' first samples), else one by one."""
+        K, W, n = len(systems), X.shape[0], self.n
+        merged = merge_systems(systems, W) if K > 1 and W else None
+        if merged is not None:
+            Xs = np.repeat(X[None], K, axis=0)
+            Xf = Xs.reshape(-1, 2 * n)
+            q, v = [Xf[:, i] for i in range(n)], [Xf[:, n + i] for i in range(n)]
+            u = None if self.w.u is None else [np.tile(self.w.u[:, 0, i], K) for i in range(n)]
+            if _merged_field_ok(merged, systems, q, v, u):
+                return self._residuals(merged, Xs)
+        return np.stack([self.residual(s, X) for s in systems]) if K else np.empty((0, W, 0))
 
     def fit(self, build: Callable[[np.ndarray], System], X0: np.ndarray, g0: np.ndarray,
             max_iter: int = 25, tol: float = 1e-7, g_step: float = 1e-4) -> ShootFit:
@@ -460,8 +647,10 @@ class Shooter:
         return self.fit(lambda g: system, X, np.zeros(0), max_iter=max_iter)
 
     def columns(self, builds: list[Callable[[], System]], fit: ShootFit, base_r: np.ndarray, h: list[float]) -> np.ndarray:
-        """(W, L*n, K) finite-difference columns of extra candidate directions at a fit."""
+        """(W, L*n, K) finite-difference columns of extra candidate directions at a fit (one batch when the
+        K systems merge: parameter directions; see :meth:`residuals_of`)."""
         out = np.empty(base_r.shape + (len(builds),))
-        for k, (b, hk) in enumerate(zip(builds, h)):
-            out[..., k] = (self.residual(b(), fit.X) - base_r) / hk
+        R = self.residuals_of([b() for b in builds], fit.X)
+        for k, hk in enumerate(h):
+            out[..., k] = (R[k] - base_r) / hk
         return out
