@@ -1,0 +1,153 @@
+"""Static rules for a codebase others can extend (checked by AST, no imports of the code under test besides the vocabulary).
+
+* no function over 80 lines or with over 10 parameters (``self`` / ``cls`` not counted);
+* no module over 800 lines;
+* no mismatch term name as a string literal in more than 2 modules of ``phast_model/mismatch``;
+* no import cycle among the package's modules (module-level and function-level imports alike).
+"""
+
+from __future__ import annotations
+
+import ast
+from collections import defaultdict
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("phast_gym", "phast_model")
+MAX_FUNCTION_LINES, MAX_PARAMETERS, MAX_MODULE_LINES, MAX_TERM_MODULES = 80, 10, 800, 2
+
+
+def _modules() -> dict[str, Path]:
+    """Dotted module name -> file, for every module of the two packages."""
+    out = {}
+    for pkg in PACKAGES:
+        for path in sorted((ROOT / pkg).rglob("*.py")):
+            parts = list(path.relative_to(ROOT).with_suffix("").parts)
+            if parts[-1] == "__init__":
+                parts.pop()
+            out[".".join(parts)] = path
+    return out
+
+
+MODULES = _modules()
+TREES = {name: ast.parse(path.read_text(), str(path)) for name, path in MODULES.items()}
+
+
+def _n_parameters(fn: ast.FunctionDef | ast.AsyncFunctionDef) -> int:
+    a = fn.args
+    names = [x.arg for x in (*a.posonlyargs, *a.args, *a.kwonlyargs)]
+    names += [x.arg for x in (a.vararg, a.kwarg) if x is not None]
+    return len([n for n in names if n not in ("self", "cls")])
+
+
+def _functions():
+    for name, tree in TREES.items():
+        for node in ast.walk(tree):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                yield name, node
+
+
+def test_functions_are_short_with_few_parameters():
+    long = [f"{m}.{f.name}: {f.end_lineno - f.lineno + 1} lines" for m, f in _functions()
+            if f.end_lineno - f.lineno + 1 > MAX_FUNCTION_LINES]
+    wide = [f"{m}.{f.name}: {_n_parameters(f)} parameters" for m, f in _functions() if _n_parameters(f) > MAX_PARAMETERS]
+    assert not long and not wide, "\n".join(long + wide)
+
+
+def test_modules_are_small():
+    big = [f"{name}: {len(path.read_text().splitlines())} lines" for name, path in MODULES.items()
+           if len(path.read_text().splitlines()) > MAX_MODULE_LINES]
+    assert not big, "\n".join(big)
+
+
+def _term_names() -> set[str]:
+    from phast_model.mismatch.terms import VOCABULARY
+
+    return {str(getattr(t, "name", t)) for t in VOCABULARY}
+
+
+def test_term_names_live_in_the_registry():
+    names = _term_names()
+    assert len(names) >= 10, names
+    where: dict[str, set[str]] = defaultdict(set)
+    for module, tree in TREES.items():
+        if not module.startswith("phast_model.mismatch"):
+            continue
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Constant) and node.value in names:
+                where[node.value].add(module)
+    spread = {k: sorted(v) for k, v in where.items() if len(v) > MAX_TERM_MODULES}
+    assert not spread, spread
+
+
+def _imports(module: str, tree: ast.Module) -> set[str]:
+    """The package modules ``module`` imports, anywhere in its body (relative imports resolved)."""
+    is_pkg = MODULES[module].name == "__init__.py"
+    base = module.split(".") if is_pkg else module.split(".")[:-1]
+    found = set()
+    for node in ast.walk(tree):
+        targets: list[str] = []
+        if isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                stem = ".".join(base[: len(base) - node.level + 1] + ([node.module] if node.module else []))
+            else:
+                stem = node.module or ""
+            targets = [f"{stem}.{a.name}" for a in node.names] + [stem]
+        for t in targets:
+            while t and t not in MODULES:
+                t = t.rpartition(".")[0]
+            if t and t != module:
+                found.add(t)
+    return found
+
+
+def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One import cycle through non-package modules, or None (a package's ``__init__`` re-exports are not edges back)."""
+    colour: dict[str, int] = {}
+    stack: list[str] = []
+
+    def visit(u: str) -> list[str] | None:
+        colour[u] = 1
+        stack.append(u)
+        for v in sorted(graph[u]):
+            if colour.get(v) == 1:
+                return stack[stack.index(v):] + [v]
+            if v not in colour and (found := visit(v)):
+                return found
+        stack.pop()
+        colour[u] = 2
+        return None
+
+    for u in sorted(graph):
+        if u not in colour and (found := visit(u)):
+            return found
+    return None
+
+
+def test_no_import_cycle():
+    packages = {m for m, p in MODULES.items() if p.name == "__init__.py"}
+    graph = {m: {t for t in _imports(m, tree) if t not in packages} for m, tree in TREES.items() if m not in packages}
+    assert _cycle(graph) is None, " -> ".join(_cycle(graph) or [])
+
+
+def test_old_module_paths_import_the_moved_modules():
+    """``phast_model.training`` and the other pre-layout paths are the new modules themselves, with a warning."""
+    import importlib
+    import sys
+    import warnings
+
+    from phast_model.moved import MOVED
+
+    for old, new in MOVED.items():
+        sys.modules.pop(old, None)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            module = importlib.import_module(old)
+        assert module is importlib.import_module(new), old
+        assert any(issubclass(w.category, DeprecationWarning) and new in str(w.message) for w in caught), old
+    from phast_model.rig import RigTrainConfig
+    from phast_model.rig.fit import RigTrainConfig as moved
+
+    assert RigTrainConfig is moved
