@@ -42,7 +42,7 @@ class FourierDamping(Damping):
         a = q[..., :1] * torch.arange(1, self.K + 1, dtype=q.dtype)
         return (torch.cat([torch.ones_like(q[..., :1]), torch.cos(a), torch.sin(a)], -1) * self.c).sum(-1, keepdim=True)
 
-    def apply(self, q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    def force(self, q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
         return self.diag(q) * v
 
     def bound(self, q: torch.Tensor) -> torch.Tensor:

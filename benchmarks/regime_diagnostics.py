@@ -154,7 +154,7 @@ def _oracle_parts(model: PHAST, test: Any, q: torch.Tensor, u: torch.Tensor | No
     v_obs = model.observer(q[:, :K][:, -model.observer.window:])[:, -1]
     v_true = va[:, K - 1]
     out["velocity_rel_err"] = float(((v_obs - v_true) ** 2).mean().sqrt() / (v_true ** 2).mean().sqrt())
-    dva = torch.zeros_like(va) if model.core.damping is None else model.core.damping.apply(qa, va)
+    dva = torch.zeros_like(va) if model.core.damping is None else model.core.damping.force(qa, va)
     out["learned_rate"] = float((va * dva).sum() / (va * pa).sum())
 
     def oracle(substeps: int) -> float:

@@ -40,7 +40,7 @@ def test_damping_psd_and_cap(n, rank, seed, cap, d0):
         assert float(beta.sum(-1).max().detach()) <= cap + 1e-9
         assert float(eig.max().detach()) <= float(damp.d0.detach()) + cap + 1e-9  # certified lambda_max bound (Eq. 11)
     v = torch.randn(64, n, dtype=torch.float64)
-    assert torch.allclose(damp.apply(q, v), (D @ v.unsqueeze(-1)).squeeze(-1), atol=1e-10)  # O(n r) == dense
+    assert torch.allclose(damp.force(q, v), (D @ v.unsqueeze(-1)).squeeze(-1), atol=1e-10)  # O(n r) == dense
     assert torch.allclose(damp.diag(q), torch.diagonal(D, dim1=-2, dim2=-1), atol=1e-10)
 
 
@@ -57,7 +57,7 @@ def test_one_coordinate_damping_has_no_direction_gauge(cap):
     beta, k = damp.terms(q)
     assert torch.equal(k, torch.ones_like(k))
     assert torch.allclose(damp.diag(q)[:, 0], damp.d0 + beta.sum(-1))
-    (damp.diag(q).sum() + damp.apply(q, torch.randn_like(q)).sum()).backward()
+    (damp.diag(q).sum() + damp.force(q, torch.randn_like(q)).sum()).backward()
     assert float(damp.net[-1].weight.grad[:2].abs().max()) == 0.0
     assert float(damp.net[-1].weight.grad[2:].abs().max()) > 0.0
 
@@ -116,7 +116,7 @@ def test_continuous_time_passivity(n, seed):
     H = core.hamiltonian(q, p)
     gq, gp = torch.autograd.grad(H.sum(), (q, p))
     qdot = gp
-    pdot = -gq - damp.apply(q, gp)
+    pdot = -gq - damp.force(q, gp)
     dHdt = (gq * qdot).sum(-1) + (gp * pdot).sum(-1)
     assert float(dHdt.max()) <= 1e-9
     assert torch.allclose(dHdt, core.power(q, p), atol=1e-8)
@@ -313,3 +313,25 @@ def test_strang_step_reuse_equals_composition(env_id, regime, need_p):
     assert len(ga) == len(gb) > 0
     for a, b in zip(ga, gb, strict=True):
         assert torch.allclose(a, b, rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.parametrize("regime", ["known", "unknown"])
+def test_module_apply_reaches_every_submodule(regime):
+    """``nn.Module.apply(fn)`` on a built model visits the damping too (D(q) v is ``Damping.force``, so no damping
+    shadows ``apply``), and an init function through it changes the model's parameters."""
+    model = build_model("PHAST/WindyPendulum-v0", regime)
+    damping = model.core.damping
+    assert damping is not None
+    seen: list[torch.nn.Module] = []
+    assert model.apply(seen.append) is model
+    assert len(seen) == len(list(model.modules())) and any(m is damping for m in seen)
+
+    def zero_linear_biases(m: torch.nn.Module) -> None:
+        if isinstance(m, torch.nn.Linear) and m.bias is not None:
+            torch.nn.init.zeros_(m.bias)
+
+    model.apply(zero_linear_biases)
+    biases = [m.bias for m in model.modules() if isinstance(m, torch.nn.Linear) and m.bias is not None]
+    assert all(torch.count_nonzero(b) == 0 for b in biases)
+    q = torch.zeros(3, model.n, dtype=next(model.parameters()).dtype)
+    assert torch.isfinite(damping.force(q, torch.ones_like(q))).all()

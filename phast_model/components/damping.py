@@ -28,17 +28,15 @@ from .features import coordinate_features, n_features
 
 
 class Damping(nn.Module):
-    """Interface: ``apply(q, v) = D(q) v`` and ``diag(q)`` (diagonal of D, for metrics).
+    """Interface: ``force(q, v) = D(q) v`` and ``diag(q)`` (diagonal of D, for metrics)."""
 
-    ``apply`` shadows :meth:`torch.nn.Module.apply` (the model never calls the module one on a damping);
-    hence the ``override`` ignores below."""
-
-    def apply(self, q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:  # type: ignore[override]  # D(q) v, see above
+    def force(self, q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+        """The damping force ``D(q) v`` (it enters ``pdot`` with a minus sign, as :meth:`JointFriction.force`)."""
         raise NotImplementedError
 
     def at(self, q: torch.Tensor) -> Callable[[torch.Tensor], torch.Tensor]:
         """``v -> D(q) v`` with the q-dependent part evaluated once: a Strang step applies D twice at each q."""
-        return partial(self.apply, q)
+        return partial(self.force, q)
 
     def diag(self, q: torch.Tensor) -> torch.Tensor:
         raise NotImplementedError
@@ -122,7 +120,7 @@ class HouseholderDamping(Damping):
 
         return d_times
 
-    def apply(self, q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:  # type: ignore[override]  # D(q) v (Damping)
+    def force(self, q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
         return self.at(q)(v)
 
     def diag(self, q: torch.Tensor) -> torch.Tensor:
@@ -150,7 +148,7 @@ class KnownDamping(Damping):
     def diag(self, q: torch.Tensor) -> torch.Tensor:
         return stack(self.system.damping(split(q), TORCH)) + 0.0 * q
 
-    def apply(self, q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:  # type: ignore[override]  # D(q) v (Damping)
+    def force(self, q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
         return self.diag(q) * v
 
     def bound(self, q: torch.Tensor) -> torch.Tensor:

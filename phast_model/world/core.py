@@ -146,7 +146,7 @@ class PHASTCore(SubstepCore):
         if self.damping is None:
             out = torch.zeros_like(q[..., 0])
         else:
-            out = -(v * self.damping.apply(q, v)).sum(-1)
+            out = -(v * self.damping.force(q, v)).sum(-1)
         return out if self.friction is None else out - self.friction.power(v)
 
 
