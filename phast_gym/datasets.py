@@ -230,10 +230,13 @@ def _generate(system: System, u_arr: np.ndarray, actuated: tuple[int, ...], conf
     # simulate, which reads one step at a time, gets contiguous rows without a copy.
     u_steps = np.zeros((steps, n, n_traj))
     u_steps[:, list(actuated), :] = u_arr.transpose(1, 2, 0)
-    sim = simulate
+    u_sim = u_steps.transpose(2, 0, 1)
     if backend == "compiled":
-        from .compiled import simulate_compiled as sim
-    traj = sim(system, x0, steps, u=u_steps.transpose(2, 0, 1), rng=rng_sim, substeps=substeps)
+        from .compiled import simulate_compiled
+
+        traj = simulate_compiled(system, x0, steps, u=u_sim, rng=rng_sim, substeps=substeps)
+    else:
+        traj = simulate(system, x0, steps, u=u_sim, rng=rng_sim, substeps=substeps)
     q_true, p = traj[..., :n], traj[..., n:]
     noise = config["obs_noise_std"]
     q = q_true + (rng_noise.normal(0.0, noise, q_true.shape) if noise > 0 else 0.0)

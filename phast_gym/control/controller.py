@@ -25,7 +25,7 @@ zero-order-hold torque and Euler xi, adds O(dt^2) per step).  The plant is touch
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, Protocol, SupportsFloat, runtime_checkable
 
 import gymnasium as gym
 import numpy as np
@@ -190,6 +190,16 @@ class EnergyCasimirController:
         return h + 0.5 * self.k_c * float(np.sum(self.shaping_error() ** 2))
 
 
+@runtime_checkable
+class PortPlant(Protocol):
+    """What the closed loop reads of the unwrapped plant env (a phast_gym :class:`PortHamiltonianEnv` has it): its
+    physics, sampling interval and input bound."""
+
+    system: System
+    dt: float
+    max_action: float
+
+
 class EnergyCasimirWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """The wrapped env's action becomes the external input ``v_ext`` of the closed loop.
 
@@ -215,9 +225,10 @@ class EnergyCasimirWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                                                  estimator_kwargs=estimator_kwargs, xi_feedback=xi_feedback)
         gym.Wrapper.__init__(self, env)
         base = env.unwrapped
-        system = getattr(base, "system", None)
-        if not isinstance(system, System):
-            raise ValueError("EnergyCasimirWrapper needs a phast_gym PortHamiltonianEnv (env.unwrapped.system)")
+        if not (isinstance(base, PortPlant) and isinstance(base.system, System)):
+            raise ValueError("EnergyCasimirWrapper needs a phast_gym PortHamiltonianEnv (env.unwrapped.system, dt, "
+                             "max_action)")
+        system = base.system
         if getattr(base, "observe", "q") != "q":
             raise ValueError("EnergyCasimirWrapper expects q-only observations (observe='q')")
         if tuple(getattr(base, "actuated_dofs", range(system.n))) != tuple(range(system.n)):
@@ -238,7 +249,7 @@ class EnergyCasimirWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._obs, self._info = obs, info
         return obs, info
 
-    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
+    def step(self, action: Any) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict]:
         if self._obs is None:
             raise gym.error.ResetNeeded("call reset() before step()")
         v = np.asarray(action, dtype=np.float64)

@@ -30,7 +30,7 @@ import numpy as np
 from ..env import PortHamiltonianEnv
 from ..registry import make_env_system
 from ..systems.base import NUMPY, SCALAR, System, wrap
-from .controller import XI_FEEDBACK, EnergyCasimirController
+from .controller import XI_FEEDBACK, EnergyCasimirController, PortPlant
 from .estimators import PortEstimator, make_estimator
 
 #: initial-condition ("start") regime of a closed-loop trial -> how its start states are drawn (sampled by
@@ -151,6 +151,9 @@ def run_episode(env: gym.Env, controller: EnergyCasimirController, x0: np.ndarra
     """Run one closed loop through ``env.reset``/``env.step`` only; returns traces and metrics."""
     system = controller.system
     n = system.n
+    action_space = env.action_space
+    if not isinstance(action_space, gym.spaces.Box):
+        raise TypeError(f"run_episode needs a Box action space (the applied u is clipped to it), got {action_space}")
     obs, info = env.reset(seed=int(seed), options={"state": np.asarray(x0, dtype=np.float64)})
     controller.reset(obs, info)
     T = protocol.horizon
@@ -165,7 +168,7 @@ def run_episode(env: gym.Env, controller: EnergyCasimirController, x0: np.ndarra
         yh.append(controller.y_hat.copy())
         xis.append(controller.xi.copy())
         obs, _, terminated, truncated, info = env.step(u)
-        us.append(np.clip(u, env.action_space.low, env.action_space.high))
+        us.append(np.clip(u, action_space.low, action_space.high))
         if terminated or (truncated and t < T - 1):
             break
     x = np.asarray(info["state"], dtype=np.float64)
@@ -230,11 +233,14 @@ def evaluate_estimators(
     bar = tqdm(total=total, desc="closed-loop trials", disable=not progress)
     for sigma in sigmas:
         env = make_control_env(protocol, sigma)
-        system = env.unwrapped.system
+        plant = env.unwrapped
+        if not isinstance(plant, PortPlant):  # make_control_env wraps a PortHamiltonianEnv
+            raise TypeError(f"make_control_env must build a phast_gym PortHamiltonianEnv, got {type(plant).__name__}")
+        system = plant.system
         for name in estimators:
             est = factory(name, system, protocol.dt, float(sigma))
             ctrl = EnergyCasimirController(est, protocol.q_star, protocol.k_c, protocol.d_inj, protocol.k_xi, dt=protocol.dt,
-                                           max_action=float(env.unwrapped.max_action), system=system,
+                                           max_action=float(plant.max_action), system=system,
                                            xi_feedback=protocol.xi_feedback)
             per_all: list[dict[str, float]] = []
             for regime, x0s in states.items():

@@ -271,10 +271,10 @@ class System:
     n: ClassVar[int] = 1
     #: indices of angular coordinates (wrapped in observations and metrics)
     angle_dims: ClassVar[tuple[int, ...]] = ()
-    #: sampling interval of the env (one ``step``)
-    dt: ClassVar[float] = 0.05
-    #: RK4 substeps per ``dt`` (chosen so 50 steps match a 1e-10 ODE solve within 1e-5)
-    substeps: ClassVar[int] = 4
+    #: sampling interval of the env (one ``step``); an instance may override it (a control rate, a config's ``dt``)
+    dt: float = 0.05
+    #: RK4 substeps per ``dt`` (chosen so 50 steps match a 1e-10 ODE solve within 1e-5); an instance may override it
+    substeps: int = 4
     #: default bound of the port input
     default_max_action: ClassVar[float] = 50.0
     #: True when H = p^T M^-1 p / 2 + V(q) with M constant (leapfrog applies; dH/dq = dV/dq)

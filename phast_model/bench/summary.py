@@ -205,9 +205,9 @@ def markdown_tables(agg: dict[tuple[str, str], dict[str, Any]], title: str = "ph
             g = agg[(env, m)]
             t = g["metrics"].get(metric)
             pr = paper.results.get(m) if paper else None
-            pp = paper.params.get(m) if paper else None
+            paper_params = paper.params.get(m) if paper else None
             lines.append(f"| {DISPLAY.get(m, m)} | {g['params']:,} | {_ms(t)} | {t[2] if t else 0} | "
-                         f"{f'{pp:,}' if pp else '—'} | {_ms(pr)} | {g['wall_time_s']:.0f} |")
+                         f"{f'{paper_params:,}' if paper_params else '—'} | {_ms(pr)} | {g['wall_time_s']:.0f} |")
     return "\n".join(lines) + "\n"
 
 
@@ -223,11 +223,11 @@ def regime_table(agg: dict[tuple[str, str], dict[str, Any]], envs: list[str]) ->
     for env in envs:
         metric = env_metric(agg, env)
         paper = paper_row_for(env)
-        comparable = paper is not None and metric == paper.metric
+        same_metric = paper if paper is not None and metric == paper.metric else None  # the paper's row, if comparable
         cells = []
         for m in regimes:
             t = agg.get((env, m), {}).get("metrics", {}).get(metric)
-            pr = paper.results.get(m) if comparable else None
+            pr = same_metric.results.get(m) if same_metric is not None else None
             ratio = f"{t[0] / pr[0]:.3g}" if t and pr and pr[0] > 0 else "—"
             cells.append(f"{_ms(t)} | {_ms(pr)} | {ratio}")
         lines.append(f"| {paper.benchmark if paper else env} | `{metric}` | " + " | ".join(cells) + " |")
@@ -244,10 +244,10 @@ class FloorVerdict:
     burn-in, against the information floor."""
 
     floor: float
-    phast_eq90: tuple | None
-    phast_after: tuple | None
-    base_eq90: tuple | None
-    base_after: tuple | None
+    phast_eq90: tuple[str, tuple] | None
+    phast_after: tuple[str, tuple] | None
+    base_eq90: tuple[str, tuple] | None
+    base_after: tuple[str, tuple] | None
     slack: float = 1.1
 
     @property
@@ -256,9 +256,10 @@ class FloorVerdict:
 
     @property
     def beats(self) -> bool:
-        cells = (self.phast_eq90, self.phast_after, self.base_eq90, self.base_after)
-        return (all(c is not None for c in cells) and self.phast_eq90[1][0] < self.base_eq90[1][0]
-                and self.phast_after[1][0] < self.base_after[1][0])
+        p90, pab, b90, bab = self.phast_eq90, self.phast_after, self.base_eq90, self.base_after
+        if p90 is None or pab is None or b90 is None or bab is None:
+            return False
+        return p90[1][0] < b90[1][0] and pab[1][0] < bab[1][0]
 
     @property
     def passes(self) -> bool:
@@ -270,7 +271,7 @@ def floor_verdict(agg: dict[tuple[str, str], dict[str, Any]], env: str, slack: f
     from .floor import first_step_floor
 
     (p90, b90), (pab, bab) = best_sides(agg, env, "mse"), best_sides(agg, env, "mse_after_burnin")
-    return FloorVerdict(first_step_floor(env)["floor_mse"], p90, pab, b90, bab, slack)
+    return FloorVerdict(float(first_step_floor(env)["floor_mse"]), p90, pab, b90, bab, slack)
 
 
 def floor_rule(agg: dict[tuple[str, str], dict[str, Any]], envs: list[str], slack: float = 1.1) -> list[str]:

@@ -4,14 +4,14 @@ configuration-dependent template ``M0 + cos(phi(q)) M1`` (PARTIAL) or a neural C
 Interface (:class:`Mass`): ``velocity(q, p) = M^-1 p`` (= dH/dp), ``momentum(q, v) = M v``,
 ``matrix(q)``, ``kinetic_dq(q, p) = d/dq (p^T M(q)^-1 p / 2)`` and ``constant``.  Learned masses with
 coefficients that enter M linearly also expose ``linear_basis(q)`` (the matrices B_j(q) with
-M = sum_j theta_j B_j) and ``set_linear(theta)``, used by the least-squares initialization
+M = sum_j theta_j B_j) and ``set_linear(theta)`` (:class:`LinearMass`), used by the least-squares initialization
 (:mod:`phast_model.world.data_init`).
 """
 
 from __future__ import annotations
 
 import math
-from typing import cast
+from typing import Protocol, cast, runtime_checkable
 
 import torch
 from torch import nn
@@ -20,6 +20,15 @@ from phast_gym.systems import TORCH, System, split, stack
 
 from .features import coordinate_features, n_features
 from .potentials import autograd_grad
+
+
+@runtime_checkable
+class LinearMass(Protocol):
+    """A mass whose coefficients enter M linearly (``isinstance`` is the ``hasattr`` test, typed)."""
+
+    def linear_basis(self, q: torch.Tensor) -> torch.Tensor: ...
+
+    def set_linear(self, theta: torch.Tensor) -> None: ...
 
 
 class Mass(nn.Module):

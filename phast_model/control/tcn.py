@@ -19,7 +19,7 @@ import time
 from collections import deque
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -65,6 +65,8 @@ class TCNObserverConfig:
 class TCNObserver(nn.Module):
     """Causal (B, T, n) noisy q -> (B, T, n) velocity; optional noise-level channel."""
 
+    v_scale: torch.Tensor  # buffer
+
     def __init__(self, n: int, dt: float, angle_dims: tuple[int, ...], cfg: TCNObserverConfig, v_scale: float = 1.0) -> None:
         super().__init__()
         self.n, self.dt, self.angle_dims, self.cfg = n, float(dt), tuple(angle_dims), cfg
@@ -74,7 +76,7 @@ class TCNObserver(nn.Module):
             CausalConv1d(c_in if i == 0 else cfg.hidden, cfg.hidden, cfg.kernel_size, dilation=2**i) for i in range(cfg.layers))
         self.head = nn.Conv1d(cfg.hidden, n, 1)
         nn.init.zeros_(self.head.weight)
-        nn.init.zeros_(self.head.bias)
+        nn.init.zeros_(cast(torch.Tensor, self.head.bias))  # a Conv1d with the default bias=True: never None
         # linear causal smoother of qdot_fd, initialised to the identity (plain finite differences)
         self.fir = CausalConv1d(n, n, cfg.fir_taps, groups=n, bias=False)
         with torch.no_grad():

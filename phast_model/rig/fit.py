@@ -30,7 +30,8 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from ..components.mass import KnownMass, LowRankMass
+from ..components.mass import KnownMass, LinearMass, LowRankMass
+from ..components.potentials import TemplatePotential
 from ..mismatch.evaluate import check_holdout_indices, split
 from ..mismatch.recordings import Recordings, load_raw, validate
 from ..mismatch.shooting import smooth
@@ -200,8 +201,8 @@ def cut_windows(rec: Recordings, length: int, dtype: torch.dtype = torch.float64
     q = rec.q[:, idx].reshape(-1, length, rec.n)
     u = None if rec.u is None else rec.u[:, idx[:, :-1]].reshape(-1, length - 1, rec.n)
     X = np.concatenate([qs[:, starts], vs[:, starts]], -1).reshape(-1, 2 * rec.n)
-    t = lambda a: None if a is None else torch.as_tensor(a, dtype=dtype)  # noqa: E731
-    return ShootWindows(t(q), t(u), t(X))
+    return ShootWindows(torch.as_tensor(q, dtype=dtype), None if u is None else torch.as_tensor(u, dtype=dtype),
+                        torch.as_tensor(X, dtype=dtype))
 
 
 def simulate(model: PHAST, X: torch.Tensor, u: torch.Tensor | None, steps: int) -> torch.Tensor:
@@ -293,9 +294,12 @@ def _template_start(model: PHAST, rec: Recordings) -> dict[str, float]:
     interval, unmodelled Coulomb friction) and every coefficient comes out 5-10x too small."""
     system = model.system
     q = torch.as_tensor(rec.q.reshape(-1, rec.n)[:: max(1, rec.q.shape[0] * rec.T // 4000)], dtype=torch.float64)
-    out = {"potential_fit_residual": model.potential.fit_to(system, q=q)}
+    pot = model.potential
+    if not isinstance(pot, TemplatePotential):
+        raise ValueError(f"init_from='rig' starts a template potential (the PARTIAL regime), got {type(pot).__name__}")
+    out = {"potential_fit_residual": pot.fit_to(system, q=q)}
     mass = model.mass
-    if hasattr(mass, "linear_basis"):
+    if isinstance(mass, LinearMass):
         Mq = KnownMass(system).matrix(q)  # (S, n, n): the rig's M at the recorded configurations
         B = mass.linear_basis(q).to(q.dtype)  # (S, J, n, n)
         Bm = B.permute(0, 2, 3, 1).reshape(-1, B.shape[1])

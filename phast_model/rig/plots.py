@@ -57,6 +57,8 @@ def plot_heldout(w: HeldoutWindows, rolls: dict[str, np.ndarray], dt: float, pat
 def band_forces(model: Any, curve: FrictionCurve) -> list[float]:
     """Mean sign(v) f_i(v) of the learned joint friction over each band's samples of the curve's smoothed velocities
     (the bands and velocities of the curve, so the two are compared sample for sample)."""
+    if curve.weak is None:
+        raise ValueError("this FrictionCurve carries no weak form (built from a dict?); recompute it with friction_curve")
     vs = curve.weak.vs
     out = []
     for band, mask in zip(curve.bands, curve.band_index):

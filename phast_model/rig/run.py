@@ -15,6 +15,7 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
+from ..mismatch.recordings import Recordings
 from .fit import (
     BURN_IN_S,
     RigData,
@@ -68,10 +69,15 @@ def prepare(spec: RecordingsSpec) -> RigData:
     """Load and check the recordings; ValueError (a message naming the problem) before any training."""
     data = load_rig_data(_source(spec.recordings), spec.sim, spec.sim_kwargs,
                          list(spec.holdout) if spec.holdout else None, spec.decimate)
+    heldout_windows(_heldout(data), spec.rollout_window_s, BURN_IN_S)  # room for a burn-in plus one window
+    return data
+
+
+def _heldout(data: RigData) -> Recordings:
+    """The held-out recordings (ValueError without them: the score needs recordings the model is not trained on)."""
     if data.heldout is None:
         raise ValueError("give --holdout-trajectories: the held-out score needs recordings the model is not trained on")
-    heldout_windows(data.heldout, spec.rollout_window_s, BURN_IN_S)  # room for a burn-in plus one window
-    return data
+    return data.heldout
 
 
 def train_recordings_run(spec: RecordingsSpec, out: str | Path, train: RigTrainConfig | None = None,
@@ -82,6 +88,7 @@ def train_recordings_run(spec: RecordingsSpec, out: str | Path, train: RigTrainC
     train = train or RigTrainConfig()
     spec = replace(spec, sim=_sim_name(spec.sim))
     data = prepare(spec)
+    heldout = _heldout(data)
     bound = list(spec.action_bound) if spec.action_bound else [max(b, 1e-6) for b in data.u_bound]
     cfg = rig_config(spec.sim, spec.sim_kwargs, spec.regime, data, seed=train.seed, action_bound=bound,
                      **(overrides or {}))
@@ -90,14 +97,14 @@ def train_recordings_run(spec: RecordingsSpec, out: str | Path, train: RigTrainC
         model = build(cfg)
         fit = fit_recordings(model, data, train)
         nominal = build(nominal_config(cfg))
-        scores, rolls, windows = heldout_rollouts({"phast": fit.model, "nominal": nominal}, data.heldout,
+        scores, rolls, windows = heldout_rollouts({"phast": fit.model, "nominal": nominal}, heldout,
                                                   spec.rollout_window_s)
         metrics = _metrics(spec, data, fit, scores)
         _write(fit, metrics, spec, train, out)
         if plots:
             from .plots import plot_friction, plot_heldout
 
-            plot_heldout(windows, rolls, data.heldout.dt, out / "heldout_rollout.png")
+            plot_heldout(windows, rolls, heldout.dt, out / "heldout_rollout.png")
             metrics["friction_check"] = plot_friction(fit.model, nominal.system, data.train, out / "friction.png")
             from ..train.checkpoint import atomic_write_json
 

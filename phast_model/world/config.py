@@ -137,5 +137,5 @@ def config_system(cfg: PHASTConfig, system: System | None = None) -> tuple[str, 
     if cfg.dt is not None:
         if not (cfg.dt > 0 and math.isfinite(cfg.dt)):
             raise ValueError(f"dt must be positive and finite, got {cfg.dt!r}")
-        system.dt = float(cfg.dt)  # type: ignore[misc]  # an instance attribute over the ClassVar, on purpose
+        system.dt = float(cfg.dt)  # an instance attribute over the class default
     return name, system

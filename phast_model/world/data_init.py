@@ -191,15 +191,15 @@ def initialize_partial(model, kin: Kinematics, quantile: float = 0.01) -> Linear
     # a constant mass starts neutral (M = I: its coefficients move to the right-hand side, which also fixes the
     # scale of each decoupled coordinate); a mass template is fitted, in the gauge of a mean diagonal of 1
     neutral = bool(mass.constant) and kin.f is None  # with a port, the input fixes the scale: M is fitted too
-    theta_m = torch.ones(J, dtype=Am.dtype) if neutral else None
-    rhs = -(Am @ theta_m) if neutral else kin.f
+    theta_m = torch.ones(J, dtype=Am.dtype) if neutral else None  # None: M is fitted
+    rhs = -(Am @ theta_m) if theta_m is not None else kin.f
     best: tuple[LinearFit, float | None] | None = None
     for eps in ([None] if template.kind != "gravity" else list(np.logspace(-2, 0, 11))):
         if eps is not None:
             with torch.no_grad():
                 template.log_eps.fill_(float(np.log(eps)))
         Ap = template.gradient_basis(kin.q).double()
-        if neutral:
+        if theta_m is not None:
             fit = solve(torch.cat([Ap, Ad], -1), rhs)
             fit = LinearFit(torch.cat([theta_m, fit.theta]), fit.residual)
         else:
@@ -207,6 +207,8 @@ def initialize_partial(model, kin: Kinematics, quantile: float = 0.01) -> Linear
             fit = solve(A, rhs, torch.cat([g_mass, torch.zeros(A.shape[-1] - J, dtype=g_mass.dtype)]))
         if best is None or fit.residual < best[0].residual:
             best = (fit, eps)
+    if best is None:  # the loop runs at least once
+        raise RuntimeError("initialize_partial: no least-squares fit was made")
     fit, eps = best
     K = template.coef.numel()
     theta = fit.theta

@@ -12,7 +12,7 @@ Reward mirrors :class:`phast_gym.PortHamiltonianEnv`:
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 import gymnasium as gym
 import numpy as np
@@ -25,10 +25,21 @@ from ..api import load_run
 from .model import PHAST
 
 
+@runtime_checkable
+class _SizedEnv(Protocol):
+    """A phast_gym env's sizes: ``n`` coordinates, ``m`` port inputs."""
+
+    n: int
+    m: int
+
+
 class PHASTWorldModelEnv(gym.Env):
     """Gymnasium env backed by a trained PHAST model (see module docstring)."""
 
     metadata = {"render_modes": []}
+    observation_space: gym.spaces.Box
+    action_space: gym.spaces.Box
+    real: gym.Env | None  # the real env (unwrapped) the burn-in windows come from; None for a model of recordings
 
     def __init__(self, model: PHAST | str | Path, env_id: str | None = None, burn_in: int = 10, dataset: Any = None,
                  max_episode_steps: int = 200, target: np.ndarray | None = None, **env_kwargs: Any) -> None:
@@ -42,12 +53,18 @@ class PHASTWorldModelEnv(gym.Env):
         if getattr(self.model.config, "sim", None) is not None and env_id is None:
             self._rig_spaces()  # a model of a rig's recordings: no simulator to reset from
         else:
-            self.real = gym.make(self.env_id, **env_kwargs).unwrapped
-            if self.real.n != self.model.n or self.real.m != self.model.m:
+            real = gym.make(self.env_id, **env_kwargs).unwrapped
+            if not isinstance(real, _SizedEnv):
+                raise TypeError(f"{self.env_id} is not a phast_gym env: its unwrapped env has no sizes n and m")
+            if real.n != self.model.n or real.m != self.model.m:
                 raise ValueError(f"model (n={self.model.n}, m={self.model.m}) does not match {self.env_id} "
-                                 f"(n={self.real.n}, m={self.real.m})")
-            self.observation_space = self.real.observation_space
-            self.action_space = self.real.action_space
+                                 f"(n={real.n}, m={real.m})")
+            obs_space, act_space = real.observation_space, real.action_space
+            if not (isinstance(obs_space, gym.spaces.Box) and isinstance(act_space, gym.spaces.Box)):
+                raise TypeError(f"{self.env_id}: the world model needs Box observation and action spaces")
+            self.real = real
+            self.observation_space = obs_space
+            self.action_space = act_space
         self.dataset = dataset
         self.target = np.zeros(self.model.n) if target is None else np.asarray(target, dtype=np.float64)
         self._dtype = next(self.model.parameters()).dtype
@@ -67,6 +84,8 @@ class PHASTWorldModelEnv(gym.Env):
         self.action_space = gym.spaces.Box(-bound, bound, (m,), np.float32)
 
     def _obs(self) -> np.ndarray:
+        if self._hist is None:
+            raise RuntimeError("call reset() first")
         q = self._hist[0, -1].numpy().astype(self.observation_space.dtype)
         return np.clip(q, self.observation_space.low, self.observation_space.high)
 
@@ -86,7 +105,7 @@ class PHASTWorldModelEnv(gym.Env):
                              "reset(options={'q_burn': (K, n) measured q}) or a dataset")
         obs, _ = self.real.reset(seed=int(self.np_random.integers(2**31)))
         qs = [obs[: self.model.n]]
-        zero = np.zeros(self.real.m, dtype=self.real.action_space.dtype)
+        zero = np.zeros(self.model.m, dtype=self.real.action_space.dtype)  # the real env's m (checked at construction)
         for _ in range(self.burn_in - 1):
             obs, *_ = self.real.step(zero)
             qs.append(obs[: self.model.n])
