@@ -496,8 +496,9 @@ def test_real_system_is_described(coulomb_report):
 def test_terms_that_do_not_improve_held_out_prediction_are_not_reported():
     from phast_model.mismatch.analysis import _confirmed, _verdicts
     from phast_model.mismatch.evaluate import FitTable, ModelScore, RolloutSetup
+    from phast_model.mismatch.rows import TermRow
 
-    row = {"term": "cubic_stiffness", "coordinate": 0}
+    row = TermRow("cubic_stiffness", 0, "stiffness", 0.1, (0.05, 0.15), "-0.1*q0**3")
     setup = RolloutSetup(100, 4, 5.0, 10, "")
     fit = FitTable({"calibrated": ModelScore(0.1, 1.818), "augmented": ModelScore(0.1, 1.855)}, "held-out", setup)
     missing, unconfirmed = _confirmed([row], fit)
@@ -505,3 +506,22 @@ def test_terms_that_do_not_improve_held_out_prediction_are_not_reported():
     assert "not reported as missing physics" in " ".join(_verdicts(1.0, unconfirmed, fit))
     fit.models["augmented"] = ModelScore(0.1, 1.0)
     assert _confirmed([row], fit) == ([row], [])
+
+
+def test_report_rows_write_the_report_json_keys_in_order():
+    """The typed rows give report.json's objects as they have always been written (keys, order, nulls)."""
+    from phast_model.mismatch.rows import Alternative, ParamRow, TermRow
+
+    assert list(ParamRow(1.0, 1.1, (1.05, 1.15), 0.1, "same as b").to_dict()) == [
+        "nominal", "fitted", "ci95", "relative_change", "equivalent_changes"]
+    assert ParamRow.held(2, "known").to_dict() == {"nominal": 2, "fitted": 2, "ci95": None, "note": "known"}
+    alt = Alternative(parameter="gamma", value=0.4, similarity=0.99, note="same effect")
+    shooting = TermRow("stribeck_friction", 0, "dissipation", 0.04, (0.03, 0.05), "e", 0.5, (alt,), 0.5)
+    assert list(shooting.to_dict()) == ["term", "coordinate", "component", "coefficient", "ci95", "stribeck_velocity",
+                                        "expression", "explains", "alternatives"]
+    assert shooting.to_dict()["alternatives"] == [{"parameter": "gamma", "value": 0.4, "similarity": 0.99, "note": "same effect"}]
+    weak = TermRow("stribeck_friction", 0, "dissipation", 0.04, (0.03, 0.05), "e", None, (Alternative(law="x", note="n"),), 0.5,
+                   evidence="weak form")
+    assert list(weak.to_dict()) == ["term", "coordinate", "component", "coefficient", "ci95", "expression", "stribeck_velocity",
+                                    "explains", "alternatives", "evidence"]
+    assert weak.to_dict()["explains"] is None and weak.to_dict()["alternatives"] == [{"law": "x", "note": "n"}]

@@ -32,6 +32,7 @@ from .options import Options, Progress
 from .problem import Problem, prepare
 from .recordings import Recordings, load_raw, validate
 from .report import Report, summary_text
+from .rows import ParamRow, TermRow
 from .screening import candidates
 from .select import Selection, calibrated_rows, missing_rows, select
 from .shooting import ShootFit, odd, time_scale
@@ -100,14 +101,14 @@ def _compared(compare: Mapping[str, System] | None, sys0: System, name: str) -> 
 MIN_DESCRIBED = 0.5
 
 
-def _confirmed(missing: list[dict], fitres: FitTable) -> tuple[list[dict], list[dict]]:
+def _confirmed(missing: list[TermRow], fitres: FitTable) -> tuple[list[TermRow], list[TermRow]]:
     """A term that does not improve the prediction of the held-out recordings is not a discovery: (confirmed, not)."""
     if missing and fitres.rmse("augmented") >= fitres.rmse("calibrated"):
         return [], missing
     return missing, []
 
 
-def _verdicts(share: float, unconfirmed: list[dict], fitres: FitTable) -> list[str]:
+def _verdicts(share: float, unconfirmed: list[TermRow], fitres: FitTable) -> list[str]:
     """Sentences for the summary when the simulator does not describe the recordings or the found terms do not predict."""
     out = []
     if share < MIN_DESCRIBED:
@@ -116,7 +117,7 @@ def _verdicts(share: float, unconfirmed: list[dict], fitres: FitTable) -> list[s
                    "of it), so no parameter was calibrated and no term is named; check the simulator, the coordinates and "
                    "the units (angle_offset, angle_dims).")
     if unconfirmed:
-        names = ", ".join(f"{m['term']}[{m['coordinate']}]" for m in unconfirmed)
+        names = ", ".join(m.label for m in unconfirmed)
         out.append(f"Terms that fit the training recordings ({names}) do not improve the prediction of the held-out recordings "
                    f"(rollout RMSE calibrated {fitres.rmse('calibrated'):.4g}, with them "
                    f"{fitres.rmse('augmented'):.4g}), so they are not reported as missing physics "
@@ -145,23 +146,23 @@ def _details(problem: Problem, cal: Calibration, sel: Selection, weak_answer: Sy
              augmented: System) -> dict[str, Any]:
     """report.details: method, windows, chi^2/dof of each stage, what was set aside, cost."""
     opts, win = problem.opts, cal.shooter.w
-    method = METHOD + (METHOD_SYSTEMATIC if weak_answer.info.get("used") else "")
+    method = METHOD + (METHOD_SYSTEMATIC if weak_answer.replaces else "")
     return {"method": method, "shoot_window_samples": int(win.length), "n_windows": int(win.count),
             "n_windows_dropped_as_outliers": cal.n_dropped, "smoothing_window_samples": int(problem.smoothing_window),
             "coulomb_sign_smoothing": f"tanh(qdot/{problem.eps:.3g})",
             "coulomb_sign_smoothing_per_coordinate": list(problem.eps_coord), "threshold": opts.threshold,
             "chi2_per_dof": {"nominal": cal.fit_nominal.chi2_red, "calibrated": cal.fit.chi2_red, "augmented": final_fit.chi2_red},
             "identifiability": cal.screen.identifiability.to_dict(), "held_out_check": sel.held_out, "equivalent_swap": sel.equivalent_swap,
-            "chi2_per_dof_every_pivot_fitted": cal.screen.fit_full.chi2_red, "friction": weak_answer.info,
+            "chi2_per_dof_every_pivot_fitted": cal.screen.fit_full.chi2_red, "friction": weak_answer.to_dict(),
             "n_simulations": cal.shooter.n_sims,
             "wall_time_s": problem.log.elapsed(), "calibrated_kwargs": dict(augmented.params)}
 
 
-def _systematic(problem: Problem, cal: Calibration, sel: Selection, calibrated: dict) -> SystematicResult:
+def _systematic(problem: Problem, cal: Calibration, sel: Selection, calibrated: dict[str, ParamRow]) -> SystematicResult:
     """Stage 2b when the shooting-augmented chi^2/dof says model error, not noise, dominates."""
     if not sel.fit.chi2_red > problem.opts.systematic_chi2:
-        return SystematicResult({"used": False, "reason": f"shooting-augmented chi^2/dof {sel.fit.chi2_red:.3g} <= "
-                                                          f"{problem.opts.systematic_chi2}: the shooting selection stands"})
+        return SystematicResult(f"shooting-augmented chi^2/dof {sel.fit.chi2_red:.3g} <= {problem.opts.systematic_chi2}: "
+                                "the shooting selection stands")
     params = list(cal.screen.identifiability.basis)
     return systematic(SystematicContext(problem, cal, sel.terms, sel.fit.chi2_red, calibrated, params))
 
@@ -244,24 +245,26 @@ def _explain(problem: Problem, inputs: _Inputs) -> Report:
     if weak_answer.replaces:
         assert weak_answer.system is not None and weak_answer.fit is not None
         models["augmented"], final_fit = weak_answer.system, weak_answer.fit
-        calibrated, missing = weak_answer.calibrated, weak_answer.missing
+        calibrated, missing = weak_answer.calibrated, list(weak_answer.missing)
     if share < MIN_DESCRIBED:
-        calibrated = {k: {"nominal": v["nominal"], "fitted": v["nominal"], "ci95": None,
-                          "note": "not calibrated: the simulator does not describe these recordings"} for k, v in calibrated.items()}
+        calibrated = {k: ParamRow.held(v.nominal, "not calibrated: the simulator does not describe these recordings")
+                      for k, v in calibrated.items()}
         models["calibrated"] = models["augmented"] = models["nominal"]
 
     fitres, rollouts = held.fit_table({**models, **inputs.compare})
     log(f"held-out: {fitres.to_dict()}")
     if weak_answer.replaces and fitres.rmse("augmented") >= fitres.rmse("calibrated"):
         # the weak-form answer (its parameters included) does not predict: it is not adopted, the shooting answer stands
-        weak_answer.info["not_adopted"] = (f"the weak-form answer does not improve the held-out prediction (rollout RMSE "
-                                    f"{fitres.rmse('augmented'):.4g} >= calibrated {fitres.rmse('calibrated'):.4g})")
+        weak_answer = replace(weak_answer, not_adopted=(
+            f"the weak-form answer does not improve the held-out prediction (rollout RMSE "
+            f"{fitres.rmse('augmented'):.4g} >= calibrated {fitres.rmse('calibrated'):.4g})"))
         models["augmented"], final_fit, calibrated, missing = shooting_answer
         fitres, rollouts = held.fit_table({**models, **inputs.compare})
     missing, unconfirmed = _confirmed(missing, fitres)
-    if train.u is None and any(VOCABULARY[m["term"]].component == "dissipation" for m in missing):  # a check, no fitting
-        fitres.energy_check = {"model": "augmented", "training": energy_check(models["augmented"], train, problem.smoothing_window),
-                                  "held_out": energy_check(models["augmented"], hold, min(problem.smoothing_window, odd(hold.T // 2 - 1)))}
+    if train.u is None and any(VOCABULARY[m.term].component == "dissipation" for m in missing):  # a check, no fitting
+        fitres = replace(fitres, energy_check={
+            "model": "augmented", "training": energy_check(models["augmented"], train, problem.smoothing_window),
+            "held_out": energy_check(models["augmented"], hold, min(problem.smoothing_window, odd(hold.T // 2 - 1)))})
     located, resid_map = locate(models["calibrated"], train.resampled(), problem.smoothing_window, problem.eps)
     if not missing and cal.fit.chi2_red < 1.5:  # within the noise
         located = []
@@ -270,11 +273,10 @@ def _explain(problem: Problem, inputs: _Inputs) -> Report:
     if share < MIN_DESCRIBED:
         located = []
     return Report(
-        sim={"env_id": simulator.name, "kwargs": dict(simulator.kwargs), "calibrated": calibrated},
+        simulator={"env_id": simulator.name, "kwargs": dict(simulator.kwargs)}, calibrated=calibrated,
         data=_data(inputs.given, inputs.dec, problem.sigma_raw),
-        located=located, missing_physics=missing, fit=fitres.to_dict(), summary=summary,
-        details={**_details(problem, cal, sel, weak_answer, final_fit, models["augmented"]), "explained_share": share,
-                 "unconfirmed_terms": unconfirmed},
+        located=located, terms=missing, unconfirmed=unconfirmed, fit=fitres.to_dict(), summary=summary,
+        diagnostics={**_details(problem, cal, sel, weak_answer, final_fit, models["augmented"]), "explained_share": share},
         plot_data={"hold": held.rec, "rollouts": rollouts, "resid_map": resid_map, "train": train,
                    "augmented_system": models["augmented"], "calibrated_system": models["calibrated"],
                    "nominal_system": models["nominal"], "friction_curve": weak_answer.curve, "friction_laws": weak_answer.laws},

@@ -17,7 +17,7 @@ import os
 import re
 import shutil
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -28,6 +28,7 @@ from phast_gym.fileio import jsonable as _jsonable
 from phast_gym.systems import break_at_wraps, wrap
 
 from .evaluate import FitTable
+from .rows import ParamRow, TermRow
 from .terms import AugmentedSystem
 
 #: report.json's marker of a directory this tool wrote
@@ -41,18 +42,38 @@ PLOTS_PREFIX = "Plots: "
 _MODELS = (("nominal", ":"), ("calibrated", "--"), ("augmented", "-"))
 
 
-@dataclass
+@dataclass(frozen=True)
 class Report:
-    """The report of docs/mismatch.md (``to_dict`` is the report.json schema) plus plot data."""
+    """The report of docs/mismatch.md plus plot data.
 
-    sim: dict[str, Any]
+    The calibrated parameters and the terms are typed rows; :meth:`to_dict` (the report.json schema) and the dict
+    views :attr:`sim`, :attr:`missing_physics` and :attr:`details` convert them."""
+
+    simulator: dict[str, Any]  # report.sim less the calibrated parameters: env_id, kwargs
+    calibrated: dict[str, ParamRow]
     data: dict[str, Any]
     located: list[dict[str, Any]]
-    missing_physics: list[dict[str, Any]]
+    terms: list[TermRow]  # the missing physics
     fit: dict[str, Any]
     summary: str
-    details: dict[str, Any] = field(default_factory=dict)
+    diagnostics: dict[str, Any] = field(default_factory=dict)  # report.details less the unconfirmed terms
+    unconfirmed: list[TermRow] = field(default_factory=list)  # terms that do not improve the held-out prediction
     plot_data: dict[str, Any] = field(default_factory=dict, repr=False)
+
+    @property
+    def sim(self) -> dict[str, Any]:
+        """report.sim: the simulator and its calibrated parameters."""
+        return {**self.simulator, "calibrated": {k: row.to_dict() for k, row in self.calibrated.items()}}
+
+    @property
+    def missing_physics(self) -> list[dict[str, Any]]:
+        """report.missing_physics."""
+        return [m.to_dict() for m in self.terms]
+
+    @property
+    def details(self) -> dict[str, Any]:
+        """report.details."""
+        return {**self.diagnostics, "unconfirmed_terms": [m.to_dict() for m in self.unconfirmed]}
 
     def to_dict(self) -> dict[str, Any]:
         return {"sim": self.sim, "data": self.data, "located": self.located, "missing_physics": self.missing_physics,
@@ -68,7 +89,7 @@ class Report:
 
 
 # --------------------------------------------------------------------------- summary
-def _fmt_ci(ci: list[float] | None) -> str:
+def _fmt_ci(ci: Sequence[float] | None) -> str:
     return "" if not ci else f" [95% CI {ci[0]:.4g}, {ci[1]:.4g}]"
 
 
@@ -88,34 +109,34 @@ def _energy_check_sentence(fitres: FitTable) -> str | None:
     return None
 
 
-def _alternative_sentences(missing: list[dict]) -> list[str]:
+def _alternative_sentences(missing: Sequence[TermRow]) -> list[str]:
     """Terms the data cannot tell apart (shooting), and friction laws nearly as predictive (weak form), said once each."""
     out, laws_said = [], set()
     for m in missing:
-        terms = [a.get("term", a.get("parameter")) for a in m["alternatives"] if "law" not in a]
+        terms = [a.name for a in m.alternatives if a.law is None]
         if terms:
-            out.append(f"The data cannot tell {m['term']} apart from: {', '.join(str(t) for t in terms)}.")
-        laws = [a["law"] for a in m["alternatives"] if "law" in a]
-        if laws and m["coordinate"] not in laws_said:
-            laws_said.add(m["coordinate"])
-            out.append(f"On coordinate {m['coordinate']}, these friction laws predict the left-out recordings' friction curves "
+            out.append(f"The data cannot tell {m.term} apart from: {', '.join(terms)}.")
+        laws = [a.law for a in m.alternatives if a.law is not None]
+        if laws and m.coordinate not in laws_said:
+            laws_said.add(m.coordinate)
+            out.append(f"On coordinate {m.coordinate}, these friction laws predict the left-out recordings' friction curves "
                        f"nearly as well: {'; '.join(laws)}.")
     return out
 
 
-def summary_text(name: str, calibrated: dict, missing: list[dict], located: list[dict], fitres: FitTable, chi2_calibrated: float,
-                 chi2_augmented: float, sigma: np.ndarray, verdicts: Sequence[str] = ()) -> str:
+def summary_text(name: str, calibrated: Mapping[str, ParamRow], missing: Sequence[TermRow], located: list[dict], fitres: FitTable,
+                 chi2_calibrated: float, chi2_augmented: float, sigma: np.ndarray, verdicts: Sequence[str] = ()) -> str:
     """The report's plain-language summary (the chi^2/dof of the calibrated and augmented shooting fits decide what is said)."""
     parts = [f"Compared {name} with the recordings (estimated measurement noise {float(np.sqrt(np.mean(sigma**2))):.3g})."]
-    cal = [f"{k} {v['nominal']:.4g} -> {v['fitted']:.4g}{_fmt_ci(v.get('ci95'))}" for k, v in calibrated.items() if v.get("ci95")]
+    cal = [f"{k} {v.nominal:.4g} -> {v.fitted:.4g}{_fmt_ci(v.ci95)}" for k, v in calibrated.items() if v.ci95]
     if cal:
         parts.append("Calibrated parameters: " + "; ".join(cal) + ".")
     parts += list(verdicts)  # the simulator does not describe the recordings / found terms do not predict: nothing is named
     if missing:
-        items = [f"{m['term']} on coordinate {m['coordinate']} ({m['component']}), coefficient {m['coefficient']:.4g}{_fmt_ci(m['ci95'])}"
+        items = [f"{m.term} on coordinate {m.coordinate} ({m.component}), coefficient {m.coefficient:.4g}{_fmt_ci(m.ci95)}"
                  for m in missing]
         parts.append("Missing physics: " + "; ".join(items) + ".")
-        neg = [f"{m['term']}[{m['coordinate']}]" for m in missing if m["component"] == "dissipation" and m["coefficient"] < 0]
+        neg = [m.label for m in missing if m.component == "dissipation" and m.coefficient < 0]
         if neg:
             parts.append(f"Negative coefficient(s) {', '.join(neg)}: they lower the model's own dissipation, and the total friction "
                          "force stays passive (opposes motion) at every speed the recordings reach.")
@@ -142,10 +163,9 @@ def markdown(report: Report) -> str:
              f"Data: {d['data']['n_traj']} recordings x {d['data']['T']} samples, dt = {d['data']['dt']}, "
              f"estimated noise std {d['data']['noise_std']:.3g} ({d['data']['source']}).", "", "## Calibrated parameters", "",
              "| parameter | nominal | fitted | 95% CI | note |", "|---|---|---|---|---|"]
-    for k, v in d["sim"]["calibrated"].items():
-        ci = v.get("ci95")
-        ci_s = f"[{ci[0]:.4g}, {ci[1]:.4g}]" if ci else "-"
-        lines.append(f"| {k} | {v['nominal']:.4g} | {v['fitted']:.4g} | {ci_s} | {v.get('note', 'fitted')} |")
+    for k, v in report.calibrated.items():
+        ci_s = f"[{v.ci95[0]:.4g}, {v.ci95[1]:.4g}]" if v.ci95 else "-"
+        lines.append(f"| {k} | {v.nominal:.4g} | {v.fitted:.4g} | {ci_s} | {v.note or 'fitted'} |")
     lines += ["", "## Where the mismatch is (calibrated model, training recordings)", ""]
     if d["located"]:
         lines += ["| coordinate | component | where | when | share |", "|---|---|---|---|---|"]
@@ -154,14 +174,14 @@ def markdown(report: Report) -> str:
     else:
         lines.append("Nothing beyond the noise.")
     lines += ["", "## Missing physics", ""]
-    if d["missing_physics"]:
+    if report.terms:
         lines += ["| term | coordinate | component | coefficient | 95% CI | expression | explains | alternatives |",
                   "|---|---|---|---|---|---|---|---|"]
-        for m in d["missing_physics"]:
-            alts = ", ".join(a.get("term", a.get("parameter", a.get("law", ""))) for a in m.get("alternatives", [])) or "-"
-            expl = "-" if m["explains"] is None else format(m["explains"], ".2f")
-            lines.append(f"| {m['term']} | {m['coordinate']} | {m['component']} | {m['coefficient']:.4g} | "
-                         f"[{m['ci95'][0]:.4g}, {m['ci95'][1]:.4g}] | `{m['expression']}` | {expl} | {alts} |")
+        for m in report.terms:
+            alts = ", ".join(a.name for a in m.alternatives) or "-"
+            expl = "-" if m.explains is None else format(m.explains, ".2f")
+            lines.append(f"| {m.term} | {m.coordinate} | {m.component} | {m.coefficient:.4g} | "
+                         f"[{m.ci95[0]:.4g}, {m.ci95[1]:.4g}] | `{m.expression}` | {expl} | {alts} |")
     else:
         lines.append("None found.")
     f = d["fit"]
@@ -278,7 +298,7 @@ _CSS = ("body{font-family:system-ui,sans-serif;max-width:1100px;margin:2em auto;
 
 def html_page(report: Report, images: dict[str, str] | None = None) -> str:
     """report.html: one self-contained page (no external resources)."""
-    title = _html.escape(f"Mismatch report: {report.sim.get('env_id', '')}")
+    title = _html.escape(f"Mismatch report: {report.simulator.get('env_id', '')}")
     return (f"<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n<title>{title}</title>\n"
             f"<style>{_CSS}</style>\n</head>\n<body>\n{markdown_to_html(markdown(report), images)}\n</body>\n</html>\n")
 

@@ -34,6 +34,7 @@ from .linear import flat, orth_against
 from .options import Z95
 from .problem import Problem
 from .registry import ACTUATOR_GAIN, STRIBECK, ActuatorDeadzone
+from .rows import Alternative, ParamRow, TermRow, param_value
 from .shooting import ShootFit
 
 #: refit iterations while confirming a shortlisted candidate (the winner is finished with Options.max_iter)
@@ -551,7 +552,7 @@ def select(problem: Problem, screen: ParameterScreen, cands: list[AnyCandidate])
 
 
 # --------------------------------------------------------------------------- report rows
-def calibrated_rows(problem: Problem, cal: Calibration, sel: Selection) -> dict[str, dict[str, Any]]:
+def calibrated_rows(problem: Problem, cal: Calibration, sel: Selection) -> dict[str, ParamRow]:
     """report.sim.calibrated: changed parameters with 95% intervals (from the augmented fit when terms were added) and
     the combination the data fixed, then every other parameter held at nominal with the reason."""
     ident = cal.screen.identifiability
@@ -559,33 +560,32 @@ def calibrated_rows(problem: Problem, cal: Calibration, sel: Selection) -> dict[
         g_src, cov_src = sel.fit.g, sel.cov
     else:
         g_src, cov_src = cal.fit.g, cal.fit.covariance()
-    out: dict[str, dict[str, Any]] = {}
+    out: dict[str, ParamRow] = {}
     changed = [k for k, _ in cal.selected]
     for j, (k, nom) in enumerate(cal.selected):
         z, sd = g_src[j], math.sqrt(max(cov_src[j, j], 0.0))
-        row: dict[str, Any] = {"nominal": nom, "fitted": nom * math.exp(z),
-                               "ci95": [nom * math.exp(z - Z95 * sd), nom * math.exp(z + Z95 * sd)],
-                               "relative_change": math.exp(z) - 1.0}
         same = [p for p, eq in ident.equivalents.items() if abs(eq.get(k, 0.0)) >= 0.5 and p not in changed]
+        equivalent = None
         if same:
-            row["equivalent_changes"] = ("the recordings fix a combination: the same fit follows from changes of "
-                                         + ", ".join(f"{p} ({ident.sentence(p)})" for p in same))
-        out[k] = row
+            equivalent = ("the recordings fix a combination: the same fit follows from changes of "
+                          + ", ".join(f"{p} ({ident.sentence(p)})" for p in same))
+        out[k] = ParamRow(nom, nom * math.exp(z), (nom * math.exp(z - Z95 * sd), nom * math.exp(z + Z95 * sd)),
+                          math.exp(z) - 1.0, equivalent)
     for k, note in cal.notes.items():
-        out.setdefault(k, {"nominal": problem.sys0.params[k], "fitted": problem.sys0.params[k], "ci95": None, "note": note})
+        out.setdefault(k, ParamRow.held(param_value(problem.sys0.params[k]), note))
     for k in ident.examined:
         if k not in out:
             note = "identifiable, but no change of it was needed (held at nominal)"
             if (s := ident.sentence(k)) is not None:
                 note = f"held at nominal: {s}"
-            out[k] = {"nominal": problem.sys0.params[k], "fitted": problem.sys0.params[k], "ci95": None, "note": note}
+            out[k] = ParamRow.held(param_value(problem.sys0.params[k]), note)
     return out
 
 
-def _alternatives(sel: Selection, k: int, z: float) -> list[dict[str, Any]]:
+def _alternatives(sel: Selection, k: int, z: float) -> list[Alternative]:
     """Candidates with (>= 97% cosine) the same signature as candidate k (parameters included)."""
     cands, cols = sel.candidates, sel.columns
-    alts: list[dict[str, Any]] = []
+    alts: list[Alternative] = []
     ck = cols[:, k]
     for kk in sel.usable:
         if kk == k or cands[kk].key == cands[k].key:  # (the same term at another Stribeck velocity)
@@ -596,15 +596,15 @@ def _alternatives(sel: Selection, k: int, z: float) -> list[dict[str, Any]]:
             za = z * float(ca @ ck) / float(ca @ ca)
             cand = cands[kk]
             if isinstance(cand, ParamCandidate):
-                alts.append({"parameter": cand.name, "value": cand.coefficient(za), "similarity": round(abs(cos), 4),
-                             "note": "a parameter change with the same effect on these recordings"})
+                alts.append(Alternative(parameter=cand.name, value=cand.coefficient(za), similarity=float(round(abs(cos), 4)),
+                                        note="a parameter change with the same effect on these recordings"))
             else:
-                alts.append({"term": cand.term, "coordinate": cand.coordinate, "coefficient": cand.coefficient(za),
-                             "similarity": round(abs(cos), 4)})
+                alts.append(Alternative(term=cand.term, coordinate=cand.coordinate, coefficient=cand.coefficient(za),
+                                        similarity=float(round(abs(cos), 4))))
     return alts
 
 
-def missing_rows(sel: Selection, excess0: float) -> list[dict[str, Any]]:
+def missing_rows(sel: Selection, excess0: float) -> list[TermRow]:
     """report.missing_physics: each selected term with its coefficient, 95% interval, share of the excess chi^2 it
     explains (``excess0``: excess chi^2 of the nominal fit) and its non-identifiable alternatives."""
     out = []
@@ -616,18 +616,17 @@ def missing_rows(sel: Selection, excess0: float) -> list[dict[str, Any]]:
         sd = math.sqrt(max(sel.cov[j, j], 0.0)) if sel.cov is not None else 0.0
         lo, hi = sorted([cand.coefficient(z - Z95 * sd), cand.coefficient(z + Z95 * sd)])
         term = cand.family_term.at(z)
-        out.append({"term": cand.term, "coordinate": cand.coordinate, "component": cand.component,
-                    "coefficient": term.coefficient, "ci95": [lo, hi],
-                    **({"stribeck_velocity": term.velocity} if cand.kind.has_velocity else {}),
-                    "expression": term.expression(), "explains": float(min(1.0, sel.gains.get(k, 0.0) / max(excess0, 1e-300))),
-                    "alternatives": _alternatives(sel, k, z) + _swap_alternatives(sel, k)})
+        out.append(TermRow(cand.term, cand.coordinate, cand.component, term.coefficient, (lo, hi), term.expression(),
+                           float(min(1.0, sel.gains.get(k, 0.0) / max(excess0, 1e-300))),
+                           tuple(_alternatives(sel, k, z) + _swap_alternatives(sel, k)),
+                           term.velocity if cand.kind.has_velocity else None))
     return out
 
 
-def _swap_alternatives(sel: Selection, k: int) -> list[dict[str, Any]]:
+def _swap_alternatives(sel: Selection, k: int) -> list[Alternative]:
     """The parameter changes a reported port gain stands for (an equivalent answer that the tool did not choose)."""
     swap = sel.equivalent_swap
     if not swap or swap["by"] != sel.candidates[k].label:
         return []
-    return [{"parameter": label.removeprefix("param "), "note": "changes of these parameters fit as well (cosine "
-             f"{swap['cosine']}); the port gain keeps the simulator's values"} for label in swap["replaced"]]
+    return [Alternative(parameter=label.removeprefix("param "), note="changes of these parameters fit as well (cosine "
+                        f"{swap['cosine']}); the port gain keeps the simulator's values") for label in swap["replaced"]]

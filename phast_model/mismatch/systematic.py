@@ -43,6 +43,7 @@ from .lawselect import LawSelection, select_friction
 from .passivity import check_against_curve, is_passive
 from .problem import Problem
 from .registry import ARMATURE, COULOMB, VISCOUS
+from .rows import Alternative, ParamRow, TermRow, param_value
 from .shooting import ShootFit
 from .terms import VOCABULARY, AugmentedSystem, Term
 from .weakid import WeakFit, WeakModel, check_parameters, identify
@@ -56,28 +57,38 @@ class SystematicContext:
     cal: Calibration
     chosen: list[Candidate]  # the shooting selection (reported, not adopted)
     chi2_aug: float  # chi^2/dof of the shooting-augmented model
-    calibrated: dict[str, dict[str, Any]]  # report rows of the shooting answer (parameters the weak form does not fit)
+    calibrated: dict[str, ParamRow]  # rows of the shooting answer (parameters the weak form does not fit)
     params: list[str]  # the parameters the weak form may calibrate (a full-rank set spanning the identifiable ones)
 
 
-@dataclass
+@dataclass(frozen=True)
 class SystematicResult:
-    """``info`` is details.friction of the report; the rest is set only when the regime applies."""
+    """The answer of the model-error regime: :meth:`to_dict` is details.friction of the report; ``evidence`` (what the
+    weak form found, as report objects) and the models and rows are set only when the regime applies; ``not_adopted``
+    says why the analysis kept the shooting answer after all (the held-out prediction)."""
 
-    info: dict[str, Any]
+    reason: str
+    evidence: dict[str, Any] = field(default_factory=dict)
     system: System | None = None
     fit: ShootFit | None = None
-    calibrated: dict[str, dict[str, Any]] = field(default_factory=dict)
-    missing: list[dict[str, Any]] = field(default_factory=list)
+    calibrated: dict[str, ParamRow] = field(default_factory=dict)
+    missing: tuple[TermRow, ...] = ()
     curve: FrictionCurve | None = None
     laws: dict[str, FrictionLaw] = field(default_factory=dict)  # for the friction-curve plot
+    not_adopted: str | None = None
 
     @property
     def replaces(self) -> bool:
+        """The regime applied: its answer replaces the shooting one (unless :attr:`not_adopted`)."""
         return self.system is not None
 
+    def to_dict(self) -> dict[str, Any]:
+        """report.details.friction."""
+        return {"used": self.replaces, "reason": self.reason, **self.evidence,
+                **({} if self.not_adopted is None else {"not_adopted": self.not_adopted})}
 
-def _law_rows(law: FrictionLaw, sels: list[LawSelection], passive: dict[str, Any], own: dict[int, float]) -> list[dict[str, Any]]:
+
+def _law_rows(law: FrictionLaw, sels: list[LawSelection], passive: dict[str, Any], own: dict[int, float]) -> list[TermRow]:
     """report.missing_physics rows of the chosen law: coefficient, 95% interval, the evidence, near alternatives."""
     rows = []
     for t in law.terms:
@@ -90,13 +101,11 @@ def _law_rows(law: FrictionLaw, sels: list[LawSelection], passive: dict[str, Any
             note = ("negative coefficient: the *total* friction force stays passive at every observed speed "
                     f"(min {passive['per_coordinate'][t.coordinate]['min_force']:.3g} >= 0)"
                     + (f"; total viscous coefficient with the model's own damping {total:.4g}" if total is not None else ""))
-        rows.append({"term": t.term, "coordinate": t.coordinate, "component": term.component,
-                     "coefficient": t.coefficient, "ci95": list(t.ci95), "expression": term.expression(),
-                     **({"stribeck_velocity": t.velocity} if term.kind.has_velocity else {}),
-                     "explains": None, "alternatives": [{"law": n, "note": "as good at predicting left-out friction curves"}
-                                                        for n in near[:3]],
-                     "evidence": f"weak-form force balance; law chosen by {sel.folds}, score: left-out friction curve; "
-                                 f"|t| = {abs(t.t):.3g}" + (f"; {note}" if note else "")})
+        alternatives = tuple(Alternative(law=n, note="as good at predicting left-out friction curves") for n in near[:3])
+        rows.append(TermRow(t.term, t.coordinate, term.component, t.coefficient, (t.ci95[0], t.ci95[1]), term.expression(),
+                            None, alternatives, t.velocity if term.kind.has_velocity else None,
+                            f"weak-form force balance; law chosen by {sel.folds}, score: left-out friction curve; "
+                            f"|t| = {abs(t.t):.3g}" + (f"; {note}" if note else "")))
     return rows
 
 
@@ -117,25 +126,24 @@ def _weak_model(ctx: SystematicContext, window: int) -> WeakModel:
     return WeakModel(problem.sim, {}, list(ctx.params), [], arm, problem.eps, problem.nominal_family.deadzone_width, window)
 
 
-def _calibrated_rows(ctx: SystematicContext, fit: WeakFit, held: list[str], no_signal: list[str]) -> dict[str, dict[str, Any]]:
-    rows = {k: dict(v) for k, v in ctx.calibrated.items()}
+def _calibrated_rows(ctx: SystematicContext, fit: WeakFit, held: list[str], no_signal: list[str]) -> dict[str, ParamRow]:
+    rows = dict(ctx.calibrated)
+    nominal = {k: param_value(ctx.problem.sys0.params[k]) for k in [*held, *no_signal]}
     for k in held:
-        nom = ctx.problem.sys0.params[k]
-        rows[k] = {"nominal": nom, "fitted": nom, "ci95": None,
-                   "note": "held at nominal: fitting it does not predict left-out recordings better (details.friction.parameter_check)"}
+        rows[k] = ParamRow.held(nominal[k], "held at nominal: fitting it does not predict left-out recordings better "
+                                            "(details.friction.parameter_check)")
     for k, row in fit.params.items():
-        rows[k] = {**row, "note": "weak-form fit jointly with the friction law (and the armature where u drives)"}
-    for k in no_signal:
-        rows[k] = {**rows.get(k, {}), "nominal": rows.get(k, {}).get("nominal", ctx.problem.sys0.params[k]),
-                   "fitted": ctx.problem.sys0.params[k], "ci95": None,
-                   "note": "held at nominal: the friction law (added to the model's own dissipation) covers it"}
+        rows[k] = replace(row, note="weak-form fit jointly with the friction law (and the armature where u drives)")
+    for k in no_signal:  # a row the shooting answer or the fit above made keeps its other fields
+        note = "held at nominal: the friction law (added to the model's own dissipation) covers it"
+        rows[k] = replace(rows[k], fitted=nominal[k], ci95=None, note=note) if k in rows else ParamRow.held(nominal[k], note)
     return rows
 
 
-def _armature_rows(fit: WeakFit) -> list[dict[str, Any]]:
-    return [{"term": ARMATURE.name, "coordinate": t.coordinate, "component": ARMATURE.component, "coefficient": t.coefficient,
-             "ci95": list(t.ci95), "expression": t.to_term().expression(), "explains": None, "alternatives": [],
-             "evidence": f"weak-form fit jointly with the parameters and the friction law, |t| = {abs(t.t):.3g}"}
+def _armature_rows(fit: WeakFit) -> list[TermRow]:
+    return [TermRow(ARMATURE.name, t.coordinate, ARMATURE.component, t.coefficient, (t.ci95[0], t.ci95[1]),
+                    t.to_term().expression(), None, (),
+                    evidence=f"weak-form fit jointly with the parameters and the friction law, |t| = {abs(t.t):.3g}")
             for t in fit.armature if t.coefficient > 0 and t.excludes_zero]
 
 
@@ -166,19 +174,19 @@ def systematic(ctx: SystematicContext) -> SystematicResult:
     passive = is_passive(final.law, curve).to_dict()
     fit = ctx.cal.shooter.fit_states(augmented, ctx.cal.fit.X, max_iter=problem.opts.max_iter)
     missing = _law_rows(final.law, sels, passive, _own_viscous(augmented, problem.q_sample())) + _armature_rows(final)
-    info = {"used": True,
-            "reason": f"shooting-augmented chi^2/dof {ctx.chi2_aug:.3g} > {problem.opts.systematic_chi2}: the residual is model "
-                      "error, not noise, so parameters, armature and the dissipation law were identified from local evidence "
-                      "(weak form; the law chosen by left-out friction curves)",
-            "shooting_selection": [c.label for c in ctx.chosen],
-            "shooting_selection_note": "chosen by chi^2 gains that measure misfit in this regime; not adopted",
-            "window_samples": int(window),
-            "law": final.law.to_dict(), "passivity": passive, "selection": [s.to_dict() for s in sels],
-            ARMATURE.name: [{"coordinate": a.coordinate, "coefficient": a.coefficient, "ci95": list(a.ci95)} for a in final.armature],
-            "parameter_check": pcheck.to_dict(),
-            "armature_absorbed_by_parameters": [int(k.split(":")[1]) for k in final.no_signal if k.startswith("armature:")],
-            "curve": curve.to_dict(), "law_vs_curve": check_against_curve(final.law, curve),
-            "chi2_per_dof_augmented": fit.chi2_red}
+    reason = (f"shooting-augmented chi^2/dof {ctx.chi2_aug:.3g} > {problem.opts.systematic_chi2}: the residual is model "
+              "error, not noise, so parameters, armature and the dissipation law were identified from local evidence "
+              "(weak form; the law chosen by left-out friction curves)")
+    evidence = {"shooting_selection": [c.label for c in ctx.chosen],
+                "shooting_selection_note": "chosen by chi^2 gains that measure misfit in this regime; not adopted",
+                "window_samples": int(window),
+                "law": final.law.to_dict(), "passivity": passive, "selection": [s.to_dict() for s in sels],
+                ARMATURE.name: [{"coordinate": a.coordinate, "coefficient": a.coefficient, "ci95": list(a.ci95)}
+                                for a in final.armature],
+                "parameter_check": pcheck.to_dict(),
+                "armature_absorbed_by_parameters": [int(k.split(":")[1]) for k in final.no_signal if k.startswith("armature:")],
+                "curve": curve.to_dict(), "law_vs_curve": check_against_curve(final.law, curve),
+                "chi2_per_dof_augmented": fit.chi2_red}
     held_params = [k for k in ctx.params if k not in pcheck.kept and k not in pcheck.no_signal]
     rows = _calibrated_rows(ctx, final, held_params, pcheck.no_signal)
-    return SystematicResult(info, augmented, fit, rows, missing, curve, {f"chosen: {law.name}": final.law})
+    return SystematicResult(reason, evidence, augmented, fit, rows, tuple(missing), curve, {f"chosen: {law.name}": final.law})

@@ -35,6 +35,7 @@ from .laws import FrictionLaw, LawTerm, Spec, own_samples, own_terms
 from .linear import cluster_cov, rel_resid
 from .recordings import Recordings
 from .registry import ARMATURE
+from .rows import ParamRow
 from .simulators import Simulator
 from .terms import AugmentedSystem, Term
 from .weakform import WeakForm, weak_form
@@ -72,7 +73,7 @@ class WeakFit:
     """The identified model: parameter values with intervals, armature and friction terms."""
 
     kwargs: dict[str, Any]
-    params: dict[str, dict[str, Any]]  # name -> nominal, fitted, ci95, relative_change
+    params: dict[str, ParamRow]  # name -> nominal, fitted, ci95, relative_change
     armature: list[LawTerm]
     law: FrictionLaw
     no_signal: list[str] = field(default_factory=list)  # parameters the weak form cannot see (held); "armature:i" absorbed
@@ -166,14 +167,15 @@ def identify(model: WeakModel, rec: Recordings, law: list[Spec], iterations: int
         kw = {k: v * math.exp(float(np.clip(step.get(k, 0.0), -1.0, 1.0))) for k, v in kw.items()}
     tq = float(student_t.ppf(0.975, max(G - 1, 1)))
     sd = np.sqrt(np.maximum(np.diag(V), 0.0))
-    params, arm, terms = {}, [], []
+    params: dict[str, ParamRow] = {}
+    arm, terms = [], []
     for j, nm in enumerate(names):
         kind, rest = nm.split(":", 1)
         if kind == "param":
             nom = _number(nominal.params[rest])
             z = math.log(kw[rest] / nom)  # the last step's interval, about the converged value
-            params[rest] = {"nominal": nom, "fitted": kw[rest], "ci95": [nom * math.exp(z - tq * sd[j]), nom * math.exp(z + tq * sd[j])],
-                            "relative_change": kw[rest] / nom - 1.0}
+            params[rest] = ParamRow(nom, kw[rest], (nom * math.exp(z - tq * sd[j]), nom * math.exp(z + tq * sd[j])),
+                                    kw[rest] / nom - 1.0)
         elif kind == ARMATURE.name:
             ci = (float(coef[j] - tq * sd[j]), float(coef[j] + tq * sd[j]))
             arm.append(LawTerm(ARMATURE.name, int(rest), float(coef[j]), ci, 0.0, tq))
