@@ -45,8 +45,8 @@ def main(argv: list[str] | None = None) -> int:
     published = report.fit["nominal"]["rollout_rmse"]
     held = report.plot_data["hold"]
     sigma = np.asarray(report.data["noise_std_per_coordinate"])
-    sg = int(report.details["smoothing_window_samples"])
-    qs, vs = smooth(held.q, held.dt, sg)
+    smoothing_window = int(report.details["smoothing_window_samples"])
+    qs, vs = smooth(held.q, held.dt, smoothing_window)
     x_scale = np.array([np.sqrt(np.mean(qs**2)), np.sqrt(np.mean(vs**2))])
     K = int(report.fit["rollout_init_samples"])
     rec = validate(raw, 1, (0,), "real pendulum")
@@ -54,7 +54,7 @@ def main(argv: list[str] | None = None) -> int:
     for dec, window in SETTINGS:
         train = rec.decimate(dec).subset(slice(0, 4))
         sel = select_law(calibrated, train, window=window)
-        res, _ = evaluate_models({"a": sel.chosen.augmented(calibrated)}, held, sigma, x_scale, K, sg, np.ones(1))
+        res, _ = evaluate_models({"a": sel.chosen.augmented(calibrated)}, held, sigma, x_scale, K, smoothing_window, np.ones(1))
         row = {"decimation": dec, "window_samples": window, "window_s": round(window * 0.001 * dec, 4), "law": sel.chosen_name,
                "ratio_published_over_augmented": published / res["a"]["rollout_rmse"]}
         rows.append(row)

@@ -26,11 +26,11 @@ def _intervals(v: np.ndarray, margin: int, min_len: int) -> list[tuple[int, int]
     return [(int(a), int(b)) for a, b in zip(z[:-1], z[1:]) if b - a >= min_len]
 
 
-def _energy_state(system: System, rec: Recordings, sg_window: int) -> tuple:
+def _energy_state(system: System, rec: Recordings, smoothing_window: int) -> tuple:
     """Smoothed (q, v) mapped through the inverse sensor map, q components, H, the model's dissipated power, and the
     coordinate whose turning points cut the record into half-cycles."""
     n = rec.n
-    qs, vs = smooth(rec.q, rec.dt, sg_window)
+    qs, vs = smooth(rec.q, rec.dt, smoothing_window)
     qs = getattr(system, "unmeasure", lambda y: y)(qs)
     p = momentum(system, qs, vs)
     qc = tuple(qs[..., i] for i in range(n))
@@ -41,7 +41,7 @@ def _energy_state(system: System, rec: Recordings, sg_window: int) -> tuple:
     return qs, vs, qc, H, P, j
 
 
-def energy_check(system: System, rec: Recordings, sg_window: int, min_intervals: int = 4) -> dict[str, Any] | None:
+def energy_check(system: System, rec: Recordings, smoothing_window: int, min_intervals: int = 4) -> dict[str, Any] | None:
     """Does ``system``'s dissipation account for the energy the recordings lose?  (A check, nothing is fitted.)
 
     Per half-cycle between turning points, measured loss H(a) - H(b) against the model's
@@ -55,10 +55,10 @@ def energy_check(system: System, rec: Recordings, sg_window: int, min_intervals:
     if rec.u is not None and np.any(rec.u != 0):
         return None
     dt = rec.dt
-    _, vs, _, H, P, j = _energy_state(system, rec, sg_window)
+    _, vs, _, H, P, j = _energy_state(system, rec, smoothing_window)
     ys, ps, grp = [], [], []
     for tr in range(rec.n_traj):
-        for a, b in _intervals(vs[tr, :, j], max(3, sg_window // 2), 4):
+        for a, b in _intervals(vs[tr, :, j], max(3, smoothing_window // 2), 4):
             ys.append(H[tr, a] - H[tr, b])
             ps.append(np.trapezoid(P[tr, a:b + 1], dx=dt))
             grp.append(tr)

@@ -82,10 +82,10 @@ def _initial_states(shooter_factory: Callable[[Recordings], Shooter], system: Sy
 
 
 def evaluate_models(models: dict[str, System], rec: Recordings, sigma: np.ndarray, x_scale: np.ndarray, K: int,
-                    sg_window: int, scale: np.ndarray) -> tuple[dict[str, dict[str, float]], dict[str, np.ndarray]]:
+                    smoothing_window: int, scale: np.ndarray) -> tuple[dict[str, dict[str, float]], dict[str, np.ndarray]]:
     """one_step_mse and rollout_rmse (docs/mismatch.md) of each model on held-out recordings."""
     n, dt = rec.n, rec.dt
-    qs, vs = smooth(rec.q, dt, sg_window, rec.t)
+    qs, vs = smooth(rec.q, dt, smoothing_window, rec.t)
     out: dict[str, dict[str, float]] = {}
     rollouts: dict[str, np.ndarray] = {}
     for name, system in models.items():

@@ -21,10 +21,10 @@ from .recordings import Recordings
 from .shooting import odd
 
 
-def residual_force(system: System, rec: Recordings, sg_window: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, slice]:
+def residual_force(system: System, rec: Recordings, smoothing_window: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, slice]:
     """(r, q, qdot, qddot, kept samples): the filtered residual force and the smoothed states, filter edges dropped."""
     dt = rec.dt
-    w = odd(min(max(sg_window, 5), rec.T - 1 + rec.T % 2 - 1))
+    w = odd(min(max(smoothing_window, 5), rec.T - 1 + rec.T % 2 - 1))
     bal = momentum_balance(system, rec, w)
     qs, vs = bal.qs, bal.vs
     r = bal.dp - savgol_filter(bal.pdot, w, 3, axis=1, mode="interp")
@@ -80,10 +80,10 @@ def _when(r_i: np.ndarray) -> str:
     return when
 
 
-def locate(system: System, rec: Recordings, sg_window: int, eps: float, share_floor: float = 0.1) -> tuple[list[dict], dict]:
+def locate(system: System, rec: Recordings, smoothing_window: int, eps: float, share_floor: float = 0.1) -> tuple[list[dict], dict]:
     """Coordinates holding at least ``share_floor`` of the residual: component, region, time (largest share first),
     and the residual map data {"q", "v", "r"}."""
-    r, qv, vv, a, sl = residual_force(system, rec, sg_window)
+    r, qv, vv, a, sl = residual_force(system, rec, smoothing_window)
     total = float(np.sum(r**2)) + 1e-300
     located: list[dict[str, Any]] = []
     for i in range(rec.n):
