@@ -315,7 +315,7 @@ def evaluate_policy_on_plant(model: Any, protocol: ControlProtocol, sigma: float
     The frame buffer holds measurements at the decision rate (every ``repeat`` plant steps, as in training) and is
     filled with copies of the first measurement at every start.
     """
-    from phast_gym.control.evaluation import _stable_seed
+    from phast_gym.control.evaluation import stable_seed
 
     env = make_control_env(protocol, sigma)
     builder = ObsBuilder(frames, obs_mode, float(getattr(env.unwrapped.system, "inertia", 1.0) or 1.0))
@@ -323,7 +323,7 @@ def evaluate_policy_on_plant(model: Any, protocol: ControlProtocol, sigma: float
     succ, succ_angle, eff, fin, rms = [], [], [], [], []
     for regime, x0s in states.items():
         for i, x0 in enumerate(x0s):
-            obs, info = env.reset(seed=_stable_seed(seed, "noise", regime, i), options={"state": x0})
+            obs, info = env.reset(seed=stable_seed(seed, "noise", regime, i), options={"state": x0})
             pobs = builder.reset(obs, info["state"])
             us, errs = [], []
             u = np.zeros(1)

@@ -99,7 +99,7 @@ _TRIG = ("sin", "cos")
 
 def profile_dataset(env_id: str, n_traj: int = 1400, T: int = 200) -> dict[str, float]:
     """cProfile shares of the batched generation: sin/cos kernels and the kink-crossing refinement."""
-    from phast_gym.systems.base import _NumpyNamespace
+    from phast_gym.systems.base import NumpyNamespace
 
     make_dataset(env_id, 4, T=5, cache=False)
     # NumPy's ufuncs are invisible to cProfile: route the simulator's sin/cos through Python functions named so
@@ -110,18 +110,18 @@ def profile_dataset(env_id: str, n_traj: int = 1400, T: int = 200) -> dict[str, 
     def cos(x: np.ndarray) -> np.ndarray:
         return np.cos(x)
 
-    saved = {name: _NumpyNamespace.__dict__[name] for name in _TRIG}
-    _NumpyNamespace.sin, _NumpyNamespace.cos = staticmethod(sin), staticmethod(cos)
+    saved = {name: NumpyNamespace.__dict__[name] for name in _TRIG}
+    NumpyNamespace.sin, NumpyNamespace.cos = staticmethod(sin), staticmethod(cos)
     prof = cProfile.Profile()
     try:
         prof.runcall(make_dataset, env_id, n_traj, T=T, seed=42, cache=False)
     finally:
         for name, fn in saved.items():
-            setattr(_NumpyNamespace, name, fn)
+            setattr(NumpyNamespace, name, fn)
     stats = pstats.Stats(prof).stats  # (file, line, name) -> (cc, nc, tottime, cumtime, callers)
     total = max(v[3] for k, v in stats.items() if k[2] == "make_dataset")
     trig = sum(v[2] for k, v in stats.items() if k[2].split(" ")[-1].strip("<>'").split(".")[-1] in _TRIG)
-    split = sum(v[3] for k, v in stats.items() if k[2] == "_split_at_crossing")
+    split = sum(v[3] for k, v in stats.items() if k[2] == "split_at_crossing")
     n_rhs = sum(v[1] for k, v in stats.items() if k[2] == "rhs" and "systems" in k[0])
     return {"profiled_s": total, "trig_share": trig / total, "crossing_split_share": split / total, "rhs_calls": n_rhs}
 

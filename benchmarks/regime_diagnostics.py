@@ -47,7 +47,7 @@ from phast_model.bench.paper import PAPER
 from phast_model.bench.runner import BENCH_MODEL_FILE, load_result, load_splits, work_dir
 from phast_model.bench.spec import PHAST_MODELS, RunSpec, parse_seeds, run_key
 from phast_model.cli.bench import parse_kv
-from phast_model.train.metrics import _error_keys, _sq_err, benchmark_metric
+from phast_model.train.metrics import benchmark_metric, error_keys, squared_error
 from phast_model.world.model import PHAST, LatentODEModel
 
 FINER = 4  # oracle_state_fine: this many times the model's substeps
@@ -119,14 +119,14 @@ def diagnose(model: PHAST, spec: RunSpec, test: Any, recorded: float, H: int = 1
     target = test.q[:, K:K + H] if rollout_row else test.q[:, 1:]
 
     def score(pred: np.ndarray) -> float:
-        return _error_keys("", _sq_err(pred, target, ang), ang)[_error_kind(metric)]
+        return error_keys("", squared_error(pred, target, ang), ang)[_error_kind(metric)]
 
     res: dict[str, Any] = dict(takeover=None, oracle_state=None, oracle_state_fine=None, oracle_state_true_D=None,
                                velocity_rel_err=None, learned_rate=None, startup_share=None, floor_ratio=None)
     with torch.no_grad():
         scored_pred = (model.rollout(q[:, :K], u, H) if rollout_row else model(q, u))
         scored_pred = scored_pred.numpy()[:, :target.shape[1]]
-        se = _sq_err(scored_pred, target, ang)
+        se = squared_error(scored_pred, target, ang)
         se_traj = se.mean(axis=tuple(range(1, target.ndim)))
         worst = np.sort(se_traj)[::-1][:WORST].sum() / max(se_traj.sum(), 1e-300)
         if not rollout_row:

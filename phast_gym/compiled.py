@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from .integrate import _Crossing, _split_at_crossing, check_batch, rk4, step
+from .integrate import Crossing, check_batch, rk4, split_at_crossing, step
 from .systems.base import NUMPY, SCALAR, TORCH, System
 
 #: compiled one-interval functions, keyed by the system's identity and the integration settings
@@ -40,7 +40,7 @@ def _crossing_capacity(batch: int) -> int:
 
 
 def _gathered_substep(system: System, q: list, p: list, u: list | None, h: float, s0: Any, capacity: int) -> tuple:
-    """One RK4 substep for all samples, then the kink split (:func:`~phast_gym.integrate._split_at_crossing`)
+    """One RK4 substep for all samples, then the kink split (:func:`~phast_gym.integrate.split_at_crossing`)
     for at most ``capacity`` crossing samples, gathered into a fixed-size batch so the graph has static
     shapes.  Returns (q, p, s, overflow): ``overflow`` is True when more samples crossed than fit (the caller
     then redoes the interval on the NumPy path)."""
@@ -59,7 +59,7 @@ def _gathered_substep(system: System, q: list, p: list, u: list | None, h: float
     full = lambda c: torch.broadcast_to(torch.as_tensor(c, dtype=s0.dtype), s0.shape)  # noqa: E731
     sel = lambda c: full(c)[idx]  # noqa: E731
     cs = cross[idx]
-    qc, pc = _split_at_crossing(system, _Crossing(
+    qc, pc = split_at_crossing(system, Crossing(
         [sel(c) for c in q], [sel(c) for c in p], None if u is None else [sel(c) for c in u], h,
         ([sel(c) for c in k1[0]], [sel(c) for c in k1[1]]), [sel(c) for c in qn], [sel(c) for c in pn],
         torch.where(cs, s0[idx], -1.0), torch.where(cs, s1[idx], 1.0)), TORCH, mask=cs)

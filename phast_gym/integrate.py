@@ -22,7 +22,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from .systems.base import NUMPY, SCALAR, System, _NumpyNamespace
+from .systems.base import NUMPY, SCALAR, NumpyNamespace, System
 
 
 def rk4(system: System, q: Sequence, p: Sequence, u: Sequence | None, h: Any, xp: Any,
@@ -69,7 +69,7 @@ def _substep(system: System, q: Sequence, p: Sequence, u: Sequence | None, h: An
     if not _any(cross):
         return qn, pn, s1
     if xp is SCALAR:
-        qn, pn = _split_at_crossing(system, _Crossing(q, p, u, h, k1, qn, pn, s0, s1), xp)
+        qn, pn = split_at_crossing(system, Crossing(q, p, u, h, k1, qn, pn, s0, s1), xp)
         return qn, pn, system.switching(qn, pn, xp)
     if isinstance(s0, np.ndarray):
         # refine only the samples that cross; the rest keep their plain RK4 step
@@ -81,7 +81,7 @@ def _substep(system: System, q: Sequence, p: Sequence, u: Sequence | None, h: An
         # a system with per-sample parameters (several systems as one batch) gives the crossing samples' own
         take = getattr(system, "select_samples", None)
         sys_c = system if take is None else take(idx)
-        qc, pc = _split_at_crossing(sys_c, _Crossing(qs, ps, None if u is None else [sel(c) for c in u], sel(h), k1s,
+        qc, pc = split_at_crossing(sys_c, Crossing(qs, ps, None if u is None else [sel(c) for c in u], sel(h), k1s,
                                                      qns, pns, s0[idx], s1[idx]), xp)
         # rk4 returned fresh arrays: overwrite the crossing samples in place (copy only broadcast scalars)
         qn, pn = ([c if np.shape(c) == shape else np.array(np.broadcast_to(c, shape), dtype=float) for c in comps]
@@ -92,7 +92,7 @@ def _substep(system: System, q: Sequence, p: Sequence, u: Sequence | None, h: An
         s1[idx] = sys_c.switching(qc, pc, xp)
         return qn, pn, s1
     # torch: every sample takes two pieces; non-crossing ones split at tau = h (second piece of length 0)
-    qc, pc = _split_at_crossing(system, _Crossing(q, p, u, h, k1, qn, pn, xp.where(cross, s0, -1.0), xp.where(cross, s1, 1.0)),
+    qc, pc = split_at_crossing(system, Crossing(q, p, u, h, k1, qn, pn, xp.where(cross, s0, -1.0), xp.where(cross, s1, 1.0)),
                                 xp, mask=cross)
     return qc, pc, system.switching(qc, pc, xp)
 
@@ -101,7 +101,7 @@ def _substep(system: System, q: Sequence, p: Sequence, u: Sequence | None, h: An
 CROSSING_ITERATIONS = 4
 
 
-class _Crossing(NamedTuple):
+class Crossing(NamedTuple):
     """A plain RK4 substep of length ``h`` from (q, p) to (qn, pn) under ``u`` whose switching values ``s0``, ``s1``
     at its ends have opposite signs; ``k1``: the vector field at the start.  (A named tuple: torch.compile traces it.)"""
 
@@ -116,7 +116,7 @@ class _Crossing(NamedTuple):
     s1: Any
 
 
-def _split_at_crossing(system: System, c: _Crossing, xp: Any, mask: Any = None) -> tuple[list, list]:
+def split_at_crossing(system: System, c: Crossing, xp: Any, mask: Any = None) -> tuple[list, list]:
     """Integrate a substep known to cross the switching surface in two smooth pieces.
 
     The crossing time is located on the cubic Hermite interpolant of q over the plain RK4 substep
@@ -247,7 +247,7 @@ def simulate(
     """
     x0, u = check_batch(system, x0, n_steps, u, rng)
     n = system.n
-    if not isinstance(xp, _NumpyNamespace):
+    if not isinstance(xp, NumpyNamespace):
         raise ValueError(f"simulate integrates NumPy arrays: xp must be a NumPy namespace such as NUMPY, got {getattr(xp, 'name', xp)!r}")
     out = np.empty((x0.shape[0], n_steps + 1, 2 * n))
     out[:, 0] = x0

@@ -3,7 +3,8 @@
 * no function over 80 lines or with over 10 parameters (``self`` / ``cls`` not counted);
 * no module over 800 lines;
 * no mismatch term name as a string literal in more than 2 modules of ``phast_model/mismatch``;
-* no import cycle among the package's modules (module-level and function-level imports alike).
+* no import cycle among the package's modules (module-level and function-level imports alike);
+* no private name (``_name``) imported from another module of the package.
 """
 
 from __future__ import annotations
@@ -130,6 +131,13 @@ def test_no_import_cycle():
     packages = {m for m, p in MODULES.items() if p.name == "__init__.py"}
     graph = {m: {t for t in _imports(m, tree) if t not in packages} for m, tree in TREES.items() if m not in packages}
     assert _cycle(graph) is None, " -> ".join(_cycle(graph) or [])
+
+
+def test_no_private_name_crosses_a_module():
+    crossing = [f"{module}: from {node.module} import {a.name}" for module, tree in TREES.items() for node in ast.walk(tree)
+                if isinstance(node, ast.ImportFrom) and node.module != "__future__"
+                for a in node.names if a.name.startswith("_") and not a.name.startswith("__")]
+    assert not crossing, "\n".join(crossing)
 
 
 def test_old_module_paths_import_the_moved_modules():

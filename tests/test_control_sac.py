@@ -88,11 +88,11 @@ def test_plant_evaluation_frames_match_training() -> None:
     first = seen[:10]  # the first regime's episode: 50 / 5 decisions
     # replay the same episode through the training wrappers
     from phast_gym.control import start_states
-    from phast_gym.control.evaluation import _stable_seed
+    from phast_gym.control.evaluation import stable_seed
 
     x0 = next(iter(start_states(protocol, 1, 0).values()))[0]
     fo = cs.FrameObs(cs.RepeatRegimeEnv(make_control_env(ControlProtocol(horizon=10**9), 0.0), 5, 10, 10.0), 3)
-    obs, _ = fo.reset(seed=_stable_seed(0, "noise", "near_stable", 0), options={"state": x0})
+    obs, _ = fo.reset(seed=stable_seed(0, "noise", "near_stable", 0), options={"state": x0})
     for k in range(10):
         assert np.allclose(first[k], obs, atol=1e-6), k
         obs, *_ = fo.step(np.array([0.1], dtype=np.float32))
@@ -188,12 +188,12 @@ def test_state_observation_ablation_matches_evaluation() -> None:
 
     cs.evaluate_policy_on_plant(Recorder(), protocol, 0.01, 1, repeat=5, frames=3, max_action=10.0, obs_mode="state")
     from phast_gym.control import start_states
-    from phast_gym.control.evaluation import _stable_seed
+    from phast_gym.control.evaluation import stable_seed
 
     x0 = next(iter(start_states(protocol, 1, 0).values()))[0]
     fo = cs.FrameObs(cs.RepeatRegimeEnv(make_control_env(ControlProtocol(horizon=10**9), 0.01), 5, 6, 10.0), 3, "state")
     assert fo.observation_space.shape == (3,)
-    obs, info = fo.reset(seed=_stable_seed(0, "noise", "near_stable", 0), options={"state": x0})
+    obs, info = fo.reset(seed=stable_seed(0, "noise", "near_stable", 0), options={"state": x0})
     assert np.allclose(obs, [math.sin(x0[0]), math.cos(x0[0]), x0[1]], atol=1e-6)
     for k in range(6):
         assert np.allclose(seen[k], obs, atol=1e-6), k

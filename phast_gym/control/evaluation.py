@@ -191,14 +191,14 @@ def run_episode(env: gym.Env, controller: EnergyCasimirController, x0: np.ndarra
     )
 
 
-def _stable_seed(*parts: Any) -> int:
+def stable_seed(*parts: Any) -> int:
     return zlib.crc32("/".join(str(p) for p in parts).encode()) & 0x7FFFFFFF
 
 
 def start_states(protocol: ControlProtocol, trials_per_regime: int, seed: int = 0) -> dict[str, np.ndarray]:
     """The initial states of every start regime (same for every estimator and noise level)."""
     system = control_system(protocol)
-    return {r: sample_start_states(system, r, np.random.default_rng(_stable_seed(seed, r)), trials_per_regime)
+    return {r: sample_start_states(system, r, np.random.default_rng(stable_seed(seed, r)), trials_per_regime)
             for r in START_REGIMES}
 
 
@@ -246,7 +246,7 @@ def evaluate_estimators(
             for regime, x0s in states.items():
                 per: list[dict[str, float]] = []
                 for i, x0 in enumerate(x0s):
-                    ep = run_episode(env, ctrl, x0, _stable_seed(seed, "noise", regime, i), protocol)
+                    ep = run_episode(env, ctrl, x0, stable_seed(seed, "noise", regime, i), protocol)
                     per.append(ep.metrics())
                     if keep_episodes is not None and keep_episodes(float(sigma), name, regime, i):
                         kept[(float(sigma), name, regime, i)] = ep

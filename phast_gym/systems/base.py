@@ -83,7 +83,7 @@ class _ScalarNamespace:
         return a if c else b
 
 
-class _NumpyNamespace:
+class NumpyNamespace:
     """Array namespace over NumPy arrays (batched simulator)."""
 
     name = "numpy"
@@ -116,7 +116,7 @@ class _TorchNamespace:
 
 
 SCALAR = _ScalarNamespace()
-NUMPY = _NumpyNamespace()
+NUMPY = NumpyNamespace()
 TORCH: ArrayNamespace = _TorchNamespace()  # torch's own functions (through __getattr__) but clip_min
 _NAMESPACES: tuple[ArrayNamespace, ...] = (SCALAR, NUMPY, TORCH)  # mypy checks that each implements the protocol
 

@@ -27,12 +27,13 @@ def benchmark_metric(env_id: str) -> str:
     return ENV_INFO[env_id].metric
 
 
-def _sq_err(pred: np.ndarray, target: np.ndarray, angle_dims: tuple[int, ...]) -> np.ndarray:
+def squared_error(pred: np.ndarray, target: np.ndarray, angle_dims: tuple[int, ...]) -> np.ndarray:
+    """Elementwise squared error, wrapped on the angle coordinates."""
     e = angle_diff(pred, target, angle_dims)
     return e * e
 
 
-def _error_keys(prefix: str, se: np.ndarray, angle_dims: tuple[int, ...], suffix: str = "") -> dict[str, float]:
+def error_keys(prefix: str, se: np.ndarray, angle_dims: tuple[int, ...], suffix: str = "") -> dict[str, float]:
     """theta_wrap_mse / mse / mixed_mse from squared errors (..., n)."""
     n = se.shape[-1]
     eu = [i for i in range(n) if i not in angle_dims]
@@ -100,10 +101,10 @@ def forecast_metrics(model: ForecastModel, test: Any, horizons: tuple[int, ...] 
     ang = tuple(model.angle_dims)
     out: dict[str, float] = {"n_parameters": float(model.n_parameters())}
     pred = batched_predict(model, q, u, batch_size)
-    se1 = _sq_err(pred[:, :-1], q[:, 1:], ang)
-    out.update(_error_keys("", se1, ang))  # Eq. 90: every next-step prediction
+    se1 = squared_error(pred[:, :-1], q[:, 1:], ang)
+    out.update(error_keys("", se1, ang))  # Eq. 90: every next-step prediction
     # the same after the K = burn_in context (targets q_t, t >= K): free of the first steps' unobservable velocity
-    out.update(_error_keys("", se1[:, burn_in - 1:], ang, "_after_burnin"))
+    out.update(error_keys("", se1[:, burn_in - 1:], ang, "_after_burnin"))
     Hmax = max(horizons)
     modes = [("rollout_", "autoregressive")]
     if takeover and hasattr(model, "rollout_takeover"):
@@ -111,9 +112,9 @@ def forecast_metrics(model: ForecastModel, test: Any, horizons: tuple[int, ...] 
     system = data_system(test) if energy else None
     for prefix, mode in modes:
         roll = batched_rollout(model, q, u, burn_in, Hmax, mode, batch_size)
-        se = _sq_err(roll, q[:, burn_in:burn_in + Hmax], ang)
+        se = squared_error(roll, q[:, burn_in:burn_in + Hmax], ang)
         for H in horizons:
-            out.update(_error_keys(prefix, se[:, :H], ang, f"_h{H}"))
+            out.update(error_keys(prefix, se[:, :H], ang, f"_h{H}"))
             if mode == "autoregressive" and system is not None and system.hamiltonian_system and H >= 3:
                 full = np.concatenate([q[:, burn_in - 1:burn_in], roll[:, :H]], 1)
                 full = np.where(np.isfinite(full), full, np.nan)
