@@ -50,6 +50,26 @@ def test_heldout_score_beats_the_nominal_rig_by_the_same_code(trained: tuple) ->
     assert rolls["phast"].shape == tuple(w.q.shape)
 
 
+def test_compared_systems_are_scored_on_the_same_windows(trained: tuple) -> None:
+    """compare=: a phast_gym System scored by the same windows, burn-in and error. The true system (the rig plus its
+    hidden Coulomb friction) predicts at about the noise level; the nominal rig as a System scores like the nominal
+    PHAST model (the same physics, each with its own state fit to the burn-in)."""
+    from phast_gym import make_env_system
+    from phast_model.mismatch.terms import AugmentedSystem
+
+    data, cfg, fit = trained
+    rig = make_env_system(SIM)
+    truth = AugmentedSystem(make_env_system(SIM), [Term("coulomb_friction", 0, COULOMB)], coulomb_eps=1e-3)
+    scores, rolls, w = heldout_rollouts({"phast": fit.model, "nominal": build(nominal_config(cfg))}, data.heldout, 2.0,
+                                        compare={"truth": truth, "nominal system": rig})
+    assert rolls["truth"].shape == rolls["phast"].shape == tuple(w.q.shape)
+    assert len(scores["truth"]["per_window_rmse"]) == scores["n_windows"]
+    assert scores["truth"]["rollout_rmse"] < min(0.01, scores["phast"]["rollout_rmse"])
+    assert scores["nominal system"]["rollout_rmse"] == pytest.approx(scores["nominal"]["rollout_rmse"], rel=0.25)
+    with pytest.raises(ValueError, match="already a scored model"):
+        heldout_rollouts({"phast": fit.model}, data.heldout, 2.0, compare={"phast": rig})
+
+
 def test_recordings_with_the_wrong_input_width_are_refused(recordings: dict) -> None:
     bad = {**recordings, "u": np.concatenate([recordings["u"], recordings["u"]], -1)}
     with pytest.raises(ValueError, match="'u' has m=2 inputs"):

@@ -11,9 +11,12 @@ plots ``heldout_rollout.png`` and ``friction.png``.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, replace
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
+
+from phast_gym.systems import System
 
 from ..mismatch.recordings import Recordings
 from .fit import (
@@ -46,6 +49,9 @@ class RecordingsSpec:
     rollout_window_s: float | None = None
     action_bound: tuple[float, ...] | None = None  # the world env's torque bound (None: the largest recorded |u|)
     decimate: int = 1  # keep every k-th sample (free motion only)
+    #: other models of the rig scored on the same held-out windows (``heldout.<name>``): phast_gym systems, e.g. the
+    #: phast-mismatch augmented model (``Report.augmented_system``) or an identified model written as a rig
+    compare: Mapping[str, System] | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         w = self.rollout_window_s
@@ -98,7 +104,7 @@ def train_recordings_run(spec: RecordingsSpec, out: str | Path, train: RigTrainC
         fit = fit_recordings(model, data, train)
         nominal = build(nominal_config(cfg))
         scores, rolls, windows = heldout_rollouts({"phast": fit.model, "nominal": nominal}, heldout,
-                                                  spec.rollout_window_s)
+                                                  spec.rollout_window_s, compare=spec.compare)
         metrics = _metrics(spec, data, fit, scores)
         _write(fit, metrics, spec, train, out)
         if plots:
@@ -115,12 +121,14 @@ def train_recordings_run(spec: RecordingsSpec, out: str | Path, train: RigTrainC
 def _metrics(spec: RecordingsSpec, data: RigData, fit: RigFit, scores: dict[str, Any]) -> dict[str, Any]:
     """metrics.json: the held-out scores (``heldout.phast.rollout_rmse``, ``heldout.nominal.rollout_rmse``), the
     learned friction and the training record."""
-    ph, nom = scores["phast"]["rollout_rmse"], scores["nominal"]["rollout_rmse"]
+    nom = scores["nominal"]["rollout_rmse"]
+    ratios = {f"{name}_over_nominal": scores[name]["rollout_rmse"] / nom if nom > 0 else float("nan")
+              for name in ("phast", *(spec.compare or {}))}
     friction = fit.model.friction
     return {
         "sim": spec.sim, "regime": spec.regime, "recordings": str(data.source), "holdout_trajectories": list(data.holdout),
         "dt": data.train.dt, "train_trajectories": int(data.train.n_traj), "train_samples": int(data.train.T),
-        "heldout": {**scores, "phast_over_nominal": ph / nom if nom > 0 else float("nan")},
+        "heldout": {**scores, **ratios},
         "friction": None if friction is None else {k: v.detach().tolist() for k, v in friction.coefficients().items()},
         "train_wall_time_s": fit.wall_time_s, "best_val_rmse": fit.best_val, "best_epoch": fit.best_epoch,
         "init": fit.init,
@@ -130,7 +138,8 @@ def _metrics(spec: RecordingsSpec, data: RigData, fit: RigFit, scores: dict[str,
 def _write(fit: RigFit, metrics: dict[str, Any], spec: RecordingsSpec, train: RigTrainConfig, out: Path) -> None:
     from ..train.checkpoint import atomic_write_json, save_run
 
-    rec = {**asdict(spec), "recordings": metrics["recordings"], "holdout": list(spec.holdout or ())}
+    rec = {**{f.name: getattr(spec, f.name) for f in fields(spec) if f.name != "compare"},
+           "recordings": metrics["recordings"], "holdout": list(spec.holdout or ()), "compare": sorted(spec.compare or {})}
     save_run(fit.model, out, {"train": asdict(train), "recordings": rec})
     atomic_write_json(out / METRICS_FILE, metrics)
     atomic_write_json(out / HISTORY_FILE, fit.history)
@@ -139,8 +148,13 @@ def _write(fit: RigFit, metrics: dict[str, Any], spec: RecordingsSpec, train: Ri
 def heldout_summary(metrics: dict[str, Any]) -> dict[str, float]:
     """The headline numbers of a recordings run (what the CLI prints)."""
     h = metrics["heldout"]
-    return {"heldout_phast_rmse": h["phast"]["rollout_rmse"], "heldout_nominal_rmse": h["nominal"]["rollout_rmse"],
-            "phast_over_nominal": h["phast_over_nominal"], "train_wall_time_s": metrics["train_wall_time_s"]}
+    out = {"heldout_phast_rmse": h["phast"]["rollout_rmse"], "heldout_nominal_rmse": h["nominal"]["rollout_rmse"],
+           "phast_over_nominal": h["phast_over_nominal"], "train_wall_time_s": metrics["train_wall_time_s"]}
+    compared = [k[: -len("_over_nominal")] for k in h if k.endswith("_over_nominal") and k != "phast_over_nominal"]
+    if compared:
+        out["compared"] = {name: {"heldout_rmse": h[name]["rollout_rmse"], "over_nominal": h[f"{name}_over_nominal"]}
+                           for name in compared}
+    return out
 
 
 __all__ = ["RecordingsSpec", "train_recordings_run", "prepare", "heldout_summary"]
