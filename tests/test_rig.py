@@ -93,6 +93,17 @@ def test_too_short_for_a_burn_in_and_a_window_is_a_clear_error(tmp_path, recordi
     assert not (tmp_path / "run" / "model.pt").exists()
 
 
+def test_malformed_compare_flags_are_clear_errors(tmp_path, recordings: dict, capsys) -> None:  # noqa: ANN001
+    path = tmp_path / "rec.npz"
+    np.savez(path, **recordings)
+    base = ["--recordings", str(path), "--sim", SIM, "--holdout-trajectories", "8,9", "--out", str(tmp_path / "r")]
+    for extra, message in ((["--compare", "nameonly"], "NAME=VALUE"), (["--compare-kwargs", "x={}"], "no --compare gives"),
+                           (["--compare", "a=PHAST/Nope-v0"], "Nope")):
+        assert train_main(base + extra) == 2
+        assert message in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()
+
+
 def test_unknown_env_or_rig_is_one_line(tmp_path, capsys) -> None:  # noqa: ANN001
     assert train_main(["--env", "PHAST/Nope-v0", "--out", str(tmp_path / "r")]) == 2
     err = capsys.readouterr().err.strip()
@@ -111,10 +122,12 @@ def test_cli_run_directory_opens_with_load_run_and_the_world_env(tmp_path, recor
     np.savez(path, **recordings)
     out = tmp_path / "run"
     rc = train_main(["--recordings", str(path), "--sim", SIM, "--holdout-trajectories", "8,9", "--rollout-window-s", "2",
-                     "--window-s", "1.0", "--epochs", "3", "--regime", "partial", "--out", str(out), "--no-progress"])
+                     "--window-s", "1.0", "--epochs", "3", "--regime", "partial", "--out", str(out), "--no-progress",
+                     "--compare", "undamped=PHAST/Pendulum-v0", "--compare-kwargs", "undamped={}"])
     assert rc == 0
     m = json.loads((out / "metrics.json").read_text())
     h = m["heldout"]
+    assert math.isfinite(h["undamped"]["rollout_rmse"]) and h["undamped_over_nominal"] > 0
     assert math.isfinite(h["phast"]["rollout_rmse"]) and math.isfinite(h["nominal"]["rollout_rmse"])
     assert h["burn_in_s"] == 0.1 and h["window_s"] == 2.0
     assert set(m["friction"]) == {"coulomb", "viscous"}

@@ -44,6 +44,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     rec.add_argument("--window-s", type=float, default=0.25, metavar="S", help="training (multiple-shooting) window")
     rec.add_argument("--decimate", type=int, default=1, metavar="K",
                      help="keep every K-th sample (free-motion recordings sampled much faster than the dynamics)")
+    rec.add_argument("--compare", action="append", default=[], metavar="NAME=SIM",
+                     help="another model of the rig scored on the same held-out windows (an env id or "
+                          "path/to/rig.py:Class, e.g. an identified model); repeatable")
+    rec.add_argument("--compare-kwargs", action="append", default=[], metavar="NAME=JSON",
+                     help="constructor kwargs of a --compare model (JSON object; default: --sim-kwargs)")
     rec.add_argument("--action-bound", type=float, nargs="+", default=None, metavar="U",
                      help="the world env's torque bound per input (default: the largest recorded |u|)")
     ap.add_argument("--regime", default="partial", choices=("known", "partial", "unknown"))
@@ -105,6 +110,32 @@ def _json_object(text: str, flag: str) -> dict[str, Any]:
     return obj
 
 
+def _named(items: list[str], flag: str) -> dict[str, str]:
+    """``NAME=VALUE`` items (repeatable flag) as a dict; ValueError on a malformed or repeated name."""
+    out: dict[str, str] = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or not name.strip() or not value.strip():
+            raise ValueError(f"{flag} takes NAME=VALUE, got {item!r}")
+        if name.strip() in out:
+            raise ValueError(f"{flag}: {name.strip()!r} given twice")
+        out[name.strip()] = value.strip()
+    return out
+
+
+def _compared_systems(args: argparse.Namespace) -> dict[str, Any] | None:
+    """The ``--compare`` models, built with their ``--compare-kwargs`` (default: the rig's ``--sim-kwargs``)."""
+    from ..mismatch.simulators import load_simulator
+
+    sims, kwargs = _named(args.compare, "--compare"), _named(args.compare_kwargs, "--compare-kwargs")
+    unknown = sorted(set(kwargs) - set(sims))
+    if unknown:
+        raise ValueError(f"--compare-kwargs names {unknown}, which no --compare gives")
+    default = _json_object(args.sim_kwargs, "--sim-kwargs")
+    return {name: load_simulator(sim, _json_object(kwargs[name], f"--compare-kwargs {name}") if name in kwargs else default).build()
+            for name, sim in sims.items()} or None
+
+
 def _recordings_main(args: argparse.Namespace) -> dict[str, Any]:
     """The ``--recordings`` path: checks, training, held-out score; returns what to print."""
     from ..rig.fit import RigTrainConfig
@@ -118,7 +149,8 @@ def _recordings_main(args: argparse.Namespace) -> dict[str, Any]:
         raise ValueError("--resume is not supported with --recordings (a run takes minutes; start it again)")
     spec = RecordingsSpec(args.recordings, args.sim, _json_object(args.sim_kwargs, "--sim-kwargs"), args.regime,
                           _int_list(args.holdout_trajectories, "--holdout-trajectories"), args.rollout_window_s,
-                          tuple(args.action_bound) if args.action_bound else None, args.decimate)
+                          tuple(args.action_bound) if args.action_bound else None, args.decimate,
+                          compare=_compared_systems(args))
     train = RigTrainConfig(epochs=args.epochs, window_s=args.window_s, lr=args.lr if args.lr != 1e-3 else 2e-2,
                            seed=args.seed, progress=not args.no_progress)
     metrics = train_recordings_run(spec, args.out, train, _overrides(args.set), plots=not args.no_plots)
