@@ -544,6 +544,14 @@ class Shooter:
         R = self._residuals(system, Xs)  # (2n, W, L*n)
         return np.moveaxis((R - r0[None]) / h[:, None, None], 0, -1)
 
+    def residual_and_jac_X(self, system: System, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The residual at X and :meth:`jac_X` there, simulated as one batch of (2n + 1) W samples."""
+        h = 1e-6 * np.maximum(self.x_scale, 1e-8) + 1e-9
+        Xs = np.repeat(X[None], 2 * self.n + 1, axis=0)
+        Xs[1 + np.arange(2 * self.n), :, np.arange(2 * self.n)] += h[:, None]
+        R = self._residuals(system, Xs)
+        return R[0], np.moveaxis((R[1:] - R[:1]) / h[:, None, None], 0, -1)
+
     def _jac_params(self, build: Callable[[np.ndarray], System], g: np.ndarray, X: np.ndarray, r: np.ndarray, g_step: float) -> np.ndarray:
         """Forward-difference Jacobian of the residual w.r.t. the global parameters g: (..., P).
 
