@@ -35,7 +35,7 @@ def compared_models(rec: dict, kwargs: dict, ident: dict[str, float], progress: 
 
     report = analyze("PHAST/DoublePendulum-v0", rec, sim_kwargs=kwargs, holdout_trajectories=list(DEFAULT_HOLDOUT),
                      rollout_window=ROLLOUT_WINDOW_S, progress=progress)
-    return {"phast-mismatch augmented": report.augmented_system, "published identified": identified_system(ident)}
+    return {"phast-mismatch augmented": report.augmented_system(), "published identified": identified_system(ident)}
 
 
 def run(data: Path, out: Path, regime: str = "partial", epochs: int = 40, progress: bool = True) -> dict:

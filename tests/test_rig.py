@@ -68,6 +68,8 @@ def test_compared_systems_are_scored_on_the_same_windows(trained: tuple) -> None
     assert scores["nominal system"]["rollout_rmse"] == pytest.approx(scores["nominal"]["rollout_rmse"], rel=0.25)
     with pytest.raises(ValueError, match="already a scored model"):
         heldout_rollouts({"phast": fit.model}, data.heldout, 2.0, compare={"phast": rig})
+    with pytest.raises(TypeError, match="must be a phast_gym System"):
+        heldout_rollouts({"phast": fit.model}, data.heldout, 2.0, compare={"unbuilt": type(rig)})
 
 
 def test_recordings_with_the_wrong_input_width_are_refused(recordings: dict) -> None:

@@ -497,6 +497,8 @@ def heldout_rollouts(models: dict[str, PHAST], rec: Recordings, window_s: float 
     for name, system in (compare or {}).items():
         if name in sims:
             raise ValueError(f"compare: {name!r} is already a scored model's name ({sorted(sims)})")
+        if not isinstance(system, System):
+            raise TypeError(f"compare: {name!r} must be a phast_gym System (built), got {type(system).__name__}")
         sims[name] = (system_rollouts(system, w, rec.dt, tuple(rec.angle_dims)), tuple(rec.angle_dims))
     out = {name: _score(sim, w, dims) for name, (sim, dims) in sims.items()}
     rolls = {name: wrap_angles(sim, dims).numpy() for name, (sim, dims) in sims.items()}
