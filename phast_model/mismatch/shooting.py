@@ -66,7 +66,7 @@ def estimate_noise(q: np.ndarray, t: np.ndarray | None = None) -> np.ndarray:
 def time_scale(q: np.ndarray, dt: float) -> float:
     """Characteristic time tau (1/omega of an oscillation): the smaller of rms(q - trend)/rms(qdot)
     and rms(qdot)/rms(qddot), so rotating or drifting coordinates do not inflate it."""
-    win = _odd(max(7, min(q.shape[1] // 4, 31)))
+    win = odd(max(7, min(q.shape[1] // 4, 31)))
     v = savgol_filter(q, win, 3, deriv=1, delta=dt, axis=1, mode="interp")
     a = savgol_filter(q, win, 3, deriv=2, delta=dt, axis=1, mode="interp")
     t = np.arange(q.shape[1]) - (q.shape[1] - 1) / 2
@@ -88,9 +88,6 @@ def odd(k: int) -> int:
     return k if k % 2 else k + 1
 
 
-_odd = odd  # the name this module uses
-
-
 def smooth(q: np.ndarray, dt: float, window: int, t: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Savitzky-Golay (cubic) smoothed q and qdot along time, (N, T, n) each.
 
@@ -101,7 +98,7 @@ def smooth(q: np.ndarray, dt: float, window: int, t: np.ndarray | None = None) -
         d = np.diff(t, axis=1)
         if np.max(np.abs(d - dt)) > 1e-3 * dt:
             return _smooth_jittered(q, dt, window, np.asarray(t, dtype=float))
-    window = _odd(min(max(window, 5), q.shape[1] - (1 - q.shape[1] % 2)))
+    window = odd(min(max(window, 5), q.shape[1] - (1 - q.shape[1] % 2)))
     qs = savgol_filter(q, window, 3, axis=1, mode="interp")
     vs = savgol_filter(q, window, 3, deriv=1, delta=dt, axis=1, mode="interp")
     return qs, vs
@@ -535,20 +532,25 @@ class Shooter:
         d = np.where(np.isfinite(d), d, 1e6)
         return np.clip(d, -1e6, 1e6).reshape(K, d.shape[1], -1)
 
+    def _state_steps(self, X: np.ndarray, with_base: bool) -> tuple[np.ndarray, np.ndarray]:
+        """The window states X perturbed by a forward-difference step h in each of the 2n directions, (2n, W, 2n)
+        (preceded by X itself when ``with_base``), and h (2n,)."""
+        h = 1e-6 * np.maximum(self.x_scale, 1e-8) + 1e-9
+        k = int(with_base)
+        Xs = np.repeat(X[None], 2 * self.n + k, axis=0)
+        Xs[k + np.arange(2 * self.n), :, np.arange(2 * self.n)] += h[:, None]
+        return Xs, h
+
     def jac_X(self, system: System, X: np.ndarray, r0: np.ndarray) -> np.ndarray:
         """(W, L*n, 2n) forward-difference Jacobian w.r.t. each window's own state (all windows and all
         2n directions in one batch)."""
-        h = 1e-6 * np.maximum(self.x_scale, 1e-8) + 1e-9  # (2n,)
-        Xs = np.repeat(X[None], 2 * self.n, axis=0)
-        Xs[np.arange(2 * self.n), :, np.arange(2 * self.n)] += h[:, None]
+        Xs, h = self._state_steps(X, with_base=False)
         R = self._residuals(system, Xs)  # (2n, W, L*n)
         return np.moveaxis((R - r0[None]) / h[:, None, None], 0, -1)
 
     def residual_and_jac_X(self, system: System, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The residual at X and :meth:`jac_X` there, simulated as one batch of (2n + 1) W samples."""
-        h = 1e-6 * np.maximum(self.x_scale, 1e-8) + 1e-9
-        Xs = np.repeat(X[None], 2 * self.n + 1, axis=0)
-        Xs[1 + np.arange(2 * self.n), :, np.arange(2 * self.n)] += h[:, None]
+        Xs, h = self._state_steps(X, with_base=True)
         R = self._residuals(system, Xs)
         return R[0], np.moveaxis((R[1:] - R[:1]) / h[:, None, None], 0, -1)
 

@@ -37,7 +37,7 @@ from ..components.mass import KnownMass, LinearMass, LowRankMass
 from ..components.potentials import TemplatePotential
 from ..mismatch.evaluate import check_holdout_indices, split
 from ..mismatch.recordings import Recordings, load_raw, validate
-from ..mismatch.shooting import Shooter, Windows, estimate_noise, simulate_qv, smooth, substeps_for
+from ..mismatch.shooting import Shooter, Windows, estimate_noise, odd, simulate_qv, smooth, substeps_for
 from ..mismatch.simulators import load_simulator
 from ..world.interfaces import coordinate_error, wrap_angles
 from ..world.model import PHAST, PHASTConfig, build_from_config
@@ -178,8 +178,8 @@ def nominal_config(cfg: PHASTConfig) -> PHASTConfig:
 
 
 def _odd_samples(seconds: float, dt: float) -> int:
-    k = max(5, int(round(seconds / dt)))
-    return k if k % 2 else k + 1
+    """An odd number of samples, at least 5, spanning about ``seconds``."""
+    return odd(max(5, int(round(seconds / dt))))
 
 
 # --------------------------------------------------------------------------- shooting
