@@ -525,3 +525,20 @@ def test_report_rows_write_the_report_json_keys_in_order():
     assert list(weak.to_dict()) == ["term", "coordinate", "component", "coefficient", "ci95", "expression", "stribeck_velocity",
                                     "explains", "alternatives", "evidence"]
     assert weak.to_dict()["explains"] is None and weak.to_dict()["alternatives"] == [{"law": "x", "note": "n"}]
+
+
+def test_heldout_initial_state_refitted_where_it_is_not_determined():
+    """A pendulum falling from near its upright: the state fitted to the first 50 samples leaves an open-loop spread
+    far above the noise, so it is fitted to more samples (up to half the recording); a small swing keeps 50."""
+    from phast_model.mismatch.evaluate import _initial_states
+    from phast_model.mismatch.recordings import Recordings
+    from phast_model.mismatch.shooting import simulate_qv, substeps_for
+
+    system = make_env_system("PHAST/Pendulum-v0")
+    q0, v0 = np.array([[0.5], [math.pi - 0.05]]), np.zeros((2, 1))
+    q = simulate_qv(system, q0, v0, 399, None, 0.01, substeps_for(system, 0.01))
+    q = q + np.random.default_rng(0).normal(scale=0.002, size=q.shape)
+    rec = Recordings(q=q, dt=0.01, angle_dims=(0,))
+    X, Ks = _initial_states({"true": system}, rec, 50, np.array([0.002]), np.array([1.0, 1.0]), q, np.zeros_like(q))
+    assert Ks[0] == 50 and Ks[1] in (100, 200)
+    assert np.allclose(X["true"][:, 0], q0[:, 0], atol=0.01)

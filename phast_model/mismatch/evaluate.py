@@ -18,6 +18,9 @@ from .shooting import Shooter, Windows, angle_diff, odd, simulate_qv, smooth, su
 MIN_ROLLOUT_SAMPLES = 20
 #: largest rollout spread (noise units, linearized) an initial state's uncertainty may leave before it is fitted to more samples
 MAX_INIT_SPREAD = 1.0
+#: largest spread (noise units, linearized) over the samples of the next fit length that the current fitted state may
+#: leave for the homotopy on the length to jump there directly
+MAX_JUMP_SPREAD = 3.0
 
 
 # --------------------------------------------------------------------------- split
@@ -72,42 +75,85 @@ def split(rec: Recordings, frac: float, indices: list[int] | None = None) -> tup
 
 
 # --------------------------------------------------------------------------- metrics
-def _state_fit(system: System, rec: Recordings, K: int, sigma: np.ndarray, x_scale: np.ndarray, X0: np.ndarray
-               ) -> tuple[np.ndarray, np.ndarray]:
-    """Each trajectory's initial (q, qdot) fitted to its first K samples with ``system``, and the rollout spread that
-    state's uncertainty leaves: the RMS over the whole recording of the linearized std of q (noise units),
-    sqrt(trace(J C J^T) / (T n)), C the state covariance of the K-sample fit, J the rollout's Jacobian."""
+def _ladder(K0: int, K_max: int) -> list[int]:
+    """Initial-state fit lengths: K0, doubled up to K_max."""
+    out = [K0]
+    while out[-1] < K_max:
+        out.append(min(2 * out[-1], K_max))
+    return out
+
+
+def _fit_states(system: System, rec: Recordings, K: int, sigma: np.ndarray, x_scale: np.ndarray, X0: np.ndarray) -> np.ndarray:
+    """Each trajectory's initial (q, qdot) fitted to its first K samples with ``system``."""
     sub = int(substeps_for(system, rec.dt))
-    fit = Shooter(Windows.cut(rec.time_slice(0, K), K), sigma, sub, x_scale).fit(lambda g: system, X0, np.zeros(0), max_iter=15)
-    cov = np.linalg.pinv(np.einsum("wla,wlb->wab", fit.JX, fit.JX))
-    full = Shooter(Windows.cut(rec, rec.T), sigma, sub, x_scale)
-    J = full.residual_and_jac_X(system, fit.X)[1]
-    spread = np.sqrt(np.einsum("wla,wab,wlb->w", J, cov, J) / J.shape[1])
-    return fit.X, np.where(np.isfinite(spread), spread, np.inf)
+    shooter = Shooter(Windows.cut(rec.time_slice(0, K), K), sigma, sub, x_scale)
+    return shooter.fit(lambda g: system, X0, np.zeros(0), max_iter=15, stats=False).X
+
+
+@dataclass(frozen=True)
+class _Linearization:
+    """A model's full held-out rollouts linearized in their initial states: J (W, T n, 2n), in noise units."""
+
+    J: np.ndarray
+    n: int
+
+    @classmethod
+    def at(cls, system: System, rec: Recordings, sigma: np.ndarray, x_scale: np.ndarray, X: np.ndarray) -> _Linearization:
+        shooter = Shooter(Windows.cut(rec, rec.T), sigma, int(substeps_for(system, rec.dt)), x_scale)
+        return cls(shooter.residual_and_jac_X(system, X)[1], rec.n)
+
+    def spread(self, fitted: int, over: int) -> np.ndarray:
+        """(W,) the RMS over the first ``over`` samples of the linearized std of q (noise units) that the state of a
+        fit to the first ``fitted`` samples leaves: sqrt(trace(J_o C J_o^T) / (over n)), C = (J_f^T J_f)^+."""
+        Jf, Jo = self.J[:, : fitted * self.n], self.J[:, : over * self.n]
+        cov = np.linalg.pinv(np.einsum("wla,wlb->wab", Jf, Jf))
+        out = np.sqrt(np.einsum("wla,wab,wlb->w", Jo, cov, Jo) / Jo.shape[1])
+        return np.where(np.isfinite(out), out, np.inf)
+
+    def needed(self, ladder: list[int]) -> np.ndarray:
+        """Per trajectory, the shortest fit length of ``ladder`` whose state spreads the whole rollout by at most
+        :data:`MAX_INIT_SPREAD` (else the longest)."""
+        need = np.full(self.J.shape[0], ladder[-1])
+        T = self.J.shape[1] // self.n
+        for K in reversed(ladder):
+            need[self.spread(K, T) <= MAX_INIT_SPREAD] = K
+        return need
+
+    def next_length(self, ladder: list[int], current: int, final: int, w: int) -> int:
+        """The next fit length of trajectory ``w`` on its way to ``final``: the longest whose samples the current
+        state already predicts within :data:`MAX_JUMP_SPREAD` (the fit then starts in its basin), else the next one."""
+        later = [K for K in ladder if current < K <= final]
+        safe = [K for K in later if self.spread(current, K)[w] <= MAX_JUMP_SPREAD]
+        return max(safe) if safe else later[0]
 
 
 def _initial_states(models: dict[str, System], rec: Recordings, K: int, sigma: np.ndarray, x_scale: np.ndarray,
                     qs: np.ndarray, vs: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """Every model's initial states of the held-out trajectories, and the samples each was fitted to.
 
-    A trajectory whose fitted state leaves a rollout spread above :data:`MAX_INIT_SPREAD` under any model (a pendulum
-    creeping past its upright: the open-loop error then measures the luck of the initial state, the true model's
-    included) is refitted to twice the samples (from the shorter fit: a homotopy on the length), up to half the
-    recording, for every model alike."""
-    Ks = np.full(rec.n_traj, min(K, rec.T), dtype=int)
-    K_max = max(int(Ks[0]), rec.T // 2)
-    X = {name: np.concatenate([getattr(s, "unmeasure", lambda y: y)(qs[:, 0]), vs[:, 0]], axis=1) for name, s in models.items()}
-    todo = np.ones(rec.n_traj, dtype=bool)
-    while todo.any():
-        spread = np.zeros(rec.n_traj)
-        for k in np.unique(Ks[todo]):
-            idx = np.flatnonzero(todo & (Ks == k))
-            part = rec.subset(idx)
-            for name, system in models.items():
-                X[name][idx], s = _state_fit(system, part, int(k), sigma, x_scale, X[name][idx])
-                spread[idx] = np.maximum(spread[idx], s)
-        todo = todo & (spread > MAX_INIT_SPREAD) & (Ks < K_max)
-        Ks[todo] = np.minimum(2 * Ks[todo], K_max)
+    A trajectory whose state fitted to K samples leaves a rollout spread above :data:`MAX_INIT_SPREAD` under any model
+    (a pendulum creeping past its upright: the open-loop error then measures the luck of the initial state, the true
+    model's included) is fitted to more samples: the shortest of K, 2K, 4K, ... (up to half the recording) whose state
+    is predicted to leave a small spread (one linearization at the K-sample fit, :class:`_Linearization`), for every
+    model alike, reached by a homotopy on the length."""
+    ladder = _ladder(min(K, rec.T), max(min(K, rec.T), rec.T // 2))
+    X = {name: _fit_states(s, rec, ladder[0], sigma, x_scale,
+                           np.concatenate([getattr(s, "unmeasure", lambda y: y)(qs[:, 0]), vs[:, 0]], axis=1))
+         for name, s in models.items()}
+    Ks = np.full(rec.n_traj, ladder[0])
+    if len(ladder) == 1:
+        return X, Ks
+    lin = {name: _Linearization.at(s, rec, sigma, x_scale, X[name]) for name, s in models.items()}
+    Ks = np.max([m.needed(ladder) for m in lin.values()], axis=0)
+    for name, system in models.items():
+        current = np.full(rec.n_traj, ladder[0])
+        while np.any(current < Ks):
+            todo = np.flatnonzero(current < Ks)
+            nxt = np.array([lin[name].next_length(ladder, int(current[w]), int(Ks[w]), int(w)) for w in todo])
+            for k in np.unique(nxt):
+                idx = todo[nxt == k]
+                X[name][idx] = _fit_states(system, rec.subset(idx), int(k), sigma, x_scale, X[name][idx])
+                current[idx] = k
     return X, Ks
 
 
@@ -207,8 +253,9 @@ class HeldOut:
         hold, init_samples = self.rec, self.init_samples
         metrics, rollouts = self.evaluate(models)
         win_txt = f"held-out recordings cut into {hold.n_traj} consecutive windows of {hold.T} samples; " if self.windowed else ""
-        text = (win_txt + f"per held-out trajectory / window: initial state fitted to its first {init_samples} samples (twice as many, "
-                "up to half the window, while that state's uncertainty alone spreads the rollout by more than the noise), open-loop "
+        text = (win_txt + f"per held-out trajectory / window: initial state fitted to its first {init_samples} samples (2, 4, ... "
+                "times as many, up to half the window, where that state's uncertainty alone, linearized, would spread the rollout by "
+                "more than the noise), open-loop "
                 f"simulation over all {hold.T} samples with the recorded u; RMSE of q"
                 + (" scaled per coordinate by its std" if self.mixed else "")
                 + (" (angles wrapped)" if hold.angle_dims else ""))

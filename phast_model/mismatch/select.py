@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 from typing import Any
 
@@ -33,7 +33,7 @@ from .candidates import Candidate, Family, ParamCandidate
 from .linear import flat, orth_against
 from .options import Z95
 from .problem import Problem
-from .registry import ACTUATOR_GAIN, STRIBECK, ActuatorDeadzone
+from .registry import ACTUATOR_GAIN, COULOMB, STRIBECK, ActuatorDeadzone
 from .rows import Alternative, ParamRow, TermRow, param_value
 from .shooting import ShootFit
 
@@ -43,6 +43,8 @@ CONFIRM_ITER = 6
 EQUAL_EVIDENCE = 0.05
 #: components whose terms need local evidence (a left-out gain of threshold^2) to be adopted
 LOCAL_EVIDENCE = ("sensor", "port")
+#: a Stribeck term beside a Coulomb term is weighed against that Coulomb edge made this many times sharper
+SHARPER_EDGE = 4.0
 
 AnyCandidate = Candidate | ParamCandidate
 
@@ -106,6 +108,7 @@ class _Search:
     gains: dict[int, float] = field(default_factory=dict)
     raw: dict[int, np.ndarray] = field(default_factory=dict)  # unprojected columns of the last :meth:`columns` call
     marks: _Marks = field(default_factory=_Marks)
+    eps: tuple[float, ...] | None = None  # the Coulomb edges when one was made sharper (None: the problem's)
 
     @property
     def thr2(self) -> float:
@@ -126,7 +129,8 @@ class _Search:
         pool = self.cands if cands is None else cands
         params = [(c.name, c.nominal) for c in (pool[k] for k in order) if isinstance(c, ParamCandidate)]
         terms = [c.family_term for c in (pool[k] for k in order) if isinstance(c, Candidate)]
-        return self.problem.nominal_family.with_(params=params, terms=terms)
+        nominal = self.problem.nominal_family if self.eps is None else replace(self.problem.nominal_family, eps=self.eps)
+        return nominal.with_(params=params, terms=terms)
 
     def columns(self, fit: ShootFit, fam: Family, ks: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Residual and candidate columns at ``fit`` with window states and current globals projected out; the raw
@@ -496,6 +500,39 @@ def _refine_stribeck(s: _Search) -> None:
         s.problem.log(f"Stribeck velocity refined: {s.cands[k].label}, chi2/dof = {s.fit.chi2_red:.3g}")
 
 
+def _sharper_edge(s: _Search) -> list[dict[str, Any]]:
+    """A Stribeck term beside a Coulomb term on the same coordinate may only stand in for a real Coulomb edge sharper
+    than the fits' tanh smoothing (the excess friction near rest that a smoothed edge leaves): refit without it, that
+    coordinate's edge :data:`SHARPER_EDGE` times sharper; when that fits within threshold^2 of the chi^2 with the
+    Stribeck term, the sharper edge is the answer (one fewer term; the edge is not a new physical effect)."""
+    out: list[dict[str, Any]] = []
+    for k in list(s.chosen):
+        cand = s.cands[k]
+        if not isinstance(cand, Candidate) or cand.term != STRIBECK.name:
+            continue
+        i = cand.coordinate
+        if not any(isinstance(c, Candidate) and c.term == COULOMB.name and c.coordinate == i for c in (s.cands[kk] for kk in s.chosen)):
+            continue
+        eps = list(s.eps or s.problem.eps_coord)
+        eps[i] /= SHARPER_EDGE
+        keep = [kk for kk in s.chosen if kk != k]
+        old_eps, s.eps = s.eps, tuple(eps)
+        fam = s.family_of(keep)
+        fit = s.screen.shooter.fit(fam.build, s.fit.X, np.array([s.fit.g[s.pos(kk)] for kk in keep]), max_iter=s.problem.opts.max_iter)
+        rise = fit.cost - s.fit.cost
+        row = {"item": cand.label, "chi2_rise_without_it": float(rise), "required": s.thr2,
+               "alternative": f"coordinate {i}'s Coulomb edge {SHARPER_EDGE:g}x sharper (tanh(qdot/{eps[i]:.3g}))"}
+        if np.isfinite(rise) and rise < s.thr2:
+            s.chosen, s.fam, s.fit = keep, fam, fit
+            s.cov = s.fit.covariance() if s.chosen else None
+            out.append({**row, "kept": False, "note": "stands in for a sharper Coulomb edge (refit without it fits as well)"})
+            s.problem.log(f"dropped {cand.label}: a {SHARPER_EDGE:g}x sharper Coulomb edge fits as well (chi^2 {rise:+.3g})")
+        else:
+            s.eps = old_eps
+            out.append({**row, "kept": True})
+    return out
+
+
 def _start_calibrated(s: _Search) -> None:
     """Start from the fit with every pivot free (a full-rank set spanning the identifiable combinations)."""
     basis = s.screen.identifiability.basis
@@ -545,6 +582,7 @@ def select(problem: Problem, screen: ParameterScreen, cands: list[AnyCandidate])
     swap = _port_gain_equivalent(s) or sparser
     held_out = _held_out_check(s)
     _refine_stribeck(s)
+    held_out += _sharper_edge(s)
     problem.log(f"selected {[s.cands[k].label for k in s.chosen]}: chi2/dof = {s.fit.chi2_red:.3g}")
     held_out += [{"item": label, "kept": False, "note": "only stands in for parameter changes (nonlinear refit without it, "
                   "every pivot free, fits as well)"} for label in compensating]

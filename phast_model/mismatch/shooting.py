@@ -586,8 +586,9 @@ class Shooter:
         return np.stack([self.residual(s, X) for s in systems]) if K else np.empty((0, W, 0))
 
     def fit(self, build: Callable[[np.ndarray], System], X0: np.ndarray, g0: np.ndarray,
-            max_iter: int = 25, tol: float = 1e-7, g_step: float = 1e-4) -> ShootFit:
-        """Levenberg-Marquardt on (window states, g) with Schur elimination of the states."""
+            max_iter: int = 25, tol: float = 1e-7, g_step: float = 1e-4, stats: bool = True) -> ShootFit:
+        """Levenberg-Marquardt on (window states, g) with Schur elimination of the states.  ``stats=False``: no
+        Jacobians at the final point (JX and Jg come back with no columns), for a fit whose statistics are unused."""
         X, g = X0.copy(), np.asarray(g0, dtype=float).copy()
         P = g.size
         system = build(g)
@@ -632,6 +633,8 @@ class Shooter:
                 lam *= 8
             if not improved or rel < tol:
                 break
+        if not stats:
+            return ShootFit(X, g, r, np.zeros(r.shape + (0,)), np.zeros(r.shape + (0,)), cost, r.size, it)
         # Jacobians at the final point for statistics
         JX = self.jac_X(system, X, r)
         Jg = self._jac_params(build, g, X, r, g_step)
@@ -652,7 +655,7 @@ class Shooter:
         full = self.w
         for k in lengths:
             self.w = full.prefix(k)
-            X = self.fit(lambda g: system, X, np.zeros(0), max_iter=max_iter).X
+            X = self.fit(lambda g: system, X, np.zeros(0), max_iter=max_iter, stats=False).X
         self.w = full
         return self.fit(lambda g: system, X, np.zeros(0), max_iter=max_iter)
 
