@@ -151,3 +151,19 @@ def test_known_regime_learns_only_the_friction(recordings: dict) -> None:
     model = build(rig_config(SIM, {}, "known", data))
     names = {n for n, p in model.named_parameters() if p.requires_grad}
     assert names == {"core.friction.raw"}
+
+
+def test_window_warmup_trains_short_windows_first_and_keeps_the_best_of_the_final_length(recordings: dict) -> None:
+    """--warmup-window-s: the first epochs on short windows; the best model is chosen on the final windows only."""
+    with pytest.raises(ValueError, match="warmup_epochs"):
+        RigTrainConfig(epochs=3, warmup_window_s=0.2, warmup_epochs=3)
+    with pytest.raises(ValueError, match="warmup_window_s"):
+        RigTrainConfig(epochs=3, warmup_window_s=-1.0, warmup_epochs=1)
+    torch.set_num_threads(1)
+    data = load_rig_data(recordings, SIM, {}, [9])
+    model = build(rig_config(SIM, {}, "unknown", data))
+    fit = fit_recordings(model, data, RigTrainConfig(epochs=4, window_s=1.0, warmup_window_s=0.25, warmup_epochs=2,
+                                                     progress=False))
+    assert [h["epoch"] for h in fit.history] == [1, 2, 3, 4]
+    assert fit.best_epoch in (3, 4)
+    assert fit.best_val == pytest.approx(min(h["val_rmse"] for h in fit.history[2:]))

@@ -42,6 +42,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     rec.add_argument("--rollout-window-s", type=float, default=None, metavar="S",
                      help="held-out open-loop windows of S seconds, each after a 0.1 s burn-in (default: whole recordings)")
     rec.add_argument("--window-s", type=float, default=0.25, metavar="S", help="training (multiple-shooting) window")
+    rec.add_argument("--warmup-window-s", type=float, default=None, metavar="S",
+                     help="train the first --warmup-epochs epochs on windows of S seconds (a curriculum for an all-neural start)")
+    rec.add_argument("--warmup-epochs", type=int, default=0, metavar="E")
+    rec.add_argument("--state-iters", type=int, default=1, metavar="K",
+                     help="Gauss-Newton iterations of the window states per epoch (3 for long windows)")
     rec.add_argument("--decimate", type=int, default=1, metavar="K",
                      help="keep every K-th sample (free-motion recordings sampled much faster than the dynamics)")
     rec.add_argument("--compare", action="append", default=[], metavar="NAME=SIM",
@@ -152,7 +157,8 @@ def _recordings_main(args: argparse.Namespace) -> dict[str, Any]:
                           tuple(args.action_bound) if args.action_bound else None, args.decimate,
                           compare=_compared_systems(args))
     train = RigTrainConfig(epochs=args.epochs, window_s=args.window_s, lr=args.lr if args.lr != 1e-3 else 2e-2,
-                           seed=args.seed, progress=not args.no_progress)
+                           seed=args.seed, progress=not args.no_progress, state_iters=args.state_iters,
+                           warmup_window_s=args.warmup_window_s, warmup_epochs=args.warmup_epochs)
     metrics = train_recordings_run(spec, args.out, train, _overrides(args.set), plots=not args.no_plots)
     return heldout_summary(metrics)
 

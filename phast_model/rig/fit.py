@@ -269,12 +269,21 @@ class RigTrainConfig:
     friction_lr_mult: float = 5.0
     seed: int = 0
     progress: bool = True
+    #: a curriculum on the window length: the first ``warmup_epochs`` epochs on windows of ``warmup_window_s`` (an
+    #: all-neural start has no restoring force, and a long window of a swing is outside its basin); None: none
+    warmup_window_s: float | None = None
+    warmup_epochs: int = 0
 
     def __post_init__(self) -> None:
         if int(self.epochs) != self.epochs or self.epochs < 1:
             raise ValueError(f"epochs must be a positive integer, got {self.epochs!r}")
         if not (self.window_s > 0 and math.isfinite(self.window_s)):
             raise ValueError(f"window_s must be positive, got {self.window_s!r}")
+        w = self.warmup_window_s
+        if w is not None and not (w > 0 and math.isfinite(w)):
+            raise ValueError(f"warmup_window_s must be positive, got {w!r}")
+        if not 0 <= self.warmup_epochs < self.epochs:
+            raise ValueError(f"warmup_epochs must be in [0, epochs), got {self.warmup_epochs!r}")
         if not 0.0 <= self.val_fraction < 1.0:
             raise ValueError(f"val_fraction must be in [0, 1), got {self.val_fraction!r}")
 
@@ -363,45 +372,71 @@ def _loss(model: PHAST, w: ShootWindows, idx: torch.Tensor | None = None) -> tor
     return (_residual(model, X, q, u) ** 2).mean()
 
 
-def fit_recordings(model: PHAST, data: RigData, cfg: RigTrainConfig | None = None) -> RigFit:
-    """Train ``model`` on ``data.train`` by multiple shooting (see the module docstring)."""
-    cfg = cfg or RigTrainConfig()
-    model = model.double()
-    length = max(5, int(round(cfg.window_s / data.train.dt)) + 1)
-    windows = cut_windows(data.train, length)
-    init = _template_start(model, data.train) if model.config.init_from == "rig" else {}
-    train, val = _split_windows(windows, cfg.val_fraction, cfg.seed)
-    torch.manual_seed(cfg.seed)
-    params = [p for p in model.parameters() if p.requires_grad]
+@dataclass
+class _Stage:
+    """One window length of the curriculum: its training and validation windows, optimizer and schedule."""
+
+    train: ShootWindows
+    val: ShootWindows | None
+    opt: torch.optim.Optimizer
+    sched: torch.optim.lr_scheduler.LRScheduler
+    n_batches: int
+
+
+def _stage(model: PHAST, data: RigData, cfg: RigTrainConfig, window_s: float, epochs: int) -> _Stage:
+    """Windows of ``window_s`` seconds, split into training and validation, with a fresh AdamW + cosine schedule."""
+    length = max(5, int(round(window_s / data.train.dt)) + 1)
+    train, val = _split_windows(cut_windows(data.train, length), cfg.val_fraction, cfg.seed)
     opt = torch.optim.AdamW(_param_groups(model, cfg), lr=cfg.lr, weight_decay=cfg.weight_decay)
     n_batches = max(1, math.ceil(train.q.shape[0] / cfg.batch_windows))
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=cfg.epochs * n_batches)
+    return _Stage(train, val, opt, torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=epochs * n_batches), n_batches)
+
+
+def _epoch(model: PHAST, st: _Stage, params: list[torch.Tensor], gen: torch.Generator, batch_windows: int) -> float:
+    """One pass of AdamW over minibatches of the training windows; the mean squared residual."""
+    perm = torch.randperm(st.train.q.shape[0], generator=gen)
+    tot = 0.0
+    for b in range(st.n_batches):
+        idx = perm[b * batch_windows:(b + 1) * batch_windows]
+        loss = _loss(model, st.train, idx)
+        st.opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(params, 10.0)
+        st.opt.step()
+        st.sched.step()
+        tot += float(loss.detach()) * len(idx)
+    return tot / st.train.q.shape[0]
+
+
+def fit_recordings(model: PHAST, data: RigData, cfg: RigTrainConfig | None = None) -> RigFit:
+    """Train ``model`` on ``data.train`` by multiple shooting (see the module docstring); with a warm-up, the best
+    validation is tracked on the final window length only."""
+    cfg = cfg or RigTrainConfig()
+    model = model.double()
+    init = _template_start(model, data.train) if model.config.init_from == "rig" else {}
+    torch.manual_seed(cfg.seed)
+    params = [p for p in model.parameters() if p.requires_grad]
+    warm = cfg.warmup_epochs if cfg.warmup_window_s is not None else 0
+    st = _stage(model, data, cfg, cfg.warmup_window_s or cfg.window_s, warm) if warm else None
     gen = torch.Generator().manual_seed(cfg.seed)
     res = RigFit(model, init=init)
     best_state = {k: v.clone() for k, v in model.state_dict().items()}
     t0 = time.perf_counter()
     for epoch in tqdm(range(cfg.epochs), desc="fit rig (multiple shooting)", disable=not cfg.progress):
+        if epoch == warm:
+            st = _stage(model, data, cfg, cfg.window_s, cfg.epochs - warm)
+        assert st is not None
         if epoch % cfg.refit_every == 0:  # the states move little between epochs: one Gauss-Newton step after the first
-            iters = 3 if epoch == 0 else cfg.state_iters
-            train.X = fit_states(model, train.X, train.q, train.u, iters)
-            if val is not None:
-                val.X = fit_states(model, val.X, val.q, val.u, iters)
-        perm = torch.randperm(train.q.shape[0], generator=gen)
-        tot = 0.0
-        for b in range(n_batches):
-            idx = perm[b * cfg.batch_windows:(b + 1) * cfg.batch_windows]
-            loss = _loss(model, train, idx)
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            torch.nn.utils.clip_grad_norm_(params, 10.0)
-            opt.step()
-            sched.step()
-            tot += float(loss.detach()) * len(idx)
-        rec = {"epoch": epoch + 1, "train_rmse": math.sqrt(tot / train.q.shape[0]), "time_s": time.perf_counter() - t0}
+            iters = 3 if epoch in (0, warm) else cfg.state_iters
+            st.train.X = fit_states(model, st.train.X, st.train.q, st.train.u, iters)
+            if st.val is not None:
+                st.val.X = fit_states(model, st.val.X, st.val.q, st.val.u, iters)
+        rec = {"epoch": epoch + 1, "train_rmse": math.sqrt(_epoch(model, st, params, gen, cfg.batch_windows)),
+               "time_s": time.perf_counter() - t0}
         with torch.no_grad():
-            vl = float(_loss(model, val if val is not None else train))
+            vl = float(_loss(model, st.val if st.val is not None else st.train))
         rec["val_rmse"] = math.sqrt(vl)
-        if math.isfinite(vl) and vl < res.best_val:
+        if epoch >= warm and math.isfinite(vl) and vl < res.best_val:
             res.best_val, res.best_epoch = vl, epoch + 1
             best_state = {k: v.clone() for k, v in model.state_dict().items()}
         res.history.append(rec)
