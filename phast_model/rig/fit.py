@@ -392,7 +392,7 @@ def _stage(model: PHAST, data: RigData, cfg: RigTrainConfig, window_s: float, ep
     return _Stage(train, val, opt, torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=epochs * n_batches), n_batches)
 
 
-def _epoch(model: PHAST, st: _Stage, params: list[torch.Tensor], gen: torch.Generator, batch_windows: int) -> float:
+def _epoch(model: PHAST, st: _Stage, params: list[torch.nn.Parameter], gen: torch.Generator, batch_windows: int) -> float:
     """One pass of AdamW over minibatches of the training windows; the mean squared residual."""
     perm = torch.randperm(st.train.q.shape[0], generator=gen)
     tot = 0.0
