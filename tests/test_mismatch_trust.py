@@ -162,3 +162,23 @@ def test_sharp_real_coulomb_edge_is_not_named_stribeck():
     (row,) = [r for r in rep.details["held_out_check"] if "chi2_rise_without_it" in r]
     assert not row["kept"] and "sharper Coulomb edge" in row["note"]
     assert rep.details["coulomb_sign_smoothing_per_coordinate"][1] < rep.details["coulomb_sign_smoothing_per_coordinate"][0] / 2
+
+
+def test_bench_noise_scale_scales_the_noise_and_rejects_nonsense(tmp_path, capsys):
+    """--noise-scale multiplies every case's q-noise (robustness sweeps); a non-positive scale is a usage error."""
+    from phast_model.cli import mismatch_bench as bench
+
+    assert bench.main(["--cases", "rlc_capacitance", "--noise-scale", "0"]) == 2
+    assert "--noise-scale" in capsys.readouterr().err
+    out = tmp_path / "b.json"
+    assert bench.main(["--cases", "rlc_capacitance", "--noise-scale", "2", "--T", "120", "--n-traj", "8", "--no-sindy",
+                       "--out", str(out)]) == 0
+    import json
+
+    import re
+
+    res = json.loads(out.read_text())
+    assert res["noise_scale"] == 2.0
+    case = next(c for c in bench.CASES if c.name == "rlc_capacitance")
+    estimated = float(re.search(r"estimated measurement noise ([0-9.e-]+)", res["rows"][0]["tool"]["summary"]).group(1))
+    assert estimated == pytest.approx(2 * case.noise, rel=0.3)

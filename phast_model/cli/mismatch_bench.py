@@ -17,7 +17,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -235,6 +235,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--n-traj", type=int, default=40)
     ap.add_argument("--T", type=int, default=400)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--noise-scale", type=float, default=1.0,
+                    help="multiply every case's q-noise std (robustness sweeps; eff/noise then falls by the same factor)")
     ap.add_argument("--holdout-fraction", type=float, default=0.3)
     ap.add_argument("--no-sindy", action="store_true", help="skip the PySINDy peer")
     ap.add_argument("--out", default=None, help="write the results as JSON here")
@@ -249,7 +251,10 @@ def main(argv: list[str] | None = None) -> int:
     if bad:
         print(f"phast-mismatch-bench: error: unknown case(s) {bad}; known: {sorted(names)}", file=sys.stderr)
         return 2
-    cases = [c for c in CASES if not args.cases or c.name in args.cases]
+    if not (args.noise_scale > 0 and np.isfinite(args.noise_scale)):
+        print(f"phast-mismatch-bench: error: --noise-scale must be a positive number, got {args.noise_scale}", file=sys.stderr)
+        return 2
+    cases = [replace(c, noise=c.noise * args.noise_scale) for c in CASES if not args.cases or c.name in args.cases]
     rows = []
     for k, case in enumerate(tqdm(cases, desc="mismatch bench", file=sys.stderr)):
         rec = make_case_data(case, args.n_traj, args.T, args.seed + k)
@@ -286,7 +291,8 @@ def main(argv: list[str] | None = None) -> int:
         atomic_write_text(args.markdown, markdown_table(rows))
     if args.out:
         atomic_write_json(args.out, {"command": " ".join(["phast-mismatch-bench"] + (argv if argv is not None else sys.argv[1:])),
-                                     "n_traj": args.n_traj, "T": args.T, "seed": args.seed, "rows": rows}, indent=1)
+                                     "n_traj": args.n_traj, "T": args.T, "seed": args.seed, "noise_scale": args.noise_scale,
+                                     "rows": rows}, indent=1)
     return 0
 
 
