@@ -174,7 +174,6 @@ def test_bench_noise_scale_scales_the_noise_and_rejects_nonsense(tmp_path, capsy
     assert bench.main(["--cases", "rlc_capacitance", "--noise-scale", "2", "--T", "120", "--n-traj", "8", "--no-sindy",
                        "--out", str(out)]) == 0
     import json
-
     import re
 
     res = json.loads(out.read_text())
