@@ -204,6 +204,8 @@ def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mappin
 
 #: shooting windows of the second look, as a multiple of the first (capped at the recordings' length)
 LONG_LOOK = 4
+#: the second look is taken when the calibrated model's held-out rollout RMSE exceeds this multiple of the noise
+SECOND_LOOK_RATIO = 3.0
 
 
 def _second_look(problem: Problem, inputs: _Inputs, report: Report) -> Report:
@@ -213,10 +215,14 @@ def _second_look(problem: Problem, inputs: _Inputs, report: Report) -> Report:
     still decide an open-loop rollout of the whole recording: a pendulum's viscous 0.01 under 0.02 rad of noise gave
     a chi^2 gain of 18.5 (< 25) in 1.1-s windows, while the true model predicted the held-out recordings 37x better
     than the calibrated one.  The longer look's answer replaces the first only when it names a term that passed the
-    same held-out confirmation; a window length the user gave is kept."""
+    same held-out confirmation; a window length the user gave is kept.  It is only taken when the held-out
+    recordings say the calibrated model leaves something (rollout RMSE above :data:`SECOND_LOOK_RATIO` x the noise,
+    in the same units): a simulator that already predicts them at the noise level has no slow effect to find."""
     longer = min(LONG_LOOK * problem.shoot_window, inputs.train.T)
+    noise = float(np.sqrt(np.mean((problem.sigma_raw / inputs.held.scale) ** 2)))
     done = (report.terms or problem.opts.shoot_window or longer < 2 * problem.shoot_window
-            or report.diagnostics.get("explained_share", 1.0) < MIN_DESCRIBED)
+            or report.diagnostics.get("explained_share", 1.0) < MIN_DESCRIBED
+            or report.fit["calibrated"]["rollout_rmse"] <= SECOND_LOOK_RATIO * noise)
     if done:
         return report
     problem.log(f"no term in {problem.shoot_window}-sample shooting windows: a second look with {longer}-sample windows")
