@@ -159,6 +159,8 @@ def test_window_warmup_trains_short_windows_first_and_keeps_the_best_of_the_fina
         RigTrainConfig(epochs=3, warmup_window_s=0.2, warmup_epochs=3)
     with pytest.raises(ValueError, match="warmup_window_s"):
         RigTrainConfig(epochs=3, warmup_window_s=-1.0, warmup_epochs=1)
+    with pytest.raises(ValueError, match="needs warmup_window_s"):
+        RigTrainConfig(epochs=3, warmup_epochs=1)
     torch.set_num_threads(1)
     data = load_rig_data(recordings, SIM, {}, [9])
     model = build(rig_config(SIM, {}, "unknown", data))

@@ -119,12 +119,17 @@ class _Linearization:
             need[self.spread(K, T) <= MAX_INIT_SPREAD] = K
         return need
 
-    def next_length(self, ladder: list[int], current: int, final: int, w: int) -> int:
-        """The next fit length of trajectory ``w`` on its way to ``final``: the longest whose samples the current
-        state already predicts within :data:`MAX_JUMP_SPREAD` (the fit then starts in its basin), else the next one."""
-        later = [K for K in ladder if current < K <= final]
-        safe = [K for K in later if self.spread(current, K)[w] <= MAX_JUMP_SPREAD]
-        return max(safe) if safe else later[0]
+    def next_lengths(self, ladder: list[int], current: np.ndarray, final: np.ndarray) -> np.ndarray:
+        """Per trajectory, the next fit length on its way to ``final``: the longest whose samples the current state
+        already predicts within :data:`MAX_JUMP_SPREAD` (the fit then starts in its basin), else the next one of the
+        ladder (every spread computed once for all trajectories)."""
+        nxt = np.array([min((K for K in ladder if K > c), default=c) for c in current])
+        for c in np.unique(current):
+            at = current == c
+            for K in (K for K in ladder if K > c):
+                jump = at & (K <= final) & (K > nxt) & (self.spread(int(c), K) <= MAX_JUMP_SPREAD)
+                nxt[jump] = K
+        return nxt
 
 
 def _initial_states(models: dict[str, System], rec: Recordings, K: int, sigma: np.ndarray, x_scale: np.ndarray,
@@ -149,7 +154,7 @@ def _initial_states(models: dict[str, System], rec: Recordings, K: int, sigma: n
         current = np.full(rec.n_traj, ladder[0])
         while np.any(current < Ks):
             todo = np.flatnonzero(current < Ks)
-            nxt = np.array([lin[name].next_length(ladder, int(current[w]), int(Ks[w]), int(w)) for w in todo])
+            nxt = lin[name].next_lengths(ladder, current, Ks)[todo]
             for k in np.unique(nxt):
                 idx = todo[nxt == k]
                 X[name][idx] = _fit_states(system, rec.subset(idx), int(k), sigma, x_scale, X[name][idx])

@@ -517,19 +517,17 @@ def _sharper_edge(s: _Search) -> list[dict[str, Any]]:
         eps = list(s.eps or s.problem.eps_coord)
         eps[i] /= SHARPER_EDGE
         keep = [kk for kk in s.chosen if kk != k]
-        old_eps, s.eps = s.eps, tuple(eps)
-        fam = s.family_of(keep)
+        fam = replace(s.family_of(keep), eps=tuple(eps))
         fit = s.screen.shooter.fit(fam.build, s.fit.X, np.array([s.fit.g[s.pos(kk)] for kk in keep]), max_iter=s.problem.opts.max_iter)
         rise = fit.cost - s.fit.cost
         row = {"item": cand.label, "chi2_rise_without_it": float(rise), "required": s.thr2,
                "alternative": f"coordinate {i}'s Coulomb edge {SHARPER_EDGE:g}x sharper (tanh(qdot/{eps[i]:.3g}))"}
         if np.isfinite(rise) and rise < s.thr2:
-            s.chosen, s.fam, s.fit = keep, fam, fit
+            s.chosen, s.fam, s.fit, s.eps = keep, fam, fit, tuple(eps)
             s.cov = s.fit.covariance() if s.chosen else None
             out.append({**row, "kept": False, "note": "stands in for a sharper Coulomb edge (refit without it fits as well)"})
             s.problem.log(f"dropped {cand.label}: a {SHARPER_EDGE:g}x sharper Coulomb edge fits as well (chi^2 {rise:+.3g})")
         else:
-            s.eps = old_eps
             out.append({**row, "kept": True})
     return out
 

@@ -284,6 +284,8 @@ class RigTrainConfig:
             raise ValueError(f"warmup_window_s must be positive, got {w!r}")
         if not 0 <= self.warmup_epochs < self.epochs:
             raise ValueError(f"warmup_epochs must be in [0, epochs), got {self.warmup_epochs!r}")
+        if self.warmup_epochs and w is None:
+            raise ValueError("warmup_epochs needs warmup_window_s (the warm-up's window length)")
         if not 0.0 <= self.val_fraction < 1.0:
             raise ValueError(f"val_fraction must be in [0, 1), got {self.val_fraction!r}")
 
@@ -416,7 +418,7 @@ def fit_recordings(model: PHAST, data: RigData, cfg: RigTrainConfig | None = Non
     init = _template_start(model, data.train) if model.config.init_from == "rig" else {}
     torch.manual_seed(cfg.seed)
     params = [p for p in model.parameters() if p.requires_grad]
-    warm = cfg.warmup_epochs if cfg.warmup_window_s is not None else 0
+    warm = cfg.warmup_epochs
     st = _stage(model, data, cfg, cfg.warmup_window_s or cfg.window_s, warm) if warm else None
     gen = torch.Generator().manual_seed(cfg.seed)
     res = RigFit(model, init=init)
