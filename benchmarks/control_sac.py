@@ -41,13 +41,21 @@ import time
 from collections import deque
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import gymnasium as gym
 import numpy as np
 import torch
 
-from phast_gym.control import START_REGIMES, ControlProtocol, evaluate_estimators, make_control_env, sample_start_states, start_states
+from phast_gym.control import (
+    START_REGIMES,
+    ControlProtocol,
+    evaluate_estimators,
+    make_control_env,
+    resolve_estimator_name,
+    sample_start_states,
+    start_states,
+)
 from phast_gym.fileio import atomic_write_text
 from phast_gym.systems.base import SCALAR, wrap
 
@@ -66,7 +74,37 @@ QUIET_WEIGHT, QUIET_SCALE = 0.5, 0.3
 PRECISE_WEIGHT, PRECISE_SCALE = 0.1, 0.05
 
 
-def pendulum_reward(err: float, v: float, u: float, kind: str = "zoo", quiet_weight: float = QUIET_WEIGHT) -> float:
+class Well(NamedTuple):
+    """An angle well of the ``precise`` reward: ``-depth (1 - exp(-(err / width)^2))`` per step."""
+
+    depth: float
+    width: float
+
+
+#: the ``precise`` reward's default wells (``--wells``): one, as wide as the success tolerance
+PRECISE_WELLS: tuple[Well, ...] = (Well(PRECISE_WEIGHT, PRECISE_SCALE),)
+
+
+def parse_wells(text: str) -> tuple[Well, ...]:
+    """``"DEPTH:WIDTH[,DEPTH:WIDTH...]"`` -> wells; depths >= 0 and widths > 0, or a ValueError naming the bad item."""
+    wells = []
+    for item in text.split(","):
+        try:
+            depth, width = (float(x) for x in item.split(":"))
+        except ValueError:
+            raise ValueError(f"well {item!r} is not DEPTH:WIDTH (e.g. 0.1:0.05)") from None
+        if not (depth >= 0 and width > 0 and math.isfinite(depth) and math.isfinite(width)):
+            raise ValueError(f"well {item!r} needs depth >= 0 and width > 0")
+        wells.append(Well(depth, width))
+    return tuple(wells)
+
+
+def format_wells(wells: Sequence[Well]) -> str:
+    return ",".join(f"{w.depth:g}:{w.width:g}" for w in wells)
+
+
+def pendulum_reward(err: float, v: float, u: float, kind: str = "zoo", quiet_weight: float = QUIET_WEIGHT,
+                    wells: Sequence[Well] = PRECISE_WELLS) -> float:
     """Per-step reward from the wrapped angle error ``err`` (rad), velocity ``v`` and torque ``u`` (N m).
 
     ``zoo``: the Gymnasium Pendulum shape ``-(err^2 + 0.1 v^2 + 0.001 u^2)``.
@@ -76,12 +114,14 @@ def pendulum_reward(err: float, v: float, u: float, kind: str = "zoo", quiet_wei
     ``precise``: ``quiet`` minus ``PRECISE_WEIGHT (1 - exp(-(err / PRECISE_SCALE)^2))``: a narrow angle well as wide as
     the success tolerance, whose slope at a few 0.01 rad is ~30x that of ``err^2``, so a steady offset of the held angle
     costs (at the upright a 0.03 rad offset needs 0.3 N m of holding torque, over the 0.25 N m RMS limit).
+    ``wells`` replaces that one well by others (``--wells``), e.g. a second, wider one whose pull reaches the offsets
+    of 0.1-0.3 rad where the narrow well is flat and ``err^2`` is weak.
     """
     r = -(err * err + 0.1 * v * v + 0.001 * u * u)
     if kind in ("quiet", "precise"):
         r -= quiet_weight * u * u * math.exp(-((err / QUIET_SCALE) ** 2))
     if kind == "precise":
-        r -= PRECISE_WEIGHT * (1.0 - math.exp(-((err / PRECISE_SCALE) ** 2)))
+        r -= sum(w.depth * (1.0 - math.exp(-((err / w.width) ** 2))) for w in wells)
     elif kind not in ("zoo", "quiet"):
         raise ValueError(f"reward must be one of {REWARDS}, got {kind!r}")
     return r
@@ -191,6 +231,14 @@ class FrameObs(gym.Wrapper):
         return self.builder.push(obs, info.get("state")), r, term, trunc, info
 
 
+def check_regimes(regimes: Sequence[str]) -> tuple[str, ...]:
+    """The start regimes as a tuple in :data:`START_REGIMES` order; ValueError naming an unknown or missing one."""
+    bad = [r for r in regimes if r not in START_REGIMES]
+    if bad or not regimes:
+        raise ValueError(f"start regimes must be a non-empty subset of {list(START_REGIMES)}, got {list(regimes)}")
+    return tuple(r for r in START_REGIMES if r in regimes)
+
+
 class RepeatRegimeEnv(gym.Wrapper):
     """Hold each action for ``repeat`` plant steps (mean reward over them); reset from the start-regime mix.
 
@@ -200,11 +248,13 @@ class RepeatRegimeEnv(gym.Wrapper):
     """
 
     def __init__(self, env: gym.Env, repeat: int, episode_decisions: int, max_action: float, q_star: float = 0.0,
-                 reward: str = "zoo", seed: int | None = None, quiet_weight: float = QUIET_WEIGHT) -> None:
+                 reward: str = "zoo", seed: int | None = None, quiet_weight: float = QUIET_WEIGHT,
+                 wells: Sequence[Well] = PRECISE_WELLS, regimes: Sequence[str] = tuple(START_REGIMES)) -> None:
         super().__init__(env)
+        self.regimes = check_regimes(regimes)
         if reward not in REWARDS:
             raise ValueError(f"reward must be one of {REWARDS}, got {reward!r}")
-        self.q_star, self.reward_kind, self.quiet_weight = q_star, reward, quiet_weight
+        self.q_star, self.reward_kind, self.quiet_weight, self.wells = q_star, reward, quiet_weight, tuple(wells)
         self.repeat, self.episode_decisions = repeat, episode_decisions
         self.action_space = gym.spaces.Box(-1.0, 1.0, shape=env.action_space.shape, dtype=np.float32)
         self.max_action = max_action
@@ -217,7 +267,7 @@ class RepeatRegimeEnv(gym.Wrapper):
             self._rng = np.random.default_rng(seed)
         options = dict(options or {})
         if options.get("state") is None:
-            regime = list(START_REGIMES)[int(self._rng.integers(len(START_REGIMES)))]
+            regime = self.regimes[int(self._rng.integers(len(self.regimes)))]
             options["state"] = sample_start_states(self.env.unwrapped.system, regime, self._rng, 1)[0]
         self._k = 0
         return self.env.reset(seed=int(self._rng.integers(2**31)), options=options)
@@ -232,7 +282,7 @@ class RepeatRegimeEnv(gym.Wrapper):
             x = info["state"]
             (v,) = system.velocity([float(x[0])], [float(x[1])], SCALAR)
             err = float(wrap(x[0] - self.q_star))
-            total += pendulum_reward(err, v, float(u[0]), self.reward_kind, self.quiet_weight)
+            total += pendulum_reward(err, v, float(u[0]), self.reward_kind, self.quiet_weight, self.wells)
             us.append(float(u[0]))
             errs.append(abs(err))
             self.plant_steps += 1
@@ -252,20 +302,22 @@ class RegimeWorldEnv(gym.Wrapper):
     """
 
     def __init__(self, env: gym.Env, max_action: float, q_star: float, reward: str, sigma: float, burn_in: int,
-                 seed: int | None = None, quiet_weight: float = QUIET_WEIGHT) -> None:
+                 seed: int | None = None, quiet_weight: float = QUIET_WEIGHT, wells: Sequence[Well] = PRECISE_WELLS,
+                 regimes: Sequence[str] = tuple(START_REGIMES), plant_env_id: str = ControlProtocol.env_id) -> None:
         super().__init__(env)
+        self.regimes = check_regimes(regimes)
         if reward not in REWARDS:
             raise ValueError(f"reward must be one of {REWARDS}, got {reward!r}")
         self.max_action, self.q_star, self.reward_kind, self.sigma, self.burn_in = max_action, q_star, reward, sigma, burn_in
-        self.quiet_weight = quiet_weight
+        self.quiet_weight, self.wells = quiet_weight, tuple(wells)
         self.action_space = gym.spaces.Box(-1.0, 1.0, shape=env.action_space.shape, dtype=np.float32)
         self._rng = np.random.default_rng(seed)
-        self._plant = make_control_env(ControlProtocol(dt=float(env.unwrapped.real.dt), horizon=10**9), sigma)
+        self._plant = make_control_env(ControlProtocol(plant_env_id, dt=float(env.unwrapped.real.dt), horizon=10**9), sigma)
         self.real_samples = 0
 
     def burn_in_window(self, rng: np.random.Generator) -> np.ndarray:
         """``burn_in`` noisy zero-torque measurements of the real plant from a random start-regime state."""
-        regime = list(START_REGIMES)[int(rng.integers(len(START_REGIMES)))]
+        regime = self.regimes[int(rng.integers(len(self.regimes)))]
         x0 = sample_start_states(self._plant.unwrapped.system, regime, rng, 1)[0]
         obs, _ = self._plant.reset(seed=int(rng.integers(2**31)), options={"state": x0})
         qs = [np.asarray(obs, dtype=np.float64)]
@@ -292,7 +344,7 @@ class RegimeWorldEnv(gym.Wrapper):
         obs, r, term, trunc, info = self.env.step(u.astype(np.float32))
         if not term:
             err = float(wrap(float(obs[0]) - self.q_star))
-            r = pendulum_reward(err, float(info["velocity"][0]), float(u[0]), self.reward_kind, self.quiet_weight)
+            r = pendulum_reward(err, float(info["velocity"][0]), float(u[0]), self.reward_kind, self.quiet_weight, self.wells)
         return self._noisy(obs), float(r), term, trunc, info
 
 
@@ -309,7 +361,8 @@ def episode_return(model: Any, env: gym.Env, seed: int, options: dict | None = N
 
 
 def evaluate_policy_on_plant(model: Any, protocol: ControlProtocol, sigma: float, trials: int, repeat: int, frames: int,
-                             max_action: float, seed: int = 0, obs_mode: str = "frames") -> dict[str, float]:
+                             max_action: float, seed: int = 0, obs_mode: str = "frames",
+                             regimes: Sequence[str] = tuple(START_REGIMES)) -> dict[str, float]:
     """The phast-control-eval metrics for an SB3 policy on the real plant (same initial states and noise seeds).
 
     The frame buffer holds measurements at the decision rate (every ``repeat`` plant steps, as in training) and is
@@ -319,7 +372,7 @@ def evaluate_policy_on_plant(model: Any, protocol: ControlProtocol, sigma: float
 
     env = make_control_env(protocol, sigma)
     builder = ObsBuilder(frames, obs_mode, float(getattr(env.unwrapped.system, "inertia", 1.0) or 1.0))
-    states = start_states(protocol, trials, seed)
+    states = {r: x for r, x in start_states(protocol, trials, seed).items() if r in check_regimes(regimes)}
     succ, succ_angle, eff, fin, rms = [], [], [], [], []
     for regime, x0s in states.items():
         for i, x0 in enumerate(x0s):
@@ -346,7 +399,8 @@ def evaluate_policy_on_plant(model: Any, protocol: ControlProtocol, sigma: float
             eff.append(float(np.sum(us_a**2)))
             fin.append(errs_a[-1])
     return {"success_rate": float(np.mean(succ)), "success_angle_rate": float(np.mean(succ_angle)), "effort": float(np.mean(eff)),
-            "final_error": float(np.mean(fin)), "u_rms_final": float(np.mean(rms))}
+            "final_error": float(np.mean(fin)), "u_rms_final": float(np.mean(rms)),
+            "trial_final_errors": [round(float(e), 5) for e in fin], "trial_u_rms_final": [round(float(r), 4) for r in rms]}
 
 
 def plot_curve(curve: dict[str, Any], path: Path) -> None:
@@ -371,6 +425,8 @@ def plot_curve(curve: dict[str, Any], path: Path) -> None:
         extra = "" if curve.get("obs", "frames") == "frames" else f", obs {curve['obs']}"
         if curve["reward"] != "zoo" and curve.get("quiet_weight", QUIET_WEIGHT) != QUIET_WEIGHT:
             extra += f", w {curve['quiet_weight']:g}"
+        if curve.get("wells"):
+            extra += f", wells {curve['wells']}"
         ax.set_title(f"{curve['agent']}, q* = {curve['q_star']:.3g}, reward {curve['reward']}{extra}: {stop}", fontsize=9)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
@@ -417,24 +473,47 @@ def evaluate_gym_policy(model: Any, env_id: str, episodes: int, seed: int = 0, w
             "settled_rate": float(np.mean(settled)), "final_abs_theta": float(np.mean(fin)), "u_rms_final": float(np.mean(rms))}
 
 
+def sac_hyperparameters(args: argparse.Namespace) -> dict[str, Any]:
+    """:data:`ZOO_PENDULUM_SAC` with ``--net`` (hidden layer sizes) in place of its ``net_arch``."""
+    hp = dict(ZOO_PENDULUM_SAC)
+    if getattr(args, "net", None):
+        hp["policy_kwargs"] = {**hp["policy_kwargs"], "net_arch": [int(h) for h in args.net.split(",")]}
+    return hp
+
+
+class LinearDecay:
+    """A learning rate going linearly from ``start`` to ``final`` over ``budget`` decisions of ``model`` (counted by
+    its ``num_timesteps``, so training in chunks of ``learn`` calls follows one schedule), then held."""
+
+    def __init__(self, start: float, final: float, budget: int, model: Any) -> None:
+        self.start, self.final, self.budget, self.model = start, final, max(int(budget), 1), model
+
+    def __call__(self, _progress_remaining: float) -> float:
+        frac = min(self.model.num_timesteps / self.budget, 1.0)
+        return self.start + (self.final - self.start) * frac
+
+
 def make_agent_env(name: str, args: argparse.Namespace, seed: int) -> tuple[gym.Env, gym.Env]:
     """(observation env, inner env with the sample counter) of an agent's training environment."""
     if name == "sac-gym":
         env = StepCounter(gym.make(args.gym_env))
         return env, env
     if name == "sac-real":
-        inner: gym.Env = RepeatRegimeEnv(make_control_env(ControlProtocol(horizon=10**9), args.sigma), args.repeat,
+        inner: gym.Env = RepeatRegimeEnv(make_control_env(ControlProtocol(args.env, horizon=10**9), args.sigma), args.repeat,
                                          args.episode_decisions, args.max_action, args.q_star, args.reward, seed=seed,
-                                         quiet_weight=quiet_weight_of(args))
+                                         quiet_weight=quiet_weight_of(args), wells=wells_of(args),
+                                         regimes=regimes_of(args))
         return FrameObs(inner, args.frames, args.obs), inner
     from phast_model.world.gym_env import PHASTWorldModelEnv
 
-    wm = PHASTWorldModelEnv(args.phast_run, burn_in=args.burn_in, max_episode_steps=args.episode_decisions,
-                            target=np.array([args.q_star]))
+    # env_id: the plant, which also serves a model of its recordings (sac_world_data.py) that names no simulator
+    wm = PHASTWorldModelEnv(args.phast_run, env_id=args.env, burn_in=args.burn_in,
+                            max_episode_steps=args.episode_decisions, target=np.array([args.q_star]))
     if abs(wm.real.dt - ControlProtocol.dt * args.repeat) > 1e-9:
         raise ValueError(f"world model dt {wm.real.dt} != repeat * plant dt {ControlProtocol.dt * args.repeat}")
     inner = RegimeWorldEnv(wm, args.max_action, args.q_star, args.reward, args.sigma, args.burn_in, seed=seed,
-                           quiet_weight=quiet_weight_of(args))
+                           quiet_weight=quiet_weight_of(args), wells=wells_of(args), regimes=regimes_of(args),
+                           plant_env_id=args.env)
     return FrameObs(inner, args.frames), inner
 
 
@@ -448,7 +527,19 @@ def quiet_weight_of(args: argparse.Namespace) -> float:
         return QUIET_WEIGHT
     from phast_gym.control.evaluation import control_system
 
-    return upright_quiet_weight(float(control_system(ControlProtocol()).mgl))
+    return upright_quiet_weight(float(control_system(ControlProtocol(getattr(args, "env", ControlProtocol.env_id))).mgl))
+
+
+def regimes_of(args: argparse.Namespace) -> tuple[str, ...]:
+    """``--regimes`` (start regimes of training, burn-ins and evaluation), or all of :data:`START_REGIMES`."""
+    text = getattr(args, "regimes", None)
+    return tuple(START_REGIMES) if text is None else check_regimes(text.split(","))
+
+
+def wells_of(args: argparse.Namespace) -> tuple[Well, ...]:
+    """``--wells`` (the ``precise`` reward's angle wells), or :data:`PRECISE_WELLS`."""
+    text = getattr(args, "wells", None)
+    return PRECISE_WELLS if text is None else parse_wells(text)
 
 
 def method_tag(name: str, args: argparse.Namespace) -> str:
@@ -458,8 +549,14 @@ def method_tag(name: str, args: argparse.Namespace) -> str:
     tag = f"{name}/{args.reward}"
     if args.reward != "zoo" and quiet_weight_of(args) != QUIET_WEIGHT:
         tag += f"/w{quiet_weight_of(args):g}"
+    if args.reward == "precise" and wells_of(args) != PRECISE_WELLS:
+        tag += f"/wells={format_wells(wells_of(args))}"
     if args.obs != "frames":
         tag += f"/obs={args.obs}"
+    if getattr(args, "net", None):
+        tag += "/net" + "x".join(h.strip() for h in args.net.split(","))
+    if getattr(args, "lr_final", None) is not None:
+        tag += f"/lrf{args.lr_final:g}"
     return tag
 
 
@@ -482,21 +579,27 @@ def train_agent(name: str, args: argparse.Namespace, out: Path) -> dict[str, Any
     n_eval = args.eval_episodes
     eval_seeds = [args.seed * 1000 + 10_000 + i for i in range(n_eval)]
     world = name == "sac-world"
+    world_data = 0
+    if world:
+        world_data = world_data_samples(args.phast_run)  # the world model's own training recordings
     # fixed evaluation starts: the same seeded states (plant, Gymnasium env) or burn-ins (world model, drawn once:
     # real samples)
     if not world:
         eval_opts: list[dict | None] = [None] * n_eval
     else:
         eval_opts = [{"q_burn": eval_inner.burn_in_window(np.random.default_rng(s))} for s in eval_seeds]
-    hp = dict(ZOO_PENDULUM_SAC)
+    hp = sac_hyperparameters(args)
     model = SAC("MlpPolicy", train_env, seed=args.seed, verbose=0, **hp)
     budget = args.max_steps if args.until_flat else args.steps
+    if args.lr_final is not None:
+        model.lr_schedule = LinearDecay(float(hp["learning_rate"]), args.lr_final, budget, model)
     record = args.until_flat or args.curve  # --curve: a learning curve at a fixed budget (no stopping rule)
     chunk = args.eval_every if record else budget
     stem = curve_stem(name, args)
     train_env_name = {"sac-real": "real plant", "sac-world": "PHAST world model"}.get(name, args.gym_env)
     curve: dict[str, Any] = {"agent": name, "q_star": args.q_star, "reward": args.reward, "sigma": args.sigma,
                              "obs": args.obs, "quiet_weight": quiet_weight_of(args), "seed": args.seed,
+                             "wells": format_wells(wells_of(args)) if args.reward == "precise" else None,
                              "until_flat": bool(args.until_flat),
                              "train_env": train_env_name,
                              "n_eval_episodes": n_eval, "rule": {"window": args.flat_window, "rel_tol": args.flat_rel_tol,
@@ -514,7 +617,7 @@ def train_agent(name: str, args: argparse.Namespace, out: Path) -> dict[str, Any
             break
         ret = float(np.mean([episode_return(model, eval_env, s, o) for s, o in zip(eval_seeds, eval_opts)]))
         plant = ret if not world else float(np.mean([episode_return(model, plant_eval, s) for s in eval_seeds]))
-        real = counter.plant_steps if not world else counter.real_samples + eval_inner.real_samples
+        real = counter.plant_steps if not world else counter.real_samples + eval_inner.real_samples + world_data
         for k, v in (("decisions", done), ("train_env_return", ret), ("plant_return", plant), ("real_env_samples", int(real)),
                      ("seconds", round(time.time() - t0, 1))):
             curve[k].append(v)
@@ -525,30 +628,55 @@ def train_agent(name: str, args: argparse.Namespace, out: Path) -> dict[str, Any
             break
     bar.close()
     secs = time.time() - t0
-    real = counter.plant_steps if not world else counter.real_samples + eval_inner.real_samples
+    real = counter.plant_steps if not world else counter.real_samples + eval_inner.real_samples + world_data
     if name == "sac-gym":
         m = evaluate_gym_policy(model, args.gym_env, args.gym_eval_episodes, args.seed)
     else:
-        m = evaluate_policy_on_plant(model, make_protocol(args.q_star), args.sigma, args.trials_per_regime, args.repeat,
-                                     args.frames, args.max_action, args.seed, args.obs)
-    row = {"method": method_tag(name, args), **m, "real_env_samples": int(real), "decisions": done,
+        m = evaluate_policy_on_plant(model, make_protocol(args.q_star, args.env), args.sigma, args.trials_per_regime,
+                                     args.repeat, args.frames, args.max_action, args.seed, args.obs, regimes_of(args))
+    row = {"method": method_tag(name, args), **m, "real_env_samples": int(real), "world_model_samples": world_data,
+           "hyperparameters": {**hp, "learning_rate_final": args.lr_final},
+           "decisions": done,
            "flat": curve["flat"] if args.until_flat else None, "train_seconds": round(secs, 1), "seed": args.seed,
            "command": command_line(args, [name])}
     if record:
         atomic_write_text(out / f"{stem}.json", json.dumps(curve, indent=1))
         plot_curve(curve, out / f"{stem}.png")
+    if name != "sac-gym":
+        if args.lr_final is not None:  # the schedule holds the model: save the final rate instead
+            from stable_baselines3.common.utils import FloatSchedule
+
+            model.learning_rate, model.lr_schedule = args.lr_final, FloatSchedule(args.lr_final)
+        policy = out / f"policy_{stem.removeprefix('curve_')}_s{args.seed}.zip"
+        model.save(policy)  # the trained agent, deployable with SAC.load (no replay buffer)
+        row["policy"] = str(policy)
     return row
 
 
-def make_protocol(q_star: float) -> ControlProtocol:
-    """The evaluation protocol; upright (q_star = pi) uses the upright Energy-Casimir gains k_c = 20, d_inj = 3."""
+def world_data_samples(run: str | Path) -> int:
+    """Real samples behind a world-model run: ``real_samples`` of the ``world_data.json`` that
+    ``benchmarks/sac_world_data.py`` writes beside a model of plant recordings; 0 without one (a model trained on
+    simulated data, ``phast-train --env``: its samples are simulator outputs, reported separately)."""
+    path = Path(run) / "world_data.json"
+    if not path.exists():
+        return 0
+    try:
+        return int(json.loads(path.read_text())["real_samples"])
+    except (ValueError, KeyError, TypeError) as e:
+        raise ValueError(f"{path}: no integer 'real_samples' ({e})") from None
+
+
+def make_protocol(q_star: float, env_id: str = ControlProtocol.env_id) -> ControlProtocol:
+    """The evaluation protocol of plant ``env_id``; upright (q_star = pi) uses the upright Energy-Casimir gains
+    k_c = 20, d_inj = 3."""
     upright = abs(math.cos(q_star) + 1) < 1e-9
-    return ControlProtocol(q_star=q_star, k_c=20.0 if upright else ControlProtocol.k_c,
+    return ControlProtocol(env_id, q_star=q_star, k_c=20.0 if upright else ControlProtocol.k_c,
                            d_inj=3.0 if upright else ControlProtocol.d_inj)
 
 
 #: options that only the plant agents (sac-real / sac-world) and the Energy-Casimir rows read
-SAC_PLANT_ONLY = ("obs", "reward", "quiet_weight", "sigma", "trials_per_regime", "repeat", "episode_decisions", "frames", "burn_in",
+SAC_PLANT_ONLY = ("env", "regimes", "wells", "obs", "reward", "quiet_weight", "sigma", "trials_per_regime", "repeat",
+                  "episode_decisions", "frames", "burn_in",
                   "max_action", "phast_run", "ec_estimators", "q_star")
 
 
@@ -569,7 +697,11 @@ def command_line(args: argparse.Namespace, agents: Sequence[str] | None = None) 
 
 def write_tables(out: Path, meta: dict[str, Any]) -> None:
     """``control_sac.md`` from the merged rows of ``control_sac.json``."""
-    lines = [f"SAC vs Energy-Casimir, q_star = {meta['q_star']:.6g}, sigma = {meta['sigma']:g}, {5 * meta['trials_per_regime']} trials "
+    regimes = meta.get("regimes", list(START_REGIMES))
+    plant = meta.get("protocol", {}).get("env_id", ControlProtocol.env_id)
+    where = "" if len(regimes) == len(START_REGIMES) else f" from {', '.join(regimes)}"
+    lines = [f"SAC vs Energy-Casimir on {plant}, q_star = {meta['q_star']:.6g}, sigma = {meta['sigma']:g}, "
+             f"{len(regimes) * meta['trials_per_regime']} trials{where} "
              "(success: |wrap(q - q*)| < 0.05 rad and RMS torque < 0.25 N m over the last 100 plant steps)", "",
              "| Method | Success | Success (angle only) | Effort | RMS torque, last 100 | Final error | Real-env samples "
              "| SAC decisions | Flat | Train s |", "|---|---|---|---|---|---|---|---|---|---|"]
@@ -598,6 +730,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--quiet-weight", type=float, default=None,
                     help=f"weight of the quiet reward's torque term (default {QUIET_WEIGHT} at q* = 0, 0.05 otherwise: "
                          "upright_quiet_weight)")
+    ap.add_argument("--wells", default=None,
+                    help="the precise reward's angle wells DEPTH:WIDTH[,...] (rad; default "
+                         f"{format_wells(PRECISE_WELLS)})")
+    ap.add_argument("--net", default=None, help="SAC hidden layer sizes, e.g. 64,64 (default: the zoo's 256,256)")
+    ap.add_argument("--lr-final", type=float, default=None,
+                    help="decay the learning rate linearly from the zoo's 1e-3 to this over the budget (default: constant)")
     ap.add_argument("--steps", type=int, default=20000, help="SAC decisions per agent without --until-flat (zoo: 20k)")
     ap.add_argument("--until-flat", action="store_true", help="train until the learning curve is flat (is_flat) or --max-steps")
     ap.add_argument("--max-steps", type=int, default=150000, help="cap on SAC decisions with --until-flat")
@@ -607,6 +745,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--flat-rel-tol", type=float, default=0.05)
     ap.add_argument("--flat-abs-tol", type=float, default=0.05)
     ap.add_argument("--reward", choices=REWARDS, default="zoo")
+    ap.add_argument("--env", default=ControlProtocol.env_id,
+                    help="the plant (a phast_gym pendulum id; PHAST/Pendulum-v0: undamped, the swing-up task)")
+    ap.add_argument("--regimes", default=None,
+                    help=f"comma list of start regimes for training, burn-ins and evaluation (default all: {','.join(START_REGIMES)}); "
+                         "near_stable: swing-up from hanging")
     ap.add_argument("--sigma", type=float, default=0.01)
     ap.add_argument("--trials-per-regime", type=int, default=2)
     ap.add_argument("--repeat", type=int, default=5, help="plant steps per SAC decision (dt 0.01 -> 0.05)")
@@ -629,6 +772,21 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
             ap.error("sac-world needs --phast-run")
         if a == "sac-world" and args.obs != "frames":
             ap.error("sac-world observes frames only (the world model has no true state)")
+    try:
+        regimes_of(args)
+    except ValueError as e:
+        ap.error(str(e))
+    if args.net is not None and not all(h.strip().isdigit() and int(h) > 0 for h in args.net.split(",")):
+        ap.error(f"--net must be positive layer sizes like 64,64, got {args.net!r}")
+    if args.lr_final is not None and not (args.lr_final > 0 and math.isfinite(args.lr_final)):
+        ap.error(f"--lr-final must be a positive learning rate, got {args.lr_final!r}")
+    if args.wells is not None:
+        if args.reward != "precise":
+            ap.error("--wells shapes the precise reward only (add --reward precise)")
+        try:
+            parse_wells(args.wells)
+        except ValueError as e:
+            ap.error(str(e))
     if "sac-gym" in agents and len(agents) > 1:
         ap.error("sac-gym runs alone")
     return args
@@ -644,11 +802,18 @@ def energy_casimir_rows(protocol: Any, args: argparse.Namespace) -> dict[str, di
     rows, _ = evaluate_estimators(protocol, args.ec_estimators.split(","), [args.sigma], args.trials_per_regime,
                                   seed=args.seed, progress=not args.no_progress)
     cmd = command_line(args, [])
-    keys = ("success_rate", "success_angle_rate", "effort", "final_error")
-    return {f"energy-casimir/{r['estimator']}": {
-        "method": f"energy-casimir/{r['estimator']}", **{k: r[k] for k in keys},
-        "u_rms_final": r.get("u_rms_final", float("nan")), "real_env_samples": 0, "decisions": 0, "flat": None,
-        "train_seconds": 0.0, "command": cmd} for r in rows if r["regime"] == "all"}
+    keys = ("success_rate", "success_angle_rate", "effort", "final_error", "u_rms_final")
+    regimes = regimes_of(args)
+    chosen = ("all",) if regimes == tuple(START_REGIMES) else regimes
+    out: dict[str, dict[str, Any]] = {}
+    for est in args.ec_estimators.split(","):
+        mine = [r for r in rows if r["regime"] in chosen and r["estimator"] == resolve_estimator_name(est)]
+        # equal trials per regime: the pooled mean over the chosen regimes is the mean of their means
+        out[f"energy-casimir/{mine[0]['estimator']}"] = {
+            "method": f"energy-casimir/{mine[0]['estimator']}",
+            **{k: float(np.mean([r.get(k, float("nan")) for r in mine])) for k in keys},
+            "real_env_samples": 0, "decisions": 0, "flat": None, "train_seconds": 0.0, "command": cmd}
+    return out
 
 
 def run_gym(args: argparse.Namespace, out: Path) -> None:
@@ -686,19 +851,22 @@ def main(argv: list[str] | None = None) -> None:
     if agents_of(args) == ["sac-gym"]:
         run_gym(args, out)
         return
-    protocol = make_protocol(args.q_star)
+    protocol = make_protocol(args.q_star, args.env)
     path = out / "control_sac.json"
     meta: dict[str, Any] = json.loads(path.read_text()) if path.exists() else {}
+    regimes = list(regimes_of(args))
     if meta and (meta.get("q_star") != args.q_star or meta.get("sigma") != args.sigma
-                 or meta.get("trials_per_regime") != args.trials_per_regime):
-        raise SystemExit(f"{path} holds another setting (q_star/sigma/trials); use another --out")
+                 or meta.get("trials_per_regime") != args.trials_per_regime
+                 or meta.get("regimes", list(START_REGIMES)) != regimes
+                 or meta.get("protocol", {}).get("env_id", ControlProtocol.env_id) != args.env):
+        raise SystemExit(f"{path} holds another setting (plant/q_star/sigma/trials/regimes); use another --out")
     results: dict[str, dict[str, Any]] = {r["method"]: r for r in meta.get("results", [])}
     results.update(energy_casimir_rows(protocol, args))
 
     def save() -> None:
         order = sorted(results.values(), key=lambda r: (not r["method"].startswith("energy"), r["method"]))
         meta.update({"q_star": args.q_star, "sigma": args.sigma, "trials_per_regime": args.trials_per_regime,
-                     "protocol": protocol.to_dict(), "hyperparameters": ZOO_PENDULUM_SAC, "results": order})
+                     "regimes": regimes, "protocol": protocol.to_dict(), "hyperparameters": ZOO_PENDULUM_SAC, "results": order})
         atomic_write_text(path, json.dumps(meta, indent=1))
         write_tables(out, meta)
 

@@ -236,3 +236,67 @@ def test_precise_reward() -> None:
     assert slope("precise", 0.03) > 20 * slope("zoo", 0.03)
     e = np.linspace(1e-3, 1.2, 600)
     assert np.all(np.diff([-cs.pendulum_reward(float(x), 0.0, 9.81 * math.sin(float(x)), "precise", w) for x in e]) > 0)
+
+
+def test_wells_shape_the_precise_reward_and_are_validated() -> None:
+    """--wells replaces the precise reward's one narrow well: a second, wider well pulls at 0.2 rad, where the narrow
+    one is flat; bad specifications are refused with a message naming the item."""
+    wide = cs.parse_wells("0.1:0.05,0.5:0.2")
+    assert wide == (cs.Well(0.1, 0.05), cs.Well(0.5, 0.2))
+    assert cs.format_wells(wide) == "0.1:0.05,0.5:0.2"
+    assert cs.parse_wells(cs.format_wells(cs.PRECISE_WELLS)) == cs.PRECISE_WELLS
+    # far from the target each well adds its full depth
+    far = cs.pendulum_reward(math.pi, 0.0, 0.0, "precise", 0.0, wide)
+    assert far == pytest.approx(cs.pendulum_reward(math.pi, 0.0, 0.0, "zoo") - 0.6)
+    d = 1e-4
+    slope = lambda wells, e: (cs.pendulum_reward(e, 0.0, 0.0, "precise", 0.0, wells)  # noqa: E731
+                              - cs.pendulum_reward(e + d, 0.0, 0.0, "precise", 0.0, wells)) / d
+    assert slope(cs.PRECISE_WELLS, 0.2) < 1.1 * 2 * 0.2  # the narrow well is flat at 0.2 rad: err^2 alone
+    assert slope(wide, 0.2) > 5 * slope(cs.PRECISE_WELLS, 0.2)
+    for bad, word in (("0.1", "DEPTH:WIDTH"), ("a:b", "DEPTH:WIDTH"), ("0.1:0", "width > 0"), ("-1:0.1", "depth >= 0")):
+        with pytest.raises(ValueError, match=word):
+            cs.parse_wells(bad)
+    args = cs.parse_args(["--out", "x", "--agents", "sac-real", "--reward", "precise", "--wells", "0.1:0.05,0.5:0.2"])
+    assert cs.method_tag("sac-real", args) == "sac-real/precise/wells=0.1:0.05,0.5:0.2"
+    assert cs.method_tag("sac-real", cs.parse_args(["--out", "x", "--agents", "sac-real", "--reward", "precise"])) == \
+        "sac-real/precise"
+    for argv in (["--wells", "0.1:0.05"], ["--reward", "precise", "--wells", "0.1"]):
+        with pytest.raises(SystemExit):
+            cs.parse_args(["--out", "x", "--agents", "sac-real", *argv])
+
+
+def test_swing_up_setting_end_to_end(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """--env / --regimes: sac-world on the undamped plant from hanging only, in a world model of plant recordings
+    (benchmarks/sac_world_data.py): its recordings count as real samples, evaluation and Energy-Casimir rows use the
+    chosen regime only, per-trial errors and the policy are written."""
+    pytest.importorskip("stable_baselines3")
+    wd = load_script("benchmarks/sac_world_data.py")
+    spec = wd.PlantRecording(n_traj=3, decisions=40, seed=2)
+    wd.train_world_model(spec, tmp_path / "wm", "PHAST/Pendulum-v0", {}, epochs=1, window_s=0.5, holdout=(2,))
+    monkeypatch.setattr(cs, "ZOO_PENDULUM_SAC", {**cs.ZOO_PENDULUM_SAC, "policy_kwargs": {"net_arch": [16, 16]},
+                                                 "batch_size": 32, "learning_starts": 50})
+    out = tmp_path / "out"
+    argv = ["--out", str(out), "--agents", "sac-world", "--phast-run", str(tmp_path / "wm"), "--env", "PHAST/Pendulum-v0",
+            "--regimes", "near_stable", "--q-star", str(math.pi), "--steps", "100", "--curve", "--eval-every", "100",
+            "--eval-episodes", "1", "--episode-decisions", "20", "--trials-per-regime", "2", "--ec-estimators", "oracle",
+            "--reward", "precise", "--quiet-weight", "0", "--net", "8,8", "--lr-final", "1e-4", "--no-progress"]
+    cs.main(argv)
+    meta = json.loads((out / "control_sac.json").read_text())
+    assert meta["regimes"] == ["near_stable"] and meta["protocol"]["env_id"] == "PHAST/Pendulum-v0"
+    ec, sac = meta["results"]
+    assert ec["method"] == "energy-casimir/oracle" and sac["method"] == "sac-world/precise/w0/net8x8/lrf0.0001"
+    assert sac["hyperparameters"]["policy_kwargs"]["net_arch"] == [8, 8]
+    assert sac["hyperparameters"]["learning_rate_final"] == 1e-4
+    assert len(sac["trial_final_errors"]) == 2 and sac["world_model_samples"] == 120
+    # recordings + training burn-ins (a reset per 20-decision episode and one at the start) + 1 evaluation burn-in
+    assert sac["real_env_samples"] == 120 + 10 * (sac["decisions"] // 20 + 1) + 10
+    assert "--regimes near_stable" in sac["command"]
+    from stable_baselines3 import SAC
+
+    policy = SAC.load(sac["policy"])  # deployable as saved, at the final learning rate
+    assert policy.lr_schedule(1.0) == pytest.approx(1e-4) and policy.actor.latent_pi[0].out_features == 8
+    assert "from near_stable" in (out / "control_sac.md").read_text()
+    with pytest.raises(SystemExit, match="another setting"):
+        cs.main([a if a != "near_stable" else "near_unstable" for a in argv])
+    with pytest.raises(SystemExit):
+        cs.parse_args(["--out", "x", "--regimes", "upside_down"])
