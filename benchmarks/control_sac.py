@@ -557,6 +557,8 @@ def method_tag(name: str, args: argparse.Namespace) -> str:
         tag += "/net" + "x".join(h.strip() for h in args.net.split(","))
     if getattr(args, "lr_final", None) is not None:
         tag += f"/lrf{args.lr_final:g}"
+    if getattr(args, "mirror", False):
+        tag += "/mirror"
     return tag
 
 
@@ -589,7 +591,14 @@ def train_agent(name: str, args: argparse.Namespace, out: Path) -> dict[str, Any
     else:
         eval_opts = [{"q_burn": eval_inner.burn_in_window(np.random.default_rng(s))} for s in eval_seeds]
     hp = sac_hyperparameters(args)
-    model = SAC("MlpPolicy", train_env, seed=args.seed, verbose=0, **hp)
+    policy_cls: Any = "MlpPolicy"
+    if getattr(args, "mirror", False):
+        from phast_model.world.mirror_policy import MirrorSACPolicy, mirror_signs
+
+        policy_cls = MirrorSACPolicy
+        hp["policy_kwargs"] = {**hp["policy_kwargs"], "mirror": mirror_signs(args.frames, velocity=args.obs == "frames+qdot",
+                                                                            state=args.obs == "state")}
+    model = SAC(policy_cls, train_env, seed=args.seed, verbose=0, **hp)
     budget = args.max_steps if args.until_flat else args.steps
     if args.lr_final is not None:
         model.lr_schedule = LinearDecay(float(hp["learning_rate"]), args.lr_final, budget, model)
@@ -733,6 +742,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--wells", default=None,
                     help="the precise reward's angle wells DEPTH:WIDTH[,...] (rad; default "
                          f"{format_wells(PRECISE_WELLS)})")
+    ap.add_argument("--mirror", action="store_true",
+                    help="reflection-equivariant SAC (odd actor, invariant critics: the pendulum's q -> -q symmetry; "
+                         "phast_model.world.mirror_policy)")
     ap.add_argument("--net", default=None, help="SAC hidden layer sizes, e.g. 64,64 (default: the zoo's 256,256)")
     ap.add_argument("--lr-final", type=float, default=None,
                     help="decay the learning rate linearly from the zoo's 1e-3 to this over the budget (default: constant)")
@@ -776,6 +788,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         regimes_of(args)
     except ValueError as e:
         ap.error(str(e))
+    if args.mirror and abs(math.sin(args.q_star)) > 1e-9:
+        ap.error("--mirror needs a target the reflection q -> -q keeps: q_star 0 or pi")
     if args.net is not None and not all(h.strip().isdigit() and int(h) > 0 for h in args.net.split(",")):
         ap.error(f"--net must be positive layer sizes like 64,64, got {args.net!r}")
     if args.lr_final is not None and not (args.lr_final > 0 and math.isfinite(args.lr_final)):

@@ -279,12 +279,12 @@ def test_swing_up_setting_end_to_end(tmp_path: Path, monkeypatch: pytest.MonkeyP
     argv = ["--out", str(out), "--agents", "sac-world", "--phast-run", str(tmp_path / "wm"), "--env", "PHAST/Pendulum-v0",
             "--regimes", "near_stable", "--q-star", str(math.pi), "--steps", "100", "--curve", "--eval-every", "100",
             "--eval-episodes", "1", "--episode-decisions", "20", "--trials-per-regime", "2", "--ec-estimators", "oracle",
-            "--reward", "precise", "--quiet-weight", "0", "--net", "8,8", "--lr-final", "1e-4", "--no-progress"]
+            "--reward", "precise", "--quiet-weight", "0", "--net", "8,8", "--lr-final", "1e-4", "--mirror", "--no-progress"]
     cs.main(argv)
     meta = json.loads((out / "control_sac.json").read_text())
     assert meta["regimes"] == ["near_stable"] and meta["protocol"]["env_id"] == "PHAST/Pendulum-v0"
     ec, sac = meta["results"]
-    assert ec["method"] == "energy-casimir/oracle" and sac["method"] == "sac-world/precise/w0/net8x8/lrf0.0001"
+    assert ec["method"] == "energy-casimir/oracle" and sac["method"] == "sac-world/precise/w0/net8x8/lrf0.0001/mirror"
     assert sac["hyperparameters"]["policy_kwargs"]["net_arch"] == [8, 8]
     assert sac["hyperparameters"]["learning_rate_final"] == 1e-4
     assert len(sac["trial_final_errors"]) == 2 and sac["world_model_samples"] == 120
@@ -295,8 +295,11 @@ def test_swing_up_setting_end_to_end(tmp_path: Path, monkeypatch: pytest.MonkeyP
 
     policy = SAC.load(sac["policy"])  # deployable as saved, at the final learning rate
     assert policy.lr_schedule(1.0) == pytest.approx(1e-4) and policy.actor.latent_pi[0].out_features == 8
+    assert type(policy.policy).__name__ == "MirrorSACPolicy"
     assert "from near_stable" in (out / "control_sac.md").read_text()
     with pytest.raises(SystemExit, match="another setting"):
         cs.main([a if a != "near_stable" else "near_unstable" for a in argv])
     with pytest.raises(SystemExit):
         cs.parse_args(["--out", "x", "--regimes", "upside_down"])
+    with pytest.raises(SystemExit):
+        cs.parse_args(["--out", "x", "--mirror", "--q-star", "1.0"])  # the reflection does not keep q* = 1
