@@ -36,6 +36,13 @@ def mirror_signs(frames: int, velocity: bool = False, state: bool = False) -> li
     return [-1.0] * frames + [1.0] * frames + ([-1.0] if velocity else [])
 
 
+def _obs_size(space: Any) -> int:
+    shape = getattr(space, "shape", None)
+    if not shape or len(shape) != 1:
+        raise ValueError(f"a mirrored policy needs a flat Box observation, got shape {shape}")
+    return int(shape[0])
+
+
 def _signs(mirror: Sequence[float], size: int) -> torch.Tensor:
     m = torch.as_tensor([float(s) for s in mirror], dtype=torch.float32)
     if m.shape != (size,) or not bool(torch.all(m.abs() == 1)):
@@ -50,7 +57,8 @@ class MirrorActor(Actor):
         super().__init__(*args, **kwargs)
         if self.use_sde:
             raise ValueError("MirrorActor does not support gSDE")
-        self.register_buffer("mirror", _signs(mirror, int(self.observation_space.shape[0])))
+        self.mirror: torch.Tensor
+        self.register_buffer("mirror", _signs(mirror, _obs_size(self.observation_space)))
 
     def get_action_dist_params(self, obs: Any) -> tuple[torch.Tensor, torch.Tensor, dict[str, torch.Tensor]]:
         mean, log_std, kw = super().get_action_dist_params(obs)
@@ -63,7 +71,8 @@ class MirrorCritic(ContinuousCritic):
 
     def __init__(self, *args: Any, mirror: Sequence[float], **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        self.register_buffer("mirror", _signs(mirror, int(self.observation_space.shape[0])))
+        self.mirror: torch.Tensor
+        self.register_buffer("mirror", _signs(mirror, _obs_size(self.observation_space)))
 
     def forward(self, obs: torch.Tensor, actions: torch.Tensor) -> tuple[torch.Tensor, ...]:
         direct = super().forward(obs, actions)
