@@ -37,6 +37,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import re
 import time
 from collections import deque
 from collections.abc import Sequence
@@ -566,7 +567,8 @@ def curve_stem(name: str, args: argparse.Namespace) -> str:
     """File stem of an agent's learning curve (``curve_<agent>_<reward>`` as before for the default options)."""
     if name == "sac-gym":
         return f"curve_sac-gym_{args.gym_env}_s{args.seed}"
-    return "curve_" + method_tag(name, args).replace("/", "_").replace("=", "-")
+    tag = method_tag(name, args).replace("/", "_").replace("=", "-")
+    return "curve_" + re.sub(r"[^A-Za-z0-9._+-]", "-", tag.replace(",", "+"))  # portable file names
 
 
 def train_agent(name: str, args: argparse.Namespace, out: Path) -> dict[str, Any]:
