@@ -404,6 +404,24 @@ def evaluate_policy_on_plant(model: Any, protocol: ControlProtocol, sigma: float
             "trial_final_errors": [round(float(e), 5) for e in fin], "trial_u_rms_final": [round(float(r), 4) for r in rms]}
 
 
+#: angle offsets (rad) from the target at which :func:`torque_at_rest` reads a policy
+REST_OFFSETS = (-0.1, 0.0, 0.1)
+
+
+def torque_at_rest(model: Any, q_star: float, frames: int, max_action: float, obs_mode: str = "frames",
+                   offsets: Sequence[float] = REST_OFFSETS) -> list[float]:
+    """The deterministic torque (N m) a policy applies with the pendulum at rest at ``q_star + e`` for each ``e``
+    of ``offsets`` (noise-free frames).  A symmetric policy applies 0 at the target; a nonzero value there is a bias,
+    and the policy then holds still where that bias balances gravity (``-m g l sin e``; DIAGNOSIS.md item 7)."""
+    out = []
+    for e in offsets:
+        q = np.array([q_star + e])
+        obs = ObsBuilder(frames, obs_mode).reset(q, np.array([q_star + e, 0.0]))
+        a, _ = model.predict(obs, deterministic=True)
+        out.append(round(float(np.clip(a, -1, 1)[0]) * max_action, 3))
+    return out
+
+
 def plot_curve(curve: dict[str, Any], path: Path) -> None:
     """Learning curve PNG: eval return on the training env (stopping rule) and on the real plant (monitoring)."""
     import matplotlib
@@ -645,6 +663,8 @@ def train_agent(name: str, args: argparse.Namespace, out: Path) -> dict[str, Any
     else:
         m = evaluate_policy_on_plant(model, make_protocol(args.q_star, args.env), args.sigma, args.trials_per_regime,
                                      args.repeat, args.frames, args.max_action, args.seed, args.obs, regimes_of(args))
+        m["torque_at_rest"] = dict(zip((f"{e:+g}" for e in REST_OFFSETS),
+                                       torque_at_rest(model, args.q_star, args.frames, args.max_action, args.obs)))
     row = {"method": method_tag(name, args), **m, "real_env_samples": int(real), "world_model_samples": world_data,
            "hyperparameters": {**hp, "learning_rate_final": args.lr_final},
            "decisions": done,

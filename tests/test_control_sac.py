@@ -288,6 +288,8 @@ def test_swing_up_setting_end_to_end(tmp_path: Path, monkeypatch: pytest.MonkeyP
     assert sac["hyperparameters"]["policy_kwargs"]["net_arch"] == [8, 8]
     assert sac["hyperparameters"]["learning_rate_final"] == 1e-4
     assert len(sac["trial_final_errors"]) == 2 and sac["world_model_samples"] == 120
+    rest = sac["torque_at_rest"]  # the mirrored policy: no torque at the target at rest, odd around it
+    assert list(rest) == ["-0.1", "+0", "+0.1"] and rest["+0"] == 0.0 and rest["-0.1"] == -rest["+0.1"]
     # recordings + training burn-ins (a reset per 20-decision episode and one at the start) + 1 evaluation burn-in
     assert sac["real_env_samples"] == 120 + 10 * (sac["decisions"] // 20 + 1) + 10
     assert "--regimes near_stable" in sac["command"]
