@@ -742,7 +742,8 @@ def write_tables(out: Path, meta: dict[str, Any]) -> None:
                      f"{r['u_rms_final']:.3f} | {r['final_error']:.2e} | {r['real_env_samples']} | {r.get('decisions', 0)} | {flat} | "
                      f"{r['train_seconds']} |")
     lines += ["", "Real-env samples: plant measurements consumed in training (sac-real: plant steps, 0.01 s apart; "
-              "sac-world: burn-in measurements, 0.05 s apart).", "", "Commands:", ""]
+              "sac-world: burn-in measurements, 0.05 s apart, plus the recordings its world model was trained on when "
+              "it comes from benchmarks/sac_world_data.py).", "", "Commands:", ""]
     lines += [f"* `{r['method']}`: `{r['command']}`" for r in meta["results"]]
     atomic_write_text(out / "control_sac.md", "\n".join(lines) + "\n")
 

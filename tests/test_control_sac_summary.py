@@ -1,0 +1,40 @@
+"""benchmarks/control_sac_summary.py: rows of several seeds pooled by setting and method."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from repo_scripts import load_script
+
+summ = load_script("benchmarks/control_sac_summary.py")
+
+
+def _row(method: str, seed: int, angle: float, samples: int, secs: float) -> dict:
+    return {"method": method, "seed": seed, "success_rate": 0.0, "success_angle_rate": angle, "final_error": 0.02,
+            "u_rms_final": 0.87, "real_env_samples": samples, "train_seconds": secs}
+
+
+def _write(d: Path, rows: list[dict], regimes: list[str] | None = None, plant: str = "PHAST/DampedPendulum-v0") -> Path:
+    d.mkdir()
+    meta = {"q_star": 3.141592653589793, "protocol": {"env_id": plant}, "results": rows}
+    if regimes:
+        meta["regimes"] = regimes
+    (d / "control_sac.json").write_text(json.dumps(meta))
+    return d
+
+
+def test_seeds_pool_by_setting_and_method(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    dirs = [_write(tmp_path / f"s{s}", [_row("energy-casimir/oracle", 0, 1.0, 0, 0.0), _row("sac-world/x", s, a, 4000 + s, 100.0 * s)])
+            for s, a in ((0, 1.0), (1, 0.9), (2, 0.8))]
+    dirs.append(_write(tmp_path / "swing", [_row("sac-world/x", 0, 1.0, 4300, 50.0)], ["near_stable"], "PHAST/Pendulum-v0"))
+    summ.main([*map(str, dirs), "--floor", "0.087"])
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 2 + 3  # header, rule, EC + SAC of the upright, SAC of the swing-up
+    sac = next(line for line in lines if "sac-world/x" in line and "all regimes" in line)
+    assert "| 0,1,2 |" in sac and "0.90 (1.00, 0.90, 0.80)" in sac and "4,001" in sac and "| 200 |" in sac
+    assert "10.0x" in sac  # 0.87 / 0.087
+    assert any("Pendulum-v0, upright, from near_stable" in line for line in lines)
+    with pytest.raises(SystemExit):
+        summ.main([str(tmp_path / "missing")])
