@@ -58,7 +58,8 @@ def summarize(rows: Sequence[tuple[Setting, dict[str, Any]]], floor: float | Non
     groups: dict[tuple[Setting, str], list[dict[str, Any]]] = defaultdict(list)
     for setting, r in rows:
         groups[(setting, r["method"])].append(r)
-    head = ["Setting", "Method", "Seeds", "Success", "Angle only (per seed)", "Final error (rad)", "RMS torque (N m)"]
+    head = ["Setting", "Method", "Seeds", "Success", "Angle only (per seed)", "Final error (rad)", "Effort",
+            "RMS torque (N m)"]
     head += (["RMS / floor"] if floor else []) + ["Real samples (mean)", "Train s (max)"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for (setting, method), rs in sorted(groups.items(), key=lambda kv: (kv[0][0].label(), not kv[0][1].startswith("energy"), kv[0][1])):
@@ -68,7 +69,7 @@ def summarize(rows: Sequence[tuple[Setting, dict[str, Any]]], floor: float | Non
         rms = float(np.mean([r["u_rms_final"] for r in rs]))
         cells = [setting.label(), method, ",".join(map(str, seeds)), f"{np.mean([r['success_rate'] for r in rs]):.2f}",
                  f"{np.mean(angle):.2f}" + (f" ({', '.join(f'{a:.2f}' for a in angle)})" if sac else ""),
-                 f"{np.mean([r['final_error'] for r in rs]):.3g}", f"{rms:.3g}"]
+                 f"{np.mean([r['final_error'] for r in rs]):.3g}", f"{np.mean([r['effort'] for r in rs]):,.0f}", f"{rms:.3g}"]
         cells += [f"{rms / floor:.1f}x"] if floor else []
         cells += [f"{np.mean([r['real_env_samples'] for r in rs]):,.0f}", f"{max(r['train_seconds'] for r in rs):.0f}"]
         lines.append("| " + " | ".join(cells) + " |")

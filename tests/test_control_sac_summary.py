@@ -13,7 +13,7 @@ summ = load_script("benchmarks/control_sac_summary.py")
 
 def _row(method: str, seed: int, angle: float, samples: int, secs: float) -> dict:
     return {"method": method, "seed": seed, "success_rate": 0.0, "success_angle_rate": angle, "final_error": 0.02,
-            "u_rms_final": 0.87, "real_env_samples": samples, "train_seconds": secs}
+            "effort": 1234.4, "u_rms_final": 0.87, "real_env_samples": samples, "train_seconds": secs}
 
 
 def _write(d: Path, rows: list[dict], regimes: list[str] | None = None, plant: str = "PHAST/DampedPendulum-v0") -> Path:
@@ -34,7 +34,7 @@ def test_seeds_pool_by_setting_and_method(tmp_path: Path, capsys: pytest.Capture
     assert len(lines) == 2 + 3  # header, rule, EC + SAC of the upright, SAC of the swing-up
     sac = next(line for line in lines if "sac-world/x" in line and "all regimes" in line)
     assert "| 0,1,2 |" in sac and "0.90 (1.00, 0.90, 0.80)" in sac and "4,001" in sac and "| 200 |" in sac
-    assert "10.0x" in sac  # 0.87 / 0.087
+    assert "10.0x" in sac and "| 1,234 |" in sac  # 0.87 / 0.087; effort
     assert any("Pendulum-v0, upright, from near_stable" in line for line in lines)
     with pytest.raises(SystemExit):
         summ.main([str(tmp_path / "missing")])
