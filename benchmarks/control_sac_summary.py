@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import re
 from collections import defaultdict
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -53,6 +54,14 @@ def load_rows(dirs: Sequence[str | Path]) -> list[tuple[Setting, dict[str, Any]]
     return out
 
 
+def _seed(row: dict[str, Any]) -> int:
+    """A row's training seed (older rows record it only in their command line; default 0)."""
+    if "seed" in row:
+        return int(row["seed"])
+    m = re.search(r"--seed (\d+)", row.get("command", ""))
+    return int(m.group(1)) if m else 0
+
+
 def summarize(rows: Sequence[tuple[Setting, dict[str, Any]]], floor: float | None = None) -> str:
     """The markdown table of :func:`load_rows`' rows pooled by (setting, method)."""
     groups: dict[tuple[Setting, str], list[dict[str, Any]]] = defaultdict(list)
@@ -64,8 +73,9 @@ def summarize(rows: Sequence[tuple[Setting, dict[str, Any]]], floor: float | Non
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for (setting, method), rs in sorted(groups.items(), key=lambda kv: (kv[0][0].label(), not kv[0][1].startswith("energy"), kv[0][1])):
         sac = not method.startswith("energy")
-        seeds = sorted({r.get("seed", 0) for r in rs}) if sac else ["-"]
-        angle = [r["success_angle_rate"] for r in sorted(rs, key=lambda r: r.get("seed", 0))]
+        rs = sorted(rs, key=_seed)
+        seeds = [_seed(r) for r in rs] if sac else ["-"]
+        angle = [r["success_angle_rate"] for r in rs]
         rms = float(np.mean([r["u_rms_final"] for r in rs]))
         cells = [setting.label(), method, ",".join(map(str, seeds)), f"{np.mean([r['success_rate'] for r in rs]):.2f}",
                  f"{np.mean(angle):.2f}" + (f" ({', '.join(f'{a:.2f}' for a in angle)})" if sac else ""),

@@ -28,13 +28,18 @@ def _write(d: Path, rows: list[dict], regimes: list[str] | None = None, plant: s
 def test_seeds_pool_by_setting_and_method(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     dirs = [_write(tmp_path / f"s{s}", [_row("energy-casimir/oracle", 0, 1.0, 0, 0.0), _row("sac-world/x", s, a, 4000 + s, 100.0 * s)])
             for s, a in ((0, 1.0), (1, 0.9), (2, 0.8))]
+    old = _row("sac-world/x", 0, 1.0, 4300, 50.0)
+    del old["seed"]
+    old["command"] = "python benchmarks/control_sac.py --seed 7"  # older rows: the seed only in the command
+    dirs.append(_write(tmp_path / "old", [old], ["far_stable"]))
     dirs.append(_write(tmp_path / "swing", [_row("sac-world/x", 0, 1.0, 4300, 50.0)], ["near_stable"], "PHAST/Pendulum-v0"))
     summ.main([*map(str, dirs), "--floor", "0.087"])
     lines = capsys.readouterr().out.splitlines()
-    assert len(lines) == 2 + 3  # header, rule, EC + SAC of the upright, SAC of the swing-up
+    assert len(lines) == 2 + 4  # header, rule, EC + SAC of the upright, the older row, SAC of the swing-up
     sac = next(line for line in lines if "sac-world/x" in line and "all regimes" in line)
     assert "| 0,1,2 |" in sac and "0.90 (1.00, 0.90, 0.80)" in sac and "4,001" in sac and "| 200 |" in sac
     assert "10.0x" in sac and "| 1,234 |" in sac  # 0.87 / 0.087; effort
     assert any("Pendulum-v0, upright, from near_stable" in line for line in lines)
+    assert any("from far_stable | sac-world/x | 7 |" in line for line in lines)
     with pytest.raises(SystemExit):
         summ.main([str(tmp_path / "missing")])
