@@ -373,7 +373,8 @@ def evaluate_policy_on_plant(model: Any, protocol: ControlProtocol, sigma: float
 
     env = make_control_env(protocol, sigma)
     builder = ObsBuilder(frames, obs_mode, float(getattr(env.unwrapped.system, "inertia", 1.0) or 1.0))
-    states = {r: x for r, x in start_states(protocol, trials, seed).items() if r in check_regimes(regimes)}
+    chosen = check_regimes(regimes)
+    states = {r: x for r, x in start_states(protocol, trials, seed).items() if r in chosen}
     succ, succ_angle, eff, fin, rms = [], [], [], [], []
     for regime, x0s in states.items():
         for i, x0 in enumerate(x0s):
@@ -601,9 +602,7 @@ def train_agent(name: str, args: argparse.Namespace, out: Path) -> dict[str, Any
     n_eval = args.eval_episodes
     eval_seeds = [args.seed * 1000 + 10_000 + i for i in range(n_eval)]
     world = name == "sac-world"
-    world_data = 0
-    if world:
-        world_data = world_data_samples(args.phast_run)  # the world model's own training recordings
+    world_data = world_data_samples(args.phast_run) if world else 0  # the world model's own training recordings
     # fixed evaluation starts: the same seeded states (plant, Gymnasium env) or burn-ins (world model, drawn once:
     # real samples)
     if not world:
@@ -824,6 +823,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
             parse_wells(args.wells)
         except ValueError as e:
             ap.error(str(e))
+    if args.mirror and "sac-gym" in agents:
+        ap.error("--mirror knows the plant agents' observations only (sac-real, sac-world)")
     if "sac-gym" in agents and len(agents) > 1:
         ap.error("sac-gym runs alone")
     return args

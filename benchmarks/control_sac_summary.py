@@ -23,6 +23,8 @@ from typing import Any
 
 import numpy as np
 
+from phast_gym.control import START_REGIMES, ControlProtocol
+
 
 @dataclass(frozen=True)
 class Setting:
@@ -34,7 +36,7 @@ class Setting:
 
     def label(self) -> str:
         target = "upright" if abs(math.cos(self.q_star) + 1) < 1e-9 else f"q* = {self.q_star:g}"
-        where = "all regimes" if len(self.regimes) == 5 else "from " + ", ".join(self.regimes)
+        where = "all regimes" if set(self.regimes) == set(START_REGIMES) else "from " + ", ".join(self.regimes)
         return f"{self.plant.split('/')[-1]}, {target}, {where}"
 
 
@@ -47,9 +49,8 @@ def load_rows(dirs: Sequence[str | Path]) -> list[tuple[Setting, dict[str, Any]]
             meta = json.loads(path.read_text())
         except (OSError, ValueError) as e:
             raise ValueError(f"{path}: not a control_sac.py result ({e})") from None
-        setting = Setting(meta.get("protocol", {}).get("env_id", "PHAST/DampedPendulum-v0"), float(meta["q_star"]),
-                          tuple(meta.get("regimes", ["near_stable", "far_stable", "near_unstable", "far_unstable",
-                                                     "high_energy"])))
+        setting = Setting(meta.get("protocol", {}).get("env_id", ControlProtocol.env_id), float(meta["q_star"]),
+                          tuple(meta.get("regimes", START_REGIMES)))
         out += [(setting, r) for r in meta["results"]]
     return out
 

@@ -305,3 +305,5 @@ def test_swing_up_setting_end_to_end(tmp_path: Path, monkeypatch: pytest.MonkeyP
         cs.parse_args(["--out", "x", "--regimes", "upside_down"])
     with pytest.raises(SystemExit):
         cs.parse_args(["--out", "x", "--mirror", "--q-star", "1.0"])  # the reflection does not keep q* = 1
+    with pytest.raises(SystemExit):
+        cs.parse_args(["--out", "x", "--agents", "sac-gym", "--mirror"])  # Pendulum-v1's observation is not ours
