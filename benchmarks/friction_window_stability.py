@@ -32,8 +32,8 @@ def main(argv: list[str] | None = None) -> int:
     from phast_model.mismatch import analyze
     from phast_model.mismatch.evaluate import evaluate_models
     from phast_model.mismatch.friction import select_law
-    from phast_model.mismatch.recordings import validate
-    from phast_model.mismatch.shooting import smooth
+    from phast_model.rigs.recordings import validate
+    from phast_model.rigs.shooting import smooth
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", type=Path, default=DEFAULT_DATA)

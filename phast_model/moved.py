@@ -35,6 +35,9 @@ MOVED: dict[str, str] = {
     "phast_model.provenance": "phast_model.train.provenance",
     "phast_model.rig_run": "phast_model.rig.run",
     "phast_model.rig_plots": "phast_model.rig.plots",
+    "phast_model.mismatch.simulators": "phast_model.rigs.simulators",
+    "phast_model.mismatch.recordings": "phast_model.rigs.recordings",
+    "phast_model.mismatch.shooting": "phast_model.rigs.shooting",
 }
 
 

@@ -4,7 +4,9 @@
 * no module over 800 lines;
 * no mismatch term name as a string literal in more than 2 modules of ``phast_model/mismatch``;
 * no import cycle among the package's modules (module-level and function-level imports alike);
-* no private name (``_name``) imported from another module of the package.
+* no private name (``_name``) imported from another module of the package;
+* the shared ``rigs`` layer imports neither tool, and the world model, the trainer and the rig path import nothing
+  from the mismatch tool (the rig's friction plot draws the mismatch tool's friction curve: the one exception).
 """
 
 from __future__ import annotations
@@ -138,6 +140,25 @@ def test_no_private_name_crosses_a_module():
                 if isinstance(node, ast.ImportFrom) and node.module != "__future__"
                 for a in node.names if a.name.startswith("_") and not a.name.startswith("__")]
     assert not crossing, "\n".join(crossing)
+
+
+#: (importing package, package it must not import)
+LAYER_RULES = (("phast_model.rigs", "phast_model.mismatch"), ("phast_model.rigs", "phast_model.world"),
+               ("phast_model.rigs", "phast_model.rig"), ("phast_model.world", "phast_model.mismatch"),
+               ("phast_model.train", "phast_model.mismatch"), ("phast_model.rig", "phast_model.mismatch"))
+#: module -> imported package allowed despite :data:`LAYER_RULES`, with the reason in the module docstring
+LAYER_EXCEPTIONS = {("phast_model.rig.plots", "phast_model.mismatch")}
+
+
+def _inside(module: str, package: str) -> bool:
+    return module == package or module.startswith(package + ".")
+
+
+def test_layers_point_one_way():
+    broken = [f"{m} imports {t}" for m, tree in TREES.items() for t in sorted(_imports(m, tree))
+              for src, banned in LAYER_RULES
+              if _inside(m, src) and _inside(t, banned) and (m, banned) not in LAYER_EXCEPTIONS]
+    assert not broken, "\n".join(broken)
 
 
 def test_old_module_paths_import_the_moved_modules():

@@ -17,7 +17,7 @@ from phast_model.mismatch.friction import (
     plot_friction_curve,
     select_law,
 )
-from phast_model.mismatch.recordings import Recordings
+from phast_model.rigs.recordings import Recordings
 
 ENV = "PHAST/Pendulum-v0"
 TRUE = {"coulomb_friction": 0.03, "viscous_damping": 0.02}

@@ -11,7 +11,7 @@ import pytest
 
 from phast_gym.registry import make_env_system
 from phast_model.mismatch import AugmentedSystem, Term, analyze, make_reality, validate
-from phast_model.mismatch.shooting import estimate_noise
+from phast_model.rigs.shooting import estimate_noise
 
 
 @pytest.fixture(scope="module")
@@ -320,7 +320,7 @@ def test_holdout_trajectories_are_validated_before_any_work(holdout, match, monk
 
 
 def test_split_by_given_trajectories():
-    from phast_model.mismatch.evaluate import split
+    from phast_model.rigs.holdout import split
 
     rec = validate(make_reality("PHAST/Pendulum-v0", [], n_traj=4, T=60, noise_std=0.01, seed=1), 1, (0,))
     train, hold, on = split(rec, 0.9, [2, 0])
@@ -426,7 +426,7 @@ def test_armature_candidate():
     from phast_model.mismatch.options import Options, Progress
     from phast_model.mismatch.problem import prepare
     from phast_model.mismatch.screening import candidates
-    from phast_model.mismatch.simulators import load_simulator
+    from phast_model.rigs.simulators import load_simulator
 
     sim = load_simulator("PHAST/Pendulum-v0")
     sys0 = sim.build()
@@ -531,8 +531,8 @@ def test_heldout_initial_state_refitted_where_it_is_not_determined():
     """A pendulum falling from near its upright: the state fitted to the first 50 samples leaves an open-loop spread
     far above the noise, so it is fitted to more samples (up to half the recording); a small swing keeps 50."""
     from phast_model.mismatch.evaluate import _initial_states
-    from phast_model.mismatch.recordings import Recordings
-    from phast_model.mismatch.shooting import simulate_qv, substeps_for
+    from phast_model.rigs.recordings import Recordings
+    from phast_model.rigs.shooting import simulate_qv, substeps_for
 
     system = make_env_system("PHAST/Pendulum-v0")
     q0, v0 = np.array([[0.5], [math.pi - 0.05]]), np.zeros((2, 1))

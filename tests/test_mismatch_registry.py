@@ -11,8 +11,8 @@ from phast_gym.registry import make_env_system
 from phast_gym.systems.base import ArrayNamespace
 from phast_model.mismatch import Options, Term, analyze, make_reality
 from phast_model.mismatch.friction import select_law
-from phast_model.mismatch.recordings import Recordings
 from phast_model.mismatch.registry import VOCABULARY, DissipationKind, law_terms, register, unregister
+from phast_model.rigs.recordings import Recordings
 
 ENV = "PHAST/Pendulum-v0"
 

@@ -130,7 +130,7 @@ def test_joint_change_that_is_one_parameter_is_reported_as_it():
 def test_three_link_rig_example_is_exact_physics():
     """examples/rigs/triple_pendulum.py: dH/dq matches finite differences of H and a free swing keeps its energy."""
     from phast_gym.integrate import simulate
-    from phast_model.mismatch.simulators import load_simulator
+    from phast_model.rigs.simulators import load_simulator
 
     rig = Path(__file__).resolve().parents[1] / "examples" / "rigs" / "triple_pendulum.py"
     s = load_simulator(f"{rig}:TriplePendulum", {"friction": 0.0}).build()

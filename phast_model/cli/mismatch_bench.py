@@ -129,7 +129,7 @@ def run_sindy(case: Case, rec: dict[str, Any], threshold: float = 0.05) -> dict[
 
     from phast_gym.registry import make_env_system
     from phast_gym.systems.base import NUMPY
-    from phast_model.mismatch.shooting import momentum
+    from phast_model.rigs.shooting import momentum
 
     t0 = time.time()
     sys0 = make_env_system(case.env_id, **case.sim_kwargs)

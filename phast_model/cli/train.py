@@ -130,7 +130,7 @@ def _named(items: list[str], flag: str) -> dict[str, str]:
 
 def _compared_systems(args: argparse.Namespace) -> dict[str, Any] | None:
     """The ``--compare`` models, built with their ``--compare-kwargs`` (default: the rig's ``--sim-kwargs``)."""
-    from ..mismatch.simulators import load_simulator
+    from ..rigs.simulators import load_simulator
 
     sims, kwargs = _named(args.compare, "--compare"), _named(args.compare_kwargs, "--compare-kwargs")
     unknown = sorted(set(kwargs) - set(sims))

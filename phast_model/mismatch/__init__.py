@@ -4,9 +4,9 @@
 docs/mismatch.md; ``Report.write(out_dir)`` writes report.json / report.md / report.html / plots.
 """
 
+from ..rigs.recordings import Recordings, load_raw, validate
 from .analysis import analyze
 from .options import Options
-from .recordings import Recordings, load_raw, validate
 from .report import Report
 from .synth import make_reality
 from .terms import VOCABULARY, AugmentedSystem, Term

@@ -24,19 +24,20 @@ import numpy as np
 
 from phast_gym.systems.base import System
 
+from ..rigs.holdout import check_holdout_indices, check_holdout_range, split
+from ..rigs.recordings import Recordings, load_raw, validate
+from ..rigs.shooting import ShootFit, odd, time_scale
+from ..rigs.simulators import Simulator, load_simulator
 from .calibrate import Calibration, calibration, explained_share, screen_parameters
 from .energy import energy_check
-from .evaluate import FitTable, HeldOut, check_holdout_indices, check_holdout_range, held_out, split
+from .evaluate import FitTable, HeldOut, held_out
 from .locate import locate
 from .options import Options, Progress
 from .problem import Problem, prepare
-from .recordings import Recordings, load_raw, validate
 from .report import Report, summary_text
 from .rows import ParamRow, TermRow
 from .screening import candidates
 from .select import Selection, calibrated_rows, missing_rows, select
-from .shooting import ShootFit, odd, time_scale
-from .simulators import Simulator, load_simulator
 from .systematic import SystematicContext, SystematicResult, systematic
 from .terms import VOCABULARY
 

@@ -25,11 +25,11 @@ import scipy.linalg
 
 from phast_gym.systems.base import System
 
+from ..rigs.shooting import Shooter, ShootFit
+from ..rigs.simulators import known_params
 from .candidates import Family, ParamCandidate
 from .linear import flat, rel_resid
 from .problem import Problem
-from .shooting import Shooter, ShootFit
-from .simulators import known_params
 
 #: finite-difference step of a parameter column (log-relative)
 PARAM_STEP = 1e-3

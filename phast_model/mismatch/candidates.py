@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from ..rigs.simulators import Simulator
 from .registry import FD_STEP, VOCABULARY, TermKind
-from .simulators import Simulator
 from .terms import AugmentedSystem, Term
 
 __all__ = ["FD_STEP", "Candidate", "Family", "ParamCandidate", "ScaledTerm"]

@@ -15,8 +15,8 @@ import numpy as np
 
 from phast_gym.systems.base import NUMPY, System
 
-from .recordings import Recordings
-from .shooting import momentum, smooth
+from ..rigs.recordings import Recordings
+from ..rigs.shooting import momentum, smooth
 
 
 def _intervals(v: np.ndarray, margin: int, min_len: int) -> list[tuple[int, int]]:

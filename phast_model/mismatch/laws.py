@@ -17,8 +17,8 @@ from scipy.stats import t as student_t
 
 from phast_gym.systems.base import NUMPY, System
 
+from ..rigs.recordings import Recordings
 from .linear import cluster_cov
-from .recordings import Recordings
 from .registry import VOCABULARY, TermKind, law_terms
 from .terms import AugmentedSystem, Term
 from .weakform import WeakForm, weak_form

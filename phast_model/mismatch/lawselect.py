@@ -20,12 +20,12 @@ from scipy.stats import t as student_t
 from phast_gym.systems import angle_diff
 from phast_gym.systems.base import System
 
+from ..rigs.recordings import Recordings
+from ..rigs.shooting import estimate_noise, odd, smooth, time_scale
 from .frictioncurve import FrictionCurve, friction_curve, speed_edges
 from .laws import FrictionLaw, Spec, design, fit_law_specs, own_samples, own_terms, parse_terms, spec_of
 from .passivity import check_against_curve, is_passive
-from .recordings import Recordings
 from .registry import law_terms
-from .shooting import estimate_noise, odd, smooth, time_scale
 from .weakform import WeakForm, weak_form
 
 

@@ -16,9 +16,9 @@ from scipy.signal import savgol_filter
 from phast_gym.systems import wrap
 from phast_gym.systems.base import System
 
+from ..rigs.recordings import Recordings
+from ..rigs.shooting import odd
 from .friction import momentum_balance
-from .recordings import Recordings
-from .shooting import odd
 
 
 def residual_force(system: System, rec: Recordings, smoothing_window: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, slice]:

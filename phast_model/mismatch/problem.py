@@ -9,11 +9,11 @@ import numpy as np
 
 from phast_gym.systems.base import System
 
+from ..rigs.recordings import Recordings
+from ..rigs.shooting import Shooter, Windows, estimate_noise, odd, smooth, substeps_for, time_scale
+from ..rigs.simulators import Simulator
 from .candidates import Family
 from .options import Options, Progress
-from .recordings import Recordings
-from .shooting import Shooter, Windows, estimate_noise, odd, smooth, substeps_for, time_scale
-from .simulators import Simulator
 from .weakform import rms_speed, sign_smoothing, smoothing_window
 
 

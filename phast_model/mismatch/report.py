@@ -362,7 +362,7 @@ def _heldout_fit(plt: Any, report: Report, out: Path) -> None:
 
 def _decay(plt: Any, report: Report, out: Path) -> None:
     """decay.png: energy of the calibrated H along the smoothed held-out states vs along the models' rollouts."""
-    from .shooting import momentum, smooth
+    from ..rigs.shooting import momentum, smooth
 
     pd = report.plot_data
     hold, roll, sysC = pd["hold"], pd["rollouts"], pd["calibrated_system"]

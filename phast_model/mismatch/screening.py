@@ -7,10 +7,10 @@ import numpy as np
 
 from phast_gym.systems.base import NUMPY
 
+from ..rigs.shooting import momentum
 from .candidates import Candidate
 from .problem import Problem
 from .registry import VOCABULARY, ScaleContext, TermKind
-from .shooting import momentum
 from .terms import AugmentedSystem
 
 

@@ -28,6 +28,7 @@ import numpy as np
 
 from phast_gym.systems.base import System
 
+from ..rigs.shooting import ShootFit
 from .calibrate import Calibration, ParameterScreen
 from .candidates import Candidate, Family, ParamCandidate
 from .linear import flat, orth_against
@@ -35,7 +36,6 @@ from .options import Z95
 from .problem import Problem
 from .registry import ACTUATOR_GAIN, COULOMB, STRIBECK, ActuatorDeadzone
 from .rows import Alternative, ParamRow, TermRow, param_value
-from .shooting import ShootFit
 
 #: refit iterations while confirming a shortlisted candidate (the winner is finished with Options.max_iter)
 CONFIRM_ITER = 6

@@ -9,7 +9,7 @@ import numpy as np
 from phast_gym.integrate import simulate
 from phast_gym.systems.base import System
 
-from .simulators import load_simulator
+from ..rigs.simulators import load_simulator
 from .terms import AugmentedSystem, Term
 
 

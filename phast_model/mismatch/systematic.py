@@ -35,6 +35,7 @@ import numpy as np
 
 from phast_gym.systems.base import System
 
+from ..rigs.shooting import ShootFit
 from .calibrate import Calibration
 from .candidates import Candidate
 from .frictioncurve import FrictionCurve, friction_curve
@@ -44,7 +45,6 @@ from .passivity import check_against_curve, is_passive
 from .problem import Problem
 from .registry import ARMATURE, COULOMB, VISCOUS
 from .rows import Alternative, ParamRow, TermRow, param_value
-from .shooting import ShootFit
 from .terms import VOCABULARY, AugmentedSystem, Term
 from .weakid import WeakFit, WeakModel, check_parameters, identify
 

@@ -22,9 +22,9 @@ from scipy.signal import savgol_filter
 
 from phast_gym.systems.base import NUMPY, System
 
+from ..rigs.recordings import Recordings
+from ..rigs.shooting import momentum, odd, smooth, time_scale
 from .options import SIGN_SMOOTHING_REL
-from .recordings import Recordings
-from .shooting import momentum, odd, smooth, time_scale
 from .terms import AugmentedSystem, friction_basis
 
 

@@ -31,12 +31,12 @@ from scipy.stats import t as student_t
 
 from phast_gym.systems.base import System
 
+from ..rigs.recordings import Recordings
+from ..rigs.simulators import Simulator
 from .laws import FrictionLaw, LawTerm, Spec, own_samples, own_terms
 from .linear import cluster_cov, rel_resid
-from .recordings import Recordings
 from .registry import ARMATURE
 from .rows import ParamRow
-from .simulators import Simulator
 from .terms import AugmentedSystem, Term
 from .weakform import WeakForm, weak_form
 

@@ -1,6 +1,6 @@
 """A PHAST world model of the user's rig, learned from real recordings (docs/rig_world_model.md).
 
-The recordings are the ``phast-mismatch`` format, read by the same loader (:mod:`phast_model.mismatch.recordings`):
+The recordings are the ``phast-mismatch`` format, read by the same loader (:mod:`phast_model.rigs.recordings`):
 q (N, T, n), recorded times ``t`` (jitter allowed) or ``dt``, the measured port input u, ``angle_dims``,
 ``angle_offset``.  The rig (an env id or a user's ``path.py:Class``) gives the template: V and M forms and the port.
 
@@ -35,10 +35,10 @@ from phast_gym.systems import System
 
 from ..components.mass import KnownMass, LinearMass, LowRankMass
 from ..components.potentials import TemplatePotential
-from ..mismatch.evaluate import check_holdout_indices, split
-from ..mismatch.recordings import Recordings, load_raw, validate
-from ..mismatch.shooting import Shooter, Windows, estimate_noise, odd, simulate_qv, smooth, substeps_for
-from ..mismatch.simulators import load_simulator
+from ..rigs.holdout import check_holdout_indices, split
+from ..rigs.recordings import Recordings, load_raw, validate
+from ..rigs.shooting import Shooter, Windows, estimate_noise, odd, simulate_qv, smooth, substeps_for
+from ..rigs.simulators import load_simulator
 from ..world.interfaces import coordinate_error, wrap_angles
 from ..world.model import PHAST, PHASTConfig, build_from_config
 

@@ -10,7 +10,7 @@ import numpy as np
 import torch
 
 from ..mismatch.friction import FrictionCurve, friction_curve
-from ..mismatch.recordings import Recordings
+from ..rigs.recordings import Recordings
 from .fit import HeldoutWindows
 
 

@@ -18,7 +18,7 @@ from typing import Any
 
 from phast_gym.systems import System
 
-from ..mismatch.recordings import Recordings
+from ..rigs.recordings import Recordings
 from .fit import (
     BURN_IN_S,
     RigData,

@@ -71,7 +71,7 @@ class PHASTConfig:
     roll_mode: str = "core"
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     #: a user rig or env id for recordings (``path.py:Class``, ``module:Class`` or an env id, with ``env_kwargs``);
-    #: None: ``env_id`` names the system (phast_model.mismatch.simulators.load_simulator resolves it)
+    #: None: ``env_id`` names the system (phast_model.rigs.simulators.load_simulator resolves it)
     sim: str | None = None
     #: the model's sampling step when it differs from the system's own ``dt`` (recordings: their grid)
     dt: float | None = None
@@ -131,7 +131,7 @@ def config_system(cfg: PHASTConfig, system: System | None = None) -> tuple[str, 
         name = resolve_env_id(cfg.env_id)
         system = make_env_system(name, **cfg.env_kwargs) if system is None else system
     else:
-        from ..mismatch.simulators import load_simulator
+        from ..rigs.simulators import load_simulator
 
         name, system = cfg.sim, load_simulator(cfg.sim, cfg.env_kwargs).build()
     if cfg.dt is not None:
