@@ -394,6 +394,13 @@ class System:
         """
         return None
 
+    def nonconservative_force(self, q: Components, v: Components, u: Components | None, xp: ArrayNamespace = NUMPY) -> tuple:
+        """Everything in pdot but -dH/dq at the rates ``v``: ``-D(q) v + G u`` (a system with friction laws or an
+        actuator model beyond ``G u`` overrides it, e.g. a MuJoCo model's frictionloss and actuator gains)."""
+        d = self.damping(q, xp)
+        f = tuple(-di * vi for di, vi in zip(d, v))
+        return f if u is None else tuple(ui + fi for ui, fi in zip(u, f))
+
     def switching(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> Any | None:
         """A scalar whose sign changes where the vector field has a kink (or None).
 

@@ -32,6 +32,7 @@ from .calibrate import Calibration, calibration, explained_share, screen_paramet
 from .energy import energy_check
 from .evaluate import FitTable, HeldOut, held_out
 from .locate import locate
+from .mjcf_answer import answer_in_model_terms, is_model_file_system
 from .options import Options, Progress
 from .problem import Problem, prepare
 from .report import Report, summary_text
@@ -74,7 +75,7 @@ def _recordings(recordings: str | Path | Mapping[str, Any] | Recordings, sys0: S
             raise ValueError(f"recordings have n={recordings.n} coordinates but {name} has n={sys0.n}")
         return recordings
     raw, src = load_raw(recordings)
-    return validate(raw, sys0.n, tuple(sys0.angle_dims), src)
+    return validate(raw, sys0.n, tuple(sys0.angle_dims), src, actuated_dofs=getattr(sys0, "actuated_dofs", None))
 
 
 def _decimate(rec: Recordings, opts: Options) -> tuple[Recordings, int]:
@@ -198,7 +199,8 @@ def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mappin
     comparison = _compared(compare, sys0, simulator.name)
     inputs = _Inputs(simulator, given, dec, train, hold, held, comparison)
     try:
-        return _second_look(problem, inputs, _explain(problem, inputs))
+        report = _second_look(problem, inputs, _explain(problem, inputs))
+        return answer_in_model_terms(report, sys0, held) if is_model_file_system(sys0) else report
     except ValueError as exc:  # the input was checked above: anything raised now is the tool's own failure
         raise InternalError(f"internal failure of the analysis: {type(exc).__name__}: {exc}") from exc
 

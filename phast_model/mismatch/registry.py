@@ -95,6 +95,10 @@ class TermKind:
     has_velocity: ClassVar[bool] = False  # carries a velocity parameter (the Stribeck v_s)
     magnitude: ClassVar[bool] = False  # the fitted coefficient is |c| (a threshold, an inertia)
     stiff_edge: ClassVar[bool] = False  # a sharp sign(qdot): simulate the "reality" with short substeps
+    #: the MuJoCo attribute (joint or actuator) that expresses the term exactly, or None
+    mjcf: ClassVar[str | None] = None
+    #: what a MuJoCo user adds for a term no attribute expresses
+    mjcf_advice: ClassVar[str] = "no MuJoCo attribute expresses it: apply the force as qfrc_applied (or mjcb_passive) each step"
 
     @property
     def fit_positive(self) -> bool:
@@ -155,6 +159,7 @@ class DissipationKind(TermKind):
 
 class Viscous(DissipationKind):
     name, short, formula = "viscous_damping", "viscous", "-c*qdot{i}"
+    mjcf = "damping"
 
     def basis(self, q: Any, v: Any, eps: float, velocity: float, xp: ArrayNamespace) -> Any:
         return v
@@ -165,6 +170,7 @@ class Viscous(DissipationKind):
 
 class Coulomb(DissipationKind):
     name, short, formula = "coulomb_friction", "coulomb", "-c*sign(qdot{i})"
+    mjcf = "frictionloss"
     stiff_edge = True
 
     def basis(self, q: Any, v: Any, eps: float, velocity: float, xp: ArrayNamespace) -> Any:
@@ -246,6 +252,7 @@ class PotentialKind(TermKind):
 
 class LinearStiffness(PotentialKind):
     name, formula = "linear_stiffness", "-c*q{i}"
+    mjcf = "stiffness"
 
     def potential(self, q: Any, c: float) -> Any:
         return 0.5 * c * q * q
@@ -294,6 +301,7 @@ def _fill(text: str, c: float) -> str:
 
 class Armature(TermKind):
     name, component, formula = "armature", "inertia", "M{i}{i} += c (reflected rotor inertia)"
+    mjcf = "armature"
     positive = True
     magnitude = True
 
@@ -313,6 +321,7 @@ class Armature(TermKind):
 
 class ActuatorGain(TermKind):
     name, component, formula = "actuator_gain", "port", "(c-1)*u{i}"
+    mjcf = "gear"
     default = 1.0
     positive = True
 
@@ -332,6 +341,7 @@ class ActuatorGain(TermKind):
 
 class ActuatorDeadzone(TermKind):
     name, component, formula = "actuator_deadzone", "port", "port delivers 0 when abs(u{i}) < c"
+    mjcf_advice = "no MuJoCo attribute expresses it: zero ctrl below the threshold before each mj_step"
     positive = True
     magnitude = True
     #: the threshold's start values tried before its refit (z; zero slope at c = 0)
@@ -351,6 +361,7 @@ class ActuatorDeadzone(TermKind):
 
 class SensorOffset(TermKind):
     name, component, formula = "sensor_offset", "sensor", "measured q{i} = true q{i} + c"
+    mjcf_advice = "a sensor term, not dynamics: correct the logged q by the inverse map (the model file is unchanged)"
 
     def expression(self, c: float, i: int, velocity: float) -> str:
         return _fill(self.formula.format(i=i), c)

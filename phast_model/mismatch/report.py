@@ -36,8 +36,10 @@ TOOL = "phast-mismatch"
 PLOTS = ("residual_map.png", "heldout_fit.png", "decay.png")
 #: written when the report carries a friction curve
 CURVE_PLOT = "friction_curve.png"
+#: the user's MuJoCo model with the calibrated parameters and the found terms it can express (MJCF / URDF simulators)
+CALIBRATED_MODEL = "calibrated.xml"
 #: every file a report directory holds (nothing else may be there for it to be replaced)
-REPORT_FILES = ("report.json", "report.md", "report.html") + PLOTS + (CURVE_PLOT, "error.log")
+REPORT_FILES = ("report.json", "report.md", "report.html") + PLOTS + (CURVE_PLOT, "error.log", CALIBRATED_MODEL)
 PLOTS_PREFIX = "Plots: "
 _MODELS = (("nominal", ":"), ("calibrated", "--"), ("augmented", "-"))
 
@@ -59,6 +61,7 @@ class Report:
     diagnostics: dict[str, Any] = field(default_factory=dict)  # report.details less the unconfirmed terms
     unconfirmed: list[TermRow] = field(default_factory=list)  # terms that do not improve the held-out prediction
     plot_data: dict[str, Any] = field(default_factory=dict, repr=False)
+    files: dict[str, str] = field(default_factory=dict, repr=False)  # more files of the report folder (calibrated.xml)
 
     @property
     def sim(self) -> dict[str, Any]:
@@ -456,6 +459,8 @@ def _write_files(report: Report, tmp: Path, plots: bool) -> None:
     (tmp / "report.md").write_text(markdown(report))
     images = {name: _data_uri(tmp / name) for name in plot(report, tmp)} if plots else {}
     (tmp / "report.html").write_text(html_page(report, images))
+    for name, text in report.files.items():
+        (tmp / name).write_text(text)
 
 
 def _swap(tmp: Path, out: Path) -> None:

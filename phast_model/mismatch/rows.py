@@ -97,13 +97,16 @@ class TermRow:
     alternatives: tuple[Alternative, ...] = ()
     stribeck_velocity: float | None = None  # the terms whose kind has a velocity
     evidence: str | None = None
+    joint: str | None = None  # a MuJoCo model's joint name (set with ``mjcf``: the attribute that expresses the term)
+    mjcf: str | None = None
 
     @property
     def label(self) -> str:
         return f"{self.term}[{self.coordinate}]"
 
     def to_dict(self) -> dict[str, Any]:
-        head = {"term": self.term, "coordinate": self.coordinate, "component": self.component,
+        joint = {} if self.joint is None else {"joint": self.joint, "mjcf": self.mjcf}
+        head = {"term": self.term, "coordinate": self.coordinate, **joint, "component": self.component,
                 "coefficient": self.coefficient, "ci95": list(self.ci95)}
         velocity = _present([("stribeck_velocity", self.stribeck_velocity)])
         expression = {"expression": self.expression}

@@ -213,9 +213,12 @@ class AugmentedSystem(System):
         if self.has_armature:  # the base's (fused) vector field assumes its own M: the generic Eq. 1-3 instead
             qdot = self.velocity(q, p, xp)
             dh = self._dH_dq_at(q, p, qdot, xp)
-            pdot = tuple(-a - di * vi for a, di, vi in zip(dh, self.base.damping(q, xp), qdot))
-            if uu is not None:
-                pdot = tuple(ui + a for ui, a in zip(uu, pdot))
+            if type(self.base).nonconservative_force is System.nonconservative_force:  # -D v + u, in the order of Eq. 1-3
+                pdot = tuple(-a - di * vi for a, di, vi in zip(dh, self.base.damping(q, xp), qdot))
+                if uu is not None:
+                    pdot = tuple(ui + a for ui, a in zip(uu, pdot))
+            else:  # the base's own friction laws and actuator model
+                pdot = tuple(f - a for a, f in zip(dh, self.base.nonconservative_force(q, qdot, uu, xp)))
         else:
             qdot, pdot = self.base.rhs(q, p, uu, xp)
             pdot = tuple(a - b for a, b in zip(pdot, self._extra_grad(q, xp)))

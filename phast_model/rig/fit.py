@@ -83,7 +83,7 @@ def load_rig_data(recordings: str | Path | dict[str, Any], sim: str, sim_kwargs:
     system = load_simulator(sim, sim_kwargs or {}).build()
     holdout = check_holdout_indices(holdout)
     raw, src = load_raw(recordings)
-    rec = validate(raw, system.n, tuple(system.angle_dims), src)
+    rec = validate(raw, system.n, tuple(system.angle_dims), src, actuated_dofs=getattr(system, "actuated_dofs", None))
     if holdout:
         train, held, _ = split(rec, 0.0, holdout)
     else:

@@ -352,6 +352,9 @@ def _port_input(raw: Mapping[str, Any], q_shape: tuple[int, ...], actuated_dofs:
         raise ValueError(f"{source}: 'u' contains NaN/inf")
     u_raw = u_raw[:, : T - 1]
     m = u_raw.shape[2]
+    if "actuated_dofs" not in raw and actuated_dofs is not None and len(actuated_dofs) != m:
+        raise ValueError(f"{source}: 'u' has m={m} columns but the simulator has {len(actuated_dofs)} actuators "
+                         f"(one column per actuator, in model order)")
     dofs = tuple(int(i) for i in np.atleast_1d(raw["actuated_dofs"])) if "actuated_dofs" in raw else actuated_dofs
     if dofs is None:
         dofs = tuple(range(n)) if m == n else None

@@ -74,6 +74,9 @@ def simulate_qv(system: System, q0: np.ndarray, v0: np.ndarray, n_steps: int, u:
     The model's measurement map (``measure``: sensor terms) is applied to the output.
     """
     B, n = q0.shape
+    external = getattr(system, "external_rollout", None)  # a model another simulator runs (MuJoCo: mujoco_sim)
+    if external is not None:
+        return external(q0, v0, n_steps, u, dt)
     p0 = momentum(system, q0, v0)
     q = [q0[:, i].copy() for i in range(n)]
     p = [p0[:, i].copy() for i in range(n)]
@@ -115,7 +118,7 @@ def _merge_values(vals: Sequence[Any], reps: int) -> Any:
     """One value standing for ``vals`` (one per system), each system's value repeated over its ``reps`` samples.
 
     Equal values stay as they are (the same arithmetic as a single system); differing floats become a (K*reps,)
-    array; tuples, lists, dicts, systems and dataclasses (terms) are merged field by field.
+    array, differing float arrays a (K*reps, ...) one; tuples, lists, dicts, systems and dataclasses (terms) are merged field by field.
     """
     v0 = vals[0]
     t = type(v0)
@@ -144,6 +147,8 @@ def _merge_values(vals: Sequence[Any], reps: int) -> Any:
         return out
     if t is np.ndarray and all(v.shape == v0.shape and np.array_equal(v, v0) for v in vals):
         return v0
+    if t is np.ndarray and v0.dtype.kind == "f" and v0.ndim and all(v.shape == v0.shape for v in vals):
+        return np.repeat(np.stack(vals), reps, axis=0)  # a parameter array: one row per sample (MJCFSystem broadcasts)
     if t in (str, bool, int) and all(v == v0 for v in vals):  # a differing int or flag is structure, not a number
         return v0
     raise _Unmergeable
@@ -179,7 +184,7 @@ def _take_plan(v: Any, size: int, plan: dict[int, list]) -> bool:
     each container that does (by id), the keys or indices of its items that do."""
     t = type(v)
     if t is np.ndarray:
-        return v.shape == (size,)
+        return v.shape[:1] == (size,)
     if t is tuple or t is list:
         items: Any = enumerate(v)
     elif t is dict:
@@ -199,7 +204,7 @@ def _take_values(v: Any, idx: np.ndarray, size: int, plan: dict[int, list]) -> A
     are copied with their per-sample arrays indexed."""
     t = type(v)
     if t is np.ndarray:
-        return v[idx] if v.shape == (size,) else v
+        return v[idx] if v.shape[:1] == (size,) else v
     keys = plan.get(id(v))
     if keys is None:
         return v

@@ -6,7 +6,9 @@ of its constructor.  It is named in one of three ways:
 
 * a registered env id, ``PHAST/Pendulum-v0`` (its registered kwargs apply);
 * an importable class, ``my_package.my_module:MyRig``;
-* a class in a Python file, ``path/to/rig.py:MyRig``.
+* a class in a Python file, ``path/to/rig.py:MyRig``;
+* a MuJoCo model file, ``path/to/robot.xml`` (MJCF) or ``path/to/robot.urdf``: its rigid-body tree, joints and
+  actuators as a :class:`phast_gym.systems.mjcf.MJCFSystem` whose parameters carry the file's own names.
 
 :func:`load_simulator` resolves the name once; the pipeline then builds every
 calibrated / augmented variant through :meth:`Simulator.build`, so a user's rig
@@ -142,6 +144,21 @@ def _check_interface(system: System, name: str) -> None:
     vector("rhs (pdot)", pdot)
 
 
+#: file suffixes read as MuJoCo models
+MODEL_SUFFIXES = (".xml", ".mjcf", ".urdf")
+
+
+def is_model_file(sim: Any) -> bool:
+    """Whether ``sim`` names a MuJoCo model file (MJCF / URDF) rather than an env id or a class."""
+    return isinstance(sim, (str, Path)) and str(sim).lower().endswith(MODEL_SUFFIXES)
+
+
+def _model_file_simulator(path: str, kw: dict[str, Any]) -> Simulator:
+    from phast_gym.systems.mjcf import mjcf_system
+
+    return Simulator(path, mjcf_system(path), kw)
+
+
 def load_simulator(sim: str | type[System] | Simulator, kwargs: Mapping[str, Any] | None = None) -> Simulator:
     """Resolve ``sim`` (env id, ``module:Class``, ``file.py:Class``, a System subclass or a Simulator) and check that
     it builds with ``kwargs`` into a port-Hamiltonian system.  Every problem raises a ValueError naming it."""
@@ -153,6 +170,8 @@ def load_simulator(sim: str | type[System] | Simulator, kwargs: Mapping[str, Any
         out = Simulator(f"{cls.__module__}:{cls.__qualname__}", cls, kw)
     elif not isinstance(sim, str) or not sim.strip():
         raise ValueError(f"simulator must be an env id or 'module:Class' / 'file.py:Class', got {sim!r}")
+    elif is_model_file(sim):
+        out = _model_file_simulator(sim, kw)
     elif ":" in sim and not sim.startswith("phast_gym:"):
         cls = _check_system_class(_load_class(sim), sim)
         out = Simulator(sim, cls, kw)

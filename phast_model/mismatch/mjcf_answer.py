@@ -1,0 +1,102 @@
+"""The answer in a MuJoCo model's own terms (docs/mismatch.md, "Your robot as MJCF / URDF").
+
+When the simulator is a model file, every term row names its joint and the MuJoCo attribute that expresses it; the
+calibrated parameters and every term an attribute expresses are written back as ``calibrated.xml`` (the user's
+model, edited through ``MjSpec``), which MuJoCo then simulates on the held-out recordings as one more row of the
+fit table.  Terms no attribute expresses are listed with what a MuJoCo user would add.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+from phast_gym.systems.mjcf import MJCFSystem
+from phast_gym.systems.mjcf_tree import MJCFTree
+
+from ..rigs.mjcf_write import Edit, calibrated_xml
+from ..rigs.mujoco_sim import mujoco_simulated
+from .evaluate import HeldOut
+from .registry import VOCABULARY
+from .report import CALIBRATED_MODEL, Report
+from .rows import TermRow
+
+#: the fit table's row of the written model
+CALIBRATED_XML_ROW = "calibrated_xml"
+
+
+@dataclass(frozen=True)
+class MJCFWriteBack:
+    """What the written model holds: the changed parameters, the term edits, and the terms it cannot hold."""
+
+    params: dict[str, float]
+    edits: list[Edit]
+    not_expressed: list[dict[str, Any]]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"file": CALIBRATED_MODEL, "parameters": self.params,
+                "terms_written": [{"target": e.target, "attribute": e.attr, "op": e.op, "value": e.value} for e in self.edits],
+                "terms_not_expressed": self.not_expressed}
+
+
+def is_model_file_system(system: Any) -> bool:
+    return isinstance(getattr(system, "base", system), MJCFSystem)
+
+
+def _tree(system: Any) -> MJCFTree:
+    return getattr(system, "base", system).TREE
+
+
+def named_rows(rows: list[TermRow], tree: MJCFTree) -> list[TermRow]:
+    """Each row with its joint name and the MuJoCo attribute of its term (None when no attribute expresses it)."""
+    return [replace(r, joint=tree.joint_names[r.coordinate], mjcf=VOCABULARY[r.term].mjcf) for r in rows]
+
+
+def _edit(row: TermRow, tree: MJCFTree) -> Edit | None:
+    """The attribute edit that writes a term into the model, or None."""
+    attr = VOCABULARY[row.term].mjcf
+    if attr is None:
+        return None
+    if attr == "gear":
+        act = next((a for a in tree.actuators if a.joint == row.coordinate), None)
+        return None if act is None else Edit(act.name, "gear", row.coefficient, "scale")
+    return Edit(tree.joint_names[row.coordinate], attr, row.coefficient)
+
+
+def write_back(report: Report, tree: MJCFTree) -> MJCFWriteBack:
+    """The parameters and term edits of ``calibrated.xml``, and the terms it leaves out with advice."""
+    params = {k: float(r.fitted) for k, r in report.calibrated.items() if r.changed}
+    edits, left = [], []
+    for row in report.terms:
+        e = _edit(row, tree)
+        if e is not None:
+            edits.append(e)
+        else:
+            left.append({"term": row.term, "joint": tree.joint_names[row.coordinate], "coefficient": row.coefficient,
+                         "expression": row.expression, "advice": VOCABULARY[row.term].mjcf_advice})
+    return MJCFWriteBack(params, edits, left)
+
+
+def _score_in_mujoco(text: str, held: HeldOut) -> dict[str, float]:
+    """The written model's held-out one-step MSE and rollout RMSE, simulated by MuJoCo (same windows and metrics)."""
+    with tempfile.TemporaryDirectory(prefix="phast-calibrated-") as d:
+        path = Path(d) / CALIBRATED_MODEL
+        path.write_text(text)
+        system = mujoco_simulated(path)
+        table, _ = held.fit_table({CALIBRATED_XML_ROW: system})
+    return table.to_dict()[CALIBRATED_XML_ROW]
+
+
+def answer_in_model_terms(report: Report, system: Any, held: HeldOut) -> Report:
+    """``report`` with joint-named rows, ``calibrated.xml`` among its files, the written model's held-out row
+    simulated by MuJoCo, and ``details.mjcf`` saying what was written and what could not be."""
+    tree = _tree(system)
+    report = replace(report, terms=named_rows(report.terms, tree), unconfirmed=named_rows(report.unconfirmed, tree))
+    back = write_back(report, tree)
+    text = calibrated_xml(tree, back.params, back.edits)
+    fit = {**report.fit, CALIBRATED_XML_ROW: _score_in_mujoco(text, held)}
+    details = {**report.diagnostics, "mjcf": {**back.to_dict(), "source": tree.source,
+                                                "fit_row": f"fit.{CALIBRATED_XML_ROW}: {CALIBRATED_MODEL} as MuJoCo simulates it"}}
+    return replace(report, fit=fit, diagnostics=details, files={**report.files, CALIBRATED_MODEL: text})

@@ -1,0 +1,148 @@
+"""Write a model file back with new values: the user's MJCF / URDF as MJCF, edited through MuJoCo's ``MjSpec``.
+
+Parameters are named as :mod:`phast_gym.systems.mjcf` names them (``<body>.mass``, ``<body>.ipos_x``,
+``<body>.inertia_y``, ``<joint>.damping``, ``<actuator>.gear``, ``gravity``); a body whose mass, centre of mass or
+inertia changes gets an explicit ``<inertial>`` with the compiled principal axes (``iquat``).  The written file is
+compiled once more before it is returned, so what a caller saves loads with ``mujoco.MjModel.from_xml_path``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from phast_gym.systems.mjcf import AXES, JOINT_ATTRS
+from phast_gym.systems.mjcf_tree import MJCFTree, ModelFileError, strip_urdf_meshes
+
+
+@dataclass(frozen=True)
+class Edit:
+    """Add ``value`` to (``op="add"``) or multiply by it (``op="scale"``) one joint / actuator attribute."""
+
+    target: str  # joint or actuator name
+    attr: str  # armature, damping, frictionloss, stiffness (joint) or gear (actuator)
+    value: float
+    op: str = "add"
+
+
+def _spec(source: str) -> Any:
+    import mujoco
+
+    p = Path(source).resolve()
+    if p.suffix.lower() == ".urdf":
+        return mujoco.MjSpec.from_string(strip_urdf_meshes(p.read_text()))
+    spec = mujoco.MjSpec.from_file(str(p))
+    for attr in ("meshdir", "texturedir"):  # asset paths that still resolve from wherever the written file is saved
+        d = getattr(spec, attr, None)
+        if isinstance(d, str):
+            setattr(spec, attr, str((p.parent / d).resolve()) if d else str(p.parent))
+    return spec
+
+
+def _quat(rot: np.ndarray) -> np.ndarray:
+    """Unit quaternion (w, x, y, z) of a rotation matrix."""
+    import mujoco
+
+    q = np.zeros(4)
+    mujoco.mju_mat2Quat(q, np.ascontiguousarray(rot, dtype=float).reshape(9))
+    return q
+
+
+def _set_body(spec: Any, tree: MJCFTree, params: Mapping[str, float], b: int) -> None:
+    name = tree.body_names[b]
+    body = spec.body(name)
+    if body is None:
+        raise ModelFileError(f"body {name!r} is not named in the file; name it to write its calibrated inertia")
+    body.explicitinertial = True
+    body.mass = float(params[f"{name}.mass"])
+    body.ipos = [float(params[f"{name}.ipos_{a}"]) for a in AXES]
+    body.iquat = _quat(tree.body_irot[b])
+    body.inertia = [float(params[f"{name}.inertia_{a}"]) for a in AXES]
+    if hasattr(body, "fullinertia"):
+        body.fullinertia = [np.nan] * 6  # the principal moments above, not a full inertia from the file
+
+
+def _joint_value(joint: Any, attr: str) -> float:
+    v = getattr(joint, attr)
+    return float(np.atleast_1d(v)[0])
+
+
+def _set_joint(joint: Any, attr: str, value: float) -> None:
+    old = getattr(joint, attr)
+    if np.ndim(old):
+        new = np.array(old, dtype=float)
+        new[0] = value
+        setattr(joint, attr, new)
+    else:
+        setattr(joint, attr, float(value))
+
+
+def _apply_params(spec: Any, tree: MJCFTree, params: Mapping[str, float]) -> None:
+    bodies = {b for b, name in enumerate(tree.body_names) for k in params if k.startswith(name + ".")
+              and k[len(name) + 1:].split("_")[0] in ("mass", "ipos", "inertia")}
+    if bodies:
+        import mujoco
+
+        spec.compiler.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_AUTO
+    full = {**_tree_values(tree), **params}
+    for b in sorted(bodies):
+        _set_body(spec, tree, full, b)
+    for name in tree.joint_names:
+        for attr in JOINT_ATTRS:
+            key = f"{name}.{attr}"
+            if key in params:
+                _set_joint(spec.joint(name), attr, float(params[key]))
+    for a in tree.actuators:
+        key = f"{a.name}.gear"
+        if key in params:
+            act = spec.actuator(a.name)
+            gear = np.array(act.gear, dtype=float)
+            gear[0] = float(params[key])
+            act.gear = gear
+    if "gravity" in params:
+        g = np.asarray(tree.gravity, dtype=float)
+        spec.option.gravity = g / np.linalg.norm(g) * float(params["gravity"])
+
+
+def _tree_values(tree: MJCFTree) -> dict[str, float]:
+    from phast_gym.systems.mjcf import param_specs
+
+    return {k: float(p.default) for k, p in param_specs(tree).items() if isinstance(p.default, (int, float))}
+
+
+def _apply_edit(spec: Any, tree: MJCFTree, edit: Edit) -> None:
+    if edit.attr == "gear":
+        act = spec.actuator(edit.target)
+        if act is None:
+            raise ModelFileError(f"no actuator {edit.target!r} in the file")
+        gear = np.array(act.gear, dtype=float)
+        gear[0] = gear[0] * edit.value if edit.op == "scale" else gear[0] + edit.value
+        act.gear = gear
+        return
+    joint = spec.joint(edit.target)
+    if joint is None:
+        raise ModelFileError(f"no joint {edit.target!r} in the file")
+    old = _joint_value(joint, edit.attr)
+    _set_joint(joint, edit.attr, old * edit.value if edit.op == "scale" else old + edit.value)
+
+
+def calibrated_xml(tree: MJCFTree, params: Mapping[str, float], edits: list[Edit] = ()) -> str:  # type: ignore[assignment]
+    """The source model with ``params`` (changed parameters, the file's names) and ``edits`` (found terms) applied,
+    as MJCF text that MuJoCo compiles."""
+    import mujoco
+
+    spec = _spec(tree.source)
+    _apply_params(spec, tree, params)
+    for e in edits:
+        _apply_edit(spec, tree, e)
+    try:
+        spec.compile()
+        text = spec.to_xml()
+        mujoco.MjModel.from_xml_string(text)
+    except ValueError as exc:
+        raise ModelFileError(f"the calibrated model does not compile: {exc}") from None
+    return text
