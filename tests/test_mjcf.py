@@ -208,3 +208,48 @@ def test_urdf_with_missing_meshes_loads(tmp_path):
     system = load_simulator(str(path)).build()
     assert system.n == 2 and system.coordinate_names == ("j1", "j2")
     assert "l2.mass" in system.params and system.params["l2.mass"] == pytest.approx(0.5)
+
+
+def test_cli_refuses_bad_input_with_exit_2_and_writes_nothing(arm, tmp_path, capsys):
+    from phast_model.cli.mismatch import main
+
+    rng = np.random.default_rng(5)
+    q = rng.normal(0, 0.1, (2, 60, 4))
+    cases = {
+        "u_columns": (str(arm), {"q": q, "u": np.zeros((2, 59, 3)), "dt": 0.01}, "'u' has m=3 columns but the simulator has 2 actuators"),
+        "q_columns": (str(arm), {"q": q[..., :3], "dt": 0.01}, "'q' has n=3 coordinates but the simulator has n=4"),
+        "free_joint": (BAD["free joint"], {"q": q, "dt": 0.01}, "free and ball joints are not supported"),
+        "no_compile": (BAD["does not compile"], {"q": q, "dt": 0.01}, "does not compile"),
+    }
+    for name, (model, rec, message) in cases.items():
+        sim = model
+        if model.startswith("<"):
+            sim = str(tmp_path / f"{name}.xml")
+            (tmp_path / f"{name}.xml").write_text(model)
+        np.savez(tmp_path / f"{name}.npz", **rec)
+        out = tmp_path / f"out_{name}"
+        assert main(["--sim", sim, "--recordings", str(tmp_path / f"{name}.npz"), "--out", str(out), "--quiet"]) == 2, name
+        assert message in capsys.readouterr().err, name
+        assert not out.exists(), name
+
+
+def test_partial_learns_the_files_body_parameters(arm):
+    """PARTIAL on a model file: V and M are the file's formulas with learnable body parameters that start at the
+    file's values and receive gradients (one set shared by V and M)."""
+    torch = pytest.importorskip("torch")
+    from phast_model.components.rigid_body import LearnedBodies, RigidBodyMass, RigidBodyPotential
+
+    system = mjcf_system(arm)()
+    bodies = LearnedBodies(system)
+    pot, mass = RigidBodyPotential(bodies), RigidBodyMass(bodies)
+    rng = np.random.default_rng(6)
+    q, p = rng.uniform(-1, 1, (4, 4)), rng.uniform(-1, 1, (4, 4))
+    qt, pt = torch.tensor(q), torch.tensor(p)
+    M = np.stack([np.stack(r, -1) for r in system.mass_matrix(_comps(q))], -2)
+    np.testing.assert_allclose(mass.matrix(qt).detach().numpy(), M, atol=1e-12)
+    np.testing.assert_allclose(pot.grad(qt).detach().numpy(), np.stack(system.grad_potential(_comps(q)), -1), atol=1e-12)
+    kin = np.stack(system.dH_dq(_comps(q), _comps(p)), -1) - np.stack(system.grad_potential(_comps(q)), -1)
+    np.testing.assert_allclose(mass.kinetic_dq(qt, pt).detach().numpy(), kin, atol=1e-10)
+    (pot.energy(qt).sum() + mass.velocity(qt, pt).sum()).backward()
+    assert bodies.log_mass.grad is not None and torch.count_nonzero(bodies.log_mass.grad) > 0
+    assert bodies.values()["link2.mass"] == pytest.approx(0.7)

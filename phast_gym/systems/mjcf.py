@@ -77,8 +77,13 @@ class _Arrays:
 
     def const(self, a: Any, like: Any) -> Any:
         if self.torch is not None:
+            if self.torch.is_tensor(a):  # a learned parameter (phast_model.components.rigid_body): keep its graph
+                return a.to(dtype=like.dtype, device=like.device)
             return self.torch.as_tensor(np.asarray(a), dtype=like.dtype, device=like.device)
         return np.asarray(a, dtype=like.dtype)
+
+    def sqrt(self, x: Any) -> Any:
+        return self.torch.sqrt(x) if self.torch is not None else np.sqrt(x)
 
     def cat(self, xs: list, axis: int = -1) -> Any:
         return self.torch.cat(xs, dim=axis) if self.torch is not None else np.concatenate(xs, axis=axis)
@@ -163,6 +168,15 @@ class MJCFSystem(System):
     """A MuJoCo model's rigid-body tree as a port-Hamiltonian system; built by :func:`mjcf_system`."""
 
     TREE: ClassVar[MJCFTree]
+    # parameter arrays: numpy, a (K*reps, ...) batch of parameter sets, or torch tensors of learned parameters
+    _mass: Any
+    _ipos: Any
+    _inertia: Any
+    _armature: Any
+    _damping: Any
+    _frictionloss: Any
+    _stiffness: Any
+    _gear: Any
     separable = False
     dt = 0.01
     substeps = 2  # RK4 substeps of 5 ms
@@ -238,7 +252,7 @@ class MJCFSystem(System):
         """M(q) (..., n, n) (Eq. above) as X X^T, X = [sqrt(m_b) Jv_b, Jw_b R_b sqrt(I_b)] over bodies."""
         C = bodies.C
         W = bodies.Jw @ bodies.RI  # angular Jacobians in each body's inertia frame
-        sm, si = ar.const(np.sqrt(self._mass), C), ar.const(np.sqrt(self._inertia), C)
+        sm, si = ar.sqrt(ar.const(self._mass, C)), ar.sqrt(ar.const(self._inertia, C))
         X = ar.cat([bodies.Jv * sm[..., :, None, None], W * si[..., :, None, :]])
         X = ar.move(X, -2, -3)  # (..., n, nb, 6)
         X = X.reshape(X.shape[:-2] + (-1,))

@@ -32,6 +32,7 @@ import torch
 from tqdm.auto import tqdm
 
 from phast_gym.systems import System
+from phast_gym.systems.mjcf import MJCFSystem
 
 from ..components.mass import KnownMass, LinearMass, LowRankMass
 from ..components.potentials import TemplatePotential
@@ -160,6 +161,8 @@ def rig_config(sim: str, sim_kwargs: dict[str, Any], regime: str, data: RigData,
                        friction_eps=[FRICTION_EPS * v for v in v_scale], friction_vs=[0.2 * v for v in v_scale])
     if regime == "known":
         cfg = replace(base, potential="known", mass="known")
+    elif regime == "partial" and isinstance(system, MJCFSystem):  # the file's rigid-body structure, its parameters learned
+        cfg = replace(base, potential="rigid_body", mass="rigid_body", init_from="none")
     elif regime == "partial":
         tmpl, dims, mass_t = _template(system)
         mass: dict[str, Any] = {"mass": "template", "mass_template": mass_t} if mass_t else {"mass": "lowrank",

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
@@ -39,6 +39,7 @@ from ..components.features import coordinate_features, n_features
 from ..components.friction import JointFriction
 from ..components.mass import Mass
 from ..components.potentials import Potential, TemplatePotential
+from ..components.rigid_body import LearnedBodies, RigidBodyMass, RigidBodyPotential
 from . import data_init
 from .config import PHASTConfig, config_system, system_scales
 from .core import PHASTCore, SubstepCore
@@ -554,6 +555,8 @@ class _EnvScales:
     angle: tuple[int, ...]
     q_scale: np.ndarray
     v_scale: np.ndarray
+    #: parts the components of one model share (a model file's learned body parameters, for V and M alike)
+    shared: dict[str, Any] = field(default_factory=dict)
 
 
 def _env_scales(env_id: str, system: System, cfg: PHASTConfig | None = None) -> _EnvScales:
@@ -643,10 +646,18 @@ class Components(NamedTuple):
     friction: JointFriction | None
 
 
+def _learned_bodies(env: _EnvScales) -> LearnedBodies:
+    """The one set of learned body parameters V and M of a model-file rig share (built once per env)."""
+    if "bodies" not in env.shared:
+        env.shared["bodies"] = LearnedBodies(env.system)
+    return env.shared["bodies"]
+
+
 #: ``PHASTConfig.potential`` -> builder
 POTENTIALS: dict[str, Builder[Potential]] = {
     "known": lambda cfg, env: KnownPotential(env.system), "template": _template_potential,
-    "neural": _neural_potential, "hybrid": _hybrid_potential}
+    "neural": _neural_potential, "hybrid": _hybrid_potential,
+    "rigid_body": lambda cfg, env: RigidBodyPotential(_learned_bodies(env))}
 
 
 def _component(kind: str, registry: dict[str, Builder[_C]], name: str, cfg: PHASTConfig, env: _EnvScales) -> _C:
@@ -689,6 +700,7 @@ def _template_mass(cfg: PHASTConfig, env: _EnvScales) -> TemplateMass:
 #: ``PHASTConfig.mass`` -> builder
 MASSES: dict[str, Builder[Mass]] = {
     "known": lambda cfg, env: KnownMass(env.system), "lowrank": _lowrank_mass, "template": _template_mass,
+    "rigid_body": lambda cfg, env: RigidBodyMass(_learned_bodies(env)),
     "cholesky": lambda cfg, env: CholeskyMass(env.n, env.angle, cfg.mass_hidden, q_scale=torch.as_tensor(env.q_scale))}
 
 

@@ -1,0 +1,98 @@
+"""PARTIAL for a MuJoCo model file: the rigid-body structure given, the bodies' inertial parameters learned.
+
+A robot's V(q) and M(q) are fixed functions of its kinematics and linear in its bodies' inertial parameters (the
+rigid-body regressor).  :class:`LearnedBodies` holds every body's mass, centre of mass (``ipos``) and principal
+moments of inertia as learnable tensors that start at the file's values (masses and moments through a log, so they
+stay positive); :class:`RigidBodyPotential` and :class:`RigidBodyMass` evaluate the model's own formulas
+(:class:`phast_gym.systems.mjcf.MJCFSystem`, written once) with those tensors.  Both share one
+:class:`LearnedBodies`: a body's mass moves V and M together, as it does on the machine.
+"""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import torch
+from torch import nn
+
+from phast_gym.systems import TORCH, System, split, stack
+from phast_gym.systems.mjcf import MJCFSystem
+
+from .mass import Mass
+from .potentials import Potential
+
+
+class LearnedBodies(nn.Module):
+    """Learnable inertial parameters of a model file's moving bodies (a body or moment at 0 in the file stays 0)."""
+
+    mass_on: torch.Tensor  # buffers: which masses / moments are free (non-zero in the file)
+    inertia_on: torch.Tensor
+
+    def __init__(self, system: System) -> None:
+        super().__init__()
+        if not isinstance(system, MJCFSystem):
+            raise ValueError(f"rigid-body components need a MuJoCo model file as the rig, got {type(system).__name__}")
+        self.base = system
+        mass = np.asarray(system._mass, dtype=float)
+        inertia = np.asarray(system._inertia, dtype=float)
+        self.register_buffer("mass_on", torch.as_tensor(mass > 0))
+        self.register_buffer("inertia_on", torch.as_tensor(inertia > 0))
+        self.log_mass = nn.Parameter(torch.as_tensor(np.log(np.where(mass > 0, mass, 1.0))))
+        self.ipos = nn.Parameter(torch.as_tensor(np.asarray(system._ipos, dtype=float)))
+        self.log_inertia = nn.Parameter(torch.as_tensor(np.log(np.where(inertia > 0, inertia, 1.0))))
+
+    def system(self) -> MJCFSystem:
+        """The model file's system with the current (differentiable) parameters."""
+        s = copy.copy(self.base)
+        s._mass = torch.where(self.mass_on, torch.exp(self.log_mass), torch.zeros_like(self.log_mass))
+        s._ipos = self.ipos
+        s._inertia = torch.where(self.inertia_on, torch.exp(self.log_inertia), torch.zeros_like(self.log_inertia))
+        return s
+
+    def values(self) -> dict[str, float]:
+        """The current parameters in the file's names (``<body>.mass``, ``<body>.ipos_x``, ``<body>.inertia_y``)."""
+        s = self.system()
+        out: dict[str, float] = {}
+        for b, name in enumerate(self.base.TREE.body_names):
+            out[f"{name}.mass"] = float(s._mass[b])
+            for k, ax in enumerate("xyz"):
+                out[f"{name}.ipos_{ax}"] = float(s._ipos[b, k])
+                out[f"{name}.inertia_{ax}"] = float(s._inertia[b, k])
+        return out
+
+
+class RigidBodyPotential(Potential):
+    """V(q) of the model file (gravity and joint springs) with learned body parameters."""
+
+    def __init__(self, bodies: LearnedBodies) -> None:
+        super().__init__()
+        self.bodies = bodies
+
+    def energy(self, q: torch.Tensor) -> torch.Tensor:
+        return self.bodies.system().potential(split(q), TORCH)
+
+    def grad(self, q: torch.Tensor) -> torch.Tensor:
+        return stack(self.bodies.system().grad_potential(split(q), TORCH))
+
+
+class RigidBodyMass(Mass):
+    """M(q) of the model file (bodies and joint armature) with learned body parameters."""
+
+    constant = False
+
+    def __init__(self, bodies: LearnedBodies) -> None:
+        super().__init__()
+        self.bodies = bodies
+
+    def matrix(self, q: torch.Tensor) -> torch.Tensor:
+        rows = self.bodies.system().mass_matrix(split(q), TORCH)
+        return torch.stack([torch.stack(list(r), -1) for r in rows], -2)
+
+    def velocity(self, q: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
+        return stack(self.bodies.system().velocity(split(q), split(p), TORCH))
+
+    def kinetic_dq(self, q: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
+        s = self.bodies.system()
+        qs, ps = split(q), split(p)
+        return stack(s.dH_dq(qs, ps, TORCH)) - stack(s.grad_potential(qs, TORCH))
