@@ -52,7 +52,8 @@ class LearnedBodies(nn.Module):
 
     def values(self) -> dict[str, float]:
         """The current parameters in the file's names (``<body>.mass``, ``<body>.ipos_x``, ``<body>.inertia_y``)."""
-        s = self.system()
+        with torch.no_grad():
+            s = self.system()
         out: dict[str, float] = {}
         for b, name in enumerate(self.base.TREE.body_names):
             out[f"{name}.mass"] = float(s._mass[b])
