@@ -46,7 +46,7 @@ class LearnedBodies(nn.Module):
         """The model file's system with the current (differentiable) parameters."""
         s = copy.copy(self.base)
         s._mass = torch.where(self.mass_on, torch.exp(self.log_mass), torch.zeros_like(self.log_mass))
-        s._ipos = self.ipos
+        s._ipos = self.ipos * 1.0  # a tensor of the graph (not the Parameter itself)
         s._inertia = torch.where(self.inertia_on, torch.exp(self.log_inertia), torch.zeros_like(self.log_inertia))
         return s
 
