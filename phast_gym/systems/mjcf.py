@@ -53,7 +53,10 @@ def param_specs(tree: MJCFTree) -> dict[str, Param]:
         for attr in JOINT_ATTRS:
             out[f"{name}.{attr}"] = Param(float(getattr(tree, attr)[j]), f"joint {name} {attr}", "nonnegative")
     for a in tree.actuators:
-        out[f"{a.name}.gear"] = Param(a.gear, f"gear of actuator {a.name} (on joint {tree.joint_names[a.joint]})", "any")
+        # a transmission ratio the file states, held like gravity: a motor that delivers less than u is a port term
+        # (actuator_gain, adopted on left-out evidence only) written back into this gear; --free <actuator>.gear calibrates it
+        out[f"{a.name}.gear"] = Param(a.gear, f"gear of actuator {a.name} (on joint {tree.joint_names[a.joint]})", "any",
+                                      known=True)
     out["gravity"] = Param(float(np.linalg.norm(tree.gravity)), "gravitational acceleration [m/s^2] (option/gravity)",
                            "nonnegative", known=True)
     return out
@@ -73,6 +76,8 @@ class _Arrays:
     def stack(self, xs: Any, axis: int = -1) -> Any:
         if self.torch is not None:
             return self.torch.stack(self.torch.broadcast_tensors(*xs), dim=axis)
+        if len({np.shape(x) for x in xs}) == 1:  # the hot path: no broadcasting needed
+            return np.stack(xs, axis=axis)
         return np.stack(np.broadcast_arrays(*xs), axis=axis)
 
     def const(self, a: Any, like: Any) -> Any:
@@ -80,6 +85,8 @@ class _Arrays:
             if self.torch.is_tensor(a):  # a learned parameter (phast_model.components.rigid_body): keep its graph
                 return a.to(dtype=like.dtype, device=like.device)
             return self.torch.as_tensor(np.asarray(a), dtype=like.dtype, device=like.device)
+        if type(a) is np.ndarray and a.dtype == like.dtype:
+            return a
         return np.asarray(a, dtype=like.dtype)
 
     def sqrt(self, x: Any) -> Any:
@@ -104,47 +111,66 @@ class _Arrays:
 
 
 def _cross(a: Any, b: Any, ar: _Arrays) -> Any:
-    return ar.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1], a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
-                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]])
+    """a x b over the last axis (3)."""
+    a0, a1, a2, b0, b1, b2 = a[..., 0], a[..., 1], a[..., 2], b[..., 0], b[..., 1], b[..., 2]
+    if ar.torch is not None:
+        return ar.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape), dtype=np.result_type(a, b))
+    np.subtract(a1 * b2, a2 * b1, out=out[..., 0])
+    np.subtract(a2 * b0, a0 * b2, out=out[..., 1])
+    np.subtract(a0 * b1, a1 * b0, out=out[..., 2])
+    return out
 
 
-def _axis_rotation(axis: np.ndarray, theta: Any, ar: _Arrays) -> Any:
-    """Rotation by ``theta`` (...,) about the unit ``axis`` (Rodrigues): (..., 3, 3)."""
-    c, s = ar.trig(theta)
-    K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
-    aa = np.outer(axis, axis)
-    c, s = c[..., None, None], s[..., None, None]
-    return c * ar.const(np.eye(3), c) + s * ar.const(K, c) + (1.0 - c) * ar.const(aa, c)
+@dataclass(frozen=True)
+class _JointRotation:
+    """Rodrigues' constants of a hinge axis a: R(theta) = a a^T + cos(theta) (I - a a^T) + sin(theta) [a]x."""
+
+    aa: np.ndarray
+    rest: np.ndarray
+    K: np.ndarray
+
+    @classmethod
+    def of(cls, axis: np.ndarray) -> _JointRotation:
+        aa = np.outer(axis, axis)
+        K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+        return cls(aa, np.eye(3) - aa, K)
+
+    def matrix(self, theta: Any, ar: _Arrays) -> Any:
+        """(..., 3, 3) rotation by theta (...,)."""
+        c, s = ar.trig(theta)
+        like = c[..., None, None]
+        return ar.const(self.aa, like) + like * ar.const(self.rest, like) + s[..., None, None] * ar.const(self.K, like)
 
 
 class _Kinematics:
-    """World-frame joint axes and anchors, body centres of mass and inertia frames at the configuration theta."""
+    """World-frame joint axes and anchors, body frames and origins at the configuration theta (MuJoCo's
+    mj_kinematics: each joint's axis and anchor are taken before its own motion is applied)."""
 
-    def __init__(self, tree: MJCFTree, theta: Any, ar: _Arrays) -> None:
+    def __init__(self, tree: MJCFTree, rotations: tuple[_JointRotation | None, ...], theta: Any, ar: _Arrays) -> None:
         n = tree.n
         R_w: list[Any] = []
         x_w: list[Any] = []
         axes: list[Any] = [None] * n
         anchors: list[Any] = [None] * n
-        joints = [[j for j in range(n) if tree.joint_body[j] == b] for b in range(tree.nb)]
-        one = theta[..., :1, None] * 0.0 + 1.0  # (..., 1, 1) ones of theta's type (real, or complex for the complex step)
+        one = theta[..., :1, None] * 0.0 + 1.0  # (..., 1, 1) ones of theta's type
         for b in range(tree.nb):
             par = tree.body_parent[b]
             if par < 0:
                 R, x = one * ar.const(tree.body_rot[b], one), one[..., 0] * ar.const(tree.body_pos[b], one)
             else:
                 R = R_w[par] @ ar.const(tree.body_rot[b], one)
-                x = x_w[par] + (R_w[par] @ ar.const(tree.body_pos[b], one)[..., None])[..., 0]
-            for j in joints[b]:
-                axis = (R @ ar.const(tree.joint_axis[j], one)[..., None])[..., 0]
-                anchor = x + (R @ ar.const(tree.joint_pos[j], one)[..., None])[..., 0]
+                x = x_w[par] + R_w[par] @ ar.const(tree.body_pos[b], one)
+            for j in tree.body_joints[b]:
+                axis = R @ ar.const(tree.joint_axis[j], one)
+                anchor = x + R @ ar.const(tree.joint_pos[j], one)
                 axes[j], anchors[j] = axis, anchor
-                th = theta[..., j]
-                if tree.joint_hinge[j]:
-                    R = R @ _axis_rotation(tree.joint_axis[j], th, ar)
-                    x = anchor - (R @ ar.const(tree.joint_pos[j], one)[..., None])[..., 0]
+                rot = rotations[j]
+                if rot is not None:
+                    R = R @ rot.matrix(theta[..., j], ar)
+                    x = anchor - R @ ar.const(tree.joint_pos[j], one)
                 else:
-                    x = x + axis * th[..., None]
+                    x = x + axis * theta[..., j, None]
             R_w.append(R)
             x_w.append(x)
         self.axes = ar.stack(axes, -2)  # (..., n, 3)
@@ -200,6 +226,7 @@ class MJCFSystem(System):
         self._hinge = np.array(t.joint_hinge, dtype=float)
         self._ancestor = self._ancestors()
         self._order = self._joint_order()
+        self._rotations = tuple(_JointRotation.of(t.joint_axis[j]) if t.joint_hinge[j] else None for j in range(t.n))
 
     def _ancestors(self) -> np.ndarray:
         """(nb, n) 1 where joint j moves body b (j sits on b or on one of its ancestors)."""
@@ -237,7 +264,7 @@ class MJCFSystem(System):
     def _bodies(self, theta: Any, ar: _Arrays) -> _Bodies:
         """Jacobians and inertia frames of every body at the configuration theta."""
         t = self.TREE
-        kin = _Kinematics(t, theta, ar)
+        kin = _Kinematics(t, self._rotations, theta, ar)
         C = kin.x + (kin.R @ ar.const(self._ipos, kin.x)[..., None])[..., 0]
         r = C[..., :, None, :] - kin.anchors[..., None, :, :]
         A = kin.axes[..., None, :, :]

@@ -11,6 +11,7 @@ from __future__ import annotations
 import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -76,6 +77,11 @@ class MJCFTree:
     @property
     def nb(self) -> int:
         return len(self.body_names)
+
+    @cached_property
+    def body_joints(self) -> tuple[tuple[int, ...], ...]:
+        """The joints of each body, in order."""
+        return tuple(tuple(j for j in range(self.n) if self.joint_body[j] == b) for b in range(self.nb))
 
     def actuated_dofs(self) -> tuple[int, ...]:
         return tuple(a.joint for a in self.actuators)
