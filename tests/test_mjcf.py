@@ -155,10 +155,11 @@ def test_parameters_carry_the_files_names(arm):
 
 def test_written_model_compiles_and_holds_the_values(arm, tmp_path):
     tree = read_tree(arm)
-    text = calibrated_xml(tree, {"link2.mass": 0.8, "link1.inertia_y": 0.025, "m_shoulder.gear": 2.2},
-                          [Edit("elbow", "frictionloss", 0.03), Edit("shoulder", "damping", 0.05), Edit("p_elbow", "gear", 0.9, "scale")])
+    edits = [Edit("elbow", "frictionloss", 0.03), Edit("shoulder", "damping", 0.05), Edit("p_elbow", "gear", 0.9, "scale")]
+    written = calibrated_xml(tree, {"link2.mass": 0.8, "link1.inertia_y": 0.025, "m_shoulder.gear": 2.2}, edits)
+    assert written.notes == []
     out = tmp_path / "calibrated.xml"
-    out.write_text(text)
+    out.write_text(written.text)
     mujoco.MjModel.from_xml_path(str(out))
     back = read_tree(out)
     np.testing.assert_allclose(back.body_mass, [1.2, 0.8, 0.3, 0.2])
@@ -253,3 +254,52 @@ def test_partial_learns_the_files_body_parameters(arm):
     (pot.energy(qt).sum() + mass.velocity(qt, pt).sum()).backward()
     assert bodies.log_mass.grad is not None and torch.count_nonzero(bodies.log_mass.grad) > 0
     assert bodies.values()["link2.mass"] == pytest.approx(0.7)
+
+
+PLANAR = """
+<mujoco model="planar2">
+  <option gravity="0 0 -9.81"><flag contact="disable"/></option>
+  <worldbody>
+    <body name="link1" pos="0 0 1">
+      <joint name="j1" type="hinge" axis="0 1 0"/>
+      <inertial pos="0 0 -0.2" mass="0.5" diaginertia="0.001 0.001 0.0001"/>
+      <body name="link2" pos="0 0 -0.2">
+        <joint name="j2" type="hinge" axis="0 1 0"/>
+        <inertial pos="0 0 -0.15" mass="0.4" diaginertia="0.002 0.002 0.0001"/>
+      </body>
+    </body>
+  </worldbody>
+  <actuator><motor name="m1" joint="j1"/><motor name="m2" joint="j2"/></actuator>
+</mujoco>
+"""
+
+
+def test_first_body_inertia_about_its_hinge_is_armature(tmp_path):
+    """A moment of the body hung from the world by one hinge, about that hinge's axis, is exactly that joint's
+    armature (the C.0 arm's rotor inertia comes out this way); other moments are not."""
+    from phast_model.mismatch.mjcf_answer import armature_equivalent
+
+    path = tmp_path / "planar2.xml"
+    path.write_text(PLANAR)
+    tree = read_tree(path)
+    assert armature_equivalent(tree, "link1.inertia_y") == "j1"
+    assert armature_equivalent(tree, "link1.inertia_x") is None
+    assert armature_equivalent(tree, "link2.inertia_y") is None  # link 2 also moves with j1
+    cls = mjcf_system(path)
+    a, b = cls(**{"link1.inertia_y": 0.005}), cls(**{"j1.armature": 0.004})
+    q = np.random.default_rng(7).uniform(-2, 2, (5, 2))
+    Ma = np.stack([np.stack(r, -1) for r in a.mass_matrix(_comps(q))], -2)
+    Mb = np.stack([np.stack(r, -1) for r in b.mass_matrix(_comps(q))], -2)
+    np.testing.assert_allclose(Ma, Mb, atol=1e-15)
+
+
+def test_written_body_stays_rigid(tmp_path):
+    """A calibrated principal moment that breaks A + B >= C is kept; an unchanged one is raised just enough."""
+    path = tmp_path / "planar2.xml"
+    path.write_text(PLANAR)
+    written = calibrated_xml(read_tree(path), {"link2.inertia_y": 0.01})
+    assert len(written.notes) == 1 and "link2.inertia_" in written.notes[0]
+    m = mujoco.MjModel.from_xml_string(written.text)
+    moments = m.body_inertia[2]
+    assert moments[1] == pytest.approx(0.01)
+    assert moments[0] + moments[2] >= moments[1] - 1e-12

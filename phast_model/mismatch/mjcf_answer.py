@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from phast_gym.systems.mjcf import MJCFSystem
-from phast_gym.systems.mjcf_tree import MJCFTree
+from phast_gym.systems.mjcf_tree import MJCFTree, ModelFileError
 
 from ..rigs.mjcf_write import Edit, calibrated_xml
 from ..rigs.mujoco_sim import mujoco_simulated
@@ -34,11 +34,12 @@ class MJCFWriteBack:
     params: dict[str, float]
     edits: list[Edit]
     not_expressed: list[dict[str, Any]]
+    notes: list[str]
 
     def to_dict(self) -> dict[str, Any]:
         return {"file": CALIBRATED_MODEL, "parameters": self.params,
                 "terms_written": [{"target": e.target, "attribute": e.attr, "op": e.op, "value": e.value} for e in self.edits],
-                "terms_not_expressed": self.not_expressed}
+                "terms_not_expressed": self.not_expressed, "notes": self.notes}
 
 
 def is_model_file_system(system: Any) -> bool:
@@ -65,10 +66,42 @@ def _edit(row: TermRow, tree: MJCFTree) -> Edit | None:
     return Edit(tree.joint_names[row.coordinate], attr, row.coefficient)
 
 
+def armature_equivalent(tree: MJCFTree, name: str) -> str | None:
+    """The joint whose ``armature`` acts exactly like a change of the principal moment ``name`` (``<body>.inertia_<ax>``):
+    the body hangs from the world by that single hinge and the hinge's axis is that principal axis, so the moment
+    enters M(q) only as a constant on that joint's diagonal.  None otherwise."""
+    body, _, attr = name.rpartition(".")
+    if not attr.startswith("inertia_") or body not in tree.body_names:
+        return None
+    b, k = tree.body_names.index(body), "xyz".index(attr[-1])
+    joints = tree.body_joints[b]
+    if tree.body_parent[b] >= 0 or len(joints) != 1 or not tree.joint_hinge[joints[0]]:
+        return None
+    along = abs(float(tree.joint_axis[joints[0]] @ tree.body_irot[b][:, k]))
+    return tree.joint_names[joints[0]] if abs(along - 1.0) < 1e-9 else None
+
+
+def _as_armature(report: Report, tree: MJCFTree) -> tuple[dict[str, float], list[Edit], list[str]]:
+    """Changed parameters, with every increase of a principal moment that armature expresses exactly moved to that
+    joint's armature (a rotor behind the joint, and a body that stays physical), and sentences saying so."""
+    params, edits, notes = {}, [], []
+    for k, r in report.calibrated.items():
+        if not r.changed:
+            continue
+        joint, delta = armature_equivalent(tree, k), float(r.fitted) - float(r.nominal)
+        if joint is not None and delta > 0:
+            edits.append(Edit(joint, "armature", delta))
+            notes.append(f"{k} {r.nominal:.4g} -> {r.fitted:.4g} acts exactly like armature {delta:.4g} at joint {joint}: "
+                         f"written as {joint}.armature")
+        else:
+            params[k] = float(r.fitted)
+    return params, edits, notes
+
+
 def write_back(report: Report, tree: MJCFTree) -> MJCFWriteBack:
     """The parameters and term edits of ``calibrated.xml``, and the terms it leaves out with advice."""
-    params = {k: float(r.fitted) for k, r in report.calibrated.items() if r.changed}
-    edits, left = [], []
+    params, edits, notes = _as_armature(report, tree)
+    left = []
     for row in report.terms:
         e = _edit(row, tree)
         if e is not None:
@@ -76,7 +109,7 @@ def write_back(report: Report, tree: MJCFTree) -> MJCFWriteBack:
         else:
             left.append({"term": row.term, "joint": tree.joint_names[row.coordinate], "coefficient": row.coefficient,
                          "expression": row.expression, "advice": VOCABULARY[row.term].mjcf_advice})
-    return MJCFWriteBack(params, edits, left)
+    return MJCFWriteBack(params, edits, left, notes)
 
 
 def _score_in_mujoco(text: str, held: HeldOut) -> dict[str, float]:
@@ -95,8 +128,14 @@ def answer_in_model_terms(report: Report, system: Any, held: HeldOut) -> Report:
     tree = _tree(system)
     report = replace(report, terms=named_rows(report.terms, tree), unconfirmed=named_rows(report.unconfirmed, tree))
     back = write_back(report, tree)
-    text = calibrated_xml(tree, back.params, back.edits)
-    fit = {**report.fit, CALIBRATED_XML_ROW: _score_in_mujoco(text, held)}
-    details = {**report.diagnostics, "mjcf": {**back.to_dict(), "source": tree.source,
-                                                "fit_row": f"fit.{CALIBRATED_XML_ROW}: {CALIBRATED_MODEL} as MuJoCo simulates it"}}
-    return replace(report, fit=fit, diagnostics=details, files={**report.files, CALIBRATED_MODEL: text})
+    info = {**back.to_dict(), "source": tree.source}
+    try:
+        written = calibrated_xml(tree, back.params, back.edits)
+    except ModelFileError as exc:  # the answer stands; only the file cannot be written
+        info = {**info, "file": None, "error": str(exc)}
+        return replace(report, diagnostics={**report.diagnostics, "mjcf": info})
+    info = {**info, "notes": [*back.notes, *written.notes],
+            "fit_row": f"fit.{CALIBRATED_XML_ROW}: {CALIBRATED_MODEL} as MuJoCo simulates it"}
+    fit = {**report.fit, CALIBRATED_XML_ROW: _score_in_mujoco(written.text, held)}
+    return replace(report, fit=fit, diagnostics={**report.diagnostics, "mjcf": info},
+                   files={**report.files, CALIBRATED_MODEL: written.text})

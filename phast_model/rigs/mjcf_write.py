@@ -8,7 +8,7 @@ compiled once more before it is returned, so what a caller saves loads with ``mu
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -52,7 +52,23 @@ def _quat(rot: np.ndarray) -> np.ndarray:
     return q
 
 
-def _set_body(spec: Any, tree: MJCFTree, params: Mapping[str, float], b: int) -> None:
+def physical_moments(name: str, moments: list[float], fixed: set[int]) -> tuple[list[float], list[str]]:
+    """Principal moments that satisfy A + B >= C (a rigid body), raising the moments not in ``fixed`` (those the
+    data did not change) as little as needed; with a sentence per raise."""
+    out, notes = list(moments), []
+    for c in sorted(range(3), key=lambda i: -out[i]):
+        others = [i for i in range(3) if i != c]
+        short = out[c] - sum(out[i] for i in others)
+        free = [i for i in others if i not in fixed]
+        if short > 0 and free:
+            i = min(free, key=lambda j: out[j])
+            notes.append(f"{name}.inertia_{AXES[i]} raised {out[i]:.4g} -> {out[i] + short:.4g} so that the body stays "
+                         "rigid (A + B >= C); the recordings did not change it")
+            out[i] += short
+    return out, notes
+
+
+def _set_body(spec: Any, tree: MJCFTree, params: Mapping[str, float], b: int, fixed: set[int]) -> list[str]:
     name = tree.body_names[b]
     body = spec.body(name)
     if body is None:
@@ -61,9 +77,11 @@ def _set_body(spec: Any, tree: MJCFTree, params: Mapping[str, float], b: int) ->
     body.mass = float(params[f"{name}.mass"])
     body.ipos = [float(params[f"{name}.ipos_{a}"]) for a in AXES]
     body.iquat = _quat(tree.body_irot[b])
-    body.inertia = [float(params[f"{name}.inertia_{a}"]) for a in AXES]
+    moments, notes = physical_moments(name, [float(params[f"{name}.inertia_{a}"]) for a in AXES], fixed)
+    body.inertia = moments
     if hasattr(body, "fullinertia"):
         body.fullinertia = [np.nan] * 6  # the principal moments above, not a full inertia from the file
+    return notes
 
 
 def _joint_value(joint: Any, attr: str) -> float:
@@ -81,7 +99,7 @@ def _set_joint(joint: Any, attr: str, value: float) -> None:
         setattr(joint, attr, float(value))
 
 
-def _apply_params(spec: Any, tree: MJCFTree, params: Mapping[str, float]) -> None:
+def _apply_params(spec: Any, tree: MJCFTree, params: Mapping[str, float]) -> list[str]:
     bodies = {b for b, name in enumerate(tree.body_names) for k in params if k.startswith(name + ".")
               and k[len(name) + 1:].split("_")[0] in ("mass", "ipos", "inertia")}
     if bodies:
@@ -89,8 +107,10 @@ def _apply_params(spec: Any, tree: MJCFTree, params: Mapping[str, float]) -> Non
 
         spec.compiler.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_AUTO
     full = {**_tree_values(tree), **params}
+    notes = []
     for b in sorted(bodies):
-        _set_body(spec, tree, full, b)
+        name = tree.body_names[b]
+        notes += _set_body(spec, tree, full, b, {k for k, a in enumerate(AXES) if f"{name}.inertia_{a}" in params})
     for name in tree.joint_names:
         for attr in JOINT_ATTRS:
             key = f"{name}.{attr}"
@@ -106,6 +126,7 @@ def _apply_params(spec: Any, tree: MJCFTree, params: Mapping[str, float]) -> Non
     if "gravity" in params:
         g = np.asarray(tree.gravity, dtype=float)
         spec.option.gravity = g / np.linalg.norm(g) * float(params["gravity"])
+    return notes
 
 
 def _tree_values(tree: MJCFTree) -> dict[str, float]:
@@ -130,13 +151,21 @@ def _apply_edit(spec: Any, tree: MJCFTree, edit: Edit) -> None:
     _set_joint(joint, edit.attr, old * edit.value if edit.op == "scale" else old + edit.value)
 
 
-def calibrated_xml(tree: MJCFTree, params: Mapping[str, float], edits: list[Edit] = ()) -> str:  # type: ignore[assignment]
+@dataclass(frozen=True)
+class WrittenModel:
+    """A model file's text, and what had to change beyond the given values for MuJoCo to take it."""
+
+    text: str
+    notes: list[str]
+
+
+def calibrated_xml(tree: MJCFTree, params: Mapping[str, float], edits: Sequence[Edit] = ()) -> WrittenModel:
     """The source model with ``params`` (changed parameters, the file's names) and ``edits`` (found terms) applied,
     as MJCF text that MuJoCo compiles."""
     import mujoco
 
     spec = _spec(tree.source)
-    _apply_params(spec, tree, params)
+    notes = _apply_params(spec, tree, params)
     for e in edits:
         _apply_edit(spec, tree, e)
     try:
@@ -145,4 +174,4 @@ def calibrated_xml(tree: MJCFTree, params: Mapping[str, float], edits: list[Edit
         mujoco.MjModel.from_xml_string(text)
     except ValueError as exc:
         raise ModelFileError(f"the calibrated model does not compile: {exc}") from None
-    return text
+    return WrittenModel(text, notes)
