@@ -36,10 +36,11 @@ def _spec(source: str) -> Any:
     if p.suffix.lower() == ".urdf":
         return mujoco.MjSpec.from_string(strip_urdf_meshes(p.read_text()))
     spec = mujoco.MjSpec.from_file(str(p))
-    for attr in ("meshdir", "texturedir"):  # asset paths that still resolve from wherever the written file is saved
-        d = getattr(spec, attr, None)
-        if isinstance(d, str):
-            setattr(spec, attr, str((p.parent / d).resolve()) if d else str(p.parent))
+    if any(len(getattr(spec, kind, ())) for kind in ("meshes", "textures", "hfields", "skins")):
+        for attr in ("meshdir", "texturedir"):  # asset paths that still resolve from wherever the written file is saved
+            d = getattr(spec, attr, None)
+            if isinstance(d, str):
+                setattr(spec, attr, str((p.parent / d).resolve()) if d else str(p.parent))
     return spec
 
 
