@@ -50,10 +50,10 @@ def damping_figure(run_dir: pathlib.Path, path: pathlib.Path) -> pathlib.Path:
 
 
 def run(out_dir: pathlib.Path) -> dict:
-    """Train KNOWN, evaluate on 100 test trajectories, write ``out_dir/world_model/`` (run dir + plots);
-    headline numbers."""
+    """Train KNOWN, evaluate on 100 test trajectories, write the run (and its plots) into ``out_dir``; headline
+    numbers."""
     torch.set_num_threads(1)
-    run_dir = pathlib.Path(out_dir) / "world_model"
+    run_dir = pathlib.Path(out_dir)
     m = train_run(ENV, "known", run_dir, data=DataSpec(n_train=400, n_val=100, n_test=100),
                   train=TrainConfig(epochs=30, seed=0, progress=False))
     fig = damping_figure(run_dir, run_dir / "damping_field.png")
@@ -73,4 +73,4 @@ if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default="demo_out")
     args = ap.parse_args()
-    print(json.dumps(run(pathlib.Path(args.out)), indent=2))
+    print(json.dumps(run(pathlib.Path(args.out) / "world_model"), indent=2))

@@ -120,12 +120,17 @@ def run_tool(case: Case, rec: dict[str, Any], holdout: float) -> dict[str, Any]:
 
 
 def run_sindy(case: Case, rec: dict[str, Any], threshold: float = 0.05) -> dict[str, Any]:
-    """PySINDy peer: own differentiation + STLSQ on the same named terms, residual to the nominal model."""
+    """PySINDy peer: own differentiation + STLSQ on the same named terms, residual to the nominal model (PySINDy's
+    UserWarnings silenced for this call only)."""
     import warnings
 
-    import pysindy as ps
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", category=UserWarning, module="pysindy")
+        return _sindy_fit(case, rec, threshold)
 
-    warnings.filterwarnings("ignore", category=UserWarning, module="pysindy")
+
+def _sindy_fit(case: Case, rec: dict[str, Any], threshold: float) -> dict[str, Any]:
+    import pysindy as ps
 
     from phast_gym.registry import make_env_system
     from phast_gym.systems.base import NUMPY

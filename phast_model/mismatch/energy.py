@@ -17,6 +17,7 @@ from phast_gym.systems.base import NUMPY, System
 
 from ..rigs.recordings import Recordings
 from ..rigs.shooting import momentum, smooth
+from .options import Z95
 
 
 def _intervals(v: np.ndarray, margin: int, min_len: int) -> list[tuple[int, int]]:
@@ -74,5 +75,5 @@ def energy_check(system: System, rec: Recordings, smoothing_window: int, min_int
         var = len(y) / max(len(y) - 1, 1) * float(np.sum(r**2)) / float(np.sum(pr)) ** 2
     sd = math.sqrt(max(var, 0.0))
     per = [float(np.sum(y[g == k]) / np.sum(pr[g == k])) if np.sum(pr[g == k]) > 0 else None for k in range(rec.n_traj)]
-    return {"measured_over_predicted": ratio, "ci95": [ratio - 1.959964 * sd, ratio + 1.959964 * sd], "per_recording": per,
+    return {"measured_over_predicted": ratio, "ci95": [ratio - Z95 * sd, ratio + Z95 * sd], "per_recording": per,
             "n_half_cycles": int(len(y))}

@@ -19,6 +19,7 @@ from phast_gym.systems.base import NUMPY, System
 
 from ..rigs.recordings import Recordings
 from .linear import cluster_cov
+from .options import Z95
 from .registry import VOCABULARY, TermKind, law_terms
 from .terms import AugmentedSystem, Term
 from .weakform import WeakForm, weak_form
@@ -38,7 +39,7 @@ class LawTerm:
     coefficient: float
     ci95: tuple[float, float]
     velocity: float = 0.0  # Stribeck v_s
-    t_quantile: float = 1.959964  # the quantile the 95% interval was built with
+    t_quantile: float = Z95  # the quantile the 95% interval was built with
 
     @property
     def kind(self) -> TermKind:

@@ -15,7 +15,7 @@ from phast_gym.systems.base import NUMPY, ArrayNamespace, Components, System, so
 
 from .registry import VOCABULARY, Maps, TermKind, kind
 
-__all__ = ["VOCABULARY", "AugmentedSystem", "Term", "default_value", "friction_basis"]
+__all__ = ["VOCABULARY", "AugmentedSystem", "Term", "friction_basis"]
 
 
 @dataclass(frozen=True)
@@ -50,11 +50,6 @@ def friction_basis(name: str, q: Any, v: Any, eps: float, velocity: float = 0.0,
 
     ``eps`` smooths sign(qdot) as tanh(qdot / eps); ``velocity`` is the Stribeck velocity v_s."""
     return kind(name).basis(q, v, eps, velocity, xp)
-
-
-def default_value(name: str) -> float:
-    """The coefficient at which a term has no effect."""
-    return kind(name).default
 
 
 class AugmentedSystem(System):

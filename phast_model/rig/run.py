@@ -19,6 +19,7 @@ from typing import Any
 from phast_gym.systems import System
 
 from ..rigs.recordings import Recordings
+from ..train.runs import HISTORY_FILE, METRICS_FILE
 from .fit import (
     BURN_IN_S,
     RigData,
@@ -32,8 +33,6 @@ from .fit import (
     nominal_config,
     rig_config,
 )
-
-METRICS_FILE, HISTORY_FILE = "metrics.json", "history.json"
 
 
 @dataclass(frozen=True)
