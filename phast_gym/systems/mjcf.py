@@ -21,6 +21,7 @@ with each joint transmission actuator delivering ``gear (gain ctrl + bias0 + bia
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
 from typing import Any, ClassVar
@@ -61,6 +62,16 @@ def param_specs(tree: MJCFTree) -> dict[str, Param]:
     out["gravity"] = Param(float(np.linalg.norm(tree.gravity)), "gravitational acceleration [m/s^2] (option/gravity)",
                            "nonnegative", known=True)
     return out
+
+
+@dataclass(frozen=True)
+class TreeState:
+    """The model at one configuration: q (n, ...), its array ops, the bodies' Jacobians and M(q) (n, n, ...)."""
+
+    Q: Any
+    ops: Ops
+    bodies: td.Bodies
+    M: Any
 
 
 class MJCFSystem(System):
@@ -123,6 +134,23 @@ class MJCFSystem(System):
         Q = ops.stack(list(q) if len({tuple(c.shape) for c in q}) == 1 else _broadcast(q, ops))
         theta = Q - ops.const(self.TREE.qpos0)
         return Q, theta, ops, td.bodies(self._consts, self.tree_params(), theta, ops)
+
+    def tree_state(self, q: Components) -> TreeState:
+        """Everything at the configuration q that V, M and dT/dq share (computed once, reused by the ``*_at`` methods)."""
+        Q, _, ops, bd = self._state(q)
+        return TreeState(Q, ops, bd, td.mass_matrix(self.tree_params(), bd, ops))
+
+    def grad_potential_at(self, st: TreeState) -> Any:
+        """dV/dq (n, ...) at a :meth:`tree_state`."""
+        return self._grad_V(st.Q, st.bodies, st.ops)
+
+    def velocity_at(self, st: TreeState, p: Components) -> tuple:
+        """M(q)^-1 p at a :meth:`tree_state`."""
+        return self._velocity(st.M, p, st.Q)
+
+    def kinetic_dq_at(self, st: TreeState, v: Components) -> Any:
+        """d(p^T M^-1 p / 2)/dq at fixed p = -v^T (dM/dq) v / 2 (n, ...), v = M^-1 p, at a :meth:`tree_state`."""
+        return -td.kinetic_dq(self._consts, self.tree_params(), st.bodies, st.ops.stack(list(v)), st.ops)
 
     def _grad_V(self, Q: Any, bd: td.Bodies, ops: Ops) -> Any:
         tp = self.tree_params()

@@ -11,13 +11,14 @@ stay positive); :class:`RigidBodyPotential` and :class:`RigidBodyMass` evaluate 
 from __future__ import annotations
 
 import copy
+from typing import Any
 
 import numpy as np
 import torch
 from torch import nn
 
 from phast_gym.systems import TORCH, System, split, stack
-from phast_gym.systems.mjcf import MJCFSystem
+from phast_gym.systems.mjcf import MJCFSystem, TreeState
 
 from .mass import Mass
 from .potentials import Potential
@@ -41,6 +42,18 @@ class LearnedBodies(nn.Module):
         self.log_mass = nn.Parameter(torch.as_tensor(np.log(np.where(mass > 0, mass, 1.0))))
         self.ipos = nn.Parameter(torch.as_tensor(np.asarray(system._ipos, dtype=float)))
         self.log_inertia = nn.Parameter(torch.as_tensor(np.log(np.where(inertia > 0, inertia, 1.0))))
+        self._last: tuple[Any, ...] | None = None  # (q, versions, system, tree state) of the last evaluation
+
+    def state(self, q: torch.Tensor) -> tuple[MJCFSystem, TreeState]:
+        """The system with the current parameters and its tree state at q (..., n), reused while neither q nor a
+        parameter has changed: V, M^-1 p and dT/dq of one splitting step share one evaluation of the kinematics."""
+        key = (q._version, self.log_mass._version, self.ipos._version, self.log_inertia._version, torch.is_grad_enabled())
+        if self._last is not None and self._last[0] is q and self._last[1] == key:
+            return self._last[2], self._last[3]
+        s = self.system()
+        st = s.tree_state(split(q))
+        self._last = (q, key, s, st)
+        return s, st
 
     def system(self) -> MJCFSystem:
         """The model file's system with the current (differentiable) parameters."""
@@ -74,7 +87,8 @@ class RigidBodyPotential(Potential):
         return self.bodies.system().potential(split(q), TORCH)
 
     def grad(self, q: torch.Tensor) -> torch.Tensor:
-        return stack(self.bodies.system().grad_potential(split(q), TORCH))
+        s, st = self.bodies.state(q)
+        return s.grad_potential_at(st).movedim(0, -1)
 
 
 class RigidBodyMass(Mass):
@@ -87,13 +101,13 @@ class RigidBodyMass(Mass):
         self.bodies = bodies
 
     def matrix(self, q: torch.Tensor) -> torch.Tensor:
-        rows = self.bodies.system().mass_matrix(split(q), TORCH)
-        return torch.stack([torch.stack(list(r), -1) for r in rows], -2)
+        _, st = self.bodies.state(q)
+        return st.M.movedim(0, -1).movedim(0, -1)
 
     def velocity(self, q: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
-        return stack(self.bodies.system().velocity(split(q), split(p), TORCH))
+        s, st = self.bodies.state(q)
+        return stack(s.velocity_at(st, split(p)))
 
     def kinetic_dq(self, q: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
-        s = self.bodies.system()
-        qs, ps = split(q), split(p)
-        return stack(s.dH_dq(qs, ps, TORCH)) - stack(s.grad_potential(qs, TORCH))
+        s, st = self.bodies.state(q)
+        return s.kinetic_dq_at(st, s.velocity_at(st, split(p))).movedim(0, -1)
