@@ -240,9 +240,13 @@ def test_partial_learns_the_files_body_parameters(arm):
     torch = pytest.importorskip("torch")
     from phast_model.components.rigid_body import LearnedBodies, RigidBodyMass, RigidBodyPotential
 
-    system = mjcf_system(arm)()
-    bodies = LearnedBodies(system)
+    cls = mjcf_system(arm)
+    bodies = LearnedBodies(cls())
     pot, mass = RigidBodyPotential(bodies), RigidBodyMass(bodies)
+    start = {k: v for k, v in bodies.values().items() if k.endswith(".armature")}
+    assert start["shoulder.armature"] == pytest.approx(0.01)  # the file's value
+    assert all(v > 0 for v in start.values())  # a rotor inertia to learn on every joint, from a small start
+    system = cls(**start)
     rng = np.random.default_rng(6)
     q, p = rng.uniform(-1, 1, (4, 4)), rng.uniform(-1, 1, (4, 4))
     qt, pt = torch.tensor(q), torch.tensor(p)

@@ -23,9 +23,26 @@ from phast_gym.systems.mjcf import MJCFSystem, TreeState
 from .mass import Mass
 from .potentials import Potential
 
+#: a joint's armature starts at least at this share of its diagonal of M at the reference configuration
+ARMATURE_START = 0.01
+
+
+def _armature_start(system: MJCFSystem) -> np.ndarray:
+    """Each joint's starting armature: the file's value, or ARMATURE_START of M_jj at qpos0 where the file has none
+    (a softplus cannot start at 0, and a motor's rotor inertia is a few percent of what it drives)."""
+    q0 = system.TREE.qpos0
+    M = system.mass_matrix(tuple(np.array([x]) for x in q0))
+    diag = np.array([float(np.ravel(M[j][j])[0]) for j in range(system.n)])
+    return np.maximum(np.asarray(system._armature, dtype=float), ARMATURE_START * diag)
+
+
+def _inv_softplus(x: np.ndarray) -> np.ndarray:
+    return np.log(np.expm1(x))
+
 
 class LearnedBodies(nn.Module):
-    """Learnable inertial parameters of a model file's moving bodies (a body or moment at 0 in the file stays 0)."""
+    """Learnable inertial parameters of a model file's moving bodies (a body or moment at 0 in the file stays 0) and
+    the joints' armature (a motor's rotor inertia)."""
 
     mass_on: torch.Tensor  # buffers: which masses / moments are free (non-zero in the file)
     inertia_on: torch.Tensor
@@ -42,12 +59,19 @@ class LearnedBodies(nn.Module):
         self.log_mass = nn.Parameter(torch.as_tensor(np.log(np.where(mass > 0, mass, 1.0))))
         self.ipos = nn.Parameter(torch.as_tensor(np.asarray(system._ipos, dtype=float)))
         self.log_inertia = nn.Parameter(torch.as_tensor(np.log(np.where(inertia > 0, inertia, 1.0))))
+        self.raw_armature = nn.Parameter(torch.as_tensor(_inv_softplus(_armature_start(system))))
         self._last: tuple[Any, ...] | None = None  # (q, versions, system, tree state) of the last evaluation
+
+    def relative_parameters(self) -> list[nn.Parameter]:
+        """Softplus coefficients that may start an order of magnitude from the machine's value (the rotor inertia):
+        the rig trainer steps them like its friction coefficients."""
+        return [self.raw_armature]
 
     def state(self, q: torch.Tensor) -> tuple[MJCFSystem, TreeState]:
         """The system with the current parameters and its tree state at q (..., n), reused while neither q nor a
         parameter has changed: V, M^-1 p and dT/dq of one splitting step share one evaluation of the kinematics."""
-        key = (q._version, self.log_mass._version, self.ipos._version, self.log_inertia._version, torch.is_grad_enabled())
+        key = (q._version, self.log_mass._version, self.ipos._version, self.log_inertia._version,
+               self.raw_armature._version, torch.is_grad_enabled())
         if self._last is not None and self._last[0] is q and self._last[1] == key:
             return self._last[2], self._last[3]
         s = self.system()
@@ -61,6 +85,7 @@ class LearnedBodies(nn.Module):
         s._mass = torch.where(self.mass_on, torch.exp(self.log_mass), torch.zeros_like(self.log_mass))
         s._ipos = self.ipos * 1.0  # a tensor of the graph (not the Parameter itself)
         s._inertia = torch.where(self.inertia_on, torch.exp(self.log_inertia), torch.zeros_like(self.log_inertia))
+        s._armature = nn.functional.softplus(self.raw_armature)
         return s
 
     def values(self) -> dict[str, float]:
@@ -73,6 +98,8 @@ class LearnedBodies(nn.Module):
             for k, ax in enumerate("xyz"):
                 out[f"{name}.ipos_{ax}"] = float(s._ipos[b, k])
                 out[f"{name}.inertia_{ax}"] = float(s._inertia[b, k])
+        for j, name in enumerate(self.base.TREE.joint_names):
+            out[f"{name}.armature"] = float(s._armature[j])
         return out
 
 

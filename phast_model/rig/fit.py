@@ -36,6 +36,7 @@ from phast_gym.systems.mjcf import MJCFSystem
 
 from ..components.mass import KnownMass, LinearMass, LowRankMass
 from ..components.potentials import TemplatePotential
+from ..components.rigid_body import LearnedBodies
 from ..rigs.holdout import check_holdout_indices, split
 from ..rigs.recordings import Recordings, load_raw, validate
 from ..rigs.shooting import Shooter, Windows, estimate_noise, odd, simulate_qv, smooth, substeps_for
@@ -332,12 +333,15 @@ def _template_start(model: PHAST, rec: Recordings) -> dict[str, float]:
 
 
 def _param_groups(model: PHAST, cfg: RigTrainConfig) -> list[dict[str, Any]]:
-    """One group per parameter tensor.  Friction coefficients at ``friction_lr_mult`` x lr: their softplus makes Adam's
+    """One group per parameter tensor.  Friction coefficients (and a component's ``relative_parameters()``, e.g. a
+    model file's joint armature) at ``friction_lr_mult`` x lr: their softplus makes Adam's
     steps relative, and at the base lr a coefficient moves by ~e^(lr x steps), too little to reach a real joint's level
     from its start.  A small physics coefficient (at most 16 entries, mean |p| < 1) at lr x mean |p|: Adam's steps
     are absolute, and lr 0.02 on a real pendulum's template coefficient (0.21 N m) or on the low-rank mass factor of
     a 0.005 kg m^2 inertia is a 10-40% jump per step.  Networks and O(1) coefficients keep the base lr."""
     fric = {id(p) for p in model.friction.parameters()} if model.friction is not None else set()
+    # softplus coefficients a component declares start far from the rig's value in the same way (a rotor inertia)
+    fric |= {id(p) for m in model.modules() if isinstance(m, LearnedBodies) for p in m.relative_parameters()}
     groups = []
     for p in model.parameters():
         if not p.requires_grad:
