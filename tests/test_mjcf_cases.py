@@ -86,9 +86,9 @@ def test_judgement_of_the_weak_motor_accepts_gear_or_gain_and_nothing_else():
 
 
 def test_end_to_end_furuta_small():
-    """The tool, given the nominal furuta.xml, names the pendulum's concealed frictionloss (small data: about 40 s
+    """The tool, given the nominal furuta.xml, names the pendulum's concealed frictionloss (8 x 200 samples: about 40 s
     on one core)."""
-    row = mc.run_case(mc.CASES["furuta"], seed=0, n_traj=8, T=300)
+    row = mc.run_case(mc.CASES["furuta"], seed=0, n_traj=8, T=200)
     assert [(f["term"], f["joint"], f["mjcf"]) for f in row["found"]] == [("coulomb_friction", "pendulum", "frictionloss")]
     assert row["passed"], row["reason"]
     assert row["fit"]["calibrated_xml"]["rollout_rmse"] < 0.7 * row["fit"]["calibrated"]["rollout_rmse"]
