@@ -42,7 +42,7 @@ from .select import Selection, calibrated_rows, missing_rows, select
 from .systematic import SystematicContext, SystematicResult, systematic
 from .terms import VOCABULARY
 
-__all__ = ["InternalError", "Options", "Report", "analyze"]
+__all__ = ["InternalError", "Options", "Report", "analyze", "held_out_scores"]
 
 
 def _options(options: Options | None, overrides: Mapping[str, Any]) -> Options:
@@ -203,6 +203,25 @@ def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mappin
         return answer_in_model_terms(report, sys0, held) if is_model_file_system(sys0) else report
     except ValueError as exc:  # the input was checked above: anything raised now is the tool's own failure
         raise InternalError(f"internal failure of the analysis: {type(exc).__name__}: {exc}") from exc
+
+
+def held_out_scores(sim: str | type[System] | Simulator, recordings: str | Path | Mapping[str, Any] | Recordings,
+                    models: Mapping[str, System], *, sim_kwargs: Mapping[str, Any] | None = None,
+                    holdout_trajectories: Sequence[int] | None = None, holdout_fraction: float = 0.3,
+                    rollout_window: float | None = None) -> dict[str, dict[str, float]]:
+    """The held-out one-step MSE and rollout RMSE of the nominal simulator and ``models`` exactly as :func:`analyze`
+    scores them (the same split, decimation, noise and windows), without the analysis: for scoring another tool's
+    fitted models (e.g. ``mujoco.sysid``'s) on the same footing."""
+    opts = _options(None, {"rollout_window": rollout_window})
+    holdout = check_holdout_indices(holdout_trajectories)
+    simulator, sys0 = _simulator(sim, sim_kwargs)
+    rec, _ = _decimate(_recordings(recordings, sys0, simulator.name), opts)
+    train, hold, evaluated_on = split(rec, holdout_fraction, holdout)
+    problem = prepare(simulator, sys0, train, opts, Progress(False))
+    held = held_out(hold, evaluated_on, problem.sigma, problem.x_scale, problem.shoot_window, problem.smoothing_window,
+                    opts.rollout_window)
+    metrics, _ = held.evaluate({"nominal": sys0, **models})
+    return metrics
 
 
 #: shooting windows of the second look, as a multiple of the first (capped at the recordings' length)
