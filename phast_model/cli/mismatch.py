@@ -21,7 +21,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="phast-mismatch", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--sim", required=True,
                    help="nominal simulator: an env id (PHAST/Pendulum-v0), my_pkg.mod:MyRig or path/to/rig.py:MyRig "
-                        "(a phast_gym.systems.System subclass)")
+                        "(a phast_gym.systems.System subclass), or a MuJoCo model file robot.xml / robot.urdf "
+                        "(the report then also holds calibrated.xml; docs/robot_models.md)")
     p.add_argument("--sim-kwargs", default="{}", help="JSON dict of physical parameters overriding the simulator's")
     p.add_argument("--recordings", required=True, help=".npz or .csv recordings (keys / columns of docs/mismatch.md)")
     p.add_argument("--holdout-fraction", type=float, default=0.3, help="share of trajectories (or of time, for one) held out")
