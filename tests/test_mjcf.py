@@ -209,6 +209,10 @@ def test_urdf_with_missing_meshes_loads(tmp_path):
     system = load_simulator(str(path)).build()
     assert system.n == 2 and system.coordinate_names == ("j1", "j2")
     assert "l2.mass" in system.params and system.params["l2.mass"] == pytest.approx(0.5)
+    assert system.actuated_dofs == (0, 1) and "j2.gear" in system.params  # one torque motor per joint, named after it
+    written = calibrated_xml(read_tree(path), {"l2.mass": 0.6}, [Edit("j2", "frictionloss", 0.01)])
+    m = mujoco.MjModel.from_xml_string(written.text)
+    assert m.nu == 2 and m.body_mass[-1] == pytest.approx(0.6) and m.dof_frictionloss[1] == pytest.approx(0.01)
 
 
 def test_cli_refuses_bad_input_with_exit_2_and_writes_nothing(arm, tmp_path, capsys):

@@ -110,6 +110,20 @@ def strip_urdf_meshes(text: str) -> str:
     return ET.tostring(root, encoding="unicode")
 
 
+def urdf_spec(text: str) -> Any:
+    """``mujoco.MjSpec`` of a URDF: meshes dropped (:func:`strip_urdf_meshes`) and, since MuJoCo's importer brings no
+    actuators (URDF transmissions are not imported), one torque motor (gear 1) per hinge / slide joint, named after
+    the joint and in joint order: the ``u`` columns of a URDF robot are its joints' torques / forces."""
+    mujoco = _mujoco()
+    spec = mujoco.MjSpec.from_string(strip_urdf_meshes(text))
+    if not len(spec.actuators):
+        driven = (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE)
+        for j in spec.joints:
+            if j.type in driven:
+                spec.add_actuator(name=j.name, target=j.name, trntype=mujoco.mjtTrn.mjTRN_JOINT)
+    return spec
+
+
 def compile_model(path: str | Path) -> Any:
     """``mujoco.MjModel`` of an MJCF (``.xml``) or URDF (``.urdf``) file; ModelFileError with MuJoCo's message."""
     mujoco = _mujoco()
@@ -118,8 +132,7 @@ def compile_model(path: str | Path) -> Any:
         raise ModelFileError(f"model file {str(p)!r} not found")
     try:
         if p.suffix.lower() == ".urdf":
-            text = strip_urdf_meshes(p.read_text())
-            return mujoco.MjModel.from_xml_string(text)
+            return urdf_spec(p.read_text()).compile()
         return mujoco.MjModel.from_xml_path(str(p))
     except ValueError as exc:  # MuJoCo's compiler error
         raise ModelFileError(f"{p.name} does not compile: {str(exc).strip()}") from None

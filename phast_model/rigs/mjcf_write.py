@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from phast_gym.systems.mjcf import AXES, JOINT_ATTRS
-from phast_gym.systems.mjcf_tree import MJCFTree, ModelFileError, strip_urdf_meshes
+from phast_gym.systems.mjcf_tree import MJCFTree, ModelFileError, urdf_spec
 
 
 @dataclass(frozen=True)
@@ -34,7 +34,7 @@ def _spec(source: str) -> Any:
 
     p = Path(source).resolve()
     if p.suffix.lower() == ".urdf":
-        return mujoco.MjSpec.from_string(strip_urdf_meshes(p.read_text()))
+        return urdf_spec(p.read_text())
     spec = mujoco.MjSpec.from_file(str(p))
     if any(len(getattr(spec, kind, ())) for kind in ("meshes", "textures", "hfields", "skins")):
         for attr in ("meshdir", "texturedir"):  # asset paths that still resolve from wherever the written file is saved
