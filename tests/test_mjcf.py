@@ -311,3 +311,19 @@ def test_written_body_stays_rigid(tmp_path):
     moments = m.body_inertia[2]
     assert moments[1] == pytest.approx(0.01)
     assert moments[0] + moments[2] >= moments[1] - 1e-12
+
+
+def test_recordings_at_a_joint_limit_are_named(tmp_path):
+    """A limited joint the recordings drive into its limit is reported (MuJoCo's limit constraint is not fitted)."""
+    from phast_model.mismatch.mjcf_answer import joint_limit_contacts
+    from phast_model.rigs.recordings import Recordings
+
+    path = tmp_path / "two_link.urdf"
+    path.write_text(URDF)
+    tree = read_tree(path)
+    assert np.isinf(tree.joint_range[0]).all() and list(tree.joint_range[1]) == [-3.0, 3.0]  # continuous, revolute
+    q = np.zeros((2, 50, 2))
+    q[1, 20:30, 1] = 2.99
+    found = joint_limit_contacts(tree, Recordings(q=q, dt=0.01, angle_dims=(0, 1)))
+    assert [(c["joint"], c["trajectories"]) for c in found] == [("j2", [1])]
+    assert joint_limit_contacts(tree, Recordings(q=0.5 * q, dt=0.01, angle_dims=(0, 1))) == []

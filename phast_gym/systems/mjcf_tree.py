@@ -67,6 +67,7 @@ class MJCFTree:
     frictionloss: np.ndarray  # (n,)
     stiffness: np.ndarray  # (n,)
     actuators: tuple[Actuator, ...]
+    joint_range: np.ndarray  # (n, 2) the limits of limited joints, (-inf, inf) elsewhere (not modelled: checked)
     gravity: np.ndarray  # (3,)
     timestep: float
 
@@ -206,6 +207,14 @@ def read_tree(path: str | Path) -> MJCFTree:
     return _tree_from_model(model, str(path), src)
 
 
+def _joint_ranges(model: Any) -> np.ndarray:
+    out = np.tile([-np.inf, np.inf], (model.njnt, 1))
+    for j in range(model.njnt):
+        if bool(model.jnt_limited[j]):
+            out[j] = model.jnt_range[j]
+    return out
+
+
 def _tree_from_model(model: Any, source: str, src: str) -> MJCFTree:
     mujoco = _mujoco()
     ids, index = _bodies(model)
@@ -241,4 +250,5 @@ def _tree_from_model(model: Any, source: str, src: str) -> MJCFTree:
         damping=np.array([model.dof_damping[d] for d in dof], dtype=float),
         frictionloss=np.array([model.dof_frictionloss[d] for d in dof], dtype=float),
         stiffness=np.array(model.jnt_stiffness, dtype=float).reshape(-1),
-        actuators=acts, gravity=np.array(model.opt.gravity, dtype=float), timestep=float(model.opt.timestep))
+        actuators=acts, joint_range=_joint_ranges(model),
+        gravity=np.array(model.opt.gravity, dtype=float), timestep=float(model.opt.timestep))

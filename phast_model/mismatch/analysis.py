@@ -200,7 +200,7 @@ def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mappin
     inputs = _Inputs(simulator, given, dec, train, hold, held, comparison)
     try:
         report = _second_look(problem, inputs, _explain(problem, inputs))
-        return answer_in_model_terms(report, sys0, held) if is_model_file_system(sys0) else report
+        return answer_in_model_terms(report, sys0, held, given) if is_model_file_system(sys0) else report
     except ValueError as exc:  # the input was checked above: anything raised now is the tool's own failure
         raise InternalError(f"internal failure of the analysis: {type(exc).__name__}: {exc}") from exc
 

@@ -13,11 +13,14 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from phast_gym.systems.mjcf import MJCFSystem
 from phast_gym.systems.mjcf_tree import MJCFTree, ModelFileError
 
 from ..rigs.mjcf_write import Edit, calibrated_xml
 from ..rigs.mujoco_sim import mujoco_simulated
+from ..rigs.recordings import Recordings
 from .evaluate import HeldOut
 from .registry import VOCABULARY
 from .report import CALIBRATED_MODEL, Report
@@ -122,13 +125,43 @@ def _score_in_mujoco(text: str, held: HeldOut) -> dict[str, float]:
     return table.to_dict()[CALIBRATED_XML_ROW]
 
 
-def answer_in_model_terms(report: Report, system: Any, held: HeldOut) -> Report:
+#: a recorded joint within this share of its range's span of a limit is at the limit
+LIMIT_MARGIN = 0.02
+
+
+def joint_limit_contacts(tree: MJCFTree, rec: Recordings) -> list[dict[str, Any]]:
+    """The limited joints the recordings drive to a limit, with the trajectories and share of samples: MuJoCo's limit
+    constraint is not part of the fitted model, so the residual there is expected (and not a term)."""
+    out = []
+    for j, (lo, hi) in enumerate(tree.joint_range):
+        if not (np.isfinite(lo) and np.isfinite(hi)):
+            continue
+        margin = LIMIT_MARGIN * (hi - lo)
+        at = (rec.q[..., j] <= lo + margin) | (rec.q[..., j] >= hi - margin)
+        if at.any():
+            out.append({"joint": tree.joint_names[j], "range": [float(lo), float(hi)], "share_of_samples": float(at.mean()),
+                        "trajectories": [int(k) for k in np.flatnonzero(at.any(axis=1))]})
+    return out
+
+
+def _limit_sentence(contacts: list[dict[str, Any]]) -> str:
+    names = ", ".join(f"{c['joint']} (range {c['range'][0]:g}..{c['range'][1]:g}, {c['share_of_samples']:.1%} of the samples)"
+                      for c in contacts)
+    return (f" The recordings reach joint limits: {names}. MuJoCo's limit constraint is not part of the fitted model, so a "
+            "residual near those limits is expected; record inside the range for a clean answer.")
+
+
+def answer_in_model_terms(report: Report, system: Any, held: HeldOut, recordings: Recordings) -> Report:
     """``report`` with joint-named rows, ``calibrated.xml`` among its files, the written model's held-out row
-    simulated by MuJoCo, and ``details.mjcf`` saying what was written and what could not be."""
+    simulated by MuJoCo, ``details.mjcf`` saying what was written and what could not be, and a sentence when the
+    ``recordings`` (all of them, as given) reach a joint limit."""
     tree = _tree(system)
     report = replace(report, terms=named_rows(report.terms, tree), unconfirmed=named_rows(report.unconfirmed, tree))
+    contacts = joint_limit_contacts(tree, recordings)
+    if contacts:
+        report = replace(report, summary=report.summary + _limit_sentence(contacts))
     back = write_back(report, tree)
-    info = {**back.to_dict(), "source": tree.source}
+    info = {**back.to_dict(), "source": tree.source, "joint_limits_reached": contacts}
     try:
         written = calibrated_xml(tree, back.params, back.edits)
     except ModelFileError as exc:  # the answer stands; only the file cannot be written
