@@ -102,7 +102,7 @@ def _edit(xml: Path, edits: dict[tuple[str, str], float], out: Path) -> Path:
     """The model file with joint attributes set (element 0 of the array attributes of mujoco >= 4.0)."""
     import mujoco
 
-    from phast_model.rigs.sysid_peer import set_joint_attr
+    from phast_model.rigs.mjcf_write import set_joint_attr
 
     spec = mujoco.MjSpec.from_file(str(xml))
     for (joint, attr), v in edits.items():

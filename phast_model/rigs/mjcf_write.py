@@ -85,12 +85,13 @@ def _set_body(spec: Any, tree: MJCFTree, params: Mapping[str, float], b: int, fi
     return notes
 
 
-def _joint_value(joint: Any, attr: str) -> float:
-    v = getattr(joint, attr)
-    return float(np.atleast_1d(v)[0])
+def joint_attr(joint: Any, attr: str) -> float:
+    """A joint attribute of an ``MjsJoint`` (``damping`` / ``stiffness`` are arrays in MuJoCo >= 4.0: element 0)."""
+    return float(np.atleast_1d(getattr(joint, attr))[0])
 
 
-def _set_joint(joint: Any, attr: str, value: float) -> None:
+def set_joint_attr(joint: Any, attr: str, value: float) -> None:
+    """Set a joint attribute of an ``MjsJoint`` (element 0 where MuJoCo holds an array)."""
     old = getattr(joint, attr)
     if np.ndim(old):
         new = np.array(old, dtype=float)
@@ -116,7 +117,7 @@ def _apply_params(spec: Any, tree: MJCFTree, params: Mapping[str, float]) -> lis
         for attr in JOINT_ATTRS:
             key = f"{name}.{attr}"
             if key in params:
-                _set_joint(spec.joint(name), attr, float(params[key]))
+                set_joint_attr(spec.joint(name), attr, float(params[key]))
     for a in tree.actuators:
         key = f"{a.name}.gear"
         if key in params:
@@ -148,8 +149,8 @@ def _apply_edit(spec: Any, tree: MJCFTree, edit: Edit) -> None:
     joint = spec.joint(edit.target)
     if joint is None:
         raise ModelFileError(f"no joint {edit.target!r} in the file")
-    old = _joint_value(joint, edit.attr)
-    _set_joint(joint, edit.attr, old * edit.value if edit.op == "scale" else old + edit.value)
+    old = joint_attr(joint, edit.attr)
+    set_joint_attr(joint, edit.attr, old * edit.value if edit.op == "scale" else old + edit.value)
 
 
 @dataclass(frozen=True)

@@ -41,16 +41,14 @@ def rollout_q(model: Any, q0: np.ndarray, v0: np.ndarray, ctrl: np.ndarray | Non
     m.opt.timestep = dt / k
     d = mujoco.MjData(m)
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
-    state0 = np.empty((B, mujoco.mj_stateSize(m, spec)))
-    for b in range(B):
-        mujoco.mj_resetData(m, d)
-        d.qpos[:], d.qvel[:] = q0[b], v0[b]
-        mujoco.mj_getState(m, d, state0[b], spec)
+    rest = np.empty(mujoco.mj_stateSize(m, spec))
+    mujoco.mj_getState(m, d, rest, spec)  # the model's rest state; FULLPHYSICS lays out time, qpos, qvel, ...
+    state0 = np.tile(rest, (B, 1))
+    state0[:, 1: 1 + m.nq], state0[:, 1 + m.nq: 1 + m.nq + m.nv] = q0, v0
     c = np.zeros((B, n_steps, m.nu)) if ctrl is None else np.asarray(ctrl, dtype=float).reshape(B, n_steps, m.nu)
     control = np.repeat(c, k, axis=1)
     state, _ = rollout.rollout(m, d, state0, control, nstep=n_steps * k)
-    qadr = 1  # FULLPHYSICS: time, then qpos
-    q = state[:, k - 1:: k, qadr: qadr + m.nq]
+    q = state[:, k - 1:: k, 1: 1 + m.nq]
     return np.concatenate([q0[:, None, :], q], axis=1)
 
 

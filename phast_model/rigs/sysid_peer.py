@@ -40,6 +40,8 @@ from typing import Any, Literal
 
 import numpy as np
 
+from .mjcf_write import joint_attr, set_joint_attr
+
 ParamSet = Literal["joints", "joints+masses"]
 #: the joint attributes of the "joints" parameter set
 JOINT_ATTRS = ("armature", "damping", "frictionloss")
@@ -244,24 +246,10 @@ def model_sequences(spec: Any, recs: RecArrays, indices: Sequence[int], window_s
 # ---------------------------------------------------------------------------------------------------- parameters
 
 
-def set_joint_attr(spec: Any, joint: str, attr: str, value: float) -> None:
-    j = spec.joint(joint)
-    if attr in ("damping", "stiffness") and np.ndim(getattr(j, attr)) > 0:  # arrays in mujoco >= 4.0: element 0
-        arr = np.array(getattr(j, attr), dtype=float)
-        arr[0] = value
-        setattr(j, attr, arr)
-    else:
-        setattr(j, attr, float(value))
-
-
 def _set_mass(spec: Any, body: str, value: float) -> None:
     """sysid's own mass modifier (``apply_body_inertia`` for ``InertiaType.Mass``) hands the 1-element array to
     ``MjsBody.mass``, which mujoco 4.0 refuses (TypeError): the same call with a float."""
     _sysid().model_modifier.apply_body_mass_ipos(spec, body, mass=float(value))
-
-
-def _joint_value(spec: Any, joint: str, attr: str) -> float:
-    return float(np.ravel(getattr(spec.joint(joint), attr))[0])
 
 
 def parameter_dict(spec: Any, params: ParamSet, upper: Mapping[str, float] | None = None) -> Any:
@@ -283,10 +271,10 @@ def parameter_dict(spec: Any, params: ParamSet, upper: Mapping[str, float] | Non
         d = int(model.joint(name).dofadr[0])
         Mii = float(M[d, d])
         for attr in JOINT_ATTRS:
-            v0 = _joint_value(spec, name, attr)
+            v0 = joint_attr(spec.joint(name), attr)
             hi = max(mult[attr] * Mii, 2.0 * v0, 1e-9)
             pd.add(sysid.Parameter(f"{name}.{attr}", nominal=v0, min_value=0.0, max_value=hi,
-                                   modifier=lambda s, p, n=name, a=attr: set_joint_attr(s, n, a, p.value[0])))
+                                   modifier=lambda s, p, n=name, a=attr: set_joint_attr(s.joint(n), a, p.value[0])))
     if params == "joints+masses":
         for b in range(1, model.nbody):
             body = model.body(b).name
