@@ -327,3 +327,21 @@ def test_recordings_at_a_joint_limit_are_named(tmp_path):
     found = joint_limit_contacts(tree, Recordings(q=q, dt=0.01, angle_dims=(0, 1)))
     assert [(c["joint"], c["trajectories"]) for c in found] == [("j2", [1])]
     assert joint_limit_contacts(tree, Recordings(q=0.5 * q, dt=0.01, angle_dims=(0, 1))) == []
+
+
+def test_armature_term_folds_into_the_models_own_armature(arm):
+    """The mismatch tool's armature term on a MuJoCo model goes into the joint's own ``armature`` (the fused vector field),
+    and gives the field of the generic (M(q) + A) construction."""
+    from phast_model.mismatch.terms import AugmentedSystem, Term
+
+    base = mjcf_system(arm)()
+    aug = AugmentedSystem(base, [Term("armature", 1, 0.004), Term("viscous_damping", 2, 0.02)])
+    assert aug.inertial_base is not None
+    generic = AugmentedSystem(base, aug.terms)
+    generic.inertial_base = None  # the generic path: M(q) + A assembled around the base
+    rng = np.random.default_rng(8)
+    q, p, u = (_comps(rng.uniform(-1, 1, (6, 4))) for _ in range(3))
+    for a, b in zip(aug.rhs(q, p, u), generic.rhs(q, p, u)):
+        np.testing.assert_allclose(np.stack(a), np.stack(b), rtol=1e-12, atol=1e-13)
+    np.testing.assert_allclose(np.stack(aug.dH_dq(q, p)), np.stack(generic.dH_dq(q, p)), rtol=1e-12, atol=1e-13)
+    assert base._armature[1] == base.TREE.armature[1]  # the base itself is unchanged

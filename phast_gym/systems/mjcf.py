@@ -20,6 +20,7 @@ with each joint transmission actuator delivering ``gear (gain ctrl + bias0 + bia
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 from functools import cached_property
@@ -114,6 +115,12 @@ class MJCFSystem(System):
         """The parameter arrays the rigid-body formulas take."""
         return TreeParams(self._mass, self._ipos, self._inertia, self._armature, self._stiffness, self._g)
 
+    def with_armature(self, extra: Any) -> MJCFSystem:
+        """This model with ``extra`` (n,) added to every joint's armature (a rotor inertia found by the mismatch tool)."""
+        out = copy.copy(self)
+        out._armature = self._armature + np.asarray(extra, dtype=float)
+        return out
+
     @cached_property
     def actuated_dofs(self) -> tuple[int, ...]:
         """The joint (qpos column) each actuator (ctrl column) drives, in actuator order."""
@@ -130,15 +137,15 @@ class MJCFSystem(System):
         if not hasattr(first, "shape"):
             q = tuple(np.asarray(c, dtype=float) for c in q)
             first = q[0]
-        ops = Ops(first, len(first.shape))
+        ops = Ops(first, len(first.shape), self._consts.cache)
         Q = ops.stack(list(q) if len({tuple(c.shape) for c in q}) == 1 else _broadcast(q, ops))
-        theta = Q - ops.const(self.TREE.qpos0)
+        theta = Q - ops.k(self._consts.qpos0)
         return Q, theta, ops, td.bodies(self._consts, self.tree_params(), theta, ops)
 
     def tree_state(self, q: Components) -> TreeState:
         """Everything at the configuration q that V, M and dT/dq share (computed once, reused by the ``*_at`` methods)."""
         Q, _, ops, bd = self._state(q)
-        return TreeState(Q, ops, bd, td.mass_matrix(self.tree_params(), bd, ops))
+        return TreeState(Q, ops, bd, td.mass_matrix(self.tree_params(), bd, ops, self._consts))
 
     def grad_potential_at(self, st: TreeState) -> Any:
         """dV/dq (n, ...) at a :meth:`tree_state`."""
@@ -154,7 +161,7 @@ class MJCFSystem(System):
 
     def _grad_V(self, Q: Any, bd: td.Bodies, ops: Ops) -> Any:
         tp = self.tree_params()
-        spring = ops.param(tp.stiffness, 1) * (Q - ops.const(self.TREE.qpos_spring))
+        spring = ops.param(tp.stiffness, 1) * (Q - ops.k(self._consts.qpos_spring))
         return td.gravity_gradient(tp, bd, ops) + spring
 
     def _velocity(self, M: Any, p: Components, Q: Any) -> tuple:
@@ -163,12 +170,12 @@ class MJCFSystem(System):
     # ---- System interface ------------------------------------------------
     def mass_matrix(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple[tuple, ...]:
         _, _, ops, bd = self._state(q)
-        M = td.mass_matrix(self.tree_params(), bd, ops)
+        M = td.mass_matrix(self.tree_params(), bd, ops, self._consts)
         return tuple(tuple(M[i, j] for j in range(self.n)) for i in range(self.n))
 
     def potential(self, q: Components, xp: ArrayNamespace = NUMPY) -> Any:
         Q, _, ops, bd = self._state(q)
-        d = Q - ops.const(self.TREE.qpos_spring)
+        d = Q - ops.k(self._consts.qpos_spring)
         spring = 0.5 * (ops.param(self._stiffness, 1) * d * d).sum(0)
         return td.gravity_potential(self.tree_params(), bd, ops) + spring
 
@@ -179,12 +186,12 @@ class MJCFSystem(System):
 
     def velocity(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         Q, _, ops, bd = self._state(q)
-        return self._velocity(td.mass_matrix(self.tree_params(), bd, ops), p, Q)
+        return self._velocity(td.mass_matrix(self.tree_params(), bd, ops, self._consts), p, Q)
 
     def dH_dq(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         Q, _, ops, bd = self._state(q)
         tp = self.tree_params()
-        v = self._velocity(td.mass_matrix(tp, bd, ops), p, Q)
+        v = self._velocity(td.mass_matrix(tp, bd, ops, self._consts), p, Q)
         d = self._grad_V(Q, bd, ops) - td.kinetic_dq(self._consts, tp, bd, ops.stack(list(v)), ops)
         return tuple(d[i] for i in range(self.n))
 
@@ -225,7 +232,7 @@ class MJCFSystem(System):
         """Eq. 1-3 with the bodies and M computed once per call."""
         Q, _, ops, bd = self._state(q)
         tp = self.tree_params()
-        v = self._velocity(td.mass_matrix(tp, bd, ops), p, Q)
+        v = self._velocity(td.mass_matrix(tp, bd, ops, self._consts), p, Q)
         dH = self._grad_V(Q, bd, ops) - td.kinetic_dq(self._consts, tp, bd, ops.stack(list(v)), ops)
         f = self.nonconservative_force(tuple(Q[i] for i in range(self.n)), v, u, xp)
         return tuple(v), tuple(fi - dH[i] for i, fi in enumerate(f))

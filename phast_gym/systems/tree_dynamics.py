@@ -13,7 +13,7 @@ and 0 for a slide, ``a_k`` / ``x_k`` a joint's world axis and anchor, ``c_b`` a 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -36,15 +36,18 @@ class TreeParams:
 
 
 class Ops:
-    """numpy or torch, for arrays whose last ``nbat`` axes are the batch."""
+    """numpy or torch, for arrays whose last ``nbat`` axes are the batch.  ``cache``: converted constants of one
+    :class:`TreeConsts`, by array identity (:meth:`k`)."""
 
-    def __init__(self, like: Any, nbat: int) -> None:
+    def __init__(self, like: Any, nbat: int, cache: dict | None = None) -> None:
         self.like, self.nbat = like, nbat
         self.torch: Any = None
+        self.cache = {} if cache is None else cache
         if type(like).__module__.startswith("torch"):
             import torch
 
             self.torch = torch
+        self._key = (self.torch is not None, str(like.dtype), str(getattr(like, "device", "")), nbat)
 
     def const(self, a: Any) -> Any:
         """A constant (numpy array) or a learned tensor, with singleton batch axes appended."""
@@ -54,11 +57,21 @@ class Ops:
         a = np.asarray(a, dtype=self.like.dtype)
         return a.reshape(a.shape + (1,) * self.nbat)
 
+    def k(self, a: np.ndarray) -> Any:
+        """:meth:`const` of a load-time constant (an array that lives as long as the cache), converted once."""
+        key = (id(a),) + self._key
+        c = self.cache.get(key)
+        if c is None:
+            c = self.cache[key] = self.const(a)
+        return c
+
     def param(self, a: Any, ndim: int) -> Any:
         """A parameter array of ``ndim`` structure axes; a leading batch axis (parameter sets) moves to the end."""
         if np.ndim(a) > ndim:
             a = self.torch.movedim(a, 0, -1) if self.torch is not None else np.moveaxis(np.asarray(a), 0, -1)
             return a.to(self.like.dtype) if self.torch is not None else a
+        if isinstance(a, np.ndarray) and self.torch is None and a.dtype == self.like.dtype:
+            return a.reshape(a.shape + (1,) * self.nbat)
         return self.const(a)
 
     def stack(self, xs: list, axis: int = 0) -> Any:
@@ -90,24 +103,93 @@ def cross(a: Any, b: Any, ops: Ops) -> Any:
 
 
 @dataclass(frozen=True)
+class JointStep:
+    """One joint's motion in :func:`frames`, with the constant products folded in at load time.
+
+    ``static``: the frame before the joint is fixed in the world (a root body's first joint), so its world ``axis``
+    and ``anchor`` are constants, its rotation is ``P0 + cos P1 + sin P2`` and the body origin ``e0 + cos e1 + sin e2``
+    (a slide: rotation ``P0``, origin ``e0 + axis theta``).  Otherwise, with ``R_ref, x_ref`` the parent's frame (the
+    body's first joint) or the body's frame so far (a later joint): axis ``R_ref axis``, anchor ``x_ref + R_ref
+    anchor``, rotation ``R_ref (P0 + cos P1 + sin P2)`` and origin ``anchor - R pos`` (a slide: rotation ``R_ref P0``,
+    origin ``x_ref + R_ref origin + axis theta``).
+    """
+
+    j: int
+    hinge: bool
+    static: bool
+    axis: np.ndarray  # (3,)
+    anchor: np.ndarray  # (3,)
+    P: tuple[np.ndarray, ...]  # (3, 3) each
+    pos: np.ndarray | None  # the anchor in the frame after the joint; None when zero
+    origin: tuple[np.ndarray, ...]  # static hinge: (e0, e1, e2); slide: (the origin before the motion,)
+
+
+@dataclass(frozen=True)
+class BodyPlan:
+    """How :func:`frames` reaches one body: its parent, the fixed rotation and offset of a jointless body, its joints."""
+
+    parent: int
+    rot: np.ndarray | None  # None: identity (a jointless body)
+    pos: np.ndarray
+    steps: tuple[JointStep, ...]
+
+
+def _rodrigues(a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(a a^T, I - a a^T, [a]x): the rotation by theta about unit a is a a^T + cos(theta) (I - a a^T) + sin(theta) [a]x."""
+    K = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+    aa = np.outer(a, a)
+    return aa, np.eye(3) - aa, K
+
+
+def _joint_step(tree: MJCFTree, j: int, first: bool, root: bool, b: int) -> JointStep:
+    """MuJoCo's mj_kinematics for joint j: its axis and anchor are taken before its own motion is applied."""
+    a, pj = tree.joint_axis[j], tree.joint_pos[j]
+    hinge = bool(tree.joint_hinge[j])
+    pos = pj.copy() if np.any(pj) else None
+    # the constant rotation and offset between the reference frame and the joint's frame
+    pre, base = (tree.body_rot[b], tree.body_pos[b]) if first else (np.eye(3), np.zeros(3))
+    anchor = base + pre @ pj
+    if first and root:  # the reference frame is the world: fold everything
+        if hinge:
+            P = tuple(pre @ m for m in _rodrigues(a))
+            return JointStep(j, True, True, pre @ a, anchor, P, pos, (anchor - P[0] @ pj, -P[1] @ pj, -P[2] @ pj))
+        return JointStep(j, False, True, pre @ a, anchor, (pre,), pos, (base,))
+    if hinge:
+        return JointStep(j, True, False, pre @ a, anchor, tuple(pre @ m for m in _rodrigues(a)), pos, ())
+    return JointStep(j, False, False, pre @ a, anchor, (pre,), pos, (base,))
+
+
+def _plans(tree: MJCFTree) -> tuple[BodyPlan, ...]:
+    out = []
+    for b in range(tree.nb):
+        root = tree.body_parent[b] < 0
+        steps = tuple(_joint_step(tree, j, i == 0, root, b) for i, j in enumerate(tree.body_joints[b]))
+        rot = None if np.array_equal(tree.body_rot[b], np.eye(3)) else tree.body_rot[b].copy()
+        out.append(BodyPlan(tree.body_parent[b], rot, tree.body_pos[b].copy(), steps))
+    return tuple(out)
+
+
+@dataclass(frozen=True)
 class TreeConsts:
     """What the formulas need of a tree beyond its parameters, computed once per model."""
 
     tree: MJCFTree
-    rodrigues: tuple[tuple[np.ndarray, np.ndarray, np.ndarray] | None, ...]  # per joint (a a^T, I - a a^T, [a]x); None: slide
+    plans: tuple[BodyPlan, ...]
     irot: np.ndarray  # (3, 3, nb) principal axes in the body frames
     ancestor: np.ndarray  # (nb, n): joint k moves body b
+    hinge_ancestor: np.ndarray  # (nb, n): ancestor times hinge (the angular Jacobian's mask)
+    slide_ancestor: np.ndarray  # (nb, n)
     order: np.ndarray  # (n, n): joint j acts before joint k on k's path
+    after: np.ndarray  # (n, n): order.T, joint j acts after joint k
+    from_k: np.ndarray  # (n, n): after + identity
     hinge: np.ndarray  # (n,)
+    eye: np.ndarray  # (n, n)
+    qpos0: np.ndarray
+    qpos_spring: np.ndarray
+    cache: dict = field(default_factory=dict, compare=False, repr=False)  # Ops.k's converted constants
 
     @classmethod
     def of(cls, tree: MJCFTree) -> TreeConsts:
-        rod: list[tuple[np.ndarray, np.ndarray, np.ndarray] | None] = []
-        for j in range(tree.n):
-            a = tree.joint_axis[j]
-            K = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
-            aa = np.outer(a, a)
-            rod.append((aa, np.eye(3) - aa, K) if tree.joint_hinge[j] else None)
         anc = np.zeros((tree.nb, tree.n))
         for b in range(tree.nb):
             a_ = b
@@ -120,7 +202,13 @@ class TreeConsts:
             for j in range(tree.n):
                 same = tree.joint_body[j] == bk and j < k
                 order[k, j] = 1.0 if same or (tree.joint_body[j] != bk and anc[bk, j]) else 0.0
-        return cls(tree, tuple(rod), np.moveaxis(tree.body_irot, 0, -1), anc, order, np.array(tree.joint_hinge, dtype=float))
+        hinge = np.array(tree.joint_hinge, dtype=float)
+        return cls(tree, _plans(tree), np.moveaxis(tree.body_irot, 0, -1), anc, anc * hinge, anc * (1.0 - hinge), order,
+                   order.T.copy(), order.T + np.eye(tree.n), hinge, np.eye(tree.n), tree.qpos0.copy(), tree.qpos_spring.copy())
+
+    @property
+    def all_hinges(self) -> bool:
+        return bool(np.all(self.hinge == 1.0))
 
 
 @dataclass(frozen=True)
@@ -133,38 +221,46 @@ class Frames:
     x: Any
 
 
-def _rotation(rod: tuple[np.ndarray, np.ndarray, np.ndarray], theta: Any, ops: Ops) -> Any:
-    """Rodrigues: a a^T + cos(theta) (I - a a^T) + sin(theta) [a]x, (3, 3, ...)."""
-    c, s = ops.trig(theta)
-    aa, rest, K = (ops.const(m) for m in rod)
-    return aa + c * rest + s * K
-
-
 def frames(tc: TreeConsts, theta: Any, ops: Ops) -> Frames:
-    """MuJoCo's mj_kinematics: each joint's axis and anchor are taken before its own motion is applied."""
-    t = tc.tree
+    """MuJoCo's mj_kinematics, following the load-time :class:`BodyPlan` of every body."""
+    k = ops.k
     one = theta[0] * 0.0 + 1.0
+    n = tc.tree.n
     R_w: list[Any] = []
     x_w: list[Any] = []
-    axes: list[Any] = [None] * t.n
-    anchors: list[Any] = [None] * t.n
-    for b in range(t.nb):
-        par = t.body_parent[b]
-        if par < 0:
-            R, x = ops.const(t.body_rot[b]) * one, ops.const(t.body_pos[b]) * one
-        else:
-            R = mm(R_w[par], ops.const(t.body_rot[b]))
-            x = x_w[par] + mv(R_w[par], ops.const(t.body_pos[b]))
-        for j in t.body_joints[b]:
-            axis, pos = mv(R, ops.const(t.joint_axis[j])), ops.const(t.joint_pos[j])
-            anchor = x + mv(R, pos)
-            axes[j], anchors[j] = axis, anchor
-            rod = tc.rodrigues[j]
-            if rod is not None:
-                R = mm(R, _rotation(rod, theta[j], ops))
-                x = anchor - mv(R, pos)
+    axes: list[Any] = [None] * n
+    anchors: list[Any] = [None] * n
+    for plan in tc.plans:
+        R = x = None
+        if plan.parent >= 0:
+            R, x = R_w[plan.parent], x_w[plan.parent]
+        for s in plan.steps:
+            th = theta[s.j]
+            if s.static:
+                axes[s.j], anchors[s.j] = k(s.axis) * one, k(s.anchor) * one
+                if s.hinge:
+                    c, sn = ops.trig(th)
+                    R = k(s.P[0]) + c * k(s.P[1]) + sn * k(s.P[2])
+                    x = k(s.origin[0]) + c * k(s.origin[1]) + sn * k(s.origin[2]) if s.pos is not None else anchors[s.j]
+                else:
+                    R = k(s.P[0]) * one
+                    x = k(s.origin[0]) + k(s.axis) * th
+                continue
+            assert R is not None and x is not None
+            axis = mv(R, k(s.axis))
+            anchor = x + mv(R, k(s.anchor))
+            axes[s.j], anchors[s.j] = axis, anchor
+            if s.hinge:
+                c, sn = ops.trig(th)
+                R = mm(R, k(s.P[0]) + c * k(s.P[1]) + sn * k(s.P[2]))
+                x = anchor - mv(R, k(s.pos)) if s.pos is not None else anchor
             else:
-                x = x + axis * theta[j]
+                x = x + mv(R, k(s.origin[0])) + axis * th
+                R = mm(R, k(s.P[0]))
+        if not plan.steps:
+            assert R is not None and x is not None
+            x = x + mv(R, k(plan.pos))
+            R = mm(R, k(plan.rot)) if plan.rot is not None else R
         R_w.append(R)
         x_w.append(x)
     return Frames(ops.stack(axes, 1), ops.stack(anchors, 1), ops.stack(R_w, 2), ops.stack(x_w, 1))
@@ -185,15 +281,15 @@ def bodies(tc: TreeConsts, p: TreeParams, theta: Any, ops: Ops) -> Bodies:
     f = frames(tc, theta, ops)
     ipos = ops.swap01(ops.param(p.ipos, 2))  # (3, nb, ...)
     C = f.x + mv(f.R, ipos)
-    r = C[:, :, None] - f.anchors[:, None]
     A = f.axes[:, None]
-    hinge, anc = ops.const(tc.hinge), ops.const(tc.ancestor)
-    Jv = anc * (hinge * cross(A, r, ops) + (1.0 - hinge) * A)
-    Jw = anc * hinge * A
-    return Bodies(Jv, Jw, mm(f.R, ops.const(tc.irot)), C, f.axes)
+    Jw = ops.k(tc.hinge_ancestor) * A
+    Jv = ops.k(tc.hinge_ancestor) * cross(A, C[:, :, None] - f.anchors[:, None], ops)
+    if not tc.all_hinges:
+        Jv = Jv + ops.k(tc.slide_ancestor) * A
+    return Bodies(Jv, Jw, mm(f.R, ops.k(tc.irot)), C, f.axes)
 
 
-def mass_matrix(p: TreeParams, bd: Bodies, ops: Ops) -> Any:
+def mass_matrix(p: TreeParams, bd: Bodies, ops: Ops, tc: TreeConsts | None = None) -> Any:
     """M(q) (n, n, ...)."""
     m = ops.param(p.mass, 1)[:, None, None]  # (nb, 1, 1, ...)
     inertia = ops.swap01(ops.param(p.inertia, 2))[:, :, None, None]  # (3, nb, 1, 1, ...)
@@ -201,8 +297,7 @@ def mass_matrix(p: TreeParams, bd: Bodies, ops: Ops) -> Any:
     M = (m * bd.Jv[:, :, :, None] * bd.Jv[:, :, None, :]).sum(0).sum(0) \
         + (inertia * W[:, :, :, None] * W[:, :, None, :]).sum(0).sum(0)
     arm = ops.param(p.armature, 1)
-    n = M.shape[0]
-    eye = ops.const(np.eye(n))
+    eye = ops.k(tc.eye) if tc is not None else ops.const(np.eye(M.shape[0]))
     return M + eye * arm[:, None]
 
 
@@ -225,23 +320,23 @@ def kinetic_dq(tc: TreeConsts, p: TreeParams, bd: Bodies, v: Any, ops: Ops) -> A
         du_b/dq_k = h_k a_k x u_b[>=k] + w[<k] x Jv_bk,   dw_b/dq_k = h_k a_k x w_b[>k],
         dT/dq_k   = sum_b m_b u_b . du_b/dq_k + (I_b w_b) . dw_b/dq_k + h_k a_k . ((I_b w_b) x w_b)
 
-    where [>=k] sums the joints from k on, [>k] those after k and [<k] those before k."""
-    order = tc.order
-    Jv_v, Jw_v = bd.Jv * v[None, None], bd.Jw * v[None, None]  # (3, nb, n, ...)
-    u, w = Jv_v.sum(2), Jw_v.sum(2)  # (3, nb, ...)
-    after = ops.const(order.T)  # after[k, j]: joint j acts after joint k
-    u_from = (Jv_v[:, :, None] * (after + ops.const(np.eye(len(order))))[None, None]).sum(3)  # (3, nb, n_k, ...)
-    w_after = (Jw_v[:, :, None] * after[None, None]).sum(3)
-    hv = v * ops.const(tc.hinge)
-    w_before = (((bd.axes * hv[None])[:, None]) * ops.const(order)[None]).sum(2)  # (3, n_k, ...)
-    a = (bd.axes * ops.const(tc.hinge))[:, None]  # h_k a_k, (3, 1, n, ...)
-    m = ops.param(p.mass, 1)[:, None]
-    lin = m * (u[:, :, None] * (cross(a, u_from, ops) + cross(w_before[:, None], bd.Jv, ops))).sum(0)
+    where [>=k] sums the joints from k on, [>k] those after k and [<k] those before k.  With the triple product the
+    sums over bodies come first::
+
+        dT/dq_k = h_k a_k . (sum_{j>=k} v_j G_j + sum_{j>k} v_j H_j + sum_{b after k} (I_b w_b) x w_b) + w[<k] . G_k,
+        G_j = sum_b m_b Jv_bj x u_b,   H_j = sum_b Jw_bj x (I_b w_b)
+    """
+    k = ops.k
+    u, w = (bd.Jv * v[None, None]).sum(2), (bd.Jw * v[None, None]).sum(2)  # (3, nb, ...)
+    m = ops.param(p.mass, 1)[:, None]  # (nb, 1, ...)
+    G = (m * cross(bd.Jv, u[:, :, None], ops)).sum(1)  # (3, n, ...)
     inertia = ops.swap01(ops.param(p.inertia, 2))  # (3, nb, ...)
-    local = (bd.RI * w[:, None]).sum(0)  # R^T w in the inertia frames, (3, nb, ...)
-    Iw = mv(bd.RI, inertia * local)
-    rot = (Iw[:, :, None] * cross(a, w_after, ops)).sum(0) + (a * cross(Iw, w, ops)[:, :, None]).sum(0)
-    return ((lin + rot) * ops.const(tc.ancestor)).sum(0)
+    Iw = mv(bd.RI, inertia * (bd.RI * w[:, None]).sum(0))  # (3, nb, ...)
+    H = cross(bd.Jw, Iw[:, :, None], ops).sum(1)  # (3, n, ...)
+    E = (cross(Iw, w, ops)[:, :, None] * k(tc.ancestor)[None]).sum(1)  # (3, n, ...): over the bodies after k
+    S = ((G * v[None])[:, None] * k(tc.from_k)[None]).sum(2) + ((H * v[None])[:, None] * k(tc.after)[None]).sum(2) + E
+    w_before = ((bd.axes * (v * k(tc.hinge))[None])[:, None] * k(tc.order)[None]).sum(2)  # (3, n_k, ...)
+    return (bd.axes * k(tc.hinge)[None] * S).sum(0) + (w_before * G).sum(0)
 
 
 def solve(M: Any, b: Any) -> Any:

@@ -94,6 +94,21 @@ class _Marks:
     refined: set[int] = field(default_factory=set)
 
 
+def _structure_groups(cands: list[AnyCandidate], ks: list[int]) -> list[list[int]]:
+    """``ks`` in groups whose systems can be simulated as one batch: the parameter changes, the force terms by
+    component (an armature changes how the vector field is assembled, so those terms go together), port and sensor
+    terms by kind (a smoothed deadzone at zero threshold is not the identity)."""
+    groups: dict[str, list[int]] = {}
+    for k in ks:
+        c = cands[k]
+        if isinstance(c, ParamCandidate):
+            key = "param"
+        else:
+            key = c.component if c.component in ("dissipation", "potential", "inertia") else c.term
+        groups.setdefault(key, []).append(k)
+    return list(groups.values())
+
+
 @dataclass
 class _Search:
     """Shared state of one selection: the problem, the parameter screen and the (mutable) current model."""
@@ -139,8 +154,17 @@ class _Search:
             fam2, g2 = self.cands[k].add_to(fam, fit.g, self.cands[k].fd_step)
             return fam2.build(g2)
 
-        builds: list[Callable[[], System]] = [partial(build, k) for k in ks]
-        cols = self.screen.shooter.columns(builds, fit, fit.r, [self.cands[k].fd_step for k in ks])
+        def stand_in(k: int, group: list[int]) -> System:  # every term of the group present, all but k at no effect
+            terms = [c.family_term for c in (self.cands[j] for j in group) if isinstance(c, Candidate)]
+            steps = [self.cands[j].fd_step if j == k else 0.0 for j in group]
+            return fam.with_(terms=fam.terms + terms).build(np.concatenate([fit.g, steps]))
+
+        cols = np.empty(fit.r.shape + (len(ks),))
+        for group in _structure_groups(self.cands, ks):
+            builds: list[Callable[[], System]] = [partial(build, k) for k in group]
+            stand_ins = None if self.cands[group[0]].is_param else [partial(stand_in, k, group) for k in group]
+            cols[..., [ks.index(k) for k in group]] = self.screen.shooter.columns(
+                builds, fit, fit.r, [self.cands[k].fd_step for k in group], stand_ins)
         self.raw = {k: cols[..., j] for j, k in enumerate(ks)}
         r_p, cols_p = fit.projected(cols)
         _, jg_p = fit.projected()

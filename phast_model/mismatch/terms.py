@@ -85,6 +85,10 @@ class AugmentedSystem(System):
         self.armature = maps.armature  # A = diag(armature): H = p^T (M(q) + A)^-1 p / 2 + V
         self.sensor_offset, self.sensor_gain, self.sensor_ecc = maps.sensor_offset, maps.sensor_gain, maps.sensor_eccentricity
         self.has_armature = any(a != 0.0 for a in self.armature)
+        # a base that carries its own rotor inertia (a MuJoCo model's joint armature) takes A into its M(q), so its
+        # fused vector field stays in use (one kinematics pass per evaluation instead of three)
+        fold = getattr(base, "with_armature", None)
+        self.inertial_base: System | None = fold(self.armature) if self.has_armature and fold is not None else None
 
     @property
     def has_sensor_terms(self) -> bool:
@@ -142,15 +146,20 @@ class AugmentedSystem(System):
     def _dH_dq_at(self, q: Components, p: Components, v: Components | None, xp: ArrayNamespace) -> tuple:
         """dH/dq|_p given v = dH/dp.  With armature A (constant): dH/dq|_p = dV/dq - v^T (dM/dq) v / 2, which is the
         base's dH/dq at the base momentum p' = M(q) v (same v, same dM/dq), plus the extra potential's gradient."""
+        if self.inertial_base is not None:
+            return tuple(a + b for a, b in zip(self.inertial_base.dH_dq(q, p, xp), self._extra_grad(q, xp)))
         if self.has_armature:
             assert v is not None, "with an armature, dH/dq needs the velocity"
             p = self.base.momentum(q, v, xp)
         return tuple(a + b for a, b in zip(self.base.dH_dq(q, p, xp), self._extra_grad(q, xp)))
 
     def dH_dq(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> tuple:
-        return self._dH_dq_at(q, p, self.velocity(q, p, xp) if self.has_armature else None, xp)
+        v = self.velocity(q, p, xp) if self.has_armature and self.inertial_base is None else None
+        return self._dH_dq_at(q, p, v, xp)
 
     def mass_matrix(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple:
+        if self.inertial_base is not None:
+            return self.inertial_base.mass_matrix(q, xp)
         M = self.base.mass_matrix(q, xp)
         if not self.has_armature:
             return M
@@ -159,6 +168,8 @@ class AugmentedSystem(System):
     def velocity(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         if not self.has_armature:
             return self.base.velocity(q, p, xp)
+        if self.inertial_base is not None:
+            return self.inertial_base.velocity(q, p, xp)
         return solve_spd(self.mass_matrix(q, xp), p)
 
     def damping(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple:
@@ -205,7 +216,7 @@ class AugmentedSystem(System):
 
     def rhs(self, q: Components, p: Components, u: Components | None, xp: ArrayNamespace = NUMPY) -> tuple[tuple, tuple]:
         uu = self.port(u, xp)
-        if self.has_armature:  # the base's (fused) vector field assumes its own M: the generic Eq. 1-3 instead
+        if self.has_armature and self.inertial_base is None:  # the base's fused field assumes its own M: generic Eq. 1-3
             qdot = self.velocity(q, p, xp)
             dh = self._dH_dq_at(q, p, qdot, xp)
             if type(self.base).nonconservative_force is System.nonconservative_force:  # -D v + u, in the order of Eq. 1-3
@@ -215,7 +226,7 @@ class AugmentedSystem(System):
             else:  # the base's own friction laws and actuator model
                 pdot = tuple(f - a for a, f in zip(dh, self.base.nonconservative_force(q, qdot, uu, xp)))
         else:
-            qdot, pdot = self.base.rhs(q, p, uu, xp)
+            qdot, pdot = (self.inertial_base or self.base).rhs(q, p, uu, xp)
             pdot = tuple(a - b for a, b in zip(pdot, self._extra_grad(q, xp)))
         f = self.extra_dissipation(q, qdot, xp)
         return tuple(qdot), tuple(a + c for a, c in zip(pdot, f))

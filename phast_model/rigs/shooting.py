@@ -162,6 +162,8 @@ def merge_systems(systems: Sequence[System], reps: int) -> System | None:
     the same operations.  The measurement map runs per system.  None when the systems cannot be merged.
     """
     merged: Any
+    if all(s is systems[0] for s in systems):  # one system for every batch: itself (never mutated here)
+        return systems[0]
     try:
         merged = _merge_values(list(systems), reps)
     except (_Unmergeable, TypeError):  # TypeError: no instance __dict__ (slots)
@@ -398,6 +400,32 @@ class ShootFit:
         return gn * np.outer(scale, scale)
 
 
+def _perturbed(build: Callable[[np.ndarray], System], g: np.ndarray, g_step: float) -> list[System]:
+    """The systems at g with each component in turn stepped by ``g_step`` (forward differences)."""
+    out = []
+    for j in range(g.size):
+        gp = g.copy()
+        gp[j] += g_step
+        out.append(build(gp))
+    return out
+
+
+def _damped_step(A: np.ndarray, B: np.ndarray, C: np.ndarray, gx: np.ndarray, gg: np.ndarray, lam: float,
+                 P: int) -> tuple[np.ndarray, np.ndarray]:
+    """The Levenberg-Marquardt step (dx (W, 2n), dg (P,)) at damping ``lam``, the window states eliminated window by
+    window (Schur complement of the arrow-shaped normal equations)."""
+    Ad = A + lam * (np.diagonal(A, axis1=1, axis2=2)[..., None] * np.eye(A.shape[1]) + 1e-12 * np.eye(A.shape[1]))
+    Ainv = np.linalg.inv(Ad)
+    if not P:
+        return -np.einsum("wab,wb->wa", Ainv, gx), np.zeros(0)
+    Cd = C + lam * np.diag(np.diag(C)) + 1e-12 * np.eye(P)
+    AiB = np.einsum("wab,wbp->wap", Ainv, B)
+    S = Cd - np.einsum("wap,waq->pq", B, AiB)
+    rhs = -gg + np.einsum("wap,wa->p", AiB, gx)
+    dg = np.linalg.lstsq(S, rhs, rcond=None)[0]
+    return -np.einsum("wab,wb->wa", Ainv, gx + np.einsum("wbp,p->wb", B, dg)), dg
+
+
 class Shooter:
     """Standardized shooting residuals of a model family ``build(g) -> System`` on windows."""
 
@@ -480,84 +508,119 @@ class Shooter:
         The P perturbed systems are simulated as one batch of P*W samples when they merge
         (:func:`merge_systems`: per-sample parameter arrays, the same arithmetic per sample as P simulations).
         """
-        P = g.size
-        systems = []
-        for j in range(P):
-            gp = g.copy()
-            gp[j] += g_step
-            systems.append(build(gp))
-        if not P:
+        if not g.size:
             return np.empty(r.shape + (0,))
         # contiguous (..., P) as the column-by-column fill gave: the normal equations' sums then round the same way
-        return np.ascontiguousarray(np.moveaxis((self.residuals_of(systems, X) - r[None]) / g_step, 0, -1))
+        R = self.residuals_of(_perturbed(build, g, g_step), X)
+        return np.ascontiguousarray(np.moveaxis((R - r[None]) / g_step, 0, -1))
 
-    def residuals_of(self, systems: Sequence[System], X: np.ndarray) -> np.ndarray:
+    def residuals_of(self, systems: Sequence[System], X: np.ndarray, stand_ins: Sequence[System] | None = None) -> np.ndarray:
         """(K, W, L*n) residuals of K systems at the same window states X: one batch of K*W samples when the
-        systems merge (and the merged vector field checks out at the windows' first samples), else one by one."""
-        K, W, n = len(systems), X.shape[0], self.n
-        merged = merge_systems(systems, W) if K > 1 and W else None
-        if merged is not None:
+        systems merge (and the merged vector field checks out at the windows' first samples), else one by one.
+
+        ``stand_ins``: one system per system, all of one structure (every candidate term present, each but its own at
+        no effect), merged in their place when they merge and give each system's vector field at those samples."""
+        K, W = len(systems), X.shape[0]
+        if K > 1 and W:
             Xs = np.repeat(X[None], K, axis=0)
-            Xf = Xs.reshape(-1, 2 * n)
-            q, v = [Xf[:, i] for i in range(n)], [Xf[:, n + i] for i in range(n)]
-            u = None if self.w.u is None else [np.tile(self.w.u[:, 0, i], K) for i in range(n)]
-            if _merged_field_ok(merged, systems, q, v, u):
-                return self._residuals(merged, Xs)
+            for group in ([stand_ins] if stand_ins is not None else []) + [systems]:
+                R = self.residuals_each(group, Xs, reference=systems)
+                if R is not None:
+                    return R
         return np.stack([self.residual(s, X) for s in systems]) if K else np.empty((0, W, 0))
+
+    def residuals_each(self, systems: Sequence[System], Xs: np.ndarray, reference: Sequence[System] | None = None) -> np.ndarray | None:
+        """(K, W, L*n) residuals of K systems, the k-th at its own window states ``Xs[k]``, as one batch of K*W
+        samples; None when the systems do not merge, or the merged vector field differs from the ``reference``
+        systems' (default: the systems themselves) at the windows' first samples."""
+        K, W, n = len(systems), Xs.shape[1], self.n
+        if K == 1 and reference is None:
+            return self._residuals(systems[0], Xs)
+        merged = merge_systems(systems, W) if W else None
+        if merged is None:
+            return None
+        Xf = Xs.reshape(-1, 2 * n)
+        q, v = [Xf[:, i] for i in range(n)], [Xf[:, n + i] for i in range(n)]
+        u = None if self.w.u is None else [np.tile(self.w.u[:, 0, i], K) for i in range(n)]
+        return self._residuals(merged, Xs) if _merged_field_ok(merged, reference or systems, q, v, u) else None
+
+    def linearize(self, build: Callable[[np.ndarray], System], system: System, g: np.ndarray, X: np.ndarray,
+                  g_step: float, r: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(r, JX, Jg) at (X, g): the residual (simulated unless given), :meth:`jac_X` and the forward-difference
+        parameter Jacobian, from one batch of (1 +) 2n + P simulations when the perturbed systems merge (the same
+        numbers as separate calls: every sample is integrated on its own)."""
+        P = g.size
+        perturbed = _perturbed(build, g, g_step)
+        Xs, h = self._state_steps(X, with_base=r is None)
+        k = Xs.shape[0]
+        R = self.residuals_each([system] * k + perturbed, np.concatenate([Xs, np.repeat(X[None], P, axis=0)])) \
+            if P else self._residuals(system, Xs)
+        if R is None:  # the systems do not merge: states in one batch, parameters one by one
+            R = np.concatenate([self._residuals(system, Xs), self.residuals_of(perturbed, X)])
+        if r is None:
+            r = R[0]
+        JX = np.moveaxis((R[k - 2 * self.n: k] - r[None]) / h[:, None, None], 0, -1)
+        # contiguous (..., P) as the column-by-column fill gave: the normal equations' sums then round the same way
+        Jg = np.ascontiguousarray(np.moveaxis((R[k:] - r[None]) / g_step, 0, -1)) if P else np.empty(r.shape + (0,))
+        return r, JX, Jg
+
+    #: Levenberg-Marquardt damping tries per iteration (lambda, 8 lambda, ..., 8^7 lambda), simulated in batches of
+    #: these sizes: the first try alone (usually accepted), the next ones together (a converged fit rejects them all)
+    LADDER = (1, 3, 4)
+
+    def _lm_step(self, build: Callable[[np.ndarray], System], X: np.ndarray, g: np.ndarray, lam: float, cost: float,
+                 normal: tuple[np.ndarray, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, System, float] | None:
+        """The first of the damped steps ``lam 8^i`` (i = 0..7) that lowers the cost, as (X, g, r, cost, system,
+        its lambda); the tries of one :data:`LADDER` rung are simulated as one batch.  None: none lowers it."""
+        A, B, C, gx, gg = normal
+        P = g.size
+        i = 0
+        for rung in self.LADDER:
+            lams = [lam * 8.0 ** (i + t) for t in range(rung)]
+            i += rung
+            trials = [_damped_step(A, B, C, gx, gg, la, P) for la in lams]
+            Xs = np.stack([X + dx for dx, _ in trials])
+            gs = [g + dg for _, dg in trials]
+            systems = [build(gn) for gn in gs]
+            R = self.residuals_each(systems, Xs) if len(systems) > 1 else None
+            if R is None:
+                R = np.stack([self.residual(sn, Xn) for sn, Xn in zip(systems, Xs)])
+            for t, la in enumerate(lams):
+                cn = float(np.sum(R[t] ** 2))
+                if np.isfinite(cn) and cn < cost:
+                    return Xs[t], gs[t], R[t], cn, systems[t], la
+        return None
 
     def fit(self, build: Callable[[np.ndarray], System], X0: np.ndarray, g0: np.ndarray,
             max_iter: int = 25, tol: float = 1e-7, g_step: float = 1e-4, stats: bool = True) -> ShootFit:
         """Levenberg-Marquardt on (window states, g) with Schur elimination of the states.  ``stats=False``: no
         Jacobians at the final point (JX and Jg come back with no columns), for a fit whose statistics are unused."""
         X, g = X0.copy(), np.asarray(g0, dtype=float).copy()
-        P = g.size
         system = build(g)
-        r = self.residual(system, X)
+        r, JX, Jg = self.linearize(build, system, g, X, g_step)
         cost = float(np.sum(r**2))
         lam = 1e-3
         it = 0
-        JX = Jg = None
+        lin: tuple[np.ndarray, np.ndarray] | None = (JX, Jg)  # the Jacobians at the current point, when known
         for it in range(1, max_iter + 1):  # noqa: B007
-            JX = self.jac_X(system, X, r)
-            Jg = self._jac_params(build, g, X, r, g_step)
-            A = np.einsum("wla,wlb->wab", JX, JX)
-            B = np.einsum("wla,wlp->wap", JX, Jg)
-            C = np.einsum("wlp,wlq->pq", Jg, Jg)
-            gx = np.einsum("wla,wl->wa", JX, r)
-            gg = np.einsum("wlp,wl->p", Jg, r)
-            improved = False
-            for _ in range(8):
-                Ad = A + lam * (np.diagonal(A, axis1=1, axis2=2)[..., None] * np.eye(A.shape[1]) + 1e-12 * np.eye(A.shape[1]))
-                Ainv = np.linalg.inv(Ad)
-                if P:
-                    Cd = C + lam * np.diag(np.diag(C)) + 1e-12 * np.eye(P)
-                    AiB = np.einsum("wab,wbp->wap", Ainv, B)
-                    S = Cd - np.einsum("wap,waq->pq", B, AiB)
-                    rhs = -gg + np.einsum("wap,wa->p", AiB, gx)
-                    dg = np.linalg.lstsq(S, rhs, rcond=None)[0]
-                    dx = -np.einsum("wab,wb->wa", Ainv, gx + np.einsum("wbp,p->wb", B, dg))
-                else:
-                    dg = np.zeros(0)
-                    dx = -np.einsum("wab,wb->wa", Ainv, gx)
-                Xn, gn = X + dx, g + dg
-                sys_n = build(gn)
-                rn = self.residual(sys_n, Xn)
-                cn = float(np.sum(rn**2))
-                if np.isfinite(cn) and cn < cost:
-                    improved = True
-                    # converged when the gain is negligible in chi^2 units (or relatively)
-                    rel = 0.0 if cost - cn < 0.02 else (cost - cn) / max(cost, 1e-300)
-                    X, g, r, cost, system = Xn, gn, rn, cn, sys_n
-                    lam = max(lam / 5, 1e-9)
-                    break
-                lam *= 8
-            if not improved or rel < tol:
+            if lin is None:
+                lin = self.linearize(build, system, g, X, g_step, r)[1:]
+            JX, Jg = lin
+            normal = (np.einsum("wla,wlb->wab", JX, JX), np.einsum("wla,wlp->wap", JX, Jg), np.einsum("wlp,wlq->pq", Jg, Jg),
+                      np.einsum("wla,wl->wa", JX, r), np.einsum("wlp,wl->p", Jg, r))
+            step = self._lm_step(build, X, g, lam, cost, normal)
+            if step is None:
+                break
+            # converged when the gain is negligible in chi^2 units (or relatively)
+            rel = 0.0 if cost - step[3] < 0.02 else (cost - step[3]) / max(cost, 1e-300)
+            X, g, r, cost, system, lam_used = step
+            lam, lin = max(lam_used / 5, 1e-9), None
+            if rel < tol:
                 break
         if not stats:
             return ShootFit(X, g, r, np.zeros(r.shape + (0,)), np.zeros(r.shape + (0,)), cost, r.size, it)
         # Jacobians at the final point for statistics
-        JX = self.jac_X(system, X, r)
-        Jg = self._jac_params(build, g, X, r, g_step)
+        JX, Jg = lin if lin is not None else self.linearize(build, system, g, X, g_step, r)[1:]
         return ShootFit(X, g, r, JX, Jg, cost, r.size, it)
 
     def fit_states(self, system: System, X0: np.ndarray, max_iter: int = 25) -> ShootFit:
@@ -579,11 +642,12 @@ class Shooter:
         self.w = full
         return self.fit(lambda g: system, X, np.zeros(0), max_iter=max_iter)
 
-    def columns(self, builds: list[Callable[[], System]], fit: ShootFit, base_r: np.ndarray, h: list[float]) -> np.ndarray:
+    def columns(self, builds: list[Callable[[], System]], fit: ShootFit, base_r: np.ndarray, h: list[float],
+                stand_ins: list[Callable[[], System]] | None = None) -> np.ndarray:
         """(W, L*n, K) finite-difference columns of extra candidate directions at a fit (one batch when the
-        K systems merge: parameter directions; see :meth:`residuals_of`)."""
+        K systems, or their ``stand_ins``, merge; see :meth:`residuals_of`)."""
         out = np.empty(base_r.shape + (len(builds),))
-        R = self.residuals_of([b() for b in builds], fit.X)
+        R = self.residuals_of([b() for b in builds], fit.X, None if stand_ins is None else [b() for b in stand_ins])
         for k, hk in enumerate(h):
             out[..., k] = (R[k] - base_r) / hk
         return out
