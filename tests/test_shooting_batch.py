@@ -140,3 +140,38 @@ def test_parameter_columns_batched_equal_one_by_one() -> None:
         cols = sh.columns(bs, fit, r, [1e-3] * len(bs))
         for k, b in enumerate(bs):
             np.testing.assert_array_equal(cols[..., k], (sh.residual(b(), X) - r) / 1e-3)
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_one_linearization_gives_the_fit_the_separate_simulations_give(case: str) -> None:
+    """linearize: residual, state and parameter Jacobians from one batch equal the separate simulations exactly; the
+    fit with the damping tries batched in rungs equals the tries one at a time."""
+    env, kwargs, params, terms, u_std, steps = CASES[case]
+    sh, fam, g, X = _setup(env, kwargs, params, terms, u_std, steps)
+    system = fam.build(g)
+    r, JX, Jg = sh.linearize(fam.build, system, g, X, 1e-4)
+    r0 = sh.residual(system, X)
+    np.testing.assert_array_equal(r, r0)
+    np.testing.assert_array_equal(JX, sh.jac_X(system, X, r0))
+    np.testing.assert_array_equal(Jg, sh._jac_params(fam.build, g, X, r0, 1e-4))
+    batched = sh.fit(fam.build, X, g, max_iter=4)
+    sh.LADDER = (1,) * 8  # type: ignore[misc]
+    single = sh.fit(fam.build, X, g, max_iter=4)
+    np.testing.assert_array_equal(batched.g, single.g)
+    np.testing.assert_array_equal(batched.X, single.X)
+
+
+def test_linearized_drop_predicts_the_refit() -> None:
+    """ShootFit.without(j): one Gauss-Newton step with g_j held at zero lands where the nonlinear refit does (to the
+    fit's statistical precision) and gives its statistics."""
+    sh, fam, g, X = _setup("PHAST/DampedOscillator-v0", {}, ["omega"], [ScaledTerm("coulomb_friction", 0, 0.04),
+                           ScaledTerm("viscous_damping", 0, 0.05)], 1.0, False)
+    fit = sh.fit(fam.build, X, np.zeros(3))
+    j = 2  # the damping term
+    drop = fit.without(j)
+    keep = [i for i in range(g.size) if i != j]
+    fam2 = fam.with_(terms=fam.terms[:1])
+    refit = sh.fit(fam2.build, drop.X, drop.g)
+    sd = np.sqrt(np.diag(refit.covariance()))
+    assert np.all(np.abs(drop.g - refit.g) <= 0.2 * sd)
+    assert drop.g.size == len(keep) and abs(drop.cost - refit.cost) <= 0.05 * refit.cost + 1.0

@@ -572,16 +572,24 @@ def _prune_parameters(s: _Search) -> None:
     if s.fit.chi2_red > s.problem.opts.systematic_chi2:
         s.problem.log("model error dominates: the weak form decides the parameters (no shooting pruning)")
         return
-    while s.cov is not None:
-        params = [k for k in s.chosen if s.cands[k].is_param]
-        if not params:
+    while True:
+        dropped = False
+        while s.cov is not None:  # eliminations on the linearized fit ...
+            params = [k for k in s.chosen if s.cands[k].is_param]
+            if not params:
+                break
+            t = {k: abs(s.fit.g[s.pos(k)]) / math.sqrt(max(s.cov[s.pos(k), s.pos(k)], 1e-300)) for k in params}
+            worst = min(params, key=lambda k: t[k])
+            if t[worst] >= s.problem.opts.threshold:
+                break
+            s.problem.log(f"parameter {s.cands[worst].label} not needed (|t| = {t[worst]:.3g}): held at nominal")
+            s.fit = s.fit.without(s.pos(worst))
+            s.chosen = [k for k in s.chosen if k != worst]
+            s.cov = s.fit.covariance() if s.chosen else None
+            dropped = True
+        if not dropped:
             return
-        t = {k: abs(s.fit.g[s.pos(k)]) / math.sqrt(max(s.cov[s.pos(k), s.pos(k)], 1e-300)) for k in params}
-        worst = min(params, key=lambda k: t[k])
-        if t[worst] >= s.problem.opts.threshold:
-            return
-        s.problem.log(f"parameter {s.cands[worst].label} not needed (|t| = {t[worst]:.3g}): held at nominal")
-        _refit(s, [k for k in s.chosen if k != worst])
+        _refit(s, list(s.chosen))  # ... then one nonlinear refit, whose statistics are checked again
 
 
 def select(problem: Problem, screen: ParameterScreen, cands: list[AnyCandidate]) -> Selection:

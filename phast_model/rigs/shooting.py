@@ -383,6 +383,19 @@ class ShootFit:
             cols = self.Jg
         return r, proj(cols)
 
+    def without(self, j: int) -> ShootFit:
+        """The fit with global ``j`` held at zero (no effect) and every other unknown (window states included) moved by
+        one Gauss-Newton step on this linearization: the refit's statistics without a new simulation."""
+        keep = [i for i in range(self.g.size) if i != j]
+        r0 = self.r - self.Jg[..., j] * self.g[j]
+        Jg = self.Jg[..., keep]
+        JX = self.JX
+        normal = (np.einsum("wla,wlb->wab", JX, JX), np.einsum("wla,wlp->wap", JX, Jg), np.einsum("wlp,wlq->pq", Jg, Jg),
+                  np.einsum("wla,wl->wa", JX, r0), np.einsum("wlp,wl->p", Jg, r0))
+        dx, dg = _damped_step(*normal, 0.0, len(keep))
+        r = r0 + np.einsum("wla,wa->wl", JX, dx) + np.einsum("wlp,p->wl", Jg, dg)
+        return ShootFit(self.X + dx, self.g[keep] + dg, r, JX, np.ascontiguousarray(Jg), float(np.sum(r**2)), self.n_obs, 0)
+
     def covariance(self) -> np.ndarray:
         """Covariance of g: max of Gauss-Newton (scaled by chi2_red) and window-cluster sandwich."""
         P = self.g.size
