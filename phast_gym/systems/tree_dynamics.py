@@ -65,6 +65,16 @@ class Ops:
             c = self.cache[key] = self.const(a)
         return c
 
+    def k0(self, a: np.ndarray) -> Any:
+        """A load-time constant as it is (no batch axes), as a tensor on the torch path; converted once."""
+        if self.torch is None:
+            return a
+        key = (id(a), "k0") + self._key
+        c = self.cache.get(key)
+        if c is None:
+            c = self.cache[key] = self.torch.as_tensor(a, dtype=self.like.dtype, device=self.like.device)
+        return c
+
     def param(self, a: Any, ndim: int) -> Any:
         """A parameter array of ``ndim`` structure axes; a leading batch axis (parameter sets) moves to the end."""
         if np.ndim(a) > ndim:
@@ -86,20 +96,28 @@ class Ops:
     def swap01(self, x: Any) -> Any:
         return x.transpose(0, 1) if self.torch is not None else np.swapaxes(x, 0, 1)
 
+    def einsum(self, spec: str, *xs: Any) -> Any:
+        """Contraction over structure axes, the batch in ``...`` (broadcast): one call instead of a product and a sum."""
+        return self.torch.einsum(spec, *xs) if self.torch is not None else np.einsum(spec, *xs)
 
-def mv(A: Any, v: Any) -> Any:
+    def cat(self, xs: list) -> Any:
+        return self.torch.cat(xs, 0) if self.torch is not None else np.concatenate(xs, 0)
+
+
+def mv(A: Any, v: Any, ops: Ops) -> Any:
     """(i, j, ...) times (j, ...) -> (i, ...)."""
-    return (A * v[None]).sum(1)
+    return ops.einsum("ij...,j...->i...", A, v)
 
 
-def mm(A: Any, B: Any) -> Any:
+def mm(A: Any, B: Any, ops: Ops) -> Any:
     """(i, j, ...) times (j, k, ...) -> (i, k, ...)."""
-    return (A[:, :, None] * B[None]).sum(1)
+    return ops.einsum("ij...,jk...->ik...", A, B)
 
 
 def cross(a: Any, b: Any, ops: Ops) -> Any:
-    """a x b over the first axis (3, ...)."""
-    return ops.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+    """a x b over the first axis (3, ...): (a_{i+1} b_{i+2} - a_{i+2} b_{i+1})_i from cyclic extensions (four ops)."""
+    a5, b5 = ops.cat([a, a[:2]]), ops.cat([b, b[:2]])
+    return a5[1:4] * b5[2:5] - a5[2:5] * b5[1:4]
 
 
 @dataclass(frozen=True)
@@ -247,20 +265,20 @@ def frames(tc: TreeConsts, theta: Any, ops: Ops) -> Frames:
                     x = k(s.origin[0]) + k(s.axis) * th
                 continue
             assert R is not None and x is not None
-            axis = mv(R, k(s.axis))
-            anchor = x + mv(R, k(s.anchor))
+            axis = mv(R, k(s.axis), ops)
+            anchor = x + mv(R, k(s.anchor), ops)
             axes[s.j], anchors[s.j] = axis, anchor
             if s.hinge:
                 c, sn = ops.trig(th)
-                R = mm(R, k(s.P[0]) + c * k(s.P[1]) + sn * k(s.P[2]))
-                x = anchor - mv(R, k(s.pos)) if s.pos is not None else anchor
+                R = mm(R, k(s.P[0]) + c * k(s.P[1]) + sn * k(s.P[2]), ops)
+                x = anchor - mv(R, k(s.pos), ops) if s.pos is not None else anchor
             else:
-                x = x + mv(R, k(s.origin[0])) + axis * th
-                R = mm(R, k(s.P[0]))
+                x = x + mv(R, k(s.origin[0]), ops) + axis * th
+                R = mm(R, k(s.P[0]), ops)
         if not plan.steps:
             assert R is not None and x is not None
-            x = x + mv(R, k(plan.pos))
-            R = mm(R, k(plan.rot)) if plan.rot is not None else R
+            x = x + mv(R, k(plan.pos), ops)
+            R = mm(R, k(plan.rot), ops) if plan.rot is not None else R
         R_w.append(R)
         x_w.append(x)
     return Frames(ops.stack(axes, 1), ops.stack(anchors, 1), ops.stack(R_w, 2), ops.stack(x_w, 1))
@@ -280,22 +298,21 @@ class Bodies:
 def bodies(tc: TreeConsts, p: TreeParams, theta: Any, ops: Ops) -> Bodies:
     f = frames(tc, theta, ops)
     ipos = ops.swap01(ops.param(p.ipos, 2))  # (3, nb, ...)
-    C = f.x + mv(f.R, ipos)
+    C = f.x + mv(f.R, ipos, ops)
     A = f.axes[:, None]
     Jw = ops.k(tc.hinge_ancestor) * A
     Jv = ops.k(tc.hinge_ancestor) * cross(A, C[:, :, None] - f.anchors[:, None], ops)
     if not tc.all_hinges:
         Jv = Jv + ops.k(tc.slide_ancestor) * A
-    return Bodies(Jv, Jw, mm(f.R, ops.k(tc.irot)), C, f.axes)
+    return Bodies(Jv, Jw, mm(f.R, ops.k(tc.irot), ops), C, f.axes)
 
 
 def mass_matrix(p: TreeParams, bd: Bodies, ops: Ops, tc: TreeConsts | None = None) -> Any:
     """M(q) (n, n, ...)."""
-    m = ops.param(p.mass, 1)[:, None, None]  # (nb, 1, 1, ...)
-    inertia = ops.swap01(ops.param(p.inertia, 2))[:, :, None, None]  # (3, nb, 1, 1, ...)
-    W = (bd.RI[:, :, :, None] * bd.Jw[:, None]).sum(0)  # angular Jacobians in the inertia frames, (3, nb, n, ...)
-    M = (m * bd.Jv[:, :, :, None] * bd.Jv[:, :, None, :]).sum(0).sum(0) \
-        + (inertia * W[:, :, :, None] * W[:, :, None, :]).sum(0).sum(0)
+    m = ops.param(p.mass, 1)  # (nb, ...)
+    inertia = ops.swap01(ops.param(p.inertia, 2))  # (3, nb, ...)
+    W = ops.einsum("xyb...,xbk...->ybk...", bd.RI, bd.Jw)  # angular Jacobians in the inertia frames, (3, nb, n, ...)
+    M = ops.einsum("xbi...,xbj...,b...->ij...", bd.Jv, bd.Jv, m) + ops.einsum("xbi...,xbj...,xb...->ij...", W, W, inertia)
     arm = ops.param(p.armature, 1)
     eye = ops.k(tc.eye) if tc is not None else ops.const(np.eye(M.shape[0]))
     return M + eye * arm[:, None]
@@ -303,14 +320,11 @@ def mass_matrix(p: TreeParams, bd: Bodies, ops: Ops, tc: TreeConsts | None = Non
 
 def gravity_gradient(p: TreeParams, bd: Bodies, ops: Ops) -> Any:
     """d(-sum_b m_b g . c_b)/dq (n, ...)."""
-    g = ops.param(p.gravity, 1)[:, None, None]  # (3, 1, 1, ...)
-    m = ops.param(p.mass, 1)[:, None]  # (nb, 1, ...)
-    return -(m * (bd.Jv * g).sum(0)).sum(0)
+    return -ops.einsum("xbk...,x...,b...->k...", bd.Jv, ops.param(p.gravity, 1), ops.param(p.mass, 1))
 
 
 def gravity_potential(p: TreeParams, bd: Bodies, ops: Ops) -> Any:
-    g = ops.param(p.gravity, 1)[:, None]
-    return -(ops.param(p.mass, 1) * (bd.C * g).sum(0)).sum(0)
+    return -ops.einsum("xb...,x...,b...->...", bd.C, ops.param(p.gravity, 1), ops.param(p.mass, 1))
 
 
 def kinetic_dq(tc: TreeConsts, p: TreeParams, bd: Bodies, v: Any, ops: Ops) -> Any:
@@ -327,16 +341,19 @@ def kinetic_dq(tc: TreeConsts, p: TreeParams, bd: Bodies, v: Any, ops: Ops) -> A
         G_j = sum_b m_b Jv_bj x u_b,   H_j = sum_b Jw_bj x (I_b w_b)
     """
     k = ops.k
-    u, w = (bd.Jv * v[None, None]).sum(2), (bd.Jw * v[None, None]).sum(2)  # (3, nb, ...)
-    m = ops.param(p.mass, 1)[:, None]  # (nb, 1, ...)
-    G = (m * cross(bd.Jv, u[:, :, None], ops)).sum(1)  # (3, n, ...)
+    es = ops.einsum
+    u, w = es("xbk...,k...->xb...", bd.Jv, v), es("xbk...,k...->xb...", bd.Jw, v)  # (3, nb, ...)
     inertia = ops.swap01(ops.param(p.inertia, 2))  # (3, nb, ...)
-    Iw = mv(bd.RI, inertia * (bd.RI * w[:, None]).sum(0))  # (3, nb, ...)
-    H = cross(bd.Jw, Iw[:, :, None], ops).sum(1)  # (3, n, ...)
-    E = (cross(Iw, w, ops)[:, :, None] * k(tc.ancestor)[None]).sum(1)  # (3, n, ...): over the bodies after k
-    S = ((G * v[None])[:, None] * k(tc.from_k)[None]).sum(2) + ((H * v[None])[:, None] * k(tc.after)[None]).sum(2) + E
-    w_before = ((bd.axes * (v * k(tc.hinge))[None])[:, None] * k(tc.order)[None]).sum(2)  # (3, n_k, ...)
-    return (bd.axes * k(tc.hinge)[None] * S).sum(0) + (w_before * G).sum(0)
+    Iw = mv(bd.RI, inertia * es("xyb...,xb...->yb...", bd.RI, w), ops)  # (3, nb, ...)
+    # G and H in one cross product: Jv x (m u) and Jw x (I w), summed over the bodies
+    m = ops.param(p.mass, 1)
+    GH = cross(ops.stack([bd.Jv, bd.Jw], 1), ops.stack([m * u, Iw], 1)[:, :, :, None], ops).sum(2)  # (3, 2, n, ...)
+    G, H = GH[:, 0], GH[:, 1]
+    k0 = ops.k0
+    E = es("xb...,bk->xk...", cross(Iw, w, ops), k0(tc.ancestor))  # (3, n, ...): over the bodies after k
+    S = es("xj...,j...,kj->xk...", G, v, k0(tc.from_k)) + es("xj...,j...,kj->xk...", H, v, k0(tc.after)) + E
+    w_before = es("xj...,j...,kj->xk...", bd.axes, v * k(tc.hinge), k0(tc.order))  # (3, n_k, ...)
+    return es("xk...,k,xk...->k...", bd.axes, k0(tc.hinge), S) + es("xk...,xk...->k...", w_before, G)
 
 
 def solve(M: Any, b: Any) -> Any:
