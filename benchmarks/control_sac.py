@@ -58,6 +58,7 @@ from phast_gym.control import (
     start_states,
 )
 from phast_gym.fileio import atomic_write_text
+from phast_gym.reward import regulation_reward
 from phast_gym.systems.base import SCALAR, wrap
 
 #: the RL zoo's tuned SAC hyperparameters for Pendulum-v1 (rl-baselines3-zoo hyperparams/sac.yml: ``policy MlpPolicy,
@@ -108,7 +109,8 @@ def pendulum_reward(err: float, v: float, u: float, kind: str = "zoo", quiet_wei
                     wells: Sequence[Well] = PRECISE_WELLS) -> float:
     """Per-step reward from the wrapped angle error ``err`` (rad), velocity ``v`` and torque ``u`` (N m).
 
-    ``zoo``: the Gymnasium Pendulum shape ``-(err^2 + 0.1 v^2 + 0.001 u^2)``.
+    ``zoo``: the suite's standard reward (:func:`phast_gym.reward.regulation_reward`), the Gymnasium Pendulum shape
+    ``-(err^2 + 0.1 v^2 + 0.001 u^2)``.
     ``quiet``: that minus ``quiet_weight u^2 exp(-(err / QUIET_SCALE)^2)``: a torque penalty that is 500x larger
     (``quiet_weight`` 0.5) near the target, so holding the target with a quiet actuator (the success rule's RMS
     torque) pays.  At an unstable target the weight must stay below :func:`max_quiet_weight` (see there).
@@ -118,7 +120,7 @@ def pendulum_reward(err: float, v: float, u: float, kind: str = "zoo", quiet_wei
     ``wells`` replaces that one well by others (``--wells``), e.g. a second, wider one whose pull reaches the offsets
     of 0.1-0.3 rad where the narrow well is flat and ``err^2`` is weak.
     """
-    r = -(err * err + 0.1 * v * v + 0.001 * u * u)
+    r = regulation_reward(err * err, v * v, u * u)
     if kind in ("quiet", "precise"):
         r -= quiet_weight * u * u * math.exp(-((err / QUIET_SCALE) ** 2))
     if kind == "precise":

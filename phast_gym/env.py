@@ -18,6 +18,7 @@ import numpy as np
 from gymnasium import spaces
 
 from . import integrate
+from .reward import regulation_reward
 from .systems import SCALAR, ParameterError, System, make_system
 
 _TWO_PI = 2.0 * math.pi
@@ -92,7 +93,7 @@ class PortHamiltonianEnv(gym.Env):
     ``ValueError`` and leave the env unchanged.
 
     ## Reward
-    ``-(|wrap(q - target)|^2 + 0.1 |qdot|^2 + 0.001 |u|^2)``.
+    ``-(|wrap(q - target)|^2 + 0.1 |qdot|^2 + 0.001 |u|^2)`` (:func:`phast_gym.reward.regulation_reward`).
 
     ## Info
     ``state`` (true (q, p), unwrapped), ``energy`` (H), ``damping`` (diag of
@@ -290,7 +291,7 @@ class PortHamiltonianEnv(gym.Env):
             if ang:
                 e = (e + math.pi) % _TWO_PI - math.pi
             err += e * e
-        reward = -(err + 0.1 * sum(vi * vi for vi in v) + 0.001 * sum(ui * ui for ui in u))
+        reward = regulation_reward(err, sum(vi * vi for vi in v), sum(ui * ui for ui in u))
         info = self._info()
         info["action_clipped"] = clipped
         return self._obs(), float(reward), False, False, info

@@ -6,7 +6,10 @@
 * no import cycle among the package's modules (module-level and function-level imports alike);
 * no private name (``_name``) imported from another module of the package;
 * the shared ``rigs`` layer imports neither tool, and the world model, the trainer and the rig path import nothing
-  from the mismatch tool (the rig's friction plot draws the mismatch tool's friction curve: the one exception).
+  from the mismatch tool (the rig's friction plot draws the mismatch tool's friction curve: the one exception);
+* scipy's Savitzky-Golay filter is called by the swappable differentiator only (``rigs.signals``);
+* no module but the term registry names the Stribeck kind: velocity grids, refinement and candidate scales are asked
+  of the kind.
 """
 
 from __future__ import annotations
@@ -159,6 +162,31 @@ def test_layers_point_one_way():
               for src, banned in LAYER_RULES
               if _inside(m, src) and _inside(t, banned) and (m, banned) not in LAYER_EXCEPTIONS]
     assert not broken, "\n".join(broken)
+
+
+def _names(tree: ast.Module) -> set[str]:
+    """Every name a module uses or imports (identifiers, attributes, imported names)."""
+    out: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Name):
+            out.add(node.id)
+        elif isinstance(node, ast.Attribute):
+            out.add(node.attr)
+        elif isinstance(node, ast.alias):
+            out.add(node.name.rpartition(".")[2])
+    return out
+
+
+def test_one_differentiator():
+    users = sorted(m for m, tree in TREES.items() if m != "phast_model.rigs.signals"
+                   and {"savgol_filter", "savgol_coeffs"} & _names(tree))
+    assert not users, users
+
+
+def test_velocity_rules_are_the_kinds():
+    users = sorted(m for m, tree in TREES.items() if m != "phast_model.mismatch.registry"
+                   and {"STRIBECK", "Stribeck"} & _names(tree))
+    assert not users, users
 
 
 def test_old_module_paths_import_the_moved_modules():

@@ -13,6 +13,7 @@ from repo_scripts import load_script
 
 import phast_gym  # noqa: F401  (registers the ids)
 from phast_gym.control import ControlProtocol, make_control_env
+from phast_gym.reward import regulation_reward
 
 cs = load_script("benchmarks/control_sac.py")
 
@@ -34,6 +35,8 @@ def test_is_flat_on_synthetic_curves() -> None:
 
 def test_rewards() -> None:
     assert cs.pendulum_reward(0.5, 1.0, 2.0, "zoo") == pytest.approx(-(0.25 + 0.1 + 0.004))
+    for e, v, u in ((0.3, -2.7, 1.1), (3.0, 7.0, -2.0)):  # zoo is the suite's standard reward, to the bit
+        assert cs.pendulum_reward(e, v, u, "zoo") == regulation_reward(e * e, v * v, u * u)
     # quiet: far from the target it is the zoo reward, at the target torque costs QUIET_WEIGHT u^2 more
     assert cs.pendulum_reward(math.pi, 0.0, 2.0, "quiet") == pytest.approx(cs.pendulum_reward(math.pi, 0.0, 2.0, "zoo"), abs=1e-20)
     assert cs.pendulum_reward(0.0, 0.0, 2.0, "quiet") == pytest.approx(-(0.004 + cs.QUIET_WEIGHT * 4.0))

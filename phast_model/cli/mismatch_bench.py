@@ -9,7 +9,8 @@ and the augmented model's held-out rollout RMSE is <= 0.7x the calibrated one.
 
 The PySINDy peer gets the same q-only data: pysindy's SmoothedFiniteDifference
 for qdot and qddot, the residual force M(q) qddot - F_nominal, and STLSQ on a
-library of the same named force / port terms (columns standardized).
+library of the same named force / port terms (columns standardized), built from
+the term registry (:func:`sindy_library`): a registered law is a column too.
 """
 
 from __future__ import annotations
@@ -129,11 +130,30 @@ def run_sindy(case: Case, rec: dict[str, Any], threshold: float = 0.05) -> dict[
         return _sindy_fit(case, rec, threshold)
 
 
+def sindy_library(q: np.ndarray, v: np.ndarray, u: np.ndarray | None) -> dict[str, np.ndarray]:
+    """The PySINDy peer's library on one coordinate: term name -> column, one per registered kind whose force is linear
+    in its coefficient (:meth:`.registry.TermKind.regression_column`: forces at c = 1, sign(qdot) sharp; a velocity
+    parameter, which STLSQ cannot profile, at its kind's fixed fraction of the rms speed: every grid column at once
+    made STLSQ trade Coulomb against Stribeck on cases without either).  ``q``, ``v``, ``u`` the coordinate's samples
+    (``u`` None when no input drives it).  Columns: the forces in vocabulary order, then those with a velocity, then
+    the port terms."""
+    from phast_model.mismatch.registry import VOCABULARY
+
+    v_rms = float(np.sqrt(np.mean(v**2)))
+    lib: dict[str, np.ndarray] = {}
+    for kind in sorted(VOCABULARY.values(), key=lambda k: (k.component == "port", k.has_velocity)):
+        col = kind.regression_column(q, v, u, v_rms)
+        if col is not None:
+            lib[kind.name] = col
+    return lib
+
+
 def _sindy_fit(case: Case, rec: dict[str, Any], threshold: float) -> dict[str, Any]:
     import pysindy as ps
 
     from phast_gym.registry import make_env_system
     from phast_gym.systems.base import NUMPY
+    from phast_model.mismatch.registry import VOCABULARY
     from phast_model.rigs.shooting import momentum
 
     t0 = time.time()
@@ -161,15 +181,8 @@ def _sindy_fit(case: Case, rec: dict[str, Any], threshold: float) -> dict[str, A
     found: dict[tuple[str, int], float] = {}
     for i in range(n):
         qi, vi = q[:, 5:-5, i].reshape(-1), v[:, 5:-5, i].reshape(-1)
-        lib = {"viscous_damping": -vi, "coulomb_friction": -np.sign(vi), "quadratic_drag": -np.abs(vi) * vi,
-               "position_dependent_damping": -np.abs(np.sin(qi)) * vi, "linear_stiffness": -qi, "cubic_stiffness": -qi**3,
-               "constant_force": np.ones_like(qi)}
-        # STLSQ cannot profile a Stribeck velocity (the tool does): one column at 0.2 x rms velocity, the middle of the
-        # tool's grid (every grid column at once made STLSQ trade Coulomb against Stribeck on cases without either)
-        v_s = 0.2 * float(np.sqrt(np.mean(vi**2))) + 1e-12
-        lib["stribeck_friction"] = -np.sign(vi) * np.exp(-((vi / v_s) ** 2))
-        if u is not None and np.any(u[..., i] != 0):
-            lib["actuator_gain"] = u[:, 5:-5, i].reshape(-1)
+        ui = u[:, 5:-5, i].reshape(-1) if u is not None and np.any(u[..., i] != 0) else None
+        lib = sindy_library(qi, vi, ui)
         names = list(lib)
         Theta = np.stack([lib[k] for k in names], 1)
         scale = np.sqrt(np.mean(Theta**2, 0)) + 1e-12
@@ -180,7 +193,7 @@ def _sindy_fit(case: Case, rec: dict[str, Any], threshold: float) -> dict[str, A
         coef = np.asarray(opt.coef_).reshape(-1) * rs / scale
         for k, c in zip(names, coef):
             if c != 0:
-                found[(k, i)] = float(c + 1.0) if k == "actuator_gain" else float(c)
+                found[(k, i)] = float(c + VOCABULARY[k].default)  # a coefficient at no effect + the fitted change
     hidden = {(t[0], t[1]): t[2] for t in case.terms}
     coef_err = {f"{k[0]}[{k[1]}]": abs(found[k] - c) / abs(c) for k, c in hidden.items() if k in found}
     ok = set(found) == set(hidden) and all(e <= 0.3 for e in coef_err.values())

@@ -1,7 +1,7 @@
 """Friction laws fitted by the weak form: least squares of f~ - S*(own) on S*(basis) of dissipative vocabulary terms.
 
 :func:`fit_law`: coefficients sign-free, cluster-robust 95% intervals; a velocity parameter (the Stribeck v_s) is
-profiled on a grid.
+profiled on the grid its kind gives (:meth:`.registry.TermKind.velocity_grid`).
 """
 
 from __future__ import annotations
@@ -20,14 +20,13 @@ from phast_gym.systems.base import NUMPY, System
 from ..rigs.recordings import Recordings
 from .linear import cluster_cov
 from .options import Z95
-from .registry import VOCABULARY, TermKind, law_terms
+from .registry import VOCABULARY, TermKind, VelocityKind, law_terms
 from .terms import AugmentedSystem, Term
 from .weakform import WeakForm, weak_form
 
-#: Stribeck velocities tried, as fractions of the coordinate's rms speed (log grid).  Stribeck friction is the excess
-#: friction near rest; a "Stribeck" term whose v_s reaches the typical speed is a curve-fitting device, not that effect
-#: (docs/mismatch.md, design notes).
-STRIBECK_FRACTIONS = tuple(float(x) for x in np.geomspace(0.03, 0.3, 7))
+#: Stribeck velocities tried, as fractions of the coordinate's rms speed: the default grid of a kind with a velocity
+#: (each such kind carries its own, :attr:`.registry.VelocityKind.velocity_fractions`; Stribeck keeps the default)
+STRIBECK_FRACTIONS = VelocityKind.velocity_fractions
 
 
 @dataclass
@@ -175,17 +174,18 @@ def _fit(wf: WeakForm, specs: Sequence[Spec], rows: np.ndarray | None,
     return C, Vfull, rss, nobs, G
 
 
-def _vs_grid(wf: WeakForm, i: int) -> list[float]:
-    v_rms = float(np.sqrt(np.mean(wf.vs[..., i] ** 2)))
-    return [f * v_rms for f in STRIBECK_FRACTIONS]
+def _velocity_grid(wf: WeakForm, spec: Spec) -> list[float]:
+    """The velocities profiled for a term whose velocity is left free: its kind's grid at the coordinate's rms speed."""
+    v_rms = float(np.sqrt(np.mean(wf.vs[..., spec[1]] ** 2)))
+    return VOCABULARY[spec[0]].velocity_grid(v_rms)
 
 
 def fit_law_specs(wf: WeakForm, specs: Sequence[Spec], rows: np.ndarray | None = None, cache: dict | None = None,
              own: list | None = None, own_terms: Sequence[Term] = ()) -> FrictionLaw:
-    """Fit, profiling any Stribeck velocity left None over the grid (lowest weak-form rss)."""
+    """Fit, profiling any velocity left None (a Stribeck v_s) over its kind's grid (lowest weak-form rss)."""
     specs = [tuple(s) for s in specs]
     free = [k for k, s in enumerate(specs) if VOCABULARY[s[0]].has_velocity and (len(s) < 3 or s[2] is None)]
-    choices = [[(k, v) for v in _vs_grid(wf, specs[k][1])] for k in free]
+    choices = [[(k, v) for v in _velocity_grid(wf, specs[k])] for k in free]
     best = None
     for combo in itertools.product(*choices) if choices else [()]:
         sp = list(specs)
@@ -228,8 +228,8 @@ def fit_law(system: System, rec: Recordings, terms: Sequence[Any], window: int |
             block: int | None = None, weak: WeakForm | None = None) -> FrictionLaw:
     """Weak-form force-balance least squares of a friction law, coefficients sign free.
 
-    ``terms``: (name, coordinate) pairs, (name, i, v_s) for a Stribeck-like kind (v_s None: profiled on a grid of fractions
-    of the rms speed), :class:`.terms.Term` objects, or bare names (every coordinate).  The law is *added* to the
+    ``terms``: (name, coordinate) pairs, (name, i, v_s) for a kind with a velocity (v_s None: profiled on the kind's grid
+    of fractions of the rms speed), :class:`.terms.Term` objects, or bare names (every coordinate).  The law is *added* to the
     model's own dissipation: a negative viscous coefficient lowers the model's damping.  95% intervals are
     cluster-robust over time blocks within recordings (see :func:`weak_form`)."""
     wf = weak or weak_form(system, rec, window, eps, block)

@@ -1,8 +1,9 @@
 """Stage 3, locate: where the calibrated model's force residual lives (coordinate, component, state region, time).
 
 The local residual force is d/dt p - F(q, qdot, u) with both sides passed
-through the same Savitzky-Golay filter (the momentum derivative and the
-smoothing of the model force along the smoothed path).  It only describes the
+through the same filter (the momentum derivative and the smoothing of the model
+force along the smoothed path; a :class:`~phast_model.rigs.signals.Differentiator`,
+the cubic Savitzky-Golay filter by default).  It only describes the
 mismatch (and draws the residual map); nothing is fitted to it.
 """
 
@@ -11,26 +12,26 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from scipy.signal import savgol_filter
 
 from phast_gym.systems import wrap
 from phast_gym.systems.base import System
 
 from ..rigs.recordings import Recordings
-from ..rigs.shooting import odd
+from ..rigs.signals import SAVGOL, Differentiator
 from .friction import momentum_balance
 
 
-def residual_force(system: System, rec: Recordings, smoothing_window: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, slice]:
+def residual_force(system: System, rec: Recordings, smoothing_window: int, differentiator: Differentiator = SAVGOL
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, slice]:
     """(r, q, qdot, qddot, kept samples): the filtered residual force and the smoothed states, filter edges dropped."""
-    dt = rec.dt
-    w = odd(min(max(smoothing_window, 5), rec.T - 1 + rec.T % 2 - 1))
-    bal = momentum_balance(system, rec, w)
+    d = differentiator
+    w = d.fit_window(smoothing_window, rec.T)
+    bal = momentum_balance(system, rec, w, d)
     qs, vs = bal.qs, bal.vs
-    r = bal.dp - savgol_filter(bal.pdot, w, 3, axis=1, mode="interp")
+    r = bal.dp - d.smooth(bal.pdot, w)
     e = w // 2
     sl = slice(e, rec.T - e) if rec.T > 2 * e + 10 else slice(None)
-    a = savgol_filter(rec.q, w, 3, deriv=2, delta=dt, axis=1, mode="interp")[:, sl]
+    a = d.derivative(rec.q, w, rec.dt, 2)[:, sl]
     return r[:, sl], qs[:, sl], vs[:, sl], a, sl
 
 
@@ -80,10 +81,11 @@ def _when(r_i: np.ndarray) -> str:
     return when
 
 
-def locate(system: System, rec: Recordings, smoothing_window: int, eps: float, share_floor: float = 0.1) -> tuple[list[dict], dict]:
+def locate(system: System, rec: Recordings, smoothing_window: int, eps: float, share_floor: float = 0.1,
+           differentiator: Differentiator = SAVGOL) -> tuple[list[dict], dict]:
     """Coordinates holding at least ``share_floor`` of the residual: component, region, time (largest share first),
-    and the residual map data {"q", "v", "r"}."""
-    r, qv, vv, a, sl = residual_force(system, rec, smoothing_window)
+    and the residual map data {"q", "v", "r"} (``differentiator``: the filter, default cubic Savitzky-Golay)."""
+    r, qv, vv, a, sl = residual_force(system, rec, smoothing_window, differentiator)
     total = float(np.sum(r**2)) + 1e-300
     located: list[dict[str, Any]] = []
     for i in range(rec.n):

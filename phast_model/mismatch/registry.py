@@ -2,9 +2,12 @@
 
 A kind owns everything the tool knows about a term: its port-Hamiltonian component, its basis ``f(q, v, xp)`` (a
 dissipative term's force is ``-c f``), its expression, short name and default coefficient, its sign constraint, its
-cost in the law selection's parsimony rule and the scale of its shooting candidate.  The augmented model
-(:class:`.terms.AugmentedSystem`), the candidates, the friction laws and the report iterate over :data:`VOCABULARY`,
-so a new friction law is one class registered from anywhere::
+cost in the law selection's parsimony rule, the scale of its shooting candidates, the rules of a velocity parameter
+(:class:`VelocityKind`: the grid the weak form profiles, the shooting grid, the smallest value, the refinement of a
+chosen term) and its column in a sparse-regression library (the PySINDy peer of ``phast-mismatch-bench``).  The
+augmented model (:class:`.terms.AugmentedSystem`), the candidates, the selection, the friction laws, the report and
+the peer iterate over :data:`VOCABULARY` and ask the kind, so a new friction law is one class registered from
+anywhere::
 
     class CubicDrag(DissipationKind):
         name, short, formula = "cubic_drag", "cubic", "-c*qdot{i}**3"
@@ -13,6 +16,16 @@ so a new friction law is one class registered from anywhere::
             return v**3
 
     register(CubicDrag())
+
+and a law with a velocity parameter subclasses :class:`VelocityKind` (docs/extending.md)::
+
+    class ExpDecayFriction(VelocityKind):
+        name, short, formula = "exp_decay_friction", "expdecay", "-c*sign(qdot{i})*exp(-abs(qdot{i})/v_s)"
+
+        def basis(self, q, v, eps, velocity, xp):
+            return sign(v, eps, xp) * xp.exp(-xp.abs(v) / velocity)
+
+    register(ExpDecayFriction())
 
 Components:
 
@@ -82,6 +95,12 @@ class Scale(NamedTuple):
 FD_STEP = 1e-3
 
 
+def sign(v: Any, eps: float, xp: ArrayNamespace) -> Any:
+    """sign(qdot) as a basis writes it: smoothed as tanh(qdot / eps), the sharp sign at ``eps = 0`` (a regression
+    library's column, :meth:`TermKind.regression_column`)."""
+    return xp.tanh(v / eps) if eps > 0 else xp.sign(v)
+
+
 class TermKind:
     """One named term kind.  Subclasses set the class attributes and the hooks of their component."""
 
@@ -92,7 +111,12 @@ class TermKind:
     default: ClassVar[float] = 0.0  # the coefficient at which the term has no effect
     positive: ClassVar[bool] = False  # c must be >= 0 (the docs' sign constraint)
     cost: ClassVar[int] = 1  # parameters the term costs in the law selection's parsimony rule
-    has_velocity: ClassVar[bool] = False  # carries a velocity parameter (the Stribeck v_s)
+    has_velocity: ClassVar[bool] = False  # carries a velocity parameter (the Stribeck v_s): see VelocityKind
+    #: an excess friction near rest: beside a Coulomb term on its coordinate it may only stand in for a sharper Coulomb
+    #: edge than the fits' tanh smoothing (the selection then weighs it against that edge)
+    excess_near_rest: ClassVar[bool] = False
+    #: factors by which the velocity of a chosen term is refined, in turn (each tried down and up); none: not refined
+    refine_steps: ClassVar[tuple[float, ...]] = ()
     magnitude: ClassVar[bool] = False  # the fitted coefficient is |c| (a threshold, an inertia)
     stiff_edge: ClassVar[bool] = False  # a sharp sign(qdot): simulate the "reality" with short substeps
     #: the MuJoCo attribute (joint or actuator) that expresses the term exactly, or None
@@ -115,6 +139,27 @@ class TermKind:
     def scales(self, ctx: ScaleContext) -> list[Scale]:
         """Shooting candidates of this kind on one coordinate (none: it cannot act there)."""
         return []
+
+    # ---- a velocity parameter (only kinds with ``has_velocity``; see VelocityKind) ----
+    @property
+    def refines_velocity(self) -> bool:
+        """The selection refines the velocity of a chosen term of this kind (:attr:`refine_steps`)."""
+        return self.has_velocity and bool(self.refine_steps)
+
+    def velocity_grid(self, v_rms: float) -> list[float]:
+        """The velocities a weak-form law fit profiles on a coordinate of rms speed ``v_rms`` (none without one)."""
+        return []
+
+    def min_velocity(self, eps: float) -> float:
+        """The smallest velocity a shooting candidate or a refinement may take, given the tanh smoothing ``eps``."""
+        return 0.0
+
+    # ---- a sparse-regression library (the PySINDy peer) ----
+    def regression_column(self, q: np.ndarray, v: np.ndarray, u: np.ndarray | None, v_rms: float) -> np.ndarray | None:
+        """The term's generalized force on coordinate i at coefficient ``default + 1`` less that at ``default``, for a
+        library linear in the coefficients (sign(qdot) sharp; ``u`` the port input on the coordinate, None when none
+        acts on it; ``v_rms`` its rms speed); None when the force is not linear in the coefficient (or not a force)."""
+        return None
 
     # ---- the component hooks (only the component's own are called) ----
     def basis(self, q: Any, v: Any, eps: float, velocity: float, xp: ArrayNamespace) -> Any:
@@ -156,6 +201,73 @@ class DissipationKind(TermKind):
         b = float(self.basis_rms(ctx.q, ctx.v, ctx.eps))
         return [Scale(float(ctx.force_rms / b), FD_STEP)] if b > 1e-12 else []
 
+    def regression_column(self, q: np.ndarray, v: np.ndarray, u: np.ndarray | None, v_rms: float) -> np.ndarray | None:
+        """-f(q_i, qdot_i) with sign(qdot) sharp."""
+        return self._sharp_column(q, v, 0.0)
+
+    def _sharp_column(self, q: np.ndarray, v: np.ndarray, velocity: float) -> np.ndarray:
+        """-f at eps = 0 (a basis written with tanh(v / eps) instead of :func:`sign` gives sign(v) too: its 0/0 at
+        v = 0 is set to 0)."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            col = -np.asarray(self.basis(q, v, 0.0, velocity, NUMPY), dtype=float)
+        return np.where(np.isnan(col), 0.0, col)
+
+
+class VelocityKind(DissipationKind):
+    """A passive friction law with a velocity parameter v_s (the term's ``velocity``, qdot units; it counts as a second
+    parameter).  The kind owns that parameter's rules: the grid the weak form profiles (:meth:`velocity_grid`), the
+    shooting candidates' grid (:attr:`shooting_fractions`), the smallest value (:meth:`min_velocity`), the refinement
+    of a chosen term (:attr:`refine_steps`) and the value of its regression column.  A subclass sets ``name``,
+    ``short``, ``formula`` (with ``v_s``) and :meth:`basis`, and may change any of these."""
+
+    cost = 2
+    has_velocity = True
+    excess_near_rest = True
+    #: velocities the weak-form law fits profile, as fractions of the coordinate's rms speed (log grid).  Friction with
+    #: a v_s is an excess near rest; a term whose v_s reaches the typical speed is a curve-fitting device, not that
+    #: effect (docs/mismatch.md, design notes)
+    velocity_fractions: ClassVar[tuple[float, ...]] = tuple(float(x) for x in np.geomspace(0.03, 0.3, 7))
+    #: velocities of the shooting candidates, as fractions of the coordinate's rms speed (a chosen one is refined)
+    shooting_fractions: ClassVar[tuple[float, ...]] = tuple(0.05 * 2.0**k for k in range(4))  # 0.05, 0.1, 0.2, 0.4
+    #: smallest v_s, in units of the tanh smoothing of sign(qdot): below it the term only reshapes the smoothed Coulomb
+    #: edge (a sharper real edge than the model's), which is not physics the data can name
+    min_over_eps: ClassVar[float] = 4.0
+    #: a chosen term's v_s is refined around its grid value in half, quarter and eighth octaves (profile of the refit)
+    refine_steps: ClassVar[tuple[float, ...]] = (2**0.5, 2**0.25, 2**0.125)
+    #: v_s of the regression column, as a fraction of the rms speed (a regression cannot profile it; the middle of
+    #: the shooting grid)
+    regression_fraction: ClassVar[float] = 0.2
+
+    def check(self, coefficient: float, velocity: float) -> None:
+        if not velocity > 0:
+            raise ValueError(f"{self.name} needs a velocity v_s > 0, got {velocity!r}")
+
+    def expression(self, c: float, i: int, velocity: float) -> str:
+        return super().expression(c, i, velocity).replace("v_s", f"{velocity:.4g}")
+
+    def velocity_grid(self, v_rms: float) -> list[float]:
+        return [f * v_rms for f in self.velocity_fractions]
+
+    def min_velocity(self, eps: float) -> float:
+        return self.min_over_eps * eps
+
+    def scales(self, ctx: ScaleContext) -> list[Scale]:
+        """One candidate per velocity of the shooting grid (at least :meth:`min_velocity`)."""
+        out = []
+        v_rms = float(np.sqrt(np.mean(ctx.v**2)))
+        for f in self.shooting_fractions:
+            w = float(f * v_rms)
+            if w < self.min_velocity(ctx.eps):
+                continue
+            b = float(np.sqrt(np.mean(np.asarray(self.basis(ctx.q, ctx.v, ctx.eps, w, NUMPY)) ** 2)))
+            if b > 1e-12:
+                out.append(Scale(float(ctx.force_rms / b), FD_STEP, w))
+        return out
+
+    def regression_column(self, q: np.ndarray, v: np.ndarray, u: np.ndarray | None, v_rms: float) -> np.ndarray | None:
+        """-f(q_i, qdot_i) at v_s = :attr:`regression_fraction` x the rms speed, sign(qdot) sharp."""
+        return self._sharp_column(q, v, self.regression_fraction * v_rms + 1e-12)
+
 
 class Viscous(DissipationKind):
     name, short, formula = "viscous_damping", "viscous", "-c*qdot{i}"
@@ -174,7 +286,7 @@ class Coulomb(DissipationKind):
     stiff_edge = True
 
     def basis(self, q: Any, v: Any, eps: float, velocity: float, xp: ArrayNamespace) -> Any:
-        return xp.tanh(v / eps)
+        return sign(v, eps, xp)
 
     def basis_rms(self, q: np.ndarray, v: np.ndarray, eps: float) -> float:
         return 1.0
@@ -200,40 +312,17 @@ class PositionDependentDamping(DissipationKind):
         return np.sqrt(np.mean((np.abs(np.sin(q)) * v) ** 2))
 
 
-class Stribeck(DissipationKind):
+class Stribeck(VelocityKind):
     """Stribeck friction, v_s = the term's ``velocity`` (qdot units); its v_s counts as a second parameter."""
 
     name, short, formula = "stribeck_friction", "stribeck", "-c*sign(qdot{i})*exp(-(qdot{i}/v_s)**2)"
-    cost = 2
-    has_velocity = True
-    #: Stribeck velocities of the shooting candidates, as fractions of the coordinate's rms speed (a chosen one is refined)
-    SHOOTING_FRACTIONS = tuple(0.05 * 2.0**k for k in range(4))  # 0.05, 0.1, 0.2, 0.4
-    #: smallest v_s, in units of the tanh smoothing of sign(qdot): below it a "Stribeck" term only reshapes the smoothed
-    #: Coulomb edge (a sharper real edge than the model's), which is not physics the data can name
-    MIN_OVER_EPS = 4.0
 
     def check(self, coefficient: float, velocity: float) -> None:
         if not velocity > 0:
             raise ValueError(f"{self.name} needs a Stribeck velocity > 0, got {velocity!r}")
 
     def basis(self, q: Any, v: Any, eps: float, velocity: float, xp: ArrayNamespace) -> Any:
-        return xp.tanh(v / eps) * xp.exp(-((v / velocity) ** 2))
-
-    def expression(self, c: float, i: int, velocity: float) -> str:
-        return super().expression(c, i, velocity).replace("v_s", f"{velocity:.4g}")
-
-    def scales(self, ctx: ScaleContext) -> list[Scale]:
-        """One candidate per Stribeck velocity of a coarse grid."""
-        out = []
-        v_rms = float(np.sqrt(np.mean(ctx.v**2)))
-        for f in self.SHOOTING_FRACTIONS:
-            w = float(f * v_rms)
-            if w < self.MIN_OVER_EPS * ctx.eps:
-                continue
-            b = float(np.sqrt(np.mean(np.asarray(self.basis(ctx.q, ctx.v, ctx.eps, w, NUMPY)) ** 2)))
-            if b > 1e-12:
-                out.append(Scale(float(ctx.force_rms / b), FD_STEP, w))
-        return out
+        return sign(v, eps, xp) * xp.exp(-((v / velocity) ** 2))
 
 
 # --------------------------------------------------------------------------- potential
@@ -248,6 +337,10 @@ class PotentialKind(TermKind):
     def scales(self, ctx: ScaleContext) -> list[Scale]:
         b = float(self.basis_rms(ctx.q))
         return [Scale(float(ctx.force_rms / b), FD_STEP)] if b > 1e-12 else []
+
+    def regression_column(self, q: np.ndarray, v: np.ndarray, u: np.ndarray | None, v_rms: float) -> np.ndarray | None:
+        """-dV_extra/dq_i at c = 1."""
+        return -np.asarray(self.gradient(q, 1.0))
 
 
 class LinearStiffness(PotentialKind):
@@ -337,6 +430,10 @@ class ActuatorGain(TermKind):
 
     def scales(self, ctx: ScaleContext) -> list[Scale]:
         return [Scale(0.1, FD_STEP)] if ctx.u is not None else []
+
+    def regression_column(self, q: np.ndarray, v: np.ndarray, u: np.ndarray | None, v_rms: float) -> np.ndarray | None:
+        """u_i: the extra port force per unit of c - 1."""
+        return None if u is None else np.asarray(u)
 
 
 class ActuatorDeadzone(TermKind):

@@ -13,7 +13,7 @@ every pivot free replaces are dropped; changes that act as one parameter are rep
 as an actuator gain as that gain (:func:`_port_gain_equivalent`: a datasheet error does not scale a whole
 coordinate).  Every chosen item must predict recordings left out of its fit (:func:`_held_out_check`); a sensor or
 port term needs a left-out gain of threshold^2 over every parameter change open (local evidence).  A chosen
-Stribeck term's velocity is refined by profiling the refit cost in quarter octaves.
+term's velocity (a Stribeck v_s) is refined by profiling the refit cost in its kind's steps (quarter octaves).
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from .candidates import Candidate, Family, ParamCandidate
 from .linear import flat, orth_against
 from .options import Z95
 from .problem import Problem
-from .registry import ACTUATOR_GAIN, COULOMB, STRIBECK, ActuatorDeadzone
+from .registry import ACTUATOR_GAIN, COULOMB, ActuatorDeadzone
 from .rows import Alternative, ParamRow, TermRow, param_value
 
 #: refit iterations while confirming a shortlisted candidate (the winner is finished with Options.max_iter)
@@ -162,7 +162,8 @@ class _Search:
         cols = np.empty(fit.r.shape + (len(ks),))
         for group in _structure_groups(self.cands, ks):
             builds: list[Callable[[], System]] = [partial(build, k) for k in group]
-            stand_ins = None if self.cands[group[0]].is_param else [partial(stand_in, k, group) for k in group]
+            stand_ins: list[Callable[[], System]] | None = \
+                None if self.cands[group[0]].is_param else [partial(stand_in, k, group) for k in group]
             cols[..., [ks.index(k) for k in group]] = self.screen.shooter.columns(
                 builds, fit, fit.r, [self.cands[k].fd_step for k in group], stand_ins)
         self.raw = {k: cols[..., j] for j, k in enumerate(ks)}
@@ -307,8 +308,9 @@ def _forward(s: _Search, r_o: np.ndarray, cols_o: np.ndarray, pool: list[int], c
         s.gains[k] = s.fit.cost - fit_new.cost
         s.chosen, s.fit, s.fam, s.cov = order, fit_new, fam_new, cov_new
         s.problem.log(f"added {s.cands[k].label}: chi2/dof = {s.fit.chi2_red:.3g} ({s.fit.iterations} it)")
-        if s.cands[k].term == STRIBECK.name:  # its velocity before the next round: a wrong v_s leaves a
-            _refine_stribeck(s)               # residual that another term would then absorb
+        added = s.cands[k]
+        if isinstance(added, Candidate) and added.kind.refines_velocity:  # its velocity before the next round: a wrong
+            _refine_velocities(s)  # v_s leaves a residual that another term would then absorb
         pool = [kk for kk in pool if kk not in s.chosen and s.cands[kk].key != s.cands[k].key]
         if pool:
             r_o, _, cols_o = s.columns(s.fit, s.fam, pool)
@@ -499,20 +501,21 @@ def _held_out_check(s: _Search) -> list[dict[str, Any]]:
     return table
 
 
-def _refine_stribeck(s: _Search) -> None:
-    """A chosen Stribeck term: its velocity v_s around the grid value (profile of the refit cost, quarter octaves)."""
+def _refine_velocities(s: _Search) -> None:
+    """A chosen term whose kind refines its velocity (a Stribeck v_s): that velocity around the grid value, in the
+    kind's steps (:attr:`.registry.TermKind.refine_steps`; profile of the refit cost), never below its minimum."""
     for k in s.chosen:
         cand = s.cands[k]
-        if not isinstance(cand, Candidate) or cand.term != STRIBECK.name or k in s.marks.refined:
+        if not isinstance(cand, Candidate) or not cand.kind.refines_velocity or k in s.marks.refined:
             continue
         s.marks.refined.add(k)
-        for step in (2**0.5, 2**0.25, 2**0.125):
+        for step in cand.kind.refine_steps:
             best = (s.fit.cost, s.cands[k], s.fit, s.fam)
             current = s.cands[k]
             assert isinstance(current, Candidate) and current.velocity is not None
             for f in (1 / step, step):
                 velocity = current.velocity * f
-                if velocity < STRIBECK.MIN_OVER_EPS * s.problem.eps_coord[cand.coordinate]:
+                if velocity < cand.kind.min_velocity(s.problem.eps_coord[cand.coordinate]):
                     continue
                 c_new = current.with_velocity(velocity)
                 trial = [c_new if kk == k else s.cands[kk] for kk in range(len(s.cands))]
@@ -522,18 +525,19 @@ def _refine_stribeck(s: _Search) -> None:
                     best = (fit_v.cost, c_new, fit_v, fam_v)
             _, s.cands[k], s.fit, s.fam = best
         s.cov = s.fit.covariance()
-        s.problem.log(f"Stribeck velocity refined: {s.cands[k].label}, chi2/dof = {s.fit.chi2_red:.3g}")
+        s.problem.log(f"velocity refined: {s.cands[k].label}, chi2/dof = {s.fit.chi2_red:.3g}")
 
 
 def _sharper_edge(s: _Search) -> list[dict[str, Any]]:
-    """A Stribeck term beside a Coulomb term on the same coordinate may only stand in for a real Coulomb edge sharper
+    """A Stribeck term (a kind with ``excess_near_rest``) beside a Coulomb term on the same coordinate may only stand
+    in for a real Coulomb edge sharper
     than the fits' tanh smoothing (the excess friction near rest that a smoothed edge leaves): refit without it, that
     coordinate's edge :data:`SHARPER_EDGE` times sharper; when that fits within threshold^2 of the chi^2 with the
     Stribeck term, the sharper edge is the answer (one fewer term; the edge is not a new physical effect)."""
     out: list[dict[str, Any]] = []
     for k in list(s.chosen):
         cand = s.cands[k]
-        if not isinstance(cand, Candidate) or cand.term != STRIBECK.name:
+        if not isinstance(cand, Candidate) or not cand.kind.excess_near_rest:
             continue
         i = cand.coordinate
         if not any(isinstance(c, Candidate) and c.term == COULOMB.name and c.coordinate == i for c in (s.cands[kk] for kk in s.chosen)):
@@ -594,7 +598,7 @@ def _prune_parameters(s: _Search) -> None:
 
 def select(problem: Problem, screen: ParameterScreen, cands: list[AnyCandidate]) -> Selection:
     """Terms by forward selection on top of a full-rank calibration, then the parameter changes pruned to those the
-    recordings need; prune terms, the port-gain equivalent, the left-out check, Stribeck velocities."""
+    recordings need; prune terms, the port-gain equivalent, the left-out check, velocities (Stribeck's)."""
     s = _Search(problem, screen, list(cands), screen.fit_nominal, problem.nominal_family)
     _start_calibrated(s)
     terms = [k for k in range(len(s.cands)) if not s.cands[k].is_param]
@@ -612,7 +616,7 @@ def select(problem: Problem, screen: ParameterScreen, cands: list[AnyCandidate])
     sparser = _sparser_parameters(s)
     swap = _port_gain_equivalent(s) or sparser
     held_out = _held_out_check(s)
-    _refine_stribeck(s)
+    _refine_velocities(s)
     held_out += _sharper_edge(s)
     problem.log(f"selected {[s.cands[k].label for k in s.chosen]}: chi2/dof = {s.fit.chi2_red:.3g}")
     held_out += [{"item": label, "kept": False, "note": "only stands in for parameter changes (nonlinear refit without it, "

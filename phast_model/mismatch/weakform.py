@@ -2,7 +2,8 @@
 
 The momentum balance of a port-Hamiltonian model, d/dt p = F_cons(q, p) + u - f(q, qdot), with F_cons = -dH/dq and
 f the *total* dissipative generalized force (the model's own D(q) qdot plus whatever it leaves out), is used in
-weak form: one smooth filter (cubic Savitzky-Golay, window ``window`` samples) is applied to both sides,
+weak form: one smooth filter (a :class:`~phast_model.rigs.signals.Differentiator`, by default the cubic Savitzky-Golay
+filter, window ``window`` samples) is applied to both sides,
 
     f~(t) = [S * (F_cons + u)](t) - d/dt [S * p](t),
 
@@ -18,24 +19,26 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import savgol_filter
 
 from phast_gym.systems.base import NUMPY, System
 
 from ..rigs.recordings import Recordings
 from ..rigs.shooting import momentum, odd, smooth, time_scale
+from ..rigs.signals import SAVGOL, Differentiator
 from .options import SIGN_SMOOTHING_REL
 from .terms import AugmentedSystem, friction_basis
 
 
 @dataclass(frozen=True)
 class WeakFilter:
-    """The weak form's filter: Savitzky-Golay window [samples], sample time, tanh smoothing of sign(qdot), trimmed edge."""
+    """The weak form's filter: window [samples], sample time, tanh smoothing of sign(qdot), trimmed edge, and the
+    smoothing / differentiation (the cubic Savitzky-Golay filter by default)."""
 
     window: int
     dt: float
     eps: float
     trim: int
+    differentiator: Differentiator = SAVGOL
 
 
 @dataclass
@@ -77,7 +80,7 @@ class WeakForm:
 
     def filt(self, x: np.ndarray) -> np.ndarray:
         """The weak-form filter S along time of an untrimmed (N, T, ...) array, then trimmed."""
-        y = savgol_filter(x, self.window, 3, axis=1, mode="interp")
+        y = self.filter.differentiator.smooth(x, self.window)
         return y[:, self.trim: x.shape[1] - self.trim]
 
     def basis(self, name: str, i: int, velocity: float = 0.0) -> np.ndarray:
@@ -112,14 +115,14 @@ def rms_speed(vs: np.ndarray) -> np.ndarray:
     return np.sqrt(np.mean(vs**2, axis=(0, 1))) + 1e-12
 
 
-def default_window(rec: Recordings) -> int:
+def default_window(rec: Recordings, differentiator: Differentiator = SAVGOL) -> int:
     """Filter window [samples]: 0.15 of an oscillation period, as the mismatch tool smooths (>= 7)."""
-    return smoothing_window(2 * math.pi * time_scale(rec.q, rec.dt), rec.dt)
+    return smoothing_window(2 * math.pi * time_scale(rec.q, rec.dt, differentiator), rec.dt)
 
 
-def default_eps(rec: Recordings, window: int) -> float:
+def default_eps(rec: Recordings, window: int, differentiator: Differentiator = SAVGOL) -> float:
     """tanh smoothing of sign(qdot), as the mismatch tool smooths (``Options.coulomb_eps_rel``)."""
-    _, vs = smooth(rec.q, rec.dt, window)
+    _, vs = smooth(rec.q, rec.dt, window, differentiator=differentiator)
     return sign_smoothing(rms_speed(vs))
 
 
@@ -144,14 +147,14 @@ class Balance:
         return tuple(self.qs[..., i] for i in range(self.qs.shape[-1]))
 
 
-def momentum_balance(system: System, rec: Recordings, window: int) -> Balance:
+def momentum_balance(system: System, rec: Recordings, window: int, differentiator: Differentiator = SAVGOL) -> Balance:
     """Smoothed q, qdot (measurement map undone), d/dt of the filtered momentum p = M(q) qdot, and the model's pdot
     (conservative, port and dissipative force) at those states with the recorded u held per interval."""
     n, dt = rec.n, rec.dt
-    qs, vs = smooth(rec.q, dt, window)
+    qs, vs = smooth(rec.q, dt, window, differentiator=differentiator)
     qs = getattr(system, "unmeasure", lambda y: y)(qs)
     p = momentum(system, qs, vs)
-    dp = savgol_filter(p, window, 3, deriv=1, delta=dt, axis=1, mode="interp")
+    dp = differentiator.derivative(p, window, dt, 1)
     u = None
     if rec.u is not None:
         uu = np.concatenate([rec.u, rec.u[:, -1:]], axis=1)
@@ -162,27 +165,29 @@ def momentum_balance(system: System, rec: Recordings, window: int) -> Balance:
 
 
 def weak_form(system: System, rec: Recordings, window: int | None = None, eps: float | None = None,
-              block: int | None = None) -> WeakForm:
+              block: int | None = None, differentiator: Differentiator = SAVGOL) -> WeakForm:
     """The filtered momentum balance of ``rec`` under ``system`` (see the module docstring).
 
     ``block``: cluster length [samples] for intervals (default: the larger of 2 oscillation periods and 5 windows;
-    each recording is cut into such blocks; with many recordings one may pass ``block=rec.T`` for recording clusters)."""
-    window = odd(window or default_window(rec))
+    each recording is cut into such blocks; with many recordings one may pass ``block=rec.T`` for recording clusters).
+    ``differentiator``: the filter S and its derivative (default the cubic Savitzky-Golay filter)."""
+    d = differentiator
+    window = odd(window or default_window(rec, d))
     window = min(window, odd(rec.T // 3))
-    eps = float(eps if eps is not None else (system.coulomb_eps if isinstance(system, AugmentedSystem) else default_eps(rec, window)))
+    eps = float(eps if eps is not None else (system.coulomb_eps if isinstance(system, AugmentedSystem) else default_eps(rec, window, d)))
     dt = rec.dt
-    bal = momentum_balance(system, rec, window)
+    bal = momentum_balance(system, rec, window, d)
     qs, vs, dp = bal.qs, bal.vs, bal.dp
     own = own_dissipation(system, bal.qc, vs)
     cons = bal.pdot + own  # conservative + port force (the model's dissipation added back)
     tr = window // 2
     sl = slice(tr, rec.T - tr)
-    total = savgol_filter(cons, window, 3, axis=1, mode="interp")[:, sl] - dp[:, sl]
-    own_f = savgol_filter(own, window, 3, axis=1, mode="interp")[:, sl]
+    total = d.smooth(cons, window)[:, sl] - dp[:, sl]
+    own_f = d.smooth(own, window)[:, sl]
     if block is None:
-        period = 2 * math.pi * time_scale(rec.q, dt)
+        period = 2 * math.pi * time_scale(rec.q, dt, d)
         block = max(int(round(2 * period / dt)), 5 * window)
     Tt = rec.T - 2 * tr
     return WeakForm(qs[:, sl], vs[:, sl], total, own_f, _block_labels(rec.n_traj, Tt, int(block)),
-                    WeakFilter(window, dt, eps, tr), qs, vs)
+                    WeakFilter(window, dt, eps, tr, d), qs, vs)
 

@@ -26,12 +26,12 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.signal import savgol_filter
 from scipy.stats import t as student_t
 
 from phast_gym.systems.base import System
 
 from ..rigs.recordings import Recordings
+from ..rigs.signals import SAVGOL, Differentiator
 from ..rigs.simulators import Simulator
 from .laws import FrictionLaw, LawTerm, Spec, own_samples, own_terms
 from .linear import cluster_cov, rel_resid
@@ -61,6 +61,7 @@ class WeakModel:
     eps: float  # tanh smoothing of sign(qdot)
     deadzone_width: float
     window: int  # weak-form filter window [samples]
+    differentiator: Differentiator = SAVGOL  # the weak-form filter and its derivative
 
     def build(self, kwargs: dict[str, Any], extra: Sequence[Term] = ()) -> System:
         terms = list(self.fixed_terms) + list(extra)
@@ -98,7 +99,7 @@ def _number(value: object) -> float:
 
 def _accel(wf: WeakForm, i: int) -> np.ndarray:
     """d/dt S * qdot_i (the armature column: the force a missing inertia A_ii needs), trimmed like the weak form."""
-    a = savgol_filter(wf.v_raw[..., i], wf.window, 3, deriv=1, delta=wf.dt, axis=1, mode="interp")
+    a = wf.filter.differentiator.derivative(wf.v_raw[..., i], wf.window, wf.dt, 1)
     return a[:, wf.trim: wf.v_raw.shape[1] - wf.trim]
 
 
@@ -113,12 +114,13 @@ def _columns(model: WeakModel, kwargs: dict[str, Any], rec: Recordings,
              law: list[Spec]) -> tuple[WeakForm, list[str], list[np.ndarray], list[str]]:
     """The weak form at ``kwargs`` and the design columns: -d f~/dz per parameter, each law term, each armature."""
     system = model.build(kwargs)
-    wf = weak_form(system, rec, model.window, model.eps)
+    wf = weak_form(system, rec, model.window, model.eps, differentiator=model.differentiator)
     names, cols, none = [], [], []
     for k in model.params:
         kw = dict(kwargs)
         kw[k] = _number(system.params[k]) * math.exp(PARAM_STEP)
-        col = -(weak_form(model.build(kw), rec, model.window, model.eps).total - wf.total) / PARAM_STEP
+        col = -(weak_form(model.build(kw), rec, model.window, model.eps, differentiator=model.differentiator).total
+                - wf.total) / PARAM_STEP
         names.append(f"param:{k}")
         cols.append(col)
     for s in law:
@@ -186,7 +188,7 @@ def identify(model: WeakModel, rec: Recordings, law: list[Spec], iterations: int
             terms.append(LawTerm(name, int(i), float(coef[j]), (float(coef[j] - tq * sd[j]), float(coef[j] + tq * sd[j])), v, tq))
     interval = f"cluster-robust (CR1) over {G} clusters (time blocks within recordings), t({G - 1}) quantile"
     final = model.build({**model.kwargs, **kw})
-    wf_final = weak_form(final, rec, model.window, model.eps)
+    wf_final = weak_form(final, rec, model.window, model.eps, differentiator=model.differentiator)
     fl = FrictionLaw(terms, model.eps, rec.n, rss, int(wf.total.size), interval, own_samples(final, wf_final), own_terms(final))
     return WeakFit({**model.kwargs, **kw}, params, arm, fl, none, interval)
 

@@ -5,7 +5,7 @@ from a burn-in window of real observations: ``reset(options={"q_burn": (K, n)})`
 trajectory of the ``dataset`` given at construction, else K real-env steps with zero input from a
 sampled initial state.  Steps are the model's autoregressive next-step predictions (observer in the
 loop) with the action as the port input, so SB3 agents can train inside the world model.
-Reward mirrors :class:`phast_gym.PortHamiltonianEnv`:
+Reward: the real env's, :func:`phast_gym.reward.regulation_reward`,
 ``-(|wrap(q - target)|^2 + 0.1 |qdot|^2 + 0.001 |u|^2)`` with qdot the model's velocity estimate.
 """
 
@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 import phast_gym  # noqa: F401  (registers the ids)
+from phast_gym.reward import regulation_reward
 from phast_gym.systems import wrap
 
 from ..api import load_run
@@ -136,7 +137,7 @@ class PHASTWorldModelEnv(gym.Env):
         e = q - self.target
         for i in self.model.angle_dims:
             e[i] = wrap(e[i])
-        reward = -(float(e @ e) + 0.1 * float(v @ v) + 0.001 * float(a @ a)) if finite else -1e3
+        reward = regulation_reward(float(e @ e), float(v @ v), float(a @ a)) if finite else -1e3
         truncated = self._t >= self.max_episode_steps
         info = {"t": self._t * self.model.dt, "velocity": v}
         if not finite:
