@@ -106,7 +106,7 @@ def _edit(xml: Path, edits: dict[tuple[str, str], float], out: Path) -> Path:
 
     spec = mujoco.MjSpec.from_file(str(xml))
     for (joint, attr), v in edits.items():
-        set_joint_attr(spec, joint, attr, v)
+        set_joint_attr(spec.joint(joint), attr, v)
     out.write_text(spec.to_xml())
     return out
 

@@ -8,7 +8,8 @@
 With ``--recordings`` (the ``phast-mismatch`` format: q, t or dt, u, angle_dims, angle_offset) the rig ``--sim``
 (an env id or ``path/to/rig.py:Class``) gives the V and M templates and the port; the model learns joint friction
 and is scored on the held-out recordings against the nominal rig (``metrics.json["heldout"]``):
-:func:`phast_model.rig.run.train_recordings_run`.
+:func:`phast_model.rig.run.train_recordings_run`.  It writes ``checkpoint.pt`` after every epoch too, and
+``--resume`` continues from it; ``--patience N`` stops once the validation windows' RMSE has not improved for N epochs.
 
 Writes ``model.pt``, ``config.json``, ``metrics.json`` (Table 16 keys on the test split
 plus the training wall time), ``history.json``, ``checkpoint.pt`` and plots
@@ -28,6 +29,9 @@ from phast_gym.datasets import PortExcitation
 from ..train.runs import DataSpec, train_run
 
 __all__ = ["main", "parse_args", "train_run"]
+
+#: the --lr defaults of the two modes (TrainConfig.lr and RigTrainConfig.lr; written out so --help needs no torch)
+ENV_LR, RECORDINGS_LR = 1e-3, 2e-2
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -57,6 +61,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                      help="constructor kwargs of a --compare model (JSON object; default: --sim-kwargs)")
     rec.add_argument("--action-bound", type=float, nargs="+", default=None, metavar="U",
                      help="the world env's torque bound per input (default: the largest recorded |u|)")
+    rec.add_argument("--patience", type=int, default=None, metavar="N",
+                     help="early stopping: stop when the validation windows' RMSE has not improved for N epochs (the "
+                          "best-validation weights are kept either way; default: run every epoch)")
     ap.add_argument("--regime", default="partial", choices=("known", "partial", "unknown"))
     ap.add_argument("--epochs", type=int, default=50)
     ap.add_argument("--seed", type=int, default=0, help="model / training seed")
@@ -66,7 +73,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--n-test", type=int, default=200)
     ap.add_argument("--T", type=int, default=200, help="trajectory length")
     ap.add_argument("--batch-size", type=int, default=64)
-    ap.add_argument("--lr", type=float, default=1e-3)
+    ap.add_argument("--lr", type=float, default=None,
+                    help=f"learning rate (default: {ENV_LR:g} with --env, {RECORDINGS_LR:g} with --recordings; a value given "
+                         "is used as given in both)")
     ap.add_argument("--obs-noise-std", type=float, default=0.0)
     ap.add_argument("--port-excitation", type=float, default=0.0, metavar="STD",
                     help="drive the port of the data with random torques/forces of this std, held --excitation-hold "
@@ -77,7 +86,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--set", action="append", default=[], metavar="FIELD=JSON",
                     help="override a PHASTConfig field, e.g. --set damping_cap=1.0 --set substeps=4")
     ap.add_argument("--out", required=True, help="run directory")
-    ap.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    ap.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt (written after every epoch)")
     ap.add_argument("--no-plots", action="store_true")
     ap.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     ap.add_argument("--no-progress", action="store_true")
@@ -151,16 +160,14 @@ def _recordings_main(args: argparse.Namespace) -> dict[str, Any]:
         raise ValueError("give either --env or --recordings, not both")
     if not args.sim:
         raise ValueError("--recordings needs --sim (an env id or path/to/rig.py:Class)")
-    if args.resume:
-        raise ValueError("--resume is not supported with --recordings (a run takes minutes; start it again)")
     spec = RecordingsSpec(args.recordings, args.sim, _json_object(args.sim_kwargs, "--sim-kwargs"), args.regime,
                           _int_list(args.holdout_trajectories, "--holdout-trajectories"), args.rollout_window_s,
                           tuple(args.action_bound) if args.action_bound else None, args.decimate,
                           compare=_compared_systems(args))
-    train = RigTrainConfig(epochs=args.epochs, window_s=args.window_s, lr=args.lr if args.lr != 1e-3 else 2e-2,
+    train = RigTrainConfig(epochs=args.epochs, window_s=args.window_s, lr=RECORDINGS_LR if args.lr is None else args.lr,
                            seed=args.seed, progress=not args.no_progress, state_iters=args.state_iters,
-                           warmup_window_s=args.warmup_window_s, warmup_epochs=args.warmup_epochs)
-    metrics = train_recordings_run(spec, args.out, train, _overrides(args.set), plots=not args.no_plots)
+                           warmup_window_s=args.warmup_window_s, warmup_epochs=args.warmup_epochs, patience=args.patience)
+    metrics = train_recordings_run(spec, args.out, train, _overrides(args.set), plots=not args.no_plots, resume=args.resume)
     return heldout_summary(metrics)
 
 
@@ -180,14 +187,18 @@ def main(argv: list[str] | None = None) -> int:
     if args.env is None:
         print("phast-train: error: give --env (a registered env id) or --recordings FILE --sim SIM", file=sys.stderr)
         return 2
+    if args.patience is not None:
+        print("phast-train: error: --patience applies to --recordings runs (an --env run keeps its best validation "
+              "epoch of --epochs)", file=sys.stderr)
+        return 2
     try:
         from ..train.fit import TrainConfig
 
         data = DataSpec(n_train=args.n_train, n_val=args.n_val, n_test=args.n_test, T=args.T, seed=args.data_seed,
                         obs_noise_std=args.obs_noise_std,
                         excitation=PortExcitation(args.port_excitation, args.excitation_hold, args.excitation_seed))
-        train = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, seed=args.seed,
-                            progress=not args.no_progress)
+        train = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, lr=ENV_LR if args.lr is None else args.lr,
+                            seed=args.seed, progress=not args.no_progress)
         metrics = train_run(args.env, args.regime, args.out, data=data, train=train, overrides=_overrides(args.set),
                             resume=args.resume, plots=not args.no_plots)
     except (ValueError, gym.error.Error) as exc:

@@ -12,7 +12,8 @@ q (N, T, n), recorded times ``t`` (jitter allowed) or ``dt``, the measured port 
 * :func:`fit_recordings`: multiple shooting.  A real encoder is quantized (the DFKI arm: 3.8e-4 rad at 2 ms), so
   a finite-difference velocity is too noisy to start a one-step prediction from; each training window instead
   gets its own initial state, refitted by Gauss-Newton with the model fixed, and the model is trained by AdamW
-  on the open-loop error over the windows.
+  on the open-loop error over the windows; with the main trainer's NaN guard, a checkpoint after every epoch
+  (``resume``) and optional early stopping on the validation windows (``RigTrainConfig.patience``).
 * :func:`heldout_rollouts`: the held-out score, computed by the same code for every model (PHAST, the nominal rig
   as a KNOWN model without dissipation): each window's state is fitted to its burn-in, then the model runs open
   loop with the recorded u; RMSE of q, wrapped on angles.
@@ -20,6 +21,8 @@ q (N, T, n), recorded times ``t`` (jitter allowed) or ``dt``, the measured port 
 
 from __future__ import annotations
 
+import copy
+import json
 import math
 import time
 from collections.abc import Mapping
@@ -41,6 +44,8 @@ from ..rigs.holdout import check_holdout_indices, split
 from ..rigs.recordings import Recordings, load_raw, validate
 from ..rigs.shooting import Shooter, Windows, estimate_noise, odd, simulate_qv, smooth, substeps_for
 from ..rigs.simulators import load_simulator
+from ..train.checkpoint import atomic_torch_save
+from ..train.fit import CHECKPOINT, check_resume, finite_params, load_checkpoint, run_identity, scale_lr
 from ..world.interfaces import coordinate_error, wrap_angles
 from ..world.model import PHAST, PHASTConfig, build_from_config
 
@@ -55,6 +60,10 @@ FRICTION_EPS = 0.05
 SMOOTH_S = 0.03
 #: Gauss-Newton iterations of a compared system's state fit to each window's burn-in
 STATE_FIT_ITERS = 15
+#: the learning rates' factor after an epoch that ended with non-finite parameters (the main trainer's default)
+NAN_LR_FACTOR = 0.5
+#: the ``format`` entry of a recordings run's checkpoint.pt
+CHECKPOINT_FORMAT = "phast-rig-checkpoint"
 
 
 # --------------------------------------------------------------------------- data
@@ -260,7 +269,8 @@ def fit_states(model: PHAST, X: torch.Tensor, q: torch.Tensor, u: torch.Tensor |
 class RigTrainConfig:
     """Multiple-shooting training: windows of ``window_s`` seconds, ``epochs`` passes of AdamW over minibatches of
     ``batch_windows`` windows, window states refitted every ``refit_every`` epochs, validation on ``val_fraction`` of
-    the windows (best-validation weights kept)."""
+    the windows (best-validation weights kept); with ``patience``, training stops once the validation RMSE has not
+    improved for that many epochs (None: all ``epochs`` run)."""
 
     epochs: int = 40
     window_s: float = 0.2
@@ -277,10 +287,15 @@ class RigTrainConfig:
     #: all-neural start has no restoring force, and a long window of a swing is outside its basin); None: none
     warmup_window_s: float | None = None
     warmup_epochs: int = 0
+    #: early stopping: stop when the validation RMSE (on the final window length) has not improved for this many
+    #: epochs; None (the default): run every epoch
+    patience: int | None = None
 
     def __post_init__(self) -> None:
         if int(self.epochs) != self.epochs or self.epochs < 1:
             raise ValueError(f"epochs must be a positive integer, got {self.epochs!r}")
+        if self.patience is not None and (int(self.patience) != self.patience or self.patience < 1):
+            raise ValueError(f"patience must be a positive integer or None, got {self.patience!r}")
         if not (self.window_s > 0 and math.isfinite(self.window_s)):
             raise ValueError(f"window_s must be positive, got {self.window_s!r}")
         w = self.warmup_window_s
@@ -296,7 +311,9 @@ class RigTrainConfig:
 
 @dataclass
 class RigFit:
-    """What :func:`fit_recordings` returns: the best-validation model and the learning curve."""
+    """What :func:`fit_recordings` returns: the best-validation model and the learning curve; ``nan_skipped``
+    minibatch steps were skipped for a non-finite loss or gradient, ``nan_rollbacks`` epochs ended with non-finite
+    parameters and were undone (the learning rates halved each time); ``stopped_early``: by ``patience``."""
 
     model: PHAST
     history: list[dict[str, float]] = field(default_factory=list)
@@ -304,6 +321,9 @@ class RigFit:
     best_epoch: int = -1
     wall_time_s: float = 0.0
     init: dict[str, float] = field(default_factory=dict)
+    nan_skipped: int = 0
+    nan_rollbacks: int = 0
+    stopped_early: bool = False
 
 
 def _template_start(model: PHAST, rec: Recordings) -> dict[str, float]:
@@ -401,59 +421,239 @@ def _stage(model: PHAST, data: RigData, cfg: RigTrainConfig, window_s: float, ep
     return _Stage(train, val, opt, torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=epochs * n_batches), n_batches)
 
 
-def _epoch(model: PHAST, st: _Stage, params: list[torch.nn.Parameter], gen: torch.Generator, batch_windows: int) -> float:
-    """One pass of AdamW over minibatches of the training windows; the mean squared residual."""
+def _stage_at(model: PHAST, data: RigData, cfg: RigTrainConfig, epoch: int) -> _Stage:
+    """A fresh stage of the curriculum that trains ``epoch`` (0-based): the warm-up's windows before
+    ``warmup_epochs``, the final windows from then on."""
+    warm = cfg.warmup_epochs
+    if epoch < warm:
+        return _stage(model, data, cfg, cfg.warmup_window_s or cfg.window_s, warm)
+    return _stage(model, data, cfg, cfg.window_s, cfg.epochs - warm)
+
+
+def _step(opt: torch.optim.Optimizer, params: list[torch.nn.Parameter], loss: torch.Tensor) -> bool:
+    """Backward, clip and step; False, with no update, when the loss or the gradient norm is not finite."""
+    opt.zero_grad(set_to_none=True)
+    if not bool(torch.isfinite(loss)):
+        return False
+    loss.backward()
+    if not bool(torch.isfinite(torch.nn.utils.clip_grad_norm_(params, 10.0))):
+        opt.zero_grad(set_to_none=True)
+        return False
+    opt.step()
+    return True
+
+
+def _epoch(model: PHAST, st: _Stage, params: list[torch.nn.Parameter], gen: torch.Generator,
+           batch_windows: int) -> tuple[float, int]:
+    """One pass of AdamW over minibatches of the training windows: (the mean squared residual of the steps taken,
+    NaN when none was; the number of steps skipped for a non-finite loss or gradient).  A skipped step still
+    advances the schedule, so the cosine decay ends where it was planned."""
     perm = torch.randperm(st.train.q.shape[0], generator=gen)
-    tot = 0.0
+    tot, cnt, skipped = 0.0, 0, 0
     for b in range(st.n_batches):
         idx = perm[b * batch_windows:(b + 1) * batch_windows]
         loss = _loss(model, st.train, idx)
-        st.opt.zero_grad(set_to_none=True)
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(params, 10.0)
-        st.opt.step()
+        if _step(st.opt, params, loss):
+            tot += float(loss.detach()) * len(idx)
+            cnt += len(idx)
+        else:
+            skipped += 1
         st.sched.step()
-        tot += float(loss.detach()) * len(idx)
-    return tot / st.train.q.shape[0]
+    return (tot / cnt if cnt else math.nan), skipped
 
 
-def fit_recordings(model: PHAST, data: RigData, cfg: RigTrainConfig | None = None) -> RigFit:
+def _clone_state(model: torch.nn.Module) -> dict[str, torch.Tensor]:
+    return {k: v.clone() for k, v in model.state_dict().items()}
+
+
+@dataclass
+class _Run:
+    """What a rig training run carries from epoch to epoch; the checkpoint stores it and a resume restores it."""
+
+    model: PHAST
+    params: list[torch.nn.Parameter]
+    gen: torch.Generator
+    best_state: dict[str, torch.Tensor]
+    stage: _Stage | None = None
+    history: list[dict[str, float]] = field(default_factory=list)
+    best_mse: float = math.inf
+    best_epoch: int = -1
+    start_epoch: int = 0
+    nan_skipped: int = 0
+    nan_rollbacks: int = 0
+    stopped: bool = False
+    elapsed0: float = 0.0  # seconds trained before this call (a resume)
+    t0: float = 0.0  # perf_counter origin of the run's clock (elapsed0 included)
+
+
+def _roll_back(run: _Run, st: _Stage, good_model: dict[str, torch.Tensor], good_opt: dict[str, Any]) -> None:
+    """After an epoch that ended with non-finite parameters: count it, restore the model and optimizer of the epoch's
+    start, and continue the schedule from where it stands at NAN_LR_FACTOR x its learning rates."""
+    lrs = [g["lr"] for g in st.opt.param_groups]
+    run.model.load_state_dict(good_model)
+    st.opt.load_state_dict(good_opt)
+    for g, lr in zip(st.opt.param_groups, lrs):
+        g["lr"] = lr
+    scale_lr(st.opt, st.sched, NAN_LR_FACTOR)
+    run.nan_rollbacks += 1
+
+
+def _guarded_epoch(run: _Run, st: _Stage, batch_windows: int) -> float:
+    """:func:`_epoch` with the NaN guard: skipped steps counted, an epoch ending with non-finite parameters undone."""
+    good_model, good_opt = _clone_state(run.model), copy.deepcopy(st.opt.state_dict())
+    mse, skipped = _epoch(run.model, st, run.params, run.gen, batch_windows)
+    run.nan_skipped += skipped
+    if not finite_params(run.model):
+        _roll_back(run, st, good_model, good_opt)
+    return mse
+
+
+def _train_epoch(run: _Run, data: RigData, cfg: RigTrainConfig, epoch: int) -> None:
+    """Epoch ``epoch`` (0-based): a new stage where the curriculum starts one, the window states refitted, one guarded
+    pass, validation (the best state kept on the final window length) and the history record."""
+    warm = cfg.warmup_epochs
+    if run.stage is None or epoch == warm:
+        run.stage = _stage_at(run.model, data, cfg, epoch)
+    st = run.stage
+    if epoch % cfg.refit_every == 0:  # the states move little between epochs: one Gauss-Newton step after the first
+        iters = 3 if epoch in (0, warm) else cfg.state_iters
+        st.train.X = fit_states(run.model, st.train.X, st.train.q, st.train.u, iters)
+        if st.val is not None:
+            st.val.X = fit_states(run.model, st.val.X, st.val.q, st.val.u, iters)
+    rec = {"epoch": epoch + 1, "train_rmse": math.sqrt(_guarded_epoch(run, st, cfg.batch_windows)),
+           "time_s": time.perf_counter() - run.t0}
+    with torch.no_grad():
+        vl = float(_loss(run.model, st.val if st.val is not None else st.train))
+    rec["val_rmse"] = math.sqrt(vl)
+    if epoch >= warm and math.isfinite(vl) and vl < run.best_mse:
+        run.best_mse, run.best_epoch = vl, epoch + 1
+        run.best_state = _clone_state(run.model)
+    rec.update(nan_skipped=run.nan_skipped, nan_rollbacks=run.nan_rollbacks)
+    run.history.append(rec)
+
+
+def _patience_spent(run: _Run, cfg: RigTrainConfig, epoch: int) -> bool:
+    """True when the validation RMSE has not improved for ``cfg.patience`` epochs of the final window length."""
+    if cfg.patience is None or epoch < cfg.warmup_epochs:
+        return False
+    return epoch + 1 - max(run.best_epoch, cfg.warmup_epochs) >= cfg.patience
+
+
+def _save_checkpoint(run: _Run, path: Path | None, cfg: RigTrainConfig, identity: dict[str, Any] | None,
+                     epoch: int) -> None:
+    """Write ``checkpoint.pt`` atomically (nothing without a run directory): what :func:`_restore` reads back; plain
+    Python values and tensors only, so it loads with ``weights_only=True``."""
+    if path is None or run.stage is None:
+        return
+    st = run.stage
+    atomic_torch_save({
+        "format": CHECKPOINT_FORMAT, "epoch": epoch, "model": run.model.state_dict(), "optimizer": st.opt.state_dict(),
+        "scheduler": st.sched.state_dict(), "X_train": st.train.X, "X_val": None if st.val is None else st.val.X,
+        "best_state": run.best_state, "best_mse": run.best_mse, "best_epoch": run.best_epoch,
+        "history": json.dumps(run.history), "gen_state": run.gen.get_state(), "torch_rng": torch.get_rng_state(),
+        "nan_skipped": run.nan_skipped, "nan_rollbacks": run.nan_rollbacks, "stopped": run.stopped,
+        "elapsed": time.perf_counter() - run.t0, "identity": json.dumps(run_identity(cfg, identity), sort_keys=True),
+    }, path)
+
+
+def _window_states(saved: Any, like: torch.Tensor, what: str) -> torch.Tensor:
+    """The checkpoint's window states, checked against this run's windows."""
+    if not isinstance(saved, torch.Tensor) or saved.shape != like.shape:
+        shape = tuple(saved.shape) if isinstance(saved, torch.Tensor) else type(saved).__name__
+        raise ValueError(f"its {what} window states are {shape}, this run has {tuple(like.shape)} windows "
+                         "(were the recordings changed?)")
+    return saved.to(like.dtype)
+
+
+def _model_state(saved: Any, model: torch.nn.Module, what: str) -> dict[str, torch.Tensor]:
+    """A state dict of the checkpoint, checked to fit ``model`` (the same entries, each of the same shape)."""
+    ref = model.state_dict()
+    if not (isinstance(saved, dict) and saved.keys() == ref.keys()
+            and all(isinstance(v, torch.Tensor) and v.shape == ref[k].shape for k, v in saved.items())):
+        raise ValueError(f"its {what} does not fit the model")
+    return saved
+
+
+def _load_run(run: _Run, ck: dict[str, Any], data: RigData, cfg: RigTrainConfig) -> None:
+    """Set ``run`` to the state the checkpoint ``ck`` recorded at the end of its last epoch."""
+    epoch = int(ck["epoch"])
+    if not 1 <= epoch <= cfg.epochs:
+        raise ValueError(f"its epoch {epoch} is outside 1..{cfg.epochs}")
+    run.model.load_state_dict(ck["model"])
+    st = _stage_at(run.model, data, cfg, epoch - 1)
+    st.opt.load_state_dict(ck["optimizer"])
+    st.sched.load_state_dict(ck["scheduler"])
+    st.train.X = _window_states(ck["X_train"], st.train.X, "training")
+    if st.val is not None:
+        st.val.X = _window_states(ck["X_val"], st.val.X, "validation")
+    run.stage, run.best_state = st, _model_state(ck["best_state"], run.model, "best state")
+    run.gen.set_state(ck["gen_state"])
+    torch.set_rng_state(ck["torch_rng"])
+    run.history = json.loads(ck["history"])
+    run.best_mse, run.best_epoch, run.start_epoch = float(ck["best_mse"]), int(ck["best_epoch"]), epoch
+    run.nan_skipped, run.nan_rollbacks = int(ck["nan_skipped"]), int(ck["nan_rollbacks"])
+    run.stopped, run.elapsed0 = bool(ck["stopped"]), float(ck["elapsed"])
+
+
+def _restore(run: _Run, path: Path, data: RigData, cfg: RigTrainConfig, identity: dict[str, Any] | None) -> None:
+    """Continue ``run`` from the checkpoint at ``path``; ValueError when it is missing, unreadable, of another kind
+    of run or of another run (:func:`phast_model.train.fit.check_resume` names the differing field)."""
+    if not path.exists():
+        raise ValueError(f"cannot resume: {path} is missing (no epoch of a run in {path.parent} has finished); "
+                         "start without --resume")
+    ck = load_checkpoint(path)
+    if ck.get("format") != CHECKPOINT_FORMAT:
+        raise ValueError(f"cannot resume from {path}: not the checkpoint of a recordings run "
+                         f"(format {ck.get('format')!r}, expected {CHECKPOINT_FORMAT!r})")
+    check_resume(path, cfg, identity, ck)
+    try:
+        _load_run(run, ck, data, cfg)
+    except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+        text = (str(exc).splitlines() or [""])[0]
+        raise ValueError(f"cannot resume from {path}: {type(exc).__name__}: {text}") from None
+
+
+def _run_epochs(run: _Run, data: RigData, cfg: RigTrainConfig, ckpt: Path | None,
+                identity: dict[str, Any] | None) -> None:
+    """Epochs ``run.start_epoch`` .. ``cfg.epochs`` (none once stopped early), a checkpoint after each."""
+    todo = range(cfg.epochs if run.stopped else run.start_epoch, cfg.epochs)
+    for epoch in tqdm(todo, desc="fit rig (multiple shooting)", disable=not cfg.progress, initial=run.start_epoch,
+                      total=cfg.epochs):
+        _train_epoch(run, data, cfg, epoch)
+        run.stopped = _patience_spent(run, cfg, epoch)
+        _save_checkpoint(run, ckpt, cfg, identity, epoch + 1)
+        if run.stopped:
+            break
+
+
+def fit_recordings(model: PHAST, data: RigData, cfg: RigTrainConfig | None = None, run_dir: str | Path | None = None,
+                   resume: bool = False, identity: dict[str, Any] | None = None) -> RigFit:
     """Train ``model`` on ``data.train`` by multiple shooting (see the module docstring); with a warm-up, the best
-    validation is tracked on the final window length only."""
+    validation is tracked on the final window length only.
+
+    NaN guard: a minibatch whose loss or gradient is not finite makes no update (``nan_skipped``); an epoch that ends
+    with non-finite parameters is undone and the learning rates halved (``nan_rollbacks``).  With ``run_dir``,
+    ``checkpoint.pt`` is written there atomically after every epoch (model, optimizer and schedule, window states,
+    best state, history, RNG states) and ``resume=True`` continues from it to the model an uninterrupted run ends
+    with; ``identity`` (what else defines the run: the model config, the recordings ...) is recorded in it and a
+    checkpoint of another run, a missing or an unreadable one is a ValueError."""
     cfg = cfg or RigTrainConfig()
     model = model.double()
     init = _template_start(model, data.train) if model.config.init_from == "rig" else {}
     torch.manual_seed(cfg.seed)
     params = [p for p in model.parameters() if p.requires_grad]
-    warm = cfg.warmup_epochs
-    st = _stage(model, data, cfg, cfg.warmup_window_s or cfg.window_s, warm) if warm else None
-    gen = torch.Generator().manual_seed(cfg.seed)
-    res = RigFit(model, init=init)
-    best_state = {k: v.clone() for k, v in model.state_dict().items()}
-    t0 = time.perf_counter()
-    for epoch in tqdm(range(cfg.epochs), desc="fit rig (multiple shooting)", disable=not cfg.progress):
-        if epoch == warm:
-            st = _stage(model, data, cfg, cfg.window_s, cfg.epochs - warm)
-        assert st is not None
-        if epoch % cfg.refit_every == 0:  # the states move little between epochs: one Gauss-Newton step after the first
-            iters = 3 if epoch in (0, warm) else cfg.state_iters
-            st.train.X = fit_states(model, st.train.X, st.train.q, st.train.u, iters)
-            if st.val is not None:
-                st.val.X = fit_states(model, st.val.X, st.val.q, st.val.u, iters)
-        rec = {"epoch": epoch + 1, "train_rmse": math.sqrt(_epoch(model, st, params, gen, cfg.batch_windows)),
-               "time_s": time.perf_counter() - t0}
-        with torch.no_grad():
-            vl = float(_loss(model, st.val if st.val is not None else st.train))
-        rec["val_rmse"] = math.sqrt(vl)
-        if epoch >= warm and math.isfinite(vl) and vl < res.best_val:
-            res.best_val, res.best_epoch = vl, epoch + 1
-            best_state = {k: v.clone() for k, v in model.state_dict().items()}
-        res.history.append(rec)
-    model.load_state_dict(best_state)
+    run = _Run(model, params, torch.Generator().manual_seed(cfg.seed), _clone_state(model))
+    ckpt = None if run_dir is None else Path(run_dir) / CHECKPOINT
+    if resume:
+        if ckpt is None:
+            raise ValueError("resume needs run_dir (the directory of checkpoint.pt)")
+        _restore(run, ckpt, data, cfg, identity)
+    run.t0 = time.perf_counter() - run.elapsed0
+    _run_epochs(run, data, cfg, ckpt, identity)
+    model.load_state_dict(run.best_state)
     model.eval()
-    res.wall_time_s = time.perf_counter() - t0
-    res.best_val = math.sqrt(res.best_val)
-    return res
+    return RigFit(model, run.history, math.sqrt(run.best_mse), run.best_epoch, time.perf_counter() - run.t0, init,
+                  run.nan_skipped, run.nan_rollbacks, run.stopped)
 
 
 # --------------------------------------------------------------------------- held-out evaluation

@@ -4,8 +4,9 @@
 windows), trains by multiple shooting (:func:`phast_model.rig.fit_recordings`), scores PHAST and the nominal rig on
 the held-out recordings by the same code (:func:`phast_model.rig.fit.heldout_rollouts`) and writes ``model.pt`` +
 ``config.json`` (opened by :func:`phast_model.api.load_run` and
-:class:`phast_model.world.gym_env.PHASTWorldModelEnv`), ``metrics.json`` (key ``heldout``), ``history.json`` and the
-plots ``heldout_rollout.png`` and ``friction.png``.
+:class:`phast_model.world.gym_env.PHASTWorldModelEnv`), ``metrics.json`` (key ``heldout``), ``history.json``,
+``checkpoint.pt`` (written after every epoch; ``resume=True`` continues from it) and the plots ``heldout_rollout.png``
+and ``friction.png``.
 """
 
 from __future__ import annotations
@@ -86,8 +87,10 @@ def _heldout(data: RigData) -> Recordings:
 
 
 def train_recordings_run(spec: RecordingsSpec, out: str | Path, train: RigTrainConfig | None = None,
-                         overrides: dict[str, Any] | None = None, plots: bool = True) -> dict[str, Any]:
-    """Train on ``spec``'s recordings and write the run directory ``out``; returns the metrics written."""
+                         overrides: dict[str, Any] | None = None, plots: bool = True, resume: bool = False) -> dict[str, Any]:
+    """Train on ``spec``'s recordings and write the run directory ``out``; returns the metrics written.  ``resume``
+    continues from ``out/checkpoint.pt`` (ValueError when it is missing, unreadable or of another run: another
+    recordings spec, model config or training config)."""
     from phast_gym.fileio import dir_lock, ensure_writable_dir
 
     train = train or RigTrainConfig()
@@ -100,7 +103,8 @@ def train_recordings_run(spec: RecordingsSpec, out: str | Path, train: RigTrainC
     out = ensure_writable_dir(out, "--out")
     with dir_lock(out):
         model = build(cfg)
-        fit = fit_recordings(model, data, train)
+        identity = {"model": cfg.to_dict(), "recordings": _spec_record(spec, str(data.source))}
+        fit = fit_recordings(model, data, train, run_dir=out, resume=resume, identity=identity)
         nominal = build(nominal_config(cfg))
         scores, rolls, windows = heldout_rollouts({"phast": fit.model, "nominal": nominal}, heldout,
                                                   spec.rollout_window_s, compare=spec.compare)
@@ -130,16 +134,21 @@ def _metrics(spec: RecordingsSpec, data: RigData, fit: RigFit, scores: dict[str,
         "heldout": {**scores, **ratios},
         "friction": None if friction is None else {k: v.detach().tolist() for k, v in friction.coefficients().items()},
         "train_wall_time_s": fit.wall_time_s, "best_val_rmse": fit.best_val, "best_epoch": fit.best_epoch,
-        "init": fit.init,
+        "epochs_run": len(fit.history), "stopped_early": fit.stopped_early, "nan_skipped": fit.nan_skipped,
+        "nan_rollbacks": fit.nan_rollbacks, "init": fit.init,
     }
+
+
+def _spec_record(spec: RecordingsSpec, source: str) -> dict[str, Any]:
+    """The recordings spec as config.json records it (and as the checkpoint's identity checks it on resume)."""
+    return {**{f.name: getattr(spec, f.name) for f in fields(spec) if f.name != "compare"},
+            "recordings": source, "holdout": list(spec.holdout or ()), "compare": sorted(spec.compare or {})}
 
 
 def _write(fit: RigFit, metrics: dict[str, Any], spec: RecordingsSpec, train: RigTrainConfig, out: Path) -> None:
     from ..train.checkpoint import atomic_write_json, save_run
 
-    rec = {**{f.name: getattr(spec, f.name) for f in fields(spec) if f.name != "compare"},
-           "recordings": metrics["recordings"], "holdout": list(spec.holdout or ()), "compare": sorted(spec.compare or {})}
-    save_run(fit.model, out, {"train": asdict(train), "recordings": rec})
+    save_run(fit.model, out, {"train": asdict(train), "recordings": _spec_record(spec, metrics["recordings"])})
     atomic_write_json(out / METRICS_FILE, metrics)
     atomic_write_json(out / HISTORY_FILE, fit.history)
 

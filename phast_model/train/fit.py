@@ -17,7 +17,7 @@ import math
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -25,6 +25,9 @@ from tqdm.auto import tqdm
 
 from ..world.interfaces import DataInitModel, ForecastModel, ParamGroupsModel, coordinate_error
 from .checkpoint import atomic_torch_save, first_difference
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
 
 CHECKPOINT = "checkpoint.pt"
 
@@ -137,11 +140,12 @@ class _warmup_cosine:
         return 0.5 * (1.0 + math.cos(math.pi * min(step, self.n_total) / self.n_total))
 
 
-def _finite_params(model: torch.nn.Module) -> bool:
+def finite_params(model: torch.nn.Module) -> bool:
+    """True when every parameter of ``model`` is finite (the NaN guard's check after a step or an epoch)."""
     return all(bool(torch.isfinite(p).all()) for p in model.parameters())
 
 
-#: TrainConfig fields that do not change what a run computes (a resume may change them)
+#: training-config fields that do not change what a run computes (a resume may change them)
 _NOT_IDENTITY = ("progress",)
 
 
@@ -149,14 +153,15 @@ def _canonical(obj: Any) -> Any:
     return json.loads(json.dumps(obj, sort_keys=True, default=str))
 
 
-def run_identity(cfg: TrainConfig, identity: dict[str, Any] | None = None) -> dict[str, Any]:
-    """What a checkpoint must match to be resumed: the training config (but ``progress``) and the caller's
+def run_identity(cfg: DataclassInstance, identity: dict[str, Any] | None = None) -> dict[str, Any]:
+    """What a checkpoint must match to be resumed: the training config (a :class:`TrainConfig`, or the rig path's
+    :class:`phast_model.rig.fit.RigTrainConfig`; all its fields but ``progress``) and the caller's
     ``identity`` (env, regime, data, model overrides ...), as canonical JSON values."""
     train = {k: v for k, v in asdict(cfg).items() if k not in _NOT_IDENTITY}
     return _canonical({"train": train, **(identity or {})})
 
 
-def check_resume(ckpt_path: str | Path, cfg: TrainConfig, identity: dict[str, Any] | None = None,
+def check_resume(ckpt_path: str | Path, cfg: DataclassInstance, identity: dict[str, Any] | None = None,
                  ck: dict[str, Any] | None = None) -> None:
     """ValueError naming the first differing field when ``ckpt_path`` was written by another run (env, regime,
     data, training config ...); nothing to check when it does not exist.  Cheap enough to call before any work."""
@@ -164,7 +169,7 @@ def check_resume(ckpt_path: str | Path, cfg: TrainConfig, identity: dict[str, An
     if ck is None:
         if not ckpt_path.exists():
             return
-        ck = _load_checkpoint(ckpt_path)
+        ck = load_checkpoint(ckpt_path)
     stored = ck.get("identity")
     if not isinstance(stored, str):
         raise ValueError(f"cannot resume from {ckpt_path}: it records no run identity (written by an older phast), so "
@@ -176,7 +181,8 @@ def check_resume(ckpt_path: str | Path, cfg: TrainConfig, identity: dict[str, An
                          f"{field_}={new!r}; use another output directory or the original settings")
 
 
-def _load_checkpoint(ckpt_path: Path) -> dict[str, Any]:
+def load_checkpoint(ckpt_path: Path) -> dict[str, Any]:
+    """The checkpoint at ``ckpt_path`` (``weights_only=True``) as a dict, or ValueError naming the problem."""
     from .checkpoint import torch_load
 
     try:
@@ -273,7 +279,7 @@ def _new_state(model: ForecastModel, cfg: TrainConfig, n_batches: int) -> _Train
 
 def _restore(state: _TrainState, ckpt_path: Path, cfg: TrainConfig, identity: dict[str, Any] | None) -> None:
     """Continue ``state`` from the checkpoint at ``ckpt_path`` (checked to belong to this run)."""
-    ck = _load_checkpoint(ckpt_path)
+    ck = load_checkpoint(ckpt_path)
     check_resume(ckpt_path, cfg, identity, ck)
     try:
         state.model.load_state_dict(ck["model"])
@@ -325,7 +331,7 @@ def _optimizer_step(state: _TrainState, loss: torch.Tensor, grad_clip: float | N
     if not bool(torch.isfinite(gnorm)):
         return False
     state.opt.step()
-    return _finite_params(state.model)
+    return finite_params(state.model)
 
 
 def _roll_back(state: _TrainState, good_model: dict[str, Any], good_opt: dict[str, Any], lr_factor: float) -> None:
@@ -334,9 +340,14 @@ def _roll_back(state: _TrainState, good_model: dict[str, Any], good_opt: dict[st
     state.nan_events += 1
     state.model.load_state_dict(good_model)
     state.opt.load_state_dict(good_opt)
-    for g in state.opt.param_groups:
-        g["lr"] *= lr_factor
-    state.sched.base_lrs = [lr * lr_factor for lr in state.sched.base_lrs]
+    scale_lr(state.opt, state.sched, lr_factor)
+
+
+def scale_lr(opt: torch.optim.Optimizer, sched: torch.optim.lr_scheduler.LRScheduler, factor: float) -> None:
+    """Multiply every group's learning rate by ``factor``, now and in the schedule's base rates."""
+    for g in opt.param_groups:
+        g["lr"] *= factor
+    sched.base_lrs = [lr * factor for lr in sched.base_lrs]
 
 
 def _train_epoch(state: _TrainState, data: _Data, cfg: TrainConfig) -> float:
@@ -419,7 +430,7 @@ def fit(model: ForecastModel, train: Any, val: Any, cfg: TrainConfig | None = No
     state.t0 = time.perf_counter() - state.elapsed0
     _run_epochs(state, data, cfg, ckpt_path, identity)
     # never validated (stopped early): validate what we have; best_val is still inf, so any finite loss is taken
-    if state.best_epoch < 0 and _finite_params(model):
+    if state.best_epoch < 0 and finite_params(model):
         _validate_and_select(state, data, cfg, len(state.history))
     model.load_state_dict(state.best_state)
     model.eval()
