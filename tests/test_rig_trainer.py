@@ -270,10 +270,11 @@ def test_an_explicit_lr_is_used_as_given_in_both_modes(monkeypatch: pytest.Monke
     monkeypatch.setattr(rigrun, "train_recordings_run", capture)
     monkeypatch.setattr(cli, "train_run", capture)
     base = ["--recordings", "r.npz", "--sim", SIM, "--out", str(tmp_path / "r")]
-    for extra in ([], ["--lr", "1e-3"], ["--lr", "0.05"], ["--patience", "3"]):
+    for extra in ([], ["--lr", "1e-3"], ["--lr", "0.05"], ["--patience", "3"], ["--batch-size", "16"]):
         assert train_main(base + extra) == 2
-    assert [t.lr for t in got] == [RigTrainConfig().lr, 1e-3, 0.05, RigTrainConfig().lr]
-    assert [t.patience for t in got] == [None, None, None, 3]
+    assert [t.lr for t in got] == [RigTrainConfig().lr, 1e-3, 0.05, RigTrainConfig().lr, RigTrainConfig().lr]
+    assert [t.patience for t in got] == [None, None, None, 3, None]
+    assert [t.batch_windows for t in got] == [RigTrainConfig().batch_windows] * 4 + [16]  # --batch-size reaches the windows
     got.clear()
     env = ["--env", "PHAST/Pendulum-v0", "--out", str(tmp_path / "e")]
     for extra in ([], ["--lr", "2e-2"]):

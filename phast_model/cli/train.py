@@ -72,7 +72,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--n-val", type=int, default=200)
     ap.add_argument("--n-test", type=int, default=200)
     ap.add_argument("--T", type=int, default=200, help="trajectory length")
-    ap.add_argument("--batch-size", type=int, default=64)
+    ap.add_argument("--batch-size", type=int, default=64,
+                    help="minibatch size: trajectories with --env, shooting windows with --recordings")
     ap.add_argument("--lr", type=float, default=None,
                     help=f"learning rate (default: {ENV_LR:g} with --env, {RECORDINGS_LR:g} with --recordings; a value given "
                          "is used as given in both)")
@@ -165,7 +166,7 @@ def _recordings_main(args: argparse.Namespace) -> dict[str, Any]:
                           tuple(args.action_bound) if args.action_bound else None, args.decimate,
                           compare=_compared_systems(args))
     train = RigTrainConfig(epochs=args.epochs, window_s=args.window_s, lr=RECORDINGS_LR if args.lr is None else args.lr,
-                           seed=args.seed, progress=not args.no_progress, state_iters=args.state_iters,
+                           batch_windows=args.batch_size, seed=args.seed, progress=not args.no_progress, state_iters=args.state_iters,
                            warmup_window_s=args.warmup_window_s, warmup_epochs=args.warmup_epochs, patience=args.patience)
     metrics = train_recordings_run(spec, args.out, train, _overrides(args.set), plots=not args.no_plots, resume=args.resume)
     return heldout_summary(metrics)
