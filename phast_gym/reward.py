@@ -2,8 +2,8 @@
 
 ``-(|wrap(q - q*)|^2 + 0.1 |qdot|^2 + 0.001 |u|^2)`` per step, Gymnasium's Pendulum-v1 cost on every coordinate
 (angles wrapped).  One function, :func:`regulation_reward`, of the three squared norms: the real env
-(:class:`phast_gym.PortHamiltonianEnv`), the world-model env (``phast_model.world.gym_env``) and the SAC benchmark's
-rewards (``benchmarks/control_sac.py``, which adds its own shaping terms to it) all call it.  Numpy only.
+(:class:`phast_gym.PortHamiltonianEnv`), the learned world model's env and the SAC benchmark's rewards (which add
+their own shaping terms to it) all call it.  Numpy only; the packages above this one import it, it names none of them.
 """
 
 from __future__ import annotations

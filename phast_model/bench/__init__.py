@@ -4,6 +4,12 @@
 >>> specs = grid(["PHAST/WindyPendulum-v0"], ["phast-partial", "dlinoss"], [0, 1], epochs=50)
 >>> records = run_sweep(specs, "results/", backend="local")
 >>> write_reports(records, "results/")
+
+The library code of the repository's benchmark scripts (``benchmarks/``) lives here too: the grid driver
+(:mod:`.grid_driver`), the cost of a training step (:mod:`.cost`), the error decomposition of trained runs
+(:mod:`.diagnostics`), the acceptance runs of the PHAST world model (:mod:`.acceptance`), the robustness of an
+identified D to rounding (:mod:`.fragility`), run-by-run comparison of two grids (:mod:`.compare`) and the mismatch
+tool's concealed-effect cases on MuJoCo model files (:mod:`.mjcf_cases`).
 """
 
 from .executors import Executor, LocalExecutor, RayExecutor, make_executor

@@ -5,6 +5,9 @@
   ``protocol`` (a :class:`~phast_gym.control.ControlProtocol`), ``progress``;
 * ``phast-observer`` / ``phast-model`` / ``phast-ukf``: from a trained PHAST run (kwarg ``run``: run dir or
   model); ``phast-ukf`` is the q-only UKF with the learned model as its process model.
+
+Not imported here: :mod:`.lqg_bound` (the LQG floor on the torque of any causal q-only controller at an unstable
+equilibrium) and :mod:`.learned_model` (the tables of the learned-model-in-the-loop study).
 """
 
 from __future__ import annotations

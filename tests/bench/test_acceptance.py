@@ -1,4 +1,5 @@
-"""benchmarks/phast_windy.py --check: other machines' references (no training: the run is faked)."""
+"""phast_model.bench.acceptance (benchmarks/phast_windy.py --check): other machines' references (no training: the run
+is faked)."""
 
 from __future__ import annotations
 
@@ -6,7 +7,8 @@ import json
 from pathlib import Path
 
 import pytest
-from repo_scripts import load_script
+
+from phast_model.bench import acceptance
 
 ENV = "PHAST/WindyPendulum-v0"
 HERE = {"cpu": "cpu B", "torch_cpu_capability": "AVX512", "torch": "2.13.0+cpu", "numpy": "2.4.6", "scipy": "1.17.1"}
@@ -14,11 +16,10 @@ HERE = {"cpu": "cpu B", "torch_cpu_capability": "AVX512", "torch": "2.13.0+cpu",
 
 @pytest.fixture()
 def pw(monkeypatch: pytest.MonkeyPatch):  # noqa: ANN201
-    mod = load_script("benchmarks/phast_windy.py")
-    monkeypatch.setattr(mod, "numerics", lambda: dict(HERE))
+    monkeypatch.setattr(acceptance, "numerics", lambda: dict(HERE))
     fresh = {"damping_r2": 0.851, "rollout_theta_wrap_mse_h100": 0.0019, "theta_wrap_mse": 2.15e-4}
-    monkeypatch.setattr(mod, "_one", lambda env, regime, seed, *a: {"env_id": env, "regime": regime, "seed": seed, **fresh})
-    return mod
+    monkeypatch.setattr(acceptance, "train_one", lambda env, regime, seed, *a: {"env_id": env, "regime": regime, "seed": seed, **fresh})
+    return acceptance
 
 
 def _run(commit: str, r2: float, roll: float, numerics: dict | None = None) -> dict:

@@ -27,6 +27,7 @@ from phast_model.bench import (
 )
 from phast_model.bench.runner import safe_run_one
 from phast_model.cli.bench import main
+from tests import ROOT
 
 ENV = "PHAST/WindyPendulum-v0"
 TINY = dict(epochs=1, n_train=6, n_val=3, n_test=3, T=30, horizons=(5, 10), burn_in=5, train={"batch_size": 4})
@@ -246,7 +247,7 @@ def test_killed_sweep_leaves_no_live_workers(tmp_path: Path) -> None:
     from phast_gym.fileio import dir_lock
 
     out = tmp_path / "sweep"
-    root = str(Path(__file__).resolve().parents[1])
+    root = str(ROOT)
     env = {**os.environ, "PYTHONPATH": root + os.pathsep + os.environ.get("PYTHONPATH", ""), "OMP_NUM_THREADS": "1"}
     cmd = [sys.executable, "-m", "phast_model.cli.bench", "--envs", "Pendulum-v0", "--models", "gru", "--seeds", "0-1",
            "--epochs", "100000", "--n-train", "4", "--n-val", "2", "--n-test", "2", "--T", "20", "--horizons", "5",
@@ -281,7 +282,7 @@ def test_run_directory_lock_is_exclusive(tmp_path: Path) -> None:
     with dir_lock(tmp_path):
         code = f"from phast_gym.fileio import dir_lock\nwith dir_lock({str(tmp_path)!r}): pass"
         res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                             env={**__import__("os").environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])})
+                             env={**__import__("os").environ, "PYTHONPATH": str(ROOT)})
         assert res.returncode != 0 and "in use by another process" in res.stderr
     with pytest.raises(DirLocked):
         with dir_lock(tmp_path):

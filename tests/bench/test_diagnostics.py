@@ -1,13 +1,14 @@
-"""benchmarks/regime_diagnostics.py: the error decomposition re-scores the row metric and isolates its parts."""
+"""phast_model.bench.diagnostics (benchmarks/regime_diagnostics.py): the error decomposition re-scores the row metric
+and isolates its parts."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 import torch
-from repo_scripts import load_script
 
 from phast_gym.datasets import make_splits
+from phast_model.bench import diagnostics
 from phast_model.bench.spec import RunSpec
 from phast_model.train.metrics import forecast_metrics
 from phast_model.world.regimes import build_model
@@ -17,7 +18,7 @@ ENV = "PHAST/DampedPendulum-v0"
 
 @pytest.fixture(scope="module")
 def rd():  # noqa: ANN201
-    return load_script("benchmarks/regime_diagnostics.py")
+    return diagnostics
 
 
 @pytest.fixture(scope="module")

@@ -1,5 +1,5 @@
-"""benchmarks/mjcf_cases.py: every case's nominal and "real" model files and its closed-loop recordings (tiny sizes),
-and one end-to-end analysis of the Furuta pendulum at a small size."""
+"""phast_model.bench.mjcf_cases (benchmarks/mjcf_cases.py): every case's nominal and "real" model files and its
+closed-loop recordings (tiny sizes), and one end-to-end analysis of the Furuta pendulum at a small size."""
 
 from __future__ import annotations
 
@@ -8,19 +8,24 @@ import pytest
 
 pytest.importorskip("mujoco")
 
-from repo_scripts import load_script  # noqa: E402
+from phast_model.bench import mjcf_cases as mc  # noqa: E402
+from tests import ROOT  # noqa: E402
 
-mc = load_script("benchmarks/mjcf_cases.py", "mjcf_cases")
-CASE_NAMES = list(mc.CASES)
+#: the cases with the repository's nominal model files
+CASES = mc.cases(ROOT / "benchmarks" / "mjcf_models")
+CASE_NAMES = list(CASES)
 
 
 def test_the_five_cases_are_there():
     assert CASE_NAMES == ["furuta", "arm3", "arm3_cad", "weak_motor", "cartpole"]
+    assert all(mc.nominal_path(c).is_file() for c in CASES.values())
+    with pytest.raises(ValueError, match="cases"):  # a case without its models folder says where to get one
+        mc.nominal_path(mc.CASES["furuta"])
 
 
 @pytest.mark.parametrize("name", CASE_NAMES)
 def test_real_model_differs_from_the_nominal_only_in_the_hidden_attributes(name, tmp_path):
-    case = mc.CASES[name]
+    case = CASES[name]
     hidden = mc.hidden_effects(case, 0)
     assert hidden
     real = mc.write_real(case, hidden, tmp_path)
@@ -38,7 +43,7 @@ def test_real_model_differs_from_the_nominal_only_in_the_hidden_attributes(name,
 
 
 def test_cad_errors_cover_every_nonzero_body_value_and_depend_on_the_seed():
-    case = mc.CASES["arm3_cad"]
+    case = CASES["arm3_cad"]
     a, b = mc.hidden_effects(case, 0), mc.hidden_effects(case, 1)
     nominal = mc.parameter_values(mc.nominal_path(case))
     body_params = {k for k, v in nominal.items() if v != 0.0 and k.split(".")[0] in ("turret", "upper_arm", "forearm")}
@@ -55,7 +60,7 @@ def test_recordings_have_the_tools_shapes_and_are_muJoCos_trajectories(name, tmp
 
     from phast_model.rigs.mujoco_sim import rollout_q
 
-    case = mc.CASES[name]
+    case = CASES[name]
     real = mc.write_real(case, mc.hidden_effects(case, 0), tmp_path)
     model = mujoco.MjModel.from_xml_path(str(real))
     N, T = 2, 40
@@ -73,7 +78,7 @@ def test_recordings_have_the_tools_shapes_and_are_muJoCos_trajectories(name, tmp
 
 
 def test_judgement_of_the_weak_motor_accepts_gear_or_gain_and_nothing_else():
-    case = mc.CASES["weak_motor"]
+    case = CASES["weak_motor"]
     hidden = mc.hidden_effects(case, 0)
     fit = {"calibrated": {"rollout_rmse": 1.0}, "augmented": {"rollout_rmse": 1.0}}
     gear = {"m_shoulder.gear": {"nominal": 1.0, "fitted": 0.86, "ci95": [0.85, 0.87]}}
@@ -88,7 +93,7 @@ def test_judgement_of_the_weak_motor_accepts_gear_or_gain_and_nothing_else():
 def test_end_to_end_furuta_small():
     """The tool, given the nominal furuta.xml, names the pendulum's concealed frictionloss (8 x 200 samples: about 40 s
     on one core)."""
-    row = mc.run_case(mc.CASES["furuta"], seed=0, n_traj=8, T=200)
+    row = mc.run_case(CASES["furuta"], seed=0, n_traj=8, T=200)
     assert [(f["term"], f["joint"], f["mjcf"]) for f in row["found"]] == [("coulomb_friction", "pendulum", "frictionloss")]
     assert row["passed"], row["reason"]
     assert row["fit"]["calibrated_xml"]["rollout_rmse"] < 0.7 * row["fit"]["calibrated"]["rollout_rmse"]

@@ -1,12 +1,14 @@
 """phast-bench on Ray: absolute --out, driver-side persistence, lost workers -> failed records, private local instance,
-Ctrl-C, and benchmarks/compare_runs.py.  A fake ``ray`` module stands in for Ray (the default suite never needs
-it); the tests marked ``ray`` use the real one and are skipped without it."""
+Ctrl-C, and the run-by-run comparison of two output directories (benchmarks/compare_runs.py).  A fake ``ray`` module
+stands in for Ray (the default suite never needs it); the tests marked ``ray`` use the real one and are skipped
+without it."""
 
 from __future__ import annotations
 
 import inspect
 import json
 import os
+import subprocess
 import sys
 import types
 from collections.abc import Callable, Iterator
@@ -14,11 +16,10 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from repo_scripts import load_script
-from test_bench import ENV, TINY  # the tiny protocol the sweep tests share (tests/ is on sys.path under pytest)
 
 from phast_model.bench import LocalExecutor, RayExecutor, grid, load_result, result_path, run_sweep
 from phast_model.bench import executors as executors_mod
+from phast_model.bench.compare import compare_dirs, format_table
 from phast_model.bench.runner import (
     absolute_out_dir,
     lost_record,
@@ -29,13 +30,11 @@ from phast_model.bench.runner import (
     write_record,
 )
 from phast_model.cli.bench import main
+from tests import ROOT
+from tests.bench.test_bench import ENV, TINY  # the tiny protocol the sweep tests share
 
 CLI_TINY = ["--envs", "WindyPendulum-v0", "--models", "gru", "--epochs", "1", "--n-train", "6", "--n-val", "3", "--n-test", "3",
             "--T", "30", "--horizons", "5,10", "--burn-in", "5", "--train", "batch_size=4", "--no-progress"]
-
-
-def _load_compare_runs() -> types.ModuleType:
-    return load_script("benchmarks/compare_runs.py")
 
 
 # --------------------------------------------------------------------------- a fake ray module
@@ -303,27 +302,32 @@ def test_local_pool_lost_worker_becomes_failed_record(tmp_path: Path) -> None:
     assert all(r["error"].startswith("worker lost: BrokenProcessPool") for r in recs)
 
 
-def test_compare_runs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    cr = _load_compare_runs()
+def test_compare_runs(tmp_path: Path) -> None:
     spec = grid([ENV], ["gru"], [0], **TINY)[0]
     a, b = tmp_path / "a", tmp_path / "b"
     rec = run_one(spec.config(), str(a))
     write_record(b, {**rec, "host": "elsewhere", "wall_time_s": 123.0,
                      "history": [{**h, "time_s": 9.0} for h in rec["history"]]})  # provenance and times differ only
-    assert cr.main([str(a), str(b)]) == 0
-    assert "1/1 runs bit-identical" in capsys.readouterr().out
+    rows = compare_dirs(a, b)
+    assert [r.status for r in rows] == ["identical"] and "1/1 runs bit-identical" in format_table(rows)
+    script = [sys.executable, str(ROOT / "benchmarks" / "compare_runs.py")]
+
+    def compare_runs(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run([*script, *args], capture_output=True, text=True)
+
+    same = compare_runs(str(a), str(b))
+    assert same.returncode == 0 and "1/1 runs bit-identical" in same.stdout
     changed = {**rec, "metrics": {**rec["metrics"], "mse": rec["metrics"]["mse"] + 1e-15}}
     write_record(b, changed)
-    rows = cr.compare_dirs(a, b)
+    rows = compare_dirs(a, b)
     assert rows[0].status == "differs" and rows[0].first_diff == "metrics.mse" and 0 < rows[0].max_abs_diff < 1e-14
-    assert cr.main([str(a), str(b)]) == 1
+    assert compare_runs(str(a), str(b)).returncode == 1
     other = grid([ENV], ["gru"], [1], **TINY)[0]
     write_record(b, run_one(other.config(), str(tmp_path / "c")))
-    assert {r.status for r in cr.compare_dirs(a, b)} == {"differs", "only in B"}
-    assert cr.main([str(a), str(tmp_path / "nope")]) == 2
-    assert "no runs/ directory" in capsys.readouterr().err
-    with pytest.raises(SystemExit):
-        cr.main(["--help"])
+    assert {r.status for r in compare_dirs(a, b)} == {"differs", "only in B"}
+    bad = compare_runs(str(a), str(tmp_path / "nope"))
+    assert bad.returncode == 2 and "no runs/ directory" in bad.stderr
+    assert compare_runs("--help").returncode == 0
 
 
 # --------------------------------------------------------------------------- real ray (marker 'ray', skipped without it)

@@ -9,7 +9,9 @@
   from the mismatch tool (the rig's friction plot draws the mismatch tool's friction curve: the one exception);
 * scipy's Savitzky-Golay filter is called by the swappable differentiator only (``rigs.signals``);
 * no module but the term registry names the Stribeck kind: velocity grids, refinement and candidate scales are asked
-  of the kind.
+  of the kind;
+* the tests import the packages, never a script of ``benchmarks/`` or ``examples/`` (a test of a script's command
+  line runs it as a subprocess).
 """
 
 from __future__ import annotations
@@ -18,7 +20,8 @@ import ast
 from collections import defaultdict
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from tests import ROOT
+
 PACKAGES = ("phast_gym", "phast_model")
 MAX_FUNCTION_LINES, MAX_PARAMETERS, MAX_MODULE_LINES, MAX_TERM_MODULES = 80, 10, 800, 2
 
@@ -208,3 +211,37 @@ def test_old_module_paths_import_the_moved_modules():
     from phast_model.rig.fit import RigTrainConfig as moved
 
     assert RigTrainConfig is moved
+
+
+#: what loads a file as a module, or imports a script folder (the repository root is on the path under pytest)
+SCRIPT_LOADERS = {"spec_from_file_location", "module_from_spec", "SourceFileLoader", "run_path", "load_script"}
+SCRIPT_FOLDERS = {"benchmarks", "examples", "repo_scripts"}
+
+
+def _script_imports(tree: ast.Module) -> list[str]:
+    """The lines of ``tree`` that import a script by path or a script folder as a module."""
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            modules = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            modules = [node.module or ""] if not node.level else []
+            if node.module in ("importlib.util", "importlib.machinery", "runpy"):
+                modules += [f"{node.module}.{a.name}" for a in node.names if a.name in SCRIPT_LOADERS]
+        elif isinstance(node, (ast.Attribute, ast.Name)):
+            name = node.attr if isinstance(node, ast.Attribute) else node.id
+            modules = [name] if name in SCRIPT_LOADERS else []
+        else:
+            modules = []
+        found += [f"line {node.lineno}: {m}" for m in modules
+                  if m.split(".")[0] in SCRIPT_FOLDERS or m.rpartition(".")[2] in SCRIPT_LOADERS]
+    return found
+
+
+def test_tests_import_the_packages_not_the_scripts():
+    """The tests exercise the packages: a helper a test needs lives in phast_gym / phast_model, and a script's command
+    line is run as a subprocess (``python benchmarks/x.py ...``), never loaded by path."""
+    offenders = [f"{path.relative_to(ROOT)} {hit}" for path in sorted((ROOT / "tests").rglob("*.py"))
+                 for hit in _script_imports(ast.parse(path.read_text(), str(path)))]
+    assert not offenders, "\n".join(offenders)
+    assert not (ROOT / "tests" / "repo_scripts.py").exists()

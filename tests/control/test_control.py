@@ -8,7 +8,6 @@ import math
 import gymnasium as gym
 import numpy as np
 import pytest
-from repo_scripts import load_script
 
 import phast_gym  # noqa: F401  (registers the ids)
 from phast_gym.control import (
@@ -330,9 +329,11 @@ def test_cli_bad_estimators_and_unwritable_out_fail_before_evaluating(tmp_path, 
 
 
 def test_lqg_torque_floor_upright(monkeypatch) -> None:
-    # benchmarks/control_lqg_bound.py: no causal q-only controller holds the upright with less stationary RMS torque
-    # than the LQG limit; it scales with sigma, and Energy-Casimir gains on the Kalman estimate sit above it.
-    mod = load_script("benchmarks/control_lqg_bound.py")
+    # phast_model.control.lqg_bound (benchmarks/control_lqg_bound.py): no causal q-only controller holds the upright
+    # with less stationary RMS torque than the LQG limit; it scales with sigma, and Energy-Casimir gains on the Kalman
+    # estimate sit above it.
+    from phast_model.control import lqg_bound as mod
+
     a, b = mod.linearise("PHAST/DampedPendulum-v0", math.pi, 0.01)
     lo1, lo5 = mod.torque_floor(a, b, 0.01), mod.torque_floor(a, b, 0.05)
     assert lo5["rms_torque"] == pytest.approx(5 * lo1["rms_torque"], rel=1e-3)
@@ -351,11 +352,13 @@ def test_lqg_torque_floor_upright(monkeypatch) -> None:
 
 
 def test_learned_model_summary_reads_the_eval_directories(tmp_path) -> None:
-    # benchmarks/control_learned_model.py: one row per (target, sigma, process model), the plant UKF once per target,
-    # run labels from the directory names, and a linearisation of a run that matches the plant for the KNOWN model
+    # phast_model.control.learned_model (benchmarks/control_learned_model.py): one row per (target, sigma, process
+    # model), the plant UKF once per target, run labels from the directory names, and a linearisation of a run that
+    # matches the plant for the KNOWN model
     import json
 
-    mod = load_script("benchmarks/control_learned_model.py")
+    from phast_model.control import learned_model as mod
+
     assert mod.label("partial_excited") == "PHAST PARTIAL, excited port"
     assert mod.label("unknown") == "PHAST UNKNOWN"
 

@@ -13,6 +13,7 @@ import pytest
 import phast_gym
 from phast_gym import datasets
 from phast_gym.datasets import cache_dir, make_dataset, make_splits
+from tests import ROOT
 
 
 def test_shapes_and_contents() -> None:
@@ -189,7 +190,7 @@ real_fdopen = os.fdopen
 os.fdopen = lambda fd, mode: HalfWriter(real_fdopen(fd, mode), lambda: os.kill(os.getpid(), signal.SIGKILL))
 datasets._save(datasets.Path({str(path)!r}), ds)
 """
-    root = str(pathlib.Path(__file__).resolve().parents[1])
+    root = str(ROOT)
     env = {**os.environ, "PYTHONPATH": root + os.pathsep + os.environ.get("PYTHONPATH", "")}
     res = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
     assert res.returncode == -signal.SIGKILL, res.stderr

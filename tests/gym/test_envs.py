@@ -7,7 +7,6 @@ import math
 import gymnasium as gym
 import numpy as np
 import pytest
-from repo_scripts import load_script
 
 import phast_gym
 from phast_gym.systems import SCALAR
@@ -238,24 +237,6 @@ def test_render_fps_follows_dt() -> None:
     for env_id in ("PHAST/Pendulum-v0", "PHAST/DoublePendulum-v0"):
         env = gym.make(env_id)
         assert env.metadata["render_fps"] == round(1.0 / env.unwrapped.dt)
-
-
-def test_demo_runner_skips_a_missing_stage_and_tabulates_the_stages(tmp_path) -> None:
-    demo = load_script("examples/demo.py", "phast_demo_runner")
-    result = demo.run_stage("no_such_stage", tmp_path)
-    assert result["status"] == "skipped" and "demo_no_such_stage.py" in result["reason"]
-    summary = {"stages": {
-        "world_model": {"status": "ok", "wall_s": 19.8, "results": {
-            "env": "PHAST/WindyPendulum-v0", "regime": "partial", "rollout_theta_wrap_mse_h100": 0.01, "theta_wrap_mse": 0.000197,
-            "damping_r2": 0.5, "train_wall_time_s": 17.1, "figure": str(tmp_path / "world_model" / "rollout.png")}},
-        "control": {"status": "failed", "wall_s": 1.0, "results": {"error": "RuntimeError: boom"}},
-        "mismatch": result}}
-    table = demo.summary_table(summary, tmp_path).splitlines()
-    assert table[1].split()[:3] == ["stage", "time", "what"]
-    text = "\n".join(table)
-    assert "0.01" in text and "world_model/rollout.png" in text and str(tmp_path / "world_model") not in text
-    assert "RuntimeError: boom" in text and "skipped" in text
-    assert max(len(line) for line in table) < 200  # a table, not JSON lines
 
 
 def test_reset_to_a_singular_state_raises_and_keeps_the_env() -> None:

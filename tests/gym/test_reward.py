@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import ast
 import math
-from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -12,8 +11,7 @@ import numpy as np
 import phast_gym  # noqa: F401  (registers the ids)
 from phast_gym.reward import ACTION_WEIGHT, VELOCITY_WEIGHT, regulation_reward
 from phast_gym.systems import SCALAR, wrap
-
-ROOT = Path(__file__).resolve().parents[1]
+from tests import ROOT
 
 
 def test_the_standard_reward():

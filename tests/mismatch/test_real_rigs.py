@@ -18,8 +18,7 @@ from phast_model.mismatch import analyze
 from phast_model.mismatch.terms import AugmentedSystem, Term
 from phast_model.rigs.shooting import simulate_qv
 from phast_model.rigs.simulators import load_simulator
-
-ROOT = Path(__file__).resolve().parents[1]
+from tests import ROOT
 
 
 def _jittered_steps(rng: np.random.Generator, n: int, T: int, dt: float) -> np.ndarray:

@@ -4,7 +4,6 @@ constants stay fixed, short real data get a report, and exit codes tell bad inpu
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,11 +11,12 @@ import pytest
 from phast_model.cli.mismatch import main
 from phast_model.mismatch import Term, analyze, make_reality
 from phast_model.mismatch.calibrate import identifiability
+from tests import ROOT
 
 #: a two-motor arm in joint coordinates with compound links (the DFKI C.0 design's CAD values)
 ARM = {"coordinates": "relative", "mass1": 0.6417, "mass2": 0.5639, "length1": 0.2, "length2": 0.3,
        "com1": 0.2, "com2": 0.3213, "inertia1": 0.02671, "inertia2": 0.05388, "gravity": 9.81}
-REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "multiarm_single_pendulum.npz"
+REAL = ROOT.parent / "shared" / "data" / "real" / "multiarm_single_pendulum.npz"
 
 
 def _arm(true: dict, terms: list[Term], seed: int, n_traj: int = 16, T: int = 400) -> dict:
@@ -132,7 +132,7 @@ def test_three_link_rig_example_is_exact_physics():
     from phast_gym.integrate import simulate
     from phast_model.rigs.simulators import load_simulator
 
-    rig = Path(__file__).resolve().parents[1] / "examples" / "rigs" / "triple_pendulum.py"
+    rig = ROOT / "examples" / "rigs" / "triple_pendulum.py"
     s = load_simulator(f"{rig}:TriplePendulum", {"friction": 0.0}).build()
     x0 = s.sample_initial(np.random.default_rng(0), 4)
     q, p = tuple(x0[:, i] for i in range(3)), tuple(x0[:, 3 + i] for i in range(3))

@@ -13,8 +13,8 @@ from phast_gym.integrate import simulate
 from phast_gym.systems import NUMPY, Pendulum
 from phast_model.mismatch.terms import AugmentedSystem, Term
 from phast_model.rigs.simulators import load_simulator
+from tests import ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "rigs" / "torsion_pendulum.py"
 DOC = ROOT / "docs" / "describe_your_rig.md"
 

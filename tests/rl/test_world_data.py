@@ -1,20 +1,23 @@
-"""benchmarks/sac_world_data.py: driven noisy plant recordings and the world model learned from them."""
+"""phast_model.rl.world_data (benchmarks/sac_world_data.py): driven noisy plant recordings and the world model learned
+from them."""
 
 from __future__ import annotations
 
 import json
 import math
+import subprocess
+import sys
 
 import numpy as np
 import pytest
-from repo_scripts import load_script
 
 from phast_gym.control import ControlProtocol
 from phast_gym.control.evaluation import control_system
 from phast_gym.integrate import simulate
-
-wd = load_script("benchmarks/sac_world_data.py")
-cs = load_script("benchmarks/control_sac.py")
+from phast_model.cli.control_sac import parse_args
+from phast_model.rl import sac
+from phast_model.rl import world_data as wd
+from tests import ROOT
 
 
 def test_recordings_are_the_plant_at_the_decision_rate_with_held_torques_and_noise() -> None:
@@ -48,17 +51,18 @@ def test_world_model_from_recordings_counts_its_samples(tmp_path) -> None:
     assert math.isfinite(m["heldout"]["phast"]["rollout_rmse"])
     record = json.loads((tmp_path / "run" / wd.WORLD_DATA_FILE).read_text())
     assert record["real_samples"] == 160 and record["recording"]["n_traj"] == 4
-    assert cs.world_data_samples(tmp_path / "run") == 160
-    assert cs.world_data_samples(tmp_path) == 0  # no record: a model of simulated data
+    assert sac.world_data_samples(tmp_path / "run") == 160
+    assert sac.world_data_samples(tmp_path) == 0  # no record: a model of simulated data
     (tmp_path / "bad").mkdir()
     (tmp_path / "bad" / "world_data.json").write_text("{}")
     with pytest.raises(ValueError, match="real_samples"):
-        cs.world_data_samples(tmp_path / "bad")
-    args = cs.parse_args(["--out", str(tmp_path / "o"), "--agents", "sac-world", "--phast-run", str(tmp_path / "run"),
+        sac.world_data_samples(tmp_path / "bad")
+    args = parse_args(["--out", str(tmp_path / "o"), "--agents", "sac-world", "--phast-run", str(tmp_path / "run"),
                           "--q-star", str(math.pi)])
-    env, inner = cs.make_agent_env("sac-world", args, seed=0)
+    env, inner = sac.make_agent_env("sac-world", args, seed=0)
     obs, _ = env.reset(seed=0)
     obs, r, *_ = env.step(np.array([0.5], dtype=np.float32))
     assert obs.shape == (6,) and math.isfinite(r) and inner.real_samples == args.burn_in
-    with pytest.raises(SystemExit):
-        wd.main(["--out", str(tmp_path / "x"), "--n-traj", "2"])
+    bad = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "sac_world_data.py"), "--out", str(tmp_path / "x"),
+                          "--n-traj", "2"], capture_output=True, text=True)
+    assert bad.returncode == 2 and "--n-traj must be >= 3" in bad.stderr

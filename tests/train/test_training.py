@@ -15,6 +15,7 @@ from phast_model.train.checkpoint import save_run
 from phast_model.train.fit import TrainConfig, fit, next_step_loss
 from phast_model.train.metrics import benchmark_metric, damping_scores, forecast_metrics
 from phast_model.world.regimes import build_model
+from tests import ROOT
 
 torch.set_num_threads(1)
 ENV = "PHAST/WindyPendulum-v0"
@@ -266,12 +267,11 @@ def test_killed_run_resumed_with_another_env_or_config_is_refused(tmp_path, caps
     import subprocess
     import sys
     import time
-    from pathlib import Path
 
     from phast_model.cli.train import main
 
     out = tmp_path / "run"
-    root = str(Path(__file__).resolve().parents[1])
+    root = str(ROOT)
     env = {**os.environ, "PYTHONPATH": root + os.pathsep + os.environ.get("PYTHONPATH", ""), "OMP_NUM_THREADS": "1"}
     proc = subprocess.Popen([sys.executable, "-m", "phast_model.cli.train", *_train_cmd(out, "--epochs", "100000")],
                             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

@@ -11,8 +11,9 @@ import pytest
 
 from phast_gym.registry import make_env_system
 from phast_gym.systems.mjcf import mjcf_system
+from tests import ROOT
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = ROOT
 XML = REPO / "examples" / "robots" / "dfki_c0.xml"
 DATA = Path(os.environ.get("PHAST_REAL_DATA", REPO.parent / "shared" / "data" / "real")) / "dfki_double_pendulum_c0.npz"
 
