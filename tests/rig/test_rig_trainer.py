@@ -55,13 +55,25 @@ def _fit(data: rigfit.RigData, cfg: RigTrainConfig, **kw: Any) -> RigFit:
     return fit_recordings(build(rig_config(SIM, {}, "partial", data)), data, cfg, **kw)
 
 
+#: two fresh runs of the same training in one process agree to ~1e-9 relative, not bitwise (a vectorized reduction
+#: rounds by the data's memory alignment); a wrong restore (optimizer, schedule, batch order, window states) moves
+#: the weights by 1e-4 or more
+SAME = {"rtol": 1e-7, "atol": 1e-10}
+
+
 def _same_state(a: torch.nn.Module, b: torch.nn.Module) -> bool:
     sa, sb = a.state_dict(), b.state_dict()
-    return sa.keys() == sb.keys() and all(torch.equal(sa[k], sb[k]) for k in sa)
+    return sa.keys() == sb.keys() and all(torch.allclose(sa[k], sb[k], **SAME) for k in sa)
 
 
 def _untimed(history: list[dict[str, float]]) -> list[dict[str, float]]:
     return [{k: v for k, v in h.items() if k != "time_s"} for h in history]
+
+
+def _same_history(a: list[dict[str, float]], b: list[dict[str, float]]) -> bool:
+    ua, ub = _untimed(a), _untimed(b)
+    return len(ua) == len(ub) and all(x.keys() == y.keys() and all(x[k] == pytest.approx(y[k], rel=SAME["rtol"],
+                                      abs=SAME["atol"]) for k in x) for x, y in zip(ua, ub))
 
 
 class Crash(Exception):
@@ -160,8 +172,9 @@ def test_resume_ends_with_the_model_of_an_uninterrupted_run(data: rigfit.RigData
     assert ck["epoch"] == crash_after and ck["format"] == rigfit.CHECKPOINT_FORMAT
     resumed = _fit(data, cfg, run_dir=tmp_path / "killed", resume=True)
     assert _same_state(straight.model, resumed.model)
-    assert _untimed(resumed.history) == _untimed(straight.history)
-    assert (resumed.best_val, resumed.best_epoch) == (straight.best_val, straight.best_epoch)
+    assert _same_history(resumed.history, straight.history)
+    assert resumed.best_epoch == straight.best_epoch
+    assert resumed.best_val == pytest.approx(straight.best_val, rel=SAME["rtol"])
 
 
 def test_a_missing_malformed_or_foreign_checkpoint_is_a_clear_error(data: rigfit.RigData, tmp_path: Path) -> None:
@@ -205,7 +218,7 @@ def test_cli_resume_continues_a_killed_recordings_run_exactly(recordings: dict[s
     assert not (tmp_path / "killed" / "model.pt").exists() and (tmp_path / "killed" / "checkpoint.pt").exists()
     assert train_main(_cli(rec, tmp_path / "killed", "--resume")) == 0
     a, b = _model_tensors(tmp_path / "straight"), _model_tensors(tmp_path / "killed")
-    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+    assert a.keys() == b.keys() and all(torch.allclose(a[k], b[k], **SAME) for k in a)
     metrics = json.loads((tmp_path / "killed" / "metrics.json").read_text())
     assert metrics["epochs_run"] == 3 and metrics["nan_skipped"] == 0 and not metrics["stopped_early"]
     capsys.readouterr()
