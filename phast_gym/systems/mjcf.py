@@ -145,7 +145,7 @@ class MJCFSystem(System):
     def tree_state(self, q: Components) -> TreeState:
         """Everything at the configuration q that V, M and dT/dq share (computed once, reused by the ``*_at`` methods)."""
         Q, _, ops, bd = self._state(q)
-        return TreeState(Q, ops, bd, td.mass_matrix(self.tree_params(), bd, ops, self._consts))
+        return TreeState(Q, ops, bd, self._mass_matrix(bd, ops))
 
     def grad_potential_at(self, st: TreeState) -> Any:
         """dV/dq (n, ...) at a :meth:`tree_state`."""
@@ -159,6 +159,10 @@ class MJCFSystem(System):
         """d(p^T M^-1 p / 2)/dq at fixed p = -v^T (dM/dq) v / 2 (n, ...), v = M^-1 p, at a :meth:`tree_state`."""
         return -td.kinetic_dq(self._consts, self.tree_params(), st.bodies, st.ops.stack(list(v)), st.ops)
 
+    def _mass_matrix(self, bd: td.Bodies, ops: Ops) -> Any:
+        """M(q) (n, n, ...) of the bodies at q."""
+        return td.mass_matrix(self._consts, self.tree_params(), bd, ops)
+
     def _grad_V(self, Q: Any, bd: td.Bodies, ops: Ops) -> Any:
         tp = self.tree_params()
         spring = ops.param(tp.stiffness, 1) * (Q - ops.k(self._consts.qpos_spring))
@@ -170,7 +174,7 @@ class MJCFSystem(System):
     # ---- System interface ------------------------------------------------
     def mass_matrix(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple[tuple, ...]:
         _, _, ops, bd = self._state(q)
-        M = td.mass_matrix(self.tree_params(), bd, ops, self._consts)
+        M = self._mass_matrix(bd, ops)
         return tuple(tuple(M[i, j] for j in range(self.n)) for i in range(self.n))
 
     def potential(self, q: Components, xp: ArrayNamespace = NUMPY) -> Any:
@@ -186,12 +190,12 @@ class MJCFSystem(System):
 
     def velocity(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         Q, _, ops, bd = self._state(q)
-        return self._velocity(td.mass_matrix(self.tree_params(), bd, ops, self._consts), p, Q)
+        return self._velocity(self._mass_matrix(bd, ops), p, Q)
 
     def dH_dq(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         Q, _, ops, bd = self._state(q)
         tp = self.tree_params()
-        v = self._velocity(td.mass_matrix(tp, bd, ops, self._consts), p, Q)
+        v = self._velocity(self._mass_matrix(bd, ops), p, Q)
         d = self._grad_V(Q, bd, ops) - td.kinetic_dq(self._consts, tp, bd, ops.stack(list(v)), ops)
         return tuple(d[i] for i in range(self.n))
 
@@ -232,7 +236,7 @@ class MJCFSystem(System):
         """Eq. 1-3 with the bodies and M computed once per call."""
         Q, _, ops, bd = self._state(q)
         tp = self.tree_params()
-        v = self._velocity(td.mass_matrix(tp, bd, ops, self._consts), p, Q)
+        v = self._velocity(self._mass_matrix(bd, ops), p, Q)
         dH = self._grad_V(Q, bd, ops) - td.kinetic_dq(self._consts, tp, bd, ops.stack(list(v)), ops)
         f = self.nonconservative_force(tuple(Q[i] for i in range(self.n)), v, u, xp)
         return tuple(v), tuple(fi - dH[i] for i, fi in enumerate(f))

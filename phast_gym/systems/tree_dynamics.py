@@ -90,9 +90,6 @@ class Ops:
     def trig(self, x: Any) -> tuple[Any, Any]:
         return (self.torch.cos(x), self.torch.sin(x)) if self.torch is not None else (np.cos(x), np.sin(x))
 
-    def sqrt(self, x: Any) -> Any:
-        return self.torch.sqrt(x) if self.torch is not None else np.sqrt(x)
-
     def swap01(self, x: Any) -> Any:
         return x.transpose(0, 1) if self.torch is not None else np.swapaxes(x, 0, 1)
 
@@ -204,6 +201,7 @@ class TreeConsts:
     eye: np.ndarray  # (n, n)
     qpos0: np.ndarray
     qpos_spring: np.ndarray
+    all_hinges: bool  # no slide joint: the linear Jacobian has no translation columns
     cache: dict = field(default_factory=dict, compare=False, repr=False)  # Ops.k's converted constants
 
     @classmethod
@@ -222,11 +220,8 @@ class TreeConsts:
                 order[k, j] = 1.0 if same or (tree.joint_body[j] != bk and anc[bk, j]) else 0.0
         hinge = np.array(tree.joint_hinge, dtype=float)
         return cls(tree, _plans(tree), np.moveaxis(tree.body_irot, 0, -1), anc, anc * hinge, anc * (1.0 - hinge), order,
-                   order.T.copy(), order.T + np.eye(tree.n), hinge, np.eye(tree.n), tree.qpos0.copy(), tree.qpos_spring.copy())
-
-    @property
-    def all_hinges(self) -> bool:
-        return bool(np.all(self.hinge == 1.0))
+                   order.T.copy(), order.T + np.eye(tree.n), hinge, np.eye(tree.n), tree.qpos0.copy(), tree.qpos_spring.copy(),
+                   bool(np.all(hinge == 1.0)))
 
 
 @dataclass(frozen=True)
@@ -307,15 +302,14 @@ def bodies(tc: TreeConsts, p: TreeParams, theta: Any, ops: Ops) -> Bodies:
     return Bodies(Jv, Jw, mm(f.R, ops.k(tc.irot), ops), C, f.axes)
 
 
-def mass_matrix(p: TreeParams, bd: Bodies, ops: Ops, tc: TreeConsts | None = None) -> Any:
+def mass_matrix(tc: TreeConsts, p: TreeParams, bd: Bodies, ops: Ops) -> Any:
     """M(q) (n, n, ...)."""
     m = ops.param(p.mass, 1)  # (nb, ...)
     inertia = ops.swap01(ops.param(p.inertia, 2))  # (3, nb, ...)
     W = ops.einsum("xyb...,xbk...->ybk...", bd.RI, bd.Jw)  # angular Jacobians in the inertia frames, (3, nb, n, ...)
     M = ops.einsum("xbi...,xbj...,b...->ij...", bd.Jv, bd.Jv, m) + ops.einsum("xbi...,xbj...,xb...->ij...", W, W, inertia)
     arm = ops.param(p.armature, 1)
-    eye = ops.k(tc.eye) if tc is not None else ops.const(np.eye(M.shape[0]))
-    return M + eye * arm[:, None]
+    return M + ops.k(tc.eye) * arm[:, None]
 
 
 def gravity_gradient(p: TreeParams, bd: Bodies, ops: Ops) -> Any:

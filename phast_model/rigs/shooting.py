@@ -20,7 +20,7 @@ import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -392,9 +392,7 @@ class ShootFit:
         r0 = self.r - self.Jg[..., j] * self.g[j]
         Jg = self.Jg[..., keep]
         JX = self.JX
-        normal = (np.einsum("wla,wlb->wab", JX, JX), np.einsum("wla,wlp->wap", JX, Jg), np.einsum("wlp,wlq->pq", Jg, Jg),
-                  np.einsum("wla,wl->wa", JX, r0), np.einsum("wlp,wl->p", Jg, r0))
-        dx, dg = _damped_step(*normal, 0.0, len(keep))
+        dx, dg = _damped_step(Normal.of(JX, Jg, r0), 0.0)
         r = r0 + np.einsum("wla,wa->wl", JX, dx) + np.einsum("wlp,p->wl", Jg, dg)
         return ShootFit(self.X + dx, self.g[keep] + dg, r, JX, np.ascontiguousarray(Jg), float(np.sum(r**2)), self.n_obs, 0)
 
@@ -425,10 +423,27 @@ def _perturbed(build: Callable[[np.ndarray], System], g: np.ndarray, g_step: flo
     return out
 
 
-def _damped_step(A: np.ndarray, B: np.ndarray, C: np.ndarray, gx: np.ndarray, gg: np.ndarray, lam: float,
-                 P: int) -> tuple[np.ndarray, np.ndarray]:
+class Normal(NamedTuple):
+    """The arrow-shaped Gauss-Newton normal equations of shooting: per-window blocks A = JX^T JX (W, 2n, 2n) and
+    B = JX^T Jg (W, 2n, P), the global block C = Jg^T Jg (P, P), the gradients gx = JX^T r (W, 2n) and gg = Jg^T r."""
+
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    gx: np.ndarray
+    gg: np.ndarray
+
+    @classmethod
+    def of(cls, JX: np.ndarray, Jg: np.ndarray, r: np.ndarray) -> Normal:
+        return cls(np.einsum("wla,wlb->wab", JX, JX), np.einsum("wla,wlp->wap", JX, Jg), np.einsum("wlp,wlq->pq", Jg, Jg),
+                   np.einsum("wla,wl->wa", JX, r), np.einsum("wlp,wl->p", Jg, r))
+
+
+def _damped_step(normal: Normal, lam: float) -> tuple[np.ndarray, np.ndarray]:
     """The Levenberg-Marquardt step (dx (W, 2n), dg (P,)) at damping ``lam``, the window states eliminated window by
     window (Schur complement of the arrow-shaped normal equations)."""
+    A, B, C, gx, gg = normal
+    P = C.shape[0]
     Ad = A + lam * (np.diagonal(A, axis1=1, axis2=2)[..., None] * np.eye(A.shape[1]) + 1e-12 * np.eye(A.shape[1]))
     Ainv = np.linalg.inv(Ad)
     if not P:
@@ -584,20 +599,18 @@ class Shooter:
     LADDER = (1, 3, 4)
 
     def _lm_step(self, build: Callable[[np.ndarray], System], X: np.ndarray, g: np.ndarray, lam: float, cost: float,
-                 normal: tuple[np.ndarray, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, System, float] | None:
+                 normal: Normal) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, System, float] | None:
         """The first of the damped steps ``lam 8^i`` (i = 0..7) that lowers the cost, as (X, g, r, cost, system,
         its lambda); the tries of one :data:`LADDER` rung are simulated as one batch.  None: none lowers it."""
-        A, B, C, gx, gg = normal
-        P = g.size
         i = 0
         for rung in self.LADDER:
             lams = [lam * 8.0 ** (i + t) for t in range(rung)]
             i += rung
-            trials = [_damped_step(A, B, C, gx, gg, la, P) for la in lams]
+            trials = [_damped_step(normal, la) for la in lams]
             Xs = np.stack([X + dx for dx, _ in trials])
             gs = [g + dg for _, dg in trials]
             systems = [build(gn) for gn in gs]
-            R = self.residuals_each(systems, Xs) if len(systems) > 1 else None
+            R = self.residuals_each(systems, Xs)
             if R is None:
                 R = np.stack([self.residual(sn, Xn) for sn, Xn in zip(systems, Xs)])
             for t, la in enumerate(lams):
@@ -620,10 +633,7 @@ class Shooter:
         for it in range(1, max_iter + 1):  # noqa: B007
             if lin is None:
                 lin = self.linearize(build, system, g, X, g_step, r)[1:]
-            JX, Jg = lin
-            normal = (np.einsum("wla,wlb->wab", JX, JX), np.einsum("wla,wlp->wap", JX, Jg), np.einsum("wlp,wlq->pq", Jg, Jg),
-                      np.einsum("wla,wl->wa", JX, r), np.einsum("wlp,wl->p", Jg, r))
-            step = self._lm_step(build, X, g, lam, cost, normal)
+            step = self._lm_step(build, X, g, lam, cost, Normal.of(*lin, r))
             if step is None:
                 break
             # converged when the gain is negligible in chi^2 units (or relatively)
