@@ -1,6 +1,7 @@
 """Module paths from before the package layout (``phast_model.model``, ``phast_model.training``, ...) keep importing.
 
-The loose top-level modules moved into ``world/``, ``train/`` and ``rig/``.  A meta-path finder maps each old
+The loose top-level modules moved into ``world/``, ``train/`` and ``rig/``; the flat modules of ``mismatch/`` into
+its stage folders (``vocabulary/``, ``fitting/``, ``friction/``) and the shared ``rigs/`` layer.  A meta-path finder maps each old
 dotted path to its new module (the same module object, so classes and functions are identical) and warns once
 with a ``DeprecationWarning`` naming the new path.  ``phast_model.rig`` became a package that re-exports its old
 names, so it needs no entry here.
@@ -38,6 +39,19 @@ MOVED: dict[str, str] = {
     "phast_model.mismatch.simulators": "phast_model.rigs.simulators",
     "phast_model.mismatch.recordings": "phast_model.rigs.recordings",
     "phast_model.mismatch.shooting": "phast_model.rigs.shooting",
+    "phast_model.mismatch.registry": "phast_model.mismatch.vocabulary.registry",
+    "phast_model.mismatch.terms": "phast_model.mismatch.vocabulary.terms",
+    "phast_model.mismatch.candidates": "phast_model.mismatch.vocabulary.candidates",
+    "phast_model.mismatch.screening": "phast_model.mismatch.vocabulary.screening",
+    "phast_model.mismatch.problem": "phast_model.mismatch.fitting.problem",
+    "phast_model.mismatch.linear": "phast_model.mismatch.fitting.linear",
+    "phast_model.mismatch.laws": "phast_model.mismatch.friction.laws",
+    "phast_model.mismatch.lawselect": "phast_model.mismatch.friction.lawselect",
+    "phast_model.mismatch.passivity": "phast_model.mismatch.friction.passivity",
+    "phast_model.mismatch.friction_plots": "phast_model.mismatch.friction.plots",
+    "phast_model.mismatch.weakid": "phast_model.mismatch.friction.weakid",
+    "phast_model.mismatch.weakform": "phast_model.rigs.weakform",
+    "phast_model.mismatch.frictioncurve": "phast_model.rigs.frictioncurve",
 }
 
 

@@ -137,7 +137,7 @@ def sindy_library(q: np.ndarray, v: np.ndarray, u: np.ndarray | None) -> dict[st
     made STLSQ trade Coulomb against Stribeck on cases without either).  ``q``, ``v``, ``u`` the coordinate's samples
     (``u`` None when no input drives it).  Columns: the forces in vocabulary order, then those with a velocity, then
     the port terms."""
-    from phast_model.mismatch.registry import VOCABULARY
+    from phast_model.mismatch.vocabulary.registry import VOCABULARY
 
     v_rms = float(np.sqrt(np.mean(v**2)))
     lib: dict[str, np.ndarray] = {}
@@ -153,7 +153,7 @@ def _sindy_fit(case: Case, rec: dict[str, Any], threshold: float) -> dict[str, A
 
     from phast_gym.registry import make_env_system
     from phast_gym.systems.base import NUMPY
-    from phast_model.mismatch.registry import VOCABULARY
+    from phast_model.mismatch.vocabulary.registry import VOCABULARY
     from phast_model.rigs.shooting import momentum
 
     t0 = time.time()

@@ -3,13 +3,14 @@
 Everything that decides (calibration, term selection, coefficients and their
 95% intervals, the held-out comparison) is a *fit by simulation*: multiple
 shooting of the nominal / augmented simulator on windows of the recordings
-(:mod:`.shooting`).  Smoothed derivatives are used only to seed window states
+(:mod:`phast_model.rigs.shooting`).  Smoothed derivatives are used only to seed window states
 and to draw the residual map, so the answer does not move with the filter.
 
-Stages: :mod:`.problem` (noise, scales, windows), :mod:`.calibrate`,
-:mod:`.candidates` + :mod:`.select` (shooting selection), :mod:`.systematic`
-(energy balance when model error dominates), :mod:`.evaluate` (held-out fit),
-:mod:`.locate`, :mod:`.report`.
+Stages: :mod:`.fitting.problem` (noise, scales, windows), :mod:`.calibrate`,
+:mod:`.vocabulary.screening` + :mod:`.select` (shooting selection, two-fold validation),
+:mod:`.systematic` (weak form and :mod:`.friction` when model error dominates),
+:mod:`.evaluate` (the fit on the held-out recordings) and :mod:`.energy`,
+:mod:`.locate`, :mod:`.report` (and :mod:`.mjcf_answer` for a MuJoCo model file).
 """
 
 from __future__ import annotations
@@ -31,16 +32,16 @@ from ..rigs.simulators import Simulator, load_simulator
 from .calibrate import Calibration, calibration, explained_share, screen_parameters
 from .energy import energy_check
 from .evaluate import FitTable, HeldOut, held_out
+from .fitting.problem import Problem, prepare
 from .locate import locate
 from .mjcf_answer import answer_in_model_terms, is_model_file_system
 from .options import Options, Progress
-from .problem import Problem, prepare
-from .report import Report, summary_text
+from .report.document import Report, summary_text
 from .rows import ParamRow, TermRow
-from .screening import candidates
 from .select import Selection, calibrated_rows, missing_rows, select
 from .systematic import SystematicContext, SystematicResult, systematic
-from .terms import VOCABULARY
+from .vocabulary.screening import candidates
+from .vocabulary.terms import VOCABULARY
 
 __all__ = ["InternalError", "Options", "Report", "analyze", "held_out_scores"]
 
@@ -80,7 +81,7 @@ def _recordings(recordings: str | Path | Mapping[str, Any] | Recordings, sys0: S
 
 def _decimate(rec: Recordings, opts: Options) -> tuple[Recordings, int]:
     """Every k-th sample, k ~ a twentieth of the time scale, and k.  Never with u (held per recorded interval): then
-    shooting simulates every interval and compares every k-th sample instead (:func:`.problem.comparison_stride`)."""
+    shooting simulates every interval and compares every k-th sample instead (:func:`.fitting.problem.comparison_stride`)."""
     dec = opts.decimate
     if dec is None:
         dec = 1 if rec.u is not None else max(1, int(time_scale(rec.resampled().q, rec.dt) / (20 * rec.dt)))
@@ -155,7 +156,9 @@ def _details(problem: Problem, cal: Calibration, sel: Selection, weak_answer: Sy
             "coulomb_sign_smoothing_per_coordinate": np.broadcast_to(sel.family.eps, (problem.train.n,)).tolist(),
             "threshold": opts.threshold,
             "chi2_per_dof": {"nominal": cal.fit_nominal.chi2_red, "calibrated": cal.fit.chi2_red, "augmented": final_fit.chi2_red},
-            "identifiability": cal.screen.identifiability.to_dict(), "held_out_check": sel.held_out, "equivalent_swap": sel.equivalent_swap,
+            "identifiability": cal.screen.identifiability.to_dict(),
+            "held_out_check": sel.validation,  # the two-fold validation (select.py); the key's name is kept for readers
+            "equivalent_swap": sel.equivalent_swap,
             "chi2_per_dof_every_pivot_fitted": cal.screen.fit_full.chi2_red, "friction": weak_answer.to_dict(),
             "n_simulations": cal.shooter.n_sims,
             "wall_time_s": problem.log.elapsed(), "calibrated_kwargs": dict(augmented.params)}

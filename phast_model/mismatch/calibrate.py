@@ -27,9 +27,9 @@ from phast_gym.systems.base import System
 
 from ..rigs.shooting import Shooter, ShootFit
 from ..rigs.simulators import known_params
-from .candidates import Family, ParamCandidate
-from .linear import flat, rel_resid
-from .problem import Problem
+from .fitting.linear import flat, rel_resid
+from .fitting.problem import Problem
+from .vocabulary.candidates import Family, ParamCandidate
 
 #: finite-difference step of a parameter column (log-relative)
 PARAM_STEP = 1e-3

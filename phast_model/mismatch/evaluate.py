@@ -1,4 +1,10 @@
-"""Held-out evaluation (docs/mismatch.md, "Show the fit"): the split, rollout windows, one-step MSE and open-loop rollout RMSE."""
+"""Held-out evaluation (docs/mismatch.md, "Show the fit"): rollout windows, one-step MSE and open-loop rollout RMSE.
+
+*Held-out* means one thing in the tool: the recordings the split (:mod:`phast_model.rigs.holdout`) sets aside before
+any stage runs, which nothing is fitted to.  The other two checks on recordings left out of a fit are named apart:
+the selection's *two-fold validation* on the training recordings (:mod:`.select`) and the *leave-one-out* of the
+friction-law selection and the weak-form parameter check (:mod:`.friction`).
+"""
 
 from __future__ import annotations
 
@@ -180,7 +186,8 @@ class FitTable:
 
 @dataclass
 class HeldOut:
-    """How models are compared on the held-out recordings (and, for the systematic regime, on the training ones)."""
+    """How models are compared on the held-out recordings (the split's, never fitted; the systematic regime also
+    scores the training recordings with the same setup)."""
 
     rec: Recordings  # what rollouts are scored on: the held-out trajectories, or their consecutive windows
     full: Recordings  # the held-out trajectories whole

@@ -22,9 +22,10 @@ from ..rigs.mjcf_write import Edit, calibrated_xml
 from ..rigs.mujoco_sim import mujoco_simulated
 from ..rigs.recordings import Recordings
 from .evaluate import HeldOut
-from .registry import VOCABULARY
-from .report import CALIBRATED_MODEL, Report
+from .report.document import Report
+from .report.files import CALIBRATED_MODEL
 from .rows import TermRow
+from .vocabulary.registry import VOCABULARY
 
 #: the fit table's row of the written model
 CALIBRATED_XML_ROW = "calibrated_xml"

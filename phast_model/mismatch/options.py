@@ -6,10 +6,10 @@ import time
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
+from ..rigs.weakform import SIGN_SMOOTHING_REL
+
 #: two-sided 95% normal quantile (the reported intervals)
 Z95 = 1.959964
-#: tanh smoothing of sign(qdot), relative to the rms velocity (``Options.coulomb_eps_rel``)
-SIGN_SMOOTHING_REL = 0.005
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,9 @@ nearer their nominal values wins, then the one listed first in the vocabulary.
 Then the parameter changes are pruned to those the recordings need; sensor / port terms that a nonlinear refit with
 every pivot free replaces are dropped; changes that act as one parameter are reported as it, and changes that act
 as an actuator gain as that gain (:func:`_port_gain_equivalent`: a datasheet error does not scale a whole
-coordinate).  Every chosen item must predict recordings left out of its fit (:func:`_held_out_check`); a sensor or
+coordinate).  Every chosen item must predict recordings left out of its fit by *two-fold validation* on the
+training recordings (:func:`_two_fold_validation`: each fold predicted by the fit on the other; not the held-out
+recordings of :mod:`.evaluate`, which no stage fits, nor the leave-one-out of :mod:`.friction.lawselect`); a sensor or
 port term needs a left-out gain of threshold^2 over every parameter change open (local evidence).  A chosen
 term's velocity (a Stribeck v_s) is refined by profiling the refit cost in its kind's steps (quarter octaves).
 """
@@ -30,12 +32,12 @@ from phast_gym.systems.base import System
 
 from ..rigs.shooting import ShootFit
 from .calibrate import Calibration, ParameterScreen
-from .candidates import Candidate, Family, ParamCandidate
-from .linear import flat, orth_against
+from .fitting.linear import flat, orth_against
+from .fitting.problem import Problem
 from .options import Z95
-from .problem import Problem
-from .registry import ACTUATOR_GAIN, COULOMB, ActuatorDeadzone
 from .rows import Alternative, ParamRow, TermRow, param_value
+from .vocabulary.candidates import Candidate, Family, ParamCandidate
+from .vocabulary.registry import ACTUATOR_GAIN, COULOMB, ActuatorDeadzone
 
 #: refit iterations while confirming a shortlisted candidate (the winner is finished with Options.max_iter)
 CONFIRM_ITER = 6
@@ -65,7 +67,8 @@ class Selection:
     family: Family
     fit: ShootFit
     cov: np.ndarray | None  # covariance of fit.g (None when nothing was chosen)
-    held_out: list[dict[str, Any]] = field(default_factory=list)  # the left-out check of every item examined
+    # the two-fold validation of every item examined (report.json: details.held_out_check, its name kept for readers)
+    validation: list[dict[str, Any]] = field(default_factory=list)
     equivalent_swap: dict[str, Any] | None = None  # parameter changes reported as an equivalent (one parameter, a port gain)
 
     @property
@@ -335,8 +338,8 @@ def _prune(s: _Search) -> None:
         _refit(s, keep)
 
 
-def _folds(s: _Search) -> tuple[np.ndarray, str] | None:
-    """Two folds of the windows: alternate training recordings, else the first and second half of the one recording."""
+def _two_folds(s: _Search) -> tuple[np.ndarray, str] | None:
+    """The two validation folds of the windows: alternate training recordings, else the first and second half of the one recording."""
     w = s.screen.shooter.w
     trajs = np.unique(w.traj)
     if len(trajs) >= 2:
@@ -356,11 +359,11 @@ def _open_parameter_columns(s: _Search) -> np.ndarray | None:
     return cols_p.reshape(s.fit.r.shape + (len(extra),))
 
 
-def _left_out_gains(s: _Search) -> tuple[dict[int, float], str] | None:
-    """Per chosen item: how much worse the left-out folds are predicted without it (chi^2 units, linearized problem:
+def _two_fold_gains(s: _Search) -> tuple[dict[int, float], str] | None:
+    """Per chosen item: how much worse each validation fold is predicted without it (chi^2 units, linearized problem:
     every global refitted on one fold, window states of the other fold refitted, and back).  A sensor or port term is
     compared with every parameter change open (it must predict what no parameter change can: local evidence)."""
-    folds = _folds(s)
+    folds = _two_folds(s)
     if folds is None or not s.chosen:
         return None
     fold, txt = folds
@@ -477,11 +480,12 @@ def _port_gain_equivalent(s: _Search) -> dict[str, Any] | None:
     return None
 
 
-def _held_out_check(s: _Search) -> list[dict[str, Any]]:
-    """Drop, one at a time, the item that predicts the left-out fold least (sensor / port terms need threshold^2)."""
+def _two_fold_validation(s: _Search) -> list[dict[str, Any]]:
+    """Two-fold validation on the training recordings: drop, one at a time, the item that predicts the other fold
+    least (sensor / port terms need threshold^2).  Returns the table of every item examined."""
     table: list[dict[str, Any]] = []
     while s.chosen:
-        res = _left_out_gains(s)
+        res = _two_fold_gains(s)
         if res is None:
             for k in s.chosen:
                 table.append({"item": s.cands[k].label, "left_out_gain": None, "kept": True,
@@ -503,7 +507,7 @@ def _held_out_check(s: _Search) -> list[dict[str, Any]]:
 
 def _refine_velocities(s: _Search) -> None:
     """A chosen term whose kind refines its velocity (a Stribeck v_s): that velocity around the grid value, in the
-    kind's steps (:attr:`.registry.TermKind.refine_steps`; profile of the refit cost), never below its minimum."""
+    kind's steps (:attr:`.vocabulary.registry.TermKind.refine_steps`; profile of the refit cost), never below its minimum."""
     for k in s.chosen:
         cand = s.cands[k]
         if not isinstance(cand, Candidate) or not cand.kind.refines_velocity or k in s.marks.refined:
@@ -615,13 +619,13 @@ def select(problem: Problem, screen: ParameterScreen, cands: list[AnyCandidate])
     compensating = _compensating_terms(s)
     sparser = _sparser_parameters(s)
     swap = _port_gain_equivalent(s) or sparser
-    held_out = _held_out_check(s)
+    validation = _two_fold_validation(s)
     _refine_velocities(s)
-    held_out += _sharper_edge(s)
+    validation += _sharper_edge(s)
     problem.log(f"selected {[s.cands[k].label for k in s.chosen]}: chi2/dof = {s.fit.chi2_red:.3g}")
-    held_out += [{"item": label, "kept": False, "note": "only stands in for parameter changes (nonlinear refit without it, "
+    validation += [{"item": label, "kept": False, "note": "only stands in for parameter changes (nonlinear refit without it, "
                   "every pivot free, fits as well)"} for label in compensating]
-    return Selection(s.cands, usable, cols, s.chosen, s.gains, s.fam, s.fit, s.cov, held_out, swap)
+    return Selection(s.cands, usable, cols, s.chosen, s.gains, s.fam, s.fit, s.cov, validation, swap)
 
 
 # --------------------------------------------------------------------------- report rows

@@ -10,7 +10,7 @@ from phast_gym.integrate import simulate
 from phast_gym.systems.base import System
 
 from ..rigs.simulators import load_simulator
-from .terms import AugmentedSystem, Term
+from .vocabulary.terms import AugmentedSystem, Term
 
 
 def make_reality(env_id: str | type[System], terms: list[Term] | tuple[Term, ...] = (), true_kwargs: dict[str, Any] | None = None,

@@ -7,13 +7,13 @@ loop, which large swings' phase drift dominates) need not predict anything.
 So the answer is built from time-resolved, local evidence instead, every choice
 made by prediction on recordings not used for the fit:
 
-* the weak-form momentum balance (one filter on both sides, :mod:`.weakform`)
+* the weak-form momentum balance (one filter on both sides, :mod:`phast_model.rigs.weakform`)
   under the simulator at the user's values (a shooting calibration made before
   any friction term may have absorbed friction);
-* which parameters to calibrate (:func:`.weakid.check_parameters`): those whose
+* which parameters to calibrate (:func:`.friction.weakid.check_parameters`): those whose
   fit predicts the left-out recordings' weak-form force better;
 * parameters, armature (where u drives) and a provisional friction law in one
-  least squares (:func:`.weakid.identify`);
+  least squares (:func:`.friction.weakid.identify`);
 * a non-parametric friction curve (total dissipative force by speed band, with
   block-bootstrap intervals) from the training recordings;
 * per coordinate, the candidate laws (up to 3 dissipative vocabulary terms,
@@ -35,18 +35,18 @@ import numpy as np
 
 from phast_gym.systems.base import System
 
+from ..rigs.frictioncurve import FrictionCurve, friction_curve
 from ..rigs.shooting import ShootFit
 from .calibrate import Calibration
-from .candidates import Candidate
-from .frictioncurve import FrictionCurve, friction_curve
-from .laws import FrictionLaw, spec_of
-from .lawselect import LawSelection, select_friction
-from .passivity import check_against_curve, is_passive
-from .problem import Problem
-from .registry import ARMATURE, COULOMB, VISCOUS
+from .fitting.problem import Problem
+from .friction.laws import FrictionLaw, spec_of
+from .friction.lawselect import LawSelection, select_friction
+from .friction.passivity import check_against_curve, is_passive
+from .friction.weakid import WeakFit, WeakModel, check_parameters, identify
 from .rows import Alternative, ParamRow, TermRow, param_value
-from .terms import VOCABULARY, AugmentedSystem, Term
-from .weakid import WeakFit, WeakModel, check_parameters, identify
+from .vocabulary.candidates import Candidate
+from .vocabulary.registry import ARMATURE, COULOMB, VISCOUS
+from .vocabulary.terms import VOCABULARY, AugmentedSystem, Term
 
 
 @dataclass

@@ -1,5 +1,5 @@
 """Plots of a recordings run: held-out q (measured, PHAST, nominal) and the learned joint friction over the
-non-parametric friction curve of ``phast-mismatch`` (:func:`phast_model.mismatch.friction.friction_curve`)."""
+non-parametric friction curve of ``phast-mismatch`` (:func:`phast_model.rigs.frictioncurve.friction_curve`)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..mismatch.friction import FrictionCurve, friction_curve
+from ..rigs.frictioncurve import FrictionCurve, friction_curve
 from ..rigs.recordings import Recordings
 from .fit import HeldoutWindows
 

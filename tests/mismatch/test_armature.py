@@ -8,7 +8,7 @@ import torch
 
 from phast_gym.integrate import simulate
 from phast_gym.systems import NUMPY, SCALAR, TORCH, DoublePendulum, Pendulum, System, solve_spd
-from phast_model.mismatch.terms import AugmentedSystem, Term
+from phast_model.mismatch.vocabulary.terms import AugmentedSystem, Term
 
 RIG = {"mass1": 1.3, "mass2": 0.8, "length1": 0.9, "length2": 1.2, "com1": 0.4, "com2": 0.55,
        "inertia1": 0.35, "inertia2": 0.3}

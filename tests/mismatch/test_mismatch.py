@@ -423,9 +423,9 @@ def test_markdown_to_html_subset():
 # --------------------------------------------------------------------------- candidates
 def test_armature_candidate():
     """The inertia term (c added to M_ii) gets a candidate scaled to 5% of the rms of M_ii."""
+    from phast_model.mismatch.fitting.problem import prepare
     from phast_model.mismatch.options import Options, Progress
-    from phast_model.mismatch.problem import prepare
-    from phast_model.mismatch.screening import candidates
+    from phast_model.mismatch.vocabulary.screening import candidates
     from phast_model.rigs.simulators import load_simulator
 
     sim = load_simulator("PHAST/Pendulum-v0")

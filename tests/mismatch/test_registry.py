@@ -12,7 +12,7 @@ from phast_gym.registry import make_env_system
 from phast_gym.systems.base import ArrayNamespace
 from phast_model.mismatch import Options, Term, analyze, make_reality
 from phast_model.mismatch.friction import STRIBECK_FRACTIONS, fit_law, select_law, weak_form
-from phast_model.mismatch.registry import (
+from phast_model.mismatch.vocabulary.registry import (
     VOCABULARY,
     DissipationKind,
     ScaleContext,

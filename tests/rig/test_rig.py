@@ -12,7 +12,7 @@ import torch
 
 from phast_model.cli.train import main as train_main
 from phast_model.mismatch.synth import make_reality
-from phast_model.mismatch.terms import Term
+from phast_model.mismatch.vocabulary.terms import Term
 from phast_model.rig.fit import RigTrainConfig, build, fit_recordings, heldout_rollouts, load_rig_data, nominal_config, rig_config
 
 SIM = "PHAST/DampedPendulum-v0"
@@ -55,7 +55,7 @@ def test_compared_systems_are_scored_on_the_same_windows(trained: tuple) -> None
     hidden Coulomb friction) predicts at about the noise level; the nominal rig as a System scores like the nominal
     PHAST model (the same physics, each with its own state fit to the burn-in)."""
     from phast_gym import make_env_system
-    from phast_model.mismatch.terms import AugmentedSystem
+    from phast_model.mismatch.vocabulary.terms import AugmentedSystem
 
     data, cfg, fit = trained
     rig = make_env_system(SIM)

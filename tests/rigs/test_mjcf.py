@@ -333,7 +333,7 @@ def test_recordings_at_a_joint_limit_are_named(tmp_path):
 def test_armature_term_folds_into_the_models_own_armature(arm):
     """The mismatch tool's armature term on a MuJoCo model goes into the joint's own ``armature`` (the fused vector field),
     and gives the field of the generic (M(q) + A) construction."""
-    from phast_model.mismatch.terms import AugmentedSystem, Term
+    from phast_model.mismatch.vocabulary.terms import AugmentedSystem, Term
 
     base = mjcf_system(arm)()
     aug = AugmentedSystem(base, [Term("armature", 1, 0.004), Term("viscous_damping", 2, 0.02)])

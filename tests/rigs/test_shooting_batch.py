@@ -7,7 +7,7 @@ import pytest
 
 from phast_gym.systems.base import System
 from phast_model.mismatch import Term, make_reality
-from phast_model.mismatch.candidates import Family, ScaledTerm
+from phast_model.mismatch.vocabulary.candidates import Family, ScaledTerm
 from phast_model.rigs.recordings import Recordings
 from phast_model.rigs.shooting import Shooter, Windows, merge_systems, smooth
 from phast_model.rigs.simulators import load_simulator

@@ -11,7 +11,7 @@ import pytest
 
 from phast_gym.integrate import simulate
 from phast_gym.systems import NUMPY, Pendulum
-from phast_model.mismatch.terms import AugmentedSystem, Term
+from phast_model.mismatch.vocabulary.terms import AugmentedSystem, Term
 from phast_model.rigs.simulators import load_simulator
 from tests import ROOT
 

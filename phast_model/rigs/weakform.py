@@ -10,23 +10,40 @@ filter, window ``window`` samples) is applied to both sides,
 so the noisy second derivative of q never appears alone and a law's force is compared after the *same* filter
 (``S * f_law``).  p = M(q) qdot through the system's own mass matrix (:func:`.shooting.momentum`), q and qdot from the
 same filter, u the recorded port force held over each interval.  Everything here is per coordinate (friction is
-diagonal, as in the vocabulary).
+diagonal, as in the mismatch tool's vocabulary).
+
+It lives in the shared rigs layer because it fits nothing: the mismatch tool's friction laws, weak-form
+identification and residual map build on it, and so does the rig path's friction check (through
+:mod:`.frictioncurve`).  A system with friction terms of its own beyond D(q) (the mismatch tool's augmented model)
+declares them through :class:`ExtraDissipation`.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
 from phast_gym.systems.base import NUMPY, System
 
-from ..rigs.recordings import Recordings
-from ..rigs.shooting import momentum, odd, smooth, time_scale
-from ..rigs.signals import SAVGOL, Differentiator
-from .options import SIGN_SMOOTHING_REL
-from .terms import AugmentedSystem, friction_basis
+from .recordings import Recordings
+from .shooting import momentum, odd, smooth, time_scale
+from .signals import SAVGOL, Differentiator
+
+#: tanh smoothing of sign(qdot), relative to the rms velocity (the mismatch tool's ``Options.coulomb_eps_rel``)
+SIGN_SMOOTHING_REL = 0.005
+
+
+@runtime_checkable
+class ExtraDissipation(Protocol):
+    """A system with dissipative forces beyond its D(q) qdot (the mismatch tool's ``AugmentedSystem``: its friction
+    terms), and the tanh smoothing of sign(qdot) they use."""
+
+    coulomb_eps: float
+
+    def extra_dissipation(self, q: Any, v: Any, xp: Any) -> Any: ...
 
 
 @dataclass(frozen=True)
@@ -47,7 +64,7 @@ class WeakForm:
 
     Arrays are (N, T', n): ``qs``, ``vs`` the smoothed state, ``total`` the filtered total dissipative force f~
     (positive along +qdot means it decelerates +qdot motion), ``own`` the filtered dissipative force of the model
-    itself (D(q) qdot plus the friction terms of an :class:`AugmentedSystem`).  ``blocks`` (N, T') cluster labels."""
+    itself (D(q) qdot plus the friction terms of an :class:`ExtraDissipation` system).  ``blocks`` (N, T') cluster labels."""
 
     qs: np.ndarray
     vs: np.ndarray
@@ -83,17 +100,14 @@ class WeakForm:
         y = self.filter.differentiator.smooth(x, self.window)
         return y[:, self.trim: x.shape[1] - self.trim]
 
-    def basis(self, name: str, i: int, velocity: float = 0.0) -> np.ndarray:
-        """S * f(q_i, qdot_i) of a vocabulary term, (N, T')."""
-        return self.filt(np.asarray(friction_basis(name, self.q_raw[..., i], self.v_raw[..., i], self.eps, velocity, NUMPY)))
-
 
 def own_dissipation(system: System, qc: tuple, v: np.ndarray) -> np.ndarray:
-    """The model's dissipative force (positive opposes motion): D(q) qdot (+ friction terms of an AugmentedSystem)."""
+    """The model's dissipative force (positive opposes motion): D(q) qdot (+ the friction terms of an
+    :class:`ExtraDissipation` system)."""
     shape = v.shape[:-1]
     d = system.damping(qc, NUMPY)
     own = np.stack([np.broadcast_to(np.asarray(d[i], dtype=float), shape) * v[..., i] for i in range(v.shape[-1])], -1)
-    if isinstance(system, AugmentedSystem):
+    if isinstance(system, ExtraDissipation):
         extra = system.extra_dissipation(qc, tuple(v[..., i] for i in range(v.shape[-1])), NUMPY)
         own = own - np.stack([np.broadcast_to(np.asarray(e, dtype=float), shape) for e in extra], -1)
     return own
@@ -174,7 +188,7 @@ def weak_form(system: System, rec: Recordings, window: int | None = None, eps: f
     d = differentiator
     window = odd(window or default_window(rec, d))
     window = min(window, odd(rec.T // 3))
-    eps = float(eps if eps is not None else (system.coulomb_eps if isinstance(system, AugmentedSystem) else default_eps(rec, window, d)))
+    eps = float(eps if eps is not None else (system.coulomb_eps if isinstance(system, ExtraDissipation) else default_eps(rec, window, d)))
     dt = rec.dt
     bal = momentum_balance(system, rec, window, d)
     qs, vs, dp = bal.qs, bal.vs, bal.dp

@@ -16,9 +16,9 @@ import numpy as np
 
 from phast_gym.systems.base import NUMPY
 
-from .frictioncurve import FrictionCurve
+from ...rigs.frictioncurve import FrictionCurve
+from ..vocabulary.registry import VOCABULARY
 from .laws import FrictionLaw
-from .registry import VOCABULARY
 
 
 @dataclass

@@ -9,12 +9,12 @@ import numpy as np
 
 from phast_gym.systems.base import System
 
-from ..rigs.recordings import Recordings
-from ..rigs.shooting import Shooter, Windows, estimate_noise, odd, smooth, substeps_for, time_scale
-from ..rigs.simulators import Simulator
-from .candidates import Family
-from .options import Options, Progress
-from .weakform import rms_speed, sign_smoothing, smoothing_window
+from ...rigs.recordings import Recordings
+from ...rigs.shooting import Shooter, Windows, estimate_noise, odd, smooth, substeps_for, time_scale
+from ...rigs.simulators import Simulator
+from ...rigs.weakform import rms_speed, sign_smoothing, smoothing_window
+from ..options import Options, Progress
+from ..vocabulary.candidates import Family
 
 
 @dataclass(frozen=True)

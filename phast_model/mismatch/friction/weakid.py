@@ -1,7 +1,7 @@
 """Weak-form identification: the simulator's parameters, the reflected rotor inertia and a friction law in one
 least-squares problem.
 
-The filtered momentum balance of :mod:`.weakform` (one Savitzky-Golay filter S on both sides),
+The filtered momentum balance of :mod:`phast_model.rigs.weakform` (one Savitzky-Golay filter S on both sides),
 
     f~(theta) = S * (F_cons(theta) + u) - d/dt S * (M(q; theta) qdot),
 
@@ -30,15 +30,15 @@ from scipy.stats import t as student_t
 
 from phast_gym.systems.base import System
 
-from ..rigs.recordings import Recordings
-from ..rigs.signals import SAVGOL, Differentiator
-from ..rigs.simulators import Simulator
-from .laws import FrictionLaw, LawTerm, Spec, own_samples, own_terms
-from .linear import cluster_cov, rel_resid
-from .registry import ARMATURE
-from .rows import ParamRow
-from .terms import AugmentedSystem, Term
-from .weakform import WeakForm, weak_form
+from ...rigs.recordings import Recordings
+from ...rigs.signals import SAVGOL, Differentiator
+from ...rigs.simulators import Simulator
+from ...rigs.weakform import WeakForm, weak_form
+from ..fitting.linear import cluster_cov, rel_resid
+from ..rows import ParamRow
+from ..vocabulary.registry import ARMATURE
+from ..vocabulary.terms import AugmentedSystem, Term
+from .laws import FrictionLaw, LawTerm, Spec, filtered_basis, own_samples, own_terms
 
 #: log-relative finite-difference step of a parameter column
 PARAM_STEP = 1e-3
@@ -125,7 +125,7 @@ def _columns(model: WeakModel, kwargs: dict[str, Any], rec: Recordings,
         cols.append(col)
     for s in law:
         names.append(f"law:{s[0]}:{s[1]}")
-        cols.append(_on(s[1], wf.basis(s[0], s[1], s[2] if len(s) > 2 and s[2] is not None else 0.0), rec.n))
+        cols.append(_on(s[1], filtered_basis(wf, s[0], s[1], s[2] if len(s) > 2 and s[2] is not None else 0.0), rec.n))
     for i in model.armature:
         names.append(f"armature:{i}")
         cols.append(_on(i, _accel(wf, i), rec.n))

@@ -1,4 +1,8 @@
-"""Friction-law selection by prediction on recordings not used for the fit.
+"""Friction-law selection by leave-one-out prediction.
+
+*Leave-one-out*: each training recording (one recording: each contiguous time block) is left out of the fit in turn
+and predicted; the held-out recordings of the split (:mod:`..evaluate`) are never used here, and the selection's
+two-fold validation (:mod:`..select`) is a different check.
 
 :func:`select_law`: candidate laws (subsets of up to 3 terms per coordinate), each fitted on all training recordings
 but one and scored on the left-out one (default: by how well it predicts the left-out recording's friction curve;
@@ -20,13 +24,13 @@ from scipy.stats import t as student_t
 from phast_gym.systems import angle_diff
 from phast_gym.systems.base import System
 
-from ..rigs.recordings import Recordings
-from ..rigs.shooting import estimate_noise, odd, smooth, time_scale
-from .frictioncurve import FrictionCurve, friction_curve, speed_edges
+from ...rigs.frictioncurve import FrictionCurve, friction_curve, speed_edges
+from ...rigs.recordings import Recordings
+from ...rigs.shooting import estimate_noise, odd, smooth, time_scale
+from ...rigs.weakform import WeakForm, weak_form
+from ..vocabulary.registry import law_terms
 from .laws import FrictionLaw, Spec, design, fit_law_specs, own_samples, own_terms, parse_terms, spec_of
 from .passivity import check_against_curve, is_passive
-from .registry import law_terms
-from .weakform import WeakForm, weak_form
 
 
 def coordinate_laws(i: int, max_terms: int = 3, terms: Sequence[str] | None = None) -> list[list[Spec]]:
@@ -55,10 +59,10 @@ def candidate_laws(n: int, max_terms: int = 3, terms: Sequence[str] | None = Non
 def rollout_score(system: System, rec: Recordings, window: int | None, init_samples: int, smoothing: int,
                   sigma: np.ndarray | None = None, relative: bool = True) -> tuple[float, np.ndarray]:
     """Open-loop rollout error of ``system`` on ``rec`` cut into windows of ``window`` samples (None: whole recordings),
-    initial state re-fitted on each window's first ``init_samples`` samples (:func:`.analysis.evaluate_models`).
+    initial state re-fitted on each window's first ``init_samples`` samples (:func:`..evaluate.evaluate_models`).
     ``relative``: each window's RMSE divided by that window's rms |q - mean| (so small swings count as much as large
     ones); returns (mean over windows, per-window values)."""
-    from .evaluate import evaluate_models
+    from ..evaluate import evaluate_models
 
     recw = rec.windows(window) if window else rec
     sigma = estimate_noise(rec.q) if sigma is None else sigma
@@ -177,11 +181,12 @@ class LawSelection:
                 "candidates": [s.to_dict() for s in self.scores]}
 
 
-def _folds(rec: Recordings, n_blocks: int) -> tuple[list[tuple[Recordings, Recordings]], str]:
+def _leave_one_out_folds(rec: Recordings, n_blocks: int) -> tuple[list[tuple[Recordings, Recordings]], str]:
+    """(training, left-out) recordings of each leave-one-out fold, and the folds in words."""
     if rec.n_traj >= 2:
         out = [(rec.subset(np.array([j for j in range(rec.n_traj) if j != k])), rec.subset(slice(k, k + 1))) for k in range(rec.n_traj)]
         return out, f"leave-one-recording-out ({rec.n_traj} folds)"
-    # one recording: contiguous time blocks, each held out in turn (fit on the rest, concatenated as separate recordings)
+    # one recording: contiguous time blocks, each left out in turn (fit on the rest, concatenated as separate recordings)
     e = np.linspace(0, rec.T, n_blocks + 1).round().astype(int)
     out = []
     for k in range(n_blocks):
@@ -306,7 +311,7 @@ def _scoring(system: System, rec: Recordings, window: int | None, eps: float | N
              coordinate: int | None, opts: LawSelectionOptions) -> _Scoring:
     wf_all = weak_form(system, rec, window, eps, block)
     window, eps = wf_all.window, wf_all.eps
-    folds, fold_txt = _folds(rec, opts.n_time_blocks)
+    folds, fold_txt = _leave_one_out_folds(rec, opts.n_time_blocks)
     period = 2 * math.pi * time_scale(rec.q, rec.dt)
     rollout_window = int(round((opts.rollout.rollout_window or 3 * period) / rec.dt)) + 1
     init_samples = int(opts.rollout.init_samples or max(10, int(round(0.5 * period / rec.dt)) // 4))
@@ -406,7 +411,7 @@ def select_law(system: System, rec: Recordings, candidates: Sequence[Sequence[An
       the same filter.  Every speed range weighs the same; no simulation, so phase drift cannot enter (why it is the
       default: docs/mismatch.md, design notes);
     * ``"window_rollout"``: open-loop rollouts over consecutive windows of ``rollout_window`` seconds (default 3
-      periods) of the left-out recording, initial state re-fitted per window (:func:`.analysis.evaluate_models`), RMSE
+      periods) of the left-out recording, initial state re-fitted per window (:func:`..evaluate.evaluate_models`), RMSE
       relative to each window's amplitude.  Short windows barely see the friction law (they favour the shooting-
       calibrated model);
     * ``"rollout"``: each left-out recording whole, absolute RMSE (the tool's held-out metric): dominated by the phase

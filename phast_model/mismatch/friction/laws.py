@@ -1,7 +1,7 @@
 """Friction laws fitted by the weak form: least squares of f~ - S*(own) on S*(basis) of dissipative vocabulary terms.
 
 :func:`fit_law`: coefficients sign-free, cluster-robust 95% intervals; a velocity parameter (the Stribeck v_s) is
-profiled on the grid its kind gives (:meth:`.registry.TermKind.velocity_grid`).
+profiled on the grid its kind gives (:meth:`..vocabulary.registry.TermKind.velocity_grid`).
 """
 
 from __future__ import annotations
@@ -17,15 +17,15 @@ from scipy.stats import t as student_t
 
 from phast_gym.systems.base import NUMPY, System
 
-from ..rigs.recordings import Recordings
-from .linear import cluster_cov
-from .options import Z95
-from .registry import VOCABULARY, TermKind, VelocityKind, law_terms
-from .terms import AugmentedSystem, Term
-from .weakform import WeakForm, weak_form
+from ...rigs.recordings import Recordings
+from ...rigs.weakform import WeakForm, weak_form
+from ..fitting.linear import cluster_cov
+from ..options import Z95
+from ..vocabulary.registry import VOCABULARY, TermKind, VelocityKind, law_terms
+from ..vocabulary.terms import AugmentedSystem, Term, friction_basis
 
 #: Stribeck velocities tried, as fractions of the coordinate's rms speed: the default grid of a kind with a velocity
-#: (each such kind carries its own, :attr:`.registry.VelocityKind.velocity_fractions`; Stribeck keeps the default)
+#: (each such kind carries its own, :attr:`..vocabulary.registry.VelocityKind.velocity_fractions`; Stribeck keeps the default)
 STRIBECK_FRACTIONS = VelocityKind.velocity_fractions
 
 
@@ -128,6 +128,11 @@ def own_terms(system: System) -> list[Term]:
     return [t for t in getattr(system, "terms", ()) if t.component == "dissipation"] if isinstance(system, AugmentedSystem) else []
 
 
+def filtered_basis(wf: WeakForm, name: str, i: int, velocity: float = 0.0) -> np.ndarray:
+    """S * f(q_i, qdot_i) of a vocabulary term along the weak form's smoothed recordings, (N, T')."""
+    return wf.filt(np.asarray(friction_basis(name, wf.q_raw[..., i], wf.v_raw[..., i], wf.eps, velocity, NUMPY)))
+
+
 def design(wf: WeakForm, specs: Sequence[Spec], cache: dict | None = None) -> np.ndarray:
     cols = []
     for s in specs:
@@ -135,7 +140,7 @@ def design(wf: WeakForm, specs: Sequence[Spec], cache: dict | None = None) -> np
         if cache is not None and key in cache:
             cols.append(cache[key])
             continue
-        c = wf.basis(s[0], s[1], key[2])
+        c = filtered_basis(wf, s[0], s[1], key[2])
         if cache is not None:
             cache[key] = c
         cols.append(c)
@@ -229,7 +234,7 @@ def fit_law(system: System, rec: Recordings, terms: Sequence[Any], window: int |
     """Weak-form force-balance least squares of a friction law, coefficients sign free.
 
     ``terms``: (name, coordinate) pairs, (name, i, v_s) for a kind with a velocity (v_s None: profiled on the kind's grid
-    of fractions of the rms speed), :class:`.terms.Term` objects, or bare names (every coordinate).  The law is *added* to the
+    of fractions of the rms speed), :class:`..vocabulary.terms.Term` objects, or bare names (every coordinate).  The law is *added* to the
     model's own dissipation: a negative viscous coefficient lowers the model's damping.  95% intervals are
     cluster-robust over time blocks within recordings (see :func:`weak_form`)."""
     wf = weak or weak_form(system, rec, window, eps, block)

@@ -15,7 +15,7 @@ import numpy as np
 
 from phast_gym.systems.base import System
 
-from ..rigs.recordings import Recordings
+from .recordings import Recordings
 from .weakform import WeakForm, weak_form
 
 

@@ -7,9 +7,9 @@ import numpy as np
 
 from phast_gym.systems.base import NUMPY
 
-from ..rigs.shooting import momentum
+from ...rigs.shooting import momentum
+from ..fitting.problem import Problem
 from .candidates import Candidate
-from .problem import Problem
 from .registry import VOCABULARY, ScaleContext, TermKind
 from .terms import AugmentedSystem
 
