@@ -38,7 +38,8 @@ def compared_models(rec: dict, kwargs: dict, ident: dict[str, float], progress: 
     return {"phast-mismatch augmented": report.augmented_system(), "published identified": identified_system(ident)}
 
 
-def run(data: Path, out: Path, regime: str = "partial", epochs: int = 40, progress: bool = True) -> dict:
+def run(data: Path, out: Path, regime: str = "partial", epochs: int = RigTrainConfig().epochs,
+        progress: bool = True) -> dict:
     rec, kwargs, ident = load(data)
     compare = compared_models(rec, kwargs, ident, progress)
     spec = RecordingsSpec(rec, "PHAST/DoublePendulum-v0", kwargs, regime, DEFAULT_HOLDOUT, ROLLOUT_WINDOW_S,

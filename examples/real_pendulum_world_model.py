@@ -35,7 +35,8 @@ WARMUP = {"unknown": (0.2, 10)}
 REFERENCE = {"phast-mismatch augmented / published": 0.345}
 
 
-def run(data: Path, out: Path, regime: str = "partial", epochs: int = 40, progress: bool = True) -> dict:
+def run(data: Path, out: Path, regime: str = "partial", epochs: int = RigTrainConfig().epochs,
+        progress: bool = True) -> dict:
     rec, kwargs = load(data)
     spec = RecordingsSpec(rec, "PHAST/Pendulum-v0", kwargs, regime, HOLDOUT, None, decimate=DECIMATE)
     warm_s, warm_epochs = WARMUP.get(regime, (None, 0))

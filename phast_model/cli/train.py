@@ -30,8 +30,11 @@ from ..train.runs import DataSpec, train_run
 
 __all__ = ["main", "parse_args", "train_run"]
 
-#: the --lr defaults of the two modes (TrainConfig.lr and RigTrainConfig.lr; written out so --help needs no torch)
-ENV_LR, RECORDINGS_LR = 1e-3, 2e-2
+#: the defaults --help shows for the two modes (TrainConfig's and RigTrainConfig's; written out so --help needs no
+#: torch, and a test checks they are the configs' own); a flag not given leaves the config's default in place
+ENV_DEFAULTS: dict[str, Any] = {"lr": 1e-3, "epochs": 50, "batch_size": 64}
+RIG_DEFAULTS: dict[str, Any] = {"lr": 2e-2, "epochs": 150, "batch_windows": 64, "window_s": 0.15, "patience": 12}
+ENV_LR, RECORDINGS_LR = ENV_DEFAULTS["lr"], RIG_DEFAULTS["lr"]
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -46,11 +49,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     rec.add_argument("--holdout-trajectories", metavar="I,J", help="0-based trajectories held out for the score")
     rec.add_argument("--rollout-window-s", type=float, default=None, metavar="S",
                      help="held-out open-loop windows of S seconds, each after a 0.1 s burn-in (default: whole recordings)")
-    rec.add_argument("--window-s", type=float, default=0.25, metavar="S", help="training (multiple-shooting) window")
+    rec.add_argument("--window-s", type=float, default=None, metavar="S",
+                     help=f"training (multiple-shooting) window (default {RIG_DEFAULTS['window_s']:g})")
     rec.add_argument("--warmup-window-s", type=float, default=None, metavar="S",
                      help="train the first --warmup-epochs epochs on windows of S seconds (a curriculum for an all-neural start)")
-    rec.add_argument("--warmup-epochs", type=int, default=0, metavar="E")
-    rec.add_argument("--state-iters", type=int, default=1, metavar="K",
+    rec.add_argument("--warmup-epochs", type=int, default=None, metavar="E")
+    rec.add_argument("--state-iters", type=int, default=None, metavar="K",
                      help="Gauss-Newton iterations of the window states per epoch (3 for long windows)")
     rec.add_argument("--decimate", type=int, default=1, metavar="K",
                      help="keep every K-th sample (free-motion recordings sampled much faster than the dynamics)")
@@ -63,17 +67,25 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                      help="the world env's torque bound per input (default: the largest recorded |u|)")
     rec.add_argument("--patience", type=int, default=None, metavar="N",
                      help="early stopping: stop when the validation windows' RMSE has not improved for N epochs (the "
-                          "best-validation weights are kept either way; default: run every epoch)")
+                          f"best-validation weights are kept either way; default {RIG_DEFAULTS['patience']}; 0: run "
+                          "every epoch)")
+    rec.add_argument("--schedule", choices=("plateau", "cosine"), default=None,
+                     help="learning-rate schedule: 'plateau' (the default) halves the rates when the validation RMSE "
+                          "stalls, so the model is chosen by validation, not by --epochs; 'cosine' decays them over "
+                          "exactly --epochs epochs")
     ap.add_argument("--regime", default="partial", choices=("known", "partial", "unknown"))
-    ap.add_argument("--epochs", type=int, default=50)
+    ap.add_argument("--epochs", type=int, default=None,
+                    help=f"training epochs (default {ENV_DEFAULTS['epochs']} with --env; with --recordings a cap, default "
+                         f"{RIG_DEFAULTS['epochs']}, as early stopping chooses the model)")
     ap.add_argument("--seed", type=int, default=0, help="model / training seed")
     ap.add_argument("--data-seed", type=int, default=42, help="dataset seed (paper: 42)")
     ap.add_argument("--n-train", type=int, default=1000)
     ap.add_argument("--n-val", type=int, default=200)
     ap.add_argument("--n-test", type=int, default=200)
     ap.add_argument("--T", type=int, default=200, help="trajectory length")
-    ap.add_argument("--batch-size", type=int, default=64,
-                    help="minibatch size: trajectories with --env, shooting windows with --recordings")
+    ap.add_argument("--batch-size", type=int, default=None,
+                    help=f"minibatch size: trajectories with --env (default {ENV_DEFAULTS['batch_size']}), shooting "
+                         f"windows with --recordings (default {RIG_DEFAULTS['batch_windows']})")
     ap.add_argument("--lr", type=float, default=None,
                     help=f"learning rate (default: {ENV_LR:g} with --env, {RECORDINGS_LR:g} with --recordings; a value given "
                          "is used as given in both)")
@@ -165,9 +177,13 @@ def _recordings_main(args: argparse.Namespace) -> dict[str, Any]:
                           _int_list(args.holdout_trajectories, "--holdout-trajectories"), args.rollout_window_s,
                           tuple(args.action_bound) if args.action_bound else None, args.decimate,
                           compare=_compared_systems(args))
-    train = RigTrainConfig(epochs=args.epochs, window_s=args.window_s, lr=RECORDINGS_LR if args.lr is None else args.lr,
-                           batch_windows=args.batch_size, seed=args.seed, progress=not args.no_progress, state_iters=args.state_iters,
-                           warmup_window_s=args.warmup_window_s, warmup_epochs=args.warmup_epochs, patience=args.patience)
+    given = {"epochs": args.epochs, "window_s": args.window_s, "lr": args.lr, "batch_windows": args.batch_size,
+             "state_iters": args.state_iters, "warmup_window_s": args.warmup_window_s,
+             "warmup_epochs": args.warmup_epochs, "schedule": args.schedule}
+    flags = {k: v for k, v in given.items() if v is not None}  # a flag not given keeps RigTrainConfig's default
+    if args.patience is not None:
+        flags["patience"] = args.patience or None  # 0: every epoch
+    train = RigTrainConfig(seed=args.seed, progress=not args.no_progress, **flags)
     metrics = train_recordings_run(spec, args.out, train, _overrides(args.set), plots=not args.no_plots, resume=args.resume)
     return heldout_summary(metrics)
 
@@ -188,8 +204,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.env is None:
         print("phast-train: error: give --env (a registered env id) or --recordings FILE --sim SIM", file=sys.stderr)
         return 2
-    if args.patience is not None:
-        print("phast-train: error: --patience applies to --recordings runs (an --env run keeps its best validation "
+    if args.patience is not None or args.schedule is not None:
+        print("phast-train: error: --patience and --schedule apply to --recordings runs (an --env run keeps its best validation "
               "epoch of --epochs)", file=sys.stderr)
         return 2
     try:
@@ -198,8 +214,9 @@ def main(argv: list[str] | None = None) -> int:
         data = DataSpec(n_train=args.n_train, n_val=args.n_val, n_test=args.n_test, T=args.T, seed=args.data_seed,
                         obs_noise_std=args.obs_noise_std,
                         excitation=PortExcitation(args.port_excitation, args.excitation_hold, args.excitation_seed))
-        train = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, lr=ENV_LR if args.lr is None else args.lr,
-                            seed=args.seed, progress=not args.no_progress)
+        given = {"epochs": args.epochs, "batch_size": args.batch_size, "lr": args.lr}
+        env_flags = {k: ENV_DEFAULTS[k] if v is None else v for k, v in given.items()}
+        train = TrainConfig(**env_flags, seed=args.seed, progress=not args.no_progress)
         metrics = train_run(args.env, args.regime, args.out, data=data, train=train, overrides=_overrides(args.set),
                             resume=args.resume, plots=not args.no_plots)
     except (ValueError, gym.error.Error) as exc:

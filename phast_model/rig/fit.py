@@ -14,7 +14,7 @@ q (N, T, n), recorded times ``t`` (jitter allowed) or ``dt``, the measured port 
   gets its own initial state, refitted by Gauss-Newton with the model fixed, and the model is trained by AdamW
   on the open-loop error over the windows; with the main trainer's NaN guard, a checkpoint after every epoch
   (``resume``) and optional early stopping on the validation windows (``RigTrainConfig.patience``).
-* :func:`heldout_rollouts`: the held-out score, computed by the same code for every model (PHAST, the nominal rig
+* :func:`phast_model.rig.heldout.heldout_rollouts`: the held-out score, computed by the same code for every model (PHAST, the nominal rig
   as a KNOWN model without dissipation): each window's state is fitted to its burn-in, then the model runs open
   loop with the recorded u; RMSE of q, wrapped on angles.
 """
@@ -25,7 +25,6 @@ import copy
 import json
 import math
 import time
-from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -34,7 +33,6 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from phast_gym.systems import System
 from phast_gym.systems.mjcf import MJCFSystem
 
 from ..components.mass import KnownMass, LinearMass, LowRankMass
@@ -42,11 +40,11 @@ from ..components.potentials import TemplatePotential
 from ..components.rigid_body import LearnedBodies
 from ..rigs.holdout import check_holdout_indices, split
 from ..rigs.recordings import Recordings, load_raw, validate
-from ..rigs.shooting import Shooter, Windows, estimate_noise, odd, simulate_qv, smooth, substeps_for
+from ..rigs.shooting import odd, smooth
 from ..rigs.simulators import load_simulator
 from ..train.checkpoint import atomic_torch_save
 from ..train.fit import CHECKPOINT, check_resume, finite_params, load_checkpoint, run_identity, scale_lr
-from ..world.interfaces import coordinate_error, wrap_angles
+from ..world.interfaces import coordinate_error
 from ..world.model import PHAST, PHASTConfig, build_from_config
 
 REGIMES = ("known", "partial", "unknown")
@@ -64,6 +62,8 @@ STATE_FIT_ITERS = 15
 NAN_LR_FACTOR = 0.5
 #: the ``format`` entry of a recordings run's checkpoint.pt
 CHECKPOINT_FORMAT = "phast-rig-checkpoint"
+#: learning-rate schedules of :class:`RigTrainConfig`
+SCHEDULES = ("plateau", "cosine")
 
 
 # --------------------------------------------------------------------------- data
@@ -106,7 +106,7 @@ def load_rig_data(recordings: str | Path | dict[str, Any], sim: str, sim_kwargs:
     return RigData(train, held, tuple(holdout or ()), src, bound)
 
 
-def _check_window_room(rec: Recordings, samples: int, what: str) -> None:
+def check_window_room(rec: Recordings, samples: int, what: str) -> None:
     if rec.T < samples:
         raise ValueError(f"{rec.source}: recordings of T={rec.T} samples at dt={rec.dt:.4g} s are too short for {what} "
                          f"({samples} samples)")
@@ -133,7 +133,7 @@ def _template(system: Any) -> tuple[str, list[int] | None, str | None]:
 
 def data_scales(rec: Recordings) -> tuple[list[float], list[float]]:
     """RMS of the Euclidean coordinates and of the (smoothed) velocities of the recordings."""
-    _, v = smooth(rec.q, rec.dt, _odd_samples(SMOOTH_S, rec.dt))
+    _, v = smooth(rec.q, rec.dt, odd_samples(SMOOTH_S, rec.dt))
     eu = [i for i in range(rec.n) if i not in rec.angle_dims]
     q_scale = [float(np.sqrt(np.mean(rec.q[..., i] ** 2)) + 1e-3) for i in eu]
     return q_scale, [float(np.sqrt(np.mean(v[..., i] ** 2)) + 1e-3) for i in range(rec.n)]
@@ -190,7 +190,7 @@ def nominal_config(cfg: PHASTConfig) -> PHASTConfig:
                    init_from="none")
 
 
-def _odd_samples(seconds: float, dt: float) -> int:
+def odd_samples(seconds: float, dt: float) -> int:
     """An odd number of samples, at least 5, spanning about ``seconds``."""
     return odd(max(5, int(round(seconds / dt))))
 
@@ -211,8 +211,8 @@ class ShootWindows:
 
 def cut_windows(rec: Recordings, length: int, dtype: torch.dtype = torch.float64) -> ShootWindows:
     """Consecutive windows of ``length`` samples; states start from Savitzky-Golay smoothing."""
-    _check_window_room(rec, length, "one window")
-    qs, vs = smooth(rec.q, rec.dt, _odd_samples(SMOOTH_S, rec.dt))
+    check_window_room(rec, length, "one window")
+    qs, vs = smooth(rec.q, rec.dt, odd_samples(SMOOTH_S, rec.dt))
     k = rec.T // length
     starts = np.arange(k) * length
     idx = starts[:, None] + np.arange(length)[None, :]
@@ -267,13 +267,18 @@ def fit_states(model: PHAST, X: torch.Tensor, q: torch.Tensor, u: torch.Tensor |
 # --------------------------------------------------------------------------- training
 @dataclass(frozen=True)
 class RigTrainConfig:
-    """Multiple-shooting training: windows of ``window_s`` seconds, ``epochs`` passes of AdamW over minibatches of
+    """Multiple-shooting training: windows of ``window_s`` seconds, passes of AdamW over minibatches of
     ``batch_windows`` windows, window states refitted every ``refit_every`` epochs, validation on ``val_fraction`` of
-    the windows (best-validation weights kept); with ``patience``, training stops once the validation RMSE has not
-    improved for that many epochs (None: all ``epochs`` run)."""
+    the (held-in) training windows, the best-validation weights kept.
 
-    epochs: int = 40
-    window_s: float = 0.2
+    The model is chosen by validation, not by an epoch count: with ``schedule="plateau"`` (the default) the learning
+    rates are multiplied by ``plateau_factor`` whenever the validation RMSE has not improved for ``plateau_epochs``
+    epochs, and training stops once it has not improved for ``patience`` epochs (or after ``epochs``, a cap).
+    ``schedule="cosine"`` decays the rates to zero over exactly ``epochs`` epochs (stepped per minibatch); with it,
+    ``patience=None`` runs every epoch."""
+
+    epochs: int = 150
+    window_s: float = 0.15
     batch_windows: int = 64
     lr: float = 2e-2
     weight_decay: float = 0.0
@@ -284,18 +289,29 @@ class RigTrainConfig:
     seed: int = 0
     progress: bool = True
     #: a curriculum on the window length: the first ``warmup_epochs`` epochs on windows of ``warmup_window_s`` (an
-    #: all-neural start has no restoring force, and a long window of a swing is outside its basin); None: none
+    #: all-neural start has no restoring force, and a long window of a swing is outside its basin); None: none.  The
+    #: warm-up stage always decays by cosine over its ``warmup_epochs``
     warmup_window_s: float | None = None
     warmup_epochs: int = 0
     #: early stopping: stop when the validation RMSE (on the final window length) has not improved for this many
-    #: epochs; None (the default): run every epoch
-    patience: int | None = None
+    #: epochs; None: run every epoch up to ``epochs``
+    patience: int | None = 12
+    #: the final stage's learning-rate schedule: "plateau" (validation-driven) or "cosine" (over ``epochs``)
+    schedule: str = "plateau"
+    plateau_epochs: int = 3
+    plateau_factor: float = 0.5
 
     def __post_init__(self) -> None:
         if int(self.epochs) != self.epochs or self.epochs < 1:
             raise ValueError(f"epochs must be a positive integer, got {self.epochs!r}")
         if self.patience is not None and (int(self.patience) != self.patience or self.patience < 1):
             raise ValueError(f"patience must be a positive integer or None, got {self.patience!r}")
+        if self.schedule not in SCHEDULES:
+            raise ValueError(f"schedule must be one of {SCHEDULES}, got {self.schedule!r}")
+        if int(self.plateau_epochs) != self.plateau_epochs or self.plateau_epochs < 1:
+            raise ValueError(f"plateau_epochs must be a positive integer, got {self.plateau_epochs!r}")
+        if not 0.0 < self.plateau_factor < 1.0:
+            raise ValueError(f"plateau_factor must be in (0, 1), got {self.plateau_factor!r}")
         if not (self.window_s > 0 and math.isfinite(self.window_s)):
             raise ValueError(f"window_s must be positive, got {self.window_s!r}")
         w = self.warmup_window_s
@@ -403,31 +419,57 @@ def _loss(model: PHAST, w: ShootWindows, idx: torch.Tensor | None = None) -> tor
 
 @dataclass
 class _Stage:
-    """One window length of the curriculum: its training and validation windows, optimizer and schedule."""
+    """One window length of the curriculum: its training and validation windows, optimizer and schedule (a cosine
+    decay stepped after every minibatch, or a plateau rule stepped on the validation loss after every epoch)."""
 
     train: ShootWindows
     val: ShootWindows | None
     opt: torch.optim.Optimizer
-    sched: torch.optim.lr_scheduler.LRScheduler
+    sched: torch.optim.lr_scheduler.LRScheduler | torch.optim.lr_scheduler.ReduceLROnPlateau
     n_batches: int
 
+    def scale_lr(self, factor: float) -> None:
+        """Multiply every learning rate by ``factor``, now and for the rest of the schedule."""
+        if isinstance(self.sched, torch.optim.lr_scheduler.ReduceLROnPlateau):
+            for g in self.opt.param_groups:
+                g["lr"] *= factor
+        else:
+            scale_lr(self.opt, self.sched, factor)
 
-def _stage(model: PHAST, data: RigData, cfg: RigTrainConfig, window_s: float, epochs: int) -> _Stage:
-    """Windows of ``window_s`` seconds, split into training and validation, with a fresh AdamW + cosine schedule."""
+    def end_batch(self) -> None:
+        """The cosine decay's step after every minibatch (the plateau rule steps per epoch)."""
+        if not isinstance(self.sched, torch.optim.lr_scheduler.ReduceLROnPlateau):
+            self.sched.step()
+
+    def end_epoch(self, val_loss: float) -> None:
+        """The plateau rule's step on this epoch's validation loss (a cosine decay steps per minibatch instead)."""
+        if isinstance(self.sched, torch.optim.lr_scheduler.ReduceLROnPlateau) and math.isfinite(val_loss):
+            self.sched.step(val_loss)
+
+
+def _stage(model: PHAST, data: RigData, cfg: RigTrainConfig, window_s: float, epochs: int,
+           schedule: str = "cosine") -> _Stage:
+    """Windows of ``window_s`` seconds, split into training and validation, with a fresh AdamW and its schedule:
+    cosine over ``epochs`` epochs, or the validation plateau rule of ``cfg``."""
     length = max(5, int(round(window_s / data.train.dt)) + 1)
     train, val = _split_windows(cut_windows(data.train, length), cfg.val_fraction, cfg.seed)
     opt = torch.optim.AdamW(_param_groups(model, cfg), lr=cfg.lr, weight_decay=cfg.weight_decay)
     n_batches = max(1, math.ceil(train.q.shape[0] / cfg.batch_windows))
-    return _Stage(train, val, opt, torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=epochs * n_batches), n_batches)
+    if schedule == "plateau":
+        plateau = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=cfg.plateau_factor,
+                                                             patience=cfg.plateau_epochs - 1, threshold=1e-3)
+        return _Stage(train, val, opt, plateau, n_batches)
+    cosine = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=epochs * n_batches)
+    return _Stage(train, val, opt, cosine, n_batches)
 
 
 def _stage_at(model: PHAST, data: RigData, cfg: RigTrainConfig, epoch: int) -> _Stage:
     """A fresh stage of the curriculum that trains ``epoch`` (0-based): the warm-up's windows before
-    ``warmup_epochs``, the final windows from then on."""
+    ``warmup_epochs`` (cosine over the warm-up), the final windows and ``cfg.schedule`` from then on."""
     warm = cfg.warmup_epochs
     if epoch < warm:
         return _stage(model, data, cfg, cfg.warmup_window_s or cfg.window_s, warm)
-    return _stage(model, data, cfg, cfg.window_s, cfg.epochs - warm)
+    return _stage(model, data, cfg, cfg.window_s, cfg.epochs - warm, cfg.schedule)
 
 
 def _step(opt: torch.optim.Optimizer, params: list[torch.nn.Parameter], loss: torch.Tensor) -> bool:
@@ -458,7 +500,7 @@ def _epoch(model: PHAST, st: _Stage, params: list[torch.nn.Parameter], gen: torc
             cnt += len(idx)
         else:
             skipped += 1
-        st.sched.step()
+        st.end_batch()
     return (tot / cnt if cnt else math.nan), skipped
 
 
@@ -494,7 +536,7 @@ def _roll_back(run: _Run, st: _Stage, good_model: dict[str, torch.Tensor], good_
     st.opt.load_state_dict(good_opt)
     for g, lr in zip(st.opt.param_groups, lrs):
         g["lr"] = lr
-    scale_lr(st.opt, st.sched, NAN_LR_FACTOR)
+    st.scale_lr(NAN_LR_FACTOR)
     run.nan_rollbacks += 1
 
 
@@ -525,6 +567,8 @@ def _train_epoch(run: _Run, data: RigData, cfg: RigTrainConfig, epoch: int) -> N
     with torch.no_grad():
         vl = float(_loss(run.model, st.val if st.val is not None else st.train))
     rec["val_rmse"] = math.sqrt(vl)
+    st.end_epoch(vl)
+    rec["lr"] = float(st.opt.param_groups[0]["lr"])
     if epoch >= warm and math.isfinite(vl) and vl < run.best_mse:
         run.best_mse, run.best_epoch = vl, epoch + 1
         run.best_state = _clone_state(run.model)
@@ -654,102 +698,6 @@ def fit_recordings(model: PHAST, data: RigData, cfg: RigTrainConfig | None = Non
     model.eval()
     return RigFit(model, run.history, math.sqrt(run.best_mse), run.best_epoch, time.perf_counter() - run.t0, init,
                   run.nan_skipped, run.nan_rollbacks, run.stopped)
-
-
-# --------------------------------------------------------------------------- held-out evaluation
-@dataclass(frozen=True)
-class HeldoutWindows:
-    """Held-out windows: ``burn`` samples to fit the state to, then ``H`` samples scored open loop."""
-
-    q: torch.Tensor  # (W, burn + H, n)
-    u: torch.Tensor | None
-    burn: int
-    H: int
-    trajectory: np.ndarray  # (W,) held-out trajectory of each window
-    start: np.ndarray  # (W,) first (burn-in) sample
-
-
-def heldout_windows(rec: Recordings, window_s: float | None, burn_s: float = BURN_IN_S) -> HeldoutWindows:
-    """Windows of ``window_s`` seconds (None: each whole recording after its burn-in), each after a burn-in."""
-    burn = max(5, int(round(burn_s / rec.dt)))
-    H = rec.T - burn if window_s is None else int(round(window_s / rec.dt))
-    _check_window_room(rec, burn + H, f"a {burn_s:g} s burn-in plus one {window_s if window_s else 'whole'} s window")
-    starts = np.arange(0, rec.T - (burn + H) + 1, H)
-    idx = starts[:, None] + np.arange(burn + H)[None, :]
-    q = rec.q[:, idx].reshape(-1, burn + H, rec.n)
-    u = None if rec.u is None else rec.u[:, idx[:, :-1]].reshape(-1, burn + H - 1, rec.n)
-    traj = np.repeat(np.arange(rec.n_traj), len(starts))
-    return HeldoutWindows(torch.as_tensor(q), None if u is None else torch.as_tensor(u), burn, H, traj,
-                          np.tile(starts, rec.n_traj))
-
-
-def burn_in_states(w: HeldoutWindows, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """(W, n) q and qdot at every window's first sample, from Savitzky-Golay smoothing of its burn-in: where every
-    model's state fit starts."""
-    qb = w.q[:, : w.burn].numpy()
-    qs, vs = smooth(qb, dt, min(_odd_samples(SMOOTH_S, dt), w.burn - (1 - w.burn % 2)))
-    return qs[:, 0], vs[:, 0]
-
-
-@torch.no_grad()
-def rollout_windows(model: PHAST, w: HeldoutWindows, dt: float) -> torch.Tensor:
-    """(W, burn + H, n) open-loop q of ``model`` on the windows: the state fitted to the burn-in (started from
-    Savitzky-Golay smoothing of it), then the recorded u."""
-    model = model.double()
-    qs, vs = burn_in_states(w, dt)
-    X = torch.as_tensor(np.concatenate([qs, vs], -1))
-    ub = None if w.u is None else w.u[:, : w.burn - 1]
-    X = fit_states(model, X, w.q[:, : w.burn], ub, iters=4)
-    return simulate(model, X, w.u, w.burn + w.H - 1)
-
-
-def system_rollouts(system: System, w: HeldoutWindows, dt: float, angle_dims: tuple[int, ...]) -> torch.Tensor:
-    """(W, burn + H, n) open-loop q of a phast_gym ``System`` (a compared model: the phast-mismatch augmented
-    model, an identified model written as a rig) on the windows: the state started like PHAST's
-    (:func:`burn_in_states`), fitted to the burn-in by the mismatch tool's window-state Gauss-Newton with the
-    system's own simulation, then the recorded u."""
-    qs, vs = burn_in_states(w, dt)
-    unmeasure = getattr(system, "unmeasure", lambda y: y)
-    X0 = np.concatenate([unmeasure(qs), vs], axis=-1)
-    x_scale = np.concatenate([np.sqrt(np.mean(qs**2, 0)), np.sqrt(np.mean(vs**2, 0))]) + 1e-9
-    sigma = np.maximum(estimate_noise(w.q.numpy()), 1e-6)
-    sub = int(substeps_for(system, dt))
-    q, u = w.q.numpy(), None if w.u is None else w.u.numpy()
-    count = q.shape[0]
-    burn = Windows(np.arange(count), np.zeros(count, dtype=int), w.burn, q[:, : w.burn],
-                   None if u is None else u[:, : w.burn - 1], angle_dims, dt)
-    X = Shooter(burn, sigma, sub, x_scale).fit_states(system, X0, STATE_FIT_ITERS).X
-    n = qs.shape[-1]
-    return torch.as_tensor(simulate_qv(system, X[:, :n], X[:, n:], w.burn + w.H - 1, u, dt, sub))
-
-
-def _score(sim: torch.Tensor, w: HeldoutWindows, angle_dims: tuple[int, ...]) -> dict[str, Any]:
-    err = coordinate_error(sim[:, w.burn:], w.q[:, w.burn:], angle_dims)
-    rmse = float(torch.sqrt((err ** 2).mean()))
-    return {"rollout_rmse": rmse if math.isfinite(rmse) else float("inf"),
-            "per_window_rmse": [float(x) for x in torch.sqrt((err ** 2).mean((1, 2)))]}
-
-
-def heldout_rollouts(models: dict[str, PHAST], rec: Recordings, window_s: float | None, burn_s: float = BURN_IN_S,
-                     compare: Mapping[str, System] | None = None
-                     ) -> tuple[dict[str, Any], dict[str, np.ndarray], HeldoutWindows]:
-    """``{name: {"rollout_rmse", "per_window_rmse"}}`` of every model on the held-out windows (the same windows,
-    the same burn-in, the same error), plus the rollouts themselves (plots) and the windows.  ``compare``: phast_gym
-    systems scored beside the PHAST models (:func:`system_rollouts`)."""
-    w = heldout_windows(rec, window_s, burn_s)
-    sims = {name: (rollout_windows(model, w, rec.dt), tuple(model.angle_dims)) for name, model in models.items()}
-    for name, system in (compare or {}).items():
-        if name in sims:
-            raise ValueError(f"compare: {name!r} is already a scored model's name ({sorted(sims)})")
-        if not isinstance(system, System):
-            raise TypeError(f"compare: {name!r} must be a phast_gym System (built), got {type(system).__name__}")
-        sims[name] = (system_rollouts(system, w, rec.dt, tuple(rec.angle_dims)), tuple(rec.angle_dims))
-    out = {name: _score(sim, w, dims) for name, (sim, dims) in sims.items()}
-    rolls = {name: wrap_angles(sim, dims).numpy() for name, (sim, dims) in sims.items()}
-    meta = {"n_windows": int(w.q.shape[0]), "window_s": None if window_s is None else float(window_s),
-            "burn_in_s": float(burn_s), "window_samples": int(w.H), "burn_in_samples": int(w.burn),
-            "dt": float(rec.dt)}
-    return {**out, **meta}, rolls, w
 
 
 def build(cfg: PHASTConfig) -> PHAST:

@@ -11,7 +11,7 @@ import torch
 
 from ..rigs.frictioncurve import FrictionCurve, friction_curve
 from ..rigs.recordings import Recordings
-from .fit import HeldoutWindows
+from .heldout import HeldoutWindows
 
 
 def _pyplot() -> Any:

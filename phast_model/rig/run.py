@@ -2,7 +2,7 @@
 
 :func:`train_recordings_run` checks everything first (recordings, rig, held-out indices, room for the held-out
 windows), trains by multiple shooting (:func:`phast_model.rig.fit_recordings`), scores PHAST and the nominal rig on
-the held-out recordings by the same code (:func:`phast_model.rig.fit.heldout_rollouts`) and writes ``model.pt`` +
+the held-out recordings by the same code (:func:`phast_model.rig.heldout.heldout_rollouts`) and writes ``model.pt`` +
 ``config.json`` (opened by :func:`phast_model.api.load_run` and
 :class:`phast_model.world.gym_env.PHASTWorldModelEnv`), ``metrics.json`` (key ``heldout``), ``history.json``,
 ``checkpoint.pt`` (written after every epoch; ``resume=True`` continues from it) and the plots ``heldout_rollout.png``
@@ -28,12 +28,11 @@ from .fit import (
     RigTrainConfig,
     build,
     fit_recordings,
-    heldout_rollouts,
-    heldout_windows,
     load_rig_data,
     nominal_config,
     rig_config,
 )
+from .heldout import heldout_rollouts, heldout_windows
 
 
 @dataclass(frozen=True)

@@ -107,7 +107,9 @@ def train_world_model(spec: PlantRecording, out: Path, sim: str, sim_kwargs: dic
     metrics = train_recordings_run(
         RecordingsSpec(rec, sim, sim_kwargs, regime="partial", holdout=holdout, rollout_window_s=HELDOUT_WINDOW_S,
                        action_bound=(spec.max_action,)),
-        out, RigTrainConfig(epochs=epochs, window_s=window_s, seed=seed, progress=progress))
+        # exactly ``epochs`` epochs of cosine decay: the schedule the documented world models were trained with
+        out, RigTrainConfig(epochs=epochs, window_s=window_s, seed=seed, progress=progress, schedule="cosine",
+                            patience=None))
     tmp = out / "recordings.tmp.npz"
     np.savez(tmp, **rec)
     tmp.replace(out / "recordings.npz")

@@ -13,7 +13,8 @@ import torch
 from phast_model.cli.train import main as train_main
 from phast_model.mismatch.synth import make_reality
 from phast_model.mismatch.vocabulary.terms import Term
-from phast_model.rig.fit import RigTrainConfig, build, fit_recordings, heldout_rollouts, load_rig_data, nominal_config, rig_config
+from phast_model.rig.fit import RigTrainConfig, build, fit_recordings, load_rig_data, nominal_config, rig_config
+from phast_model.rig.heldout import heldout_rollouts
 
 SIM = "PHAST/DampedPendulum-v0"
 COULOMB = 0.4

@@ -236,7 +236,7 @@ def test_patience_stops_once_validation_stalls_and_keeps_the_best_weights(data: 
                                                                           monkeypatch: pytest.MonkeyPatch) -> None:
     with pytest.raises(ValueError, match="patience"):
         RigTrainConfig(patience=0)
-    assert RigTrainConfig().patience is None
+    assert RigTrainConfig().schedule == "plateau" and RigTrainConfig().patience is not None  # chosen by validation
     real, seen = rigfit._loss, []
     vals = {"left": [4.0, 1.0, 2.0, 3.0, 0.5, 0.25]}  # the validation MSE of each epoch
 
@@ -253,8 +253,30 @@ def test_patience_stops_once_validation_stalls_and_keeps_the_best_weights(data: 
     again = _fit(data, RigTrainConfig(epochs=6, patience=2, **TINY), run_dir=tmp_path, resume=True)
     assert again.stopped_early and _untimed(again.history) == _untimed(fit.history)  # a stopped run stays stopped
     vals["left"] = [4.0, 1.0, 2.0, 3.0, 0.5, 0.25]
-    whole = _fit(data, RigTrainConfig(epochs=6, **TINY))  # patience None: every epoch
+    whole = _fit(data, RigTrainConfig(epochs=6, patience=None, **TINY))  # patience None: every epoch
     assert not whole.stopped_early and len(whole.history) == 6 and whole.best_epoch == 6
+
+
+def test_the_plateau_schedule_lowers_the_rates_when_validation_stalls(data: rigfit.RigData,
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    real, vals = rigfit._loss, iter([4.0, 1.0, 2.0, 3.0, 0.5, 0.6, 0.7, 0.8])
+
+    def scripted(model: Any, w: Any, idx: torch.Tensor | None = None) -> torch.Tensor:
+        return real(model, w, idx) if idx is not None else torch.tensor(next(vals), dtype=torch.float64)
+
+    monkeypatch.setattr(rigfit, "_loss", scripted)
+    cfg = RigTrainConfig(epochs=8, patience=None, plateau_epochs=2, plateau_factor=0.25, **TINY)
+    history = _fit(data, cfg).history
+    lrs = [h["lr"] / history[0]["lr"] for h in history]
+    # epochs 3-4 do not improve on epoch 2: the rates drop after epoch 4; 5 improves; 6-7 stall: drop after 7
+    assert lrs == pytest.approx([1, 1, 1, 0.25, 0.25, 0.25, 0.0625, 0.0625], rel=1e-12)
+    with pytest.raises(ValueError, match="schedule"):
+        RigTrainConfig(schedule="step")
+
+
+def test_the_cosine_schedule_decays_over_exactly_the_epochs(data: rigfit.RigData) -> None:
+    fit = _fit(data, RigTrainConfig(epochs=3, schedule="cosine", patience=None, **TINY))
+    assert len(fit.history) == 3 and fit.history[-1]["lr"] == pytest.approx(0.0, abs=1e-12)
 
 
 def test_patience_counts_from_the_final_window_length_after_a_warm_up(data: rigfit.RigData,
@@ -286,7 +308,7 @@ def test_an_explicit_lr_is_used_as_given_in_both_modes(monkeypatch: pytest.Monke
     for extra in ([], ["--lr", "1e-3"], ["--lr", "0.05"], ["--patience", "3"], ["--batch-size", "16"]):
         assert train_main(base + extra) == 2
     assert [t.lr for t in got] == [RigTrainConfig().lr, 1e-3, 0.05, RigTrainConfig().lr, RigTrainConfig().lr]
-    assert [t.patience for t in got] == [None, None, None, 3, None]
+    assert [t.patience for t in got] == [RigTrainConfig().patience] * 3 + [3, RigTrainConfig().patience]
     assert [t.batch_windows for t in got] == [RigTrainConfig().batch_windows] * 4 + [16]  # --batch-size reaches the windows
     got.clear()
     env = ["--env", "PHAST/Pendulum-v0", "--out", str(tmp_path / "e")]
@@ -294,8 +316,10 @@ def test_an_explicit_lr_is_used_as_given_in_both_modes(monkeypatch: pytest.Monke
         assert train_main(env + extra) == 2
     assert [t.lr for t in got] == [TrainConfig().lr, 2e-2]
     assert train_main(env + ["--patience", "3"]) == 2  # --env has no early stopping: refused, not ignored
-    assert "--patience applies to --recordings" in capsys.readouterr().err
+    assert "--patience and --schedule apply to --recordings" in capsys.readouterr().err
     assert cli.ENV_LR == TrainConfig().lr and cli.RECORDINGS_LR == RigTrainConfig().lr
+    assert cli.ENV_DEFAULTS == {k: getattr(TrainConfig(), k) for k in cli.ENV_DEFAULTS}  # --help shows the configs' own
+    assert cli.RIG_DEFAULTS == {k: getattr(RigTrainConfig(), k) for k in cli.RIG_DEFAULTS}
     with pytest.raises(SystemExit):
         cli.parse_args(["--help"])
     assert "default: 0.001 with --env, 0.02 with --recordings" in " ".join(capsys.readouterr().out.split())
