@@ -296,7 +296,9 @@ def _explain(problem: Problem, inputs: _Inputs) -> Report:
     cal = calibration(problem, screen, sel.params, sel.fit, len(sel.terms))
     excess0 = cal.fit_nominal.cost - cal.fit_nominal.dof
     calibrated, missing = calibrated_rows(problem, cal, sel), missing_rows(sel, excess0)
-    models = {"nominal": problem.nominal_family.build(np.zeros(0)), "calibrated": cal.system, "augmented": sel.system}
+    nominal = problem.nominal_family.build(np.zeros(0))
+    # no parameter changed: the calibrated model is the nominal one (the held-out table then scores it once)
+    models = {"nominal": nominal, "calibrated": cal.system if cal.fit.g.size else nominal, "augmented": sel.system}
     final_fit = sel.fit
     weak_answer = _systematic(problem, cal, sel, calibrated)
     shooting_answer = (models["augmented"], final_fit, calibrated, missing)

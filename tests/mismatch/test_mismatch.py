@@ -542,3 +542,20 @@ def test_heldout_initial_state_refitted_where_it_is_not_determined():
     X, Ks = _initial_states({"true": system}, rec, 50, np.array([0.002]), np.array([1.0, 1.0]), q, np.zeros_like(q))
     assert Ks[0] == 50 and Ks[1] in (100, 200)
     assert np.allclose(X["true"][:, 0], q0[:, 0], atol=0.01)
+
+
+def test_a_system_listed_under_two_names_is_scored_once_with_the_same_numbers(coulomb_data, monkeypatch):
+    from phast_model.mismatch import evaluate as ev
+    from phast_model.rigs.recordings import validate as validate_recordings
+
+    system = make_env_system("PHAST/Pendulum-v0")
+    rec = validate_recordings(coulomb_data, 1, (0,)).subset(np.arange(3))
+    args = (np.full(1, 0.01), np.ones(2), 20, 7, np.ones(1))
+    calls: list[list[str]] = []
+    real = ev._evaluate
+    monkeypatch.setattr(ev, "_evaluate", lambda models, *a: calls.append(list(models)) or real(models, *a))
+    twice, rolls = ev.evaluate_models({"nominal": system, "calibrated": system}, rec, *args)
+    apart, _ = ev.evaluate_models({"nominal": system, "calibrated": make_env_system("PHAST/Pendulum-v0")}, rec, *args)
+    assert calls == [["nominal"], ["nominal", "calibrated"]]
+    assert twice == apart and twice["calibrated"] == twice["nominal"]
+    assert list(twice) == list(rolls) == ["nominal", "calibrated"]
