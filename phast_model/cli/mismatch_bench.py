@@ -115,9 +115,37 @@ def run_tool(case: Case, rec: dict[str, Any], holdout: float) -> dict[str, Any]:
     else:
         ok = not found
     return {"found": sorted(f"{k[0]}[{k[1]}]={v:.4g}" for k, v in found.items()), "coef_rel_err": coef_err,
-            "param_rel_err": param_err, "rollout_calibrated": fit["calibrated"]["rollout_rmse"],
+            "param_rel_err": param_err, "intervals": _intervals(rep, hidden, scored),
+            "rollout_calibrated": fit["calibrated"]["rollout_rmse"],
             "rollout_augmented": fit["augmented"]["rollout_rmse"], "rollout_nominal": fit["nominal"]["rollout_rmse"],
             "ratio": ratio, "time_s": wall, "cpu_s": cpu, "correct": bool(ok), "summary": rep.summary}
+
+
+def _interval(what: str, true: float, estimate: float, ci95: list[float]) -> dict[str, Any]:
+    lo, hi = float(ci95[0]), float(ci95[1])
+    return {"what": what, "true": true, "estimate": estimate, "ci95": [lo, hi], "inside": bool(lo <= true <= hi),
+            "rel_width": (hi - lo) / abs(true)}
+
+
+def _intervals(rep: Any, hidden: dict[tuple[str, int], float], scored: dict[str, float]) -> list[dict[str, Any]]:
+    """The reported 95% interval of every hidden coefficient the tool found (at its coordinate) and of every scored
+    parameter change, with the truth and whether it lies inside: the bench's coverage column."""
+    rows = {(m["term"], m["coordinate"]): m for m in rep.missing_physics}
+    out = [_interval(f"{k[0]}[{k[1]}]", c, rows[k]["coefficient"], rows[k]["ci95"])
+           for k, c in hidden.items() if k in rows and rows[k].get("ci95")]
+    for p, true in scored.items():
+        cal = rep.sim["calibrated"].get(p)
+        if cal and cal.get("ci95"):
+            out.append(_interval(p, true, cal["fitted"], cal["ci95"]))
+    return out
+
+
+def coverage(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """How many of the bench's reported 95% intervals hold the truth, and their median width relative to it."""
+    items = [iv for r in rows for iv in r["tool"].get("intervals", [])]
+    inside = sum(iv["inside"] for iv in items)
+    return {"intervals": len(items), "inside": inside, "coverage": inside / len(items) if items else float("nan"),
+            "median_rel_width": float(np.median([iv["rel_width"] for iv in items])) if items else float("nan")}
 
 
 def run_sindy(case: Case, rec: dict[str, Any], threshold: float = 0.05) -> dict[str, Any]:
@@ -302,6 +330,9 @@ def main(argv: list[str] | None = None) -> int:
     n_ok = sum(r["tool"]["correct"] for r in rows)
     print(f"tool: {n_ok}/{len(rows)} cases right ({n_ok / max(len(rows), 1):.0%}); "
           f"max time per case {max(r['tool']['time_s'] for r in rows):.1f} s wall, {max(r['tool']['cpu_s'] for r in rows):.1f} s CPU")
+    cov = coverage(rows)
+    print(f"95% intervals: {cov['inside']}/{cov['intervals']} hold the truth ({cov['coverage']:.0%}); median width "
+          f"{cov['median_rel_width']:.3g} x the true value")
     if not args.no_sindy:
         n_s = sum(r["sindy"]["correct"] for r in rows)
         print(f"PySINDy peer: {n_s}/{len(rows)} cases right ({n_s / max(len(rows), 1):.0%})")
@@ -310,7 +341,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.out:
         atomic_write_json(args.out, {"command": " ".join(["phast-mismatch-bench"] + (argv if argv is not None else sys.argv[1:])),
                                      "n_traj": args.n_traj, "T": args.T, "seed": args.seed, "noise_scale": args.noise_scale,
-                                     "rows": rows}, indent=1)
+                                     "coverage": cov, "rows": rows}, indent=1)
     return 0
 
 
