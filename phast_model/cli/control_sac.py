@@ -94,7 +94,7 @@ def parser() -> argparse.ArgumentParser:
                          f"{format_wells(PRECISE_WELLS)})")
     ap.add_argument("--mirror", action="store_true",
                     help="reflection-equivariant SAC (odd actor, invariant critics: the pendulum's q -> -q symmetry; "
-                         "phast_model.world.mirror_policy)")
+                         "phast_model.rl.mirror_policy)")
     ap.add_argument("--net", default=None, help="SAC hidden layer sizes, e.g. 64,64 (default: the zoo's 256,256)")
     ap.add_argument("--lr-final", type=float, default=None,
                     help="decay the learning rate linearly from the zoo's 1e-3 to this over the budget (default: constant)")

@@ -145,7 +145,7 @@ def sac_model(args: argparse.Namespace, train_env: gym.Env, budget: int) -> tupl
     hp = sac_hyperparameters(args)
     policy_cls: Any = "MlpPolicy"
     if getattr(args, "mirror", False):
-        from ..world.mirror_policy import MirrorSACPolicy, mirror_signs
+        from .mirror_policy import MirrorSACPolicy, mirror_signs
 
         policy_cls = MirrorSACPolicy
         hp["policy_kwargs"] = {**hp["policy_kwargs"], "mirror": mirror_signs(args.frames, velocity=args.obs == "frames+qdot",

@@ -1,4 +1,4 @@
-"""phast_model.world.mirror_policy: the reflection-equivariant SAC policy is exactly odd / invariant."""
+"""phast_model.rl.mirror_policy: the reflection-equivariant SAC policy is exactly odd / invariant."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import torch
 pytest.importorskip("stable_baselines3")
 from stable_baselines3 import SAC  # noqa: E402
 
-from phast_model.world.mirror_policy import MirrorSACPolicy, mirror_signs  # noqa: E402
+from phast_model.rl.mirror_policy import MirrorSACPolicy, mirror_signs  # noqa: E402
 
 
 class _Frames(gym.Env):

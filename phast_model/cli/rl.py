@@ -1,0 +1,143 @@
+"""``phast-rl``: learn a policy from seconds of plant time (the model-based RL loop of :mod:`phast_model.rl.loop`).
+
+    phast-rl --env PHAST/Pendulum-v0 --task swingup --budget-s 30 --seed 0 --out DIR
+
+writes ``DIR/summary.json`` (``plant_seconds``: all plant time used for learning; ``success``: the quiet criterion,
+``success_angle_only`` and ``rms_torque`` of the final evaluation on the plant, ``eval_trials`` trials; per-iteration
+success), ``DIR/curves.json`` + ``DIR/curves.png`` (learning curves), ``DIR/policy.zip`` (the agent: ``SAC.load``) and
+``DIR/model/`` (the world model: ``phast_model.api.load_run``).  A thin front end over the API; ``--help`` lists the
+options.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+from typing import Any
+
+from ..rl.hold import HoldConfig
+from ..rl.loop import ALGOS, AgentSpec, FitSpec, LoopConfig
+from ..rl.plant import TASKS, PlantSpec, Task
+
+
+def build_parser() -> argparse.ArgumentParser:
+    d, a, f, p = LoopConfig(), AgentSpec(), FitSpec(), PlantSpec()
+    ap = argparse.ArgumentParser(prog="phast-rl", description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    ap.add_argument("--env", default=p.env_id, help="the plant: a phast_gym env id")
+    ap.add_argument("--task", choices=TASKS, default="swingup", help="swingup: from hanging; upright: from near the top")
+    ap.add_argument("--env-kwargs", default="{}", help='the plant env\'s kwargs as JSON, e.g. \'{"actuated_dofs": [0]}\'')
+    ap.add_argument("--budget-s", type=float, default=d.budget_s, help="plant seconds allowed for learning")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", required=True, help="output directory")
+    ap.add_argument("--sim", default=None, help="the rig description (env id or path.py:Class; default: --env)")
+    ap.add_argument("--regime", choices=("known", "partial", "unknown"), default=f.regime,
+                    help="world-model regime of the rig path (partial: the description's templates, refitted)")
+    ap.add_argument("--sim-kwargs", default="{}", help="the rig description's parameters as JSON, e.g. '{\"mass\": 1.1}'")
+    ap.add_argument("--u-tol", type=float, default=Task().u_tol,
+                    help="quiet criterion: largest RMS input over the last second (N m; for a cart-pole: 2x its LQG floor)")
+    ap.add_argument("--sigma", type=float, default=p.sigma, help="q measurement noise of the plant (rad)")
+    ap.add_argument("--max-action", type=float, default=p.max_action, help="input bound (N m or N)")
+    ap.add_argument("--episode-s", type=float, default=d.episode_s, help="seconds per plant episode used for learning")
+    ap.add_argument("--excitation-episodes", type=int, default=d.excitation_episodes)
+    ap.add_argument("--policy-episodes", type=int, default=d.policy_episodes, help="plant episodes per iteration")
+    ap.add_argument("--algo", choices=ALGOS, default=a.algo)
+    ap.add_argument("--agent-steps", type=int, default=a.steps, help="agent decisions of the first training")
+    ap.add_argument("--refit-steps", type=int, default=a.refit_steps, help="agent decisions of each later training")
+    ap.add_argument("--eval-every", type=int, default=a.eval_every, help="decisions between world-model evaluations")
+    ap.add_argument("--fit-epochs", type=int, default=f.epochs)
+    ap.add_argument("--refit-epochs", type=int, default=f.refit_epochs)
+    ap.add_argument("--eval-trials", type=int, default=d.eval_trials, help="final evaluation episodes on the plant")
+    ap.add_argument("--eval-s", type=float, default=d.eval_s, help="seconds per final evaluation episode")
+    ap.add_argument("--no-hold", action="store_true", help="no Energy-Casimir hold near the target (the agent alone)")
+    h = HoldConfig()
+    ap.add_argument("--hold-kc-factor", type=float, default=h.kc_factor, help="hold stiffness k_c / learned m g l")
+    ap.add_argument("--hold-zeta", type=float, default=h.zeta, help="hold damping ratio (sets d_inj from the learned model)")
+    ap.add_argument("--no-mirror", action="store_true", help="an unconstrained SAC policy (no reflection symmetry)")
+    ap.add_argument("--no-progress", action="store_true")
+    return ap
+
+
+def _json_object(text: str, flag: str) -> dict[str, Any]:
+    try:
+        obj = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{flag} is not valid JSON ({e.msg}): {text!r}") from None
+    if not isinstance(obj, dict):
+        raise ValueError(f"{flag} must be a JSON object, got {text!r}")
+    return obj
+
+
+def config_from_args(args: argparse.Namespace) -> LoopConfig:
+    """The loop's config; ValueError naming the bad option."""
+    plant = PlantSpec(args.env, _json_object(args.env_kwargs, "--env-kwargs"), sigma=args.sigma, max_action=args.max_action)
+    agent = AgentSpec(algo=args.algo, steps=args.agent_steps, refit_steps=args.refit_steps, eval_every=args.eval_every,
+                      mirror=not args.no_mirror)
+    fit = FitSpec(args.sim, _json_object(args.sim_kwargs, "--sim-kwargs"), args.regime, epochs=args.fit_epochs,
+                  refit_epochs=args.refit_epochs)
+    return LoopConfig(plant, Task(args.task, u_tol=args.u_tol), args.budget_s, args.seed, args.episode_s, args.excitation_episodes,
+                      args.policy_episodes, eval_trials=args.eval_trials, eval_s=args.eval_s, fit=fit, agent=agent,
+                      hold=HoldConfig(enabled=not args.no_hold, kc_factor=args.hold_kc_factor, zeta=args.hold_zeta))
+
+
+def check_plant(cfg: LoopConfig) -> None:
+    """Build the plant once (unknown env ids and bad kwargs fail here, before any work)."""
+    import gymnasium as gym
+
+    from ..rl.plant import make_plant
+
+    try:
+        plant = make_plant(cfg.plant)
+    except (KeyError, TypeError, ValueError, gym.error.Error) as e:
+        raise ValueError(f"--env {cfg.plant.env_id} with --env-kwargs {json.dumps(cfg.plant.env_kwargs)}: {e}") from None
+    if plant.system.n != 1 and not plant.system.angle_dims:
+        raise ValueError(f"--env {cfg.plant.env_id} has no angle coordinate: the tasks swing an angle up")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = build_parser()
+    args = ap.parse_args(argv)
+    try:
+        cfg = config_from_args(args)
+        check_plant(cfg)
+        from phast_gym.fileio import ensure_writable_dir
+
+        out = ensure_writable_dir(args.out, "--out")
+    except ValueError as e:
+        ap.error(str(e))
+    import torch
+    from tqdm.auto import tqdm
+
+    from ..rl.loop import run_loop
+    from ..rl.loop_report import write_outputs
+
+    torch.set_num_threads(1)
+    bar = tqdm(total=cfg.budget_s, desc="plant seconds", unit="s", disable=args.no_progress, file=sys.stderr)
+
+    def progress(stage: str, used: float) -> None:
+        if args.no_progress:  # a plain log line per stage (nohup runs)
+            print(f"[plant {used:.2f} s] {stage}", file=sys.stderr, flush=True)
+            return
+        bar.n = round(used, 2)
+        bar.set_postfix_str(stage)
+        bar.refresh()
+
+    try:
+        result = run_loop(cfg, progress)
+    except ValueError as e:
+        bar.close()
+        print(f"phast-rl: error: {e}", file=sys.stderr)
+        return 2
+    bar.close()
+    command = "phast-rl " + " ".join(shlex.quote(a) for a in (sys.argv[1:] if argv is None else argv))
+    write_outputs(result, out, {"command": command, "env": cfg.plant.env_id, "task": cfg.task.name, "seed": cfg.seed})
+    s = result.summary()
+    print(json.dumps({k: s[k] for k in ("plant_seconds", "success", "success_angle_only", "rms_torque", "iteration_success",
+                                        "wall_s")}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

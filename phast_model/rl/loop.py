@@ -1,0 +1,397 @@
+"""Policies from seconds on the machine: the model-based RL loop (issue 40, CONTROL.md "Policies from seconds of
+interaction").
+
+    collect excitation -> fit PHAST (the rig path) -> train an SB3 agent in the world model -> run it on the plant
+    -> add its episodes -> refit (warm-started, on all recordings) -> ...
+
+until the task succeeds on the plant (every episode of an iteration passes the quiet criterion) or the plant-time
+budget is spent.  Every plant sample used for learning is counted (:attr:`LoopResult.plant_seconds`): the excitation
+recordings and the policy's own episodes.  The world-model episodes start from windows of those recordings
+(:mod:`.world_env`), so they cost nothing more.  The final evaluation (``eval_trials`` episodes, not used for
+learning) is reported apart.
+
+* the fit is the rig path of ``phast-train --recordings`` (:func:`phast_model.rig.load_rig_data`, ``rig_config``,
+  ``build``, ``fit_recordings``): PARTIAL, the rig description's templates with every coefficient refitted and the
+  joint friction learned; later iterations continue from the previous model (warm start, ``refit_epochs``);
+* the agent is SB3's (SAC by default, reflection-equivariant for symmetric plants: :mod:`.mirror_policy`), trained
+  with SB3's ``EvalCallback`` + ``StopTrainingOnNoModelImprovement`` on a world-model eval env and a
+  linear learning-rate schedule (``LinearSchedule``); later iterations continue the same agent in the refitted model;
+* the deployed controller is :class:`.hold.HybridPolicy`: the agent, and near the target an Energy-Casimir hold
+  built from the learned model (the quiet criterion; see :mod:`.hold`).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from .hold import HoldConfig, HoldGains, HybridPolicy, make_hold
+from .plant import Episode, HeldTorques, PlantSpec, Task, excitation_inputs, make_plant, quiet_metrics, run_episode, to_recordings
+from .world_env import WorldTaskEnv, burn_in_pool
+
+
+@dataclass(frozen=True)
+class FitSpec:
+    """The world model: the rig description ``sim`` (None: the plant's env id) with ``sim_kwargs``, the regime,
+    epochs of the first fit and of each warm-started refit, the multiple-shooting window."""
+
+    sim: str | None = None
+    sim_kwargs: dict[str, Any] = field(default_factory=dict)
+    regime: str = "partial"
+    epochs: int = 60
+    refit_epochs: int = 30
+    window_s: float = 0.5
+
+
+@dataclass(frozen=True)
+class AgentSpec:
+    """The SB3 agent: algorithm (``sac``, ``td3``), decisions of the first training and of each later one, the
+    world-model evaluation (``eval_every`` decisions, ``eval_episodes``; training stops after ``patience``
+    evaluations without improvement, at least ``min_evals``), episode length in decisions, observation frames,
+    learning rate from ``lr`` to ``lr_final`` (SB3 ``LinearSchedule``), hidden layers, the mirror symmetry (SAC only)."""
+
+    algo: str = "sac"
+    steps: int = 8_000
+    refit_steps: int = 4_000
+    eval_every: int = 2_000
+    eval_episodes: int = 10
+    patience: int = 3
+    min_evals: int = 3
+    episode_decisions: int = 60
+    frames: int = 3
+    lr: float = 1e-3
+    lr_final: float = 3e-4
+    net: tuple[int, ...] = (64, 64)
+    mirror: bool = True
+
+    def __post_init__(self) -> None:
+        if self.algo not in ALGOS:
+            raise ValueError(f"algo must be one of {ALGOS}, got {self.algo!r}")
+        for k in ("steps", "refit_steps", "eval_every", "eval_episodes", "patience", "min_evals", "episode_decisions", "frames"):
+            v = getattr(self, k)
+            if int(v) != v or v < 1:
+                raise ValueError(f"{k} must be a positive integer, got {v!r}")
+
+
+#: SB3 algorithms the loop builds (continuous actions)
+ALGOS = ("sac", "td3")
+
+
+@dataclass(frozen=True)
+class LoopConfig:
+    """The whole loop: plant, task, plant-time budget (s), seed, plant episodes (``episode_s`` each; excitation
+    first, then ``policy_episodes`` per iteration), the excitation's random inputs (``torque_std`` held
+    ``hold_decisions`` decisions), the final evaluation (``eval_trials`` x ``eval_s``, not counted)."""
+
+    plant: PlantSpec = field(default_factory=PlantSpec)
+    task: Task = field(default_factory=Task)
+    budget_s: float = 30.0
+    seed: int = 0
+    episode_s: float = 5.0
+    excitation_episodes: int = 2
+    policy_episodes: int = 1
+    torque_std: float = 5.0
+    hold_decisions: int = 4
+    max_iterations: int = 20
+    eval_trials: int = 10
+    eval_s: float = 30.0
+    fit: FitSpec = field(default_factory=FitSpec)
+    agent: AgentSpec = field(default_factory=AgentSpec)
+    hold: HoldConfig = field(default_factory=HoldConfig)
+
+    def __post_init__(self) -> None:
+        for k in ("budget_s", "episode_s", "eval_s", "torque_std"):
+            v = getattr(self, k)
+            if not (v > 0 and math.isfinite(v)):
+                raise ValueError(f"{k} must be a positive number, got {v!r}")
+        for k in ("excitation_episodes", "policy_episodes", "hold_decisions", "max_iterations", "eval_trials"):
+            v = getattr(self, k)
+            if int(v) != v or v < 1:
+                raise ValueError(f"{k} must be a positive integer, got {v!r}")
+        if self.excitation_episodes * self.episode_s > self.budget_s + 1e-9:
+            raise ValueError(f"the excitation alone ({self.excitation_episodes} x {self.episode_s} s) exceeds the budget of "
+                             f"{self.budget_s} s: lower --excitation-episodes or --episode-s, or raise --budget-s")
+
+    @property
+    def episode_steps(self) -> int:
+        """Plant steps per learning episode (a whole number of decisions)."""
+        k = self.plant.decision_steps
+        return max(2, int(round(self.episode_s / self.plant.decision_dt))) * k
+
+    @property
+    def sim(self) -> str:
+        return self.fit.sim or self.plant.env_id
+
+
+@dataclass
+class IterationResult:
+    """One pass of the loop: the fit (validation RMSE, first-epoch train RMSE: low when warm-started, seconds), the
+    agent's training (decisions, SB3 evaluations in the world model), the plant episodes it ran (quiet-criterion
+    success and angle-only success per episode, RMS input) and the plant seconds used so far."""
+
+    iteration: int
+    warm_started: bool
+    fit_val_rmse: float
+    fit_first_train_rmse: float
+    fit_seconds: float
+    agent_decisions: int
+    agent_seconds: float
+    world_eval_timesteps: list[int]
+    world_eval_returns: list[float]
+    plant_success: list[bool]
+    plant_success_angle_only: list[bool]
+    plant_rms_input: list[float]
+    plant_handoffs: list[int]
+    plant_seconds: float
+    hold_gains: dict[str, float] | None
+
+    @property
+    def success(self) -> bool:
+        """Every plant episode of this iteration passed the quiet criterion."""
+        return bool(self.plant_success) and all(self.plant_success)
+
+
+@dataclass
+class Evaluation:
+    """The final evaluation on the plant (``trials`` episodes from the task's starts; not used for learning)."""
+
+    success: float
+    success_angle_only: float
+    rms_torque: float
+    final_error: float
+    trials: int
+    seconds: float
+    trial_success: list[bool]
+    trial_rms: list[float]
+
+
+@dataclass
+class LoopResult:
+    """What :func:`run_loop` returns: the iterations, the plant seconds used for learning, whether an iteration
+    succeeded on the plant, the final evaluation, the trained agent and world model, the wall time and the recordings
+    the model was last fitted to (the ``phast-train --recordings`` format)."""
+
+    iterations: list[IterationResult]
+    plant_seconds: float
+    learning_succeeded: bool
+    evaluation: Evaluation
+    agent: Any
+    model: Any
+    wall_s: float
+    budget_s: float
+    recordings: dict[str, Any] = field(default_factory=dict)  # every plant episode used for learning (rig format)
+
+    def summary(self) -> dict[str, Any]:
+        """summary.json: ``plant_seconds``, ``success`` (quiet criterion), ``success_angle_only``, ``rms_torque`` (the
+        final evaluation), ``iterations`` (per-iteration success and learning record)."""
+        ev = self.evaluation
+        return {"plant_seconds": round(self.plant_seconds, 6), "budget_s": self.budget_s, "success": ev.success,
+                "success_angle_only": ev.success_angle_only, "rms_torque": ev.rms_torque, "final_error": ev.final_error,
+                "eval_trials": ev.trials, "eval_plant_seconds": ev.seconds, "trial_success": ev.trial_success,
+                "trial_rms_torque": ev.trial_rms, "learning_succeeded": self.learning_succeeded,
+                "iteration_success": [it.success for it in self.iterations],
+                "iterations": [{**asdict(it), "success": it.success} for it in self.iterations],
+                "wall_s": round(self.wall_s, 1)}
+
+
+# --------------------------------------------------------------------------- stages
+def collect_excitation(cfg: LoopConfig, plant: Any, seed: int) -> list[Episode]:
+    """The excitation episodes: random inputs held ``hold_decisions`` decisions from the task's starts (seeded)."""
+    rng = np.random.default_rng(seed)
+    x0 = cfg.task.start_states(plant.system, rng, cfg.excitation_episodes)
+    hold_steps = cfg.hold_decisions * cfg.plant.decision_steps
+    return [run_episode(plant, HeldTorques(excitation_inputs(rng, cfg.episode_steps, plant.m, hold_steps, cfg.torque_std,
+                                                             cfg.plant.max_action)),
+                        x, cfg.episode_steps, int(rng.integers(2**31)), "excitation") for x in x0]
+
+
+@dataclass
+class FitOutcome:
+    model: Any
+    val_rmse: float
+    first_train_rmse: float
+    seconds: float
+
+
+def fit_world_model(cfg: LoopConfig, recordings: dict[str, Any], model: Any | None) -> FitOutcome:
+    """Fit PHAST to all recordings so far by the rig path; continue from ``model`` when given (warm start: the
+    rig-template initialisation is skipped and ``refit_epochs`` run)."""
+    from ..rig import RigTrainConfig, build, fit_recordings, load_rig_data, rig_config
+
+    data = load_rig_data(recordings, cfg.sim, cfg.fit.sim_kwargs)
+    if model is None:
+        mcfg = rig_config(cfg.sim, cfg.fit.sim_kwargs, cfg.fit.regime, data, seed=cfg.seed,
+                          action_bound=[cfg.plant.max_action] * data.train.u.shape[-1] if data.train.u is not None else None)
+        model, epochs = build(mcfg), cfg.fit.epochs
+    else:
+        model.config = replace(model.config, init_from="none")  # warm start: keep the fitted coefficients
+        epochs = cfg.fit.refit_epochs
+    fit = fit_recordings(model, data, RigTrainConfig(epochs=epochs, window_s=cfg.fit.window_s, seed=cfg.seed, progress=False))
+    first = float(fit.history[0]["train_rmse"]) if fit.history else float("nan")
+    return FitOutcome(fit.model, float(fit.best_val), first, float(fit.wall_time_s))
+
+
+def _algo_class(name: str) -> Any:
+    import stable_baselines3 as sb3
+
+    return {"sac": sb3.SAC, "td3": sb3.TD3}[name]
+
+
+def make_agent(cfg: LoopConfig, env: Any) -> Any:
+    """The SB3 agent on ``env``: the RL zoo's Pendulum SAC hyperparameters, a linear learning-rate schedule (SB3
+    ``LinearSchedule``, formerly ``get_linear_fn``), the mirror-equivariant policy for SAC when ``agent.mirror``
+    (reflection q -> -q, u -> -u)."""
+    from stable_baselines3.common.utils import LinearSchedule
+
+    from .mirror_policy import MirrorSACPolicy, mirror_signs
+    from .sac import ZOO_PENDULUM_SAC
+
+    spec = cfg.agent
+    lr = LinearSchedule(spec.lr, spec.lr_final, 1.0)
+    kwargs: dict[str, Any] = {"policy_kwargs": {"net_arch": list(spec.net)}}
+    if spec.algo == "sac":
+        hp = {k: v for k, v in ZOO_PENDULUM_SAC.items() if k not in ("learning_rate", "policy_kwargs")}
+        kwargs.update(hp)
+    policy: Any = "MlpPolicy"
+    if spec.algo == "sac" and spec.mirror:
+        policy = MirrorSACPolicy
+        kwargs["policy_kwargs"]["mirror"] = mirror_signs(int(env.observation_space.shape[0]) // 2)
+    return _algo_class(spec.algo)(policy, env, learning_rate=lr, seed=cfg.seed, verbose=0, **kwargs)
+
+
+@dataclass
+class AgentOutcome:
+    agent: Any
+    decisions: int
+    seconds: float
+    eval_timesteps: list[int]
+    eval_returns: list[float]
+
+
+def train_agent(cfg: LoopConfig, model: Any, pool: np.ndarray, q_star: np.ndarray, agent: Any | None,
+                iteration: int, actuated: list[int] | None = None) -> AgentOutcome:
+    """Train (or continue) the agent in the world model with SB3's ``EvalCallback`` and
+    ``StopTrainingOnNoModelImprovement`` on a second world-model env (its own burn-in draws)."""
+    import tempfile
+
+    from stable_baselines3.common.callbacks import EvalCallback, StopTrainingOnNoModelImprovement
+    from stable_baselines3.common.monitor import Monitor
+
+    spec, t0 = cfg.agent, time.perf_counter()
+
+    def env(seed: int) -> Monitor:
+        return Monitor(WorldTaskEnv(model, pool, q_star, cfg.plant.max_action, cfg.plant.sigma, spec.episode_decisions,
+                                    spec.frames, seed=seed, actuated=actuated))
+
+    train_env = env(cfg.seed * 1000 + iteration)
+    if agent is None:
+        agent = make_agent(cfg, train_env)
+        steps, first = spec.steps, True
+    else:
+        agent.set_env(train_env)
+        steps, first = spec.refit_steps, False
+    stop = StopTrainingOnNoModelImprovement(max_no_improvement_evals=spec.patience, min_evals=spec.min_evals)
+    start = agent.num_timesteps
+    with tempfile.TemporaryDirectory() as log:  # EvalCallback keeps its evaluations only when it has a log_path
+        ev = EvalCallback(env(cfg.seed * 1000 + 500 + iteration), n_eval_episodes=spec.eval_episodes,
+                          eval_freq=spec.eval_every, log_path=log, callback_after_eval=stop, deterministic=True, verbose=0)
+        agent.learn(total_timesteps=steps, callback=ev, reset_num_timesteps=first, progress_bar=False)
+    returns = [float(np.mean(r)) for r in ev.evaluations_results]
+    return AgentOutcome(agent, int(agent.num_timesteps - start), time.perf_counter() - t0,
+                        [int(t) for t in ev.evaluations_timesteps], returns)
+
+
+def deployed_policy(cfg: LoopConfig, agent: Any, model: Any, plant: Any, q_star: np.ndarray) -> tuple[HybridPolicy, HoldGains | None]:
+    """The controller run on the plant: the agent, with the Energy-Casimir hold of the learned model when the plant
+    is fully actuated and the hold is enabled."""
+    hold, gains = None, None
+    if cfg.hold.enabled and plant.m == plant.n:
+        hold, gains = make_hold(model, q_star, cfg.plant.dt, cfg.plant.sigma, cfg.plant.max_action, cfg.hold)
+    return HybridPolicy(agent, cfg.agent.frames, cfg.plant.decision_steps, cfg.plant.max_action, q_star, hold, cfg.hold), gains
+
+
+def run_policy(cfg: LoopConfig, plant: Any, policy: HybridPolicy, n: int, steps: int, seed: int, kind: str) -> list[Episode]:
+    """``n`` plant episodes of ``steps`` steps of the deployed policy from the task's starts (seeded)."""
+    rng = np.random.default_rng(seed)
+    x0 = cfg.task.start_states(plant.system, rng, n)
+    out = []
+    for x in x0:
+        ep = run_episode(plant, policy, x, steps, int(rng.integers(2**31)), kind)
+        ep.handoffs = policy.handoffs
+        out.append(ep)
+    return out
+
+
+def evaluate(cfg: LoopConfig, plant: Any, policy: HybridPolicy, q_star: np.ndarray) -> Evaluation:
+    """The final evaluation: ``eval_trials`` episodes of ``eval_s`` seconds, quiet criterion on each."""
+    steps = int(round(cfg.eval_s / cfg.plant.dt))
+    eps = run_policy(cfg, plant, policy, cfg.eval_trials, steps, cfg.seed * 7919 + 104_729, "evaluation")
+    ms = [quiet_metrics(e, q_star, plant.system.angle_dims, cfg.task) for e in eps]
+    return Evaluation(float(np.mean([m.success for m in ms])), float(np.mean([m.settled for m in ms])),
+                      float(np.mean([m.rms_input for m in ms])), float(np.mean([m.final_error for m in ms])), len(ms),
+                      float(sum(e.seconds for e in eps)), [m.success for m in ms], [round(m.rms_input, 5) for m in ms])
+
+
+# --------------------------------------------------------------------------- the loop
+def _recordings(cfg: LoopConfig, plant: Any, episodes: list[Episode]) -> dict[str, Any]:
+    """All episodes so far in the rig format (with the actuated coordinates of an underactuated plant)."""
+    dofs = list(plant.actuated_dofs) if plant.m < plant.n else None
+    return to_recordings(episodes, cfg.plant.decision_steps, plant.system.angle_dims, dofs)
+
+
+#: progress callback: (stage text, plant seconds used so far)
+Progress = Callable[[str, float], None]
+
+
+def _no_progress(stage: str, seconds: float) -> None:
+    return None
+
+
+def run_loop(cfg: LoopConfig, progress: Progress = _no_progress) -> LoopResult:
+    """Run the loop of the module docstring and the final evaluation."""
+    import torch
+
+    t0 = time.perf_counter()
+    torch.manual_seed(cfg.seed)
+    plant = make_plant(cfg.plant)
+    q_star = cfg.task.target(plant.system)
+    episodes = collect_excitation(cfg, plant, cfg.seed)
+    used = sum(e.seconds for e in episodes)
+    progress("excitation", used)
+    model: Any = None
+    agent: Any = None
+    iterations: list[IterationResult] = []
+    ep_s = cfg.episode_steps * cfg.plant.dt
+    for it in range(cfg.max_iterations):
+        recs = _recordings(cfg, plant, episodes)
+        warm = model is not None
+        fit = fit_world_model(cfg, recs, model)
+        model = fit.model
+        progress(f"iteration {it}: fitted (val RMSE {fit.val_rmse:.4f})", used)
+        pool = burn_in_pool(recs["q"], model.observer.window)
+        trained = train_agent(cfg, model, pool, q_star, agent, it, list(plant.actuated_dofs))
+        agent = trained.agent
+        progress(f"iteration {it}: agent trained ({trained.decisions} decisions)", used)
+        can_run = used + cfg.policy_episodes * ep_s <= cfg.budget_s + 1e-9
+        policy, gains = deployed_policy(cfg, agent, model, plant, q_star)
+        new = run_policy(cfg, plant, policy, cfg.policy_episodes, cfg.episode_steps, cfg.seed * 1000 + 77 + it, "policy") if can_run else []
+        episodes += new
+        used += sum(e.seconds for e in new)
+        ms = [quiet_metrics(e, q_star, plant.system.angle_dims, cfg.task) for e in new]
+        iterations.append(IterationResult(it, warm, fit.val_rmse, fit.first_train_rmse, fit.seconds, trained.decisions,
+                                          trained.seconds, trained.eval_timesteps, trained.eval_returns,
+                                          [m.success for m in ms], [m.settled for m in ms], [m.rms_input for m in ms],
+                                          [e.handoffs for e in new], used,
+                                          None if gains is None else asdict(gains)))
+        progress(f"iteration {it}: {sum(m.success for m in ms)}/{len(ms)} plant episodes quiet", used)
+        if iterations[-1].success or not can_run:
+            break
+    policy, _ = deployed_policy(cfg, agent, model, plant, q_star)
+    ev = evaluate(cfg, plant, policy, q_star)
+    return LoopResult(iterations, used, any(i.success for i in iterations), ev, agent, model, time.perf_counter() - t0,
+                      cfg.budget_s, _recordings(cfg, plant, episodes))

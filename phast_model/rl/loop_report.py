@@ -1,0 +1,90 @@
+"""The outputs of a loop run (``phast-rl``): ``summary.json``, learning curves (``curves.json``, ``curves.png``), the
+agent as an SB3 zip (``policy.zip``, opened by ``SAC.load``) and the world model as a run directory (``model/``,
+opened by :func:`phast_model.api.load_run`) and every plant episode used for learning (``recordings.npz``, the
+``phast-train --recordings`` format).  Every file is written to a temporary name and renamed."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from phast_gym.fileio import atomic_write_json
+
+from .loop import LoopResult
+
+
+def learning_curves(result: LoopResult) -> dict[str, Any]:
+    """Per iteration: plant seconds used, the share of its plant episodes that passed the quiet criterion (and the angle
+    only), the world-model fit's validation RMSE; the agent's world-model evaluation returns against its cumulative
+    decisions."""
+    its = result.iterations
+    steps = [t for it in its for t in it.world_eval_timesteps]  # the agent's num_timesteps: cumulative over iterations
+    returns = [r for it in its for r in it.world_eval_returns]
+    return {
+        "iteration": [it.iteration for it in its],
+        "plant_seconds": [it.plant_seconds for it in its],
+        "plant_success": [float(np.mean(it.plant_success)) if it.plant_success else None for it in its],
+        "plant_success_angle_only": [float(np.mean(it.plant_success_angle_only)) if it.plant_success else None for it in its],
+        "fit_val_rmse": [it.fit_val_rmse for it in its],
+        "agent_decisions": [it.agent_decisions for it in its],
+        "world_eval_decisions": steps,
+        "world_eval_return": returns,
+        "final_success": result.evaluation.success,
+    }
+
+
+def plot_learning_curves(curves: dict[str, Any], path: Path) -> None:
+    """Two panels: plant success per iteration against plant seconds; the world-model evaluation return."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 3.8))
+    xs = [s for s, v in zip(curves["plant_seconds"], curves["plant_success"]) if v is not None]
+    a.plot(xs, [v for v in curves["plant_success"] if v is not None], "o-", label="quiet criterion")
+    a.plot(xs, [v for v in curves["plant_success_angle_only"] if v is not None], "s--", label="angle only")
+    a.set_xlabel("plant seconds used for learning")
+    a.set_ylabel("success of the iteration's plant episodes")
+    a.set_ylim(-0.05, 1.05)
+    a.set_title(f"final evaluation: {curves['final_success']:.2f} (quiet)", fontsize=9)
+    a.legend(fontsize=8)
+    a.grid(alpha=0.3)
+    b.plot(curves["world_eval_decisions"], curves["world_eval_return"], "o-", ms=3)
+    b.set_xlabel("agent decisions (cumulative)")
+    b.set_ylabel("mean return in the world model (SB3 EvalCallback)")
+    b.grid(alpha=0.3)
+    fig.tight_layout()
+    tmp = path.with_name(path.stem + ".tmp" + path.suffix)
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    os.replace(tmp, path)
+
+
+def save_agent(agent: Any, path: Path) -> Path:
+    """The agent as an SB3 zip (no replay buffer), written to a temporary name and renamed."""
+    tmp = path.with_name(path.stem + ".tmp.zip")
+    agent.save(tmp)
+    os.replace(tmp, path)
+    return path
+
+
+def write_outputs(result: LoopResult, out: Path, extra: dict[str, Any]) -> dict[str, Path]:
+    """Write every output of the run into ``out``; ``extra`` is merged into summary.json (the config, the command)."""
+    from ..train.checkpoint import save_run
+
+    paths = {"policy": save_agent(result.agent, out / "policy.zip")}
+    save_run(result.model, out / "model")
+    paths["model"] = out / "model"
+    tmp = out / "recordings.tmp.npz"
+    np.savez(tmp, **result.recordings)
+    paths["recordings"] = tmp.replace(out / "recordings.npz")
+    curves = learning_curves(result)
+    paths["curves_json"] = atomic_write_json(out / "curves.json", curves)
+    plot_learning_curves(curves, out / "curves.png")
+    paths["curves_png"] = out / "curves.png"
+    paths["summary"] = atomic_write_json(out / "summary.json", {**result.summary(), **extra})
+    return paths
