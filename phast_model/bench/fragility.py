@@ -35,6 +35,7 @@ from phast_gym import make_splits, resolve_env_id
 # the pre-layout module paths on purpose (see the module docstring); newer checkouts map them to the new modules
 with warnings.catch_warnings():
     warnings.filterwarnings("ignore", message=r"phast_model\.\w+ moved to", category=DeprecationWarning)
+    from phast_model import regimes
     from phast_model.checkpoint import atomic_write_json
     from phast_model.metrics import benchmark_metric
     from phast_model.regimes import build_model
@@ -102,6 +103,9 @@ def train_once(env: str, regime: str, seed: int, splits: dict[str, Any], cfg: Tr
                 init(*a, **kw)
                 perturb_(model, eps, k)
             model.initialize_from_data = initialize_then_perturb
+    recipe = getattr(regimes, "recipe", None)  # None on older checkouts, whose models carried their trainer settings
+    if recipe is not None:  # the regime's trainer settings (KNOWN: eps 1e-15, a warm-up)
+        cfg = recipe(env, regime, cfg, seed=seed).train
     res, metrics = train_and_score(model, splits, cfg, run_dir, {"study": "identification_fragility", "k": k})
     spikes, jump = loss_spikes(res.history, spike_ratio)
     return Outcome(perturbation=k, best_epoch=int(res.best_epoch), damping_r2=float(metrics.get("damping_r2", np.nan)),

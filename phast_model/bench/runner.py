@@ -162,14 +162,20 @@ def build_run_model(spec: RunSpec, train: Any) -> Any:
 
 
 def make_train_config(spec: RunSpec) -> Any:
-    """``TrainConfig(epochs, seed, progress=False, **spec.train)``; unknown fields are a clear error."""
+    """``TrainConfig(epochs, seed, progress=False, **spec.train)``, with a PHAST regime's trainer settings
+    (:func:`phast_model.world.regimes.recipe`) where it leaves them None; unknown fields are a clear error."""
     from phast_model.train.fit import TrainConfig
 
     names = {f.name for f in dataclasses.fields(TrainConfig)}
     bad = sorted(set(spec.train) - names)
     if bad:
         raise ValueError(f"unknown TrainConfig field(s) {bad}; known: {sorted(names)}")
-    return TrainConfig(**{"epochs": spec.epochs, "seed": spec.seed, **spec.train, "progress": False})
+    cfg = TrainConfig(**{"epochs": spec.epochs, "seed": spec.seed, **spec.train, "progress": False})
+    if spec.model.startswith("phast-"):  # the regime's trainer settings where spec.train leaves them None
+        from phast_model.world.regimes import recipe
+
+        cfg = recipe(spec.env_id, spec.model.split("-", 1)[1], cfg, **{"seed": spec.seed, **spec.model_kw}).train
+    return cfg
 
 
 # --------------------------------------------------------------------------- the run function

@@ -12,8 +12,9 @@ q (N, T, n), recorded times ``t`` (jitter allowed) or ``dt``, the measured port 
 * :func:`fit_recordings`: multiple shooting.  A real encoder is quantized (the DFKI arm: 3.8e-4 rad at 2 ms), so
   a finite-difference velocity is too noisy to start a one-step prediction from; each training window instead
   gets its own initial state, refitted by Gauss-Newton with the model fixed, and the model is trained by AdamW
-  on the open-loop error over the windows; with the main trainer's NaN guard, a checkpoint after every epoch
-  (``resume``) and optional early stopping on the validation windows (``RigTrainConfig.patience``).
+  on the open-loop error over the windows: the objective :class:`Shooting` of the one epoch loop both trainers
+  share (:func:`phast_model.train.loop.train_loop`: the NaN guard, a checkpoint after every epoch and ``resume``,
+  the best validation weights, early stopping on the validation windows, ``RigTrainConfig.patience``).
 * :func:`phast_model.rig.heldout.heldout_rollouts`: the held-out score, computed by the same code for every model (PHAST, the nominal rig
   as a KNOWN model without dissipation): each window's state is fitted to its burn-in, then the model runs open
   loop with the recorded u; RMSE of q, wrapped on angles.
@@ -21,29 +22,24 @@ q (N, T, n), recorded times ``t`` (jitter allowed) or ``dt``, the measured port 
 
 from __future__ import annotations
 
-import copy
-import json
 import math
-import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
-from tqdm.auto import tqdm
 
 from phast_gym.systems.mjcf import MJCFSystem
 
 from ..components.mass import KnownMass, LinearMass, LowRankMass
 from ..components.potentials import TemplatePotential
-from ..components.rigid_body import LearnedBodies
 from ..rigs.holdout import check_holdout_indices, split
 from ..rigs.recordings import Recordings, load_raw, validate
 from ..rigs.shooting import odd, smooth
 from ..rigs.simulators import load_simulator
-from ..train.checkpoint import atomic_torch_save
-from ..train.fit import CHECKPOINT, check_resume, finite_params, load_checkpoint, run_identity, scale_lr
+from ..train.groups import param_groups
+from ..train.loop import CHECKPOINT, LoopConfig, NanCounts, Optim, train_loop
 from ..world.interfaces import coordinate_error
 from ..world.model import PHAST, PHASTConfig, build_from_config
 
@@ -58,8 +54,6 @@ FRICTION_EPS = 0.05
 SMOOTH_S = 0.03
 #: Gauss-Newton iterations of a compared system's state fit to each window's burn-in
 STATE_FIT_ITERS = 15
-#: the learning rates' factor after an epoch that ended with non-finite parameters (the main trainer's default)
-NAN_LR_FACTOR = 0.5
 #: the ``format`` entry of a recordings run's checkpoint.pt
 CHECKPOINT_FORMAT = "phast-rig-checkpoint"
 #: learning-rate schedules of :class:`RigTrainConfig`
@@ -285,7 +279,7 @@ class RigTrainConfig:
     refit_every: int = 1
     state_iters: int = 1  # Gauss-Newton iterations of the window states per refit after the first epoch (3)
     val_fraction: float = 0.15
-    friction_lr_mult: float = 5.0
+    friction_lr_mult: float = 5.0  # friction coefficients' lr factor (phast_model.train.groups.param_groups)
     seed: int = 0
     progress: bool = True
     #: a curriculum on the window length: the first ``warmup_epochs`` epochs on windows of ``warmup_window_s`` (an
@@ -300,6 +294,11 @@ class RigTrainConfig:
     schedule: str = "plateau"
     plateau_epochs: int = 3
     plateau_factor: float = 0.5
+    #: the NaN guard (phast_model.train.loop): max gradient norm, rollbacks allowed before training stops, the
+    #: learning rates' factor after a rollback
+    grad_clip: float | None = 10.0
+    max_nan_events: int = 5
+    nan_lr_factor: float = 0.5
 
     def __post_init__(self) -> None:
         if int(self.epochs) != self.epochs or self.epochs < 1:
@@ -368,27 +367,6 @@ def _template_start(model: PHAST, rec: Recordings) -> dict[str, float]:
     return out
 
 
-def _param_groups(model: PHAST, cfg: RigTrainConfig) -> list[dict[str, Any]]:
-    """One group per parameter tensor.  Friction coefficients (and a component's ``relative_parameters()``, e.g. a
-    model file's joint armature) at ``friction_lr_mult`` x lr: their softplus makes Adam's
-    steps relative, and at the base lr a coefficient moves by ~e^(lr x steps), too little to reach a real joint's level
-    from its start.  A small physics coefficient (at most 16 entries, mean |p| < 1) at lr x mean |p|: Adam's steps
-    are absolute, and lr 0.02 on a real pendulum's template coefficient (0.21 N m) or on the low-rank mass factor of
-    a 0.005 kg m^2 inertia is a 10-40% jump per step.  Networks and O(1) coefficients keep the base lr."""
-    fric = {id(p) for p in model.friction.parameters()} if model.friction is not None else set()
-    # softplus coefficients a component declares start far from the rig's value in the same way (a rotor inertia)
-    fric |= {id(p) for m in model.modules() if isinstance(m, LearnedBodies) for p in m.relative_parameters()}
-    groups = []
-    for p in model.parameters():
-        if not p.requires_grad:
-            continue
-        lr = cfg.lr * cfg.friction_lr_mult if id(p) in fric else cfg.lr
-        if id(p) not in fric and p.numel() <= 16:
-            lr *= min(1.0, max(float(p.detach().abs().mean()), 1e-3))
-        groups.append({"params": [p], "lr": lr})
-    return groups
-
-
 @torch.no_grad()
 def _set_lowrank(mass: LowRankMass, diag: torch.Tensor) -> None:
     """diag(softplus(d)) + U U^T = diag(diag) up to U's off-diagonal part, with U shrunk to 1% of the diagonal: its
@@ -419,32 +397,13 @@ def _loss(model: PHAST, w: ShootWindows, idx: torch.Tensor | None = None) -> tor
 
 @dataclass
 class _Stage:
-    """One window length of the curriculum: its training and validation windows, optimizer and schedule (a cosine
-    decay stepped after every minibatch, or a plateau rule stepped on the validation loss after every epoch)."""
+    """One window length of the curriculum: its training and validation windows and its optimizer and schedule (a
+    cosine decay stepped after every minibatch, or a plateau rule stepped on the validation loss after every epoch)."""
 
     train: ShootWindows
     val: ShootWindows | None
-    opt: torch.optim.Optimizer
-    sched: torch.optim.lr_scheduler.LRScheduler | torch.optim.lr_scheduler.ReduceLROnPlateau
+    optim: Optim
     n_batches: int
-
-    def scale_lr(self, factor: float) -> None:
-        """Multiply every learning rate by ``factor``, now and for the rest of the schedule."""
-        if isinstance(self.sched, torch.optim.lr_scheduler.ReduceLROnPlateau):
-            for g in self.opt.param_groups:
-                g["lr"] *= factor
-        else:
-            scale_lr(self.opt, self.sched, factor)
-
-    def end_batch(self) -> None:
-        """The cosine decay's step after every minibatch (the plateau rule steps per epoch)."""
-        if not isinstance(self.sched, torch.optim.lr_scheduler.ReduceLROnPlateau):
-            self.sched.step()
-
-    def end_epoch(self, val_loss: float) -> None:
-        """The plateau rule's step on this epoch's validation loss (a cosine decay steps per minibatch instead)."""
-        if isinstance(self.sched, torch.optim.lr_scheduler.ReduceLROnPlateau) and math.isfinite(val_loss):
-            self.sched.step(val_loss)
 
 
 def _stage(model: PHAST, data: RigData, cfg: RigTrainConfig, window_s: float, epochs: int,
@@ -453,14 +412,14 @@ def _stage(model: PHAST, data: RigData, cfg: RigTrainConfig, window_s: float, ep
     cosine over ``epochs`` epochs, or the validation plateau rule of ``cfg``."""
     length = max(5, int(round(window_s / data.train.dt)) + 1)
     train, val = _split_windows(cut_windows(data.train, length), cfg.val_fraction, cfg.seed)
-    opt = torch.optim.AdamW(_param_groups(model, cfg), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    opt = torch.optim.AdamW(param_groups(model, cfg.lr, cfg.friction_lr_mult), lr=cfg.lr, weight_decay=cfg.weight_decay)
     n_batches = max(1, math.ceil(train.q.shape[0] / cfg.batch_windows))
     if schedule == "plateau":
         plateau = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=cfg.plateau_factor,
                                                              patience=cfg.plateau_epochs - 1, threshold=1e-3)
-        return _Stage(train, val, opt, plateau, n_batches)
+        return _Stage(train, val, Optim(opt, plateau), n_batches)
     cosine = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=epochs * n_batches)
-    return _Stage(train, val, opt, cosine, n_batches)
+    return _Stage(train, val, Optim(opt, cosine), n_batches)
 
 
 def _stage_at(model: PHAST, data: RigData, cfg: RigTrainConfig, epoch: int) -> _Stage:
@@ -472,134 +431,6 @@ def _stage_at(model: PHAST, data: RigData, cfg: RigTrainConfig, epoch: int) -> _
     return _stage(model, data, cfg, cfg.window_s, cfg.epochs - warm, cfg.schedule)
 
 
-def _step(opt: torch.optim.Optimizer, params: list[torch.nn.Parameter], loss: torch.Tensor) -> bool:
-    """Backward, clip and step; False, with no update, when the loss or the gradient norm is not finite."""
-    opt.zero_grad(set_to_none=True)
-    if not bool(torch.isfinite(loss)):
-        return False
-    loss.backward()
-    if not bool(torch.isfinite(torch.nn.utils.clip_grad_norm_(params, 10.0))):
-        opt.zero_grad(set_to_none=True)
-        return False
-    opt.step()
-    return True
-
-
-def _epoch(model: PHAST, st: _Stage, params: list[torch.nn.Parameter], gen: torch.Generator,
-           batch_windows: int) -> tuple[float, int]:
-    """One pass of AdamW over minibatches of the training windows: (the mean squared residual of the steps taken,
-    NaN when none was; the number of steps skipped for a non-finite loss or gradient).  A skipped step still
-    advances the schedule, so the cosine decay ends where it was planned."""
-    perm = torch.randperm(st.train.q.shape[0], generator=gen)
-    tot, cnt, skipped = 0.0, 0, 0
-    for b in range(st.n_batches):
-        idx = perm[b * batch_windows:(b + 1) * batch_windows]
-        loss = _loss(model, st.train, idx)
-        if _step(st.opt, params, loss):
-            tot += float(loss.detach()) * len(idx)
-            cnt += len(idx)
-        else:
-            skipped += 1
-        st.end_batch()
-    return (tot / cnt if cnt else math.nan), skipped
-
-
-def _clone_state(model: torch.nn.Module) -> dict[str, torch.Tensor]:
-    return {k: v.clone() for k, v in model.state_dict().items()}
-
-
-@dataclass
-class _Run:
-    """What a rig training run carries from epoch to epoch; the checkpoint stores it and a resume restores it."""
-
-    model: PHAST
-    params: list[torch.nn.Parameter]
-    gen: torch.Generator
-    best_state: dict[str, torch.Tensor]
-    stage: _Stage | None = None
-    history: list[dict[str, float]] = field(default_factory=list)
-    best_mse: float = math.inf
-    best_epoch: int = -1
-    start_epoch: int = 0
-    nan_skipped: int = 0
-    nan_rollbacks: int = 0
-    stopped: bool = False
-    elapsed0: float = 0.0  # seconds trained before this call (a resume)
-    t0: float = 0.0  # perf_counter origin of the run's clock (elapsed0 included)
-
-
-def _roll_back(run: _Run, st: _Stage, good_model: dict[str, torch.Tensor], good_opt: dict[str, Any]) -> None:
-    """After an epoch that ended with non-finite parameters: count it, restore the model and optimizer of the epoch's
-    start, and continue the schedule from where it stands at NAN_LR_FACTOR x its learning rates."""
-    lrs = [g["lr"] for g in st.opt.param_groups]
-    run.model.load_state_dict(good_model)
-    st.opt.load_state_dict(good_opt)
-    for g, lr in zip(st.opt.param_groups, lrs):
-        g["lr"] = lr
-    st.scale_lr(NAN_LR_FACTOR)
-    run.nan_rollbacks += 1
-
-
-def _guarded_epoch(run: _Run, st: _Stage, batch_windows: int) -> float:
-    """:func:`_epoch` with the NaN guard: skipped steps counted, an epoch ending with non-finite parameters undone."""
-    good_model, good_opt = _clone_state(run.model), copy.deepcopy(st.opt.state_dict())
-    mse, skipped = _epoch(run.model, st, run.params, run.gen, batch_windows)
-    run.nan_skipped += skipped
-    if not finite_params(run.model):
-        _roll_back(run, st, good_model, good_opt)
-    return mse
-
-
-def _train_epoch(run: _Run, data: RigData, cfg: RigTrainConfig, epoch: int) -> None:
-    """Epoch ``epoch`` (0-based): a new stage where the curriculum starts one, the window states refitted, one guarded
-    pass, validation (the best state kept on the final window length) and the history record."""
-    warm = cfg.warmup_epochs
-    if run.stage is None or epoch == warm:
-        run.stage = _stage_at(run.model, data, cfg, epoch)
-    st = run.stage
-    if epoch % cfg.refit_every == 0:  # the states move little between epochs: one Gauss-Newton step after the first
-        iters = 3 if epoch in (0, warm) else cfg.state_iters
-        st.train.X = fit_states(run.model, st.train.X, st.train.q, st.train.u, iters)
-        if st.val is not None:
-            st.val.X = fit_states(run.model, st.val.X, st.val.q, st.val.u, iters)
-    rec = {"epoch": epoch + 1, "train_rmse": math.sqrt(_guarded_epoch(run, st, cfg.batch_windows)),
-           "time_s": time.perf_counter() - run.t0}
-    with torch.no_grad():
-        vl = float(_loss(run.model, st.val if st.val is not None else st.train))
-    rec["val_rmse"] = math.sqrt(vl)
-    st.end_epoch(vl)
-    rec["lr"] = float(st.opt.param_groups[0]["lr"])
-    if epoch >= warm and math.isfinite(vl) and vl < run.best_mse:
-        run.best_mse, run.best_epoch = vl, epoch + 1
-        run.best_state = _clone_state(run.model)
-    rec.update(nan_skipped=run.nan_skipped, nan_rollbacks=run.nan_rollbacks)
-    run.history.append(rec)
-
-
-def _patience_spent(run: _Run, cfg: RigTrainConfig, epoch: int) -> bool:
-    """True when the validation RMSE has not improved for ``cfg.patience`` epochs of the final window length."""
-    if cfg.patience is None or epoch < cfg.warmup_epochs:
-        return False
-    return epoch + 1 - max(run.best_epoch, cfg.warmup_epochs) >= cfg.patience
-
-
-def _save_checkpoint(run: _Run, path: Path | None, cfg: RigTrainConfig, identity: dict[str, Any] | None,
-                     epoch: int) -> None:
-    """Write ``checkpoint.pt`` atomically (nothing without a run directory): what :func:`_restore` reads back; plain
-    Python values and tensors only, so it loads with ``weights_only=True``."""
-    if path is None or run.stage is None:
-        return
-    st = run.stage
-    atomic_torch_save({
-        "format": CHECKPOINT_FORMAT, "epoch": epoch, "model": run.model.state_dict(), "optimizer": st.opt.state_dict(),
-        "scheduler": st.sched.state_dict(), "X_train": st.train.X, "X_val": None if st.val is None else st.val.X,
-        "best_state": run.best_state, "best_mse": run.best_mse, "best_epoch": run.best_epoch,
-        "history": json.dumps(run.history), "gen_state": run.gen.get_state(), "torch_rng": torch.get_rng_state(),
-        "nan_skipped": run.nan_skipped, "nan_rollbacks": run.nan_rollbacks, "stopped": run.stopped,
-        "elapsed": time.perf_counter() - run.t0, "identity": json.dumps(run_identity(cfg, identity), sort_keys=True),
-    }, path)
-
-
 def _window_states(saved: Any, like: torch.Tensor, what: str) -> torch.Tensor:
     """The checkpoint's window states, checked against this run's windows."""
     if not isinstance(saved, torch.Tensor) or saved.shape != like.shape:
@@ -609,95 +440,103 @@ def _window_states(saved: Any, like: torch.Tensor, what: str) -> torch.Tensor:
     return saved.to(like.dtype)
 
 
-def _model_state(saved: Any, model: torch.nn.Module, what: str) -> dict[str, torch.Tensor]:
-    """A state dict of the checkpoint, checked to fit ``model`` (the same entries, each of the same shape)."""
-    ref = model.state_dict()
-    if not (isinstance(saved, dict) and saved.keys() == ref.keys()
-            and all(isinstance(v, torch.Tensor) and v.shape == ref[k].shape for k, v in saved.items())):
-        raise ValueError(f"its {what} does not fit the model")
-    return saved
+class Shooting:
+    """The rig path's objective for :func:`phast_model.train.loop.train_loop`: the mean squared open-loop residual
+    of minibatches of windows, each from its own initial state (multiple shooting).  A curriculum of window lengths
+    (a warm-up stage, then the final one), each stage with its own windows, AdamW and schedule; the window states
+    refitted by Gauss-Newton, the model fixed, at the start of every ``refit_every``-th epoch; validation on the
+    held-in validation windows (the training windows when there are none); the window states in the checkpoint."""
+
+    checkpoint_format, kind = CHECKPOINT_FORMAT, "a recordings run"
+
+    def __init__(self, model: PHAST, data: RigData, cfg: RigTrainConfig) -> None:
+        self.model, self.data, self.cfg = model, data, cfg
+        self.stage: _Stage | None = None
+
+    def optimizer(self, epoch: int, current: Optim | None) -> Optim:
+        """A fresh stage (windows, AdamW, schedule) at the first epoch and where the curriculum switches."""
+        if current is None or self.stage is None or epoch == self.cfg.warmup_epochs:
+            self.stage = _stage_at(self.model, self.data, self.cfg, epoch)
+        return self.stage.optim
+
+    def _current(self) -> _Stage:
+        if self.stage is None:
+            raise RuntimeError("no stage yet: optimizer() starts one")
+        return self.stage
+
+    def begin_epoch(self, epoch: int) -> None:
+        """The window states refitted (3 Gauss-Newton iterations at a stage's start, ``state_iters`` after: the
+        states move little between epochs)."""
+        st, cfg = self._current(), self.cfg
+        if epoch % cfg.refit_every == 0:
+            iters = 3 if epoch in (0, cfg.warmup_epochs) else cfg.state_iters
+            st.train.X = fit_states(self.model, st.train.X, st.train.q, st.train.u, iters)
+            if st.val is not None:
+                st.val.X = fit_states(self.model, st.val.X, st.val.q, st.val.u, iters)
+
+    def batches(self, gen: torch.Generator) -> Any:
+        st = self._current()
+        perm = torch.randperm(st.train.q.shape[0], generator=gen)
+        for b in range(st.n_batches):
+            yield perm[b * self.cfg.batch_windows:(b + 1) * self.cfg.batch_windows]
+
+    def loss(self, batch: torch.Tensor) -> tuple[torch.Tensor, int]:
+        return _loss(self.model, self._current().train, batch), len(batch)
+
+    @torch.no_grad()
+    def validation_loss(self) -> float:
+        st = self._current()
+        return float(_loss(self.model, st.val if st.val is not None else st.train))
+
+    def record(self, epoch: int, train_loss: float, val_loss: float | None, lr: float, time_s: float,
+               guard: NanCounts) -> dict[str, Any]:
+        return {"epoch": epoch, "train_rmse": math.sqrt(train_loss), "time_s": time_s,
+                "val_rmse": math.nan if val_loss is None else math.sqrt(val_loss), "lr": float(lr),
+                "nan_skipped": guard.skipped, "nan_rollbacks": guard.rollbacks}
+
+    def state(self) -> dict[str, Any]:
+        st = self._current()
+        return {"X_train": st.train.X, "X_val": None if st.val is None else st.val.X}
+
+    def load_state(self, saved: dict[str, Any]) -> None:
+        st = self._current()
+        st.train.X = _window_states(saved["X_train"], st.train.X, "training")
+        if st.val is not None:
+            st.val.X = _window_states(saved["X_val"], st.val.X, "validation")
 
 
-def _load_run(run: _Run, ck: dict[str, Any], data: RigData, cfg: RigTrainConfig) -> None:
-    """Set ``run`` to the state the checkpoint ``ck`` recorded at the end of its last epoch."""
-    epoch = int(ck["epoch"])
-    if not 1 <= epoch <= cfg.epochs:
-        raise ValueError(f"its epoch {epoch} is outside 1..{cfg.epochs}")
-    run.model.load_state_dict(ck["model"])
-    st = _stage_at(run.model, data, cfg, epoch - 1)
-    st.opt.load_state_dict(ck["optimizer"])
-    st.sched.load_state_dict(ck["scheduler"])
-    st.train.X = _window_states(ck["X_train"], st.train.X, "training")
-    if st.val is not None:
-        st.val.X = _window_states(ck["X_val"], st.val.X, "validation")
-    run.stage, run.best_state = st, _model_state(ck["best_state"], run.model, "best state")
-    run.gen.set_state(ck["gen_state"])
-    torch.set_rng_state(ck["torch_rng"])
-    run.history = json.loads(ck["history"])
-    run.best_mse, run.best_epoch, run.start_epoch = float(ck["best_mse"]), int(ck["best_epoch"]), epoch
-    run.nan_skipped, run.nan_rollbacks = int(ck["nan_skipped"]), int(ck["nan_rollbacks"])
-    run.stopped, run.elapsed0 = bool(ck["stopped"]), float(ck["elapsed"])
-
-
-def _restore(run: _Run, path: Path, data: RigData, cfg: RigTrainConfig, identity: dict[str, Any] | None) -> None:
-    """Continue ``run`` from the checkpoint at ``path``; ValueError when it is missing, unreadable, of another kind
-    of run or of another run (:func:`phast_model.train.fit.check_resume` names the differing field)."""
-    if not path.exists():
-        raise ValueError(f"cannot resume: {path} is missing (no epoch of a run in {path.parent} has finished); "
-                         "start without --resume")
-    ck = load_checkpoint(path)
-    if ck.get("format") != CHECKPOINT_FORMAT:
-        raise ValueError(f"cannot resume from {path}: not the checkpoint of a recordings run "
-                         f"(format {ck.get('format')!r}, expected {CHECKPOINT_FORMAT!r})")
-    check_resume(path, cfg, identity, ck)
-    try:
-        _load_run(run, ck, data, cfg)
-    except (KeyError, TypeError, ValueError, RuntimeError) as exc:
-        text = (str(exc).splitlines() or [""])[0]
-        raise ValueError(f"cannot resume from {path}: {type(exc).__name__}: {text}") from None
-
-
-def _run_epochs(run: _Run, data: RigData, cfg: RigTrainConfig, ckpt: Path | None,
-                identity: dict[str, Any] | None) -> None:
-    """Epochs ``run.start_epoch`` .. ``cfg.epochs`` (none once stopped early), a checkpoint after each."""
-    todo = range(cfg.epochs if run.stopped else run.start_epoch, cfg.epochs)
-    for epoch in tqdm(todo, desc="fit rig (multiple shooting)", disable=not cfg.progress, initial=run.start_epoch,
-                      total=cfg.epochs):
-        _train_epoch(run, data, cfg, epoch)
-        run.stopped = _patience_spent(run, cfg, epoch)
-        _save_checkpoint(run, ckpt, cfg, identity, epoch + 1)
-        if run.stopped:
-            break
+def loop_config(cfg: RigTrainConfig) -> LoopConfig:
+    """The shared loop's settings of a :class:`RigTrainConfig`: validation every epoch, the model chosen (and
+    patience counted) on the final window length only, a checkpoint after every epoch."""
+    return LoopConfig(epochs=cfg.epochs, seed=cfg.seed, grad_clip=cfg.grad_clip, max_nan_events=cfg.max_nan_events,
+                      nan_lr_factor=cfg.nan_lr_factor, val_every=1, select_from=cfg.warmup_epochs,
+                      patience=cfg.patience, checkpoint_every=1, progress=cfg.progress,
+                      desc="fit rig (multiple shooting)")
 
 
 def fit_recordings(model: PHAST, data: RigData, cfg: RigTrainConfig | None = None, run_dir: str | Path | None = None,
                    resume: bool = False, identity: dict[str, Any] | None = None) -> RigFit:
-    """Train ``model`` on ``data.train`` by multiple shooting (see the module docstring); with a warm-up, the best
-    validation is tracked on the final window length only.
+    """Train ``model`` on ``data.train`` by multiple shooting (the objective :class:`Shooting`) in the shared epoch
+    loop :func:`phast_model.train.loop.train_loop`; with a warm-up, the best validation is tracked on the final
+    window length only.
 
-    NaN guard: a minibatch whose loss or gradient is not finite makes no update (``nan_skipped``); an epoch that ends
-    with non-finite parameters is undone and the learning rates halved (``nan_rollbacks``).  With ``run_dir``,
-    ``checkpoint.pt`` is written there atomically after every epoch (model, optimizer and schedule, window states,
-    best state, history, RNG states) and ``resume=True`` continues from it to the model an uninterrupted run ends
-    with; ``identity`` (what else defines the run: the model config, the recordings ...) is recorded in it and a
-    checkpoint of another run, a missing or an unreadable one is a ValueError."""
+    The loop's NaN guard: a minibatch whose loss or gradient is not finite makes no update (``nan_skipped``); a step
+    that leaves non-finite parameters is undone back to the epoch's start and the learning rates halved
+    (``nan_rollbacks``).  With ``run_dir``, ``checkpoint.pt`` is written there atomically after every epoch (model,
+    optimizer and schedule, window states, best state, history, RNG states) and ``resume=True`` continues from it to
+    the model an uninterrupted run ends with; ``identity`` (what else defines the run: the model config, the
+    recordings ...) is recorded in it and a checkpoint of another run, a missing or an unreadable one is a
+    ValueError."""
     cfg = cfg or RigTrainConfig()
     model = model.double()
     init = _template_start(model, data.train) if model.config.init_from == "rig" else {}
-    torch.manual_seed(cfg.seed)
-    params = [p for p in model.parameters() if p.requires_grad]
-    run = _Run(model, params, torch.Generator().manual_seed(cfg.seed), _clone_state(model))
     ckpt = None if run_dir is None else Path(run_dir) / CHECKPOINT
-    if resume:
-        if ckpt is None:
-            raise ValueError("resume needs run_dir (the directory of checkpoint.pt)")
-        _restore(run, ckpt, data, cfg, identity)
-    run.t0 = time.perf_counter() - run.elapsed0
-    _run_epochs(run, data, cfg, ckpt, identity)
-    model.load_state_dict(run.best_state)
-    model.eval()
-    return RigFit(model, run.history, math.sqrt(run.best_mse), run.best_epoch, time.perf_counter() - run.t0, init,
-                  run.nan_skipped, run.nan_rollbacks, run.stopped)
+    if resume and ckpt is not None and not ckpt.exists():
+        raise ValueError(f"cannot resume: {ckpt} is missing (no epoch of a run in {ckpt.parent} has finished); "
+                         "start without --resume")
+    res = train_loop(Shooting(model, data, cfg), loop_config(cfg), cfg, ckpt, resume, identity)
+    return RigFit(model, res.history, math.sqrt(res.best_val), res.best_epoch, res.wall_time_s, init,
+                  res.nan.skipped, res.nan.rollbacks, res.stopped)
 
 
 def build(cfg: PHASTConfig) -> PHAST:

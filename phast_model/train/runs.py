@@ -103,19 +103,23 @@ def train_run(env: str, regime: str, out: str | Path, *, data: DataSpec | None =
     """Train a PHAST model (``regime``: known / partial / unknown) on ``env`` and write the run directory ``out``.
 
     The Python entry point of ``phast-train``; returns the metrics dict it writes to ``metrics.json``.  ``data``
-    (default: the paper's protocol) says which dataset, ``train`` (default: paper Table 13) how to train; its
-    ``seed`` also seeds the model's initialisation.  ``overrides`` are PHASTConfig fields.  Every argument is checked
+    (default: the paper's protocol) says which dataset, ``train`` (default: paper Table 13) how to train, with the
+    regime's trainer settings (:func:`phast_model.world.regimes.recipe`) in the fields it leaves None; its ``seed``
+    also seeds the model's initialisation.  ``overrides`` are PHASTConfig fields.  Every argument is checked
     before any work (no dataset generated, nothing written), and one process at a time may write ``out``."""
     from phast_gym import resolve_env_id
     from phast_gym.fileio import dir_lock, ensure_writable_dir
 
-    from ..world.regimes import build_model
-    from .fit import CHECKPOINT, TrainConfig, check_resume
+    from ..world.model import build_from_config
+    from ..world.regimes import recipe
+    from .fit import CHECKPOINT, check_resume
 
     env = resolve_env_id(env)
     data = DataSpec() if data is None else data
-    cfg = TrainConfig() if train is None else train
-    model = build_model(env, regime, seed=cfg.seed, **(overrides or {}))
+    # the regime's recipe: the model config, and the training config (its settings where ``train`` leaves them None)
+    rec = recipe(env, regime, train, seed=(train.seed if train is not None else 0), **(overrides or {}))
+    cfg = rec.train
+    model = build_from_config(rec.model)
     identity = {"env_id": env, "regime": regime, "data": data.identity(), "overrides": overrides or {}}
     out = ensure_writable_dir(out, "--out")
     with dir_lock(out):  # one writer per run directory

@@ -52,9 +52,6 @@ class PHASTConfig:
     observer_fd_order: int = 4
     observer_trainable: bool = True  # False: the observer stays the backward-difference formula it starts as
     damping_lr_mult: float = 1.0  # learning-rate multiplier of the damping parameters (see param_groups)
-    #: trainer defaults this model asks for (a TrainConfig value overrides them; None: the trainer's own)
-    adam_eps: float | None = None
-    warmup_epochs: float | None = None
     potential_hidden: int = 64
     potential_layers: int = 3
     hybrid_eps: float = 0.01
@@ -103,10 +100,16 @@ class PHASTConfig:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> PHASTConfig:
         names = {f.name for f in fields(cls)}
+        # trainer settings a model config carried before the regime recipes returned a training config
+        d = {k: v for k, v in d.items() if k not in _FORMER_TRAIN_FIELDS}
         unknown = sorted(set(d) - names)
         if unknown:
             raise ValueError(f"unknown PHASTConfig field(s) {unknown}; valid: {sorted(names)}")
         return cls(**d)
+
+
+#: fields of older saved configs that are training settings now (phast_model.world.regimes.recipe); dropped on load
+_FORMER_TRAIN_FIELDS = ("adam_eps", "warmup_epochs")
 
 
 def system_scales(system: System, n_samples: int = 512, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:

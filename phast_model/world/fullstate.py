@@ -30,7 +30,6 @@ class FullStatePHAST(ForecastModel):
         self.phast = phast
         self.phast.observer.requires_grad_(False)  # unused with p observed: neither trained nor counted
         self.loss_skip = 0  # every step has its state: no observer warm-up
-        self.train_defaults = dict(getattr(phast, "train_defaults", None) or {})
 
     @property
     def damping(self):  # noqa: ANN201

@@ -66,12 +66,6 @@ class PHAST(ForecastModel):
         #: training leaves out predictions made before the backward difference has all its samples
         self.loss_skip = int(getattr(observer, "fd_order", 1))
 
-    @property
-    def train_defaults(self) -> dict[str, float]:
-        """The config's trainer defaults (``adam_eps``, ``warmup_epochs``) that are set; read by
-        :func:`phast_model.train.fit.fit` where its TrainConfig leaves them None."""
-        return {k: float(v) for k in ("adam_eps", "warmup_epochs") if (v := getattr(self.config, k)) is not None}
-
     # ---- public pieces (control and mismatch reuse these) --------------------
     @property
     def potential(self) -> Potential:

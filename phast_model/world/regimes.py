@@ -6,7 +6,8 @@
   with the identification settings explained in :func:`default_config` (frozen 4th-order
   backward-difference observer, L = 8 (L = 4 with configuration-dependent M), fixed dt, damping-network lr x 100
   (the floor d0 keeps the base lr, see :meth:`phast_model.world.model.PHAST.param_groups`),
-  AdamW eps 1e-15 and a 1-epoch lr warm-up: ``KNOWN_TRAIN_DEFAULTS``).
+  AdamW eps 1e-15 and a 1-epoch lr warm-up: ``KNOWN_TRAIN_DEFAULTS``, trainer settings that :func:`recipe` returns in
+  the training config beside the model config).
   Configuration-dependent M(q) (cart-pole, double pendulum) uses the implicit-midpoint core.
 * PARTIAL: V = template with learnable coefficients + softplus(rho) * MLP; M = diag + low rank (constant M) or the
   system's mass template ``M0 + cos(phi(q)) M1`` (configuration-dependent M, :class:`TemplateMass`, implicit
@@ -26,27 +27,27 @@
 
 from __future__ import annotations
 
-from dataclasses import fields, replace
+from dataclasses import dataclass, fields, replace
 from typing import Any
 
 from phast_gym import make_env_system, resolve_env_id
 from phast_gym.systems import System
 
+from ..train.config import TrainConfig
 from . import data_init
 from .envinfo import ENV_INFO
 from .model import PHAST, PHASTConfig, build_from_config
 
 REGIMES = ("known", "partial", "unknown")
 
-#: trainer defaults of the identification settings (KNOWN; a TrainConfig value overrides them).  With V, M and the
+#: trainer settings of the identification settings (KNOWN; a TrainConfig value given overrides them).  With V, M and the
 #: observer fixed the one-step loss is ~1e-6..1e-9 and its gradients ~1e-7..1e-12, below AdamW's default eps = 1e-8,
 #: where Adam degenerates to badly conditioned SGD (step lr g / eps); eps = 1e-15 keeps its steps scale-free, and a
 #: 1-epoch linear warm-up keeps the first steps at lr x 100 (the damping net) from overshooting while Adam's
 #: second-moment estimate is still empty.
 KNOWN_TRAIN_DEFAULTS: dict[str, float] = {"adam_eps": 1e-15, "warmup_epochs": 1.0}
 #: the identification settings (KNOWN, and PARTIAL on separable windy systems; see :func:`default_config`)
-IDENTIFICATION: dict[str, Any] = {"observer_trainable": False, "learn_dt": False, "damping_lr_mult": 100.0,
-                                  **KNOWN_TRAIN_DEFAULTS}
+IDENTIFICATION: dict[str, Any] = {"observer_trainable": False, "learn_dt": False, "damping_lr_mult": 100.0}
 
 
 def _windy(params: dict[str, Any]) -> tuple[float | None, float]:
@@ -64,15 +65,41 @@ def _check_regime(regime: str) -> str:
     return regime
 
 
+@dataclass(frozen=True)
+class Recipe:
+    """A regime's recipe for an env: the model config and the training config it is trained with."""
+
+    model: PHASTConfig
+    train: TrainConfig
+
+
 def default_config(env_id: str, regime: str, **env_kwargs: Any) -> PHASTConfig:
     """The default :class:`PHASTConfig` of ``regime`` for ``env_id``."""
     env_id = resolve_env_id(env_id)
     regime = _check_regime(regime)
-    return _default_config(env_id, regime, make_env_system(env_id, **env_kwargs), env_kwargs)
+    return _default_config(env_id, regime, make_env_system(env_id, **env_kwargs), env_kwargs)[0]
 
 
-def _default_config(env_id: str, regime: str, system: System, env_kwargs: dict[str, Any]) -> PHASTConfig:
-    """:func:`default_config` of a resolved ``env_id`` and checked ``regime`` whose ``system`` is already built.
+def train_config(settings: dict[str, float], train: TrainConfig | None = None) -> TrainConfig:
+    """``train`` (default ``TrainConfig()``) with a regime's trainer ``settings`` in the fields it leaves None; a
+    value given is kept."""
+    train = TrainConfig() if train is None else train
+    given: dict[str, Any] = {k: v for k, v in settings.items() if getattr(train, k) is None}
+    return replace(train, **given)
+
+
+def recipe(env_id: str, regime: str, train: TrainConfig | None = None, **overrides: Any) -> Recipe:
+    """The :class:`Recipe` of ``regime`` for ``env_id``: :func:`default_config` with ``overrides`` (PHASTConfig
+    fields), and ``train`` (default ``TrainConfig()``) with the regime's trainer settings where it leaves them None
+    (:func:`train_config`)."""
+    cfg, _, settings = _config(env_id, regime, overrides)
+    return Recipe(cfg, train_config(settings, train))
+
+
+def _default_config(env_id: str, regime: str, system: System,
+                    env_kwargs: dict[str, Any]) -> tuple[PHASTConfig, dict[str, float]]:
+    """(:func:`default_config`, its trainer settings) of a resolved ``env_id`` and checked ``regime`` whose
+    ``system`` is already built; the trainer settings are KNOWN_TRAIN_DEFAULTS with the identification settings.
 
     The measurements behind each choice are in docs/phast_model.md ("Design notes: the regime defaults")."""
     base = PHASTConfig(env_id=env_id, regime=regime, env_kwargs=dict(env_kwargs))
@@ -80,7 +107,7 @@ def _default_config(env_id: str, regime: str, system: System, env_kwargs: dict[s
         # learned start-up latents: Eq. 90 scores the first predictions too, where the history is shorter than
         # the backward difference
         return replace(base, kind="latent_ode", ode_field={"known": "known", "partial": "template", "unknown": "neural"}[regime],
-                       potential="none", mass="none", damping="none", latent_prior="learned")
+                       potential="none", mass="none", damping="none", latent_prior="learned"), {}
     n = system.n
     info = ENV_INFO[env_id]
     tmpl, dims = info.template, None if info.template_dims is None else list(info.template_dims)
@@ -92,7 +119,8 @@ def _default_config(env_id: str, regime: str, system: System, env_kwargs: dict[s
         # PHAST.param_groups), KNOWN_TRAIN_DEFAULTS, and L = 8 substeps on the cheap separable (Strang) core, L = 4
         # on the costlier implicit midpoint of a configuration-dependent M(q).
         return replace(base, potential="known", mass="known", damping="householder", damping_cap=None, d0=0.0,
-                       learn_d0=True, canonicalizer="mass", substeps=8 if system.separable else 4, **IDENTIFICATION)
+                       learn_d0=True, canonicalizer="mass", substeps=8 if system.separable else 4,
+                       **IDENTIFICATION), dict(KNOWN_TRAIN_DEFAULTS)
     mass_tmpl = info.partial_mass_template(system)
     if regime == "partial":
         cap, base_d = _windy(system.params)
@@ -102,26 +130,25 @@ def _default_config(env_id: str, regime: str, system: System, env_kwargs: dict[s
         # the identification settings on every row (a trainable observer, a learnable dt and L = 1 let the observer
         # absorb D, as for KNOWN), at L = 4; D capped at dd on windy systems, whose cap also anchors D.  A learned
         # floor d0 starts from the least squares (data_init.initialize_partial).
-        return replace(cfg, substeps=4, **IDENTIFICATION)
+        return replace(cfg, substeps=4, **IDENTIFICATION), dict(KNOWN_TRAIN_DEFAULTS)
     if not system.separable:
         # a neural M(q) = L L^T; p = M(q) qdot keeps the canonical state consistent with it.  The one-step loss
         # constrains the learned force only at O(dt^2) (q_{t+1} - q_t - dt v ~ dt^2 M^-1 F / 2), so it is joined by
         # L_roll over the scored autoregressive rollout (roll_mode "observer", 10 steps, weight 0.1), and the factor
         # network is wider (128)
         return replace(base, potential="neural", mass="cholesky", mass_hidden=128, damping_cap=None, d0=0.0,
-                       learn_d0=True, canonicalizer="mass", lambda_roll=0.1, roll_mode="observer", roll_horizon=10)
+                       learn_d0=True, canonicalizer="mass", lambda_roll=0.1, roll_mode="observer", roll_horizon=10), {}
     # the identification settings, as PARTIAL (frozen observer, so p = M qdot_hat), with the floor d0 starting at
     # MIN_D0 (no physics to fit a floor under)
     return replace(base, potential="neural", mass="lowrank", mass_rank=min(4, n), damping_cap=None,
-                   d0=data_init.MIN_D0, learn_d0=True, canonicalizer="mass", substeps=4, **IDENTIFICATION)
+                   d0=data_init.MIN_D0, learn_d0=True, canonicalizer="mass", substeps=4,
+                   **IDENTIFICATION), dict(KNOWN_TRAIN_DEFAULTS)
 
 
-def build_model(env_id: str, regime: str, **overrides: Any) -> PHAST:
-    """PHAST model of ``regime`` ("known", "partial", "unknown") for ``env_id``; ``overrides`` replace
-    :class:`PHASTConfig` fields (e.g. ``damping_cap=1.0``, ``substeps=4``, ``seed=1``, ``env_kwargs={...}``).
-
-    The env's system is built once: the default config reads it and the model is built on it (unless the overrides
-    name another system: ``env_id``, ``env_kwargs`` or ``sim``)."""
+def _config(env_id: str, regime: str,
+            overrides: dict[str, Any]) -> tuple[PHASTConfig, System | None, dict[str, float]]:
+    """(the default config of ``regime`` with ``overrides``, the env's system when the config still names it, the
+    regime's trainer settings)."""
     names = {f.name for f in fields(PHASTConfig)}
     bad = sorted(set(overrides) - names)
     if bad:
@@ -130,6 +157,18 @@ def build_model(env_id: str, regime: str, **overrides: Any) -> PHAST:
     regime = _check_regime(regime)
     env_kwargs = dict(overrides.get("env_kwargs", {}))
     system = make_env_system(env_id, **env_kwargs)
-    cfg = replace(_default_config(env_id, regime, system, env_kwargs), **overrides)
+    default, settings = _default_config(env_id, regime, system, env_kwargs)
+    cfg = replace(default, **overrides)
     same = cfg.sim is None and cfg.env_id == env_id and cfg.env_kwargs == env_kwargs
-    return build_from_config(cfg, system=system if same else None)
+    return cfg, system if same else None, settings
+
+
+def build_model(env_id: str, regime: str, **overrides: Any) -> PHAST:
+    """PHAST model of ``regime`` ("known", "partial", "unknown") for ``env_id``; ``overrides`` replace
+    :class:`PHASTConfig` fields (e.g. ``damping_cap=1.0``, ``substeps=4``, ``seed=1``, ``env_kwargs={...}``).  Its
+    training config: :func:`recipe`.
+
+    The env's system is built once: the default config reads it and the model is built on it (unless the overrides
+    name another system: ``env_id``, ``env_kwargs`` or ``sim``)."""
+    cfg, system, _ = _config(env_id, regime, overrides)
+    return build_from_config(cfg, system=system)

@@ -16,6 +16,7 @@ import phast_model.rig.fit as rigfit
 from phast_model.cli.train import main as train_main
 from phast_model.rig.fit import RigFit, RigTrainConfig, build, fit_recordings, load_rig_data, rig_config
 from phast_model.train.fit import TrainConfig
+from phast_model.train.loop import OK, SKIP, finite_params, guarded_step
 
 SIM = "PHAST/DampedPendulum-v0"
 TINY = {"window_s": 1.0, "progress": False}
@@ -82,7 +83,7 @@ class Crash(Exception):
 
 def _crash_after(monkeypatch: pytest.MonkeyPatch, epochs: int) -> None:
     """Make the trainer die at the start of epoch ``epochs + 1`` (after ``epochs`` checkpoints)."""
-    real, calls = rigfit._train_epoch, {"n": 0}
+    real, calls = rigfit.Shooting.begin_epoch, {"n": 0}
 
     def dying(*a: Any, **k: Any) -> None:
         calls["n"] += 1
@@ -90,17 +91,18 @@ def _crash_after(monkeypatch: pytest.MonkeyPatch, epochs: int) -> None:
             raise Crash
         real(*a, **k)
 
-    monkeypatch.setattr(rigfit, "_train_epoch", dying)
+    monkeypatch.setattr(rigfit.Shooting, "begin_epoch", dying)
 
 
 # --------------------------------------------------------------------------- NaN guard
 def test_a_non_finite_loss_or_gradient_makes_no_update() -> None:
-    p = torch.nn.Parameter(torch.zeros(2))
+    model = torch.nn.Module()
+    model.p = p = torch.nn.Parameter(torch.zeros(2))
     opt = torch.optim.AdamW([p], lr=0.1)
-    assert not rigfit._step(opt, [p], torch.sqrt(p).sum())  # finite loss, infinite gradient
-    assert not rigfit._step(opt, [p], p.sum() * math.nan)  # non-finite loss
+    assert guarded_step(opt, model, torch.sqrt(p).sum(), 10.0) == SKIP  # finite loss, infinite gradient
+    assert guarded_step(opt, model, p.sum() * math.nan, 10.0) == SKIP  # non-finite loss
     assert torch.equal(p.detach(), torch.zeros(2)) and not opt.state
-    assert rigfit._step(opt, [p], (p - 1).pow(2).sum()) and bool((p > 0).all())
+    assert guarded_step(opt, model, (p - 1).pow(2).sum(), 10.0) == OK and bool((p > 0).all())
 
 
 def test_nan_minibatches_are_skipped_and_counted_in_the_history(data: rigfit.RigData,
@@ -120,32 +122,42 @@ def test_nan_minibatches_are_skipped_and_counted_in_the_history(data: rigfit.Rig
     assert calls["train"] == 4 and fit.nan_skipped == 1 and fit.nan_rollbacks == 0
     assert [h["nan_skipped"] for h in fit.history] == [1, 1]
     assert all(math.isfinite(h["train_rmse"]) for h in fit.history)
-    assert rigfit.finite_params(fit.model)
+    assert finite_params(fit.model)
 
 
 def test_an_epoch_ending_with_non_finite_weights_is_undone_and_the_lr_halved(data: rigfit.RigData,
                                                                              monkeypatch: pytest.MonkeyPatch) -> None:
-    real = rigfit._epoch
+    """One minibatch per epoch (TINY): a step that leaves NaN weights at the end of epoch 2 is rolled back to the
+    weights epoch 2 started from, at half the learning rate (the shared loop's NaN guard)."""
+    real_begin, real_step = rigfit.Shooting.begin_epoch, torch.optim.AdamW.step
 
-    def record(log: list[tuple[dict[str, torch.Tensor], float]], poison_at: int | None) -> Any:
-        def epoch(model: Any, st: Any, *a: Any) -> tuple[float, int]:
-            log.append((rigfit._clone_state(model), st.opt.param_groups[0]["lr"]))
-            out = real(model, st, *a)
+    def record(log: list[tuple[dict[str, torch.Tensor], float]], poison_at: int | None) -> tuple[Any, Any]:
+        def begin(self: rigfit.Shooting, epoch: int) -> None:
+            assert self.stage is not None
+            log.append(({k: v.clone() for k, v in self.model.state_dict().items()}, self.stage.optim.lr))
+            real_begin(self, epoch)
+
+        def step(opt: torch.optim.Optimizer, *a: Any, **k: Any) -> Any:
+            out = real_step(opt, *a, **k)
             if len(log) == poison_at:
                 with torch.no_grad():
-                    next(iter(st.opt.param_groups[0]["params"])).fill_(math.nan)
+                    next(iter(opt.param_groups[0]["params"])).fill_(math.nan)
             return out
-        return epoch
+        return begin, step
 
     cfg = RigTrainConfig(epochs=4, **TINY)
     ref: list[tuple[dict[str, torch.Tensor], float]] = []
-    monkeypatch.setattr(rigfit, "_epoch", record(ref, None))
+    begin, step = record(ref, None)
+    monkeypatch.setattr(rigfit.Shooting, "begin_epoch", begin)
+    monkeypatch.setattr(torch.optim.AdamW, "step", step)
     _fit(data, cfg)
     log: list[tuple[dict[str, torch.Tensor], float]] = []
-    monkeypatch.setattr(rigfit, "_epoch", record(log, 2))
+    begin, step = record(log, 2)
+    monkeypatch.setattr(rigfit.Shooting, "begin_epoch", begin)
+    monkeypatch.setattr(torch.optim.AdamW, "step", step)
     fit = _fit(data, cfg)
     assert fit.nan_rollbacks == 1 and [h["nan_rollbacks"] for h in fit.history] == [0, 1, 1, 1]
-    assert rigfit.finite_params(fit.model)
+    assert finite_params(fit.model)
     # epoch 3 starts from the weights epoch 2 started from, on the schedule at half its learning rate
     assert all(torch.equal(log[2][0][k], log[1][0][k]) for k in log[1][0])
     assert [lr for _, lr in log[:2]] == [lr for _, lr in ref[:2]]
@@ -243,7 +255,7 @@ def test_patience_stops_once_validation_stalls_and_keeps_the_best_weights(data: 
     def scripted(model: Any, w: Any, idx: torch.Tensor | None = None) -> torch.Tensor:
         if idx is not None:
             return real(model, w, idx)
-        seen.append(rigfit._clone_state(model))
+        seen.append({k: v.clone() for k, v in model.state_dict().items()})
         return torch.tensor(vals["left"].pop(0), dtype=torch.float64)
 
     monkeypatch.setattr(rigfit, "_loss", scripted)

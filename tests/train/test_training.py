@@ -190,10 +190,21 @@ def test_phast_train_cli(tmp_path):
 
 
 def test_known_trainer_defaults_and_warmup(splits, tmp_path):
+    from dataclasses import asdict
+
+    from phast_model.world.model import PHASTConfig
+    from phast_model.world.regimes import recipe
+
+    # the regime recipe returns the training config beside the model config; the model carries no trainer settings
+    known = recipe(ENV, "known")
+    assert (known.train.adam_eps, known.train.warmup_epochs) == (1e-15, 1.0)
+    assert recipe(ENV, "unknown").train == known.train  # identification settings everywhere
+    assert recipe("PHAST/WindyCartPole-v0", "unknown").train == TrainConfig()  # learned M(q): the trainer's own
+    assert recipe(ENV, "known", TrainConfig(adam_eps=1e-8)).train.adam_eps == 1e-8  # a value given is kept
+    assert "adam_eps" not in asdict(known.model) and not hasattr(build_model(ENV, "known"), "train_defaults")
+    old = {**asdict(known.model), "adam_eps": 1e-15, "warmup_epochs": 1.0}  # a config.json of an older run
+    assert PHASTConfig.from_dict(old) == known.model
     model = build_model(ENV, "known")
-    assert model.train_defaults == {"adam_eps": 1e-15, "warmup_epochs": 1.0}
-    assert build_model(ENV, "unknown").train_defaults == model.train_defaults  # identification settings everywhere
-    assert build_model("PHAST/WindyCartPole-v0", "unknown").train_defaults == {}  # learned M(q): the trainer's own
     # 48 trajectories / 16 = 3 steps per epoch: 2 warm-up epochs = 6 steps, then cosine over 12 steps
     cfg = TrainConfig(epochs=4, batch_size=16, val_every=2, progress=False, warmup_epochs=2.0)
     res = fit(model, splits["train"], splits["val"], cfg, run_dir=tmp_path / "w")
