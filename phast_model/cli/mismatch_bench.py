@@ -38,6 +38,7 @@ class Case:
     kind: str = "effect"  # effect | clean | param
     sim_kwargs: dict[str, Any] = field(default_factory=dict)  # the nominal simulator the tool is given (the CAD values)
     rollout_window: float | None = None  # held-out open-loop windows [s] (a chaotic arm: short windows)
+    dt: float | None = None  # sampling step of the recordings [s] (default: the env's)
 
 
 #: a two-motor arm in joint coordinates with compound links: the CAD values of the DFKI C.0 design
@@ -82,6 +83,10 @@ CASES: list[Case] = [
          noise=0.002),
     Case("cartpole_pole_drag_cart_coulomb", "PHAST/WindyCartPole-v0", [("quadratic_drag", 1, 0.01), ("coulomb_friction", 0, 0.3)],
          noise=0.002),
+    # delays (issue 41): an actuator that acts 30 ms late at 100 Hz, a joint encoder that reports 10 ms late
+    Case("pendulum_input_delay", "PHAST/Pendulum-v0", [("input_delay", 0, 0.03)], noise=0.002, u_std=1.0, dt=0.01),
+    Case("arm_sensor_delay", "PHAST/DoublePendulum-v0", [("sensor_delay", 1, 0.01)], noise=0.002, u_std=0.5, sim_kwargs=ARM,
+         rollout_window=1.0),
 ]
 
 
@@ -229,11 +234,25 @@ def _sindy_fit(case: Case, rec: dict[str, Any], threshold: float) -> dict[str, A
             "correct": bool(ok), "time_s": time.time() - t0}
 
 
+def reality_env(case: Case) -> Any:
+    """The env the case's reality is simulated with: its env id, or at ``case.dt`` a subclass of its system sampled at
+    that step (substeps no longer than the env's); the tool is given the env id."""
+    if case.dt is None:
+        return case.env_id
+    import math
+
+    from phast_gym.registry import make_env_system
+
+    cls = type(make_env_system(case.env_id, **case.sim_kwargs))
+    substeps = max(1, math.ceil(case.dt / (cls.dt / cls.substeps) - 1e-9))
+    return type(f"{cls.__name__}At{case.dt:g}s", (cls,), {"dt": case.dt, "substeps": substeps})
+
+
 def make_case_data(case: Case, n_traj: int, T: int, seed: int) -> dict[str, Any]:
     from phast_model.mismatch import Term, make_reality
 
-    return make_reality(case.env_id, [Term(*t) for t in case.terms], true_kwargs={**case.sim_kwargs, **case.params}, n_traj=n_traj, T=T,
-                        noise_std=case.noise, seed=seed, u_std=case.u_std, x0_scale=case.x0_scale)
+    return make_reality(reality_env(case), [Term(*t) for t in case.terms], true_kwargs={**case.sim_kwargs, **case.params}, n_traj=n_traj,
+                        T=T, noise_std=case.noise, seed=seed, u_std=case.u_std, x0_scale=case.x0_scale)
 
 
 def effect_size(case: Case, n_traj: int, T: int, seed: int, window: int = 100) -> float:
@@ -245,8 +264,10 @@ def effect_size(case: Case, n_traj: int, T: int, seed: int, window: int = 100) -
     from phast_model.mismatch import Term, make_reality
 
     kw: dict[str, Any] = dict(n_traj=n_traj, T=min(T, window), noise_std=0.0, seed=seed, u_std=case.u_std, x0_scale=case.x0_scale)
-    a = make_reality(case.env_id, [Term(*t) for t in case.terms], true_kwargs={**case.sim_kwargs, **case.params}, **kw)["q"]
-    b = make_reality(case.env_id, [], true_kwargs=case.sim_kwargs, **kw)["q"]
+    a = make_reality(reality_env(case), [Term(*t) for t in case.terms], true_kwargs={**case.sim_kwargs, **case.params}, **kw)["q"]
+    # a delay's reality starts earlier (its history): the same delay at 0 gives the same initial states and inputs
+    zero = [Term(t[0], t[1], 0.0) for t in case.terms if Term(*t).kind.delay]
+    b = make_reality(reality_env(case), zero, true_kwargs=case.sim_kwargs, **kw)["q"]
     d = a - b
     return float(np.sqrt(np.mean(d**2)) / case.noise)
 

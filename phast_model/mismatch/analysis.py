@@ -38,8 +38,8 @@ from .mjcf_answer import answer_in_model_terms, is_model_file_system
 from .options import Options, Progress
 from .report.document import Report, summary_text
 from .rows import ParamRow, TermRow
-from .select import Selection, calibrated_rows, missing_rows, select
-from .systematic import SystematicContext, SystematicResult, systematic
+from .select import INTERVALS, Selection, calibrated_rows, missing_rows, select
+from .systematic import SystematicContext, SystematicResult, systematic, with_shooting_delays
 from .vocabulary.screening import candidates
 from .vocabulary.terms import VOCABULARY
 
@@ -154,7 +154,7 @@ def _details(problem: Problem, cal: Calibration, sel: Selection, weak_answer: Sy
             "n_windows_dropped_as_outliers": cal.n_dropped, "smoothing_window_samples": int(problem.smoothing_window),
             "coulomb_sign_smoothing": f"tanh(qdot/{problem.eps:.3g})",
             "coulomb_sign_smoothing_per_coordinate": np.broadcast_to(sel.family.eps, (problem.train.n,)).tolist(),
-            "threshold": opts.threshold,
+            "threshold": opts.threshold, "intervals": INTERVALS,
             "chi2_per_dof": {"nominal": cal.fit_nominal.chi2_red, "calibrated": cal.fit.chi2_red, "augmented": final_fit.chi2_red},
             "identifiability": cal.screen.identifiability.to_dict(),
             "held_out_check": sel.validation,  # the two-fold validation (select.py); the key's name is kept for readers
@@ -302,7 +302,8 @@ def _explain(problem: Problem, inputs: _Inputs) -> Report:
     final_fit = sel.fit
     weak_answer = _systematic(problem, cal, sel, calibrated)
     shooting_answer = (models["augmented"], final_fit, calibrated, missing)
-    if weak_answer.replaces:
+    if weak_answer.replaces:  # a delay the shooting chose competes with the friction law by held-out prediction
+        weak_answer = with_shooting_delays(weak_answer, missing, held, cal.shooter, opts.max_iter)
         assert weak_answer.system is not None and weak_answer.fit is not None
         models["augmented"], final_fit = weak_answer.system, weak_answer.fit
         calibrated, missing = weak_answer.calibrated, list(weak_answer.missing)

@@ -27,6 +27,7 @@ from functools import partial
 from typing import Any
 
 import numpy as np
+from scipy.stats import t as student_t
 
 from phast_gym.systems.base import System
 
@@ -70,6 +71,8 @@ class Selection:
     # the two-fold validation of every item examined (report.json: details.held_out_check, its name kept for readers)
     validation: list[dict[str, Any]] = field(default_factory=list)
     equivalent_swap: dict[str, Any] | None = None  # parameter changes reported as an equivalent (one parameter, a port gain)
+    interval_cov: np.ndarray | None = None  # covariance of fit.g for the reported intervals (ShootFit.interval_covariance)
+    q95: float = Z95  # their 95% quantile (Student's t over the recordings)
 
     @property
     def params(self) -> list[tuple[str, float]]:
@@ -625,7 +628,45 @@ def select(problem: Problem, screen: ParameterScreen, cands: list[AnyCandidate])
     problem.log(f"selected {[s.cands[k].label for k in s.chosen]}: chi2/dof = {s.fit.chi2_red:.3g}")
     validation += [{"item": label, "kept": False, "note": "only stands in for parameter changes (nonlinear refit without it, "
                   "every pivot free, fits as well)"} for label in compensating]
-    return Selection(s.cands, usable, cols, s.chosen, s.gains, s.fam, s.fit, s.cov, validation, swap)
+    icov, dof = s.fit.interval_covariance() if s.chosen else (None, None)
+    edge = _edge_shift(s)
+    if icov is not None and edge is not None:
+        icov = icov + np.diag(edge**2)
+    return Selection(s.cands, usable, cols, s.chosen, s.gains, s.fam, s.fit, s.cov, validation, swap, icov, quantile95(dof))
+
+
+#: how much sharper the edge of :func:`_edge_shift`'s refit is
+EDGE_CHECK = 2.0
+#: how the reported 95% intervals are computed (report.json: details.intervals)
+INTERVALS = ("coefficient +- t_0.975(recordings - 1) x standard error; the standard error the largest of: Gauss-Newton "
+             "scaled by chi2/dof, a sandwich clustered on windows, a sandwich clustered on recordings (model error "
+             "shared by a recording's windows); with a Coulomb-like term, combined in quadrature with how far each "
+             f"value moves when the fits' tanh edges of sign(qdot) on its coordinates are made {EDGE_CHECK:g}x sharper "
+             "(the smoothing's own bias)")
+
+
+def _edge_shift(s: _Search) -> np.ndarray | None:
+    """(P,) how far every item of the final fit moves when the tanh smoothing of sign(qdot) is made
+    :data:`EDGE_CHECK` times sharper on the coordinates of its terms with an edge (Coulomb-like, ``stiff_edge``): the
+    fits model a real edge, sharper than theirs, and the coefficient they give carries that bias (on the bench a
+    cart's Coulomb friction came out 1-1.5% high, 3 standard errors); the shift bounds it.  One refit; None when no
+    chosen term has an edge."""
+    coords = {c.coordinate for c in (s.cands[k] for k in s.chosen) if isinstance(c, Candidate)
+              and (c.kind.stiff_edge or c.kind.excess_near_rest)}
+    if not coords:
+        return None
+    eps = list(s.eps or s.problem.eps_coord)
+    for i in coords:
+        eps[i] /= EDGE_CHECK
+    sharper = replace(s.fam, eps=tuple(eps))
+    fit = s.screen.shooter.fit(sharper.build, s.fit.X, s.fit.g, max_iter=s.problem.opts.max_iter, stats=False)
+    shift = fit.g - s.fit.g
+    return np.where(np.isfinite(shift), shift, 0.0)
+
+
+def quantile95(dof: int | None) -> float:
+    """The two-sided 95% quantile: Student's t with ``dof`` degrees of freedom (None: the normal's)."""
+    return Z95 if dof is None else float(student_t.ppf(0.975, dof))
 
 
 # --------------------------------------------------------------------------- report rows
@@ -633,10 +674,11 @@ def calibrated_rows(problem: Problem, cal: Calibration, sel: Selection) -> dict[
     """report.sim.calibrated: changed parameters with 95% intervals (from the augmented fit when terms were added) and
     the combination the data fixed, then every other parameter held at nominal with the reason."""
     ident = cal.screen.identifiability
-    if sel.chosen and sel.cov is not None:
-        g_src, cov_src = sel.fit.g, sel.cov
+    if sel.chosen and sel.interval_cov is not None:
+        g_src, cov_src, q95 = sel.fit.g, sel.interval_cov, sel.q95
     else:
-        g_src, cov_src = cal.fit.g, cal.fit.covariance()
+        cov_src, dof = cal.fit.interval_covariance()
+        g_src, q95 = cal.fit.g, quantile95(dof)
     out: dict[str, ParamRow] = {}
     changed = [k for k, _ in cal.selected]
     for j, (k, nom) in enumerate(cal.selected):
@@ -646,7 +688,7 @@ def calibrated_rows(problem: Problem, cal: Calibration, sel: Selection) -> dict[
         if same:
             equivalent = ("the recordings fix a combination: the same fit follows from changes of "
                           + ", ".join(f"{p} ({ident.sentence(p)})" for p in same))
-        out[k] = ParamRow(nom, nom * math.exp(z), (nom * math.exp(z - Z95 * sd), nom * math.exp(z + Z95 * sd)),
+        out[k] = ParamRow(nom, nom * math.exp(z), (nom * math.exp(z - q95 * sd), nom * math.exp(z + q95 * sd)),
                           math.exp(z) - 1.0, equivalent)
     for k, note in cal.notes.items():
         out.setdefault(k, ParamRow.held(param_value(problem.sys0.params[k]), note))
@@ -690,8 +732,8 @@ def missing_rows(sel: Selection, excess0: float) -> list[TermRow]:
         cand = sel.candidates[k]
         assert isinstance(cand, Candidate)
         z = sel.fit.g[j]
-        sd = math.sqrt(max(sel.cov[j, j], 0.0)) if sel.cov is not None else 0.0
-        lo, hi = sorted([cand.coefficient(z - Z95 * sd), cand.coefficient(z + Z95 * sd)])
+        sd = math.sqrt(max(sel.interval_cov[j, j], 0.0)) if sel.interval_cov is not None else 0.0
+        lo, hi = sorted([cand.coefficient(z - sel.q95 * sd), cand.coefficient(z + sel.q95 * sd)])
         term = cand.family_term.at(z)
         out.append(TermRow(cand.term, cand.coordinate, cand.component, term.coefficient, (lo, hi), term.expression(),
                            float(min(1.0, sel.gains.get(k, 0.0) / max(excess0, 1e-300))),

@@ -9,6 +9,7 @@ import numpy as np
 from phast_gym.integrate import simulate
 from phast_gym.systems.base import System
 
+from ..rigs import delays
 from ..rigs.simulators import load_simulator
 from .vocabulary.terms import AugmentedSystem, Term
 
@@ -25,25 +26,38 @@ def make_reality(env_id: str | type[System], terms: list[Term] | tuple[Term, ...
     ``u_std > 0`` adds a smooth random port input on every coordinate; q gets
     white noise of std ``noise_std``.  Coulomb friction is nearly sharp
     (``coulomb_eps``) so the tool meets a model that is not its own.
+
+    Delays (``input_delay``, ``sensor_delay``) act on a real history: the motion starts ``delays.HISTORY`` samples
+    before the recording and the input is defined before it too, so the port delivers the commanded u of earlier
+    samples and the sensor reports earlier states (linear interpolation for a fraction of a sample, as the tool's model);
+    a delay term at 0 gives the same initial states and inputs without a delay.
     """
     rng = np.random.default_rng(seed)
     base = load_simulator(env_id, true_kwargs).build()
     system = AugmentedSystem(base, list(terms), coulomb_eps=coulomb_eps)
+    step = base.dt
     x0 = system.sample_initial(rng, n_traj) * x0_scale  # the base's draws; with armature, the same rates
+    # the samples simulated before the recording starts (a delay needs the history)
+    pre = delays.HISTORY if any(t.kind.delay for t in terms) else 0
     u = None
     if u_std > 0:
         # smooth input: a random sum of slow sines held over each interval
-        t = np.arange(T - 1) * base.dt
+        t = (np.arange(T - 1 + 2 * pre) - 2 * pre) * step
         freqs = rng.uniform(0.2, 1.5, size=(n_traj, 3, base.n))
         phases = rng.uniform(0, 2 * np.pi, size=(n_traj, 3, base.n))
         u = u_std * np.sum(np.sin(2 * np.pi * freqs[:, :, None, :] * t[None, None, :, None] + phases[:, :, None, :]), axis=1) / np.sqrt(1.5)
     # a nearly sharp Coulomb edge (a kind's ``stiff_edge``) is stiff (force slope c / coulomb_eps): RK4 needs short substeps there, or the
     # "reality" chatters at velocity reversals and holds an integration artefact instead of the stated friction law
     sub = base.substeps * 8 if any(t.kind.stiff_edge for t in terms) else None
-    x = simulate(system, x0, T - 1, u=u, substeps=sub)
-    q = system.measure(x[..., : base.n])
+    applied = None if u is None else system.delayed_input(u[:, pre:], step, u[:, :pre]) if pre else u
+    x = simulate(system, x0, T - 1 + pre, u=applied, substeps=sub)
+    q_true = x[..., : base.n]
+    if pre:
+        q_true = delays.shift(q_true[:, pre:], q_true[:, :pre], delays.delay_samples(system.sensor_delay, step, n_traj, T))
+        u = None if u is None else u[:, 2 * pre:]
+    q = system.measure(q_true)
     q = q + rng.normal(0.0, noise_std, size=q.shape)
-    out: dict[str, Any] = {"q": q, "dt": base.dt, "angle_dims": np.asarray(base.angle_dims, dtype=int)}
+    out: dict[str, Any] = {"q": q, "dt": step, "angle_dims": np.asarray(base.angle_dims, dtype=int)}
     if u is not None:
         out["u"] = u
     return out

@@ -23,7 +23,10 @@ made by prediction on recordings not used for the fit:
   95% interval must exclude zero and the law must lie inside the training
   curve's intervals; the fewest parameters not significantly worse than the
   best win;
-* the chosen law refitted jointly with the parameters and armature.
+* the chosen law refitted jointly with the parameters and armature;
+* a delay the shooting selection chose (``input_delay``, ``sensor_delay``: no force the weak form can fit) competes
+  with that law by held-out prediction (:func:`with_shooting_delays`): the law with the delays added is adopted only
+  when it predicts the held-out recordings better than the law alone.
 """
 
 from __future__ import annotations
@@ -36,8 +39,9 @@ import numpy as np
 from phast_gym.systems.base import System
 
 from ..rigs.frictioncurve import FrictionCurve, friction_curve
-from ..rigs.shooting import ShootFit
+from ..rigs.shooting import Shooter, ShootFit
 from .calibrate import Calibration
+from .evaluate import HeldOut
 from .fitting.problem import Problem
 from .friction.laws import FrictionLaw, spec_of
 from .friction.lawselect import LawSelection, select_friction
@@ -190,3 +194,24 @@ def systematic(ctx: SystematicContext) -> SystematicResult:
     held_params = [k for k in ctx.params if k not in pcheck.kept and k not in pcheck.no_signal]
     rows = _calibrated_rows(ctx, final, held_params, pcheck.no_signal)
     return SystematicResult(reason, evidence, augmented, fit, rows, tuple(missing), curve, {f"chosen: {law.name}": final.law})
+
+
+def with_shooting_delays(result: SystematicResult, shooting_rows: list[TermRow], held: HeldOut, shooter: Shooter,
+                         max_iter: int) -> SystematicResult:
+    """The model-error regime's answer with the delays of the shooting answer (``shooting_rows``) added, when that
+    predicts the held-out recordings better than the friction law alone (rollout RMSE); the comparison is written to
+    details.friction.delays_vs_law either way.  Unchanged when the regime did not apply or the shooting chose no delay."""
+    delayed_rows = [r for r in shooting_rows if VOCABULARY[r.term].delay]
+    law = result.system
+    if not delayed_rows or not isinstance(law, AugmentedSystem) or result.fit is None:
+        return result
+    terms = [*law.terms, *(Term(r.term, r.coordinate, r.coefficient) for r in delayed_rows)]
+    delayed = AugmentedSystem(law.base, terms, law.coulomb_eps_per_coordinate, law.deadzone_width)
+    scores = held.evaluate({"law": law, "law_and_delays": delayed})[0]
+    a, b = scores["law"]["rollout_rmse"], scores["law_and_delays"]["rollout_rmse"]
+    note = {"delays": [r.label for r in delayed_rows], "held_out_rollout_rmse": {"law": a, "law_and_delays": b}, "adopted": b < a}
+    evidence = {**result.evidence, "delays_vs_law": note}
+    if not b < a:
+        return replace(result, evidence=evidence)
+    fit = shooter.fit_states(delayed, result.fit.X, max_iter=max_iter)
+    return replace(result, evidence=evidence, system=delayed, fit=fit, missing=(*result.missing, *delayed_rows))

@@ -28,6 +28,7 @@ from phast_gym.integrate import step
 from phast_gym.systems import angle_diff, split
 from phast_gym.systems.base import NUMPY, System
 
+from .delays import history
 from .recordings import Recordings
 from .signals import estimate_noise, odd, smooth, time_scale
 
@@ -62,7 +63,7 @@ def _interval_counts(substeps: int | np.ndarray, n_steps: int) -> np.ndarray:
 
 
 def simulate_qv(system: System, q0: np.ndarray, v0: np.ndarray, n_steps: int, u: np.ndarray | None,
-                dt: float | np.ndarray, substeps: int | np.ndarray) -> np.ndarray:
+                dt: float | np.ndarray, substeps: int | np.ndarray, u_before: np.ndarray | None = None) -> np.ndarray:
     """Simulate a batch from (q0, qdot0) (B, n) and return measured q (B, n_steps+1, n).
 
     ``dt``: the sampling step (scalar), or the per-sample length of every interval, (B, n_steps) or
@@ -72,8 +73,13 @@ def simulate_qv(system: System, q0: np.ndarray, v0: np.ndarray, n_steps: int, u:
     (``substeps_for(system, dt)`` gives counts that keep every substep within the env's).  A scalar dt and an
     array filled with that value give the same numbers.
     The model's measurement map (``measure``: sensor terms) is applied to the output.
+    A model with delays (``delayed_input`` / ``delayed_output``, :mod:`.delays`) gets u delayed (``u_before``
+    (B, P, n): the recorded inputs before the first interval; None: the first one held) and reports q delayed.
     """
     B, n = q0.shape
+    delay_in = getattr(system, "delayed_input", None)
+    if u is not None and delay_in is not None:
+        u = delay_in(u, dt, u_before)
     external = getattr(system, "external_rollout", None)  # a model another simulator runs (MuJoCo: mujoco_sim)
     if external is not None:
         return external(q0, v0, n_steps, u, dt)
@@ -105,6 +111,9 @@ def simulate_qv(system: System, q0: np.ndarray, v0: np.ndarray, n_steps: int, u:
                 q = [np.broadcast_to(c, (B,)) for c in q]
                 p = [np.broadcast_to(c, (B,)) for c in p]
                 out[:, t + 1] = np.stack(q, -1)
+    delay_out = getattr(system, "delayed_output", None)
+    if delay_out is not None:
+        out = delay_out(out, v0, dt)
     measure = getattr(system, "measure", None)
     return measure(out) if measure is not None else out
 
@@ -302,6 +311,7 @@ class Windows:
     dt: float  # (median) sampling step
     steps: np.ndarray | None = None  # (W, L-1) recorded interval lengths, None when uniform at dt
     stride: int = 1  # compare every stride-th sample
+    u_before: np.ndarray | None = None  # (W, P, n) the recorded inputs before each window (input delays, :mod:`.delays`)
 
     @classmethod
     def cut(cls, rec: Recordings, length: int, stride: int = 1) -> Windows:
@@ -320,12 +330,14 @@ class Windows:
         idx = start[:, None] + np.arange(length)[None, :]
         q = rec.q[traj[:, None], idx]
         u = None
+        u_before = None
         if rec.u is not None:
             u = rec.u[traj[:, None], idx[:, :-1]]
+            u_before = history(rec.u, traj, start)
         steps = None
         if not getattr(rec, "uniform", True):
             steps = rec.steps[traj[:, None], idx[:, :-1]]
-        return cls(traj, start, length, q, u, rec.angle_dims, rec.dt, steps, stride)
+        return cls(traj, start, length, q, u, rec.angle_dims, rec.dt, steps, stride, u_before)
 
     @property
     def count(self) -> int:
@@ -344,12 +356,14 @@ class Windows:
     def select(self, keep: np.ndarray) -> Windows:
         """The windows ``keep`` (index array or mask)."""
         return Windows(self.traj[keep], self.start[keep], self.length, self.q[keep], None if self.u is None else self.u[keep],
-                       self.angle_dims, self.dt, None if self.steps is None else self.steps[keep], self.stride)
+                       self.angle_dims, self.dt, None if self.steps is None else self.steps[keep], self.stride,
+                       None if self.u_before is None else self.u_before[keep])
 
     def prefix(self, length: int) -> Windows:
         """Every window cut to its first ``length`` samples."""
         return Windows(self.traj, self.start, length, self.q[:, :length], None if self.u is None else self.u[:, : length - 1],
-                       self.angle_dims, self.dt, None if self.steps is None else self.steps[:, : length - 1], self.stride)
+                       self.angle_dims, self.dt, None if self.steps is None else self.steps[:, : length - 1], self.stride,
+                       self.u_before)
 
 
 # --------------------------------------------------------------------------- least squares
@@ -365,6 +379,7 @@ class ShootFit:
     cost: float  # sum of squared standardized residuals
     n_obs: int
     iterations: int
+    groups: np.ndarray | None = None  # (W,) the recording of each window: the clusters of interval_covariance
 
     @property
     def dof(self) -> int:
@@ -394,7 +409,8 @@ class ShootFit:
         JX = self.JX
         dx, dg = _damped_step(Normal.of(JX, Jg, r0), 0.0)
         r = r0 + np.einsum("wla,wa->wl", JX, dx) + np.einsum("wlp,p->wl", Jg, dg)
-        return ShootFit(self.X + dx, self.g[keep] + dg, r, JX, np.ascontiguousarray(Jg), float(np.sum(r**2)), self.n_obs, 0)
+        return ShootFit(self.X + dx, self.g[keep] + dg, r, JX, np.ascontiguousarray(Jg), float(np.sum(r**2)), self.n_obs, 0,
+                        self.groups)
 
     def covariance(self) -> np.ndarray:
         """Covariance of g: max of Gauss-Newton (scaled by chi2_red) and window-cluster sandwich."""
@@ -411,6 +427,27 @@ class ShootFit:
         # per-parameter: the larger variance of the two (robust to autocorrelated misfit)
         scale = np.sqrt(np.maximum(np.diag(sand), np.diag(gn)) / np.maximum(np.diag(gn), 1e-300))
         return gn * np.outer(scale, scale)
+
+    def interval_covariance(self) -> tuple[np.ndarray, int | None]:
+        """(covariance of g, degrees of freedom) for reported intervals: :meth:`covariance`, each variance raised to
+        that of a sandwich clustered on recordings where it is larger (a misfit that a recording's windows share, e.g.
+        over its range of speeds, is one piece of evidence, not one per window), with recordings - 1 degrees of freedom
+        for Student's t quantile; None (the normal quantile) when the windows' recordings are unknown or fewer than 3."""
+        cov = self.covariance()
+        if self.groups is None or not self.g.size:
+            return cov, None
+        _, inv = np.unique(self.groups, return_inverse=True)
+        G = int(inv.max()) + 1
+        if G < 3:
+            return cov, None
+        r, Jp = self.projected()
+        Hinv = np.linalg.pinv(np.einsum("wlp,wlq->pq", Jp, Jp))
+        scores = np.zeros((G, self.g.size))
+        np.add.at(scores, inv, np.einsum("wlp,wl->wp", Jp, r))
+        sand = Hinv @ (scores.T @ scores * (G / (G - 1))) @ Hinv
+        d = np.maximum(np.diag(cov), 1e-300)
+        scale = np.sqrt(np.maximum(np.diag(sand), d) / d)
+        return cov * np.outer(scale, scale), G - 1
 
 
 def _perturbed(build: Callable[[np.ndarray], System], g: np.ndarray, g_step: float) -> list[System]:
@@ -500,7 +537,8 @@ class Shooter:
         if np.ndim(dt) == 2 and K > 1:
             dt = np.tile(dt, (K, 1))
         u = w.u if w.u is None or K == 1 else np.tile(w.u, (K, 1, 1))
-        sim = simulate_qv(system, X[:, :n], X[:, n:], w.length - 1, u, dt, sub)
+        ub = w.u_before if w.u_before is None or K == 1 else np.tile(w.u_before, (K, 1, 1))
+        sim = simulate_qv(system, X[:, :n], X[:, n:], w.length - 1, u, dt, sub, ub)
         sim = sim.reshape((K, -1) + sim.shape[1:])
         if w.stride == 1:
             d = angle_diff(sim, w.q[None], w.angle_dims) / self.sigma
@@ -643,10 +681,10 @@ class Shooter:
             if rel < tol:
                 break
         if not stats:
-            return ShootFit(X, g, r, np.zeros(r.shape + (0,)), np.zeros(r.shape + (0,)), cost, r.size, it)
+            return ShootFit(X, g, r, np.zeros(r.shape + (0,)), np.zeros(r.shape + (0,)), cost, r.size, it, self.w.traj)
         # Jacobians at the final point for statistics
         JX, Jg = lin if lin is not None else self.linearize(build, system, g, X, g_step, r)[1:]
-        return ShootFit(X, g, r, JX, Jg, cost, r.size, it)
+        return ShootFit(X, g, r, JX, Jg, cost, r.size, it, self.w.traj)
 
     def fit_states(self, system: System, X0: np.ndarray, max_iter: int = 25) -> ShootFit:
         """Window states only, by homotopy on the window length (short prefixes first).

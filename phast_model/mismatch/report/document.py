@@ -190,6 +190,8 @@ def markdown(report: Report) -> str:
     plots = list(PLOTS) + ([CURVE_PLOT] if report.plot_data.get("friction_curve") is not None else [])
     lines += [PLOTS_PREFIX + ", ".join(plots), "",
               "## Method", "", str(d["details"].get("method", "")), ""]
+    if d["details"].get("intervals"):
+        lines += [f"95% intervals: {d['details']['intervals']}.", ""]
     return "\n".join(lines)
 
 

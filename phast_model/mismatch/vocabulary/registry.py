@@ -39,7 +39,10 @@ Components:
 * inertia (``armature``): the reflected rotor inertia ``c`` of the motor behind joint i, added to ``M_ii``; its
   kinetic energy is part of H, so the model stays passive, and ``c >= 0`` keeps ``M + A`` positive definite;
 * sensor (``sensor_offset``, ``sensor_gain`` ``q_meas = c q`` and ``sensor_eccentricity``
-  ``q_meas = q + c (1 - cos q)``, the even part of an off-centre encoder): the measurement map.
+  ``q_meas = q + c (1 - cos q)``, the even part of an off-centre encoder): the measurement map;
+* delays (``input_delay``, a port term: the port delivers ``u_i(t - c)``; ``sensor_delay``, a sensor term: the sensor
+  reports ``q_i(t - c)``), ``c`` in seconds, ``0 <= c <= MAX_DELAY_SAMPLES`` samples, fractions of a sample by linear
+  interpolation (:mod:`phast_model.rigs.delays`).
 """
 
 from __future__ import annotations
@@ -50,6 +53,8 @@ from typing import Any, ClassVar, NamedTuple, TypeVar
 import numpy as np
 
 from phast_gym.systems.base import NUMPY, ArrayNamespace
+
+from ...rigs.delays import MAX_DELAY_SAMPLES
 
 #: the ports of the augmented model a term kind can act through
 COMPONENTS = ("dissipation", "potential", "port", "inertia", "sensor")
@@ -63,10 +68,12 @@ class Maps:
     sensor_offset: list[float]
     sensor_gain: list[float]
     sensor_eccentricity: list[float] = field(default_factory=list)
+    input_delay: list[float] = field(default_factory=list)  # [s] per port (the port delivers u_i(t - d_i))
+    sensor_delay: list[float] = field(default_factory=list)  # [s] per coordinate (the sensor reports q_i(t - d_i))
 
     @classmethod
     def identity(cls, n: int) -> Maps:
-        return cls([0.0] * n, [0.0] * n, [1.0] * n, [0.0] * n)
+        return cls([0.0] * n, [0.0] * n, [1.0] * n, [0.0] * n, [0.0] * n, [0.0] * n)
 
 
 @dataclass(frozen=True)
@@ -81,6 +88,8 @@ class ScaleContext:
     eps: float  # the coordinate's tanh smoothing of sign(qdot)
     u: np.ndarray | None  # the port input on the coordinate (None when none acts on it)
     is_angle: bool
+    dt: float = 0.0  # the recordings' (median) sampling step [s] (delays are scaled by it; 0: unknown)
+    n: int = 1  # coordinates of the system
 
 
 class Scale(NamedTuple):
@@ -119,6 +128,9 @@ class TermKind:
     refine_steps: ClassVar[tuple[float, ...]] = ()
     magnitude: ClassVar[bool] = False  # the fitted coefficient is |c| (a threshold, an inertia)
     stiff_edge: ClassVar[bool] = False  # a sharp sign(qdot): simulate the "reality" with short substeps
+    #: a delay [s] (a port or sensor term that shifts a signal in time): set by :meth:`set_map`, applied around the
+    #: simulation (:mod:`phast_model.rigs.delays`), never in the vector field
+    delay: ClassVar[bool] = False
     #: the MuJoCo attribute (joint or actuator) that expresses the term exactly, or None
     mjcf: ClassVar[str | None] = None
     #: what a MuJoCo user adds for a term no attribute expresses
@@ -491,6 +503,67 @@ class SensorEccentricity(SensorOffset):
         return [Scale(float(ctx.sensor_scale), FD_STEP)] if ctx.is_angle else []
 
 
+# --------------------------------------------------------------------------- delays
+class DelayKind(TermKind):
+    """A delay ``c`` [s] >= 0 on one port or coordinate; candidates scaled so that z = 1 is one sample (a fitted value
+    is |c|, like a threshold: an iterate may step past zero).  No force and no regression column: the PySINDy peer's
+    library has no delay (a delay is not linear in its coefficient)."""
+
+    positive = True
+    magnitude = True
+    delay = True
+    #: the longest delay, in samples of the recording (longer ones are clipped: docs/mismatch.md)
+    max_samples: ClassVar[int] = MAX_DELAY_SAMPLES
+
+    def check(self, coefficient: float, velocity: float) -> None:
+        if not coefficient >= 0 or not np.isfinite(coefficient):  # (also rejects NaN)
+            raise ValueError(f"{self.name} is a delay in seconds: it must be >= 0, got {coefficient!r}")
+
+    def expression(self, c: float, i: int, velocity: float) -> str:
+        return self.formula.format(i=i).replace("t - c", f"t - {c:.4g} s")
+
+    def applies(self, ctx: ScaleContext) -> bool:
+        return ctx.dt > 0
+
+    def scales(self, ctx: ScaleContext) -> list[Scale]:
+        return [Scale(float(ctx.dt), FD_STEP)] if self.applies(ctx) else []
+
+
+class InputDelay(DelayKind):
+    """Actuator latency: the port delivers ``u_i(t - c)`` (the recorded u, held per interval, interpolated linearly
+    between samples for a fraction of a sample; at most :data:`MAX_DELAY_SAMPLES` samples)."""
+
+    name, component, formula = "input_delay", "port", "port delivers u{i}(t - c)"
+    mjcf_advice = ("MuJoCo has no actuator delay attribute: delay ctrl by c in your controller (a buffer of past commands, "
+                   "interpolated for a fraction of a timestep) before each mj_step")
+
+    def port(self, u: Any, c: float, deadzone_width: float, xp: ArrayNamespace) -> Any:
+        return u  # the delay acts on the input sequence (AugmentedSystem.delayed_input), not on one value
+
+    def applies(self, ctx: ScaleContext) -> bool:
+        return ctx.dt > 0 and ctx.u is not None
+
+    def set_map(self, maps: Maps, i: int, c: float) -> None:
+        maps.input_delay[i] += c
+
+
+class SensorDelay(DelayKind):
+    """Sensor latency on one coordinate: the sensor reports ``q_i(t - c)`` (the simulated q interpolated linearly
+    between samples).  Screened only on systems of two or more coordinates: on one coordinate a sensor delay is exactly
+    an input delay (with u) or nothing at all (without u: a time shift of a free motion is another initial state), and
+    a delay of every coordinate alike is an input delay of every port."""
+
+    name, component, formula = "sensor_delay", "sensor", "measured q{i}(t) = true q{i}(t - c)"
+    mjcf_advice = ("a sensor term, not dynamics: MuJoCo has no sensor delay for joint positions; compare the model's "
+                   "q(t - c) with the log (or shift the log by c) in your sensor pipeline (the model file is unchanged)")
+
+    def applies(self, ctx: ScaleContext) -> bool:
+        return ctx.dt > 0 and ctx.n >= 2
+
+    def set_map(self, maps: Maps, i: int, c: float) -> None:
+        maps.sensor_delay[i] += c
+
+
 # --------------------------------------------------------------------------- the registry
 #: term name -> kind, in vocabulary order (the order breaks ties between terms of equal evidence)
 VOCABULARY: dict[str, TermKind] = {}
@@ -532,6 +605,6 @@ def law_terms() -> tuple[str, ...]:
 VISCOUS, COULOMB, STRIBECK, ARMATURE, ACTUATOR_GAIN = Viscous(), Coulomb(), Stribeck(), Armature(), ActuatorGain()
 _BUILT_IN: tuple[TermKind, ...] = (VISCOUS, COULOMB, QuadraticDrag(), PositionDependentDamping(), STRIBECK, LinearStiffness(),
                                    CubicStiffness(), ConstantForce(), ARMATURE, ACTUATOR_GAIN, ActuatorDeadzone(), SensorOffset(),
-                                   SensorGain(), SensorEccentricity())
+                                   SensorGain(), SensorEccentricity(), InputDelay(), SensorDelay())
 for _kind in _BUILT_IN:
     register(_kind)

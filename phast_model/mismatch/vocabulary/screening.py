@@ -47,7 +47,7 @@ def candidates(problem: Problem, system: AugmentedSystem) -> list[Candidate]:
     for i in range(problem.n):
         ctx = ScaleContext(qs[..., i], vs[..., i], float(force_rms[i]), float(mass_rms[i]), float(sensor_scale[i]),
                            problem.eps_coord[i], train.u[..., i] if problem.has_u[i] and train.u is not None else None,
-                           i in train.angle_dims)
+                           i in train.angle_dims, float(train.dt), problem.n)
         for kind in _screened(problem):
             out += [Candidate(kind.name, i, sc.scale, sc.fd_step, sc.velocity) for sc in kind.scales(ctx)]
     return out

@@ -13,6 +13,7 @@ from typing import Any
 
 from phast_gym.systems.base import NUMPY, ArrayNamespace, Components, System, solve_spd
 
+from ...rigs import delays
 from .registry import VOCABULARY, Maps, TermKind, kind
 
 __all__ = ["VOCABULARY", "AugmentedSystem", "Term", "friction_basis"]
@@ -80,10 +81,11 @@ class AugmentedSystem(System):
         for t in self.terms:
             if not 0 <= t.coordinate < base.n:
                 raise ValueError(f"term {t.name} on coordinate {t.coordinate}: {base.name} has coordinates 0..{base.n - 1}")
-            if t.component in ("inertia", "sensor"):
+            if t.component in ("inertia", "sensor") or t.kind.delay:
                 t.kind.set_map(maps, t.coordinate, t.coefficient)
         self.armature = maps.armature  # A = diag(armature): H = p^T (M(q) + A)^-1 p / 2 + V
         self.sensor_offset, self.sensor_gain, self.sensor_ecc = maps.sensor_offset, maps.sensor_gain, maps.sensor_eccentricity
+        self.input_delay, self.sensor_delay = maps.input_delay, maps.sensor_delay  # [s] per port / coordinate
         self.has_armature = any(a != 0.0 for a in self.armature)
         # a base that carries its own rotor inertia (a MuJoCo model's joint armature) takes A into its M(q), so its
         # fused vector field stays in use (one kinematics pass per evaluation instead of three)
@@ -92,7 +94,18 @@ class AugmentedSystem(System):
 
     @property
     def has_sensor_terms(self) -> bool:
-        return any(t.component == "sensor" for t in self.terms)
+        return any(t.component == "sensor" and not t.kind.delay for t in self.terms)
+
+    def delayed_input(self, u: Any, dt: Any, u_before: Any = None) -> Any:
+        """The port input delivered over each interval: the recorded u (B, K, n) delayed by :attr:`input_delay`
+        (:func:`phast_model.rigs.delays.delayed_input`; ``dt`` the step or the (B, K) steps, ``u_before`` (B, P, n) the
+        recorded inputs before the first interval).  Used by the simulation around the vector field."""
+        return delays.delayed_input(u, self.input_delay, dt, u_before)
+
+    def delayed_output(self, q: Any, v0: Any, dt: Any) -> Any:
+        """What delayed sensors report at the samples of a simulated q (B, K+1, n) started at (q[:, 0], v0):
+        q_i(t_k - sensor_delay_i) (:func:`phast_model.rigs.delays.delayed_output`)."""
+        return delays.delayed_output(q, v0, self.sensor_delay, dt)
 
     def measure(self, q: Any) -> Any:
         """The measurement map: (..., n) true coordinates -> what the sensor reports."""
