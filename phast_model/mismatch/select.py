@@ -283,6 +283,8 @@ def _confirm(s: _Search, shortlist: list[tuple[int, float]], s2: float, linear: 
                      for zz in grid]
             g0[j] = grid[int(np.argmin(costs))]
         fit_new = shooter.fit(fam_new.build, X0, g0, max_iter=CONFIRM_ITER)
+        if not fit_new.cost < s.fit.cost and X0 is not s.fit.X:  # the linear step's states led the refit astray: a
+            fit_new = shooter.fit(fam_new.build, s.fit.X, g0, max_iter=CONFIRM_ITER)  # failed descent, not evidence
         cov_new = fit_new.covariance()
         gain = (s.fit.cost - fit_new.cost) / s2
         ok = s.item_ok(fit_new, cov_new, order, k) and gain >= s.thr2
