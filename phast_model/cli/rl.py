@@ -15,11 +15,11 @@ import argparse
 import json
 import shlex
 import sys
-from typing import Any
 
 from ..rl.hold import HoldConfig
 from ..rl.loop import ALGOS, AgentSpec, FitSpec, LoopConfig
 from ..rl.plant import TASKS, PlantSpec, Task
+from .args import json_object
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -60,22 +60,13 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
-def _json_object(text: str, flag: str) -> dict[str, Any]:
-    try:
-        obj = json.loads(text)
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{flag} is not valid JSON ({e.msg}): {text!r}") from None
-    if not isinstance(obj, dict):
-        raise ValueError(f"{flag} must be a JSON object, got {text!r}")
-    return obj
-
 
 def config_from_args(args: argparse.Namespace) -> LoopConfig:
     """The loop's config; ValueError naming the bad option."""
-    plant = PlantSpec(args.env, _json_object(args.env_kwargs, "--env-kwargs"), sigma=args.sigma, max_action=args.max_action)
+    plant = PlantSpec(args.env, json_object(args.env_kwargs, "--env-kwargs"), sigma=args.sigma, max_action=args.max_action)
     agent = AgentSpec(algo=args.algo, steps=args.agent_steps, refit_steps=args.refit_steps, eval_every=args.eval_every,
                       mirror=not args.no_mirror)
-    fit = FitSpec(args.sim, _json_object(args.sim_kwargs, "--sim-kwargs"), args.regime, epochs=args.fit_epochs,
+    fit = FitSpec(args.sim, json_object(args.sim_kwargs, "--sim-kwargs"), args.regime, epochs=args.fit_epochs,
                   refit_epochs=args.refit_epochs)
     return LoopConfig(plant, Task(args.task, u_tol=args.u_tol), args.budget_s, args.seed, args.episode_s, args.excitation_episodes,
                       args.policy_episodes, eval_trials=args.eval_trials, eval_s=args.eval_s, fit=fit, agent=agent,

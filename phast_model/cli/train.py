@@ -27,6 +27,7 @@ from phast_gym import env_ids
 from phast_gym.datasets import PortExcitation
 
 from ..train.runs import DataSpec, train_run
+from .args import json_object
 
 __all__ = ["main", "parse_args", "train_run"]
 
@@ -128,15 +129,6 @@ def _int_list(text: str | None, flag: str) -> tuple[int, ...] | None:
         raise ValueError(f"{flag} expects comma-separated integers, got {text!r}") from None
 
 
-def _json_object(text: str, flag: str) -> dict[str, Any]:
-    try:
-        obj = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{flag} is not valid JSON ({exc.msg})") from None
-    if not isinstance(obj, dict):
-        raise ValueError(f"{flag} must be a JSON object, got {type(obj).__name__}")
-    return obj
-
 
 def _named(items: list[str], flag: str) -> dict[str, str]:
     """``NAME=VALUE`` items (repeatable flag) as a dict; ValueError on a malformed or repeated name."""
@@ -159,8 +151,8 @@ def _compared_systems(args: argparse.Namespace) -> dict[str, Any] | None:
     unknown = sorted(set(kwargs) - set(sims))
     if unknown:
         raise ValueError(f"--compare-kwargs names {unknown}, which no --compare gives")
-    default = _json_object(args.sim_kwargs, "--sim-kwargs")
-    return {name: load_simulator(sim, _json_object(kwargs[name], f"--compare-kwargs {name}") if name in kwargs else default).build()
+    default = json_object(args.sim_kwargs, "--sim-kwargs")
+    return {name: load_simulator(sim, json_object(kwargs[name], f"--compare-kwargs {name}") if name in kwargs else default).build()
             for name, sim in sims.items()} or None
 
 
@@ -173,7 +165,7 @@ def _recordings_main(args: argparse.Namespace) -> dict[str, Any]:
         raise ValueError("give either --env or --recordings, not both")
     if not args.sim:
         raise ValueError("--recordings needs --sim (an env id or path/to/rig.py:Class)")
-    spec = RecordingsSpec(args.recordings, args.sim, _json_object(args.sim_kwargs, "--sim-kwargs"), args.regime,
+    spec = RecordingsSpec(args.recordings, args.sim, json_object(args.sim_kwargs, "--sim-kwargs"), args.regime,
                           _int_list(args.holdout_trajectories, "--holdout-trajectories"), args.rollout_window_s,
                           tuple(args.action_bound) if args.action_bound else None, args.decimate,
                           compare=_compared_systems(args))
