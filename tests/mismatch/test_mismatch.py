@@ -196,6 +196,8 @@ def test_unexplained_residual_is_located_when_no_term_fits():
     assert rep.missing_physics == []
     assert "Unexplained residual" in rep.summary
     assert rep.located and rep.located[0]["coordinate"] == 0 and rep.located[0]["component"] == "potential"
+    times = math.sqrt(rep.details["chi2_per_dof"]["augmented"])  # the misfit left, in units of the noise
+    assert times > 1.2 and f"Incomplete: the final model's residual on the training recordings is {times:.3g} times" in rep.summary
 
 
 def test_stribeck_term_needs_its_velocity():

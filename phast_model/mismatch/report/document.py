@@ -8,6 +8,7 @@ report.html (:mod:`.html`: self-contained, tables as HTML, plots embedded as dat
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import partial
@@ -130,8 +131,9 @@ def summary_text(name: str, calibrated: Mapping[str, ParamRow], missing: Sequenc
         parts.append("No missing physics: the calibrated simulator agrees with the recordings within the noise.")
     if located and chi2_augmented >= 1.5 and not any("does not describe" in v for v in verdicts):
         loc = located[0]
-        parts.append(f"Unexplained residual, located at coordinate {loc['coordinate']} ({loc['component']}), where {loc['where']}, "
-                     f"{loc['when']}; no term of the vocabulary explains it.")
+        parts.append(f"Incomplete: the final model's residual on the training recordings is {math.sqrt(chi2_augmented):.3g} "
+                     f"times the noise. Unexplained residual, located at coordinate {loc['coordinate']} ({loc['component']}), "
+                     f"where {loc['where']}, {loc['when']}; no term of the vocabulary explains it.")
     b, c, a = fitres.rmse("nominal"), fitres.rmse("calibrated"), fitres.rmse("augmented")
     parts.append(f"On {fitres.evaluated_on}: rollout RMSE nominal {b:.4g}, calibrated {c:.4g}, augmented {a:.4g}.")
     sentence = _energy_check_sentence(fitres)
