@@ -100,6 +100,9 @@ def _compared(compare: Mapping[str, System] | None, sys0: System, name: str) -> 
     return out
 
 
+#: how the weak-form answer's intervals are computed (report.json: details.intervals when it is the answer)
+WEAK_FORM_INTERVALS = ("from the weak-form least squares: cluster-robust (CR1) over time blocks within recordings, "
+                       "Student's t quantile over the clusters (details.friction)")
 #: the nominal simulator must explain at least this share of the recordings beyond a line per window (explained_share)
 MIN_DESCRIBED = 0.5
 
@@ -154,7 +157,8 @@ def _details(problem: Problem, cal: Calibration, sel: Selection, weak_answer: Sy
             "n_windows_dropped_as_outliers": cal.n_dropped, "smoothing_window_samples": int(problem.smoothing_window),
             "coulomb_sign_smoothing": f"tanh(qdot/{problem.eps:.3g})",
             "coulomb_sign_smoothing_per_coordinate": np.broadcast_to(sel.family.eps, (problem.train.n,)).tolist(),
-            "threshold": opts.threshold, "intervals": INTERVALS,
+            "threshold": opts.threshold,
+            "intervals": INTERVALS if not weak_answer.replaces else WEAK_FORM_INTERVALS,
             "chi2_per_dof": {"nominal": cal.fit_nominal.chi2_red, "calibrated": cal.fit.chi2_red, "augmented": final_fit.chi2_red},
             "identifiability": cal.screen.identifiability.to_dict(),
             "held_out_check": sel.validation,  # the two-fold validation (select.py); the key's name is kept for readers
