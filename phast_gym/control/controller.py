@@ -156,6 +156,11 @@ class EnergyCasimirController:
         d = self.xi - self.q_star
         return self._wrap(d) if self.wrap_target else d
 
+    def torque(self, y_hat: np.ndarray, v_ext: np.ndarray | float = 0.0) -> np.ndarray:
+        """The port input of the current ``xi`` and port estimate ``y_hat`` (Eq. 28), clipped to ``max_action``."""
+        u = -self.k_c * self.shaping_error() + np.asarray(v_ext, dtype=np.float64) - self.d_inj * y_hat  # Eq. 28
+        return u if self.max_action is None else np.clip(u, -self.max_action, self.max_action)
+
     def reset(self, obs: np.ndarray, info: dict | None = None, xi0: np.ndarray | None = None) -> None:
         """Start an episode: ``xi`` := the measured q, represented nearest to q_star (Casimir C = 0)."""
         q = np.asarray(obs, dtype=np.float64).reshape(-1)[: self.system.n]
@@ -171,15 +176,13 @@ class EnergyCasimirController:
         y_hat = np.asarray(self.estimator.update(q_meas, info, self.u_prev), dtype=np.float64).reshape(n)
         if not np.all(np.isfinite(y_hat)):
             raise ValueError(f"port estimator {self.estimator.name!r} returned a non-finite estimate {y_hat}")
-        u = -self.k_c * self.shaping_error() + np.asarray(v_ext, dtype=np.float64) - self.d_inj * y_hat  # Eq. 28
+        u = self.torque(y_hat, v_ext)
         q_fb = q_meas
         if self.xi_feedback == "filtered":
             q_hat = self.estimator.q_estimate()
             if q_hat is not None:
                 q_fb = np.asarray(q_hat, dtype=np.float64).reshape(n)
         self.xi = self.xi + self.dt * (y_hat + self.k_xi * self._wrap(q_fb - self.xi))  # Eq. 29
-        if self.max_action is not None:
-            u = np.clip(u, -self.max_action, self.max_action)
         self.u_prev = u
         self.y_hat = y_hat
         return u

@@ -100,9 +100,6 @@ def _compared(compare: Mapping[str, System] | None, sys0: System, name: str) -> 
     return out
 
 
-#: how the weak-form answer's intervals are computed (report.json: details.intervals when it is the answer)
-WEAK_FORM_INTERVALS = ("from the weak-form least squares: cluster-robust (CR1) over time blocks within recordings, "
-                       "Student's t quantile over the clusters (details.friction)")
 #: the nominal simulator must explain at least this share of the recordings beyond a line per window (explained_share)
 MIN_DESCRIBED = 0.5
 
@@ -140,7 +137,8 @@ def _data(rec: Recordings, dec: int, sigma_raw: np.ndarray) -> dict[str, Any]:
 
 METHOD = ("multiple shooting of the simulator on windows (fit by simulation); Levenberg-Marquardt; "
           "forward selection on the linearized problem with a chi^2 gain > threshold^2, then nonlinear refit; "
-          "95% intervals from the larger of Gauss-Newton and window-cluster sandwich covariance")
+          "significance (|t|) from the larger of Gauss-Newton and window-cluster sandwich covariance; the reported "
+          "95% intervals as details.intervals says")
 METHOD_SYSTEMATIC = ("; model error >> noise, so the dissipation law was chosen per coordinate from the weak-form force "
                      "balance (one filter on both sides): candidate laws fitted on all training recordings but one, scored by "
                      "how well they predict the left-out recording's friction curve, passive total force at every observed "
@@ -158,7 +156,7 @@ def _details(problem: Problem, cal: Calibration, sel: Selection, weak_answer: Sy
             "coulomb_sign_smoothing": f"tanh(qdot/{problem.eps:.3g})",
             "coulomb_sign_smoothing_per_coordinate": np.broadcast_to(sel.family.eps, (problem.train.n,)).tolist(),
             "threshold": opts.threshold,
-            "intervals": INTERVALS if not weak_answer.replaces else WEAK_FORM_INTERVALS,
+            "intervals": weak_answer.intervals if weak_answer.replaces else INTERVALS,
             "chi2_per_dof": {"nominal": cal.fit_nominal.chi2_red, "calibrated": cal.fit.chi2_red, "augmented": final_fit.chi2_red},
             "identifiability": cal.screen.identifiability.to_dict(),
             "held_out_check": sel.validation,  # the two-fold validation (select.py); the key's name is kept for readers

@@ -86,6 +86,11 @@ class SystematicResult:
         """The regime applied: its answer replaces the shooting one (unless :attr:`not_adopted`)."""
         return self.system is not None
 
+    @property
+    def intervals(self) -> str:
+        """How the answer's 95% intervals were computed (the weak-form least squares of its law)."""
+        return "from the weak-form least squares: " + "; ".join(sorted({law.interval for law in self.laws.values()}))
+
     def to_dict(self) -> dict[str, Any]:
         """report.details.friction."""
         return {"used": self.replaces, "reason": self.reason, **self.evidence,

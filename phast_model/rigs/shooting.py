@@ -414,40 +414,52 @@ class ShootFit:
 
     def covariance(self) -> np.ndarray:
         """Covariance of g: max of Gauss-Newton (scaled by chi2_red) and window-cluster sandwich."""
-        P = self.g.size
-        if P == 0:
+        if not self.g.size:
             return np.zeros((0, 0))
-        r, Jp = self.projected()
-        H = np.einsum("wlp,wlq->pq", Jp, Jp)
-        Hinv = np.linalg.pinv(H)
-        gn = Hinv * max(self.chi2_red, 1.0)
-        s = np.einsum("wlp,wl->wp", Jp, r)  # per-window scores
-        meat = s.T @ s * (self.X.shape[0] / max(self.X.shape[0] - 1, 1))
-        sand = Hinv @ meat @ Hinv
-        # per-parameter: the larger variance of the two (robust to autocorrelated misfit)
-        scale = np.sqrt(np.maximum(np.diag(sand), np.diag(gn)) / np.maximum(np.diag(gn), 1e-300))
-        return gn * np.outer(scale, scale)
+        return self._covariance(*self._scores())
 
     def interval_covariance(self) -> tuple[np.ndarray, int | None]:
         """(covariance of g, degrees of freedom) for reported intervals: :meth:`covariance`, each variance raised to
         that of a sandwich clustered on recordings where it is larger (a misfit that a recording's windows share, e.g.
         over its range of speeds, is one piece of evidence, not one per window), with recordings - 1 degrees of freedom
         for Student's t quantile; None (the normal quantile) when the windows' recordings are unknown or fewer than 3."""
-        cov = self.covariance()
-        if self.groups is None or not self.g.size:
+        if not self.g.size:
+            return np.zeros((0, 0)), None
+        Hinv, scores = self._scores()
+        cov = self._covariance(Hinv, scores)
+        if self.groups is None:
             return cov, None
         _, inv = np.unique(self.groups, return_inverse=True)
         G = int(inv.max()) + 1
         if G < 3:
             return cov, None
+        per_recording = np.zeros((G, scores.shape[1]))
+        np.add.at(per_recording, inv, scores)
+        return _widened(cov, np.diag(_sandwich(Hinv, per_recording))), G - 1
+
+    def _scores(self) -> tuple[np.ndarray, np.ndarray]:
+        """(H^-1 (P, P), per-window scores (W, P)) of the problem with the window states projected out."""
         r, Jp = self.projected()
         Hinv = np.linalg.pinv(np.einsum("wlp,wlq->pq", Jp, Jp))
-        scores = np.zeros((G, self.g.size))
-        np.add.at(scores, inv, np.einsum("wlp,wl->wp", Jp, r))
-        sand = Hinv @ (scores.T @ scores * (G / (G - 1))) @ Hinv
-        d = np.maximum(np.diag(cov), 1e-300)
-        scale = np.sqrt(np.maximum(np.diag(sand), d) / d)
-        return cov * np.outer(scale, scale), G - 1
+        return Hinv, np.einsum("wlp,wl->wp", Jp, r)
+
+    def _covariance(self, Hinv: np.ndarray, scores: np.ndarray) -> np.ndarray:
+        """Gauss-Newton scaled by chi2_red, per parameter widened to the window-cluster sandwich where that is larger
+        (robust to autocorrelated misfit)."""
+        return _widened(Hinv * max(self.chi2_red, 1.0), np.diag(_sandwich(Hinv, scores)))
+
+
+def _sandwich(Hinv: np.ndarray, scores: np.ndarray) -> np.ndarray:
+    """The cluster-robust covariance H^-1 (S^T S) H^-1 of per-cluster scores S (G, P), with the G / (G - 1) correction."""
+    G = scores.shape[0]
+    return Hinv @ (scores.T @ scores * (G / max(G - 1, 1))) @ Hinv
+
+
+def _widened(cov: np.ndarray, var: np.ndarray) -> np.ndarray:
+    """``cov`` with each parameter's variance raised to ``var`` where that is larger (correlations kept)."""
+    d = np.diag(cov)
+    scale = np.sqrt(np.maximum(var, d) / np.maximum(d, 1e-300))
+    return cov * np.outer(scale, scale)
 
 
 def _perturbed(build: Callable[[np.ndarray], System], g: np.ndarray, g_step: float) -> list[System]:

@@ -32,7 +32,7 @@ import torch
 from phast_gym.control import EnergyCasimirController
 from phast_gym.control.controller import potential_curvature
 from phast_gym.control.estimators import UKFEstimator
-from phast_gym.systems.base import NUMPY, System, wrap
+from phast_gym.systems.base import NUMPY, System, angle_diff
 
 from ..control.phast_estimators import PHASTProcess
 from ..world.model import PHAST
@@ -148,8 +148,6 @@ class HybridPolicy:
         self.q_star = np.asarray(q_star, dtype=np.float64)
         self.builder = ObsBuilder(frames)
         self.hold, self.cfg = hold, cfg or HoldConfig()
-        dims = hold.system.angle_dims if hold is not None else ()
-        self._angle = np.array([i in dims for i in range(len(self.q_star))])
         self.holding = False
         self.handoffs = 0
         self._t = 0
@@ -176,13 +174,14 @@ class HybridPolicy:
         q_hat = self.hold.estimator.q_estimate()
         if q_hat is None:
             return
-        err = np.abs(np.where(self._angle, wrap(q_hat - self.q_star), q_hat - self.q_star))
-        if self.holding and float(err.max()) > self.cfg.exit_angle:
+        d = angle_diff(np.asarray(q_hat, dtype=np.float64), self.q_star, self.hold.system.angle_dims)
+        err = float(np.abs(d).max())
+        if self.holding and err > self.cfg.exit_angle:
             self.holding = False
-        elif not self.holding and float(err.max()) < self.cfg.enter_angle and float(np.abs(self.hold.y_hat).max()) < self.cfg.enter_rate:
+        elif not self.holding and err < self.cfg.enter_angle and float(np.abs(self.hold.y_hat).max()) < self.cfg.enter_rate:
             self.holding = True
             self.handoffs += 1
-            self.hold.xi = self.q_star + np.where(self._angle, wrap(q_hat - self.q_star), q_hat - self.q_star)
+            self.hold.xi = self.q_star + d
 
     def act(self, q_meas: np.ndarray) -> np.ndarray:
         u_policy = self._policy_input(q_meas)
@@ -191,9 +190,8 @@ class HybridPolicy:
             return u_policy
         self.hold.act(q_meas)  # UKF update with the input applied last step, xi update
         self._update_mode()
-        if self.holding:
-            u = np.clip(-self.hold.k_c * self.hold.shaping_error() - self.hold.d_inj * self.hold.y_hat,
-                        -self.max_action, self.max_action)
+        if self.holding:  # Eq. 28 with xi as the handoff left it
+            u = np.clip(self.hold.torque(self.hold.y_hat), -self.max_action, self.max_action)
         else:
             u = u_policy
         self.hold.u_prev = u

@@ -49,10 +49,6 @@ class Optim:
     sched: Scheduler
 
     @property
-    def per_epoch(self) -> bool:
-        return isinstance(self.sched, torch.optim.lr_scheduler.ReduceLROnPlateau)
-
-    @property
     def lr(self) -> float:
         """The first group's learning rate (what the history records)."""
         return self.opt.param_groups[0]["lr"]
@@ -67,7 +63,8 @@ class Optim:
             self.sched.step(val_loss)
 
     def scale_lr(self, factor: float) -> None:
-        """Multiply every learning rate by ``factor``, now and for the rest of the schedule."""
+        """Multiply every learning rate by ``factor``, now and for the rest of the schedule (a plateau rule has no
+        base rates: it scales the current ones)."""
         if isinstance(self.sched, torch.optim.lr_scheduler.ReduceLROnPlateau):
             for g in self.opt.param_groups:
                 g["lr"] *= factor
