@@ -177,6 +177,8 @@ def _recordings_main(args: argparse.Namespace) -> dict[str, Any]:
         flags["patience"] = args.patience or None  # 0: every epoch
     train = RigTrainConfig(seed=args.seed, progress=not args.no_progress, **flags)
     metrics = train_recordings_run(spec, args.out, train, _overrides(args.set), plots=not args.no_plots, resume=args.resume)
+    if not (metrics["verdict"]["converged"] and metrics["verdict"]["better_than_nominal"]):
+        print(f"phast-train: warning: {metrics['verdict']['message']}", file=sys.stderr)
     return heldout_summary(metrics)
 
 

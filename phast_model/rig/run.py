@@ -17,9 +17,12 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from phast_gym.systems import System
 
 from ..rigs.recordings import Recordings
+from ..rigs.signals import estimate_noise
 from ..train.runs import HISTORY_FILE, METRICS_FILE
 from .fit import (
     BURN_IN_S,
@@ -120,6 +123,33 @@ def train_recordings_run(spec: RecordingsSpec, out: str | Path, train: RigTrainC
     return metrics
 
 
+#: a model whose best windows' RMSE on the training recordings is above this multiple of their noise has not converged
+NOT_CONVERGED = 10.0
+
+
+def verdict(train_rmse: float, epochs: int, noise: float, over_nominal: float) -> dict[str, Any]:
+    """Whether the run learned the rig, in one sentence a user reads first: it did not converge (the training windows'
+    RMSE is above :data:`NOT_CONVERGED` x the recordings' noise), or it predicts the held-out recordings worse than
+    the nominal model (``over_nominal`` > 1), or it is usable."""
+    converged = bool(np.isfinite(train_rmse) and train_rmse <= NOT_CONVERGED * noise)
+    better = bool(np.isfinite(over_nominal) and over_nominal < 1.0)
+    fit = f"training RMSE {train_rmse:.3g} after {epochs} epochs (the recordings' noise is about {noise:.2g})"
+    held = f"held-out rollout RMSE {over_nominal:.3g}x the nominal model's"
+    if not converged:
+        message = f"did not converge: {fit}; {held}"
+    elif not better:
+        message = f"worse than the nominal model: {held}; {fit}"
+    else:
+        message = f"converged: {fit}; {held}"
+    return {"converged": converged, "better_than_nominal": better, "message": message,
+            "train_rmse": train_rmse, "noise": noise}
+
+
+def _noise(rec: Recordings) -> float:
+    """The recordings' measurement noise (RMS over coordinates), from their 4th differences."""
+    return float(np.sqrt(np.mean(estimate_noise(rec.q, rec.t) ** 2)))
+
+
 def _metrics(spec: RecordingsSpec, data: RigData, fit: RigFit, scores: dict[str, Any]) -> dict[str, Any]:
     """metrics.json: the held-out scores (``heldout.phast.rollout_rmse``, ``heldout.nominal.rollout_rmse``), the
     learned friction and the training record."""
@@ -135,6 +165,7 @@ def _metrics(spec: RecordingsSpec, data: RigData, fit: RigFit, scores: dict[str,
         "train_wall_time_s": fit.wall_time_s, "best_val_rmse": fit.best_val, "best_epoch": fit.best_epoch,
         "epochs_run": len(fit.history), "stopped_early": fit.stopped_early, "nan_skipped": fit.nan_skipped,
         "nan_rollbacks": fit.nan_rollbacks, "init": fit.init,
+        "verdict": verdict(fit.best_val, len(fit.history), _noise(data.train), ratios["phast_over_nominal"]),
     }
 
 
@@ -156,7 +187,8 @@ def heldout_summary(metrics: dict[str, Any]) -> dict[str, float]:
     """The headline numbers of a recordings run (what the CLI prints)."""
     h = metrics["heldout"]
     out = {"heldout_phast_rmse": h["phast"]["rollout_rmse"], "heldout_nominal_rmse": h["nominal"]["rollout_rmse"],
-           "phast_over_nominal": h["phast_over_nominal"], "train_wall_time_s": metrics["train_wall_time_s"]}
+           "phast_over_nominal": h["phast_over_nominal"], "train_wall_time_s": metrics["train_wall_time_s"],
+           "verdict": metrics["verdict"]["message"]}
     compared = [k[: -len("_over_nominal")] for k in h if k.endswith("_over_nominal") and k != "phast_over_nominal"]
     if compared:
         out["compared"] = {name: {"heldout_rmse": h[name]["rollout_rmse"], "over_nominal": h[f"{name}_over_nominal"]}

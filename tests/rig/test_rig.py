@@ -170,3 +170,24 @@ def test_window_warmup_trains_short_windows_first_and_keeps_the_best_of_the_fina
     assert [h["epoch"] for h in fit.history] == [1, 2, 3, 4]
     assert fit.best_epoch in (3, 4)
     assert fit.best_val == pytest.approx(min(h["val_rmse"] for h in fit.history[2:]))
+
+
+def test_the_verdict_says_whether_the_run_learned_the_rig(trained: tuple) -> None:
+    """A run that fits its training windows near the noise and beats the nominal model is 'converged'; one stuck far
+    above the noise says 'did not converge' with its numbers; one that converged but predicts worse says so."""
+    from phast_model.rig.run import _noise, verdict
+
+    data, cfg, fit = trained
+    scores, _, _ = heldout_rollouts({"phast": fit.model, "nominal": build(nominal_config(cfg))}, data.heldout, 2.0)
+    ratio = scores["phast"]["rollout_rmse"] / scores["nominal"]["rollout_rmse"]
+    noise = _noise(data.train)
+    assert noise == pytest.approx(0.002, rel=0.3)
+    ok = verdict(fit.best_val, len(fit.history), noise, ratio)
+    assert ok["converged"] and ok["better_than_nominal"] and ok["message"].startswith("converged: training RMSE")
+    stuck = verdict(1.35, 116, 0.001, 84.1)
+    assert not stuck["converged"]
+    assert stuck["message"].startswith("did not converge: training RMSE 1.35 after 116 epochs (the recordings' noise is about 0.001)")
+    worse = verdict(0.003, 60, 0.001, 1.91)
+    assert worse["converged"] and not worse["better_than_nominal"]
+    assert worse["message"].startswith("worse than the nominal model: held-out rollout RMSE 1.91x")
+    assert not verdict(float("nan"), 3, 0.001, float("nan"))["converged"]
