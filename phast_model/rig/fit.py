@@ -539,6 +539,19 @@ def fit_recordings(model: PHAST, data: RigData, cfg: RigTrainConfig | None = Non
                   res.nan.skipped, res.nan.rollbacks, res.stopped)
 
 
+@torch.no_grad()
+def window_rmse(model: PHAST, data: RigData, cfg: RigTrainConfig, iters: int = 5) -> float:
+    """RMSE of ``model`` on the validation windows a run of ``cfg`` selects its model on (the final window length,
+    the same split), each window's state fitted to this model: the training-window score of another model (the
+    nominal one) on the same footing as the run's best validation RMSE."""
+    length = max(5, int(round(cfg.window_s / data.train.dt)) + 1)
+    train, val = _split_windows(cut_windows(data.train, length), cfg.val_fraction, cfg.seed)
+    w = val if val is not None else train
+    model = model.double()
+    X = fit_states(model, w.X, w.q, w.u, iters)
+    return math.sqrt(float(_loss(model, ShootWindows(w.q, w.u, X))))
+
+
 def build(cfg: PHASTConfig) -> PHAST:
     """The model of a rig config, in float64 (the shooting fits difference rollouts)."""
     model = build_from_config(cfg)

@@ -34,6 +34,7 @@ from .fit import (
     load_rig_data,
     nominal_config,
     rig_config,
+    window_rmse,
 )
 from .heldout import heldout_rollouts, heldout_windows
 
@@ -110,7 +111,8 @@ def train_recordings_run(spec: RecordingsSpec, out: str | Path, train: RigTrainC
         nominal = build(nominal_config(cfg))
         scores, rolls, windows = heldout_rollouts({"phast": fit.model, "nominal": nominal}, heldout,
                                                   spec.rollout_window_s, compare=spec.compare)
-        metrics = _metrics(spec, data, fit, scores)
+        levels = FitLevels(_noise(data.train), window_rmse(nominal, data, train))
+        metrics = _metrics(spec, data, fit, scores, levels)
         _write(fit, metrics, spec, train, out)
         if plots:
             from .plots import plot_friction, plot_heldout
@@ -123,17 +125,28 @@ def train_recordings_run(spec: RecordingsSpec, out: str | Path, train: RigTrainC
     return metrics
 
 
-#: a model whose best windows' RMSE on the training recordings is above this multiple of their noise has not converged
+#: a run whose training windows' RMSE is above this multiple of the recordings' noise, and above the nominal model's
+#: on the same windows, has not converged
 NOT_CONVERGED = 10.0
 
 
-def verdict(train_rmse: float, epochs: int, noise: float, over_nominal: float) -> dict[str, Any]:
-    """Whether the run learned the rig, in one sentence a user reads first: it did not converge (the training windows'
-    RMSE is above :data:`NOT_CONVERGED` x the recordings' noise), or it predicts the held-out recordings worse than
-    the nominal model (``over_nominal`` > 1), or it is usable."""
-    converged = bool(np.isfinite(train_rmse) and train_rmse <= NOT_CONVERGED * noise)
+@dataclass(frozen=True)
+class FitLevels:
+    """What a run's training-window RMSE is judged against: the recordings' noise and the nominal model's RMSE on the
+    same windows (:func:`phast_model.rig.fit.window_rmse`)."""
+
+    noise: float
+    nominal: float
+
+
+def verdict(train_rmse: float, epochs: int, levels: FitLevels, over_nominal: float) -> dict[str, Any]:
+    """Whether the run learned the rig, in one sentence a user reads first: it did not converge (its training windows'
+    RMSE is above :data:`NOT_CONVERGED` x the recordings' noise and above the nominal model's on the same windows),
+    or it predicts the held-out recordings worse than the nominal model (``over_nominal`` > 1), or it is usable."""
+    converged = bool(np.isfinite(train_rmse) and (train_rmse <= NOT_CONVERGED * levels.noise or train_rmse < levels.nominal))
     better = bool(np.isfinite(over_nominal) and over_nominal < 1.0)
-    fit = f"training RMSE {train_rmse:.3g} after {epochs} epochs (the recordings' noise is about {noise:.2g})"
+    fit = (f"training RMSE {train_rmse:.3g} after {epochs} epochs (the nominal model {levels.nominal:.3g} on the same "
+           f"windows; the recordings' noise about {levels.noise:.2g})")
     held = f"held-out rollout RMSE {over_nominal:.3g}x the nominal model's"
     if not converged:
         message = f"did not converge: {fit}; {held}"
@@ -141,8 +154,8 @@ def verdict(train_rmse: float, epochs: int, noise: float, over_nominal: float) -
         message = f"worse than the nominal model: {held}; {fit}"
     else:
         message = f"converged: {fit}; {held}"
-    return {"converged": converged, "better_than_nominal": better, "message": message,
-            "train_rmse": train_rmse, "noise": noise}
+    return {"converged": converged, "better_than_nominal": better, "message": message, "train_rmse": train_rmse,
+            "nominal_train_rmse": levels.nominal, "noise": levels.noise}
 
 
 def _noise(rec: Recordings) -> float:
@@ -150,7 +163,7 @@ def _noise(rec: Recordings) -> float:
     return float(np.sqrt(np.mean(estimate_noise(rec.q, rec.t) ** 2)))
 
 
-def _metrics(spec: RecordingsSpec, data: RigData, fit: RigFit, scores: dict[str, Any]) -> dict[str, Any]:
+def _metrics(spec: RecordingsSpec, data: RigData, fit: RigFit, scores: dict[str, Any], levels: FitLevels) -> dict[str, Any]:
     """metrics.json: the held-out scores (``heldout.phast.rollout_rmse``, ``heldout.nominal.rollout_rmse``), the
     learned friction and the training record."""
     nom = scores["nominal"]["rollout_rmse"]
@@ -165,7 +178,7 @@ def _metrics(spec: RecordingsSpec, data: RigData, fit: RigFit, scores: dict[str,
         "train_wall_time_s": fit.wall_time_s, "best_val_rmse": fit.best_val, "best_epoch": fit.best_epoch,
         "epochs_run": len(fit.history), "stopped_early": fit.stopped_early, "nan_skipped": fit.nan_skipped,
         "nan_rollbacks": fit.nan_rollbacks, "init": fit.init,
-        "verdict": verdict(fit.best_val, len(fit.history), _noise(data.train), ratios["phast_over_nominal"]),
+        "verdict": verdict(fit.best_val, len(fit.history), levels, ratios["phast_over_nominal"]),
     }
 
 

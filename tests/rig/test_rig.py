@@ -174,20 +174,26 @@ def test_window_warmup_trains_short_windows_first_and_keeps_the_best_of_the_fina
 
 def test_the_verdict_says_whether_the_run_learned_the_rig(trained: tuple) -> None:
     """A run that fits its training windows near the noise and beats the nominal model is 'converged'; one stuck far
-    above the noise says 'did not converge' with its numbers; one that converged but predicts worse says so."""
-    from phast_model.rig.run import _noise, verdict
+    above the noise and the nominal model says 'did not converge' with its numbers; one that converged but predicts
+    the held-out recordings worse says so."""
+    from phast_model.rig.fit import window_rmse
+    from phast_model.rig.run import FitLevels, _noise, verdict
 
     data, cfg, fit = trained
-    scores, _, _ = heldout_rollouts({"phast": fit.model, "nominal": build(nominal_config(cfg))}, data.heldout, 2.0)
+    nominal = build(nominal_config(cfg))
+    scores, _, _ = heldout_rollouts({"phast": fit.model, "nominal": nominal}, data.heldout, 2.0)
     ratio = scores["phast"]["rollout_rmse"] / scores["nominal"]["rollout_rmse"]
-    noise = _noise(data.train)
-    assert noise == pytest.approx(0.002, rel=0.3)
-    ok = verdict(fit.best_val, len(fit.history), noise, ratio)
+    train_cfg = RigTrainConfig(epochs=30, window_s=1.0, lr=4e-2, progress=False)
+    levels = FitLevels(_noise(data.train), window_rmse(nominal, data, train_cfg))
+    assert levels.noise == pytest.approx(0.002, rel=0.3)
+    assert fit.best_val < 0.5 * levels.nominal  # the hidden Coulomb friction: the nominal rig misfits its windows
+    ok = verdict(fit.best_val, len(fit.history), levels, ratio)
     assert ok["converged"] and ok["better_than_nominal"] and ok["message"].startswith("converged: training RMSE")
-    stuck = verdict(1.35, 116, 0.001, 84.1)
+    stuck = verdict(1.35, 116, FitLevels(0.001, 0.004), 84.1)
     assert not stuck["converged"]
-    assert stuck["message"].startswith("did not converge: training RMSE 1.35 after 116 epochs (the recordings' noise is about 0.001)")
-    worse = verdict(0.003, 60, 0.001, 1.91)
+    assert stuck["message"].startswith("did not converge: training RMSE 1.35 after 116 epochs (the nominal model 0.004")
+    worse = verdict(0.003, 60, FitLevels(0.001, 0.004), 1.91)
     assert worse["converged"] and not worse["better_than_nominal"]
     assert worse["message"].startswith("worse than the nominal model: held-out rollout RMSE 1.91x")
-    assert not verdict(float("nan"), 3, 0.001, float("nan"))["converged"]
+    assert verdict(0.02, 60, FitLevels(0.0001, 0.05), 0.4)["converged"]  # model error above the noise, below nominal
+    assert not verdict(float("nan"), 3, FitLevels(0.001, 0.004), float("nan"))["converged"]
