@@ -13,10 +13,11 @@ The pipeline, in the order :mod:`.analysis` runs it (the folder shows it):
 3. **calibrate** -- :mod:`.calibrate`: the nominal fit and the parameter combinations the recordings determine;
 4. **screen candidates** -- :mod:`.vocabulary` (:mod:`~.vocabulary.registry` of term kinds, :mod:`~.vocabulary.terms`
    and the augmented model, :mod:`~.vocabulary.candidates`, :mod:`~.vocabulary.screening`);
-5. **select** -- :mod:`.select`: parameter changes and terms in one forward selection by shooting, each chosen item
-   confirmed by *two-fold validation* on the training recordings; when model error dominates, :mod:`.systematic`
-   instead, built on :mod:`.friction` (weak-form identification, friction laws chosen by *leave-one-out*
-   prediction, passivity); the typed answer rows are :mod:`.rows`;
+5. **select and explain** -- :mod:`.select`: parameter changes and terms in one forward selection by shooting, each
+   chosen item confirmed by *two-fold validation* on the training recordings; then the explainers of
+   :mod:`.explainers` in turn: the shooting answer, and when model error dominates :mod:`.systematic`'s weak-form
+   answer, built on :mod:`.friction` (weak-form identification, friction laws chosen by *leave-one-out* prediction,
+   passivity), adopted only when it predicts the held-out recordings better; the typed answer rows are :mod:`.rows`;
 6. **confirm on held-out** -- :mod:`.evaluate` (the *held-out* recordings: one-step and open-loop rollout errors of
    the nominal, calibrated and augmented models) and :mod:`.energy` (the energy balance on them);
 7. **locate** -- :mod:`.locate`: where the calibrated model's residual force lives;

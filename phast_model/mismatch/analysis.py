@@ -8,7 +8,8 @@ and to draw the residual map, so the answer does not move with the filter.
 
 Stages: :mod:`.fitting.problem` (noise, scales, windows), :mod:`.calibrate`,
 :mod:`.vocabulary.screening` + :mod:`.select` (shooting selection, two-fold validation),
-:mod:`.systematic` (weak form and :mod:`.friction` when model error dominates),
+:mod:`.explainers` (the answer's strategies: the shooting selection's, then :mod:`.systematic`'s weak form and
+:mod:`.friction` when model error dominates, adopted only when it predicts the held-out recordings better),
 :mod:`.evaluate` (the fit on the held-out recordings) and :mod:`.energy`,
 :mod:`.locate`, :mod:`.report` (and :mod:`.mjcf_answer` for a MuJoCo model file).
 """
@@ -27,23 +28,28 @@ from phast_gym.systems.base import System
 
 from ..rigs.holdout import check_holdout_indices, check_holdout_range, split
 from ..rigs.recordings import Recordings, load_raw, validate
-from ..rigs.shooting import ShootFit, odd, time_scale
+from ..rigs.shooting import odd, time_scale
 from ..rigs.simulators import Simulator, load_simulator
-from .calibrate import Calibration, calibration, explained_share, screen_parameters
+from .calibrate import calibration, explained_share, screen_parameters
 from .energy import energy_check
 from .evaluate import FitTable, HeldOut, held_out
+from .explainers import Context, Explained, Explainer, ShootingExplainer, explain_in_turn
 from .fitting.problem import Problem, prepare
 from .locate import locate
 from .mjcf_answer import answer_in_model_terms, is_model_file_system
 from .options import Options, Progress
 from .report.document import Report, summary_text
 from .rows import ParamRow, TermRow
-from .select import INTERVALS, Selection, calibrated_rows, missing_rows, select
-from .systematic import SystematicContext, SystematicResult, systematic, with_shooting_delays
+from .select import select
+from .systematic import WeakFormExplainer
 from .vocabulary.screening import candidates
 from .vocabulary.terms import VOCABULARY
 
-__all__ = ["InternalError", "Options", "Report", "analyze", "held_out_scores"]
+__all__ = ["EXPLAINERS", "InternalError", "Options", "Report", "analyze", "held_out_scores"]
+
+#: the explainers :func:`analyze` runs, in order (:func:`.explainers.explain_in_turn`): a later answer challenges the
+#: standing one and is adopted only when it predicts the held-out recordings better.  A new explainer is added here.
+EXPLAINERS: tuple[Explainer, ...] = (ShootingExplainer(), WeakFormExplainer())
 
 
 def _options(options: Options | None, overrides: Mapping[str, Any]) -> Options:
@@ -135,50 +141,29 @@ def _data(rec: Recordings, dec: int, sigma_raw: np.ndarray) -> dict[str, Any]:
             "angle_dims": list(rec.angle_dims), "has_input": rec.u is not None}
 
 
-METHOD = ("multiple shooting of the simulator on windows (fit by simulation); Levenberg-Marquardt; "
-          "forward selection on the linearized problem with a chi^2 gain > threshold^2, then nonlinear refit; "
-          "significance (|t|) from the larger of Gauss-Newton and window-cluster sandwich covariance; the reported "
-          "95% intervals as details.intervals says")
-METHOD_SYSTEMATIC = ("; model error >> noise, so the dissipation law was chosen per coordinate from the weak-form force "
-                     "balance (one filter on both sides): candidate laws fitted on all training recordings but one, scored by "
-                     "how well they predict the left-out recording's friction curve, passive total force at every observed "
-                     "speed, every 95% interval excluding zero, fewest parameters within one paired standard error; the "
-                     "shooting selection's other terms held fixed")
-
-
-def _details(problem: Problem, cal: Calibration, sel: Selection, weak_answer: SystematicResult, final_fit: ShootFit,
-             augmented: System) -> dict[str, Any]:
+def _details(ctx: Context, explained: Explained, augmented: System) -> dict[str, Any]:
     """report.details: method, windows, chi^2/dof of each stage, what was set aside, cost."""
+    problem, cal, sel, answer = ctx.problem, ctx.cal, ctx.selection, explained.answer
     opts, win = problem.opts, cal.shooter.w
-    method = METHOD + (METHOD_SYSTEMATIC if weak_answer.replaces else "")
-    return {"method": method, "shoot_window_samples": int(win.length), "n_windows": int(win.count),
+    return {"method": explained.method, "shoot_window_samples": int(win.length), "n_windows": int(win.count),
             "n_windows_dropped_as_outliers": cal.n_dropped, "smoothing_window_samples": int(problem.smoothing_window),
             "coulomb_sign_smoothing": f"tanh(qdot/{problem.eps:.3g})",
             "coulomb_sign_smoothing_per_coordinate": np.broadcast_to(sel.family.eps, (problem.train.n,)).tolist(),
             "threshold": opts.threshold,
-            "intervals": weak_answer.intervals if weak_answer.replaces else INTERVALS,
-            "chi2_per_dof": {"nominal": cal.fit_nominal.chi2_red, "calibrated": cal.fit.chi2_red, "augmented": final_fit.chi2_red},
+            "intervals": explained.intervals,
+            "chi2_per_dof": {"nominal": cal.fit_nominal.chi2_red, "calibrated": cal.fit.chi2_red, "augmented": answer.fit.chi2_red},
             "identifiability": cal.screen.identifiability.to_dict(),
             "held_out_check": sel.validation,  # the two-fold validation (select.py); the key's name is kept for readers
             "equivalent_swap": sel.equivalent_swap,
-            "chi2_per_dof_every_pivot_fitted": cal.screen.fit_full.chi2_red, "friction": weak_answer.to_dict(),
+            "chi2_per_dof_every_pivot_fitted": cal.screen.fit_full.chi2_red, **explained.details(),
             "n_simulations": cal.shooter.n_sims,
             "wall_time_s": problem.log.elapsed(), "calibrated_kwargs": dict(augmented.params)}
-
-
-def _systematic(problem: Problem, cal: Calibration, sel: Selection, calibrated: dict[str, ParamRow]) -> SystematicResult:
-    """Stage 2b when the shooting-augmented chi^2/dof says model error, not noise, dominates."""
-    if not sel.fit.chi2_red > problem.opts.systematic_chi2:
-        return SystematicResult(f"shooting-augmented chi^2/dof {sel.fit.chi2_red:.3g} <= {problem.opts.systematic_chi2}: "
-                                "the shooting selection stands")
-    params = list(cal.screen.identifiability.basis)
-    return systematic(SystematicContext(problem, cal, sel.terms, sel.fit.chi2_red, calibrated, params))
 
 
 def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mapping[str, Any] | Recordings,
             sim_kwargs: Mapping[str, Any] | None = None, holdout_fraction: float = 0.3, options: Options | None = None,
             holdout_trajectories: Sequence[int] | None = None, compare: Mapping[str, System] | None = None,
-            **option_overrides: Any) -> Report:
+            explainers: Sequence[Explainer] | None = None, **option_overrides: Any) -> Report:
     """Find what the nominal simulator ``sim`` leaves out of ``recordings``.
 
     ``sim``: an env id, ``my_pkg.mod:MyRig``, ``path/to/rig.py:MyRig`` or a System subclass
@@ -186,6 +171,7 @@ def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mappin
     ``recordings``: an .npz / .csv path, a dict with the keys of docs/mismatch.md, or a :class:`Recordings`.
     ``holdout_trajectories`` (0-based indices) overrides ``holdout_fraction``.  ``compare``: more models (e.g. a
     published identified model) scored on the held-out recordings by the same code, as extra rows of ``fit``.
+    ``explainers`` replaces :data:`EXPLAINERS` (the strategies that answer, in order; :mod:`.explainers`).
     Returns a :class:`Report`.
     """
     opts = _options(options, option_overrides)
@@ -202,7 +188,7 @@ def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mappin
     held = held_out(hold, evaluated_on, problem.sigma, problem.x_scale, problem.shoot_window, problem.smoothing_window, opts.rollout_window)
     check_free(opts.free, simulator.numeric_params(sys0))
     comparison = _compared(compare, sys0, simulator.name)
-    inputs = _Inputs(simulator, given, dec, train, hold, held, comparison)
+    inputs = _Inputs(simulator, given, dec, train, hold, held, comparison, tuple(EXPLAINERS if explainers is None else explainers))
     try:
         report = _second_look(problem, inputs, _explain(problem, inputs))
         return answer_in_model_terms(report, sys0, held, given) if is_model_file_system(sys0) else report
@@ -283,64 +269,66 @@ class _Inputs:
     hold: Recordings
     held: HeldOut
     compare: dict[str, System]
+    explainers: tuple[Explainer, ...] = EXPLAINERS
 
 
-def _explain(problem: Problem, inputs: _Inputs) -> Report:
-    """Parameters and terms (one selection), the model-error regime, the held-out fit, the residual map, the report."""
-    opts, log, simulator, train, hold, held = problem.opts, problem.log, inputs.simulator, inputs.train, inputs.hold, inputs.held
-
+def _context(problem: Problem, inputs: _Inputs) -> tuple[Context, float]:
+    """The shooting selection, the calibration fitted with its terms, and the share of the recordings the simulator
+    describes (below :data:`MIN_DESCRIBED` nothing is explained: no parameter change, no terms, no model-error regime)."""
     screen = screen_parameters(problem)
     share = max(explained_share(screen.shooter, screen.fit_nominal), explained_share(screen.shooter, screen.fit_full))
-    if share < MIN_DESCRIBED:  # nothing to explain: no parameter change, no terms, no model-error regime
-        problem = replace(problem, opts=replace(opts, max_terms=0, systematic_chi2=math.inf))
+    if share < MIN_DESCRIBED:
+        problem = replace(problem, opts=replace(problem.opts, max_terms=0, systematic_chi2=math.inf))
         screen = replace(screen, identifiability=replace(screen.identifiability, basis=(), independence=()))
     sel = select(problem, screen, [*screen.candidates, *candidates(problem, problem.nominal_family.build(np.zeros(0)))])
     cal = calibration(problem, screen, sel.params, sel.fit, len(sel.terms))
-    excess0 = cal.fit_nominal.cost - cal.fit_nominal.dof
-    calibrated, missing = calibrated_rows(problem, cal, sel), missing_rows(sel, excess0)
     nominal = problem.nominal_family.build(np.zeros(0))
     # no parameter changed: the calibrated model is the nominal one (the held-out table then scores it once)
-    models = {"nominal": nominal, "calibrated": cal.system if cal.fit.g.size else nominal, "augmented": sel.system}
-    final_fit = sel.fit
-    weak_answer = _systematic(problem, cal, sel, calibrated)
-    shooting_answer = (models["augmented"], final_fit, calibrated, missing)
-    if weak_answer.replaces:  # a delay the shooting chose competes with the friction law by held-out prediction
-        weak_answer = with_shooting_delays(weak_answer, missing, held, cal.shooter, opts.max_iter)
-        assert weak_answer.system is not None and weak_answer.fit is not None
-        models["augmented"], final_fit = weak_answer.system, weak_answer.fit
-        calibrated, missing = weak_answer.calibrated, list(weak_answer.missing)
-    if share < MIN_DESCRIBED:
+    models = {"nominal": nominal, "calibrated": cal.system if cal.fit.g.size else nominal}
+    return Context(problem, cal, sel, inputs.held, models, inputs.compare), share
+
+
+def _scored(ctx: Context, explained: Explained, undescribed: bool
+            ) -> tuple[dict[str, System], dict[str, ParamRow], tuple[FitTable, dict[str, np.ndarray]]]:
+    """The models of report.fit, the calibrated rows and the held-out table of the adopted answer (computed here unless
+    a challenge already did); a simulator that does not describe the recordings keeps its nominal values."""
+    models, calibrated = {**ctx.models, "augmented": explained.answer.system}, explained.answer.calibrated
+    if undescribed:
         calibrated = {k: ParamRow.held(v.nominal, "not calibrated: the simulator does not describe these recordings")
                       for k, v in calibrated.items()}
         models["calibrated"] = models["augmented"] = models["nominal"]
+    if explained.table is not None and not undescribed:
+        return models, calibrated, explained.table
+    table = ctx.held.fit_table({**models, **ctx.compare})
+    ctx.problem.log(f"held-out: {table[0].to_dict()}")
+    return models, calibrated, table
 
-    fitres, rollouts = held.fit_table({**models, **inputs.compare})
-    log(f"held-out: {fitres.to_dict()}")
-    if weak_answer.replaces and fitres.rmse("augmented") >= fitres.rmse("calibrated"):
-        # the weak-form answer (its parameters included) does not predict: it is not adopted, the shooting answer stands
-        weak_answer = replace(weak_answer, not_adopted=(
-            f"the weak-form answer does not improve the held-out prediction (rollout RMSE "
-            f"{fitres.rmse('augmented'):.4g} >= calibrated {fitres.rmse('calibrated'):.4g})"))
-        models["augmented"], final_fit, calibrated, missing = shooting_answer
-        fitres, rollouts = held.fit_table({**models, **inputs.compare})
-    missing, unconfirmed = _confirmed(missing, fitres)
+
+def _explain(problem: Problem, inputs: _Inputs) -> Report:
+    """The explainers' answer (:func:`.explainers.explain_in_turn`), the held-out fit, the residual map, the report."""
+    ctx, share = _context(problem, inputs)
+    problem, train, hold, held = ctx.problem, inputs.train, inputs.hold, inputs.held
+    explained = explain_in_turn(inputs.explainers, ctx)
+    answer = explained.answer
+    models, calibrated, (fitres, rollouts) = _scored(ctx, explained, share < MIN_DESCRIBED)
+    missing, unconfirmed = _confirmed(list(answer.missing), fitres)
     if train.u is None and any(VOCABULARY[m.term].component == "dissipation" for m in missing):  # a check, no fitting
         fitres = replace(fitres, energy_check={
             "model": "augmented", "training": energy_check(models["augmented"], train, problem.smoothing_window),
             "held_out": energy_check(models["augmented"], hold, min(problem.smoothing_window, odd(hold.T // 2 - 1)))})
     located, resid_map = locate(models["calibrated"], train.resampled(), problem.smoothing_window, problem.eps)
-    if not missing and cal.fit.chi2_red < 1.5:  # within the noise
+    if not missing and ctx.cal.fit.chi2_red < 1.5:  # within the noise
         located = []
-    summary = summary_text(simulator.name, calibrated, missing, located, fitres, cal.fit.chi2_red, final_fit.chi2_red,
-                           problem.sigma_raw, _verdicts(share, unconfirmed, fitres))
+    summary = summary_text(inputs.simulator.name, calibrated, missing, located, fitres, ctx.cal.fit.chi2_red,
+                           answer.fit.chi2_red, problem.sigma_raw, _verdicts(share, unconfirmed, fitres))
     if share < MIN_DESCRIBED:
         located = []
     return Report(
-        simulator={"env_id": simulator.name, "kwargs": dict(simulator.kwargs)}, calibrated=calibrated,
+        simulator={"env_id": inputs.simulator.name, "kwargs": dict(inputs.simulator.kwargs)}, calibrated=calibrated,
         data=_data(inputs.given, inputs.dec, problem.sigma_raw),
         located=located, terms=missing, unconfirmed=unconfirmed, fit=fitres.to_dict(), summary=summary,
-        diagnostics={**_details(problem, cal, sel, weak_answer, final_fit, models["augmented"]), "explained_share": share},
+        diagnostics={**_details(ctx, explained, models["augmented"]), "explained_share": share},
         plot_data={"hold": held.rec, "rollouts": rollouts, "resid_map": resid_map, "train": train,
                    "augmented_system": models["augmented"], "calibrated_system": models["calibrated"],
-                   "nominal_system": models["nominal"], "friction_curve": weak_answer.curve, "friction_laws": weak_answer.laws},
+                   "nominal_system": models["nominal"], "friction_curve": explained.curve, "friction_laws": explained.laws},
     )

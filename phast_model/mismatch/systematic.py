@@ -27,6 +27,9 @@ made by prediction on recordings not used for the fit:
 * a delay the shooting selection chose (``input_delay``, ``sensor_delay``: no force the weak form can fit) competes
   with that law by held-out prediction (:func:`with_shooting_delays`): the law with the delays added is adopted only
   when it predicts the held-out recordings better than the law alone.
+
+:class:`WeakFormExplainer` is this regime as an :class:`~.explainers.Explainer`: its answer challenges the shooting
+answer and is adopted only when it predicts the held-out recordings better (:func:`.explainers.explain_in_turn`).
 """
 
 from __future__ import annotations
@@ -42,6 +45,7 @@ from ..rigs.frictioncurve import FrictionCurve, friction_curve
 from ..rigs.shooting import Shooter, ShootFit
 from .calibrate import Calibration
 from .evaluate import HeldOut
+from .explainers import Answer, Context, Declined
 from .fitting.problem import Problem
 from .friction.laws import FrictionLaw, spec_of
 from .friction.lawselect import LawSelection, select_friction
@@ -68,8 +72,7 @@ class SystematicContext:
 @dataclass(frozen=True)
 class SystematicResult:
     """The answer of the model-error regime: :meth:`to_dict` is details.friction of the report; ``evidence`` (what the
-    weak form found, as report objects) and the models and rows are set only when the regime applies; ``not_adopted``
-    says why the analysis kept the shooting answer after all (the held-out prediction)."""
+    weak form found, as report objects) and the models and rows are set only when the regime applies."""
 
     reason: str
     evidence: dict[str, Any] = field(default_factory=dict)
@@ -79,11 +82,10 @@ class SystematicResult:
     missing: tuple[TermRow, ...] = ()
     curve: FrictionCurve | None = None
     laws: dict[str, FrictionLaw] = field(default_factory=dict)  # for the friction-curve plot
-    not_adopted: str | None = None
 
     @property
     def replaces(self) -> bool:
-        """The regime applied: its answer replaces the shooting one (unless :attr:`not_adopted`)."""
+        """The regime applied: its answer challenges the shooting one."""
         return self.system is not None
 
     @property
@@ -93,8 +95,7 @@ class SystematicResult:
 
     def to_dict(self) -> dict[str, Any]:
         """report.details.friction."""
-        return {"used": self.replaces, "reason": self.reason, **self.evidence,
-                **({} if self.not_adopted is None else {"not_adopted": self.not_adopted})}
+        return {"used": self.replaces, "reason": self.reason, **self.evidence}
 
 
 def _law_rows(law: FrictionLaw, sels: list[LawSelection], passive: dict[str, Any], own: dict[int, float]) -> list[TermRow]:
@@ -220,3 +221,32 @@ def with_shooting_delays(result: SystematicResult, shooting_rows: list[TermRow],
         return replace(result, evidence=evidence)
     fit = shooter.fit_states(delayed, result.fit.X, max_iter=max_iter)
     return replace(result, evidence=evidence, system=delayed, fit=fit, missing=(*result.missing, *delayed_rows))
+
+
+#: details.method appended when the weak-form answer was computed
+METHOD_SYSTEMATIC = ("; model error >> noise, so the dissipation law was chosen per coordinate from the weak-form force "
+                     "balance (one filter on both sides): candidate laws fitted on all training recordings but one, scored by "
+                     "how well they predict the left-out recording's friction curve, passive total force at every observed "
+                     "speed, every 95% interval excluding zero, fewest parameters within one paired standard error; the "
+                     "shooting selection's other terms held fixed")
+
+
+class WeakFormExplainer:
+    """Stage 2b as an explainer: when the shooting-augmented chi^2/dof exceeds ``Options.systematic_chi2`` (model
+    error, not noise, dominates), the weak-form answer of :func:`systematic` with the standing answer's delays
+    (:func:`with_shooting_delays`); otherwise :class:`~.explainers.Declined` with the reason (details.friction)."""
+
+    def explain(self, ctx: Context) -> Answer | Declined:
+        problem, cal, sel = ctx.problem, ctx.cal, ctx.selection
+        if not sel.fit.chi2_red > problem.opts.systematic_chi2:
+            reason = (f"shooting-augmented chi^2/dof {sel.fit.chi2_red:.3g} <= {problem.opts.systematic_chi2}: "
+                      "the shooting selection stands")
+            return Declined({"friction": SystematicResult(reason).to_dict()})
+        calibrated, standing = (ctx.current.calibrated, list(ctx.current.missing)) if ctx.current else ({}, [])
+        params = list(cal.screen.identifiability.basis)
+        result = systematic(SystematicContext(problem, cal, sel.terms, sel.fit.chi2_red, calibrated, params))
+        # a delay the standing answer chose competes with the friction law by held-out prediction
+        result = with_shooting_delays(result, standing, ctx.held, cal.shooter, problem.opts.max_iter)
+        assert result.system is not None and result.fit is not None
+        return Answer("weak-form answer", result.system, result.fit, result.calibrated, result.missing, METHOD_SYSTEMATIC,
+                      result.intervals, "friction", result.to_dict(), result.curve, result.laws)
