@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from phast_gym.systems.base import System
+from phast_gym.systems.base import ParameterError, System
 
 from ..rigs.frictioncurve import FrictionCurve, friction_curve
 from ..rigs.shooting import Shooter, ShootFit
@@ -244,7 +244,14 @@ class WeakFormExplainer:
             return Declined({"friction": SystematicResult(reason).to_dict()})
         calibrated, standing = (ctx.current.calibrated, list(ctx.current.missing)) if ctx.current else ({}, [])
         params = list(cal.screen.identifiability.basis)
-        result = systematic(SystematicContext(problem, cal, sel.terms, sel.fit.chi2_red, calibrated, params))
+        try:
+            result = systematic(SystematicContext(problem, cal, sel.terms, sel.fit.chi2_red, calibrated, params))
+        except ParameterError as exc:  # the weak form's least squares left the simulator's valid parameters
+            problem.log(f"weak form: {exc}")
+            reason = (f"shooting-augmented chi^2/dof {sel.fit.chi2_red:.3g} > {problem.opts.systematic_chi2}, but the "
+                      f"weak-form identification reached parameters the simulator refuses ({exc}): the shooting "
+                      "selection stands")
+            return Declined({"friction": SystematicResult(reason).to_dict()})
         # a delay the standing answer chose competes with the friction law by held-out prediction
         result = with_shooting_delays(result, standing, ctx.held, cal.shooter, problem.opts.max_iter)
         assert result.system is not None and result.fit is not None

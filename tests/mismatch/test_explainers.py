@@ -101,3 +101,21 @@ def test_a_declined_explainer_is_reported_and_one_answer_is_needed(data):
     assert "friction" not in rep.details
     with pytest.raises(RuntimeError, match="no explainer answered"):
         analyze("PHAST/Pendulum-v0", data, explainers=[Declines()])
+
+
+def test_weak_form_parameters_the_simulator_refuses_leave_the_shooting_answer(data, default_report, monkeypatch):
+    """The weak form's least squares can leave the simulator's valid parameters (a two-link arm whose mass matrix is
+    not positive definite, seen on a delayed-sensor arm in the model-error regime): the weak form then declines with
+    the reason and the shooting answer stands, instead of an internal failure."""
+    from phast_gym.systems.base import ParameterError
+    from phast_model.mismatch import systematic as weak
+
+    def refused(ctx):
+        raise ParameterError("DoublePendulum: a mass matrix that is not positive definite")
+
+    monkeypatch.setattr(weak, "systematic", refused)
+    rep = analyze("PHAST/Pendulum-v0", data, systematic_chi2=0.0)
+    assert [(m["term"], m["coordinate"]) for m in rep.missing_physics] == [("coulomb_friction", 0)]
+    assert rep.details["method"] == default_report.details["method"] and not rep.details["friction"]["used"]
+    reason = rep.details["friction"]["reason"]
+    assert "reached parameters the simulator refuses" in reason and "not positive definite" in reason
