@@ -114,13 +114,19 @@ class Calibration:
         return self.family.build(self.fit.g)
 
 
+def followed_windows(r: np.ndarray) -> np.ndarray:
+    """(W,) the windows a model follows at all: mean squared standardized residual within 30x the median window's
+    (and below 50); the others (e.g. a separatrix crossing the fitted state put on the wrong side) are set aside."""
+    per_win = np.mean(r**2, axis=1)
+    return per_win <= max(30.0 * float(np.median(per_win)), 50.0)
+
+
 def fit_nominal(problem: Problem) -> tuple[Shooter, ShootFit, int]:
     """Window states of the nominal model; windows it cannot follow at all (e.g. a separatrix crossing) are dropped."""
     opts, nominal = problem.opts, problem.nominal_family
     shooter = problem.shooter(problem.shooting.windows)
     fit = shooter.fit_states(nominal.build(np.zeros(0)), problem.shooting.X0, max_iter=opts.max_iter)
-    per_win = np.mean(fit.r**2, axis=1)
-    keep = per_win <= max(30.0 * float(np.median(per_win)), 50.0)
+    keep = followed_windows(fit.r)
     n_dropped = int(np.sum(~keep))
     if n_dropped and np.sum(keep) >= 2:
         shooter = problem.shooter(problem.shooting.windows.select(keep))

@@ -17,6 +17,7 @@ explainers=[...])`` for one run); docs/extending.md shows one.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
@@ -31,10 +32,12 @@ from .calibrate import Calibration
 from .evaluate import FitTable, HeldOut
 from .fitting.problem import Problem
 from .friction.laws import FrictionLaw
-from .rows import ParamRow, TermRow
-from .select import INTERVALS, Selection, calibrated_rows, missing_rows
+from .rows import Alternative, ParamRow, TermRow, param_value
+from .select import INTERVALS, Selection, quantile95
+from .vocabulary.candidates import Candidate, ParamCandidate
 
-__all__ = ["METHOD", "Answer", "Context", "Declined", "Explained", "Explainer", "ShootingExplainer", "explain_in_turn"]
+__all__ = ["METHOD", "Answer", "Context", "Declined", "Explained", "Explainer", "ShootingExplainer", "calibrated_rows",
+           "explain_in_turn", "missing_rows"]
 
 
 @dataclass(frozen=True)
@@ -181,3 +184,84 @@ def explain_in_turn(explainers: Sequence[Explainer], ctx: Context) -> Explained:
         raise ValueError(f"no explainer answered: {[type(e).__name__ for e in explainers]}")
     return Explained(current, tuple(outcomes), table)
 
+
+# --------------------------------------------------------------------------- the shooting answer's report rows
+def calibrated_rows(problem: Problem, cal: Calibration, sel: Selection) -> dict[str, ParamRow]:
+    """report.sim.calibrated: changed parameters with 95% intervals (from the augmented fit when terms were added) and
+    the combination the data fixed, then every other parameter held at nominal with the reason."""
+    ident = cal.screen.identifiability
+    if sel.chosen and sel.interval_cov is not None:
+        g_src, cov_src, q95 = sel.fit.g, sel.interval_cov, sel.q95
+    else:
+        cov_src, dof = cal.fit.interval_covariance()
+        g_src, q95 = cal.fit.g, quantile95(dof)
+    out: dict[str, ParamRow] = {}
+    changed = [k for k, _ in cal.selected]
+    for j, (k, nom) in enumerate(cal.selected):
+        z, sd = g_src[j], math.sqrt(max(cov_src[j, j], 0.0))
+        same = [p for p, eq in ident.equivalents.items() if abs(eq.get(k, 0.0)) >= 0.5 and p not in changed]
+        equivalent = None
+        if same:
+            equivalent = ("the recordings fix a combination: the same fit follows from changes of "
+                          + ", ".join(f"{p} ({ident.sentence(p)})" for p in same))
+        out[k] = ParamRow(nom, nom * math.exp(z), (nom * math.exp(z - q95 * sd), nom * math.exp(z + q95 * sd)),
+                          math.exp(z) - 1.0, equivalent)
+    for k, note in cal.notes.items():
+        out.setdefault(k, ParamRow.held(param_value(problem.sys0.params[k]), note))
+    for k in ident.examined:
+        if k not in out:
+            note = "identifiable, but no change of it was needed (held at nominal)"
+            if (s := ident.sentence(k)) is not None:
+                note = f"held at nominal: {s}"
+            out[k] = ParamRow.held(param_value(problem.sys0.params[k]), note)
+    return out
+
+
+def _alternatives(sel: Selection, k: int, z: float) -> list[Alternative]:
+    """Candidates with (>= 97% cosine) the same signature as candidate k (parameters included)."""
+    cands, cols = sel.candidates, sel.columns
+    alts: list[Alternative] = []
+    ck = cols[:, k]
+    for kk in sel.usable:
+        if kk == k or cands[kk].key == cands[k].key:  # (the same term at another Stribeck velocity)
+            continue
+        ca = cols[:, kk]
+        cos = float(ck @ ca) / (np.linalg.norm(ck) * np.linalg.norm(ca) + 1e-300)
+        if abs(cos) > 0.97:
+            za = z * float(ca @ ck) / float(ca @ ca)
+            cand = cands[kk]
+            if isinstance(cand, ParamCandidate):
+                alts.append(Alternative(parameter=cand.name, value=cand.coefficient(za), similarity=float(round(abs(cos), 4)),
+                                        note="a parameter change with the same effect on these recordings"))
+            else:
+                alts.append(Alternative(term=cand.term, coordinate=cand.coordinate, coefficient=cand.coefficient(za),
+                                        similarity=float(round(abs(cos), 4))))
+    return alts
+
+
+def missing_rows(sel: Selection, excess0: float) -> list[TermRow]:
+    """report.missing_physics: each selected term with its coefficient, 95% interval, share of the excess chi^2 it
+    explains (``excess0``: excess chi^2 of the nominal fit) and its non-identifiable alternatives."""
+    out = []
+    for k in sel.term_indices:
+        j = sel.chosen.index(k)
+        cand = sel.candidates[k]
+        assert isinstance(cand, Candidate)
+        z = sel.fit.g[j]
+        sd = math.sqrt(max(sel.interval_cov[j, j], 0.0)) if sel.interval_cov is not None else 0.0
+        lo, hi = sorted([cand.coefficient(z - sel.q95 * sd), cand.coefficient(z + sel.q95 * sd)])
+        term = cand.family_term.at(z)
+        out.append(TermRow(cand.term, cand.coordinate, cand.component, term.coefficient, (lo, hi), term.expression(),
+                           float(min(1.0, sel.gains.get(k, 0.0) / max(excess0, 1e-300))),
+                           tuple(_alternatives(sel, k, z) + _swap_alternatives(sel, k)),
+                           term.velocity if cand.kind.has_velocity else None))
+    return out
+
+
+def _swap_alternatives(sel: Selection, k: int) -> list[Alternative]:
+    """The parameter changes a reported port gain stands for (an equivalent answer that the tool did not choose)."""
+    swap = sel.equivalent_swap
+    if not swap or swap["by"] != sel.candidates[k].label:
+        return []
+    return [Alternative(parameter=label.removeprefix("param "), note="changes of these parameters fit as well (cosine "
+                        f"{swap['cosine']}); the port gain keeps the simulator's values") for label in swap["replaced"]]

@@ -32,11 +32,11 @@ from scipy.stats import t as student_t
 from phast_gym.systems.base import System
 
 from ..rigs.shooting import ShootFit
-from .calibrate import Calibration, ParameterScreen
+from .calibrate import ParameterScreen
 from .fitting.linear import flat, orth_against
 from .fitting.problem import Problem
+from .law_look import LAW_LOOK, LawSet, fit_on_longer_windows
 from .options import Z95
-from .rows import Alternative, ParamRow, TermRow, param_value
 from .vocabulary.candidates import Candidate, Family, ParamCandidate
 from .vocabulary.registry import ACTUATOR_GAIN, COULOMB, ActuatorDeadzone
 
@@ -98,6 +98,9 @@ class _Marks:
 
     swapped: set[int] = field(default_factory=set)
     refined: set[int] = field(default_factory=set)
+    # (chosen term, another law of equal evidence on its coordinate, that law's linear z) for the longer look
+    contenders: list[tuple[int, int, float]] = field(default_factory=list)  # (.law_look)
+    longer_look: set[int] = field(default_factory=set)  # terms adopted on the longer windows (their evidence is there)
 
 
 def _structure_groups(cands: list[AnyCandidate], ks: list[int]) -> list[list[int]]:
@@ -200,6 +203,9 @@ class _Search:
         z, sd = fit.g[j], math.sqrt(max(cov[j, j], 1e-300))
         wrong_sign = cand.must_be_positive and cand.coefficient(z) <= 0
         return abs(z) / sd >= self.problem.opts.threshold and not wrong_sign
+
+    def system_now(self) -> System:
+        return self.fam.build(self.fit.g)
 
     def n_params(self) -> int:
         return sum(self.cands[k].is_param for k in self.chosen)
@@ -310,6 +316,7 @@ def _forward(s: _Search, r_o: np.ndarray, cols_o: np.ndarray, pool: list[int], c
         if best is None:
             break
         _, k, fit_new, fam_new, cov_new, order, _ = best
+        s.marks.contenders += _contenders(s, k, ranked)
         if fit_new.iterations >= CONFIRM_ITER:  # finish the winner's refit
             fit_new = s.screen.shooter.fit(fam_new.build, fit_new.X, fit_new.g, max_iter=opts.max_iter)
             cov_new = fit_new.covariance()
@@ -323,6 +330,67 @@ def _forward(s: _Search, r_o: np.ndarray, cols_o: np.ndarray, pool: list[int], c
         if pool:
             r_o, _, cols_o = s.columns(s.fit, s.fam, pool)
             col_of = {kk: j for j, kk in enumerate(pool)}
+
+
+#: most laws of equal evidence examined beside one chosen law (the strongest by linear gain)
+MAX_CONTENDERS = 2
+
+
+def _contenders(s: _Search, k: int, ranked: list[tuple[float, int, float]]) -> list[tuple[int, int, float]]:
+    """Other dissipation laws on the coordinate of the chosen term k of equal evidence (linear gain within threshold^2
+    or :data:`EQUAL_EVIDENCE` of its own): the windows did not decide between them (:func:`_law_look` looks longer)."""
+    c = s.cands[k]
+    if not isinstance(c, Candidate) or c.component != "dissipation":
+        return []
+    top = next(g for g, kk, _ in ranked if kk == k)
+    margin = max(s.thr2, EQUAL_EVIDENCE * top)
+    out = [(k, kk, z) for g, kk, z in ranked if kk != k and g >= top - margin and _same_joint_other_law(c, s.cands[kk])]
+    return out[:MAX_CONTENDERS]
+
+
+def _same_joint_other_law(a: Candidate, b: AnyCandidate) -> bool:
+    return isinstance(b, Candidate) and b.component == "dissipation" and b.coordinate == a.coordinate and b.term != a.term
+
+
+def _law_look(s: _Search) -> list[dict[str, Any]]:
+    """Where the selection met dissipation laws of equal evidence on one joint, the chosen set against each law swapped
+    in for the chosen one and each added beside it, all fitted on windows :data:`.law_look.LAW_LOOK` times longer
+    (:mod:`.law_look`); the best there is refitted on the selection's windows and adopted.  An added law must gain
+    threshold^2 there and every term must stay significant and passive; a swap must fit better by 2 chi^2 units."""
+    pairs = [(k, a, z) for k, a, z in s.marks.contenders if k in s.chosen and a not in s.chosen]
+    if not pairs or min(LAW_LOOK * s.problem.shoot_window, s.problem.train.T) <= s.problem.shoot_window:  # none longer
+        return []
+    sets: dict[tuple[int, ...], np.ndarray] = {tuple(s.chosen): s.fit.g.copy()}
+    for k, a, z in pairs:
+        j = s.pos(k)
+        sets.setdefault(tuple(a if kk == k else kk for kk in s.chosen), np.concatenate([s.fit.g[:j], [z], s.fit.g[j + 1:]]))
+        sets.setdefault((*s.chosen, a), np.concatenate([s.fit.g, [0.0]]))  # added: from no effect
+    orders = [list(o) for o in sets]
+    fits = fit_on_longer_windows(s.problem, s.system_now(), [LawSet(o, s.family_of(o).build, g) for o, g in zip(orders, sets.values())])
+    best = 0
+    for i in range(1, len(orders)):
+        bigger = len(orders[i]) - len(orders[best])
+        cov = fits[i].covariance()
+        ok = all(s.item_ok(fits[i], cov, orders[i], kk) for kk in orders[i] if not s.cands[kk].is_param)
+        if ok and fits[i].cost < fits[best].cost - (2.0 if bigger <= 0 else s.thr2 * bigger):
+            best = i
+    label = {i: " + ".join(s.cands[kk].label for kk in o if not s.cands[kk].is_param) for i, o in enumerate(orders)}
+    row: dict[str, Any] = {"item": f"dissipation law ({label[0]})", "kept": best == 0,
+           "chi2_on_longer_windows": {label[i]: float(f.cost) for i, f in enumerate(fits)},
+           "note": f"laws of equal evidence on one joint: compared on {fits[0].r.shape[0]} windows {LAW_LOOK}x longer"}
+    if best == 0:
+        s.problem.log(f"longer look: {label[0]} stands")
+        return [row]
+    before, gains = s.fit.cost, dict(s.gains)
+    s.chosen, s.fam = orders[best], s.family_of(orders[best])
+    s.fit = s.screen.shooter.fit(s.fam.build, s.fit.X, fits[best].g, max_iter=s.problem.opts.max_iter)
+    s.cov = s.fit.covariance()
+    for k, a, _ in pairs:  # a swapped-in law inherits the gain of the one it replaces; an added one has its own
+        if a in s.chosen:
+            s.marks.longer_look.add(a)
+            s.gains[a] = max((gains[k] if k not in s.chosen else 0.0) + before - s.fit.cost, 0.0)
+    s.problem.log(f"longer look: {label[best]} instead of {label[0]}; chi2/dof = {s.fit.chi2_red:.3g}")
+    return [{**row, "note": f"{row['note']}; adopted: {label[best]}"}]
 
 
 def _refit(s: _Search, keep: list[int]) -> None:
@@ -498,8 +566,9 @@ def _two_fold_validation(s: _Search) -> list[dict[str, Any]]:
             return table
         gains, txt = res
         need = {k: s.thr2 if _component(s.cands[k]) in LOCAL_EVIDENCE else 0.0 for k in s.chosen}
-        worst = min(s.chosen, key=lambda k: gains[k] - need[k])
-        if gains[worst] > need[worst]:
+        open_ = [k for k in s.chosen if k not in s.marks.longer_look]  # (a law settled on longer windows stays)
+        worst = min(open_, key=lambda k: gains[k] - need[k]) if open_ else None
+        if worst is None or gains[worst] > need[worst]:
             table += [{"item": s.cands[k].label, "left_out_gain": gains[k], "required": need[k], "kept": True, "folds": txt}
                       for k in s.chosen]
             return table
@@ -621,10 +690,11 @@ def select(problem: Problem, screen: ParameterScreen, cands: list[AnyCandidate])
         _forward(s, r, cols_o[:, keep], usable, {k: j for j, k in enumerate(usable)})
     _prune_parameters(s)
     _prune(s)
+    law_look = _law_look(s)
     compensating = _compensating_terms(s)
     sparser = _sparser_parameters(s)
     swap = _port_gain_equivalent(s) or sparser
-    validation = _two_fold_validation(s)
+    validation = law_look + _two_fold_validation(s)
     _refine_velocities(s)
     validation += _sharper_edge(s)
     problem.log(f"selected {[s.cands[k].label for k in s.chosen]}: chi2/dof = {s.fit.chi2_red:.3g}")
@@ -669,85 +739,3 @@ def _edge_shift(s: _Search) -> np.ndarray | None:
 def quantile95(dof: int | None) -> float:
     """The two-sided 95% quantile: Student's t with ``dof`` degrees of freedom (None: the normal's)."""
     return Z95 if dof is None else float(student_t.ppf(0.975, dof))
-
-
-# --------------------------------------------------------------------------- report rows
-def calibrated_rows(problem: Problem, cal: Calibration, sel: Selection) -> dict[str, ParamRow]:
-    """report.sim.calibrated: changed parameters with 95% intervals (from the augmented fit when terms were added) and
-    the combination the data fixed, then every other parameter held at nominal with the reason."""
-    ident = cal.screen.identifiability
-    if sel.chosen and sel.interval_cov is not None:
-        g_src, cov_src, q95 = sel.fit.g, sel.interval_cov, sel.q95
-    else:
-        cov_src, dof = cal.fit.interval_covariance()
-        g_src, q95 = cal.fit.g, quantile95(dof)
-    out: dict[str, ParamRow] = {}
-    changed = [k for k, _ in cal.selected]
-    for j, (k, nom) in enumerate(cal.selected):
-        z, sd = g_src[j], math.sqrt(max(cov_src[j, j], 0.0))
-        same = [p for p, eq in ident.equivalents.items() if abs(eq.get(k, 0.0)) >= 0.5 and p not in changed]
-        equivalent = None
-        if same:
-            equivalent = ("the recordings fix a combination: the same fit follows from changes of "
-                          + ", ".join(f"{p} ({ident.sentence(p)})" for p in same))
-        out[k] = ParamRow(nom, nom * math.exp(z), (nom * math.exp(z - q95 * sd), nom * math.exp(z + q95 * sd)),
-                          math.exp(z) - 1.0, equivalent)
-    for k, note in cal.notes.items():
-        out.setdefault(k, ParamRow.held(param_value(problem.sys0.params[k]), note))
-    for k in ident.examined:
-        if k not in out:
-            note = "identifiable, but no change of it was needed (held at nominal)"
-            if (s := ident.sentence(k)) is not None:
-                note = f"held at nominal: {s}"
-            out[k] = ParamRow.held(param_value(problem.sys0.params[k]), note)
-    return out
-
-
-def _alternatives(sel: Selection, k: int, z: float) -> list[Alternative]:
-    """Candidates with (>= 97% cosine) the same signature as candidate k (parameters included)."""
-    cands, cols = sel.candidates, sel.columns
-    alts: list[Alternative] = []
-    ck = cols[:, k]
-    for kk in sel.usable:
-        if kk == k or cands[kk].key == cands[k].key:  # (the same term at another Stribeck velocity)
-            continue
-        ca = cols[:, kk]
-        cos = float(ck @ ca) / (np.linalg.norm(ck) * np.linalg.norm(ca) + 1e-300)
-        if abs(cos) > 0.97:
-            za = z * float(ca @ ck) / float(ca @ ca)
-            cand = cands[kk]
-            if isinstance(cand, ParamCandidate):
-                alts.append(Alternative(parameter=cand.name, value=cand.coefficient(za), similarity=float(round(abs(cos), 4)),
-                                        note="a parameter change with the same effect on these recordings"))
-            else:
-                alts.append(Alternative(term=cand.term, coordinate=cand.coordinate, coefficient=cand.coefficient(za),
-                                        similarity=float(round(abs(cos), 4))))
-    return alts
-
-
-def missing_rows(sel: Selection, excess0: float) -> list[TermRow]:
-    """report.missing_physics: each selected term with its coefficient, 95% interval, share of the excess chi^2 it
-    explains (``excess0``: excess chi^2 of the nominal fit) and its non-identifiable alternatives."""
-    out = []
-    for k in sel.term_indices:
-        j = sel.chosen.index(k)
-        cand = sel.candidates[k]
-        assert isinstance(cand, Candidate)
-        z = sel.fit.g[j]
-        sd = math.sqrt(max(sel.interval_cov[j, j], 0.0)) if sel.interval_cov is not None else 0.0
-        lo, hi = sorted([cand.coefficient(z - sel.q95 * sd), cand.coefficient(z + sel.q95 * sd)])
-        term = cand.family_term.at(z)
-        out.append(TermRow(cand.term, cand.coordinate, cand.component, term.coefficient, (lo, hi), term.expression(),
-                           float(min(1.0, sel.gains.get(k, 0.0) / max(excess0, 1e-300))),
-                           tuple(_alternatives(sel, k, z) + _swap_alternatives(sel, k)),
-                           term.velocity if cand.kind.has_velocity else None))
-    return out
-
-
-def _swap_alternatives(sel: Selection, k: int) -> list[Alternative]:
-    """The parameter changes a reported port gain stands for (an equivalent answer that the tool did not choose)."""
-    swap = sel.equivalent_swap
-    if not swap or swap["by"] != sel.candidates[k].label:
-        return []
-    return [Alternative(parameter=label.removeprefix("param "), note="changes of these parameters fit as well (cosine "
-                        f"{swap['cosine']}); the port gain keeps the simulator's values") for label in swap["replaced"]]

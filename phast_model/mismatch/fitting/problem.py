@@ -131,6 +131,12 @@ def _windows(train: Recordings, length: int, stride: int, opts: Options) -> Wind
     return win
 
 
+def longer_windows(problem: Problem, length: int) -> Windows:
+    """Shooting windows of ``length`` samples (at most the recordings') on the training recordings, compared at the
+    selection's stride and under the same caps (fewer, longer windows)."""
+    return _windows(problem.train, min(length, problem.train.T), problem.shooting.windows.stride, problem.opts)
+
+
 def comparison_stride(train: Recordings, period: float) -> int:
     """Compare every k-th sample in shooting when u forbids decimation: ~20 samples per time scale (1 when not oversampled)."""
     if train.u is None:
