@@ -360,6 +360,9 @@ def _law_look(s: _Search) -> list[dict[str, Any]]:
     pairs = [(k, a, z) for k, a, z in s.marks.contenders if k in s.chosen and a not in s.chosen]
     if not pairs or min(LAW_LOOK * s.problem.shoot_window, s.problem.train.T) <= s.problem.shoot_window:  # none longer
         return []
+    if s.fit.chi2_red > s.problem.opts.systematic_chi2:  # chi^2 measures misfit there: the weak form chooses the law
+        s.problem.log("model error dominates: no longer look (the weak form chooses the dissipation law)")
+        return []
     sets: dict[tuple[int, ...], np.ndarray] = {tuple(s.chosen): s.fit.g.copy()}
     for k, a, z in pairs:
         j = s.pos(k)
