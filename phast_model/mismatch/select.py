@@ -363,24 +363,14 @@ def _law_look(s: _Search) -> list[dict[str, Any]]:
     if s.fit.chi2_red > s.problem.opts.systematic_chi2:  # chi^2 measures misfit there: the weak form chooses the law
         s.problem.log("model error dominates: no longer look (the weak form chooses the dissipation law)")
         return []
-    sets: dict[tuple[int, ...], np.ndarray] = {tuple(s.chosen): s.fit.g.copy()}
-    for k, a, z in pairs:
-        j = s.pos(k)
-        sets.setdefault(tuple(a if kk == k else kk for kk in s.chosen), np.concatenate([s.fit.g[:j], [z], s.fit.g[j + 1:]]))
-        sets.setdefault((*s.chosen, a), np.concatenate([s.fit.g, [0.0]]))  # added: from no effect
-    orders = [list(o) for o in sets]
-    fits = fit_on_longer_windows(s.problem, s.system_now(), [LawSet(o, s.family_of(o).build, g) for o, g in zip(orders, sets.values())])
-    best = 0
-    for i in range(1, len(orders)):
-        bigger = len(orders[i]) - len(orders[best])
-        cov = fits[i].covariance()
-        ok = all(s.item_ok(fits[i], cov, orders[i], kk) for kk in orders[i] if not s.cands[kk].is_param)
-        if ok and fits[i].cost < fits[best].cost - (2.0 if bigger <= 0 else s.thr2 * bigger):
-            best = i
+    orders, starts = _law_sets(s, pairs)
+    fits = fit_on_longer_windows(s.problem, s.system_now(), [LawSet(o, s.family_of(o).build, g) for o, g in zip(orders, starts)])
+    best = _winner(s, orders, fits)
     label = {i: " + ".join(s.cands[kk].label for kk in o if not s.cands[kk].is_param) for i, o in enumerate(orders)}
-    row: dict[str, Any] = {"item": f"dissipation law ({label[0]})", "kept": best == 0,
-           "chi2_on_longer_windows": {label[i]: float(f.cost) for i, f in enumerate(fits)},
-           "note": f"laws of equal evidence on one joint: compared on {fits[0].r.shape[0]} windows {LAW_LOOK}x longer"}
+    row: dict[str, Any] = {
+        "item": f"dissipation law ({label[0]})", "kept": best == 0,
+        "chi2_on_longer_windows": {label[i]: float(f.cost) for i, f in enumerate(fits)},
+        "note": f"laws of equal evidence on one joint: compared on {fits[0].r.shape[0]} windows {LAW_LOOK}x longer"}
     if best == 0:
         s.problem.log(f"longer look: {label[0]} stands")
         return [row]
@@ -394,6 +384,30 @@ def _law_look(s: _Search) -> list[dict[str, Any]]:
             s.gains[a] = max((gains[k] if k not in s.chosen else 0.0) + before - s.fit.cost, 0.0)
     s.problem.log(f"longer look: {label[best]} instead of {label[0]}; chi2/dof = {s.fit.chi2_red:.3g}")
     return [{**row, "note": f"{row['note']}; adopted: {label[best]}"}]
+
+
+def _law_sets(s: _Search, pairs: list[tuple[int, int, float]]) -> tuple[list[list[int]], list[np.ndarray]]:
+    """The sets the longer look compares (g orders and starts): the chosen one first, then per (chosen law k, other
+    law a, a's linear z) a swapped in for k (from z) and a added beside k (from no effect)."""
+    sets: dict[tuple[int, ...], np.ndarray] = {tuple(s.chosen): s.fit.g.copy()}
+    for k, a, z in pairs:
+        j = s.pos(k)
+        sets.setdefault(tuple(a if kk == k else kk for kk in s.chosen), np.concatenate([s.fit.g[:j], [z], s.fit.g[j + 1:]]))
+        sets.setdefault((*s.chosen, a), np.concatenate([s.fit.g, [0.0]]))
+    return [list(o) for o in sets], list(sets.values())
+
+
+def _winner(s: _Search, orders: list[list[int]], fits: list[ShootFit]) -> int:
+    """Index of the best set on the longer windows, the chosen one (0) unless beaten: a set of equal size by 2 chi^2
+    units, a larger one by threshold^2 per added law, with every term significant and passive."""
+    best = 0
+    for i in range(1, len(orders)):
+        bigger = len(orders[i]) - len(orders[best])
+        cov = fits[i].covariance()
+        ok = all(s.item_ok(fits[i], cov, orders[i], kk) for kk in orders[i] if not s.cands[kk].is_param)
+        if ok and fits[i].cost < fits[best].cost - (2.0 if bigger <= 0 else s.thr2 * bigger):
+            best = i
+    return best
 
 
 def _refit(s: _Search, keep: list[int]) -> None:
