@@ -16,9 +16,9 @@ import json
 import shlex
 import sys
 
-from ..rl.hold import HoldConfig
+from ..rl.hold import HOLD_KINDS, HoldConfig
 from ..rl.loop import ALGOS, AgentSpec, FitSpec, LoopConfig
-from ..rl.plant import TASKS, PlantSpec, Task
+from ..rl.plant import TASKS, PlantSpec, Task, quiet_u_tol
 from .args import json_object
 
 
@@ -36,8 +36,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--regime", choices=("known", "partial", "unknown"), default=f.regime,
                     help="world-model regime of the rig path (partial: the description's templates, refitted)")
     ap.add_argument("--sim-kwargs", default="{}", help="the rig description's parameters as JSON, e.g. '{\"mass\": 1.1}'")
-    ap.add_argument("--u-tol", type=float, default=Task().u_tol,
-                    help="quiet criterion: largest RMS input over the last second (N m; for a cart-pole: 2x its LQG floor)")
+    ap.add_argument("--u-tol", type=float, default=None,
+                    help="quiet criterion: largest RMS input over the last second (default: 0.25 N m for a pendulum, "
+                         "else 2x the plant's LQG floor at --sigma: 0.387 N for the cart-pole, force on the cart)")
     ap.add_argument("--sigma", type=float, default=p.sigma, help="q measurement noise of the plant (rad)")
     ap.add_argument("--max-action", type=float, default=p.max_action, help="input bound (N m or N)")
     ap.add_argument("--episode-s", type=float, default=d.episode_s, help="seconds per plant episode used for learning")
@@ -47,12 +48,27 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--agent-steps", type=int, default=a.steps, help="agent decisions of the first training")
     ap.add_argument("--refit-steps", type=int, default=a.refit_steps, help="agent decisions of each later training")
     ap.add_argument("--eval-every", type=int, default=a.eval_every, help="decisions between world-model evaluations")
+    ap.add_argument("--episode-decisions", type=int, default=a.episode_decisions,
+                    help="decisions per world-model episode of the agent")
+    ap.add_argument("--velocity-weight", type=float, default=a.velocity_weight, help="reward weight on |qdot|^2")
+    ap.add_argument("--position-weight", type=float, default=a.position_weight,
+                    help="reward weight on the squared Euclidean errors (the cart's position)")
+    ap.add_argument("--no-recenter", action="store_true",
+                    help="world-model episodes start where the recordings were (default: the cart's position moved to 0)")
     ap.add_argument("--fit-epochs", type=int, default=f.epochs)
     ap.add_argument("--refit-epochs", type=int, default=f.refit_epochs)
     ap.add_argument("--eval-trials", type=int, default=d.eval_trials, help="final evaluation episodes on the plant")
     ap.add_argument("--eval-s", type=float, default=d.eval_s, help="seconds per final evaluation episode")
-    ap.add_argument("--no-hold", action="store_true", help="no Energy-Casimir hold near the target (the agent alone)")
+    ap.add_argument("--no-hold", action="store_true", help="no hold near the target (the agent alone)")
     h = HoldConfig()
+    ap.add_argument("--hold", choices=HOLD_KINDS, default=h.kind,
+                    help="the hold: auto = Energy-Casimir when the input acts on every coordinate, else LQR of the "
+                         "learned model's linearisation")
+    ap.add_argument("--lqr-angle", type=float, default=h.lqr_angle, help="LQR hold: weight on the angle errors")
+    ap.add_argument("--lqr-position", type=float, default=h.lqr_position,
+                    help="LQR hold: weight on the Euclidean position errors (the cart's)")
+    ap.add_argument("--lqr-rate", type=float, default=h.lqr_rate, help="LQR hold: weight on every rate")
+    ap.add_argument("--hold-enter-angle", type=float, default=h.enter_angle, help="handoff to the hold within this angle (rad)")
     ap.add_argument("--hold-kc-factor", type=float, default=h.kc_factor, help="hold stiffness k_c / learned m g l")
     ap.add_argument("--hold-zeta", type=float, default=h.zeta, help="hold damping ratio (sets d_inj from the learned model)")
     ap.add_argument("--no-mirror", action="store_true", help="an unconstrained SAC policy (no reflection symmetry)")
@@ -63,14 +79,28 @@ def build_parser() -> argparse.ArgumentParser:
 
 def config_from_args(args: argparse.Namespace) -> LoopConfig:
     """The loop's config; ValueError naming the bad option."""
+    h = HoldConfig()
     plant = PlantSpec(args.env, json_object(args.env_kwargs, "--env-kwargs"), sigma=args.sigma, max_action=args.max_action)
     agent = AgentSpec(algo=args.algo, steps=args.agent_steps, refit_steps=args.refit_steps, eval_every=args.eval_every,
-                      mirror=not args.no_mirror)
+                      mirror=not args.no_mirror, episode_decisions=args.episode_decisions,
+                      velocity_weight=args.velocity_weight, position_weight=args.position_weight,
+                      recenter=not args.no_recenter)
     fit = FitSpec(args.sim, json_object(args.sim_kwargs, "--sim-kwargs"), args.regime, epochs=args.fit_epochs,
                   refit_epochs=args.refit_epochs)
-    return LoopConfig(plant, Task(args.task, u_tol=args.u_tol), args.budget_s, args.seed, args.episode_s, args.excitation_episodes,
+    u_tol = args.u_tol
+    if u_tol is None:
+        import gymnasium as gym
+
+        try:
+            u_tol = quiet_u_tol(plant)
+        except (KeyError, TypeError, ValueError, gym.error.Error):  # a bad --env / --env-kwargs: check_plant says why
+            u_tol = Task().u_tol
+    return LoopConfig(plant, Task(args.task, u_tol=u_tol), args.budget_s, args.seed, args.episode_s, args.excitation_episodes,
                       args.policy_episodes, eval_trials=args.eval_trials, eval_s=args.eval_s, fit=fit, agent=agent,
-                      hold=HoldConfig(enabled=not args.no_hold, kc_factor=args.hold_kc_factor, zeta=args.hold_zeta))
+                      hold=HoldConfig(enabled=not args.no_hold, kind=args.hold, kc_factor=args.hold_kc_factor,
+                                      zeta=args.hold_zeta, lqr_angle=args.lqr_angle, lqr_position=args.lqr_position,
+                                      lqr_rate=args.lqr_rate, enter_angle=args.hold_enter_angle,
+                                      exit_angle=max(h.exit_angle, args.hold_enter_angle)))
 
 
 def check_plant(cfg: LoopConfig) -> None:

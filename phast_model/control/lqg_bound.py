@@ -15,6 +15,7 @@ law with xi = q_hat).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -23,26 +24,42 @@ import scipy.linalg as sl
 
 from phast_gym.control.controller import potential_curvature
 from phast_gym.control.evaluation import ControlProtocol, control_system
-from phast_gym.systems.base import SCALAR
+from phast_gym.env import parse_actuated_dofs
+from phast_gym.systems.base import SCALAR, System
 
 
-def linearise(env_id: str, q_star: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """Discrete (A, B) of (q - q_star, qdot) under held torque u for a 1-dof plant."""
-    system = control_system(ControlProtocol(env_id=env_id, dt=dt))
-    q = np.array([q_star])
-    kappa = float(potential_curvature(system, q)[0, 0])
-    m = float(system.mass_matrix([q_star], SCALAR)[0][0])
-    damp = float(system.damping([q_star], SCALAR)[0]) if system.has_damping() else 0.0
-    ac = np.array([[0.0, 1.0], [-kappa / m, -damp / m]])
-    bc = np.array([[0.0], [1.0 / m]])
-    mm = sl.expm(np.block([[ac, bc], [np.zeros((1, 3))]]) * dt)
-    return mm[:2, :2], mm[:2, 2:]
+def linearise_system(system: System, q_star: Any, dt: float, actuated_dofs: Sequence[int] | None = None
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Discrete (A, B) of (q - q_star, qdot) about the equilibrium (q_star, p = 0) of an n-dof ``system``, inputs held
+    over ``dt`` on the port of ``actuated_dofs`` (G = those columns of I, as :class:`phast_gym.env.PortHamiltonianEnv`;
+    default: every coordinate).  All physics is the system's own: Hess V at q_star (``potential_curvature``), M(q_star)
+    and D(q_star); at p = 0 the kinetic and damping terms' q-derivatives are second order."""
+    q = np.atleast_1d(np.asarray(q_star, dtype=np.float64))
+    n = len(q)
+    kappa = potential_curvature(system, q)
+    m = np.array(system.mass_matrix(list(q), SCALAR), dtype=np.float64).reshape(n, n)
+    damp = np.diag([float(v) for v in system.damping(list(q), SCALAR)]) if system.has_damping() else np.zeros((n, n))
+    g = np.eye(n)[:, list(parse_actuated_dofs(actuated_dofs, n))]
+    minv = np.linalg.inv(m)
+    ac = np.block([[np.zeros((n, n)), np.eye(n)], [-minv @ kappa, -minv @ damp]])
+    bc = np.vstack([np.zeros((n, g.shape[1])), minv @ g])
+    k = g.shape[1]
+    mm = sl.expm(np.block([[ac, bc], [np.zeros((k, 2 * n + k))]]) * dt)
+    return mm[:2 * n, :2 * n], mm[:2 * n, 2 * n:]
+
+
+def linearise(env_id: str, q_star: Any, dt: float, actuated_dofs: Sequence[int] | None = None,
+              env_kwargs: dict[str, Any] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Discrete (A, B) of (q - q_star, qdot) under held inputs for the registered plant ``env_id`` sampled at ``dt``
+    (:func:`linearise_system`; a 1-dof pendulum: the 2 x 2 and 2 x 1 of the torque floor)."""
+    system = control_system(ControlProtocol(env_id=env_id, dt=dt, env_kwargs=dict(env_kwargs or {})))
+    return linearise_system(system, q_star, dt, actuated_dofs)
 
 
 @dataclass(frozen=True)
 class ClosedLoop:
-    """Linear closed loop z' = f z + g v (z = [x, e], e = x - x_hat posterior, v ~ N(0, sigma^2) the measurement
-    noise), torque u = h z, stationary covariance s; ``post`` is the Kalman posterior covariance."""
+    """Linear closed loop z' = f z + g v (z = [x, e], e = x - x_hat posterior, v ~ N(0, sigma^2 I_n) the measurement
+    noise of the n coordinates), inputs u = h z, stationary covariance s; ``post`` is the Kalman posterior covariance."""
 
     f: np.ndarray
     g: np.ndarray
@@ -53,59 +70,92 @@ class ClosedLoop:
     sigma: float
 
 
-def closed_loop(a: np.ndarray, b: np.ndarray, sigma: float, gains: tuple[float, float] | None = None,
+def closed_loop(a: np.ndarray, b: np.ndarray, sigma: float, gains: Any = None,
                 eps: float = 1e-6, q_proc: float = 1e-12) -> ClosedLoop:
-    """LQG (eps -> 0) or static gains on the stationary Kalman posterior estimate; ``s`` is None when unstable."""
-    c = np.array([[1.0, 0.0]])
+    """LQG (eps -> 0) or static gains on the stationary Kalman posterior estimate; ``s`` is None when unstable.
+
+    ``a`` (2n, 2n), ``b`` (2n, m) of :func:`linearise`; every coordinate q is measured with noise ``sigma``.  ``gains``:
+    None (LQG: state weight ``eps`` I, input weight I), a pair (k_q, k_qdot) for n = 1, or the (m, 2n) gain matrix K
+    of u = -K x_hat."""
+    n2, m = b.shape
+    n = n2 // 2
+    c = np.hstack([np.eye(n), np.zeros((n, n))])
     r = sigma**2
-    p = sl.solve_discrete_are(a.T, c.T, q_proc * np.eye(2), np.array([[r]]))
-    gain_l = p @ c.T / float((c @ p @ c.T)[0, 0] + r)
-    post = (np.eye(2) - gain_l @ c) @ p
+    p = sl.solve_discrete_are(a.T, c.T, q_proc * np.eye(n2), r * np.eye(n))
+    gain_l = p @ c.T @ np.linalg.inv(c @ p @ c.T + r * np.eye(n))
+    post = (np.eye(n2) - gain_l @ c) @ p
     if gains is None:
-        x = sl.solve_discrete_are(a, b, eps * np.eye(2), np.array([[1.0]]))
-        k = np.linalg.solve(b.T @ x @ b + 1.0, b.T @ x @ a)
+        x = sl.solve_discrete_are(a, b, eps * np.eye(n2), np.eye(m))
+        k = np.linalg.solve(b.T @ x @ b + np.eye(m), b.T @ x @ a)
     else:
-        k = np.array([[gains[0], gains[1]]])
+        k = np.asarray(gains, dtype=np.float64).reshape(m, n2)
     # u = -k (x - e); e' = (I - L C) A e - L v
-    f = np.block([[a - b @ k, b @ k], [np.zeros((2, 2)), (np.eye(2) - gain_l @ c) @ a]])
-    g = np.vstack([np.zeros((2, 1)), -gain_l])
+    f = np.block([[a - b @ k, b @ k], [np.zeros((n2, n2)), (np.eye(n2) - gain_l @ c) @ a]])
+    g = np.vstack([np.zeros((n2, n)), -gain_l])
     stable = np.max(np.abs(np.linalg.eigvals(f))) < 1
     s = sl.solve_discrete_lyapunov(f, g @ g.T * r) if stable else None
     return ClosedLoop(f=f, g=g, h=np.hstack([-k, k]), s=s, post=post, k=k, sigma=sigma)
 
 
 def window_pass_rate(loop: ClosedLoop, window: int = 100, tol: float = 0.05, u_tol: float = 0.25,
-                     n: int = 20000, seed: int = 0) -> dict[str, float]:
+                     n: int = 20000, seed: int = 0, angle_dims: Sequence[int] = (0,)) -> dict[str, float]:
     """Monte Carlo fraction of stationary ``window``-step windows that pass the protocol's success rule
-    (|angle error| < tol at every step and RMS torque < u_tol), and each half of it; batched over windows."""
+    (|error| < tol on every coordinate of ``angle_dims`` at every step and RMS input < u_tol), and each half of it;
+    batched over windows."""
     if loop.s is None:
         return {"pass": 0.0, "pass_torque": 0.0, "pass_angle": 0.0}
     rng = np.random.default_rng(seed)
-    z = rng.multivariate_normal(np.zeros(4), loop.s, size=n)
+    dims, m, nq = list(angle_dims), loop.h.shape[0], loop.g.shape[1]
+    z = rng.multivariate_normal(np.zeros(len(loop.s)), loop.s, size=n)
     u2, worst = np.zeros(n), np.zeros(n)
     for _ in range(window):
-        u2 += (z @ loop.h.T)[:, 0] ** 2
-        worst = np.maximum(worst, np.abs(z[:, 0]))
-        z = z @ loop.f.T + rng.normal(0.0, loop.sigma, size=(n, 1)) @ loop.g.T
+        u2 += np.sum((z @ loop.h.T) ** 2, axis=1) / m
+        worst = np.maximum(worst, np.abs(z[:, dims]).max(axis=1))
+        z = z @ loop.f.T + rng.normal(0.0, loop.sigma, size=(n, nq)) @ loop.g.T
     torque_ok, angle_ok = np.sqrt(u2 / window) < u_tol, worst < tol
     return {"pass": float(np.mean(torque_ok & angle_ok)), "pass_torque": float(np.mean(torque_ok)),
             "pass_angle": float(np.mean(angle_ok))}
 
 
-def torque_floor(a: np.ndarray, b: np.ndarray, sigma: float, gains: tuple[float, float] | None = None,
-                 eps: float = 1e-6, q_proc: float = 1e-12) -> dict[str, float]:
-    """Stationary RMS torque and angle std of LQG (eps -> 0), or of static gains on the Kalman posterior estimate."""
-    return stationary(closed_loop(a, b, sigma, gains, eps, q_proc))
+def torque_floor(a: np.ndarray, b: np.ndarray, sigma: float, gains: Any = None,
+                 eps: float = 1e-6, q_proc: float = 1e-12, angle_dims: Sequence[int] = (0,)) -> dict[str, float]:
+    """Stationary RMS input and angle std of LQG (eps -> 0), or of static gains on the Kalman posterior estimate."""
+    return stationary(closed_loop(a, b, sigma, gains, eps, q_proc), angle_dims)
 
 
-def stationary(loop: ClosedLoop) -> dict[str, float]:
-    """Gains, stationary RMS torque, angle std and Kalman posterior stds of ``loop`` (inf when it is unstable)."""
+def stationary(loop: ClosedLoop, angle_dims: Sequence[int] = (0,)) -> dict[str, Any]:
+    """Gains, stationary RMS input (over the m inputs), std of the first angle of ``angle_dims`` and Kalman posterior
+    stds of ``loop`` (inf when it is unstable).  A 1-dof loop reports its gains as ``k_q``, ``k_qdot``; a larger one
+    as the (m, 2n) matrix ``k``."""
     k, s, h, post = loop.k, loop.s, loop.h, loop.post
+    n = k.shape[1] // 2
+    i = int(list(angle_dims)[0])
+    gains: dict[str, Any] = ({"k_q": float(k[0, 0]), "k_qdot": float(k[0, 1])} if k.shape == (1, 2)
+                             else {"k": k.tolist()})
     if s is None:
-        return {"k_q": float(k[0, 0]), "k_qdot": float(k[0, 1]), "rms_torque": math.inf, "angle_std": math.inf}
-    return {"k_q": float(k[0, 0]), "k_qdot": float(k[0, 1]), "rms_torque": float(np.sqrt((h @ s @ h.T)[0, 0])),
-            "angle_std": float(np.sqrt(s[0, 0])), "kalman_q_std": float(np.sqrt(post[0, 0])),
-            "kalman_qdot_std": float(np.sqrt(post[1, 1]))}
+        return {**gains, "rms_torque": math.inf, "angle_std": math.inf}
+    return {**gains, "rms_torque": float(np.sqrt(np.trace(h @ s @ h.T) / h.shape[0])),
+            "angle_std": float(np.sqrt(s[i, i])), "kalman_q_std": float(np.sqrt(post[i, i])),
+            "kalman_qdot_std": float(np.sqrt(post[n + i, n + i]))}
+
+
+def lqg_floor(env_id: str, sigma: float, q_star: Any = math.pi, dt: float = 0.01,
+              actuated_dofs: Sequence[int] | None = None, env_kwargs: dict[str, Any] | None = None,
+              eps: float = 1e-6) -> dict[str, Any]:
+    """The LQG floor of a registered plant at its equilibrium ``q_star`` (a scalar: that value on every angle, 0 on
+    the other coordinates; or one value per coordinate), q-only measurements with noise ``sigma`` every ``dt``, inputs
+    on ``actuated_dofs``: :func:`linearise` + :func:`closed_loop` (LQG, state weight ``eps`` -> 0) + :func:`stationary`.
+    ``rms_torque`` is the lowest stationary RMS input of any causal q-only controller that holds q_star (the pendulum
+    at pi, sigma 0.01: 0.087 N m; docs/control.md)."""
+    system = control_system(ControlProtocol(env_id=env_id, dt=dt, env_kwargs=dict(env_kwargs or {})))
+    q = np.asarray(q_star, dtype=np.float64)
+    if q.ndim == 0:
+        q = np.array([float(q) if i in system.angle_dims else 0.0 for i in range(system.n)])
+    a, b = linearise_system(system, q, dt, actuated_dofs)
+    dims = tuple(system.angle_dims) or (0,)
+    return {"env": env_id, "q_star": q.tolist(), "sigma": sigma, "dt": dt,
+            "actuated_dofs": list(parse_actuated_dofs(actuated_dofs, system.n)), "eps": eps,
+            **stationary(closed_loop(a, b, sigma, eps=eps), dims)}
 
 
 def best_static_pass_rate(a: np.ndarray, b: np.ndarray, sigma: float, k_q: np.ndarray, k_qdot: np.ndarray,

@@ -25,10 +25,22 @@ def plant_system(env: gym.Env) -> System:
     return cast(PortHamiltonianEnv, env.unwrapped).system
 
 
-def stack_frames(buf: Sequence[np.ndarray]) -> np.ndarray:
-    """(sin q, cos q) of the buffered measurements, oldest first."""
-    q = np.concatenate([np.asarray(b, dtype=np.float64).reshape(-1) for b in buf])
-    return np.concatenate([np.sin(q), np.cos(q)]).astype(np.float32)
+#: length scale (m) of a Euclidean coordinate in the observation: ``tanh(x / EUCLID_SCALE)``
+EUCLID_SCALE = 2.0
+
+
+def stack_frames(buf: Sequence[np.ndarray], angle_dims: Sequence[int] | None = None) -> np.ndarray:
+    """(sin q, cos q) of the buffered measurements, oldest first.  With ``angle_dims`` given, a coordinate not in it
+    (a cart's position x) is observed as ``(tanh(x / EUCLID_SCALE), 0)`` instead: bounded, odd like sin q (the
+    mirror symmetry's sign), and not aliased every 2 pi m."""
+    rows = [np.asarray(b, dtype=np.float64).reshape(-1) for b in buf]
+    s, c = np.sin(rows), np.cos(rows)
+    if angle_dims is not None:
+        eu = [i for i in range(s.shape[1]) if i not in set(angle_dims)]
+        if eu:
+            x = np.asarray(rows)[:, eu]
+            s[:, eu], c[:, eu] = np.tanh(x / EUCLID_SCALE), 0.0
+    return np.concatenate([s.reshape(-1), c.reshape(-1)]).astype(np.float32)
 
 
 #: policy observations: ``frames`` (the default, q-only): (sin q, cos q) of the last ``frames`` noisy measurements;
@@ -41,10 +53,12 @@ class ObsBuilder:
     """The policy observation of :data:`OBS_MODES` from the noisy measurement and the true state; one instance per
     episode stream, used by training (:class:`FrameObs`) and by :func:`evaluate_policy_on_plant` alike."""
 
-    def __init__(self, frames: int = 3, mode: str = "frames", inertia: float = 1.0) -> None:
+    def __init__(self, frames: int = 3, mode: str = "frames", inertia: float = 1.0,
+                 angle_dims: Sequence[int] | None = None) -> None:
         if mode not in OBS_MODES:
             raise ValueError(f"obs must be one of {OBS_MODES}, got {mode!r}")
         self.frames, self.mode, self.inertia = frames, mode, inertia
+        self.angle_dims = None if angle_dims is None else tuple(int(i) for i in angle_dims)  # None: every q an angle
         self._buf: deque[np.ndarray] = deque(maxlen=frames)
 
     @property
@@ -63,7 +77,7 @@ class ObsBuilder:
 
     def _obs(self, state: np.ndarray | None) -> np.ndarray:
         if self.mode == "frames":
-            return stack_frames(self._buf)
+            return stack_frames(self._buf, self.angle_dims)
         if state is None:
             raise ValueError(f"obs {self.mode!r} needs the true state (info['state'])")
         q, p = float(state[0]), float(state[1])

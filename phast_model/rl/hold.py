@@ -16,35 +16,47 @@ held at 1.1-1.2x the LQG floor.  Here both come from the world model the loop ha
 
 :class:`HybridPolicy` runs the SB3 policy (every ``decision_steps`` plant steps, input held) until the UKF's estimate
 is within ``enter_angle`` rad and ``enter_rate`` rad/s of the target, then the hold (every plant step); it hands
-back if the angle leaves ``exit_angle``.  Plants whose input does not act on every coordinate (a cart-pole) get no
-hold: Energy-Casimir control here needs a collocated port on every degree of freedom.
+back if the angle leaves ``exit_angle``.  The region is on the angles and their rates only (a cart may be anywhere).
+
+Plants whose input does not act on every coordinate (a cart-pole, force on the cart only) get :class:`LQRHold`
+instead: Energy-Casimir control needs a collocated port on every degree of freedom, LQR on the learned model's
+linearisation at the target does not (same learned V, M and UKF; see its docstring).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import scipy.linalg as sl
 import torch
 
 from phast_gym.control import EnergyCasimirController
 from phast_gym.control.controller import potential_curvature
 from phast_gym.control.estimators import UKFEstimator
-from phast_gym.systems.base import NUMPY, System, angle_diff
+from phast_gym.systems.base import NUMPY, System, angle_diff, wrap
 
 from ..control.phast_estimators import PHASTProcess
 from ..world.model import PHAST
 from .envs import ObsBuilder
 
+#: the holds: ``auto`` (Energy-Casimir when the input acts on every coordinate, else LQR), ``energy-casimir``, ``lqr``
+HOLD_KINDS = ("auto", "energy-casimir", "lqr")
+
 
 @dataclass(frozen=True)
 class HoldConfig:
-    """The Energy-Casimir hold: on or off, its gains relative to the learned model (``kc_factor``, ``zeta``), the
-    Casimir correction ``k_xi``, the xi feedback (``filtered``: the UKF's q) and the handoff region."""
+    """The hold: on or off, its kind (:data:`HOLD_KINDS`); Energy-Casimir: its gains relative to the learned model
+    (``kc_factor``, ``zeta``), the Casimir correction ``k_xi``, the xi feedback (``filtered``: the UKF's q); LQR: the
+    state weights on the angle errors, the Euclidean position errors and every rate (input weight 1) and its UKF's
+    momentum process noise (per sqrt(s); Energy-Casimir keeps the UKF's default 0.01); the handoff region (angles and
+    angular rates only)."""
 
     enabled: bool = True
+    kind: str = "auto"
     kc_factor: float = 2.04
     zeta: float = 0.47
     k_xi: float = 5.0
@@ -52,8 +64,18 @@ class HoldConfig:
     enter_angle: float = 0.3
     enter_rate: float = 1.5
     exit_angle: float = 0.8
+    lqr_angle: float = 1.0
+    lqr_position: float = 0.1
+    lqr_rate: float = 0.0
+    lqr_ukf_p_std: float = 0.03
 
     def __post_init__(self) -> None:
+        if self.kind not in HOLD_KINDS:
+            raise ValueError(f"hold kind must be one of {HOLD_KINDS}, got {self.kind!r}")
+        for k in ("lqr_angle", "lqr_position", "lqr_rate", "lqr_ukf_p_std"):
+            v = getattr(self, k)
+            if not (v >= 0 and math.isfinite(v)):
+                raise ValueError(f"{k} must be a finite number >= 0, got {v!r}")
         if not self.kc_factor > 1.0:
             raise ValueError(f"kc_factor must be > 1 (k_c > m g l makes the target a minimum), got {self.kc_factor!r}")
         for k in ("zeta", "k_xi", "enter_angle", "enter_rate", "exit_angle"):
@@ -127,8 +149,8 @@ def hold_gains(system: System, q_star: np.ndarray, cfg: HoldConfig) -> HoldGains
     return HoldGains(k_c, cfg.zeta * 2.0 * math.sqrt(inertia * (k_c - need)), need, inertia)
 
 
-def make_hold(model: PHAST, q_star: np.ndarray, dt: float, sigma: float, max_action: float,
-              cfg: HoldConfig) -> tuple[EnergyCasimirController, HoldGains]:
+def make_energy_casimir_hold(model: PHAST, q_star: np.ndarray, dt: float, sigma: float, max_action: float,
+                             cfg: HoldConfig) -> tuple[EnergyCasimirController, HoldGains]:
     """The Energy-Casimir controller of the learned model at the plant step ``dt``, with the learned-model UKF."""
     system = learned_system(model, dt)
     gains = hold_gains(system, q_star, cfg)
@@ -138,15 +160,116 @@ def make_hold(model: PHAST, q_star: np.ndarray, dt: float, sigma: float, max_act
     return ctrl, gains
 
 
+@dataclass(frozen=True)
+class LQRGains:
+    """The LQR hold's gain row(s) K (u = -K [q - q_ref, qdot]) and what they come from: the learned model's
+    linearisation at the target (the upright's unstable pole, rad/s) and the stationary RMS input of this K on the
+    learned linearisation with a Kalman estimate at the plant's sigma (:mod:`phast_model.control.lqg_bound`)."""
+
+    k: list[list[float]]
+    unstable_pole: float
+    rms_input_linear: float
+
+
+class LQRHold:
+    """A hold for a plant whose input does not act on every coordinate (a cart-pole, force on the cart only): LQR on
+    the LEARNED model linearised at the target, on the state estimate of a UKF whose process model is the learned core.
+
+    Why not Energy-Casimir: its shaping force ``-k_c (xi - q*)`` acts on every coordinate, so it needs a collocated
+    input on each; with the force on the cart only it cannot shape the pole's potential.  The natural alternative with
+    the same ingredients (learned V, M at the target; the learned-model UKF for q and qdot) is the linear-quadratic
+    regulator of the learned linearisation: ``linearise_system`` of :mod:`phast_model.control.lqg_bound` applied to the
+    :class:`LearnedSystem` (Hess V_hat, M_hat; learned friction left out, it only adds damping), weights
+    ``HoldConfig.lqr_*`` on (angle errors, position errors, rates) and 1 on the input.  Small weights keep it near the
+    minimum-energy (LQG) gain, i.e. near the torque floor: angle 1, position 0.1, rates 0 cost 1.07x the floor on the
+    true cart-pole's linearisation (docs/control.md).  At the handoff the position reference is set to where the
+    cart is (:meth:`engage`), so the hold does not spend force dragging the cart back.
+
+    Interface of :class:`HybridPolicy`'s hold (as :class:`EnergyCasimirController`): ``reset``, ``act`` (the estimator
+    update with the last applied input), ``torque(y_hat)``, ``engage``, ``estimator``, ``system``, ``y_hat`` and
+    ``u_prev`` (the applied input; the UKF gets it as the n-wide generalized force G u)."""
+
+    def __init__(self, model: PHAST, q_star: np.ndarray, dt: float, sigma: float, max_action: float,
+                 actuated: Sequence[int], cfg: HoldConfig) -> None:
+        from ..control.lqg_bound import closed_loop, linearise_system, stationary
+
+        self.system = learned_system(model, dt)
+        n = self.system.n
+        self.q_star = np.asarray(q_star, dtype=np.float64).reshape(n)
+        self.actuated = [int(i) for i in actuated]
+        self.G = np.eye(n)[:, self.actuated]
+        self._angle = np.array([i in self.system.angle_dims for i in range(n)])
+        a, b = linearise_system(self.system, self.q_star, dt, self.actuated)
+        w = np.concatenate([np.where(self._angle, cfg.lqr_angle, cfg.lqr_position), np.full(n, cfg.lqr_rate)])
+        x = sl.solve_discrete_are(a, b, np.diag(w), np.eye(len(self.actuated)))
+        self.k = np.linalg.solve(b.T @ x @ b + np.eye(len(self.actuated)), b.T @ x @ a)
+        lam = np.log(np.abs(np.linalg.eigvals(a)).max()) / dt
+        self.gains = LQRGains(self.k.tolist(), float(lam),
+                              float(stationary(closed_loop(a, b, max(sigma, 1e-6), gains=self.k))["rms_torque"]))
+        self.dt, self.max_action = float(dt), float(max_action)
+        self.estimator = UKFEstimator(self.system, dt, sigma=sigma, process=PHASTProcess(model, dt),
+                                      process_std=(1e-5, cfg.lqr_ukf_p_std))
+        self.q_ref = self.q_star.copy()
+        self.y_hat = np.zeros(n)
+        self._force: np.ndarray | None = None
+
+    @property
+    def u_prev(self) -> np.ndarray | None:
+        return self._force
+
+    @u_prev.setter
+    def u_prev(self, u: np.ndarray | None) -> None:
+        """The input applied this step (m,), kept as the generalized force G u the UKF propagates."""
+        self._force = None if u is None else self.G @ np.asarray(u, dtype=np.float64).reshape(len(self.actuated))
+
+    def reset(self, q_meas: np.ndarray) -> None:
+        self.estimator.reset()
+        self.q_ref, self.y_hat, self._force = self.q_star.copy(), np.zeros(self.system.n), None
+
+    def act(self, q_meas: np.ndarray) -> None:
+        """The UKF update with this measurement and the input applied last step."""
+        n = self.system.n
+        self.y_hat = np.asarray(self.estimator.update(np.asarray(q_meas, dtype=np.float64)[:n], None, self._force),
+                                dtype=np.float64).reshape(n)
+
+    def engage(self, q_hat: np.ndarray) -> None:
+        """At the handoff: the Euclidean coordinates' reference := where they are (the angles keep q*)."""
+        self.q_ref = np.where(self._angle, self.q_star, np.asarray(q_hat, dtype=np.float64))
+
+    def torque(self, y_hat: np.ndarray) -> np.ndarray:
+        """u = -K [q_hat - q_ref (angles wrapped), qdot_hat], clipped."""
+        q_hat = self.estimator.q_estimate()
+        q_hat = self.q_ref if q_hat is None else np.asarray(q_hat, dtype=np.float64)
+        e = np.where(self._angle, wrap(q_hat - self.q_ref), q_hat - self.q_ref)
+        u = -self.k @ np.concatenate([e, np.asarray(y_hat, dtype=np.float64)])
+        return np.clip(u, -self.max_action, self.max_action)
+
+
+def make_hold(model: PHAST, q_star: np.ndarray, dt: float, sigma: float, max_action: float, cfg: HoldConfig,
+              actuated: Sequence[int] | None = None) -> tuple[EnergyCasimirController | LQRHold, HoldGains | LQRGains]:
+    """The hold of ``cfg.kind`` from the learned model: Energy-Casimir when the input acts on every coordinate
+    (``actuated`` None or all of them) and ``kind`` is ``auto``, else :class:`LQRHold`."""
+    n = int(model.n)
+    act = list(range(n)) if actuated is None else [int(i) for i in actuated]
+    full = sorted(act) == list(range(n))
+    if cfg.kind == "energy-casimir" or (cfg.kind == "auto" and full):
+        if not full:
+            raise ValueError(f"an Energy-Casimir hold needs an input on every coordinate; this plant drives {act} of {n}")
+        return make_energy_casimir_hold(model, q_star, dt, sigma, max_action, cfg)
+    hold = LQRHold(model, q_star, dt, sigma, max_action, act, cfg)
+    return hold, hold.gains
+
+
 class HybridPolicy:
     """The deployed controller (a :class:`phast_model.rl.plant.Controller`): the SB3 policy, and the hold near the
     target (module docstring).  ``holding`` says which acts; ``handoffs`` counts entries into the hold."""
 
     def __init__(self, agent: Any, frames: int, decision_steps: int, max_action: float, q_star: np.ndarray,
-                 hold: EnergyCasimirController | None = None, cfg: HoldConfig | None = None) -> None:
+                 hold: EnergyCasimirController | LQRHold | None = None, cfg: HoldConfig | None = None,
+                 angle_dims: Sequence[int] | None = None) -> None:
         self.agent, self.decision_steps, self.max_action = agent, int(decision_steps), float(max_action)
         self.q_star = np.asarray(q_star, dtype=np.float64)
-        self.builder = ObsBuilder(frames)
+        self.builder = ObsBuilder(frames, angle_dims=angle_dims)
         self.hold, self.cfg = hold, cfg or HoldConfig()
         self.holding = False
         self.handoffs = 0
@@ -169,19 +292,24 @@ class HybridPolicy:
         return self._u
 
     def _update_mode(self) -> None:
-        """Enter the hold inside the handoff region of the UKF's estimate, leave it outside ``exit_angle``."""
+        """Enter the hold inside the handoff region of the UKF's estimate (angles and their rates), leave it outside
+        ``exit_angle``."""
         assert self.hold is not None
         q_hat = self.hold.estimator.q_estimate()
         if q_hat is None:
             return
-        d = angle_diff(np.asarray(q_hat, dtype=np.float64), self.q_star, self.hold.system.angle_dims)
-        err = float(np.abs(d).max())
+        dims = list(self.hold.system.angle_dims)
+        d = angle_diff(np.asarray(q_hat, dtype=np.float64), self.q_star, dims)
+        err = float(np.abs(d[dims]).max())
         if self.holding and err > self.cfg.exit_angle:
             self.holding = False
-        elif not self.holding and err < self.cfg.enter_angle and float(np.abs(self.hold.y_hat).max()) < self.cfg.enter_rate:
+        elif not self.holding and err < self.cfg.enter_angle and float(np.abs(self.hold.y_hat[dims]).max()) < self.cfg.enter_rate:
             self.holding = True
             self.handoffs += 1
-            self.hold.xi = self.q_star + d
+            if isinstance(self.hold, LQRHold):
+                self.hold.engage(self.q_star + d)
+            else:
+                self.hold.xi = self.q_star + d
 
     def act(self, q_meas: np.ndarray) -> np.ndarray:
         u_policy = self._policy_input(q_meas)

@@ -16,8 +16,9 @@ learning) is reported apart.
 * the agent is SB3's (SAC by default, reflection-equivariant for symmetric plants: :mod:`.mirror_policy`), trained
   with SB3's ``EvalCallback`` + ``StopTrainingOnNoModelImprovement`` on a world-model eval env and a
   linear learning-rate schedule (``LinearSchedule``); later iterations continue the same agent in the refitted model;
-* the deployed controller is :class:`.hold.HybridPolicy`: the agent, and near the target an Energy-Casimir hold
-  built from the learned model (the quiet criterion; see :mod:`.hold`).
+* the deployed controller is :class:`.hold.HybridPolicy`: the agent, and near the target a hold built from the
+  learned model (the quiet criterion): Energy-Casimir when the input acts on every coordinate, else LQR of the
+  learned linearisation (a cart-pole; see :mod:`.hold`).
 """
 
 from __future__ import annotations
@@ -30,15 +31,16 @@ from typing import Any
 
 import numpy as np
 
-from .hold import HoldConfig, HoldGains, HybridPolicy, make_hold
+from .hold import HoldConfig, HoldGains, HybridPolicy, LQRGains, make_hold
 from .plant import Episode, HeldTorques, PlantSpec, Task, excitation_inputs, make_plant, quiet_metrics, run_episode, to_recordings
-from .world_env import WorldTaskEnv, burn_in_pool
+from .world_env import WorldTask, WorldTaskEnv, burn_in_pool
 
 
 @dataclass(frozen=True)
 class FitSpec:
-    """The world model: the rig description ``sim`` (None: the plant's env id) with ``sim_kwargs``, the regime,
-    epochs of the first fit and of each warm-started refit, the multiple-shooting window."""
+    """The world model: the rig description ``sim`` (None: :func:`.descriptions.default_description` of the plant's env
+    id) with ``sim_kwargs``, the regime,
+    epochs of the first fit and of each warm-started refit, the multiple-shooting window, the joint friction's laws."""
 
     sim: str | None = None
     sim_kwargs: dict[str, Any] = field(default_factory=dict)
@@ -46,6 +48,7 @@ class FitSpec:
     epochs: int = 60
     refit_epochs: int = 30
     window_s: float = 0.5
+    friction_laws: tuple[str, ...] | None = None  # the joint friction's laws (None: the description's, else the rig path's)
 
 
 @dataclass(frozen=True)
@@ -53,7 +56,9 @@ class AgentSpec:
     """The SB3 agent: algorithm (``sac``, ``td3``), decisions of the first training and of each later one, the
     world-model evaluation (``eval_every`` decisions, ``eval_episodes``; training stops after ``patience``
     evaluations without improvement, at least ``min_evals``), episode length in decisions, observation frames,
-    learning rate from ``lr`` to ``lr_final`` (SB3 ``LinearSchedule``), hidden layers, the mirror symmetry (SAC only)."""
+    learning rate from ``lr`` to ``lr_final`` (SB3 ``LinearSchedule``), hidden layers, the mirror symmetry (SAC only),
+    the reward's weights on |qdot|^2 and on the squared Euclidean errors, whether episodes start with the Euclidean
+    coordinates moved to 0 (``recenter``; :class:`.world_env.WorldTaskEnv`)."""
 
     algo: str = "sac"
     steps: int = 8_000
@@ -68,6 +73,9 @@ class AgentSpec:
     lr_final: float = 3e-4
     net: tuple[int, ...] = (64, 64)
     mirror: bool = True
+    velocity_weight: float = 0.1
+    position_weight: float = 1.0
+    recenter: bool = True
 
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:
@@ -76,6 +84,10 @@ class AgentSpec:
             v = getattr(self, k)
             if int(v) != v or v < 1:
                 raise ValueError(f"{k} must be a positive integer, got {v!r}")
+        for k in ("velocity_weight", "position_weight"):
+            v = getattr(self, k)
+            if not (v >= 0 and math.isfinite(v)):
+                raise ValueError(f"{k} must be a finite number >= 0, got {v!r}")
 
 
 #: SB3 algorithms the loop builds (continuous actions)
@@ -125,7 +137,10 @@ class LoopConfig:
 
     @property
     def sim(self) -> str:
-        return self.fit.sim or self.plant.env_id
+        """The rig description: ``fit.sim``, else the plant's (:func:`.descriptions.default_description`)."""
+        from .descriptions import default_description
+
+        return self.fit.sim or default_description(self.plant.env_id)
 
 
 @dataclass
@@ -148,7 +163,7 @@ class IterationResult:
     plant_rms_input: list[float]
     plant_handoffs: list[int]
     plant_seconds: float
-    hold_gains: dict[str, float] | None
+    hold_gains: dict[str, Any] | None
 
     @property
     def success(self) -> bool:
@@ -225,8 +240,13 @@ def fit_world_model(cfg: LoopConfig, recordings: dict[str, Any], model: Any | No
 
     data = load_rig_data(recordings, cfg.sim, cfg.fit.sim_kwargs)
     if model is None:
+        from .descriptions import friction_laws
+
+        declared = cfg.fit.friction_laws if cfg.fit.friction_laws is not None else friction_laws(cfg.sim)
+        laws: dict[str, Any] = {} if declared is None else {"friction_laws": list(declared)}
         mcfg = rig_config(cfg.sim, cfg.fit.sim_kwargs, cfg.fit.regime, data, seed=cfg.seed,
-                          action_bound=[cfg.plant.max_action] * data.train.u.shape[-1] if data.train.u is not None else None)
+                          action_bound=[cfg.plant.max_action] * data.train.u.shape[-1] if data.train.u is not None else None,
+                          **laws)
         model, epochs = build(mcfg), cfg.fit.epochs
     else:
         model.config = replace(model.config, init_from="none")  # warm start: keep the fitted coefficients
@@ -285,8 +305,9 @@ def train_agent(cfg: LoopConfig, model: Any, pool: np.ndarray, q_star: np.ndarra
     spec, t0 = cfg.agent, time.perf_counter()
 
     def env(seed: int) -> Monitor:
-        return Monitor(WorldTaskEnv(model, pool, q_star, cfg.plant.max_action, cfg.plant.sigma, spec.episode_decisions,
-                                    spec.frames, seed=seed, actuated=actuated))
+        task = WorldTask(q_star, cfg.plant.max_action, cfg.plant.sigma, spec.episode_decisions, spec.frames,
+                         spec.velocity_weight, spec.position_weight, spec.recenter)
+        return Monitor(WorldTaskEnv(model, pool, task, seed=seed, actuated=actuated))
 
     train_env = env(cfg.seed * 1000 + iteration)
     if agent is None:
@@ -306,13 +327,16 @@ def train_agent(cfg: LoopConfig, model: Any, pool: np.ndarray, q_star: np.ndarra
                         [int(t) for t in ev.evaluations_timesteps], returns)
 
 
-def deployed_policy(cfg: LoopConfig, agent: Any, model: Any, plant: Any, q_star: np.ndarray) -> tuple[HybridPolicy, HoldGains | None]:
-    """The controller run on the plant: the agent, with the Energy-Casimir hold of the learned model when the plant
-    is fully actuated and the hold is enabled."""
+def deployed_policy(cfg: LoopConfig, agent: Any, model: Any, plant: Any,
+                    q_star: np.ndarray) -> tuple[HybridPolicy, HoldGains | LQRGains | None]:
+    """The controller run on the plant: the agent, with the hold of the learned model when enabled (Energy-Casimir
+    when the plant is fully actuated, else LQR: :func:`.hold.make_hold`)."""
     hold, gains = None, None
-    if cfg.hold.enabled and plant.m == plant.n:
-        hold, gains = make_hold(model, q_star, cfg.plant.dt, cfg.plant.sigma, cfg.plant.max_action, cfg.hold)
-    return HybridPolicy(agent, cfg.agent.frames, cfg.plant.decision_steps, cfg.plant.max_action, q_star, hold, cfg.hold), gains
+    if cfg.hold.enabled:
+        hold, gains = make_hold(model, q_star, cfg.plant.dt, cfg.plant.sigma, cfg.plant.max_action, cfg.hold,
+                                list(plant.actuated_dofs))
+    return HybridPolicy(agent, cfg.agent.frames, cfg.plant.decision_steps, cfg.plant.max_action, q_star, hold, cfg.hold,
+                        plant.system.angle_dims), gains
 
 
 def run_policy(cfg: LoopConfig, plant: Any, policy: HybridPolicy, n: int, steps: int, seed: int, kind: str) -> list[Episode]:
@@ -388,7 +412,9 @@ def run_loop(cfg: LoopConfig, progress: Progress = _no_progress) -> LoopResult:
                                           [m.success for m in ms], [m.settled for m in ms], [m.rms_input for m in ms],
                                           [e.handoffs for e in new], used,
                                           None if gains is None else asdict(gains)))
-        progress(f"iteration {it}: {sum(m.success for m in ms)}/{len(ms)} plant episodes quiet", used)
+        progress(f"iteration {it}: {sum(m.success for m in ms)}/{len(ms)} plant episodes quiet (angle only "
+                 f"{sum(m.settled for m in ms)}, final angle error {[round(m.final_error, 3) for m in ms]}, RMS input "
+                 f"{[round(m.rms_input, 3) for m in ms]}, handoffs {[e.handoffs for e in new]})", used)
         if iterations[-1].success or not can_run:
             break
     policy, _ = deployed_policy(cfg, agent, model, plant, q_star)

@@ -114,6 +114,27 @@ class Task:
         return np.concatenate([q, np.broadcast_to(p, q.shape)], -1)
 
 
+#: the quiet criterion's RMS input of the pendulum (the control protocol's, N m)
+PENDULUM_U_TOL = 0.25
+#: elsewhere the quiet criterion allows this multiple of the plant's own LQG floor (issue 40)
+FLOOR_FACTOR = 2.0
+
+
+def quiet_u_tol(spec: PlantSpec, factor: float = FLOOR_FACTOR) -> float:
+    """The default RMS-input limit of the quiet criterion on ``spec``'s plant: the protocol's 0.25 N m for a 1-dof
+    pendulum, else ``factor`` x the plant's LQG floor at its upright and noise ``sigma``
+    (:func:`phast_model.control.lqg_bound.lqg_floor`: the least stationary RMS input of any causal q-only controller;
+    the cart-pole with the force on the cart, sigma 0.01: 0.194 N, so 0.387 N)."""
+    system = plant_system(spec)
+    if system.n == 1:
+        return PENDULUM_U_TOL
+    from ..control.lqg_bound import lqg_floor
+
+    floor = lqg_floor(spec.env_id, max(spec.sigma, 1e-6), math.pi, spec.dt, spec.env_kwargs.get("actuated_dofs"),
+                      spec.physical_kwargs)
+    return factor * float(floor["rms_torque"])
+
+
 class Controller(Protocol):
     """A causal controller on the plant's measurements, called every plant step."""
 

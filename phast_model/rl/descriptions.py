@@ -1,0 +1,48 @@
+"""Rig descriptions the loop fits PHAST from when the plant's own class declares no PARTIAL templates.
+
+PARTIAL (the rig path's default) keeps the description's structure and refits every coefficient: a cosine potential
+on the angles and the description's mass template.  ``PHAST/WindyCartPole-v0`` is the phast_gym :class:`CartPole`,
+which declares none, so without this the cart-pole could be fitted only UNKNOWN (a neural potential and mass learned
+from seconds of data).  :class:`CartPoleDescription` is that same class with its templates declared: the pole's
+``1 - cos theta`` potential (coordinate 1) and the cart-pole mass matrix template (``M(theta)`` with the ``cos theta``
+coupling); its dissipation is learned as the rig path's joint friction with the viscous law only
+(``PHAST_FRICTION_LAWS``): the cart-pole's damping is viscous (cart 0.3, the pole's wind 0.3 + 0.5 |sin theta|), and
+a Coulomb term fitted from a few seconds of large excitation came out at 0.2-0.5 N on both coordinates (true 0).  A
+UKF whose model sticks at rest then misestimates the pole near the upright and the LQR hold limit-cycles at
+1.1-3.8 N RMS (true-model UKF: 0.27 N; docs/control.md, issue 40).
+"""
+
+from __future__ import annotations
+
+from phast_gym.registry import resolve_env_id
+from phast_gym.systems.cartpole import CartPole
+
+
+class CartPoleDescription(CartPole):
+    """The cart-pole with its PARTIAL templates declared (module docstring)."""
+
+    PHAST_TEMPLATES = {"potential": "cosine", "dims": [1], "mass": "cartpole"}
+    PHAST_FRICTION_LAWS = ("viscous",)
+
+
+#: plant env id -> the rig description (``module:Class``) the loop fits from by default
+DESCRIPTIONS = {"PHAST/WindyCartPole-v0": f"{__name__}:CartPoleDescription"}
+
+
+def friction_laws(sim: str) -> tuple[str, ...] | None:
+    """The joint-friction laws the description ``sim`` declares (``PHAST_FRICTION_LAWS``), None if it declares none."""
+    if ":" not in sim or sim.startswith("phast_gym:"):
+        return None
+    from ..rigs.simulators import load_simulator
+
+    laws = getattr(type(load_simulator(sim).build()), "PHAST_FRICTION_LAWS", None)
+    return None if laws is None else tuple(laws)
+
+
+def default_description(env_id: str) -> str:
+    """The rig description of ``env_id``: its entry of :data:`DESCRIPTIONS`, else the env id itself."""
+    try:
+        key = resolve_env_id(env_id)
+    except Exception:  # gymnasium's UnregisteredEnv: left to the plant's own check
+        return env_id
+    return DESCRIPTIONS.get(key, env_id)
