@@ -70,6 +70,13 @@ class ClosedLoop:
     sigma: float
 
 
+def lqr_gain(a: np.ndarray, b: np.ndarray, state_weights: np.ndarray) -> np.ndarray:
+    """The discrete LQR gain K (m, 2n) of u = -K x: state weights ``diag(state_weights)``, input weight I."""
+    m = b.shape[1]
+    x = sl.solve_discrete_are(a, b, np.diag(np.asarray(state_weights, dtype=np.float64)), np.eye(m))
+    return np.linalg.solve(b.T @ x @ b + np.eye(m), b.T @ x @ a)
+
+
 def closed_loop(a: np.ndarray, b: np.ndarray, sigma: float, gains: Any = None,
                 eps: float = 1e-6, q_proc: float = 1e-12) -> ClosedLoop:
     """LQG (eps -> 0) or static gains on the stationary Kalman posterior estimate; ``s`` is None when unstable.
@@ -85,8 +92,7 @@ def closed_loop(a: np.ndarray, b: np.ndarray, sigma: float, gains: Any = None,
     gain_l = p @ c.T @ np.linalg.inv(c @ p @ c.T + r * np.eye(n))
     post = (np.eye(n2) - gain_l @ c) @ p
     if gains is None:
-        x = sl.solve_discrete_are(a, b, eps * np.eye(n2), np.eye(m))
-        k = np.linalg.solve(b.T @ x @ b + np.eye(m), b.T @ x @ a)
+        k = lqr_gain(a, b, np.full(n2, eps))
     else:
         k = np.asarray(gains, dtype=np.float64).reshape(m, n2)
     # u = -k (x - e); e' = (I - L C) A e - L v

@@ -22,7 +22,7 @@ from phast_gym.systems.base import System
 
 from ..rigs.shooting import ShootFit
 from .calibrate import followed_windows
-from .fitting.problem import Problem, longer_windows
+from .fitting.problem import Problem, longer_windows, smoothed_states
 
 #: the longer look's windows, in multiples of the selection's
 LAW_LOOK = 2
@@ -44,8 +44,7 @@ def fit_on_longer_windows(problem: Problem, current: System, sets: list[LawSet])
     for all, so their chi^2 compare directly."""
     windows = longer_windows(problem, LAW_LOOK * problem.shoot_window)
     shooter = problem.shooter(windows)
-    X0 = np.concatenate([problem.qs[windows.traj, windows.start], problem.vs[windows.traj, windows.start]], axis=1)
-    states = shooter.fit_states(current, X0, max_iter=problem.opts.max_iter)
+    states = shooter.fit_states(current, smoothed_states(problem.qs, problem.vs, windows), max_iter=problem.opts.max_iter)
     keep = followed_windows(states.r)
     X = states.X
     if not np.all(keep) and np.sum(keep) >= 2:

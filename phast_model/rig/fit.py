@@ -406,12 +406,16 @@ class _Stage:
     n_batches: int
 
 
+def _window_samples(window_s: float, dt: float) -> int:
+    """Samples of a shooting window of ``window_s`` seconds (at least 5)."""
+    return max(5, int(round(window_s / dt)) + 1)
+
+
 def _stage(model: PHAST, data: RigData, cfg: RigTrainConfig, window_s: float, epochs: int,
            schedule: str = "cosine") -> _Stage:
     """Windows of ``window_s`` seconds, split into training and validation, with a fresh AdamW and its schedule:
     cosine over ``epochs`` epochs, or the validation plateau rule of ``cfg``."""
-    length = max(5, int(round(window_s / data.train.dt)) + 1)
-    train, val = _split_windows(cut_windows(data.train, length), cfg.val_fraction, cfg.seed)
+    train, val = _split_windows(cut_windows(data.train, _window_samples(window_s, data.dt)), cfg.val_fraction, cfg.seed)
     opt = torch.optim.AdamW(param_groups(model, cfg.lr, cfg.friction_lr_mult), lr=cfg.lr, weight_decay=cfg.weight_decay)
     n_batches = max(1, math.ceil(train.q.shape[0] / cfg.batch_windows))
     if schedule == "plateau":
@@ -544,8 +548,7 @@ def window_rmse(model: PHAST, data: RigData, cfg: RigTrainConfig, iters: int = 5
     """RMSE of ``model`` on the validation windows a run of ``cfg`` selects its model on (the final window length,
     the same split), each window's state fitted to this model: the training-window score of another model (the
     nominal one) on the same footing as the run's best validation RMSE."""
-    length = max(5, int(round(cfg.window_s / data.train.dt)) + 1)
-    train, val = _split_windows(cut_windows(data.train, length), cfg.val_fraction, cfg.seed)
+    train, val = _split_windows(cut_windows(data.train, _window_samples(cfg.window_s, data.dt)), cfg.val_fraction, cfg.seed)
     w = val if val is not None else train
     model = model.double()
     X = fit_states(model, w.X, w.q, w.u, iters)

@@ -31,7 +31,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import scipy.linalg as sl
 import torch
 
 from phast_gym.control import EnergyCasimirController
@@ -191,7 +190,7 @@ class LQRHold:
 
     def __init__(self, model: PHAST, q_star: np.ndarray, dt: float, sigma: float, max_action: float,
                  actuated: Sequence[int], cfg: HoldConfig) -> None:
-        from ..control.lqg_bound import closed_loop, linearise_system, stationary
+        from ..control.lqg_bound import closed_loop, linearise_system, lqr_gain, stationary
 
         self.system = learned_system(model, dt)
         n = self.system.n
@@ -201,8 +200,7 @@ class LQRHold:
         self._angle = np.array([i in self.system.angle_dims for i in range(n)])
         a, b = linearise_system(self.system, self.q_star, dt, self.actuated)
         w = np.concatenate([np.where(self._angle, cfg.lqr_angle, cfg.lqr_position), np.full(n, cfg.lqr_rate)])
-        x = sl.solve_discrete_are(a, b, np.diag(w), np.eye(len(self.actuated)))
-        self.k = np.linalg.solve(b.T @ x @ b + np.eye(len(self.actuated)), b.T @ x @ a)
+        self.k = lqr_gain(a, b, w)
         lam = np.log(np.abs(np.linalg.eigvals(a)).max()) / dt
         self.gains = LQRGains(self.k.tolist(), float(lam),
                               float(stationary(closed_loop(a, b, max(sigma, 1e-6), gains=self.k))["rms_torque"]))

@@ -131,6 +131,11 @@ def _windows(train: Recordings, length: int, stride: int, opts: Options) -> Wind
     return win
 
 
+def smoothed_states(qs: np.ndarray, vs: np.ndarray, win: Windows) -> np.ndarray:
+    """(W, 2n) each window's starting state from the smoothed recordings (a fit's initial window states)."""
+    return np.concatenate([qs[win.traj, win.start], vs[win.traj, win.start]], axis=1)
+
+
 def longer_windows(problem: Problem, length: int) -> Windows:
     """Shooting windows of ``length`` samples (at most the recordings') on the training recordings, compared at the
     selection's stride and under the same caps (fewer, longer windows)."""
@@ -162,7 +167,7 @@ def prepare(sim: Simulator, sys0: System, train: Recordings, opts: Options, log:
     # per coordinate: 0.005 x its own rms speed (a slow cart's edge is not set by a fast pole), never below eps / 5
     eps_coord = tuple(float(e) for e in np.maximum(opts.coulomb_eps_rel * v_rms, 0.2 * eps))
     win = _windows(train, shoot_window, comparison_stride(train, period), opts)
-    X0 = np.concatenate([qs[win.traj, win.start], vs[win.traj, win.start]], axis=1)
+    X0 = smoothed_states(qs, vs, win)
     u = train.u
     u_med = float(np.median(np.abs(u[u != 0]))) if u is not None and np.any(u != 0) else 1.0
     nominal = Family(sim, {}, [], [], eps_coord, 0.05 * u_med)
