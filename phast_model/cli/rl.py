@@ -26,7 +26,9 @@ def build_parser() -> argparse.ArgumentParser:
     d, a, f, p = LoopConfig(), AgentSpec(), FitSpec(), PlantSpec()
     ap = argparse.ArgumentParser(prog="phast-rl", description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    ap.add_argument("--env", default=p.env_id, help="the plant: a phast_gym env id")
+    ap.add_argument("--env", default=p.env_id, help="the plant: a phast_gym env id; some plants bring their own option defaults "
+                    "(the cart-pole: --max-action 30 and longer agent training; phast_model.rl.descriptions.PRESETS), which options "
+                    "given here override")
     ap.add_argument("--task", choices=TASKS, default="swingup", help="swingup: from hanging; upright: from near the top")
     ap.add_argument("--env-kwargs", default="{}", help='the plant env\'s kwargs as JSON, e.g. \'{"actuated_dofs": [0]}\'')
     ap.add_argument("--budget-s", type=float, default=d.budget_s, help="plant seconds allowed for learning")
@@ -47,6 +49,10 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--algo", choices=ALGOS, default=a.algo)
     ap.add_argument("--agent-steps", type=int, default=a.steps, help="agent decisions of the first training")
     ap.add_argument("--refit-steps", type=int, default=a.refit_steps, help="agent decisions of each later training")
+    ap.add_argument("--final-steps", type=int, default=a.final_steps,
+                    help="agent decisions of the last training, the one after the budget is spent (default: --refit-steps)")
+    ap.add_argument("--keep-best", action=argparse.BooleanOptionalAction, default=a.keep_best,
+                    help="deploy the weights of each training's best world-model evaluation, not the last ones")
     ap.add_argument("--eval-every", type=int, default=a.eval_every, help="decisions between world-model evaluations")
     ap.add_argument("--episode-decisions", type=int, default=a.episode_decisions,
                     help="decisions per world-model episode of the agent")
@@ -81,7 +87,8 @@ def config_from_args(args: argparse.Namespace) -> LoopConfig:
     """The loop's config; ValueError naming the bad option."""
     h = HoldConfig()
     plant = PlantSpec(args.env, json_object(args.env_kwargs, "--env-kwargs"), sigma=args.sigma, max_action=args.max_action)
-    agent = AgentSpec(algo=args.algo, steps=args.agent_steps, refit_steps=args.refit_steps, eval_every=args.eval_every,
+    agent = AgentSpec(algo=args.algo, steps=args.agent_steps, refit_steps=args.refit_steps,
+                      final_steps=args.final_steps, keep_best=args.keep_best, eval_every=args.eval_every,
                       mirror=not args.no_mirror, episode_decisions=args.episode_decisions,
                       velocity_weight=args.velocity_weight, position_weight=args.position_weight,
                       recenter=not args.no_recenter)
@@ -117,9 +124,21 @@ def check_plant(cfg: LoopConfig) -> None:
         raise ValueError(f"--env {cfg.plant.env_id} has no angle coordinate: the tasks swing an angle up")
 
 
-def main(argv: list[str] | None = None) -> int:
+def parse_args(argv: list[str] | None = None) -> tuple[argparse.ArgumentParser, argparse.Namespace]:
+    """The parser and the arguments, with the plant's option defaults (:func:`phast_model.rl.descriptions.loop_preset`)
+    in place of the loop's where the command line does not give the option."""
+    from ..rl.descriptions import loop_preset
+
     ap = build_parser()
-    args = ap.parse_args(argv)
+    pre = argparse.ArgumentParser(add_help=False)
+    pre.add_argument("--env", default=ap.get_default("env"))
+    known, _ = pre.parse_known_args(argv)
+    ap.set_defaults(**loop_preset(known.env))
+    return ap, ap.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap, args = parse_args(argv)
     try:
         cfg = config_from_args(args)
         check_plant(cfg)

@@ -58,11 +58,16 @@ class AgentSpec:
     evaluations without improvement, at least ``min_evals``), episode length in decisions, observation frames,
     learning rate from ``lr`` to ``lr_final`` (SB3 ``LinearSchedule``), hidden layers, the mirror symmetry (SAC only),
     the reward's weights on |qdot|^2 and on the squared Euclidean errors, whether episodes start with the Euclidean
-    coordinates moved to 0 (``recenter``; :class:`.world_env.WorldTaskEnv`)."""
+    coordinates moved to 0 (``recenter``; :class:`.world_env.WorldTaskEnv`).  ``final_steps`` is the training of the
+    last iteration, the one without a plant episode (the budget spent; None: ``refit_steps``): it costs no plant time.
+    ``keep_best``: after each training the agent takes the weights of its best world-model evaluation (SB3's
+    ``EvalCallback`` ``best_model_save_path``), not those it stopped with."""
 
     algo: str = "sac"
     steps: int = 8_000
     refit_steps: int = 4_000
+    final_steps: int | None = None
+    keep_best: bool = False
     eval_every: int = 2_000
     eval_episodes: int = 10
     patience: int = 3
@@ -84,6 +89,8 @@ class AgentSpec:
             v = getattr(self, k)
             if int(v) != v or v < 1:
                 raise ValueError(f"{k} must be a positive integer, got {v!r}")
+        if self.final_steps is not None and (int(self.final_steps) != self.final_steps or self.final_steps < 1):
+            raise ValueError(f"final_steps must be a positive integer or None, got {self.final_steps!r}")
         for k in ("velocity_weight", "position_weight"):
             v = getattr(self, k)
             if not (v >= 0 and math.isfinite(v)):
@@ -293,10 +300,19 @@ class AgentOutcome:
     eval_returns: list[float]
 
 
+def _training_steps(spec: AgentSpec, first: bool, last: bool) -> int:
+    """Decisions of this training: the first, a later one, or the last (no plant episode follows it)."""
+    if first:
+        return spec.steps
+    return spec.final_steps if last and spec.final_steps is not None else spec.refit_steps
+
+
 def train_agent(cfg: LoopConfig, model: Any, pool: np.ndarray, q_star: np.ndarray, agent: Any | None,
-                iteration: int, actuated: list[int] | None = None) -> AgentOutcome:
+                iteration: int, actuated: list[int] | None = None, last: bool = False) -> AgentOutcome:
     """Train (or continue) the agent in the world model with SB3's ``EvalCallback`` and
-    ``StopTrainingOnNoModelImprovement`` on a second world-model env (its own burn-in draws)."""
+    ``StopTrainingOnNoModelImprovement`` on a second world-model env (its own burn-in draws); ``last``: no plant
+    episode follows (``AgentSpec.final_steps``)."""
+    import os
     import tempfile
 
     from stable_baselines3.common.callbacks import EvalCallback, StopTrainingOnNoModelImprovement
@@ -310,19 +326,23 @@ def train_agent(cfg: LoopConfig, model: Any, pool: np.ndarray, q_star: np.ndarra
         return Monitor(WorldTaskEnv(model, pool, task, seed=seed, actuated=actuated))
 
     train_env = env(cfg.seed * 1000 + iteration)
+    first = agent is None
     if agent is None:
         agent = make_agent(cfg, train_env)
-        steps, first = spec.steps, True
     else:
         agent.set_env(train_env)
-        steps, first = spec.refit_steps, False
     stop = StopTrainingOnNoModelImprovement(max_no_improvement_evals=spec.patience, min_evals=spec.min_evals)
     start = agent.num_timesteps
     with tempfile.TemporaryDirectory() as log:  # EvalCallback keeps its evaluations only when it has a log_path
         ev = EvalCallback(env(cfg.seed * 1000 + 500 + iteration), n_eval_episodes=spec.eval_episodes,
-                          eval_freq=spec.eval_every, log_path=log, callback_after_eval=stop, deterministic=True, verbose=0)
-        agent.learn(total_timesteps=steps, callback=ev, reset_num_timesteps=first, progress_bar=False)
-    returns = [float(np.mean(r)) for r in ev.evaluations_results]
+                          eval_freq=spec.eval_every, log_path=log, callback_after_eval=stop, deterministic=True, verbose=0,
+                          best_model_save_path=log if spec.keep_best else None)
+        agent.learn(total_timesteps=_training_steps(spec, first, last), callback=ev, reset_num_timesteps=first,
+                    progress_bar=False)
+        returns = [float(np.mean(r)) for r in ev.evaluations_results]
+        best = os.path.join(log, "best_model.zip")
+        if spec.keep_best and returns and returns[-1] < max(returns) and os.path.exists(best):
+            agent.set_parameters(best)  # the policy and critics of the best evaluation; the replay buffer stays
     return AgentOutcome(agent, int(agent.num_timesteps - start), time.perf_counter() - t0,
                         [int(t) for t in ev.evaluations_timesteps], returns)
 
@@ -398,10 +418,10 @@ def run_loop(cfg: LoopConfig, progress: Progress = _no_progress) -> LoopResult:
         model = fit.model
         progress(f"iteration {it}: fitted (val RMSE {fit.val_rmse:.4f})", used)
         pool = burn_in_pool(recs["q"], model.observer.window)
-        trained = train_agent(cfg, model, pool, q_star, agent, it, list(plant.actuated_dofs))
+        can_run = used + cfg.policy_episodes * ep_s <= cfg.budget_s + 1e-9
+        trained = train_agent(cfg, model, pool, q_star, agent, it, list(plant.actuated_dofs), last=not can_run)
         agent = trained.agent
         progress(f"iteration {it}: agent trained ({trained.decisions} decisions)", used)
-        can_run = used + cfg.policy_episodes * ep_s <= cfg.budget_s + 1e-9
         policy, gains = deployed_policy(cfg, agent, model, plant, q_star)
         new = run_policy(cfg, plant, policy, cfg.policy_episodes, cfg.episode_steps, cfg.seed * 1000 + 77 + it, "policy") if can_run else []
         episodes += new
