@@ -51,6 +51,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--refit-steps", type=int, default=a.refit_steps, help="agent decisions of each later training")
     ap.add_argument("--final-steps", type=int, default=a.final_steps,
                     help="agent decisions of the last training, the one after the budget is spent (default: --refit-steps)")
+    ap.add_argument("--hold-goal", action=argparse.BooleanOptionalAction, default=a.hold_goal,
+                    help="world-model episodes end with the best reward where the hold takes over (the agent brings the "
+                         "plant into the hold's region)")
     ap.add_argument("--keep-best", action=argparse.BooleanOptionalAction, default=a.keep_best,
                     help="deploy the weights of each training's best world-model evaluation, not the last ones")
     ap.add_argument("--eval-every", type=int, default=a.eval_every, help="decisions between world-model evaluations")
@@ -88,7 +91,8 @@ def config_from_args(args: argparse.Namespace) -> LoopConfig:
     h = HoldConfig()
     plant = PlantSpec(args.env, json_object(args.env_kwargs, "--env-kwargs"), sigma=args.sigma, max_action=args.max_action)
     agent = AgentSpec(algo=args.algo, steps=args.agent_steps, refit_steps=args.refit_steps,
-                      final_steps=args.final_steps, keep_best=args.keep_best, eval_every=args.eval_every,
+                      final_steps=args.final_steps, keep_best=args.keep_best, hold_goal=args.hold_goal,
+                      eval_every=args.eval_every,
                       mirror=not args.no_mirror, episode_decisions=args.episode_decisions,
                       velocity_weight=args.velocity_weight, position_weight=args.position_weight,
                       recenter=not args.no_recenter)

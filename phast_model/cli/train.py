@@ -173,6 +173,8 @@ def _recordings_main(args: argparse.Namespace) -> dict[str, Any]:
              "state_iters": args.state_iters, "warmup_window_s": args.warmup_window_s,
              "warmup_epochs": args.warmup_epochs, "schedule": args.schedule}
     flags = {k: v for k, v in given.items() if v is not None}  # a flag not given keeps RigTrainConfig's default
+    if args.lr is not None:
+        flags["lr_mult"] = 1.0  # as given, also after UNKNOWN's start from the recorded motion
     if args.patience is not None:
         flags["patience"] = args.patience or None  # 0: every epoch
     train = RigTrainConfig(seed=args.seed, progress=not args.no_progress, **flags)

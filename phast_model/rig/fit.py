@@ -56,6 +56,10 @@ SMOOTH_S = 0.03
 STATE_FIT_ITERS = 15
 #: the ``format`` entry of a recordings run's checkpoint.pt
 CHECKPOINT_FORMAT = "phast-rig-checkpoint"
+#: the learning rates' factor after UNKNOWN's start from the recorded motion (:func:`lr_mult`).  At the base rates
+#: the first epoch undid the real pendulum's start (2-s window RMSE 0.007 -> 0.44 rad); with only the networks
+#: slowed (x 0.05), the mass and friction still moved fast enough to break the free swing's V / M ratio (0.137 rad)
+LR_AFTER_START = 0.01
 #: learning-rate schedules of :class:`RigTrainConfig`
 SCHEDULES = ("plateau", "cosine")
 
@@ -174,7 +178,7 @@ def rig_config(sim: str, sim_kwargs: dict[str, Any], regime: str, data: RigData,
         cfg = replace(base, potential="template", template=tmpl, template_dims=dims, init_from="rig", **mass)
     else:
         mass = {"mass": "lowrank", "mass_rank": min(4, system.n)} if system.separable else {"mass": "cholesky"}
-        cfg = replace(base, potential="neural", init_from="none", **mass)
+        cfg = replace(base, potential="neural", init_from="motion", **mass)
     return replace(cfg, **overrides)
 
 
@@ -280,6 +284,8 @@ class RigTrainConfig:
     state_iters: int = 1  # Gauss-Newton iterations of the window states per refit after the first epoch (3)
     val_fraction: float = 0.15
     friction_lr_mult: float = 5.0  # friction coefficients' lr factor (phast_model.train.groups.param_groups)
+    #: every rate's factor; None: LR_AFTER_START after UNKNOWN's start from the recorded motion, else 1
+    lr_mult: float | None = None
     seed: int = 0
     progress: bool = True
     #: a curriculum on the window length: the first ``warmup_epochs`` epochs on windows of ``warmup_window_s`` (an
@@ -367,6 +373,18 @@ def _template_start(model: PHAST, rec: Recordings) -> dict[str, float]:
     return out
 
 
+def _start(model: PHAST, data: RigData) -> dict[str, float]:
+    """The model's start before the shooting fit: PARTIAL's template coefficients from the rig (``init_from='rig'``),
+    UNKNOWN's components from the recorded force balance (``'motion'``: :mod:`.motion_start`), else as built."""
+    if model.config.init_from == "rig":
+        return _template_start(model, data.train)
+    if model.config.init_from == "motion":
+        from .motion_start import motion_start
+
+        return motion_start(model, data.train)
+    return {}
+
+
 @torch.no_grad()
 def _set_lowrank(mass: LowRankMass, diag: torch.Tensor) -> None:
     """diag(softplus(d)) + U U^T = diag(diag) up to U's off-diagonal part, with U shrunk to 1% of the diagonal: its
@@ -406,6 +424,14 @@ class _Stage:
     n_batches: int
 
 
+def lr_mult(model: PHAST, cfg: RigTrainConfig) -> float:
+    """The learning rates' factor: ``cfg.lr_mult``, else :data:`LR_AFTER_START` for a model started from the recorded
+    motion (a fitted model is refined, not relearned), else 1."""
+    if cfg.lr_mult is not None:
+        return cfg.lr_mult
+    return LR_AFTER_START if model.config.init_from == "motion" else 1.0
+
+
 def _window_samples(window_s: float, dt: float) -> int:
     """Samples of a shooting window of ``window_s`` seconds (at least 5)."""
     return max(5, int(round(window_s / dt)) + 1)
@@ -416,7 +442,8 @@ def _stage(model: PHAST, data: RigData, cfg: RigTrainConfig, window_s: float, ep
     """Windows of ``window_s`` seconds, split into training and validation, with a fresh AdamW and its schedule:
     cosine over ``epochs`` epochs, or the validation plateau rule of ``cfg``."""
     train, val = _split_windows(cut_windows(data.train, _window_samples(window_s, data.dt)), cfg.val_fraction, cfg.seed)
-    opt = torch.optim.AdamW(param_groups(model, cfg.lr, cfg.friction_lr_mult), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    lr = cfg.lr * lr_mult(model, cfg)
+    opt = torch.optim.AdamW(param_groups(model, lr, cfg.friction_lr_mult), lr=lr, weight_decay=cfg.weight_decay)
     n_batches = max(1, math.ceil(train.q.shape[0] / cfg.batch_windows))
     if schedule == "plateau":
         plateau = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=cfg.plateau_factor,
@@ -533,7 +560,7 @@ def fit_recordings(model: PHAST, data: RigData, cfg: RigTrainConfig | None = Non
     ValueError."""
     cfg = cfg or RigTrainConfig()
     model = model.double()
-    init = _template_start(model, data.train) if model.config.init_from == "rig" else {}
+    init = _start(model, data)
     ckpt = None if run_dir is None else Path(run_dir) / CHECKPOINT
     if resume and ckpt is not None and not ckpt.exists():
         raise ValueError(f"cannot resume: {ckpt} is missing (no epoch of a run in {ckpt.parent} has finished); "

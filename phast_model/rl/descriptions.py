@@ -31,11 +31,12 @@ DESCRIPTIONS = {"PHAST/WindyCartPole-v0": f"{__name__}:CartPoleDescription"}
 #: plant env id -> ``phast-rl`` option defaults that differ from the loop's (the option's dest -> value); an option given
 #: on the command line wins.  The cart-pole's (docs/control.md, "The cart-pole"): 10 N does not lift its 1-kg pole at
 #: 1 m above the horizontal, so the bound is 30 N; pumping needs 5-s episodes and a light |qdot|^2 weight; SAC needs
-#: more decisions than on the pendulum, and the last training (no plant episode) is free of plant time.
+#: more decisions than on the pendulum, and the last training (no plant episode) is free of plant time; the agent's
+#: task ends in the LQR hold's region (``hold_goal``).
 PRESETS: dict[str, dict[str, object]] = {
     "PHAST/WindyCartPole-v0": {"max_action": 30.0, "episode_decisions": 100, "velocity_weight": 0.01,
                                "position_weight": 0.1, "agent_steps": 15_000, "refit_steps": 8_000,
-                               "final_steps": 20_000, "keep_best": True},
+                               "final_steps": 20_000, "keep_best": True, "hold_goal": True},
 }
 
 

@@ -61,13 +61,15 @@ class AgentSpec:
     coordinates moved to 0 (``recenter``; :class:`.world_env.WorldTaskEnv`).  ``final_steps`` is the training of the
     last iteration, the one without a plant episode (the budget spent; None: ``refit_steps``): it costs no plant time.
     ``keep_best``: after each training the agent takes the weights of its best world-model evaluation (SB3's
-    ``EvalCallback`` ``best_model_save_path``), not those it stopped with."""
+    ``EvalCallback`` ``best_model_save_path``), not those it stopped with.  ``hold_goal``: a world-model episode ends
+    with the best reward once the state enters the hold's handoff region (:class:`.world_env.WorldTask` ``goal``)."""
 
     algo: str = "sac"
     steps: int = 8_000
     refit_steps: int = 4_000
     final_steps: int | None = None
     keep_best: bool = False
+    hold_goal: bool = False
     eval_every: int = 2_000
     eval_episodes: int = 10
     patience: int = 3
@@ -321,8 +323,9 @@ def train_agent(cfg: LoopConfig, model: Any, pool: np.ndarray, q_star: np.ndarra
     spec, t0 = cfg.agent, time.perf_counter()
 
     def env(seed: int) -> Monitor:
+        goal = (cfg.hold.enter_angle, cfg.hold.enter_rate) if spec.hold_goal and cfg.hold.enabled else None
         task = WorldTask(q_star, cfg.plant.max_action, cfg.plant.sigma, spec.episode_decisions, spec.frames,
-                         spec.velocity_weight, spec.position_weight, spec.recenter)
+                         spec.velocity_weight, spec.position_weight, spec.recenter, goal)
         return Monitor(WorldTaskEnv(model, pool, task, seed=seed, actuated=actuated))
 
     train_env = env(cfg.seed * 1000 + iteration)

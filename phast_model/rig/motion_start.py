@@ -1,0 +1,173 @@
+"""A start for UNKNOWN from the recorded motion: the force balance matched by gradient descent.
+
+An all-neural model starts with no restoring force and a unit mass.  On a real rig that start lies outside the basin
+of the multiple-shooting fit: a pendulum swings at ~1.3 Hz, so a few hundred milliseconds of the wrong potential
+already put the rollout half a swing away, and the DFKI arm's inertia (~0.01 kg m^2) is 100x below the unit mass,
+so its measured torques hardly move the model (training RMSE stuck at 1.2 rad, held-out error 23x and 1.9x the
+nominal model's; docs/rig_world_model.md).
+
+Before the shooting fit, the model's potential, mass and joint friction are therefore fitted to the equation of
+motion at the recorded samples,
+
+    d/dt (M(q) qdot) - 1/2 d/dq (qdot^T M(q) qdot) + dV/dq + f(qdot) = G u          (Eq. 1-3 with p = M qdot)
+
+with q, qdot and qddot from a Savitzky-Golay fit to the recordings (:data:`phast_model.rigs.signals.SAVGOL`): a
+regression on the model's own components (gradient matching, as in the derivative-based starts of SINDy), each
+coordinate's residual scaled by its typical force.  Without a port input the scale of (V, M, f) is free: the mass
+then keeps its initial gauge (a constant mass is not trained; a configuration-dependent one is held at a mean
+diagonal of 1).  The shooting fit then refines the start on open-loop windows, where the differentiated signal's
+noise no longer enters.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ..rigs.recordings import Recordings
+from ..rigs.signals import SavitzkyGolay, odd
+from ..world.model import PHAST
+
+#: Savitzky-Golay window of the differentiated signal [s] (at least 7 samples)
+WINDOW_S = 0.04
+#: samples kept for the regression (every k-th interior sample of every trajectory)
+MAX_SAMPLES = 20_000
+
+
+@dataclass(frozen=True)
+class MotionSamples:
+    """(S, n) positions, velocities, accelerations and port force at interior recorded samples."""
+
+    q: torch.Tensor
+    v: torch.Tensor
+    a: torch.Tensor
+    f: torch.Tensor | None
+
+    def __len__(self) -> int:
+        return int(self.q.shape[0])
+
+
+@dataclass(frozen=True)
+class MotionStartConfig:
+    """Adam on minibatches of the force-balance residual: ``steps`` steps of ``batch`` samples, learning rate ``lr``
+    decayed by cosine to zero (the friction coefficients at ``friction_lr_mult`` x ``lr``: their softplus makes the
+    steps relative, and they start orders of magnitude from a free swing's gauge); ``seed`` for the minibatches.
+    The signal: a Savitzky-Golay filter of degree ``polyorder`` over ``window_s``."""
+
+    steps: int = 1500
+    batch: int = 2048
+    lr: float = 3e-3
+    friction_lr_mult: float = 10.0
+    seed: int = 0
+    window_s: float = WINDOW_S
+    polyorder: int = 5
+    max_samples: int = MAX_SAMPLES
+
+
+def motion_samples(rec: Recordings, window_s: float = WINDOW_S, max_samples: int = MAX_SAMPLES,
+                   polyorder: int = 5) -> MotionSamples:
+    """q, qdot, qddot (Savitzky-Golay of degree ``polyorder``) and the port force held around each sample (the mean
+    of the two intervals), at interior samples of every trajectory, subsampled to at most ``max_samples``.  A cubic
+    filter's second derivative is biased by O((omega h)^2), which a free swing turns into a frequency error (0.3% on
+    the real pendulum, 0.2 rad of phase over a 9-s rollout); degree 5 leaves O((omega h)^4)."""
+    N, T, n = rec.q.shape
+    sg = SavitzkyGolay(polyorder)
+    w = sg.fit_window(odd(max(polyorder + 4, int(round(window_s / rec.dt)))), T)
+    q = sg.smooth(rec.q, w)
+    v = sg.derivative(rec.q, w, rec.dt, 1)
+    a = sg.derivative(rec.q, w, rec.dt, 2)
+    h = w // 2  # the filter's edges are extrapolations
+    idx = np.arange(max(h, 1), T - max(h, 1))
+    idx = idx[:: max(1, math.ceil(N * len(idx) / max_samples))]
+    take = lambda x: torch.as_tensor(x[:, idx].reshape(-1, n), dtype=torch.float64)  # noqa: E731
+    f = None
+    if rec.u is not None:
+        u = np.asarray(rec.u, dtype=np.float64)  # (N, T-1, n): held over each interval
+        around = np.zeros_like(rec.q)
+        around[:, 1:-1] = 0.5 * (u[:, :-1] + u[:, 1:])
+        f = take(around)
+    return MotionSamples(take(q), take(v), take(a), f)
+
+
+def force_residual(model: PHAST, s: MotionSamples) -> torch.Tensor:
+    """The equation of motion's residual (module docstring) at the samples, (S, n): the mass's d/dt and
+    configuration terms by forward-mode derivatives of ``M(q) qdot`` along qdot and the gradient of the kinetic
+    energy, zero for a constant mass."""
+    mass, q, v = model.mass, s.q, s.v
+    r = mass.momentum(q, s.a) + model.potential.grad(q)
+    if not getattr(mass, "constant", True):
+        qg = q.detach().requires_grad_(True)
+        _, mdot_v = torch.func.jvp(lambda x: mass.momentum(x, v), (qg,), (v,))
+        kinetic = 0.5 * (v * mass.momentum(qg, v)).sum()
+        dT = torch.autograd.grad(kinetic, qg, create_graph=True)[0]
+        r = r + mdot_v - dT
+    if model.friction is not None:
+        r = r + model.friction.force(v)
+    port = model.port_force(s.f) if s.f is not None else None
+    return r if port is None else r - port
+
+
+def _scales(model: PHAST, s: MotionSamples) -> torch.Tensor:
+    """Each coordinate's typical force: the RMS port force where there is one, else the RMS of M qddot."""
+    with torch.no_grad():
+        typical = model.mass.momentum(s.q, s.a) if s.f is None else s.f
+        rms = typical.pow(2).mean(0).sqrt()
+    return rms.clamp_min(1e-6 * float(rms.max().clamp_min(1e-12)))
+
+
+def _gauge_penalty(model: PHAST, s: MotionSamples) -> torch.Tensor:
+    """Without a port input: a configuration-dependent mass held at a mean diagonal of 1 (the scale is free)."""
+    diag = torch.diagonal(model.mass.matrix(s.q[:256]), dim1=-2, dim2=-1)
+    return (diag.mean() - 1.0) ** 2
+
+
+def _trained(model: PHAST, driven: bool) -> list[torch.nn.Parameter]:
+    """The potential, the friction, and the mass unless it is constant and the scale is free (no port input)."""
+    mods: list[torch.nn.Module] = [model.potential]
+    if model.friction is not None:
+        mods.append(model.friction)
+    if driven or not getattr(model.mass, "constant", True):
+        mods.append(model.mass)
+    return [p for m in mods for p in m.parameters() if p.requires_grad]
+
+
+def motion_start(model: PHAST, rec: Recordings, cfg: MotionStartConfig | None = None) -> dict[str, float]:
+    """Fit the model's potential, mass and friction to the force balance of ``rec`` (module docstring), in place.
+    Returns the relative residual (RMS residual / RMS typical force, over the coordinates) before and after."""
+    cfg = cfg or MotionStartConfig()
+    s = motion_samples(rec, cfg.window_s, cfg.max_samples, cfg.polyorder)
+    driven = s.f is not None
+    scale = _scales(model, s)
+    params = _trained(model, driven)
+    fric = {id(p) for p in model.friction.parameters()} if model.friction is not None else set()
+    opt = torch.optim.Adam([{"params": [p], "lr": cfg.lr * (cfg.friction_lr_mult if id(p) in fric else 1.0)}
+                            for p in params])
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=cfg.steps)
+    gen = torch.Generator().manual_seed(cfg.seed)
+
+    def loss_on(idx: torch.Tensor | None) -> torch.Tensor:
+        part = s if idx is None else MotionSamples(s.q[idx], s.v[idx], s.a[idx], None if s.f is None else s.f[idx])
+        loss = (force_residual(model, part) / scale).pow(2).mean()
+        if not driven and not getattr(model.mass, "constant", True):
+            loss = loss + _gauge_penalty(model, part)
+        return loss
+
+    with torch.no_grad():
+        before = math.sqrt(float((force_residual(model, s) / scale).pow(2).mean()))
+    for _ in range(cfg.steps):
+        idx = torch.randint(len(s), (min(cfg.batch, len(s)),), generator=gen)
+        opt.zero_grad(set_to_none=True)
+        loss = loss_on(idx)
+        if not torch.isfinite(loss):
+            raise ValueError("the force-balance start diverged (a non-finite residual); train without it "
+                             "(init_from='none')")
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(params, 10.0)
+        opt.step()
+        sched.step()
+    with torch.no_grad() if getattr(model.mass, "constant", True) else torch.enable_grad():
+        after = math.sqrt(float((force_residual(model, s) / scale).pow(2).mean().detach()))
+    return {"force_residual_before": before, "force_residual_after": after, "force_samples": float(len(s))}
