@@ -373,7 +373,7 @@ def _template_start(model: PHAST, rec: Recordings) -> dict[str, float]:
     return out
 
 
-def _start(model: PHAST, data: RigData) -> dict[str, float]:
+def _start(model: PHAST, data: RigData, cfg: RigTrainConfig) -> dict[str, float]:
     """The model's start before the shooting fit: PARTIAL's template coefficients from the rig (``init_from='rig'``),
     UNKNOWN's components from the recorded force balance (``'motion'``: :mod:`.motion_start`), else as built."""
     if model.config.init_from == "rig":
@@ -381,7 +381,7 @@ def _start(model: PHAST, data: RigData) -> dict[str, float]:
     if model.config.init_from == "motion":
         from .motion_start import motion_start
 
-        return motion_start(model, data.train)
+        return motion_start(model, data.train, lambda m: window_rmse(m, data, cfg))
     return {}
 
 
@@ -560,7 +560,7 @@ def fit_recordings(model: PHAST, data: RigData, cfg: RigTrainConfig | None = Non
     ValueError."""
     cfg = cfg or RigTrainConfig()
     model = model.double()
-    init = _start(model, data)
+    init = _start(model, data, cfg)
     ckpt = None if run_dir is None else Path(run_dir) / CHECKPOINT
     if resume and ckpt is not None and not ckpt.exists():
         raise ValueError(f"cannot resume: {ckpt} is missing (no epoch of a run in {ckpt.parent} has finished); "

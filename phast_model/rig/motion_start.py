@@ -21,18 +21,21 @@ noise no longer enters.
 
 from __future__ import annotations
 
+import copy
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
 from ..rigs.recordings import Recordings
-from ..rigs.signals import SavitzkyGolay, odd
+from ..rigs.signals import SavitzkyGolay, odd, time_scale
 from ..world.model import PHAST
 
-#: Savitzky-Golay window of the differentiated signal [s] (at least 7 samples)
-WINDOW_S = 0.04
+#: Savitzky-Golay windows tried, in units of the recordings' time scale (1 / omega of their oscillation,
+#: :func:`phast_model.rigs.signals.time_scale`); the start whose open-loop windows fit best is kept
+WINDOW_TAUS = (0.5, 0.75, 1.1, 1.5)
 #: samples kept for the regression (every k-th interior sample of every trajectory)
 MAX_SAMPLES = 20_000
 
@@ -55,19 +58,22 @@ class MotionStartConfig:
     """Adam on minibatches of the force-balance residual: ``steps`` steps of ``batch`` samples, learning rate ``lr``
     decayed by cosine to zero (the friction coefficients at ``friction_lr_mult`` x ``lr``: their softplus makes the
     steps relative, and they start orders of magnitude from a free swing's gauge); ``seed`` for the minibatches.
-    The signal: a Savitzky-Golay filter of degree ``polyorder`` over ``window_s``."""
+    The signal: a Savitzky-Golay filter of degree ``polyorder`` over each of ``window_taus`` x the time scale."""
 
     steps: int = 1500
     batch: int = 2048
     lr: float = 3e-3
     friction_lr_mult: float = 10.0
     seed: int = 0
-    window_s: float = WINDOW_S
+    window_taus: tuple[float, ...] = WINDOW_TAUS
     polyorder: int = 5
     max_samples: int = MAX_SAMPLES
+    #: L-BFGS iterations on all samples after Adam (0: none): minibatch Adam leaves the potential's slope wiggling by
+    #: ~0.5%, a free swing's frequency by half that
+    polish_iters: int = 300
 
 
-def motion_samples(rec: Recordings, window_s: float = WINDOW_S, max_samples: int = MAX_SAMPLES,
+def motion_samples(rec: Recordings, window_s: float, max_samples: int = MAX_SAMPLES,
                    polyorder: int = 5) -> MotionSamples:
     """q, qdot, qddot (Savitzky-Golay of degree ``polyorder``) and the port force held around each sample (the mean
     of the two intervals), at interior samples of every trajectory, subsampled to at most ``max_samples``.  A cubic
@@ -134,11 +140,30 @@ def _trained(model: PHAST, driven: bool) -> list[torch.nn.Parameter]:
     return [p for m in mods for p in m.parameters() if p.requires_grad]
 
 
-def motion_start(model: PHAST, rec: Recordings, cfg: MotionStartConfig | None = None) -> dict[str, float]:
-    """Fit the model's potential, mass and friction to the force balance of ``rec`` (module docstring), in place.
-    Returns the relative residual (RMS residual / RMS typical force, over the coordinates) before and after."""
-    cfg = cfg or MotionStartConfig()
-    s = motion_samples(rec, cfg.window_s, cfg.max_samples, cfg.polyorder)
+def _polish(params: list[torch.nn.Parameter], loss_fn: Callable[[], torch.Tensor], iters: int) -> None:
+    """L-BFGS (strong Wolfe line search) on the whole-sample loss; a non-finite loss stops it where it is."""
+    opt = torch.optim.LBFGS(params, lr=1.0, max_iter=iters, history_size=20, line_search_fn="strong_wolfe",
+                            tolerance_grad=1e-12, tolerance_change=1e-15)
+
+    def closure() -> torch.Tensor:
+        opt.zero_grad(set_to_none=True)
+        loss = loss_fn()
+        if torch.isfinite(loss):
+            loss.backward()
+        return loss
+
+    saved = [p.detach().clone() for p in params]
+    opt.step(closure)
+    if not all(torch.isfinite(p).all() for p in params):
+        with torch.no_grad():
+            for p, old in zip(params, saved):
+                p.copy_(old)
+
+
+def fit_force_balance(model: PHAST, s: MotionSamples, cfg: MotionStartConfig) -> float:
+    """Fit the model's potential, mass and friction to the force balance at the samples ``s`` (module docstring), in
+    place: Adam on minibatches, then L-BFGS on all samples.  Returns the relative residual after (RMS residual / RMS
+    typical force)."""
     driven = s.f is not None
     scale = _scales(model, s)
     params = _trained(model, driven)
@@ -155,8 +180,6 @@ def motion_start(model: PHAST, rec: Recordings, cfg: MotionStartConfig | None = 
             loss = loss + _gauge_penalty(model, part)
         return loss
 
-    with torch.no_grad():
-        before = math.sqrt(float((force_residual(model, s) / scale).pow(2).mean()))
     for _ in range(cfg.steps):
         idx = torch.randint(len(s), (min(cfg.batch, len(s)),), generator=gen)
         opt.zero_grad(set_to_none=True)
@@ -168,6 +191,33 @@ def motion_start(model: PHAST, rec: Recordings, cfg: MotionStartConfig | None = 
         torch.nn.utils.clip_grad_norm_(params, 10.0)
         opt.step()
         sched.step()
-    with torch.no_grad() if getattr(model.mass, "constant", True) else torch.enable_grad():
-        after = math.sqrt(float((force_residual(model, s) / scale).pow(2).mean().detach()))
-    return {"force_residual_before": before, "force_residual_after": after, "force_samples": float(len(s))}
+    if cfg.polish_iters:
+        _polish(params, lambda: loss_on(None), cfg.polish_iters)
+    return math.sqrt(float(loss_on(None).detach()))
+
+
+def motion_start(model: PHAST, rec: Recordings, score: Callable[[PHAST], float],
+                 cfg: MotionStartConfig | None = None) -> dict[str, float]:
+    """The start of ``model`` from the recorded motion ``rec`` (module docstring), in place: one force-balance fit
+    per Savitzky-Golay window of ``cfg.window_taus`` (a narrow window leaves noise in qddot, a wide one bias), each
+    from the same initial weights; the one of least ``score`` (the run's open-loop RMSE on its held-in validation
+    windows, :func:`phast_model.rig.fit.window_rmse`) is kept.  Returns what was chosen and every candidate's
+    score."""
+    cfg = cfg or MotionStartConfig()
+    tau = time_scale(rec.q, rec.dt)
+    initial = copy.deepcopy(model.state_dict())
+    best: tuple[float, dict[str, torch.Tensor] | None] = (math.inf, None)
+    info: dict[str, float] = {"time_scale_s": tau}
+    for k in cfg.window_taus:
+        model.load_state_dict(initial)
+        s = motion_samples(rec, k * tau, cfg.max_samples, cfg.polyorder)
+        residual = fit_force_balance(model, s, cfg)
+        rmse = float(score(model))
+        info[f"window_{k:g}tau_force_residual"], info[f"window_{k:g}tau_rmse"] = residual, rmse
+        if rmse < best[0]:
+            best = (rmse, copy.deepcopy(model.state_dict()))
+            info["window_s"], info["start_rmse"] = k * tau, rmse
+    if best[1] is None:
+        raise ValueError("no force-balance start could be scored (non-finite open-loop RMSE at every window)")
+    model.load_state_dict(best[1])
+    return info

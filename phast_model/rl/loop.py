@@ -302,7 +302,7 @@ class AgentOutcome:
     eval_returns: list[float]
 
 
-def _training_steps(spec: AgentSpec, first: bool, last: bool) -> int:
+def training_steps(spec: AgentSpec, first: bool, last: bool) -> int:
     """Decisions of this training: the first, a later one, or the last (no plant episode follows it)."""
     if first:
         return spec.steps
@@ -340,7 +340,7 @@ def train_agent(cfg: LoopConfig, model: Any, pool: np.ndarray, q_star: np.ndarra
         ev = EvalCallback(env(cfg.seed * 1000 + 500 + iteration), n_eval_episodes=spec.eval_episodes,
                           eval_freq=spec.eval_every, log_path=log, callback_after_eval=stop, deterministic=True, verbose=0,
                           best_model_save_path=log if spec.keep_best else None)
-        agent.learn(total_timesteps=_training_steps(spec, first, last), callback=ev, reset_num_timesteps=first,
+        agent.learn(total_timesteps=training_steps(spec, first, last), callback=ev, reset_num_timesteps=first,
                     progress_bar=False)
         returns = [float(np.mean(r)) for r in ev.evaluations_results]
         best = os.path.join(log, "best_model.zip")

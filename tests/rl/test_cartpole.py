@@ -172,3 +172,42 @@ def test_world_env_recenters_the_cart_weights_the_reward_and_ends_runaway_rollou
     env.reset()
     _, r, term, _, _ = env.step(np.array([1.0]))
     assert term and r == -env.reward_floor * 20
+
+
+def test_world_episodes_end_at_the_best_reward_where_the_hold_takes_over(cartpole_model) -> None:
+    """With a goal, the agent's episode ends once the model's pole is within the hold's region (angle and rate), and
+    the decisions left count 0, the best per-step reward; elsewhere the goal changes nothing."""
+    from phast_model.rl.world_env import WorldTask, WorldTaskEnv, burn_in_pool
+
+    cfg, plant, model, recs = cartpole_model
+    pool = burn_in_pool(recs["q"], model.observer.window)
+    q_star = np.array([0.0, math.pi])
+    wide = WorldTaskEnv(model, pool, WorldTask(q_star, 10.0, 0.0, 20, goal=(math.pi, 1e9)), seed=0, actuated=[0])
+    wide.reset()
+    _, r, term, _, _ = wide.step(np.array([0.0]))
+    assert term and -50 < r < 0  # this decision's own reward, nothing for the decisions left
+    tight = WorldTaskEnv(model, pool, WorldTask(q_star, 10.0, 0.0, 20, goal=(1e-9, 1e-9)), seed=0, actuated=[0])
+    plain = WorldTaskEnv(model, pool, WorldTask(q_star, 10.0, 0.0, 20), seed=0, actuated=[0])
+    tight.reset()
+    plain.reset()
+    for _ in range(3):
+        a, b = tight.step(np.array([0.3])), plain.step(np.array([0.3]))
+        assert not a[2] and a[1] == pytest.approx(b[1])
+
+
+def test_the_cartpole_brings_its_own_loop_defaults_and_the_command_line_wins() -> None:
+    from phast_model.cli.rl import config_from_args, parse_args
+    from phast_model.rl.descriptions import loop_preset
+
+    base = ["--env-kwargs", '{"actuated_dofs": [0]}', "--out", "unused"]
+    _, args = parse_args(["--env", CARTPOLE, *base])
+    cfg = config_from_args(args)
+    assert cfg.plant.max_action == 30.0 and cfg.agent.refit_steps == 8000 and cfg.agent.final_steps == 20000
+    assert cfg.agent.keep_best and cfg.agent.hold_goal and cfg.agent.episode_decisions == 100
+    _, args = parse_args(["--env", CARTPOLE, *base, "--max-action", "20", "--no-hold-goal"])
+    cfg = config_from_args(args)
+    assert cfg.plant.max_action == 20.0 and not cfg.agent.hold_goal and cfg.agent.refit_steps == 8000
+    assert loop_preset("PHAST/Pendulum-v0") == {} and loop_preset("no-such-env") == {}
+    _, args = parse_args(["--env", "PHAST/Pendulum-v0", "--out", "unused"])
+    agent = config_from_args(args).agent
+    assert agent.final_steps is None and not agent.keep_best and not agent.hold_goal and agent.refit_steps == 4000

@@ -213,3 +213,21 @@ def test_hybrid_policy_hands_off_to_the_learned_hold_and_holds_quietly(tiny_run)
     fall = run_episode(plant, HybridPolicy(_ZeroAgent(), 3, cfg.plant.decision_steps, cfg.plant.max_action, q_star),
                        np.array([math.pi + 0.15, 0.0]), 600, 3, "evaluation")
     assert not quiet_metrics(fall, q_star, (0,), Task("upright")).settled
+
+
+def test_the_last_training_can_run_longer_and_keep_its_best_evaluation() -> None:
+    """``final_steps`` sizes only the training after which no plant episode follows; ``keep_best`` deploys the
+    weights of the best world-model evaluation (SB3's EvalCallback ``best_model_save_path``)."""
+    import torch
+
+    from phast_model.rl.loop import training_steps
+
+    spec = AgentSpec(steps=100, refit_steps=50, final_steps=70)
+    assert [training_steps(spec, True, False), training_steps(spec, False, False), training_steps(spec, False, True)] == [100, 50, 70]
+    assert training_steps(AgentSpec(refit_steps=50), False, True) == 50
+    with pytest.raises(ValueError, match="final_steps"):
+        AgentSpec(final_steps=0)
+    torch.set_num_threads(1)
+    cfg = tiny_config(7.0, agent=AgentSpec(**{**TINY_AGENT.__dict__, "final_steps": 160, "keep_best": True}))
+    res = run_loop(cfg)
+    assert res.iterations[-1].agent_decisions == 160 and not res.iterations[-1].plant_success
