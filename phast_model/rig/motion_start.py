@@ -35,9 +35,9 @@ from ..world.model import PHAST
 
 #: Savitzky-Golay windows tried, in units of the recordings' time scale (1 / omega of their oscillation,
 #: :func:`phast_model.rigs.signals.time_scale`); the start whose open-loop windows fit best is kept
-WINDOW_TAUS = (0.5, 0.75, 1.1, 1.5)
+WINDOW_TAUS = (0.75, 1.1, 1.5, 2.2)
 #: samples kept for the regression (every k-th interior sample of every trajectory)
-MAX_SAMPLES = 20_000
+MAX_SAMPLES = 8_000
 
 
 @dataclass(frozen=True)
