@@ -28,9 +28,6 @@ DECIMATE, WINDOW_S = 5, 2.0
 #: Gauss-Newton iterations of the window states per epoch: one left the 2-s windows' states behind the model
 #: (0.714x the published model's error), three reach 0.428x
 STATE_ITERS = 3
-#: an all-neural start (UNKNOWN) has no restoring force, and 2-s windows of the swing lie outside its basin (measured:
-#: training RMSE stuck at 1.3 rad, 84x the published model's held-out error): 0.2-s windows for the first 10 epochs
-WARMUP: dict[str, tuple[float, int]] = {}
 #: phast-mismatch's augmented model on the same held-out segments (docs/mismatch.md, "A real pendulum")
 REFERENCE = {"phast-mismatch augmented / published": 0.345}
 
@@ -39,9 +36,8 @@ def run(data: Path, out: Path, regime: str = "partial", epochs: int = RigTrainCo
         progress: bool = True) -> dict:
     rec, kwargs = load(data)
     spec = RecordingsSpec(rec, "PHAST/Pendulum-v0", kwargs, regime, HOLDOUT, None, decimate=DECIMATE)
-    warm_s, warm_epochs = WARMUP.get(regime, (None, 0))
-    train = RigTrainConfig(epochs=epochs, window_s=WINDOW_S, state_iters=STATE_ITERS, progress=progress,
-                           warmup_window_s=warm_s, warmup_epochs=warm_epochs)
+    # UNKNOWN starts from the recorded motion (phast_model.rig.motion_start): no window warm-up is needed
+    train = RigTrainConfig(epochs=epochs, window_s=WINDOW_S, state_iters=STATE_ITERS, progress=progress)
     metrics = train_recordings_run(spec, out, train)
     return headline(metrics, regime, REFERENCE, out)
 

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import copy
 import math
+import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -561,7 +562,10 @@ def fit_recordings(model: PHAST, data: RigData, cfg: RigTrainConfig | None = Non
     ValueError."""
     cfg = cfg or RigTrainConfig()
     model = model.double()
+    t0 = time.perf_counter()
     init = _start(model, data, cfg)
+    if init:
+        init["start_s"] = time.perf_counter() - t0
     ckpt = None if run_dir is None else Path(run_dir) / CHECKPOINT
     if resume and ckpt is not None and not ckpt.exists():
         raise ValueError(f"cannot resume: {ckpt} is missing (no epoch of a run in {ckpt.parent} has finished); "

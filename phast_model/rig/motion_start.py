@@ -106,7 +106,7 @@ def force_residual(model: PHAST, s: MotionSamples) -> torch.Tensor:
     r = mass.momentum(q, s.a) + model.potential.grad(q)
     if not getattr(mass, "constant", True):
         qg = q.detach().requires_grad_(True)
-        _, mdot_v = torch.func.jvp(lambda x: mass.momentum(x, v), (qg,), (v,))
+        mdot_v = torch.func.jvp(lambda x: mass.momentum(x, v), (qg,), (v,))[1]
         kinetic = 0.5 * (v * mass.momentum(qg, v)).sum()
         dT = torch.autograd.grad(kinetic, qg, create_graph=True)[0]
         r = r + mdot_v - dT

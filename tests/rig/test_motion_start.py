@@ -98,3 +98,19 @@ def test_samples_are_interior_and_aligned_with_the_held_input() -> None:
     assert len(s) <= 2 * 100
     model = build(rig_config(SIM, {}, "unknown", data)).double()
     assert force_residual(model, s).shape == s.q.shape
+
+
+def test_the_start_is_kept_when_training_does_not_beat_it_on_held_in_windows(monkeypatch: pytest.MonkeyPatch) -> None:
+    """fit_recordings scores the start and the trained model on the same held-in validation windows and keeps the
+    better: a training at 50x the rates wrecks the model, and the start's weights come back (best epoch 0)."""
+    import phast_model.rig.motion_start as ms
+    from phast_model.rig.fit import fit_recordings
+
+    torch.set_num_threads(1)
+    monkeypatch.setattr(ms, "MotionStartConfig", lambda: MotionStartConfig(steps=400, polish_iters=50, window_taus=(1.0,)))
+    data = load_rig_data(_recordings(False, n_traj=4, T=300), SIM, {}, [3])
+    cfg = RigTrainConfig(window_s=1.0, epochs=2, lr_mult=50.0, patience=None, progress=False)
+    fit = fit_recordings(build(rig_config(SIM, {}, "unknown", data)), data, cfg)
+    assert fit.init["trained_rmse"] > fit.init["start_rmse"]
+    assert fit.best_epoch == 0 and fit.best_val == fit.init["start_rmse"]
+    assert window_rmse(fit.model, data, cfg) == pytest.approx(fit.init["start_rmse"], rel=1e-6)
