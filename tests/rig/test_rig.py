@@ -164,7 +164,7 @@ def test_window_warmup_trains_short_windows_first_and_keeps_the_best_of_the_fina
         RigTrainConfig(epochs=3, warmup_epochs=1)
     torch.set_num_threads(1)
     data = load_rig_data(recordings, SIM, {}, [9])
-    model = build(rig_config(SIM, {}, "unknown", data))
+    model = build(rig_config(SIM, {}, "unknown", data, init_from="none"))  # the curriculum alone, no start to compete
     fit = fit_recordings(model, data, RigTrainConfig(epochs=4, window_s=1.0, warmup_window_s=0.25, warmup_epochs=2,
                                                      progress=False))
     assert [h["epoch"] for h in fit.history] == [1, 2, 3, 4]
