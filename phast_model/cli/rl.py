@@ -26,9 +26,11 @@ def build_parser() -> argparse.ArgumentParser:
     d, a, f, p = LoopConfig(), AgentSpec(), FitSpec(), PlantSpec()
     ap = argparse.ArgumentParser(prog="phast-rl", description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    ap.add_argument("--env", default=p.env_id, help="the plant: a phast_gym env id; some plants bring their own option defaults "
-                    "(the cart-pole: --max-action 30 and longer agent training; phast_model.rl.descriptions.PRESETS), which options "
-                    "given here override")
+    ap.add_argument("--env", default=p.env_id,
+                    help="the plant: a phast_gym env id, or a rig of your own as a phast_gym System subclass, "
+                         "path/to/rig.py:Class (docs/describe_your_rig.md); some plants bring their own option "
+                         "defaults (the cart-pole: --max-action 30 and longer agent training; "
+                         "phast_model.rl.descriptions.PRESETS), which options given here override")
     ap.add_argument("--task", choices=TASKS, default="swingup", help="swingup: from hanging; upright: from near the top")
     ap.add_argument("--env-kwargs", default="{}", help='the plant env\'s kwargs as JSON, e.g. \'{"actuated_dofs": [0]}\'')
     ap.add_argument("--budget-s", type=float, default=d.budget_s, help="plant seconds allowed for learning")
@@ -124,7 +126,7 @@ def check_plant(cfg: LoopConfig) -> None:
         plant = make_plant(cfg.plant)
     except (KeyError, TypeError, ValueError, gym.error.Error) as e:
         raise ValueError(f"--env {cfg.plant.env_id} with --env-kwargs {json.dumps(cfg.plant.env_kwargs)}: {e}") from None
-    if plant.system.n != 1 and not plant.system.angle_dims:
+    if not plant.system.angle_dims:
         raise ValueError(f"--env {cfg.plant.env_id} has no angle coordinate: the tasks swing an angle up")
 
 

@@ -154,12 +154,18 @@ def lqg_floor(env_id: str, sigma: float, q_star: Any = math.pi, dt: float = 0.01
     ``rms_torque`` is the lowest stationary RMS input of any causal q-only controller that holds q_star (the pendulum
     at pi, sigma 0.01: 0.087 N m; docs/control.md)."""
     system = control_system(ControlProtocol(env_id=env_id, dt=dt, env_kwargs=dict(env_kwargs or {})))
+    return {"env": env_id, **system_lqg_floor(system, sigma, q_star, dt, actuated_dofs, eps)}
+
+
+def system_lqg_floor(system: System, sigma: float, q_star: Any = math.pi, dt: float = 0.01,
+                     actuated_dofs: Sequence[int] | None = None, eps: float = 1e-6) -> dict[str, Any]:
+    """:func:`lqg_floor` of a system (a registered plant's or a user's rig class), sampled at ``dt``."""
     q = np.asarray(q_star, dtype=np.float64)
     if q.ndim == 0:
         q = np.array([float(q) if i in system.angle_dims else 0.0 for i in range(system.n)])
     a, b = linearise_system(system, q, dt, actuated_dofs)
     dims = tuple(system.angle_dims) or (0,)
-    return {"env": env_id, "q_star": q.tolist(), "sigma": sigma, "dt": dt,
+    return {"q_star": q.tolist(), "sigma": sigma, "dt": dt,
             "actuated_dofs": list(parse_actuated_dofs(actuated_dofs, system.n)), "eps": eps,
             **stationary(closed_loop(a, b, sigma, eps=eps), dims)}
 

@@ -1,7 +1,9 @@
 """The plant side of the model-based RL loop: the machine, the task, closed-loop episodes and their cost.
 
 The loop touches the plant only through ``reset(state)`` / ``step(u)`` of a phast_gym env that returns q-only, noisy
-measurements (what an encoder gives), at the control rate ``dt`` (0.01 s by default, the control protocol's).  Every
+measurements (what an encoder gives).  The plant is a registered env id or a rig of the user's own, named as for
+``phast-mismatch --sim``: ``path/to/rig.py:Class`` or ``module:Class``, a :class:`phast_gym.systems.base.System`
+subclass (docs/describe_your_rig.md), stepped at the control rate ``dt`` (0.01 s by default, the control protocol's).  Every
 plant episode is an :class:`Episode`: the measurements, the applied inputs and (simulation only, for the success
 metrics and never for learning) the true states.  :func:`to_recordings` turns episodes into the ``phast-train
 --recordings`` format at the decision rate, which is what the world model is fitted to.
@@ -21,7 +23,6 @@ import numpy as np
 
 from phast_gym.control import sample_start_states
 from phast_gym.env import PortHamiltonianEnv
-from phast_gym.registry import make_env_system
 from phast_gym.systems.base import System, wrap
 
 #: the tasks of ``phast-rl --task``: start regime of the pendulum and the target (pi on every angle: upright)
@@ -64,8 +65,11 @@ class PlantSpec:
 
 
 def plant_system(spec: PlantSpec) -> System:
-    """The plant's physics sampled at ``spec.dt`` (RK4 substeps scaled so the substep does not grow)."""
-    system = make_env_system(spec.env_id, **spec.physical_kwargs)
+    """The plant's physics (an env id or a user's rig class, :func:`phast_model.rigs.simulators.load_simulator`)
+    sampled at ``spec.dt`` (RK4 substeps scaled so the substep does not grow)."""
+    from ..rigs.simulators import load_simulator
+
+    system = load_simulator(spec.env_id, spec.physical_kwargs).build()
     base_dt, base_sub = type(system).dt, type(system).substeps
     system.dt = float(spec.dt)
     system.substeps = max(1, math.ceil(base_sub * spec.dt / base_dt - 1e-9))
@@ -128,10 +132,9 @@ def quiet_u_tol(spec: PlantSpec, factor: float = FLOOR_FACTOR) -> float:
     system = plant_system(spec)
     if system.n == 1:
         return PENDULUM_U_TOL
-    from ..control.lqg_bound import lqg_floor
+    from ..control.lqg_bound import system_lqg_floor
 
-    floor = lqg_floor(spec.env_id, max(spec.sigma, 1e-6), math.pi, spec.dt, spec.env_kwargs.get("actuated_dofs"),
-                      spec.physical_kwargs)
+    floor = system_lqg_floor(system, max(spec.sigma, 1e-6), math.pi, spec.dt, spec.env_kwargs.get("actuated_dofs"))
     return factor * float(floor["rms_torque"])
 
 
