@@ -84,6 +84,11 @@ class HoldConfig:
         if self.exit_angle < self.enter_angle:
             raise ValueError(f"exit_angle ({self.exit_angle}) must be >= enter_angle ({self.enter_angle})")
 
+    def enters(self, angle_err: np.ndarray, rates: np.ndarray) -> bool:
+        """Inside the handoff region: every angle error below ``enter_angle`` and every angle rate below
+        ``enter_rate`` (the deployed policy's handoff, and the end of the agent's world-model task with a goal)."""
+        return bool(np.abs(angle_err).max() < self.enter_angle and np.abs(rates).max() < self.enter_rate)
+
 
 class LearnedSystem(System):
     """The learned model's physics as a phast_gym :class:`System` (what the Energy-Casimir controller validates its
@@ -301,7 +306,7 @@ class HybridPolicy:
         err = float(np.abs(d[dims]).max())
         if self.holding and err > self.cfg.exit_angle:
             self.holding = False
-        elif not self.holding and err < self.cfg.enter_angle and float(np.abs(self.hold.y_hat[dims]).max()) < self.cfg.enter_rate:
+        elif not self.holding and self.cfg.enters(d[dims], self.hold.y_hat[dims]):
             self.holding = True
             self.handoffs += 1
             if isinstance(self.hold, LQRHold):

@@ -323,7 +323,7 @@ def train_agent(cfg: LoopConfig, model: Any, pool: np.ndarray, q_star: np.ndarra
     spec, t0 = cfg.agent, time.perf_counter()
 
     def env(seed: int) -> Monitor:
-        goal = (cfg.hold.enter_angle, cfg.hold.enter_rate) if spec.hold_goal and cfg.hold.enabled else None
+        goal = cfg.hold if spec.hold_goal and cfg.hold.enabled else None
         task = WorldTask(q_star, cfg.plant.max_action, cfg.plant.sigma, spec.episode_decisions, spec.frames,
                          spec.velocity_weight, spec.position_weight, spec.recenter, goal)
         return Monitor(WorldTaskEnv(model, pool, task, seed=seed, actuated=actuated))

@@ -18,11 +18,11 @@ valid when the model's dynamics do not depend on them, as for a cart's position 
 description are functions of the pole angle only).  Without it, windows of the excitation (the cart drifting up to
 12 m under random forces) start most episodes far away, and the cart's position term dominates the reward.
 
-With a ``goal`` (angle, rate) the agent's task ends where the deployed hold takes over: an episode whose model state
-has every angle within ``goal[0]`` rad of the target and every angle rate within ``goal[1]`` rad/s ends there, the
-decisions left counted at the best per-step reward (0).  The agent then learns to bring the plant into the hold's
-region (its handoff, :class:`phast_model.rl.hold.HybridPolicy`), not to balance by itself, which it does not do on
-the plant anyway; on the cart-pole a seed whose agent pumped without reaching the top in the world model
+With a ``goal`` (the deployed hold's :class:`phast_model.rl.hold.HoldConfig`) the agent's task ends where the hold
+takes over: an episode whose model state enters the hold's handoff region (``HoldConfig.enters``: the angles and
+their rates) ends there, the decisions left counted at the best per-step reward (0).  The agent then learns to bring
+the plant into the hold's region (its handoff, :class:`phast_model.rl.hold.HybridPolicy`), not to balance by itself,
+which it does not do on the plant anyway; on the cart-pole a seed whose agent pumped without reaching the top in the world model
 (returns stuck at -420 where others reach -250) is the case this is for.
 
 Every episode starts from a burn-in window of *recorded* measurements: ``pool`` holds windows cut from the
@@ -45,6 +45,7 @@ from phast_gym.systems.base import angle_diff
 from ..world.gym_env import PHASTWorldModelEnv
 from ..world.model import PHAST
 from .envs import ObsBuilder
+from .hold import HoldConfig
 
 
 def burn_in_pool(q: np.ndarray, window: int, stride: int = 1) -> np.ndarray:
@@ -71,7 +72,7 @@ class WorldTask:
     velocity_weight: float = VELOCITY_WEIGHT
     position_weight: float = 1.0
     recenter: bool = False
-    goal: tuple[float, float] | None = None
+    goal: HoldConfig | None = None
 
 
 class WorldTaskEnv(gym.Env):
@@ -144,9 +145,8 @@ class WorldTaskEnv(gym.Env):
         return self.builder.push(noisy), float(r), term, trunc, info
 
     def _at_goal(self, q: np.ndarray, v: np.ndarray) -> bool:
-        """Every angle within ``goal[0]`` of the target and its rate within ``goal[1]`` (module docstring)."""
+        """The model's state is in the hold's handoff region (module docstring)."""
         if self.goal is None or not self.angle_dims:
             return False
         dims = list(self.angle_dims)
-        e = angle_diff(q, self.world.target, self.angle_dims)[dims]
-        return bool(np.all(np.abs(e) <= self.goal[0]) and np.all(np.abs(v[dims]) <= self.goal[1]))
+        return self.goal.enters(angle_diff(q, self.world.target, self.angle_dims)[dims], v[dims])

@@ -177,16 +177,19 @@ def test_world_env_recenters_the_cart_weights_the_reward_and_ends_runaway_rollou
 def test_world_episodes_end_at_the_best_reward_where_the_hold_takes_over(cartpole_model) -> None:
     """With a goal, the agent's episode ends once the model's pole is within the hold's region (angle and rate), and
     the decisions left count 0, the best per-step reward; elsewhere the goal changes nothing."""
+    from phast_model.rl.hold import HoldConfig
     from phast_model.rl.world_env import WorldTask, WorldTaskEnv, burn_in_pool
 
     cfg, plant, model, recs = cartpole_model
     pool = burn_in_pool(recs["q"], model.observer.window)
     q_star = np.array([0.0, math.pi])
-    wide = WorldTaskEnv(model, pool, WorldTask(q_star, 10.0, 0.0, 20, goal=(math.pi, 1e9)), seed=0, actuated=[0])
+    everywhere = HoldConfig(enter_angle=4.0, enter_rate=1e9, exit_angle=4.0)
+    nowhere = HoldConfig(enter_angle=1e-9, enter_rate=1e-9)
+    wide = WorldTaskEnv(model, pool, WorldTask(q_star, 10.0, 0.0, 20, goal=everywhere), seed=0, actuated=[0])
     wide.reset()
     _, r, term, _, _ = wide.step(np.array([0.0]))
     assert term and -50 < r < 0  # this decision's own reward, nothing for the decisions left
-    tight = WorldTaskEnv(model, pool, WorldTask(q_star, 10.0, 0.0, 20, goal=(1e-9, 1e-9)), seed=0, actuated=[0])
+    tight = WorldTaskEnv(model, pool, WorldTask(q_star, 10.0, 0.0, 20, goal=nowhere), seed=0, actuated=[0])
     plain = WorldTaskEnv(model, pool, WorldTask(q_star, 10.0, 0.0, 20), seed=0, actuated=[0])
     tight.reset()
     plain.reset()
