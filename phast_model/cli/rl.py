@@ -15,6 +15,7 @@ import argparse
 import json
 import shlex
 import sys
+from typing import Any
 
 from ..rl.hold import HOLD_KINDS, HoldConfig
 from ..rl.loop import ALGOS, AgentSpec, FitSpec, LoopConfig
@@ -31,6 +32,19 @@ def build_parser() -> argparse.ArgumentParser:
                          "path/to/rig.py:Class (docs/describe_your_rig.md); some plants bring their own option "
                          "defaults (the cart-pole: --max-action 30 and longer agent training; "
                          "phast_model.rl.descriptions.PRESETS), which options given here override")
+    ap.add_argument("--machine", default=None,
+                    help="a real machine as the plant: a factory path/to/driver.py:make or module:make returning an "
+                         "object with dt, reset() -> q and step(u) -> q (a Gymnasium env with obs q and action u does); "
+                         "--env then describes the rig (docs/control.md, 'A machine of your own')")
+    ap.add_argument("--machine-kwargs", default="{}", help="the machine factory's keyword arguments as JSON")
+    ap.add_argument("--dt", type=float, default=p.dt, help="plant step (s): the machine's dt; the agent decides every "
+                                                        f"{p.decision_steps} steps")
+    ap.add_argument("--recordings", default=None,
+                    help="recordings made before the loop (the phast-train --recordings format, sampled at the decision "
+                         "step): learned from first, their seconds counted against --budget-s")
+    ap.add_argument("--offline", action="store_true",
+                    help="no plant: learn the policy from --recordings alone (no plant episode, no evaluation; --env "
+                         "describes the rig)")
     ap.add_argument("--task", choices=TASKS, default="swingup", help="swingup: from hanging; upright: from near the top")
     ap.add_argument("--env-kwargs", default="{}", help='the plant env\'s kwargs as JSON, e.g. \'{"actuated_dofs": [0]}\'')
     ap.add_argument("--budget-s", type=float, default=d.budget_s, help="plant seconds allowed for learning")
@@ -46,7 +60,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--sigma", type=float, default=p.sigma, help="q measurement noise of the plant (rad)")
     ap.add_argument("--max-action", type=float, default=p.max_action, help="input bound (N m or N)")
     ap.add_argument("--episode-s", type=float, default=d.episode_s, help="seconds per plant episode used for learning")
-    ap.add_argument("--excitation-episodes", type=int, default=d.excitation_episodes)
+    ap.add_argument("--excitation-episodes", type=int, default=None,
+                    help=f"random-input plant episodes first (default: {d.excitation_episodes}, none with --recordings)")
     ap.add_argument("--policy-episodes", type=int, default=d.policy_episodes, help="plant episodes per iteration")
     ap.add_argument("--algo", choices=ALGOS, default=a.algo)
     ap.add_argument("--agent-steps", type=int, default=a.steps, help="agent decisions of the first training")
@@ -91,7 +106,11 @@ def build_parser() -> argparse.ArgumentParser:
 def config_from_args(args: argparse.Namespace) -> LoopConfig:
     """The loop's config; ValueError naming the bad option."""
     h = HoldConfig()
-    plant = PlantSpec(args.env, json_object(args.env_kwargs, "--env-kwargs"), sigma=args.sigma, max_action=args.max_action)
+    if args.offline and args.machine:
+        raise ValueError("--offline learns without a plant; --machine names one: give one of them")
+    plant = PlantSpec(args.env, json_object(args.env_kwargs, "--env-kwargs"), dt=args.dt, sigma=args.sigma,
+                      max_action=args.max_action, machine=args.machine,
+                      machine_kwargs=json_object(args.machine_kwargs, "--machine-kwargs"))
     agent = AgentSpec(algo=args.algo, steps=args.agent_steps, refit_steps=args.refit_steps,
                       final_steps=args.final_steps, keep_best=args.keep_best, hold_goal=args.hold_goal,
                       eval_every=args.eval_every,
@@ -108,16 +127,21 @@ def config_from_args(args: argparse.Namespace) -> LoopConfig:
             u_tol = quiet_u_tol(plant)
         except (KeyError, TypeError, ValueError, gym.error.Error):  # a bad --env / --env-kwargs: check_plant says why
             u_tol = Task().u_tol
-    return LoopConfig(plant, Task(args.task, u_tol=u_tol), args.budget_s, args.seed, args.episode_s, args.excitation_episodes,
+    excitation = args.excitation_episodes
+    if excitation is None:
+        excitation = 0 if args.recordings else LoopConfig().excitation_episodes
+    return LoopConfig(plant, Task(args.task, u_tol=u_tol), args.budget_s, args.seed, args.episode_s, excitation,
                       args.policy_episodes, eval_trials=args.eval_trials, eval_s=args.eval_s, fit=fit, agent=agent,
+                      recordings=args.recordings, offline=args.offline,
                       hold=HoldConfig(enabled=not args.no_hold, kind=args.hold, kc_factor=args.hold_kc_factor,
                                       zeta=args.hold_zeta, lqr_angle=args.lqr_angle, lqr_position=args.lqr_position,
                                       lqr_rate=args.lqr_rate, enter_angle=args.hold_enter_angle,
                                       exit_angle=max(h.exit_angle, args.hold_enter_angle)))
 
 
-def check_plant(cfg: LoopConfig) -> None:
-    """Build the plant once (unknown env ids and bad kwargs fail here, before any work)."""
+def check_plant(cfg: LoopConfig) -> Any:
+    """Build the plant once, before any work (unknown env ids, bad kwargs, a machine that does not load fail here);
+    the loop then runs on it."""
     import gymnasium as gym
 
     from ..rl.plant import make_plant
@@ -125,9 +149,12 @@ def check_plant(cfg: LoopConfig) -> None:
     try:
         plant = make_plant(cfg.plant)
     except (KeyError, TypeError, ValueError, gym.error.Error) as e:
+        if cfg.plant.machine is not None and str(e).startswith("machine "):
+            raise ValueError(f"--machine: {e}") from None
         raise ValueError(f"--env {cfg.plant.env_id} with --env-kwargs {json.dumps(cfg.plant.env_kwargs)}: {e}") from None
     if not plant.system.angle_dims:
         raise ValueError(f"--env {cfg.plant.env_id} has no angle coordinate: the tasks swing an angle up")
+    return plant
 
 
 def parse_args(argv: list[str] | None = None) -> tuple[argparse.ArgumentParser, argparse.Namespace]:
@@ -147,7 +174,7 @@ def main(argv: list[str] | None = None) -> int:
     ap, args = parse_args(argv)
     try:
         cfg = config_from_args(args)
-        check_plant(cfg)
+        plant = check_plant(cfg)
         from phast_gym.fileio import ensure_writable_dir
 
         out = ensure_writable_dir(args.out, "--out")
@@ -171,16 +198,19 @@ def main(argv: list[str] | None = None) -> int:
         bar.refresh()
 
     try:
-        result = run_loop(cfg, progress)
+        result = run_loop(cfg, progress, plant)
     except ValueError as e:
         bar.close()
         print(f"phast-rl: error: {e}", file=sys.stderr)
         return 2
     bar.close()
     command = "phast-rl " + " ".join(shlex.quote(a) for a in (sys.argv[1:] if argv is None else argv))
-    write_outputs(result, out, {"command": command, "env": cfg.plant.env_id, "task": cfg.task.name, "seed": cfg.seed})
+    write_outputs(result, out, {"command": command, "env": cfg.plant.env_id, "machine": cfg.plant.machine,
+                                 "recordings": cfg.recordings, "offline": cfg.offline, "task": cfg.task.name,
+                                 "seed": cfg.seed})
     s = result.summary()
-    print(json.dumps({k: s[k] for k in ("plant_seconds", "success", "success_angle_only", "rms_torque", "iteration_success",
+    print(json.dumps({k: s[k] for k in ("plant_seconds", "prior_seconds",
+                                        "success", "success_angle_only", "rms_torque", "iteration_success",
                                         "wall_s")}))
     return 0
 

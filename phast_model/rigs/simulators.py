@@ -66,38 +66,51 @@ def known_params(system: System) -> set[str]:
     return {k for k in system.params if k in KNOWN_NAMES or (k in specs and getattr(specs[k], "known", False))}
 
 
+def load_object(spec: str, what: str = "simulator") -> Any:
+    """``module.path:Name`` or ``path/to/file.py:Name`` -> the object (a class, a factory); ``what`` names it in the
+    errors (ValueError)."""
+    target, _, name = spec.rpartition(":")
+    if not target or not name:
+        hint = "an env id, " if what == "simulator" else ""
+        raise ValueError(f"{what} {spec!r}: expected {hint}'package.module:Name' or 'path/to/file.py:Name'")
+    module = _import_target(spec, target, what)
+    obj: Any = module
+    for part in name.split("."):  # a nested name: module:Outer.Inner
+        obj = getattr(obj, part, None)
+        if obj is None:
+            public = sorted(k for k, v in vars(module).items() if isinstance(v, type) and issubclass(v, System) and v is not System)
+            there = f" (System subclasses there: {public or 'none'})" if what == "simulator" else ""
+            raise ValueError(f"{what} {spec!r}: {target!r} has no attribute {name!r}{there}")
+    return obj
+
+
+def _import_target(spec: str, target: str, what: str) -> Any:
+    """The module of ``target``: a file path ending in .py, else an importable module name."""
+    if not target.endswith(".py"):
+        try:
+            return importlib.import_module(target)
+        except Exception as exc:
+            raise ValueError(f"{what} {spec!r}: cannot import module {target!r}: {type(exc).__name__}: {exc}") from None
+    path = Path(target).expanduser()
+    if not path.is_file():
+        raise ValueError(f"{what} {spec!r}: file {str(path)!r} not found")
+    mod_name = f"_phast_user_sim_{abs(hash(str(path.resolve())))}"
+    loader_spec = importlib.util.spec_from_file_location(mod_name, path)
+    if loader_spec is None or loader_spec.loader is None:
+        raise ValueError(f"{what} {spec!r}: cannot load {str(path)!r} as a Python module")
+    module = importlib.util.module_from_spec(loader_spec)
+    sys.modules[mod_name] = module
+    try:
+        loader_spec.loader.exec_module(module)
+    except Exception as exc:
+        sys.modules.pop(mod_name, None)
+        raise ValueError(f"{what} {spec!r}: importing {str(path)!r} failed: {type(exc).__name__}: {exc}") from None
+    return module
+
+
 def _load_class(spec: str) -> type:
     """``module.path:Class`` or ``path/to/file.py:Class`` -> the class object."""
-    target, _, cls_name = spec.rpartition(":")
-    if not target or not cls_name:
-        raise ValueError(f"simulator {spec!r}: expected an env id, 'package.module:Class' or 'path/to/file.py:Class'")
-    if target.endswith(".py"):
-        path = Path(target).expanduser()
-        if not path.is_file():
-            raise ValueError(f"simulator {spec!r}: file {str(path)!r} not found")
-        mod_name = f"_phast_user_sim_{abs(hash(str(path.resolve())))}"
-        loader_spec = importlib.util.spec_from_file_location(mod_name, path)
-        if loader_spec is None or loader_spec.loader is None:
-            raise ValueError(f"simulator {spec!r}: cannot load {str(path)!r} as a Python module")
-        module = importlib.util.module_from_spec(loader_spec)
-        sys.modules[mod_name] = module
-        try:
-            loader_spec.loader.exec_module(module)
-        except Exception as exc:
-            sys.modules.pop(mod_name, None)
-            raise ValueError(f"simulator {spec!r}: importing {str(path)!r} failed: {type(exc).__name__}: {exc}") from None
-    else:
-        try:
-            module = importlib.import_module(target)
-        except Exception as exc:
-            raise ValueError(f"simulator {spec!r}: cannot import module {target!r}: {type(exc).__name__}: {exc}") from None
-    cls: Any = module
-    for part in cls_name.split("."):  # a nested class: module:Outer.Inner
-        cls = getattr(cls, part, None)
-        if cls is None:
-            public = sorted(k for k, v in vars(module).items() if isinstance(v, type) and issubclass(v, System) and v is not System)
-            raise ValueError(f"simulator {spec!r}: {target!r} has no attribute {cls_name!r} "
-                             f"(System subclasses there: {public or 'none'})")
+    cls: type = load_object(spec, "simulator")
     return cls
 
 

@@ -33,6 +33,7 @@ import numpy as np
 
 from .hold import HoldConfig, HoldGains, HybridPolicy, LQRGains, make_hold
 from .plant import Episode, HeldTorques, PlantSpec, Task, excitation_inputs, make_plant, quiet_metrics, run_episode, to_recordings
+from .sources import Prior, join_recordings, load_prior
 from .world_env import WorldTask, WorldTaskEnv, burn_in_pool
 
 
@@ -107,7 +108,9 @@ ALGOS = ("sac", "td3")
 class LoopConfig:
     """The whole loop: plant, task, plant-time budget (s), seed, plant episodes (``episode_s`` each; excitation
     first, then ``policy_episodes`` per iteration), the excitation's random inputs (``torque_std`` held
-    ``hold_decisions`` decisions), the final evaluation (``eval_trials`` x ``eval_s``, not counted)."""
+    ``hold_decisions`` decisions), the final evaluation (``eval_trials`` x ``eval_s``, not counted).  ``recordings``
+    made before the loop are learned from first and count against the budget; ``offline``: nothing but them (the
+    plant spec then only describes the rig)."""
 
     plant: PlantSpec = field(default_factory=PlantSpec)
     task: Task = field(default_factory=Task)
@@ -124,16 +127,23 @@ class LoopConfig:
     fit: FitSpec = field(default_factory=FitSpec)
     agent: AgentSpec = field(default_factory=AgentSpec)
     hold: HoldConfig = field(default_factory=HoldConfig)
+    recordings: str | None = None  # recordings from before the loop (:func:`.sources.load_prior`), learned from first
+    offline: bool = False  # no plant at all: learn from ``recordings`` alone, no plant episode, no evaluation
 
     def __post_init__(self) -> None:
         for k in ("budget_s", "episode_s", "eval_s", "torque_std"):
             v = getattr(self, k)
             if not (v > 0 and math.isfinite(v)):
                 raise ValueError(f"{k} must be a positive number, got {v!r}")
-        for k in ("excitation_episodes", "policy_episodes", "hold_decisions", "max_iterations", "eval_trials"):
+        for k in ("policy_episodes", "hold_decisions", "max_iterations", "eval_trials"):
             v = getattr(self, k)
             if int(v) != v or v < 1:
                 raise ValueError(f"{k} must be a positive integer, got {v!r}")
+        if int(self.excitation_episodes) != self.excitation_episodes or self.excitation_episodes < 0:
+            raise ValueError(f"excitation_episodes must be an integer >= 0, got {self.excitation_episodes!r}")
+        if self.recordings is None and (self.offline or self.excitation_episodes == 0):
+            raise ValueError("without recordings the loop needs excitation episodes (--excitation-episodes >= 1); "
+                             "--offline learns from --recordings alone")
         if self.excitation_episodes * self.episode_s > self.budget_s + 1e-9:
             raise ValueError(f"the excitation alone ({self.excitation_episodes} x {self.episode_s} s) exceeds the budget of "
                              f"{self.budget_s} s: lower --excitation-episodes or --episode-s, or raise --budget-s")
@@ -203,21 +213,26 @@ class LoopResult:
     iterations: list[IterationResult]
     plant_seconds: float
     learning_succeeded: bool
-    evaluation: Evaluation
+    evaluation: Evaluation | None  # None: offline (no plant to evaluate on)
     agent: Any
     model: Any
     wall_s: float
     budget_s: float
     recordings: dict[str, Any] = field(default_factory=dict)  # every plant episode used for learning (rig format)
+    prior_seconds: float = 0.0  # of plant_seconds, those of the recordings from before the loop
 
     def summary(self) -> dict[str, Any]:
         """summary.json: ``plant_seconds``, ``success`` (quiet criterion), ``success_angle_only``, ``rms_torque`` (the
-        final evaluation), ``iterations`` (per-iteration success and learning record)."""
+        final evaluation; None offline), ``iterations`` (per-iteration success and learning record)."""
         ev = self.evaluation
-        return {"plant_seconds": round(self.plant_seconds, 6), "budget_s": self.budget_s, "success": ev.success,
-                "success_angle_only": ev.success_angle_only, "rms_torque": ev.rms_torque, "final_error": ev.final_error,
-                "eval_trials": ev.trials, "eval_plant_seconds": ev.seconds, "trial_success": ev.trial_success,
-                "trial_rms_torque": ev.trial_rms, "learning_succeeded": self.learning_succeeded,
+        final: dict[str, Any] = {"success": None, "success_angle_only": None, "rms_torque": None, "final_error": None,
+                                 "eval_trials": 0, "eval_plant_seconds": 0.0, "trial_success": [], "trial_rms_torque": []}
+        if ev is not None:
+            final = {"success": ev.success, "success_angle_only": ev.success_angle_only, "rms_torque": ev.rms_torque,
+                     "final_error": ev.final_error, "eval_trials": ev.trials, "eval_plant_seconds": ev.seconds,
+                     "trial_success": ev.trial_success, "trial_rms_torque": ev.trial_rms}
+        return {"plant_seconds": round(self.plant_seconds, 6), "budget_s": self.budget_s, **final,
+                "prior_seconds": round(self.prior_seconds, 6), "learning_succeeded": self.learning_succeeded,
                 "iteration_success": [it.success for it in self.iterations],
                 "iterations": [{**asdict(it), "success": it.success} for it in self.iterations],
                 "wall_s": round(self.wall_s, 1)}
@@ -385,10 +400,35 @@ def evaluate(cfg: LoopConfig, plant: Any, policy: HybridPolicy, q_star: np.ndarr
 
 
 # --------------------------------------------------------------------------- the loop
-def _recordings(cfg: LoopConfig, plant: Any, episodes: list[Episode]) -> dict[str, Any]:
-    """All episodes so far in the rig format (with the actuated coordinates of an underactuated plant)."""
-    dofs = list(plant.actuated_dofs) if plant.m < plant.n else None
-    return to_recordings(episodes, cfg.plant.decision_steps, plant.system.angle_dims, dofs)
+@dataclass
+class _Data:
+    """What the world model is fitted to: the recordings from before the loop and the plant episodes so far."""
+
+    prior: Prior | None
+    episodes: list[Episode]
+
+    @property
+    def seconds(self) -> float:
+        return (0.0 if self.prior is None else self.prior.seconds) + sum(e.seconds for e in self.episodes)
+
+    def recordings(self, cfg: LoopConfig, plant: Any) -> dict[str, Any]:
+        """All of it in the rig format (with the actuated coordinates of an underactuated plant)."""
+        dofs = list(plant.actuated_dofs) if plant.m < plant.n else None
+        recs = to_recordings(self.episodes, cfg.plant.decision_steps, plant.system.angle_dims, dofs) if self.episodes else None
+        return join_recordings(None if self.prior is None else self.prior.recordings, recs)
+
+
+def first_data(cfg: LoopConfig, plant: Any) -> _Data:
+    """The recordings from before the loop (when given) and the excitation episodes on the plant (none offline)."""
+    prior = None
+    if cfg.recordings is not None:
+        prior = load_prior(cfg.recordings, plant.system, list(plant.actuated_dofs), cfg.plant.decision_dt,
+                           cfg.episode_steps // cfg.plant.decision_steps)
+        if not cfg.offline and prior.seconds + cfg.excitation_episodes * cfg.episode_s > cfg.budget_s + 1e-9:
+            raise ValueError(f"the recordings ({prior.seconds:g} s) and the excitation ({cfg.excitation_episodes} x "
+                             f"{cfg.episode_s:g} s) exceed the budget of {cfg.budget_s:g} s")
+    episodes = [] if cfg.offline or not cfg.excitation_episodes else collect_excitation(cfg, plant, cfg.seed)
+    return _Data(prior, episodes)
 
 
 #: progress callback: (stage text, plant seconds used so far)
@@ -399,48 +439,70 @@ def _no_progress(stage: str, seconds: float) -> None:
     return None
 
 
-def run_loop(cfg: LoopConfig, progress: Progress = _no_progress) -> LoopResult:
-    """Run the loop of the module docstring and the final evaluation."""
+@dataclass
+class _Learner:
+    """The loop's learned parts: the world model and the agent (None before the first fit and training)."""
+
+    model: Any = None
+    agent: Any = None
+
+
+def _iteration(cfg: LoopConfig, plant: Any, data: _Data, learner: _Learner, it: int, progress: Progress) -> IterationResult:
+    """Fit (warm-started after the first), train the agent, run it on the plant while the budget allows."""
+    q_star = cfg.task.target(plant.system)
+    recs = data.recordings(cfg, plant)
+    warm = learner.model is not None
+    fit = fit_world_model(cfg, recs, learner.model)
+    learner.model = fit.model
+    progress(f"iteration {it}: fitted (val RMSE {fit.val_rmse:.4f})", data.seconds)
+    pool = burn_in_pool(recs["q"], fit.model.observer.window)
+    ep_s = cfg.episode_steps * cfg.plant.dt
+    can_run = not cfg.offline and data.seconds + cfg.policy_episodes * ep_s <= cfg.budget_s + 1e-9
+    trained = train_agent(cfg, fit.model, pool, q_star, learner.agent, it, list(plant.actuated_dofs), last=not can_run)
+    learner.agent = trained.agent
+    progress(f"iteration {it}: agent trained ({trained.decisions} decisions)", data.seconds)
+    new: list[Episode] = []
+    policy, gains = deployed_policy(cfg, trained.agent, fit.model, plant, q_star)
+    if can_run:
+        new = run_policy(cfg, plant, policy, cfg.policy_episodes, cfg.episode_steps, cfg.seed * 1000 + 77 + it, "policy")
+    data.episodes += new
+    ms = [quiet_metrics(e, q_star, plant.system.angle_dims, cfg.task) for e in new]
+    progress(f"iteration {it}: {sum(m.success for m in ms)}/{len(ms)} plant episodes quiet (angle only "
+             f"{sum(m.settled for m in ms)}, final angle error {[round(m.final_error, 3) for m in ms]}, RMS input "
+             f"{[round(m.rms_input, 3) for m in ms]}, handoffs {[e.handoffs for e in new]})", data.seconds)
+    return IterationResult(it, warm, fit.val_rmse, fit.first_train_rmse, fit.seconds, trained.decisions,
+                           trained.seconds, trained.eval_timesteps, trained.eval_returns,
+                           [m.success for m in ms], [m.settled for m in ms], [m.rms_input for m in ms],
+                           [e.handoffs for e in new], data.seconds, None if gains is None else asdict(gains))
+
+
+def run_loop(cfg: LoopConfig, progress: Progress = _no_progress, plant: Any = None) -> LoopResult:
+    """Run the loop of the module docstring and the final evaluation (none offline) on ``plant`` (default: made
+    from ``cfg.plant``; a machine's is closed at the end)."""
     import torch
 
     t0 = time.perf_counter()
     torch.manual_seed(cfg.seed)
-    plant = make_plant(cfg.plant)
-    q_star = cfg.task.target(plant.system)
-    episodes = collect_excitation(cfg, plant, cfg.seed)
-    used = sum(e.seconds for e in episodes)
-    progress("excitation", used)
-    model: Any = None
-    agent: Any = None
-    iterations: list[IterationResult] = []
-    ep_s = cfg.episode_steps * cfg.plant.dt
-    for it in range(cfg.max_iterations):
-        recs = _recordings(cfg, plant, episodes)
-        warm = model is not None
-        fit = fit_world_model(cfg, recs, model)
-        model = fit.model
-        progress(f"iteration {it}: fitted (val RMSE {fit.val_rmse:.4f})", used)
-        pool = burn_in_pool(recs["q"], model.observer.window)
-        can_run = used + cfg.policy_episodes * ep_s <= cfg.budget_s + 1e-9
-        trained = train_agent(cfg, model, pool, q_star, agent, it, list(plant.actuated_dofs), last=not can_run)
-        agent = trained.agent
-        progress(f"iteration {it}: agent trained ({trained.decisions} decisions)", used)
-        policy, gains = deployed_policy(cfg, agent, model, plant, q_star)
-        new = run_policy(cfg, plant, policy, cfg.policy_episodes, cfg.episode_steps, cfg.seed * 1000 + 77 + it, "policy") if can_run else []
-        episodes += new
-        used += sum(e.seconds for e in new)
-        ms = [quiet_metrics(e, q_star, plant.system.angle_dims, cfg.task) for e in new]
-        iterations.append(IterationResult(it, warm, fit.val_rmse, fit.first_train_rmse, fit.seconds, trained.decisions,
-                                          trained.seconds, trained.eval_timesteps, trained.eval_returns,
-                                          [m.success for m in ms], [m.settled for m in ms], [m.rms_input for m in ms],
-                                          [e.handoffs for e in new], used,
-                                          None if gains is None else asdict(gains)))
-        progress(f"iteration {it}: {sum(m.success for m in ms)}/{len(ms)} plant episodes quiet (angle only "
-                 f"{sum(m.settled for m in ms)}, final angle error {[round(m.final_error, 3) for m in ms]}, RMS input "
-                 f"{[round(m.rms_input, 3) for m in ms]}, handoffs {[e.handoffs for e in new]})", used)
-        if iterations[-1].success or not can_run:
-            break
-    policy, _ = deployed_policy(cfg, agent, model, plant, q_star)
-    ev = evaluate(cfg, plant, policy, q_star)
-    return LoopResult(iterations, used, any(i.success for i in iterations), ev, agent, model, time.perf_counter() - t0,
-                      cfg.budget_s, _recordings(cfg, plant, episodes))
+    plant = make_plant(cfg.plant) if plant is None else plant
+    try:
+        data = first_data(cfg, plant)
+        progress("recordings and excitation" if data.prior is not None else "excitation", data.seconds)
+        learner = _Learner()
+        iterations: list[IterationResult] = []
+        for it in range(cfg.max_iterations):
+            iterations.append(_iteration(cfg, plant, data, learner, it, progress))
+            ran = bool(iterations[-1].plant_success)
+            if iterations[-1].success or not ran:
+                break
+        ev = None
+        if not cfg.offline:
+            q_star = cfg.task.target(plant.system)
+            policy, _ = deployed_policy(cfg, learner.agent, learner.model, plant, q_star)
+            ev = evaluate(cfg, plant, policy, q_star)
+    finally:
+        close = getattr(plant, "close", None)
+        if callable(close):
+            close()
+    return LoopResult(iterations, data.seconds, any(i.success for i in iterations), ev, learner.agent, learner.model,
+                      time.perf_counter() - t0, cfg.budget_s, data.recordings(cfg, plant),
+                      0.0 if data.prior is None else data.prior.seconds)

@@ -32,7 +32,7 @@ def learning_curves(result: LoopResult) -> dict[str, Any]:
         "agent_decisions": [it.agent_decisions for it in its],
         "world_eval_decisions": steps,
         "world_eval_return": returns,
-        "final_success": result.evaluation.success,
+        "final_success": None if result.evaluation is None else result.evaluation.success,
     }
 
 
@@ -50,7 +50,8 @@ def plot_learning_curves(curves: dict[str, Any], path: Path) -> None:
     a.set_xlabel("plant seconds used for learning")
     a.set_ylabel("success of the iteration's plant episodes")
     a.set_ylim(-0.05, 1.05)
-    a.set_title(f"final evaluation: {curves['final_success']:.2f} (quiet)", fontsize=9)
+    final = curves["final_success"]
+    a.set_title("no plant evaluation (offline)" if final is None else f"final evaluation: {final:.2f} (quiet)", fontsize=9)
     a.legend(fontsize=8)
     a.grid(alpha=0.3)
     b.plot(curves["world_eval_decisions"], curves["world_eval_return"], "o-", ms=3)

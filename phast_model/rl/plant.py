@@ -35,7 +35,9 @@ ENV_LEVEL_KWARGS = ("actuated_dofs",)
 class PlantSpec:
     """The plant: a phast_gym env id with its kwargs (physical parameters and ``actuated_dofs``), stepped every ``dt``
     seconds, measured with q-noise ``sigma``, inputs clipped at ``max_action``; the agent decides (and the world model
-    steps) every ``decision_steps`` plant steps."""
+    steps) every ``decision_steps`` plant steps.  With ``machine`` (a factory, :func:`.sources.load_machine`, called
+    with ``machine_kwargs``) the plant is that machine and ``env_id`` only describes it (its coordinates, the LQG
+    floor of the quiet criterion); ``sigma`` is then the machine's own measurement noise, as far as it is known."""
 
     env_id: str = "PHAST/Pendulum-v0"
     env_kwargs: dict[str, Any] = field(default_factory=dict)
@@ -43,6 +45,8 @@ class PlantSpec:
     decision_steps: int = 5
     sigma: float = 0.01
     max_action: float = 10.0
+    machine: str | None = None
+    machine_kwargs: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if not (self.dt > 0 and math.isfinite(self.dt)):
@@ -76,9 +80,18 @@ def plant_system(spec: PlantSpec) -> System:
     return system
 
 
-def make_plant(spec: PlantSpec) -> PortHamiltonianEnv:
-    """The plant env: q-only measurements with noise ``sigma``, float64, no time limit (episodes are counted here)."""
+def make_plant(spec: PlantSpec) -> Any:
+    """The plant env: q-only measurements with noise ``sigma``, float64, no time limit (episodes are counted here);
+    a machine's (:class:`.sources.MachinePlant`) when ``spec.machine`` names one, its step checked against ``dt``."""
     system = plant_system(spec)
+    if spec.machine is not None:
+        from .sources import MachinePlant, load_machine
+
+        machine = load_machine(spec.machine, spec.machine_kwargs)
+        if not math.isclose(float(machine.dt), spec.dt, rel_tol=1e-6):
+            raise ValueError(f"machine {spec.machine!r} steps every {machine.dt:g} s, the loop every {spec.dt:g} s: "
+                             f"give --dt {machine.dt:g}")
+        return MachinePlant(machine, system, spec.env_kwargs.get("actuated_dofs"), spec.max_action, spec.machine)
     return PortHamiltonianEnv(system, actuated_dofs=spec.env_kwargs.get("actuated_dofs"), max_action=spec.max_action,
                               obs_noise_std=spec.sigma, dtype=np.float64, substeps=system.substeps)
 
@@ -149,7 +162,8 @@ class Controller(Protocol):
 @dataclass
 class Episode:
     """One plant episode: ``q`` (T+1, n) noisy measurements, ``u`` (T, m) applied inputs, ``x`` (T+1, 2n) true states
-    (metrics only), ``dt`` the plant step, ``kind`` (``excitation`` / ``policy`` / ``evaluation``), ``handoffs``."""
+    (metrics only; on a machine the measured q and NaN momenta), ``dt`` the plant step, ``kind`` (``excitation`` /
+    ``policy`` / ``evaluation``), ``handoffs``."""
 
     q: np.ndarray
     u: np.ndarray
@@ -164,7 +178,7 @@ class Episode:
         return float(self.u.shape[0] * self.dt)
 
 
-def run_episode(plant: PortHamiltonianEnv, controller: Controller, x0: np.ndarray, steps: int, seed: int,
+def run_episode(plant: Any, controller: Controller, x0: np.ndarray, steps: int, seed: int,
                 kind: str) -> Episode:
     """Run ``controller`` on the plant for ``steps`` steps from the true state ``x0`` (a real rig: its own start)."""
     obs, info = plant.reset(seed=seed, options={"state": np.asarray(x0, dtype=np.float64)})
@@ -236,7 +250,8 @@ class QuietMetrics:
 
 
 def quiet_metrics(ep: Episode, q_star: np.ndarray, angle_dims: Sequence[int], task: Task) -> QuietMetrics:
-    """The quiet criterion on the true angles of ``ep`` (the protocol of docs/control.md): all angle errors below
+    """The quiet criterion on the true angles of ``ep`` (on a machine: the measured ones, :class:`Episode` ``x``;
+    the protocol of docs/control.md): all angle errors below
     ``task.tol`` over the last ``task.settle_s`` seconds and the RMS input (all inputs) below ``task.u_tol``."""
     n_tail = max(1, int(round(task.settle_s / ep.dt)))
     dims = list(angle_dims)
