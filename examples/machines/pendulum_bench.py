@@ -42,7 +42,7 @@ class PendulumBench:
     """A simulated bench: the true pendulum is hidden; ``reset`` lets it come to rest hanging (a small angle left),
     ``step`` holds the input for ``dt`` and returns the angle with Gaussian noise ``sigma`` (rad)."""
 
-    def __init__(self, mass: float = 1.15, gamma: float = 0.08, coulomb: float = 0.05, motor_limit: float = 8.0,
+    def __init__(self, mass: float = 1.15, gamma: float = 0.08, coulomb: float = 0.05, motor_limit: float = 10.0,
                  sigma: float = 0.01, dt: float = 0.01, seed: int = 0) -> None:
         self.system = Pendulum(mass=mass, gamma=gamma)
         self.coulomb, self.motor_limit, self.sigma, self.dt = float(coulomb), float(motor_limit), float(sigma), float(dt)
