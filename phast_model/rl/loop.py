@@ -202,6 +202,7 @@ class Evaluation:
     seconds: float
     trial_success: list[bool]
     trial_rms: list[float]
+    act_ms: dict[str, float] = field(default_factory=dict)  # the controller's time per plant step: mean, p99, max
 
 
 @dataclass
@@ -226,11 +227,12 @@ class LoopResult:
         final evaluation; None offline), ``iterations`` (per-iteration success and learning record)."""
         ev = self.evaluation
         final: dict[str, Any] = {"success": None, "success_angle_only": None, "rms_torque": None, "final_error": None,
-                                 "eval_trials": 0, "eval_plant_seconds": 0.0, "trial_success": [], "trial_rms_torque": []}
+                                 "eval_trials": 0, "eval_plant_seconds": 0.0, "trial_success": [], "trial_rms_torque": [],
+                                 "controller_ms": {}}
         if ev is not None:
             final = {"success": ev.success, "success_angle_only": ev.success_angle_only, "rms_torque": ev.rms_torque,
                      "final_error": ev.final_error, "eval_trials": ev.trials, "eval_plant_seconds": ev.seconds,
-                     "trial_success": ev.trial_success, "trial_rms_torque": ev.trial_rms}
+                     "trial_success": ev.trial_success, "trial_rms_torque": ev.trial_rms, "controller_ms": ev.act_ms}
         return {"plant_seconds": round(self.plant_seconds, 6), "budget_s": self.budget_s, **final,
                 "prior_seconds": round(self.prior_seconds, 6), "learning_succeeded": self.learning_succeeded,
                 "iteration_success": [it.success for it in self.iterations],
@@ -396,7 +398,15 @@ def evaluate(cfg: LoopConfig, plant: Any, policy: HybridPolicy, q_star: np.ndarr
     ms = [quiet_metrics(e, q_star, plant.system.angle_dims, cfg.task) for e in eps]
     return Evaluation(float(np.mean([m.success for m in ms])), float(np.mean([m.settled for m in ms])),
                       float(np.mean([m.rms_input for m in ms])), float(np.mean([m.final_error for m in ms])), len(ms),
-                      float(sum(e.seconds for e in eps)), [m.success for m in ms], [round(m.rms_input, 5) for m in ms])
+                      float(sum(e.seconds for e in eps)), [m.success for m in ms], [round(m.rms_input, 5) for m in ms],
+                      act_ms(eps))
+
+
+def act_ms(episodes: list[Episode]) -> dict[str, float]:
+    """The controller's compute time per plant step over ``episodes`` in ms (mean, 99th percentile, max): on a real
+    machine it must fit in the step ``dt``, beside the driver's own I/O."""
+    t = np.concatenate([e.act_s for e in episodes if e.act_s is not None] or [np.zeros(1)]) * 1e3
+    return {"mean": round(float(t.mean()), 3), "p99": round(float(np.percentile(t, 99)), 3), "max": round(float(t.max()), 3)}
 
 
 # --------------------------------------------------------------------------- the loop

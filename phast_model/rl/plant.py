@@ -15,6 +15,7 @@ Success is the quiet criterion of docs/control.md: over the last ``settle_s`` se
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -171,6 +172,7 @@ class Episode:
     dt: float
     kind: str
     handoffs: int = 0  # entries into the hold (HybridPolicy), for the record
+    act_s: np.ndarray | None = None  # (T,) seconds the controller took per step (a real machine's dt must allow it)
 
     @property
     def seconds(self) -> float:
@@ -184,13 +186,16 @@ def run_episode(plant: Any, controller: Controller, x0: np.ndarray, steps: int, 
     obs, info = plant.reset(seed=seed, options={"state": np.asarray(x0, dtype=np.float64)})
     controller.reset(np.asarray(obs, dtype=np.float64))
     qs, us, xs = [np.asarray(obs, dtype=np.float64)], [], [np.asarray(info["state"], dtype=np.float64)]
-    for _ in range(steps):
+    act_s = np.zeros(steps)
+    for i in range(steps):
+        t0 = time.perf_counter()
         u = np.clip(np.asarray(controller.act(qs[-1]), dtype=np.float64).reshape(plant.m), -plant.max_action, plant.max_action)
+        act_s[i] = time.perf_counter() - t0
         obs, _, _, _, info = plant.step(u)
         qs.append(np.asarray(obs, dtype=np.float64))
         us.append(u)
         xs.append(np.asarray(info["state"], dtype=np.float64))
-    return Episode(np.array(qs), np.array(us), np.array(xs), float(plant.dt), kind)
+    return Episode(np.array(qs), np.array(us), np.array(xs), float(plant.dt), kind, act_s=act_s)
 
 
 class HeldTorques:

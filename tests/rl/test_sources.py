@@ -145,6 +145,8 @@ def test_phast_rl_learns_on_a_machine(tmp_path: Path) -> None:
     s = json.loads((out / "summary.json").read_text())
     assert s["plant_seconds"] == pytest.approx(4.0) and s["machine"].endswith("pendulum_bench.py:make")
     assert (out / "policy.zip").exists() and math.isfinite(s["rms_torque"]) and s["eval_trials"] == 1
+    ms = s["controller_ms"]
+    assert 0 < ms["mean"] <= ms["p99"] <= ms["max"]  # what the controller costs per step, against the machine's dt
 
 
 def test_phast_rl_from_recordings_alone_and_with_a_plant(tmp_path: Path) -> None:
