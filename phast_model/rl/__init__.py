@@ -7,6 +7,7 @@ The loop (docs/control.md, section "Policies from seconds on the machine"):
 * :mod:`.loop`: collect -> fit PHAST (rig path, warm-started) -> train an SB3 agent in the world model -> run on the
   plant -> repeat; :class:`.loop.LoopConfig`, :func:`.loop.run_loop`, :class:`.loop.LoopResult`;
 * :mod:`.plant`: the plant, the task, episodes, plant-time accounting, the quiet criterion;
+* :mod:`.sources`: a real machine behind a step function as the plant, recordings made before the loop;
 * :mod:`.world_env`: the agent's env inside the learned model, started from recorded windows;
 * :mod:`.hold`: the Energy-Casimir hold built from the learned model (a UKF on the learned core), the hybrid policy;
 * :mod:`.loop_report`: summary.json, learning curves, policy.zip, the model and the recordings of a run.
