@@ -45,6 +45,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--offline", action="store_true",
                     help="no plant: learn the policy from --recordings alone (no plant episode, no evaluation; --env "
                          "describes the rig)")
+    ap.add_argument("--deploy", default=None, metavar="RUN_DIR",
+                    help="learn nothing: run the controller of an earlier phast-rl run (its agent and learned hold) on "
+                         "the plant or --machine given here, --eval-trials x --eval-s, and write OUT/evaluation.json")
     ap.add_argument("--task", choices=TASKS, default="swingup", help="swingup: from hanging; upright: from near the top")
     ap.add_argument("--env-kwargs", default="{}", help='the plant env\'s kwargs as JSON, e.g. \'{"actuated_dofs": [0]}\'')
     ap.add_argument("--budget-s", type=float, default=d.budget_s, help="plant seconds allowed for learning")
@@ -108,6 +111,8 @@ def config_from_args(args: argparse.Namespace) -> LoopConfig:
     h = HoldConfig()
     if args.offline and args.machine:
         raise ValueError("--offline learns without a plant; --machine names one: give one of them")
+    if args.offline and args.deploy:
+        raise ValueError("--deploy runs a controller on a plant; --offline has none")
     plant = PlantSpec(args.env, json_object(args.env_kwargs, "--env-kwargs"), dt=args.dt, sigma=args.sigma,
                       max_action=args.max_action, machine=args.machine,
                       machine_kwargs=json_object(args.machine_kwargs, "--machine-kwargs"))
@@ -157,6 +162,33 @@ def check_plant(cfg: LoopConfig) -> Any:
     return plant
 
 
+def deploy(cfg: LoopConfig, plant: Any, run_dir: str, out: Any, command: str) -> int:
+    """``--deploy``: the controller of the run in ``run_dir`` on ``plant`` for the final evaluation's trials, written to
+    ``out/evaluation.json``; ValueError when the run does not fit the plant (step, coordinates, inputs)."""
+    from dataclasses import asdict
+
+    from phast_gym.fileio import atomic_write_json
+
+    from ..rl.loop import evaluate
+    from ..rl.loop_report import load_config, load_controller
+
+    run = load_config(run_dir)
+    if abs(run.plant.dt - plant.dt) > 1e-9 * max(1.0, plant.dt):
+        raise ValueError(f"--deploy {run_dir}: its controller steps every {run.plant.dt:g} s, the plant every {plant.dt:g} s")
+    policy = load_controller(run_dir)
+    if policy.hold is not None and int(policy.hold.system.n) != plant.n:
+        raise ValueError(f"--deploy {run_dir}: its model has n={policy.hold.system.n} coordinates, the plant {plant.n}")
+    act = int(policy.agent.action_space.shape[0])
+    if act != plant.m:
+        raise ValueError(f"--deploy {run_dir}: its agent gives {act} inputs, the plant takes {plant.m}")
+    ev = evaluate(cfg, plant, policy, cfg.task.target(plant.system))
+    atomic_write_json(out / "evaluation.json", {**asdict(ev), "run": str(run_dir), "command": command,
+                                                "env": cfg.plant.env_id, "machine": cfg.plant.machine})
+    print(json.dumps({"success": ev.success, "success_angle_only": ev.success_angle_only, "rms_torque": ev.rms_torque,
+                      "trials": ev.trials, "controller_ms": ev.act_ms}))
+    return 0
+
+
 def parse_args(argv: list[str] | None = None) -> tuple[argparse.ArgumentParser, argparse.Namespace]:
     """The parser and the arguments, with the plant's option defaults (:func:`phast_model.rl.descriptions.loop_preset`)
     in place of the loop's where the command line does not give the option."""
@@ -180,6 +212,15 @@ def main(argv: list[str] | None = None) -> int:
         out = ensure_writable_dir(args.out, "--out")
     except ValueError as e:
         ap.error(str(e))
+    command = "phast-rl " + " ".join(shlex.quote(a) for a in (sys.argv[1:] if argv is None else argv))
+    if args.deploy is not None:
+        try:
+            return deploy(cfg, plant, args.deploy, out, command)
+        except ValueError as e:
+            print(f"phast-rl: error: {e}", file=sys.stderr)
+            return 2
+        finally:
+            plant.close()  # a machine's motor off
     import torch
     from tqdm.auto import tqdm
 
@@ -204,7 +245,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f"phast-rl: error: {e}", file=sys.stderr)
         return 2
     bar.close()
-    command = "phast-rl " + " ".join(shlex.quote(a) for a in (sys.argv[1:] if argv is None else argv))
     write_outputs(result, out, {"command": command, "env": cfg.plant.env_id, "machine": cfg.plant.machine,
                                  "recordings": cfg.recordings, "offline": cfg.offline, "task": cfg.task.name,
                                  "seed": cfg.seed})

@@ -221,6 +221,7 @@ class LoopResult:
     budget_s: float
     recordings: dict[str, Any] = field(default_factory=dict)  # every plant episode used for learning (rig format)
     prior_seconds: float = 0.0  # of plant_seconds, those of the recordings from before the loop
+    config: LoopConfig | None = None  # the configuration the loop ran with
 
     def summary(self) -> dict[str, Any]:
         """summary.json: ``plant_seconds``, ``success`` (quiet criterion), ``success_angle_only``, ``rms_torque`` (the
@@ -282,7 +283,7 @@ def fit_world_model(cfg: LoopConfig, recordings: dict[str, Any], model: Any | No
     return FitOutcome(fit.model, float(fit.best_val), first, float(fit.wall_time_s))
 
 
-def _algo_class(name: str) -> Any:
+def algo_class(name: str) -> Any:
     import stable_baselines3 as sb3
 
     return {"sac": sb3.SAC, "td3": sb3.TD3}[name]
@@ -307,7 +308,7 @@ def make_agent(cfg: LoopConfig, env: Any) -> Any:
     if spec.algo == "sac" and spec.mirror:
         policy = MirrorSACPolicy
         kwargs["policy_kwargs"]["mirror"] = mirror_signs(int(env.observation_space.shape[0]) // 2)
-    return _algo_class(spec.algo)(policy, env, learning_rate=lr, seed=cfg.seed, verbose=0, **kwargs)
+    return algo_class(spec.algo)(policy, env, learning_rate=lr, seed=cfg.seed, verbose=0, **kwargs)
 
 
 @dataclass
@@ -367,16 +368,16 @@ def train_agent(cfg: LoopConfig, model: Any, pool: np.ndarray, q_star: np.ndarra
                         [int(t) for t in ev.evaluations_timesteps], returns)
 
 
-def deployed_policy(cfg: LoopConfig, agent: Any, model: Any, plant: Any,
+def deployed_policy(cfg: LoopConfig, agent: Any, model: Any, system: Any, actuated: list[int],
                     q_star: np.ndarray) -> tuple[HybridPolicy, HoldGains | LQRGains | None]:
-    """The controller run on the plant: the agent, with the hold of the learned model when enabled (Energy-Casimir
-    when the plant is fully actuated, else LQR: :func:`.hold.make_hold`)."""
+    """The controller run on the plant (``system`` its description, ``actuated`` its driven coordinates): the agent,
+    with the hold of the learned model when enabled (Energy-Casimir when the plant is fully actuated, else LQR:
+    :func:`.hold.make_hold`)."""
     hold, gains = None, None
     if cfg.hold.enabled:
-        hold, gains = make_hold(model, q_star, cfg.plant.dt, cfg.plant.sigma, cfg.plant.max_action, cfg.hold,
-                                list(plant.actuated_dofs))
+        hold, gains = make_hold(model, q_star, cfg.plant.dt, cfg.plant.sigma, cfg.plant.max_action, cfg.hold, actuated)
     return HybridPolicy(agent, cfg.agent.frames, cfg.plant.decision_steps, cfg.plant.max_action, q_star, hold, cfg.hold,
-                        plant.system.angle_dims), gains
+                        system.angle_dims), gains
 
 
 def run_policy(cfg: LoopConfig, plant: Any, policy: HybridPolicy, n: int, steps: int, seed: int, kind: str) -> list[Episode]:
@@ -472,7 +473,7 @@ def _iteration(cfg: LoopConfig, plant: Any, data: _Data, learner: _Learner, it: 
     learner.agent = trained.agent
     progress(f"iteration {it}: agent trained ({trained.decisions} decisions)", data.seconds)
     new: list[Episode] = []
-    policy, gains = deployed_policy(cfg, trained.agent, fit.model, plant, q_star)
+    policy, gains = deployed_policy(cfg, trained.agent, fit.model, plant.system, list(plant.actuated_dofs), q_star)
     if can_run:
         new = run_policy(cfg, plant, policy, cfg.policy_episodes, cfg.episode_steps, cfg.seed * 1000 + 77 + it, "policy")
     data.episodes += new
@@ -507,7 +508,7 @@ def run_loop(cfg: LoopConfig, progress: Progress = _no_progress, plant: Any = No
         ev = None
         if not cfg.offline:
             q_star = cfg.task.target(plant.system)
-            policy, _ = deployed_policy(cfg, learner.agent, learner.model, plant, q_star)
+            policy, _ = deployed_policy(cfg, learner.agent, learner.model, plant.system, list(plant.actuated_dofs), q_star)
             ev = evaluate(cfg, plant, policy, q_star)
     finally:
         close = getattr(plant, "close", None)
@@ -515,4 +516,4 @@ def run_loop(cfg: LoopConfig, progress: Progress = _no_progress, plant: Any = No
             close()
     return LoopResult(iterations, data.seconds, any(i.success for i in iterations), ev, learner.agent, learner.model,
                       time.perf_counter() - t0, cfg.budget_s, data.recordings(cfg, plant),
-                      0.0 if data.prior is None else data.prior.seconds)
+                      0.0 if data.prior is None else data.prior.seconds, cfg)

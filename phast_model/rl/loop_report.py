@@ -1,11 +1,16 @@
-"""The outputs of a loop run (``phast-rl``): ``summary.json``, learning curves (``curves.json``, ``curves.png``), the
-agent as an SB3 zip (``policy.zip``, opened by ``SAC.load``) and the world model as a run directory (``model/``,
-opened by :func:`phast_model.api.load_run`) and every plant episode used for learning (``recordings.npz``, the
-``phast-train --recordings`` format).  Every file is written to a temporary name and renamed."""
+"""The outputs of a loop run (``phast-rl``) and the deployed controller read back from them.
+
+A run writes ``summary.json``, learning curves (``curves.json``, ``curves.png``), the agent as an SB3 zip
+(``policy.zip``, opened by ``SAC.load``), the world model as a run directory (``model/``, opened by
+:func:`phast_model.api.load_run`), every plant episode used for learning (``recordings.npz``, the ``phast-train
+--recordings`` format) and the loop's configuration (``config.json``).  Every file is written to a temporary name and
+renamed.  :func:`load_controller` rebuilds the controller the run deployed (the agent and the hold of its learned
+model) from those files, to run it on a machine without the loop (``phast-rl --deploy``)."""
 
 from __future__ import annotations
 
 import os
+from dataclasses import asdict, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -13,7 +18,9 @@ import numpy as np
 
 from phast_gym.fileio import atomic_write_json
 
-from .loop import LoopResult
+from .hold import HoldConfig, HybridPolicy
+from .loop import AgentSpec, FitSpec, LoopConfig, LoopResult, algo_class, deployed_policy
+from .plant import PlantSpec, Task, plant_system
 
 
 def learning_curves(result: LoopResult) -> dict[str, Any]:
@@ -87,5 +94,60 @@ def write_outputs(result: LoopResult, out: Path, extra: dict[str, Any]) -> dict[
     paths["curves_json"] = atomic_write_json(out / "curves.json", curves)
     plot_learning_curves(curves, out / "curves.png")
     paths["curves_png"] = out / "curves.png"
+    if result.config is not None:
+        paths["config"] = atomic_write_json(out / "config.json", asdict(result.config))
     paths["summary"] = atomic_write_json(out / "summary.json", {**result.summary(), **extra})
     return paths
+
+
+#: the parts of a :class:`LoopConfig` that are dataclasses of their own
+CONFIG_PARTS: dict[str, type] = {"plant": PlantSpec, "task": Task, "fit": FitSpec, "agent": AgentSpec, "hold": HoldConfig}
+
+
+def _part(cls: type, d: Any, where: str) -> Any:
+    if not isinstance(d, dict):
+        raise ValueError(f"{where}: expected an object, got {type(d).__name__}")
+    unknown = sorted(set(d) - {f.name for f in fields(cls)})
+    if unknown:
+        raise ValueError(f"{where}: unknown keys {unknown}")
+    kw = {k: tuple(v) if isinstance(v, list) and cls in (AgentSpec, FitSpec) else v for k, v in d.items()}
+    return cls(**kw)
+
+
+def config_from_dict(d: dict[str, Any], where: str = "config.json") -> LoopConfig:
+    """The :class:`LoopConfig` written as ``config.json`` (``dataclasses.asdict``); ValueError naming a bad key."""
+    parts = {k: _part(cls, d[k], f"{where} '{k}'") for k, cls in CONFIG_PARTS.items() if k in d}
+    return _part(LoopConfig, {**d, **parts}, where)
+
+
+def load_config(run_dir: str | Path) -> LoopConfig:
+    """The loop configuration of the ``phast-rl`` run in ``run_dir``."""
+    import json
+
+    path = Path(run_dir) / "config.json"
+    if not path.is_file():
+        raise ValueError(f"{run_dir}: no config.json (not a phast-rl run directory, or one written before it existed)")
+    try:
+        d = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc})") from None
+    return config_from_dict(d, str(path))
+
+
+def load_controller(run_dir: str | Path) -> HybridPolicy:
+    """The controller the run in ``run_dir`` deployed: its agent (``policy.zip``) and the hold built from its world
+    model (``model/``) as in the loop.  ``reset(q)`` it with the first measurement, then ``act(q)`` every plant step
+    of the run's ``dt`` (``load_config(run_dir).plant.dt``)."""
+    from ..api import load_run
+
+    run = Path(run_dir)
+    cfg = load_config(run)
+    if not (run / "policy.zip").is_file():
+        raise ValueError(f"{run_dir}: no policy.zip")
+    agent = algo_class(cfg.agent.algo).load(run / "policy.zip", device="cpu")
+    model = load_run(run / "model")
+    system = plant_system(replace(cfg.plant, machine=None))
+    actuated = cfg.plant.env_kwargs.get("actuated_dofs")
+    actuated = list(range(system.n)) if actuated is None else [int(i) for i in actuated]
+    policy, _ = deployed_policy(cfg, agent, model, system, actuated, cfg.task.target(system))
+    return policy

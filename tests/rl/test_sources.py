@@ -180,3 +180,34 @@ def test_bad_source_options_are_refused(tmp_path: Path, drivers: str, capsys: py
     code = rl_main(["--recordings", str(path), "--budget-s", "10", "--episode-s", "2", "--out", str(tmp_path / "y"),
                     "--no-progress"])
     assert code == 2 and "exceed the budget" in capsys.readouterr().err
+
+
+def test_a_run_deploys_its_controller_again(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """``load_controller`` rebuilds the agent and the learned hold from a run's files; ``--deploy`` runs them on a
+    machine without learning; a run that does not fit the plant is refused."""
+    import torch
+
+    from phast_model.rl.hold import HybridPolicy
+    from phast_model.rl.loop_report import load_config, load_controller
+
+    torch.set_num_threads(1)
+    run = tmp_path / "run"
+    assert rl_main(["--env", "PHAST/Pendulum-v0", "--budget-s", "4", "--episode-s", "2", "--out", str(run), *FAST]) == 0
+    cfg = load_config(run)
+    assert cfg.plant.env_id == "PHAST/Pendulum-v0" and cfg.agent.steps == 160 and cfg.agent.net == (64, 64)
+    policy = load_controller(run)
+    assert isinstance(policy, HybridPolicy) and policy.hold is not None
+    policy.reset(np.array([0.0]))
+    assert np.all(np.abs(policy.act(np.array([0.0]))) <= 10.0)
+    out = tmp_path / "deployed"
+    assert rl_main(["--deploy", str(run), "--machine", f"{BENCH}:make", "--env", "PHAST/Pendulum-v0", "--eval-trials",
+                    "2", "--eval-s", "1", "--out", str(out), "--no-progress"]) == 0
+    ev = json.loads((out / "evaluation.json").read_text())
+    assert ev["trials"] == 2 and ev["seconds"] == pytest.approx(2.0) and ev["run"] == str(run)
+    assert not (out / "policy.zip").exists()  # nothing was learned
+    code = rl_main(["--deploy", str(run), "--env", "PHAST/WindyCartPole-v0", "--env-kwargs", '{"actuated_dofs": [0]}',
+                    "--eval-trials", "1", "--eval-s", "1", "--out", str(tmp_path / "bad"), "--no-progress"])
+    assert code == 2 and "coordinates" in capsys.readouterr().err
+    (run / "config.json").write_text('{"plant": {"env_id": "PHAST/Pendulum-v0", "colour": 1}}')
+    with pytest.raises(ValueError, match=r"unknown keys \['colour'\]"):
+        load_config(run)
