@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -100,18 +100,32 @@ class LearnedSystem(System):
     def __init__(self, model: PHAST, dt: float) -> None:
         self.model = model
         self.dt = float(dt)
+        self.slope = np.zeros(int(model.n))  # removed from grad V_hat (:meth:`level_at`)
+        self.q_ref = np.zeros(int(model.n))
         super().__init__()
+
+    def level_at(self, q_star: np.ndarray) -> np.ndarray:
+        """Make ``q_star`` an equilibrium: subtract the learned potential's slope there, V_hat(q) - s . (q - q*)
+        with s = grad V_hat(q*).  The hold's premise is that the target is an equilibrium of the plant (it holds there
+        with a vanishing input); a learned potential misses that by its error (a neural V at the upright: 0.7 N m
+        against a curvature of 10), and a hold built on the slope would push the plant off by slope / stiffness.
+        Returns s (0 for a template whose equilibria are exact)."""
+        self.slope = np.zeros(self.n)
+        self.q_ref = np.asarray(q_star, dtype=np.float64)
+        self.slope = np.asarray(self.grad_potential(list(q_star)), dtype=np.float64)
+        return self.slope
 
     def _q(self, q: Any) -> torch.Tensor:
         return torch.as_tensor(np.asarray([float(c) for c in q], dtype=np.float64)[None], dtype=torch.float64)
 
     def potential(self, q: Any, xp: Any = NUMPY) -> Any:
         with torch.no_grad():
-            return float(self.model.potential(self._q(q)).reshape(-1)[0])
+            v = float(self.model.potential(self._q(q)).reshape(-1)[0])
+        return v - float(self.slope @ (np.asarray([float(c) for c in q]) - self.q_ref))
 
     def grad_potential(self, q: Any, xp: Any = NUMPY) -> tuple:
-        g = self.model.potential.grad(self._q(q).requires_grad_(True))
-        return tuple(float(v) for v in g.detach().reshape(-1))
+        g = self.model.potential.grad(self._q(q).requires_grad_(True)).detach().reshape(-1).numpy()
+        return tuple(float(v) for v in g - self.slope)
 
     def mass_matrix(self, q: Any, xp: Any = NUMPY) -> tuple[tuple, ...]:
         with torch.no_grad():
@@ -143,6 +157,7 @@ class HoldGains:
     d_inj: float
     mgl_hat: float
     inertia_hat: float
+    slope_removed: tuple[float, ...] = ()  # grad V_hat at the target, levelled (:meth:`LearnedSystem.level_at`)
 
 
 def hold_gains(system: System, q_star: np.ndarray, cfg: HoldConfig) -> HoldGains:
@@ -157,7 +172,8 @@ def make_energy_casimir_hold(model: PHAST, q_star: np.ndarray, dt: float, sigma:
                              cfg: HoldConfig) -> tuple[EnergyCasimirController, HoldGains]:
     """The Energy-Casimir controller of the learned model at the plant step ``dt``, with the learned-model UKF."""
     system = learned_system(model, dt)
-    gains = hold_gains(system, q_star, cfg)
+    slope = system.level_at(q_star)
+    gains = replace(hold_gains(system, q_star, cfg), slope_removed=tuple(float(v) for v in slope))
     est = UKFEstimator(system, dt, sigma=sigma, process=PHASTProcess(model, dt))
     ctrl = EnergyCasimirController(est, q_star=q_star, k_c=gains.k_c, d_inj=gains.d_inj, k_xi=cfg.k_xi, dt=dt,
                                    max_action=max_action, system=system, xi_feedback=cfg.xi_feedback)

@@ -113,6 +113,35 @@ def test_hold_gains_come_from_the_learned_model(tiny_run) -> None:
     assert res.iterations[0].hold_gains is not None
 
 
+def test_the_hold_levels_a_learned_potential_at_the_target(tiny_run) -> None:
+    """A learned potential whose slope at the upright is not 0 (a neural V: 0.7 N m) still gets a hold: the slope is
+    removed (the target is an equilibrium of the plant), the gains are those of the curvature, and the controller's
+    model has the upright as its equilibrium.  Without it the Energy-Casimir controller refused the target."""
+    import torch
+
+    from phast_model.components.potentials import Potential
+    from phast_model.rl.hold import make_energy_casimir_hold
+
+    class Tilted(Potential):
+        def __init__(self, base: Potential) -> None:
+            super().__init__()
+            self.base = base
+
+        def energy(self, q: torch.Tensor) -> torch.Tensor:
+            return self.base(q).reshape(q.shape[:-1]) + 0.7 * q[..., 0]
+
+    cfg, res = tiny_run
+    q_star = np.array([math.pi])
+    _, plain = make_energy_casimir_hold(res.model, q_star, 0.01, 0.01, 10.0, HoldConfig())
+    assert abs(plain.slope_removed[0]) < 1e-9  # a cosine template's upright is an exact equilibrium
+    model = copy.deepcopy(res.model)
+    model.core.potential = Tilted(model.core.potential)
+    ctrl, gains = make_energy_casimir_hold(model, q_star, 0.01, 0.01, 10.0, HoldConfig())
+    assert gains.slope_removed[0] == pytest.approx(0.7, abs=1e-6)
+    assert gains.k_c == pytest.approx(plain.k_c, rel=1e-6) and gains.mgl_hat == pytest.approx(plain.mgl_hat, rel=1e-6)
+    assert abs(ctrl.system.grad_potential([math.pi])[0]) < 1e-9
+
+
 def test_recordings_at_the_decision_rate_average_the_input() -> None:
     rng = np.random.default_rng(0)
     eps = [Episode(rng.normal(size=(11, 1)), rng.normal(size=(10, 1)), np.zeros((11, 2)), 0.01, "policy") for _ in range(3)]
