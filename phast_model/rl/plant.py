@@ -86,12 +86,12 @@ def make_plant(spec: PlantSpec) -> Any:
     a machine's (:class:`.sources.MachinePlant`) when ``spec.machine`` names one, its step checked against ``dt``."""
     system = plant_system(spec)
     if spec.machine is not None:
-        from .sources import MachinePlant, load_machine
+        from .sources import MachinePlant, load_machine, machine_dt
 
         machine = load_machine(spec.machine, spec.machine_kwargs)
-        if not math.isclose(float(machine.dt), spec.dt, rel_tol=1e-6):
-            raise ValueError(f"machine {spec.machine!r} steps every {machine.dt:g} s, the loop every {spec.dt:g} s: "
-                             f"give --dt {machine.dt:g}")
+        dt = float(machine_dt(machine))
+        if not math.isclose(dt, spec.dt, rel_tol=1e-6):
+            raise ValueError(f"machine {spec.machine!r} steps every {dt:g} s, the loop every {spec.dt:g} s: give --dt {dt:g}")
         return MachinePlant(machine, system, spec.env_kwargs.get("actuated_dofs"), spec.max_action, spec.machine)
     return PortHamiltonianEnv(system, actuated_dofs=spec.env_kwargs.get("actuated_dofs"), max_action=spec.max_action,
                               obs_noise_std=spec.sigma, dtype=np.float64, substeps=system.substeps)

@@ -59,10 +59,17 @@ def load_machine(spec: str, kwargs: dict[str, Any] | None = None) -> Machine:
     if missing:
         raise ValueError(f"machine {spec!r} returned {type(machine).__name__} without {missing}: a machine has "
                          "reset() -> q and step(u) -> q (docs/control.md, 'A machine of your own')")
-    dt = getattr(machine, "dt", None)
+    dt = machine_dt(machine)
     if not isinstance(dt, (int, float)) or not (dt > 0 and math.isfinite(dt)):
         raise ValueError(f"machine {spec!r}: its 'dt' (seconds per step) must be a positive number, got {dt!r}")
     return machine
+
+
+def machine_dt(machine: Any) -> Any:
+    """The machine's ``dt``, or that of the env inside a Gymnasium wrapper (``gym.make`` wraps; wrappers do not
+    forward attributes)."""
+    dt = getattr(machine, "dt", None)
+    return dt if dt is not None else getattr(getattr(machine, "unwrapped", None), "dt", None)
 
 
 def _measured(out: Any, n: int, where: str) -> np.ndarray:
@@ -89,7 +96,7 @@ class MachinePlant:
         self.actuated_dofs = list(range(self.n)) if actuated_dofs is None else [int(i) for i in actuated_dofs]
         self.m = len(self.actuated_dofs)
         self.max_action = float(max_action)
-        self.dt = float(machine.dt)
+        self.dt = float(machine_dt(machine))
 
     def _info(self, q: np.ndarray) -> dict[str, Any]:
         return {"state": np.concatenate([q, np.full(self.n, np.nan)]), "measured_only": True}

@@ -48,6 +48,13 @@ class GymLike(gym.Env):
         self.closed = True
 
 
+def wrapped(q0: float = 0.0):
+    """A driver as gym.make would hand it: behind a wrapper that does not forward ``dt``."""
+    from gymnasium.wrappers import TimeLimit
+
+    return TimeLimit(GymLike(q0), max_episode_steps=10_000)
+
+
 class NoDt:
     def reset(self):
         return np.zeros(1)
@@ -92,6 +99,7 @@ def test_bad_machines_are_clear_errors(drivers: str) -> None:
         load_machine(f"{drivers}:Nope")
     with pytest.raises(ValueError, match="does not take"):
         load_machine(f"{drivers}:GymLike", {"speed": 2})
+    assert make_plant(PlantSpec("PHAST/Pendulum-v0", machine=f"{drivers}:wrapped")).dt == 0.01
     with pytest.raises(ValueError, match="give --dt 0.01"):
         make_plant(PlantSpec("PHAST/Pendulum-v0", dt=0.02, machine=f"{drivers}:GymLike"))
     plant = make_plant(PlantSpec("PHAST/Pendulum-v0", machine=f"{drivers}:Broken"))
