@@ -258,12 +258,19 @@ class FitOutcome:
     val_rmse: float
     first_train_rmse: float
     seconds: float
+    lr_mult: float = 1.0  # the learning rates' factor the fit ran at (its refits keep it)
 
 
-def fit_world_model(cfg: LoopConfig, recordings: dict[str, Any], model: Any | None) -> FitOutcome:
+def fit_world_model(cfg: LoopConfig, recordings: dict[str, Any], model: Any | None, lr_mult: float | None = None) -> FitOutcome:
     """Fit PHAST to all recordings so far by the rig path; continue from ``model`` when given (warm start: the
-    rig-template initialisation is skipped and ``refit_epochs`` run)."""
+    rig-template initialisation is skipped and ``refit_epochs`` run at ``lr_mult``, the first fit's rate factor).
+
+    The first fit's factor is the rig path's (:func:`phast_model.rig.fit.lr_mult`): 1, or 1% after UNKNOWN's start
+    from the recorded motion, a fitted model that is refined, not relearned.  Refits keep it: at the base rates the
+    first UNKNOWN refit of the pendulum undid the start (validation RMSE 0.008 -> 0.24 rad, the upright no longer a
+    maximum of V_hat)."""
     from ..rig import RigTrainConfig, build, fit_recordings, load_rig_data, rig_config
+    from ..rig.fit import lr_mult as rig_lr_mult
 
     data = load_rig_data(recordings, cfg.sim, cfg.fit.sim_kwargs)
     if model is None:
@@ -278,9 +285,11 @@ def fit_world_model(cfg: LoopConfig, recordings: dict[str, Any], model: Any | No
     else:
         model.config = replace(model.config, init_from="none")  # warm start: keep the fitted coefficients
         epochs = cfg.fit.refit_epochs
-    fit = fit_recordings(model, data, RigTrainConfig(epochs=epochs, window_s=cfg.fit.window_s, seed=cfg.seed, progress=False))
+    tcfg = RigTrainConfig(epochs=epochs, window_s=cfg.fit.window_s, seed=cfg.seed, progress=False, lr_mult=lr_mult)
+    factor = rig_lr_mult(model, tcfg)
+    fit = fit_recordings(model, data, tcfg)
     first = float(fit.history[0]["train_rmse"]) if fit.history else float("nan")
-    return FitOutcome(fit.model, float(fit.best_val), first, float(fit.wall_time_s))
+    return FitOutcome(fit.model, float(fit.best_val), first, float(fit.wall_time_s), factor)
 
 
 def algo_class(name: str) -> Any:
@@ -456,6 +465,7 @@ class _Learner:
 
     model: Any = None
     agent: Any = None
+    lr_mult: float | None = None  # the first fit's learning-rate factor, kept by the refits
 
 
 def _iteration(cfg: LoopConfig, plant: Any, data: _Data, learner: _Learner, it: int, progress: Progress) -> IterationResult:
@@ -463,8 +473,8 @@ def _iteration(cfg: LoopConfig, plant: Any, data: _Data, learner: _Learner, it: 
     q_star = cfg.task.target(plant.system)
     recs = data.recordings(cfg, plant)
     warm = learner.model is not None
-    fit = fit_world_model(cfg, recs, learner.model)
-    learner.model = fit.model
+    fit = fit_world_model(cfg, recs, learner.model, learner.lr_mult)
+    learner.model, learner.lr_mult = fit.model, fit.lr_mult
     progress(f"iteration {it}: fitted (val RMSE {fit.val_rmse:.4f})", data.seconds)
     pool = burn_in_pool(recs["q"], fit.model.observer.window)
     ep_s = cfg.episode_steps * cfg.plant.dt

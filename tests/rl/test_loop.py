@@ -142,6 +142,21 @@ def test_the_hold_levels_a_learned_potential_at_the_target(tiny_run) -> None:
     assert abs(ctrl.system.grad_potential([math.pi])[0]) < 1e-9
 
 
+def test_refits_keep_the_first_fits_learning_rate_factor(tiny_run) -> None:
+    """UNKNOWN's first fit starts from the recorded motion and runs at 1% of the base rates; its warm-started refits
+    keep that factor (at the base rates they undid the start).  PARTIAL's stay at 1."""
+    from phast_model.rig.fit import LR_AFTER_START
+    from phast_model.rl.loop import fit_world_model
+
+    cfg, res = tiny_run
+    assert fit_world_model(cfg, res.recordings, None).lr_mult == 1.0
+    unknown = replace(cfg, fit=replace(cfg.fit, regime="unknown", epochs=1, refit_epochs=1))
+    first = fit_world_model(unknown, res.recordings, None)
+    assert first.lr_mult == LR_AFTER_START
+    again = fit_world_model(unknown, res.recordings, first.model, first.lr_mult)
+    assert again.lr_mult == LR_AFTER_START and again.model.config.init_from == "none"
+
+
 def test_recordings_at_the_decision_rate_average_the_input() -> None:
     rng = np.random.default_rng(0)
     eps = [Episode(rng.normal(size=(11, 1)), rng.normal(size=(10, 1)), np.zeros((11, 2)), 0.01, "policy") for _ in range(3)]
