@@ -55,7 +55,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--out", required=True, help="output directory")
     ap.add_argument("--sim", default=None, help="the rig description (env id or path.py:Class; default: --env)")
     ap.add_argument("--regime", choices=("known", "partial", "unknown"), default=f.regime,
-                    help="world-model regime of the rig path (partial: the description's templates, refitted)")
+                    help="world-model regime of the rig path (partial: the description's templates, refitted; unknown: a "
+                         "neural V and M, which seconds of data near the start do not determine at the target: 0.00 "
+                         "on the pendulum swing-up at 30 s, docs/control.md)")
     ap.add_argument("--sim-kwargs", default="{}", help="the rig description's parameters as JSON, e.g. '{\"mass\": 1.1}'")
     ap.add_argument("--u-tol", type=float, default=None,
                     help="quiet criterion: largest RMS input over the last second (default: 0.25 N m for a pendulum, "
