@@ -23,15 +23,8 @@ from ..rl.plant import TASKS, PlantSpec, Task, quiet_u_tol
 from .args import json_object
 
 
-def build_parser() -> argparse.ArgumentParser:
-    d, a, f, p = LoopConfig(), AgentSpec(), FitSpec(), PlantSpec()
-    ap = argparse.ArgumentParser(prog="phast-rl", description=__doc__.split("\n\n")[0],
-                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    ap.add_argument("--env", default=p.env_id,
-                    help="the plant: a phast_gym env id, or a rig of your own as a phast_gym System subclass, "
-                         "path/to/rig.py:Class (docs/describe_your_rig.md); some plants bring their own option "
-                         "defaults (the cart-pole: --max-action 30 and longer agent training; "
-                         "phast_model.rl.descriptions.PRESETS), which options given here override")
+def add_source_options(ap: argparse.ArgumentParser, p: PlantSpec) -> None:
+    """Where the loop's data come from besides a simulated plant: a machine, recordings, an earlier run."""
     ap.add_argument("--machine", default=None,
                     help="a real machine as the plant: a factory path/to/driver.py:make or module:make returning an "
                          "object with dt, reset() -> q and step(u) -> q (a Gymnasium env with obs q and action u does); "
@@ -48,6 +41,33 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--deploy", default=None, metavar="RUN_DIR",
                     help="learn nothing: run the controller of an earlier phast-rl run (its agent and learned hold) on "
                          "the plant or --machine given here, --eval-trials x --eval-s, and write OUT/evaluation.json")
+
+
+def add_hold_options(ap: argparse.ArgumentParser) -> None:
+    """The hold near the target (:class:`phast_model.rl.hold.HoldConfig`)."""
+    h = HoldConfig()
+    ap.add_argument("--hold", choices=HOLD_KINDS, default=h.kind,
+                    help="the hold: auto = Energy-Casimir when the input acts on every coordinate, else LQR of the "
+                         "learned model's linearisation")
+    ap.add_argument("--lqr-angle", type=float, default=h.lqr_angle, help="LQR hold: weight on the angle errors")
+    ap.add_argument("--lqr-position", type=float, default=h.lqr_position,
+                    help="LQR hold: weight on the Euclidean position errors (the cart's)")
+    ap.add_argument("--lqr-rate", type=float, default=h.lqr_rate, help="LQR hold: weight on every rate")
+    ap.add_argument("--hold-enter-angle", type=float, default=h.enter_angle, help="handoff to the hold within this angle (rad)")
+    ap.add_argument("--hold-kc-factor", type=float, default=h.kc_factor, help="hold stiffness k_c / learned m g l")
+    ap.add_argument("--hold-zeta", type=float, default=h.zeta, help="hold damping ratio (sets d_inj from the learned model)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    d, a, f, p = LoopConfig(), AgentSpec(), FitSpec(), PlantSpec()
+    ap = argparse.ArgumentParser(prog="phast-rl", description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    ap.add_argument("--env", default=p.env_id,
+                    help="the plant: a phast_gym env id, or a rig of your own as a phast_gym System subclass, "
+                         "path/to/rig.py:Class (docs/describe_your_rig.md); some plants bring their own option "
+                         "defaults (the cart-pole: --max-action 30 and longer agent training; "
+                         "phast_model.rl.descriptions.PRESETS), which options given here override")
+    add_source_options(ap, p)
     ap.add_argument("--task", choices=TASKS, default="swingup", help="swingup: from hanging; upright: from near the top")
     ap.add_argument("--env-kwargs", default="{}", help='the plant env\'s kwargs as JSON, e.g. \'{"actuated_dofs": [0]}\'')
     ap.add_argument("--budget-s", type=float, default=d.budget_s, help="plant seconds allowed for learning")
@@ -91,21 +111,10 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--eval-trials", type=int, default=d.eval_trials, help="final evaluation episodes on the plant")
     ap.add_argument("--eval-s", type=float, default=d.eval_s, help="seconds per final evaluation episode")
     ap.add_argument("--no-hold", action="store_true", help="no hold near the target (the agent alone)")
-    h = HoldConfig()
-    ap.add_argument("--hold", choices=HOLD_KINDS, default=h.kind,
-                    help="the hold: auto = Energy-Casimir when the input acts on every coordinate, else LQR of the "
-                         "learned model's linearisation")
-    ap.add_argument("--lqr-angle", type=float, default=h.lqr_angle, help="LQR hold: weight on the angle errors")
-    ap.add_argument("--lqr-position", type=float, default=h.lqr_position,
-                    help="LQR hold: weight on the Euclidean position errors (the cart's)")
-    ap.add_argument("--lqr-rate", type=float, default=h.lqr_rate, help="LQR hold: weight on every rate")
-    ap.add_argument("--hold-enter-angle", type=float, default=h.enter_angle, help="handoff to the hold within this angle (rad)")
-    ap.add_argument("--hold-kc-factor", type=float, default=h.kc_factor, help="hold stiffness k_c / learned m g l")
-    ap.add_argument("--hold-zeta", type=float, default=h.zeta, help="hold damping ratio (sets d_inj from the learned model)")
+    add_hold_options(ap)
     ap.add_argument("--no-mirror", action="store_true", help="an unconstrained SAC policy (no reflection symmetry)")
     ap.add_argument("--no-progress", action="store_true")
     return ap
-
 
 
 def config_from_args(args: argparse.Namespace) -> LoopConfig:
