@@ -200,6 +200,18 @@ def deploy(cfg: LoopConfig, plant: Any, run_dir: str, out: Any, command: str) ->
     return 0
 
 
+def keep_recordings(stop: Any, out: Any) -> int:
+    """The loop stopped early: write what the plant recorded to ``out/recordings.npz`` and say how to continue."""
+    import numpy as np
+
+    tmp = out / "recordings.tmp.npz"
+    np.savez(tmp, **stop.recordings)
+    path = tmp.replace(out / "recordings.npz")
+    print(f"phast-rl: stopped after {stop.seconds:g} s of plant time ({stop}); what the plant recorded is in {path}: "
+          f"continue with --recordings {path}", file=sys.stderr)
+    return 130 if isinstance(stop.cause, KeyboardInterrupt) else 2
+
+
 def parse_args(argv: list[str] | None = None) -> tuple[argparse.ArgumentParser, argparse.Namespace]:
     """The parser and the arguments, with the plant's option defaults (:func:`phast_model.rl.descriptions.loop_preset`)
     in place of the loop's where the command line does not give the option."""
@@ -235,7 +247,7 @@ def main(argv: list[str] | None = None) -> int:
     import torch
     from tqdm.auto import tqdm
 
-    from ..rl.loop import run_loop
+    from ..rl.loop import LoopInterrupted, run_loop
     from ..rl.loop_report import write_outputs
 
     torch.set_num_threads(1)
@@ -255,6 +267,9 @@ def main(argv: list[str] | None = None) -> int:
         bar.close()
         print(f"phast-rl: error: {e}", file=sys.stderr)
         return 2
+    except LoopInterrupted as e:
+        bar.close()
+        return keep_recordings(e, out)
     bar.close()
     write_outputs(result, out, {"command": command, "env": cfg.plant.env_id, "machine": cfg.plant.machine,
                                  "recordings": cfg.recordings, "offline": cfg.offline, "task": cfg.task.name,

@@ -459,6 +459,16 @@ def _no_progress(stage: str, seconds: float) -> None:
     return None
 
 
+class LoopInterrupted(RuntimeError):
+    """The loop stopped before its end (an error on the plant, a fit or a training; Ctrl-C): ``recordings`` holds
+    every plant episode recorded so far (the rig format; ``--recordings`` continues from them), ``seconds`` their
+    plant time, ``cause`` what stopped it."""
+
+    def __init__(self, cause: BaseException, recordings: dict[str, Any], seconds: float) -> None:
+        super().__init__(f"{type(cause).__name__}: {cause}" if str(cause) else type(cause).__name__)
+        self.cause, self.recordings, self.seconds = cause, recordings, float(seconds)
+
+
 @dataclass
 class _Learner:
     """The loop's learned parts: the world model and the agent (None before the first fit and training)."""
@@ -505,6 +515,7 @@ def run_loop(cfg: LoopConfig, progress: Progress = _no_progress, plant: Any = No
     t0 = time.perf_counter()
     torch.manual_seed(cfg.seed)
     plant = make_plant(cfg.plant) if plant is None else plant
+    data: _Data | None = None
     try:
         data = first_data(cfg, plant)
         progress("recordings and excitation" if data.prior is not None else "excitation", data.seconds)
@@ -520,6 +531,10 @@ def run_loop(cfg: LoopConfig, progress: Progress = _no_progress, plant: Any = No
             q_star = cfg.task.target(plant.system)
             policy, _ = deployed_policy(cfg, learner.agent, learner.model, plant.system, list(plant.actuated_dofs), q_star)
             ev = evaluate(cfg, plant, policy, q_star)
+    except (Exception, KeyboardInterrupt) as exc:
+        if data is None:
+            raise
+        raise LoopInterrupted(exc, data.recordings(cfg, plant), data.seconds) from exc
     finally:
         close = getattr(plant, "close", None)
         if callable(close):

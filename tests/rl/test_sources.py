@@ -55,6 +55,19 @@ def wrapped(q0: float = 0.0):
     return TimeLimit(GymLike(q0), max_episode_steps=10_000)
 
 
+class Fragile(GymLike):
+    """Loses its encoder after ``fail_after`` steps."""
+
+    def __init__(self, fail_after: int = 450) -> None:
+        super().__init__()
+        self.fail_after = fail_after
+
+    def step(self, u):
+        if self.steps >= self.fail_after:
+            raise RuntimeError("encoder lost")
+        return super().step(u)
+
+
 class NoDt:
     def reset(self):
         return np.zeros(1)
@@ -219,3 +232,23 @@ def test_a_run_deploys_its_controller_again(tmp_path: Path, capsys: pytest.Captu
     (run / "config.json").write_text('{"plant": {"env_id": "PHAST/Pendulum-v0", "colour": 1}}')
     with pytest.raises(ValueError, match=r"unknown keys \['colour'\]"):
         load_config(run)
+
+
+def test_a_machine_that_fails_mid_loop_loses_no_recording(tmp_path: Path, drivers: str,
+                                                          capsys: pytest.CaptureFixture) -> None:
+    """The rig fails in the first policy episode: the two excitation episodes recorded before are written to
+    recordings.npz, the message says how to continue, and --recordings accepts the file."""
+    import torch
+
+    torch.set_num_threads(1)
+    out = tmp_path / "run"
+    code = rl_main(["--machine", f"{drivers}:Fragile", "--env", "PHAST/Pendulum-v0", "--budget-s", "6", "--episode-s", "2",
+                    "--out", str(out), *FAST])
+    err = capsys.readouterr().err
+    assert code == 2 and "RuntimeError: encoder lost" in err and "--recordings" in err
+    rec = np.load(out / "recordings.npz")
+    assert rec["q"].shape == (2, 41, 1) and rec["u"].shape == (2, 40, 1)
+    assert not (out / "summary.json").exists()
+    from phast_gym.systems.pendulum import Pendulum
+
+    assert load_prior(out / "recordings.npz", Pendulum(), [0], 0.05, 40).seconds == pytest.approx(4.0)
