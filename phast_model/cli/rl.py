@@ -43,6 +43,19 @@ def add_source_options(ap: argparse.ArgumentParser, p: PlantSpec) -> None:
                          "the plant or --machine given here, --eval-trials x --eval-s, and write OUT/evaluation.json")
 
 
+def add_excitation_options(ap: argparse.ArgumentParser, d: LoopConfig) -> None:
+    """The random-input episodes that start the loop, and how many iterations follow (on a real rig, set the
+    amplitude to what it safely takes)."""
+    ap.add_argument("--excitation-episodes", type=int, default=None,
+                    help=f"random-input plant episodes first (default: {d.excitation_episodes}, none with --recordings)")
+    ap.add_argument("--excitation-std", type=float, default=d.torque_std,
+                    help="std of the excitation's random inputs (N m or N; clipped at --max-action)")
+    ap.add_argument("--excitation-hold", type=int, default=d.hold_decisions,
+                    help="decisions each random input is held")
+    ap.add_argument("--max-iterations", type=int, default=d.max_iterations,
+                    help="fit-train-run iterations at most (the budget usually ends the loop first)")
+
+
 def add_hold_options(ap: argparse.ArgumentParser) -> None:
     """The hold near the target (:class:`phast_model.rl.hold.HoldConfig`)."""
     h = HoldConfig()
@@ -85,8 +98,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--sigma", type=float, default=p.sigma, help="q measurement noise of the plant (rad)")
     ap.add_argument("--max-action", type=float, default=p.max_action, help="input bound (N m or N)")
     ap.add_argument("--episode-s", type=float, default=d.episode_s, help="seconds per plant episode used for learning")
-    ap.add_argument("--excitation-episodes", type=int, default=None,
-                    help=f"random-input plant episodes first (default: {d.excitation_episodes}, none with --recordings)")
+    add_excitation_options(ap, d)
     ap.add_argument("--policy-episodes", type=int, default=d.policy_episodes, help="plant episodes per iteration")
     ap.add_argument("--algo", choices=ALGOS, default=a.algo)
     ap.add_argument("--agent-steps", type=int, default=a.steps, help="agent decisions of the first training")
@@ -148,7 +160,8 @@ def config_from_args(args: argparse.Namespace) -> LoopConfig:
         excitation = 0 if args.recordings else LoopConfig().excitation_episodes
     return LoopConfig(plant, Task(args.task, u_tol=u_tol), args.budget_s, args.seed, args.episode_s, excitation,
                       args.policy_episodes, eval_trials=args.eval_trials, eval_s=args.eval_s, fit=fit, agent=agent,
-                      recordings=args.recordings, offline=args.offline,
+                      recordings=args.recordings, offline=args.offline, torque_std=args.excitation_std,
+                      hold_decisions=args.excitation_hold, max_iterations=args.max_iterations,
                       hold=HoldConfig(enabled=not args.no_hold, kind=args.hold, kc_factor=args.hold_kc_factor,
                                       zeta=args.hold_zeta, lqr_angle=args.lqr_angle, lqr_position=args.lqr_position,
                                       lqr_rate=args.lqr_rate, enter_angle=args.hold_enter_angle,

@@ -192,7 +192,8 @@ def test_phast_rl_from_recordings_alone_and_with_a_plant(tmp_path: Path) -> None
 def test_bad_source_options_are_refused(tmp_path: Path, drivers: str, capsys: pytest.CaptureFixture) -> None:
     cases = ((["--offline"], "--offline learns from --recordings"),
              (["--offline", "--recordings", "x.npz", "--machine", f"{drivers}:GymLike"], "give one of them"),
-             (["--machine", f"{drivers}:NoDt"], "--machine: machine"))
+             (["--machine", f"{drivers}:NoDt"], "--machine: machine"),
+             (["--excitation-std", "-1"], "torque_std must be a positive number"))
     for argv, words in cases:
         with pytest.raises(SystemExit) as exc:
             rl_main([*argv, "--out", str(tmp_path / "x")])
