@@ -32,52 +32,53 @@ a serial link::
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
+from phast_gym.env import PortHamiltonianEnv
+from phast_gym.systems.base import NUMPY
 from phast_gym.systems.pendulum import Pendulum
 
 
+class FrictionPendulum(Pendulum):
+    """The bench's hidden physics: the phast_gym pendulum with Coulomb friction at the pivot (smoothed as
+    tanh(qdot / 0.05)) besides its viscous ``gamma``."""
+
+    def __init__(self, coulomb: float = 0.05, **params: Any) -> None:
+        super().__init__(**params)
+        self.coulomb = float(coulomb)
+
+    def rhs(self, q: Any, p: Any, u: Any, xp: Any = NUMPY) -> tuple[tuple, tuple]:
+        (v,), (dp,) = super().rhs(q, p, u, xp)
+        return (v,), (dp - self.coulomb * xp.tanh(v / 0.05),)
+
+
 class PendulumBench:
-    """A simulated bench: the true pendulum is hidden; ``reset`` lets it come to rest hanging (a small angle left),
-    ``step`` holds the input for ``dt`` and returns the angle with Gaussian noise ``sigma`` (rad)."""
+    """A simulated bench: the true pendulum is hidden in a phast_gym env; ``reset`` lets it come to rest hanging
+    (a small angle left), ``step`` holds the input for ``dt`` and returns the angle with Gaussian noise ``sigma``."""
 
     def __init__(self, mass: float = 1.15, gamma: float = 0.08, coulomb: float = 0.05, motor_limit: float = 10.0,
                  sigma: float = 0.01, dt: float = 0.01, seed: int = 0) -> None:
-        self.system = Pendulum(mass=mass, gamma=gamma)
-        self.coulomb, self.motor_limit, self.sigma, self.dt = float(coulomb), float(motor_limit), float(sigma), float(dt)
+        system = FrictionPendulum(coulomb, mass=mass, gamma=gamma)
+        system.dt = float(dt)
+        self.env = PortHamiltonianEnv(system, max_action=motor_limit, obs_noise_std=sigma, dtype=np.float64,
+                                      substeps=max(1, math.ceil(4 * dt / Pendulum.dt)))
+        self.dt = float(dt)
         self.rng = np.random.default_rng(seed)
-        self.substeps = 4
-        self.x = np.zeros(2)
+        self._seed = int(seed)
 
     def reset(self) -> np.ndarray:
-        self.x = np.array([self.rng.uniform(-0.03, 0.03), 0.0])
-        return self._measure()
+        state = np.array([self.rng.uniform(-0.03, 0.03), 0.0])
+        q, _ = self.env.reset(seed=self._seed, options={"state": state})
+        self._seed += 1
+        return q
 
     def step(self, u: np.ndarray) -> np.ndarray:
-        tau = float(np.clip(np.asarray(u, dtype=np.float64).reshape(-1)[0], -self.motor_limit, self.motor_limit))
-        h = self.dt / self.substeps
-        for _ in range(self.substeps):
-            self.x = self._rk4(self.x, tau, h)
-        return self._measure()
-
-    def _measure(self) -> np.ndarray:
-        q = math.remainder(self.x[0], 2 * math.pi) + self.rng.normal(0.0, self.sigma)
-        return np.array([q])
-
-    def _rate(self, x: np.ndarray, tau: float) -> np.ndarray:
-        """Hamilton's equations of the hidden pendulum, its pivot friction (viscous in the system, Coulomb here)."""
-        (qdot,), (pdot,) = self.system.rhs((float(x[0]),), (float(x[1]),), (tau,))
-        return np.array([qdot, pdot - self.coulomb * math.tanh(qdot / 0.05)])
-
-    def _rk4(self, x: np.ndarray, tau: float, h: float) -> np.ndarray:
-        k1 = self._rate(x, tau)
-        k2 = self._rate(x + 0.5 * h * k1, tau)
-        k3 = self._rate(x + 0.5 * h * k2, tau)
-        k4 = self._rate(x + h * k3, tau)
-        return x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        q, *_ = self.env.step(np.asarray(u, dtype=np.float64).reshape(1))
+        return q
 
 
-def make(**kwargs: float) -> PendulumBench:
+def make(**kwargs: Any) -> PendulumBench:
     """The factory ``phast-rl --machine`` calls (with ``--machine-kwargs``)."""
     return PendulumBench(**kwargs)

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from phast_gym.env import parse_actuated_dofs
 from phast_gym.fileio import atomic_write_json
 
 from .hold import HoldConfig, HybridPolicy
@@ -147,7 +148,6 @@ def load_controller(run_dir: str | Path) -> HybridPolicy:
     agent = algo_class(cfg.agent.algo).load(run / "policy.zip", device="cpu")
     model = load_run(run / "model")
     system = plant_system(replace(cfg.plant, machine=None))
-    actuated = cfg.plant.env_kwargs.get("actuated_dofs")
-    actuated = list(range(system.n)) if actuated is None else [int(i) for i in actuated]
+    actuated = list(parse_actuated_dofs(cfg.plant.env_kwargs.get("actuated_dofs"), system.n))
     policy, _ = deployed_policy(cfg, agent, model, system, actuated, cfg.task.target(system))
     return policy

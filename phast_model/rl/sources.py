@@ -27,6 +27,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from phast_gym.env import parse_actuated_dofs
 from phast_gym.systems.base import System
 
 
@@ -93,7 +94,7 @@ class MachinePlant:
                  name: str = "machine") -> None:
         self.machine, self.system, self.name = machine, system, name
         self.n = int(system.n)
-        self.actuated_dofs = list(range(self.n)) if actuated_dofs is None else [int(i) for i in actuated_dofs]
+        self.actuated_dofs = list(parse_actuated_dofs(actuated_dofs, self.n))
         self.m = len(self.actuated_dofs)
         self.max_action = float(max_action)
         self.dt = float(machine_dt(machine))
