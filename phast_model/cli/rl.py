@@ -215,11 +215,9 @@ def deploy(cfg: LoopConfig, plant: Any, run_dir: str, out: Any, command: str) ->
 
 def keep_recordings(stop: Any, out: Any) -> int:
     """The loop stopped early: write what the plant recorded to ``out/recordings.npz`` and say how to continue."""
-    import numpy as np
+    from ..rl.loop_report import save_recordings
 
-    tmp = out / "recordings.tmp.npz"
-    np.savez(tmp, **stop.recordings)
-    path = tmp.replace(out / "recordings.npz")
+    path = save_recordings(stop.recordings, out)
     print(f"phast-rl: stopped after {stop.seconds:g} s of plant time ({stop}); what the plant recorded is in {path}: "
           f"continue with --recordings {path}", file=sys.stderr)
     return 130 if isinstance(stop.cause, KeyboardInterrupt) else 2

@@ -81,6 +81,13 @@ def save_agent(agent: Any, path: Path) -> Path:
     return path
 
 
+def save_recordings(recordings: dict[str, Any], out: Path) -> Path:
+    """``out/recordings.npz`` (the ``phast-train --recordings`` format), written to a temporary name and renamed."""
+    tmp = out / "recordings.tmp.npz"
+    np.savez(tmp, **recordings)
+    return tmp.replace(out / "recordings.npz")
+
+
 def write_outputs(result: LoopResult, out: Path, extra: dict[str, Any]) -> dict[str, Path]:
     """Write every output of the run into ``out``; ``extra`` is merged into summary.json (the config, the command)."""
     from ..train.checkpoint import save_run
@@ -88,9 +95,7 @@ def write_outputs(result: LoopResult, out: Path, extra: dict[str, Any]) -> dict[
     paths = {"policy": save_agent(result.agent, out / "policy.zip")}
     save_run(result.model, out / "model")
     paths["model"] = out / "model"
-    tmp = out / "recordings.tmp.npz"
-    np.savez(tmp, **result.recordings)
-    paths["recordings"] = tmp.replace(out / "recordings.npz")
+    paths["recordings"] = save_recordings(result.recordings, out)
     curves = learning_curves(result)
     paths["curves_json"] = atomic_write_json(out / "curves.json", curves)
     plot_learning_curves(curves, out / "curves.png")
