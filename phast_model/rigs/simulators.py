@@ -71,8 +71,8 @@ def load_object(spec: str, what: str = "simulator") -> Any:
     errors (ValueError)."""
     target, _, name = spec.rpartition(":")
     if not target or not name:
-        hint, name = ("an env id, ", "Class") if what == "simulator" else ("", "name")
-        raise ValueError(f"{what} {spec!r}: expected {hint}'package.module:{name}' or 'path/to/file.py:{name}'")
+        hint, noun = ("an env id, ", "Class") if what == "simulator" else ("", "name")
+        raise ValueError(f"{what} {spec!r}: expected {hint}'package.module:{noun}' or 'path/to/file.py:{noun}'")
     module = _import_target(spec, target, what)
     obj: Any = module
     for part in name.split("."):  # a nested name: module:Outer.Inner
