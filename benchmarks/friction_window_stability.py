@@ -29,11 +29,11 @@ SETTINGS = ((6, 9), (6, 17), (6, 23), (6, 33), (3, 45), (1, 51), (1, 101))
 def main(argv: list[str] | None = None) -> int:
     from real_pendulum_mismatch import DEFAULT_DATA, load
 
+    from phast_model.identify.recordings import validate
+    from phast_model.identify.shooting import smooth
     from phast_model.mismatch import analyze
     from phast_model.mismatch.evaluate import evaluate_models
     from phast_model.mismatch.friction import select_law
-    from phast_model.rigs.recordings import validate
-    from phast_model.rigs.shooting import smooth
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", type=Path, default=DEFAULT_DATA)

@@ -3,12 +3,12 @@
     .venv/bin/python benchmarks/identification_fragility.py --env WindyPendulum-v0 --regime known --seed 0 \\
         --perturbations 8 --out docs/results/identification_fragility.json
 
-The study, and how to run it against another checkout's code: :mod:`phast_model.bench.fragility`.
+The study, and how to run it against another checkout's code: benchmarks/fragility.py.
 """
 
 from __future__ import annotations
 
-from phast_model.bench.fragility import main
+from benchmarks.fragility import main
 
 if __name__ == "__main__":
     raise SystemExit(main())

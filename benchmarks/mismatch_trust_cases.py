@@ -36,8 +36,9 @@ RIG = f"{REPO / 'examples' / 'rigs' / 'triple_pendulum.py'}:TriplePendulum"
 
 def _case(name: str, seed: int) -> tuple[str, dict[str, Any], dict[str, Any], dict[str, Any]]:
     """(sim, sim_kwargs, recordings, analyze options) of one case."""
-    from phast_model.mismatch import Term, make_reality
-    from phast_model.rigs.simulators import load_simulator
+    from phast_model.bench.reality import make_reality
+    from phast_model.identify.simulators import load_simulator
+    from phast_model.mismatch import Term
 
     if name == "arm_motor":
         terms = [Term("armature", 0, 0.004), Term("armature", 1, 0.004), Term("coulomb_friction", 0, 0.1),

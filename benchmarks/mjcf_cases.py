@@ -2,32 +2,9 @@
 
     python benchmarks/mjcf_cases.py [--cases furuta arm3 ...] [--seed 0] [--out DIR]
 
-Each case has a nominal MJCF file (``benchmarks/mjcf_models/``).  Its "reality" is the same file edited through
-``mujoco.MjSpec`` (the effect hidden in MuJoCo's own terms: a joint's ``frictionloss`` / ``damping``, an actuator's
-``gear``, the bodies' ``mass`` / ``ipos`` / ``inertia``), written to a temporary file and simulated by MuJoCo
-(RK4, 1 ms) under closed-loop control: each recording interval (dt = 0.01 s) a PD controller (with gravity
-compensation from the nominal model for the arm) to smooth random targets computes the motor commands from the
-measured, noisy q; the commands actually applied are recorded as ``u``.  The tool gets the recordings (q with
-Gaussian noise, u, dt) and the NOMINAL file; the last 25% of the trajectories are held out.
-
-* ``furuta``: rotary pendulum, the arm driven about z, the pendulum unactuated; hidden: pendulum frictionloss.
-* ``arm3``: 3-joint arm (yaw, shoulder, elbow), 3 motors; hidden: shoulder damping and elbow frictionloss.
-* ``arm3_cad``: the same arm, every non-zero body mass / centre of mass / principal inertia 3-8% off its file
-  value (random signs); nothing else.
-* ``weak_motor``: the same arm, the shoulder motor's gear 0.85 instead of 1.
-* ``cartpole``: a cart on a rail with a hanging pole, force on the cart; hidden: pole-hinge damping and cart
-  frictionloss.
-
-A case is right (as in ``phast-mismatch-bench``) when
-* effect cases: the found rows (term, joint) are exactly the hidden ones, every coefficient within 30% of the
-  hidden MuJoCo value, and the augmented model's held-out rollout RMSE <= 0.7x the calibrated one;
-* ``arm3_cad``: no missing-physics row (parameter changes are the expected answer);
-* ``weak_motor``: no term other than ``actuator_gain`` on the shoulder, and the shoulder's delivered gain
-  (calibrated ``m_shoulder.gear`` times any ``actuator_gain`` coefficient) within 5% of 0.85.
-
-``--out DIR`` writes ``DIR/results.json`` and each case's report in ``DIR/<case>/``.  ``eff/noise`` in the table
-is the RMS of q(real) - q(nominal) over the first 100 samples of every trajectory, both driven open loop by the
-recorded commands from the true initial state, in units of the q-noise (as in ``phast-mismatch-bench``).
+The cases, their hidden effects and what counts as right are described in :mod:`phast_model.bench.mjcf_cases`
+(its model files ship with the package).  ``--out DIR`` writes ``DIR/results.json`` and each case's report in
+``DIR/<case>/``.
 """
 
 from __future__ import annotations
@@ -38,22 +15,9 @@ import sys
 from pathlib import Path
 
 from phast_model.bench.mjcf_cases import case_seed, cases, run_case, table
+from phast_model.train.provenance import code_commit
 
-HERE = Path(__file__).resolve().parent
-#: the cases, their nominal files beside this script
-CASES = cases(HERE / "mjcf_models")
-
-
-def _commit() -> str | None:
-    """The repository's commit (with "+dirty" when the working tree has changes), as the results record it."""
-    import subprocess
-
-    try:
-        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=HERE, capture_output=True, text=True, check=True)
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=HERE, capture_output=True, text=True)
-    except (OSError, subprocess.CalledProcessError):
-        return None
-    return head.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
+CASES = cases()
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -72,7 +36,7 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.out) if args.out else None
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
-    commit = _commit()
+    commit = code_commit(short=True, dirty=True)
     rows = []
     for name in args.cases or list(CASES):
         print(f"[{name}] recording and analysing ...", file=sys.stderr, flush=True)

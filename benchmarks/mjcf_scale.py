@@ -42,7 +42,7 @@ def arm_xml(n: int, frictionloss: float = 0.0) -> str:
 
 def record(path_real: str, n: int, n_traj: int, T: int, dt: float, seed: int) -> dict:
     """MuJoCo recordings of the real arm: smooth random torques (scaled per joint by the weight it carries)."""
-    from phast_model.rigs.mujoco_sim import rollout_q
+    from phast_model.identify.mujoco_sim import rollout_q
 
     rng = np.random.default_rng(seed)
     q0 = rng.uniform(-0.4, 0.4, (n_traj, n))

@@ -6,7 +6,7 @@
 For each case, on the same nominal MJCF file and the same recordings (same held-out trajectories):
 
 * ours: ``analyze(file, recordings, holdout_trajectories=..., rollout_window=...)``;
-* sysid: :func:`phast_model.rigs.sysid_peer.fit_with_sysid` on the training trajectories only, with the parameters a
+* sysid: :func:`sysid_peer.fit_with_sysid` on the training trajectories only, with the parameters a
   MuJoCo user would pick, ``joints`` (every joint's armature, damping, frictionloss) and ``joints+masses`` (and every
   body mass); each fitted model file is written out and simulated by MuJoCo;
 * one ``analyze(..., compare=...)`` call scores both sysid models (and the nominal file as MuJoCo simulates it,
@@ -102,7 +102,7 @@ def _edit(xml: Path, edits: dict[tuple[str, str], float], out: Path) -> Path:
     """The model file with joint attributes set (element 0 of the array attributes of mujoco >= 4.0)."""
     import mujoco
 
-    from phast_model.rigs.mjcf_write import set_joint_attr
+    from phast_model.identify.mjcf_write import set_joint_attr
 
     spec = mujoco.MjSpec.from_file(str(xml))
     for (joint, attr), v in edits.items():
@@ -125,7 +125,7 @@ def _smooth_torques(rng: np.random.Generator, n_traj: int, n_steps: int, dt: flo
 
 def synthetic_case(work: Path, seed: int = 0, n_traj: int = 12, T: int = 400, dt: float = 0.01,
                    noise: float = 0.002) -> Case:
-    from phast_model.rigs.mujoco_sim import rollout_q
+    from phast_model.identify.mujoco_sim import rollout_q
 
     work.mkdir(parents=True, exist_ok=True)
     nominal = work / "arm2_nominal.xml"
@@ -162,7 +162,7 @@ def dfki_case(data: Path) -> Case:
 
 def run_sysid(case: Case, out: Path, max_iters: int, weighting: str = "sysid") -> dict[str, Any]:
     """Both sysid fits on the training trajectories; each fitted file written to ``out``."""
-    from phast_model.rigs.sysid_peer import fit_with_sysid
+    from benchmarks.sysid_peer import fit_with_sysid
 
     n = int(np.shape(case.arrays["q"])[0])
     train = [k for k in range(n) if k not in case.holdout]
@@ -179,7 +179,7 @@ def run_sysid(case: Case, out: Path, max_iters: int, weighting: str = "sysid") -
 
 
 def _compare_models(case: Case, out: Path) -> dict[str, Any]:
-    from phast_model.rigs.mujoco_sim import mujoco_simulated
+    from phast_model.identify.mujoco_sim import mujoco_simulated
 
     models = {"mujoco_nominal": mujoco_simulated(case.xml)}
     if case.real_xml is not None:  # the synthetic reality itself: the floor set by the noise and initial-state fits

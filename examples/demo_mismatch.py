@@ -23,7 +23,8 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 
 def run(out_dir: pathlib.Path, real_T: int = 4000) -> dict:
     """Both analyses; returns headline numbers."""
-    from phast_model.mismatch import Term, analyze, make_reality
+    from phast_model.bench.reality import make_reality
+    from phast_model.mismatch import Term, analyze
 
     out_dir = pathlib.Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

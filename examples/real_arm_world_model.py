@@ -19,8 +19,8 @@ from pathlib import Path
 
 from real_double_pendulum_mismatch import DEFAULT_DATA, DEFAULT_HOLDOUT, ROLLOUT_WINDOW_S, identified_system, load
 
-from phast_model.rig.fit import RigTrainConfig
-from phast_model.rig.run import RecordingsSpec, example_cli, headline, train_recordings_run
+from phast_model.train.rig_fit import RigTrainConfig
+from phast_model.train.rig_run import RecordingsSpec, example_cli, headline, train_recordings_run
 
 #: phast-mismatch's augmented model and the authors' identified model on the same held-out runs and window length,
 #: as phast-mismatch's own held-out code scores them (docs/mismatch.md, "A real two-motor arm"); the run scores

@@ -17,8 +17,8 @@ from pathlib import Path
 
 from real_pendulum_mismatch import DEFAULT_DATA, load
 
-from phast_model.rig.fit import RigTrainConfig
-from phast_model.rig.run import RecordingsSpec, example_cli, headline, train_recordings_run
+from phast_model.train.rig_fit import RigTrainConfig
+from phast_model.train.rig_run import RecordingsSpec, example_cli, headline, train_recordings_run
 
 #: segments 5-6 (0-based 4, 5)
 HOLDOUT = (4, 5)
@@ -36,7 +36,7 @@ def run(data: Path, out: Path, regime: str = "partial", epochs: int = RigTrainCo
         progress: bool = True) -> dict:
     rec, kwargs = load(data)
     spec = RecordingsSpec(rec, "PHAST/Pendulum-v0", kwargs, regime, HOLDOUT, None, decimate=DECIMATE)
-    # UNKNOWN starts from the recorded motion (phast_model.rig.motion_start): no window warm-up is needed
+    # UNKNOWN starts from the recorded motion (phast_model.train.motion_start): no window warm-up is needed
     train = RigTrainConfig(epochs=epochs, window_s=WINDOW_S, state_iters=STATE_ITERS, progress=progress)
     metrics = train_recordings_run(spec, out, train)
     return headline(metrics, regime, REFERENCE, out)

@@ -2,8 +2,6 @@
 
 from phast_gym.control.estimators import register_estimator_provider
 
-from . import moved
-
 __version__ = "0.1.0"
 
 #: port estimators that importing :mod:`phast_model.control` registers (torch-based).  Declared here, where
@@ -11,6 +9,3 @@ __version__ = "0.1.0"
 #: imports :mod:`phast_model.control` on first use: phast_gym itself never names this package.
 CONTROL_ESTIMATORS = ("tcn", "tcn-uniform", "tcn-cond", "phast-observer", "phast-model", "phast-ukf")
 register_estimator_provider("phast_model.control", CONTROL_ESTIMATORS)
-
-#: old module paths (phast_model.model, phast_model.training, ...) import their new modules, with a warning
-moved.install()

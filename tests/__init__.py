@@ -1,5 +1,5 @@
 """The test suite, laid out like the packages: ``gym/`` (phast_gym), ``world/``, ``components/``, ``train/``,
-``baselines/``, ``rig/``, ``rigs/``, ``mismatch/``, ``control/``, ``rl/``, ``bench/`` (phast_model and the benchmark
+``baselines/``, ``identify/``, ``mismatch/``, ``control/``, ``rl/``, ``bench/`` (phast_model and the benchmark
 scripts' library code), ``examples/`` and ``codebase/`` (the static rules).  Tests import the packages; a script of
 ``benchmarks/`` or ``examples/`` is run as a subprocess, never imported."""
 

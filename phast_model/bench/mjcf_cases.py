@@ -1,7 +1,7 @@
 """Concealed-effect cases for ``phast-mismatch`` with a MuJoCo model file as the simulator.
 
 ``benchmarks/mjcf_cases.py`` runs them.  Each case has a nominal MJCF file (the repository's
-``benchmarks/mjcf_models/``, :func:`cases`).  Its "reality" is the same file edited through ``mujoco.MjSpec`` (the
+``mjcf_models/`` beside this module, :func:`cases`).  Its "reality" is the same file edited through ``mujoco.MjSpec`` (the
 effect hidden in MuJoCo's own terms: a joint's ``frictionloss`` / ``damping``, an actuator's ``gear``, the bodies'
 ``mass`` / ``ipos`` / ``inertia``), written to a temporary file and simulated by MuJoCo (RK4, 1 ms) under
 closed-loop control: each recording interval (dt = 0.01 s) a PD controller (with gravity compensation from the
@@ -42,7 +42,9 @@ from typing import Any
 import numpy as np
 
 #: where the repository keeps the cases' nominal files; the results name a case's model by this path
-MODELS_LABEL = "benchmarks/mjcf_models"
+#: the nominal model files, shipped as package data
+MODELS_DIR = Path(__file__).resolve().parent / "mjcf_models"
+MODELS_LABEL = "phast_model/bench/mjcf_models"
 DT = 0.01
 #: the held-out share of the trajectories (the last ones)
 HOLDOUT_SHARE = 0.25
@@ -144,8 +146,8 @@ CASES: dict[str, Case] = {c.name: c for c in [
 # ----------------------------------------------------------------------------------------------------- the models
 
 
-def cases(models_dir: str | Path) -> dict[str, Case]:
-    """:data:`CASES` with their nominal files in ``models_dir`` (the repository's ``benchmarks/mjcf_models``)."""
+def cases(models_dir: str | Path = MODELS_DIR) -> dict[str, Case]:
+    """:data:`CASES` with their nominal files in ``models_dir`` (by default the package's ``mjcf_models``)."""
     return {name: replace(c, models_dir=Path(models_dir)) for name, c in CASES.items()}
 
 
@@ -330,7 +332,7 @@ def record(case: Case, real_path: str | Path, n_traj: int, T: int, seed: int, no
 def effect_over_noise(case: Case, real_path: str | Path, rec: dict[str, Any], window: int = 100) -> float:
     """RMS of q(real) - q(nominal), both open loop under the recorded commands from the true initial states, over
     the first ``window`` samples, in units of the q-noise."""
-    from ..rigs.mujoco_sim import rollout_q
+    from ..identify.mujoco_sim import rollout_q
 
     n_steps = min(window, rec["u"].shape[1])
     ctrl = rec["u"][:, :n_steps]

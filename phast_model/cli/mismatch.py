@@ -98,9 +98,9 @@ def write_error_log(out_dir: str) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    from phast_model.identify.split import check_holdout_indices
     from phast_model.mismatch import Options, analyze
     from phast_model.mismatch.report.files import check_writable
-    from phast_model.rigs.holdout import check_holdout_indices
 
     try:
         check_args(args)

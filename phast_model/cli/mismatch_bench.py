@@ -186,8 +186,8 @@ def _sindy_fit(case: Case, rec: dict[str, Any], threshold: float) -> dict[str, A
 
     from phast_gym.registry import make_env_system
     from phast_gym.systems.base import NUMPY
+    from phast_model.identify.shooting import momentum
     from phast_model.mismatch.vocabulary.registry import VOCABULARY
-    from phast_model.rigs.shooting import momentum
 
     t0 = time.time()
     sys0 = make_env_system(case.env_id, **case.sim_kwargs)
@@ -249,7 +249,8 @@ def reality_env(case: Case) -> Any:
 
 
 def make_case_data(case: Case, n_traj: int, T: int, seed: int) -> dict[str, Any]:
-    from phast_model.mismatch import Term, make_reality
+    from phast_model.bench.reality import make_reality
+    from phast_model.mismatch import Term
 
     return make_reality(reality_env(case), [Term(*t) for t in case.terms], true_kwargs={**case.sim_kwargs, **case.params}, n_traj=n_traj,
                         T=T, noise_std=case.noise, seed=seed, u_std=case.u_std, x0_scale=case.x0_scale)
@@ -261,7 +262,8 @@ def effect_size(case: Case, n_traj: int, T: int, seed: int, window: int = 100) -
     Same initial states and inputs, no noise: how far the hidden effect moves q
     in the time a person would look at; ~1 means buried in the noise.
     """
-    from phast_model.mismatch import Term, make_reality
+    from phast_model.bench.reality import make_reality
+    from phast_model.mismatch import Term
 
     kw: dict[str, Any] = dict(n_traj=n_traj, T=min(T, window), noise_std=0.0, seed=seed, u_std=case.u_std, x0_scale=case.x0_scale)
     a = make_reality(reality_env(case), [Term(*t) for t in case.terms], true_kwargs={**case.sim_kwargs, **case.params}, **kw)["q"]

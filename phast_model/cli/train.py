@@ -8,7 +8,7 @@
 With ``--recordings`` (the ``phast-mismatch`` format: q, t or dt, u, angle_dims, angle_offset) the rig ``--sim``
 (an env id or ``path/to/rig.py:Class``) gives the V and M templates and the port; the model learns joint friction
 and is scored on the held-out recordings against the nominal rig (``metrics.json["heldout"]``):
-:func:`phast_model.rig.run.train_recordings_run`.  It writes ``checkpoint.pt`` after every epoch too, and
+:func:`phast_model.train.rig_run.train_recordings_run`.  It writes ``checkpoint.pt`` after every epoch too, and
 ``--resume`` continues from it; ``--patience N`` stops once the validation windows' RMSE has not improved for N epochs.
 
 Writes ``model.pt``, ``config.json``, ``metrics.json`` (Table 16 keys on the test split
@@ -145,7 +145,7 @@ def _named(items: list[str], flag: str) -> dict[str, str]:
 
 def _compared_systems(args: argparse.Namespace) -> dict[str, Any] | None:
     """The ``--compare`` models, built with their ``--compare-kwargs`` (default: the rig's ``--sim-kwargs``)."""
-    from ..rigs.simulators import load_simulator
+    from ..identify.simulators import load_simulator
 
     sims, kwargs = _named(args.compare, "--compare"), _named(args.compare_kwargs, "--compare-kwargs")
     unknown = sorted(set(kwargs) - set(sims))
@@ -158,8 +158,8 @@ def _compared_systems(args: argparse.Namespace) -> dict[str, Any] | None:
 
 def _recordings_main(args: argparse.Namespace) -> dict[str, Any]:
     """The ``--recordings`` path: checks, training, held-out score; returns what to print."""
-    from ..rig.fit import RigTrainConfig
-    from ..rig.run import RecordingsSpec, heldout_summary, train_recordings_run
+    from ..train.rig_fit import RigTrainConfig
+    from ..train.rig_run import RecordingsSpec, heldout_summary, train_recordings_run
 
     if args.env is not None:
         raise ValueError("give either --env or --recordings, not both")

@@ -5,11 +5,11 @@ docs/mismatch.md; ``Report.write(out_dir)`` writes report.json / report.md / rep
 
 The pipeline, in the order :mod:`.analysis` runs it (the folder shows it):
 
-1. **load recordings** -- :mod:`phast_model.rigs.recordings` (one container and loader, shared with the world model)
-   and :mod:`phast_model.rigs.holdout` (the split: the *held-out* recordings are set aside here and no stage fits
-   them); the simulator from :mod:`phast_model.rigs.simulators`;
+1. **load recordings** -- :mod:`phast_model.identify.recordings` (one container and loader, shared with the world model)
+   and :mod:`phast_model.identify.split` (the split: the *held-out* recordings are set aside here and no stage fits
+   them); the simulator from :mod:`phast_model.identify.simulators`;
 2. **prepare** -- :mod:`.fitting.problem` (noise, scales, shooting windows; the shooting fit is
-   :mod:`phast_model.rigs.shooting`) with :mod:`.fitting.linear` and the knobs of :mod:`.options`;
+   :mod:`phast_model.identify.shooting`) with :mod:`.fitting.linear` and the knobs of :mod:`.options`;
 3. **calibrate** -- :mod:`.calibrate`: the nominal fit and the parameter combinations the recordings determine;
 4. **screen candidates** -- :mod:`.vocabulary` (:mod:`~.vocabulary.registry` of term kinds, :mod:`~.vocabulary.terms`
    and the augmented model, :mod:`~.vocabulary.candidates`, :mod:`~.vocabulary.screening`);
@@ -32,12 +32,10 @@ the other, :mod:`.select`, ``Selection.validation``); *leave-one-out* (each trai
 turn, :mod:`.friction.lawselect` and :func:`.friction.weakid.check_parameters`).
 """
 
-from ..rigs.recordings import Recordings, load_raw, validate
+from ..identify.recordings import Recordings, load_raw, validate
 from .analysis import analyze
 from .options import Options
 from .report import Report
-from .synth import make_reality
 from .vocabulary.terms import VOCABULARY, AugmentedSystem, Term
 
-__all__ = ["analyze", "Options", "Report", "Recordings", "load_raw", "validate", "VOCABULARY", "AugmentedSystem", "Term",
-           "make_reality"]
+__all__ = ["analyze", "Options", "Report", "Recordings", "load_raw", "validate", "VOCABULARY", "AugmentedSystem", "Term"]

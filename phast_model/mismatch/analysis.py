@@ -3,7 +3,7 @@
 Everything that decides (calibration, term selection, coefficients and their
 95% intervals, the held-out comparison) is a *fit by simulation*: multiple
 shooting of the nominal / augmented simulator on windows of the recordings
-(:mod:`phast_model.rigs.shooting`).  Smoothed derivatives are used only to seed window states
+(:mod:`phast_model.identify.shooting`).  Smoothed derivatives are used only to seed window states
 and to draw the residual map, so the answer does not move with the filter.
 
 Stages: :mod:`.fitting.problem` (noise, scales, windows), :mod:`.calibrate`,
@@ -26,13 +26,13 @@ import numpy as np
 
 from phast_gym.systems.base import System
 
-from ..rigs.holdout import check_holdout_indices, check_holdout_range, split
-from ..rigs.recordings import Recordings, load_raw, validate
-from ..rigs.shooting import odd, time_scale
-from ..rigs.simulators import Simulator, load_simulator
+from ..identify.recordings import Recordings, load_raw, validate
+from ..identify.shooting import odd, time_scale
+from ..identify.simulators import Simulator, load_simulator
+from ..identify.split import check_holdout_indices, check_holdout_range, split
 from .calibrate import calibration, explained_share, screen_parameters
 from .energy import energy_check
-from .evaluate import FitTable, HeldOut, held_out
+from .evaluate import FitTable, HeldOut, check_rollout_window, held_out
 from .explainers import Context, Explained, Explainer, ShootingExplainer, explain_in_turn
 from .fitting.problem import Problem, prepare
 from .locate import locate
@@ -183,16 +183,19 @@ def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mappin
         check_holdout_range(holdout, given.n_traj)
     rec, dec = _decimate(given, opts)
     train, hold, evaluated_on = split(rec, holdout_fraction, holdout)
-    log(f"{simulator.name}: {rec.n_traj} recordings x {rec.T} samples, dt={rec.dt}")
-    problem = prepare(simulator, sys0, train, opts, log)
-    held = held_out(hold, evaluated_on, problem.sigma, problem.x_scale, problem.shoot_window, problem.smoothing_window, opts.rollout_window)
+    check_rollout_window(opts.rollout_window, rec.dt)
     check_free(opts.free, simulator.numeric_params(sys0))
     comparison = _compared(compare, sys0, simulator.name)
-    inputs = _Inputs(simulator, given, dec, train, hold, held, comparison, tuple(EXPLAINERS if explainers is None else explainers))
-    try:
+    log(f"{simulator.name}: {rec.n_traj} recordings x {rec.T} samples, dt={rec.dt}")
+    try:  # the input was checked above: anything raised from here on is the tool's own failure
+        problem = prepare(simulator, sys0, train, opts, log)
+        held = held_out(hold, evaluated_on, problem.sigma, problem.x_scale, problem.shoot_window, problem.smoothing_window,
+                        opts.rollout_window)
+        inputs = _Inputs(simulator, given, dec, train, hold, held, comparison,
+                         tuple(EXPLAINERS if explainers is None else explainers))
         report = _second_look(problem, inputs, _explain(problem, inputs))
         return answer_in_model_terms(report, sys0, held, given) if is_model_file_system(sys0) else report
-    except ValueError as exc:  # the input was checked above: anything raised now is the tool's own failure
+    except ValueError as exc:
         raise InternalError(f"internal failure of the analysis: {type(exc).__name__}: {exc}") from exc
 
 

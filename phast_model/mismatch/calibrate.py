@@ -25,8 +25,8 @@ import scipy.linalg
 
 from phast_gym.systems.base import System
 
-from ..rigs.shooting import Shooter, ShootFit
-from ..rigs.simulators import known_params
+from ..identify.shooting import Shooter, ShootFit
+from ..identify.simulators import known_params
 from .fitting.linear import flat, rel_resid
 from .fitting.problem import Problem
 from .vocabulary.candidates import Family, ParamCandidate

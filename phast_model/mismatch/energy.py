@@ -15,8 +15,8 @@ import numpy as np
 
 from phast_gym.systems.base import NUMPY, System
 
-from ..rigs.recordings import Recordings
-from ..rigs.shooting import momentum, smooth
+from ..identify.recordings import Recordings
+from ..identify.shooting import momentum, smooth
 from .options import Z95
 
 

@@ -1,6 +1,6 @@
 """Held-out evaluation (docs/mismatch.md, "Show the fit"): rollout windows, one-step MSE and open-loop rollout RMSE.
 
-*Held-out* means one thing in the tool: the recordings the split (:mod:`phast_model.rigs.holdout`) sets aside before
+*Held-out* means one thing in the tool: the recordings the split (:mod:`phast_model.identify.split`) sets aside before
 any stage runs, which nothing is fitted to.  The other two checks on recordings left out of a fit are named apart:
 the selection's *two-fold validation* on the training recordings (:mod:`.select`) and the *leave-one-out* of the
 friction-law selection and the weak-form parameter check (:mod:`.friction`).
@@ -15,8 +15,8 @@ import numpy as np
 
 from phast_gym.systems.base import System
 
-from ..rigs.recordings import Recordings
-from ..rigs.shooting import Shooter, Windows, angle_diff, odd, simulate_qv, smooth, substeps_for
+from ..identify.recordings import Recordings
+from ..identify.shooting import Shooter, Windows, angle_diff, odd, simulate_qv, smooth, substeps_for
 
 #: fewest samples of a held-out rollout window
 MIN_ROLLOUT_SAMPLES = 20
@@ -236,6 +236,12 @@ class HeldOut:
         return FitTable(scores, self.evaluated_on, setup), rollouts
 
 
+def check_rollout_window(rollout_window: float | None, dt: float) -> None:
+    """ValueError (the user's input) when a rollout window of ``rollout_window`` seconds holds too few samples."""
+    if rollout_window is not None and int(round(rollout_window / dt)) + 1 < MIN_ROLLOUT_SAMPLES:
+        raise ValueError(f"rollout_window {rollout_window} s is shorter than {MIN_ROLLOUT_SAMPLES} samples (dt={dt})")
+
+
 def held_out(hold: Recordings, evaluated_on: str, sigma: np.ndarray, x_scale: np.ndarray, shoot_window: int, smoothing_window: int,
              rollout_window: float | None) -> HeldOut:
     """The held-out comparison: rollout windows of ``rollout_window`` seconds (default: whole trajectories), initial
@@ -245,10 +251,8 @@ def held_out(hold: Recordings, evaluated_on: str, sigma: np.ndarray, x_scale: np
     scale = hold.q.reshape(-1, n).std(0) if mixed else np.ones(n)
     rec = hold
     if rollout_window is not None:
-        W = int(round(rollout_window / dt)) + 1
-        if W < MIN_ROLLOUT_SAMPLES:
-            raise ValueError(f"rollout_window {rollout_window} s is shorter than {MIN_ROLLOUT_SAMPLES} samples (dt={dt})")
-        rec = hold.windows(W)
+        check_rollout_window(rollout_window, dt)
+        rec = hold.windows(int(round(rollout_window / dt)) + 1)
     init_samples = int(min(rec.T, max(10, shoot_window // 4)))
     return HeldOut(rec, hold, evaluated_on, sigma, x_scale, scale, init_samples, min(smoothing_window, odd(rec.T // 2 - 1)), mixed,
                    rollout_window is not None)

@@ -26,8 +26,8 @@ import numpy as np
 
 from phast_gym.systems.base import System
 
-from ..rigs.frictioncurve import FrictionCurve
-from ..rigs.shooting import ShootFit
+from ..identify.frictioncurve import FrictionCurve
+from ..identify.shooting import ShootFit
 from .calibrate import Calibration
 from .evaluate import FitTable, HeldOut
 from .fitting.problem import Problem

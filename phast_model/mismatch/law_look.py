@@ -20,7 +20,7 @@ import numpy as np
 
 from phast_gym.systems.base import System
 
-from ..rigs.shooting import ShootFit
+from ..identify.shooting import ShootFit
 from .calibrate import followed_windows
 from .fitting.problem import Problem, longer_windows, smoothed_states
 

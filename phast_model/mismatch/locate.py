@@ -2,7 +2,7 @@
 
 The local residual force is d/dt p - F(q, qdot, u) with both sides passed
 through the same filter (the momentum derivative and the smoothing of the model
-force along the smoothed path; a :class:`~phast_model.rigs.signals.Differentiator`,
+force along the smoothed path; a :class:`~phast_model.identify.signals.Differentiator`,
 the cubic Savitzky-Golay filter by default).  It only describes the
 mismatch (and draws the residual map); nothing is fitted to it.
 """
@@ -16,8 +16,8 @@ import numpy as np
 from phast_gym.systems import wrap
 from phast_gym.systems.base import System
 
-from ..rigs.recordings import Recordings
-from ..rigs.signals import SAVGOL, Differentiator
+from ..identify.recordings import Recordings
+from ..identify.signals import SAVGOL, Differentiator
 from .friction import momentum_balance
 
 

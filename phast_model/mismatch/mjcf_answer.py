@@ -18,9 +18,9 @@ import numpy as np
 from phast_gym.systems.mjcf import MJCFSystem
 from phast_gym.systems.mjcf_tree import MJCFTree, ModelFileError
 
-from ..rigs.mjcf_write import Edit, calibrated_xml
-from ..rigs.mujoco_sim import mujoco_simulated
-from ..rigs.recordings import Recordings
+from ..identify.mjcf_write import Edit, calibrated_xml
+from ..identify.mujoco_sim import mujoco_simulated
+from ..identify.recordings import Recordings
 from .evaluate import HeldOut
 from .report.document import Report
 from .report.files import CALIBRATED_MODEL

@@ -6,7 +6,7 @@ import time
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
-from ..rigs.weakform import SIGN_SMOOTHING_REL
+from ..identify.weakform import SIGN_SMOOTHING_REL
 
 #: two-sided 95% normal quantile (the reported intervals)
 Z95 = 1.959964

@@ -31,7 +31,7 @@ from scipy.stats import t as student_t
 
 from phast_gym.systems.base import System
 
-from ..rigs.shooting import ShootFit
+from ..identify.shooting import ShootFit
 from .calibrate import ParameterScreen
 from .fitting.linear import flat, orth_against
 from .fitting.problem import Problem

@@ -7,7 +7,7 @@ loop, which large swings' phase drift dominates) need not predict anything.
 So the answer is built from time-resolved, local evidence instead, every choice
 made by prediction on recordings not used for the fit:
 
-* the weak-form momentum balance (one filter on both sides, :mod:`phast_model.rigs.weakform`)
+* the weak-form momentum balance (one filter on both sides, :mod:`phast_model.identify.weakform`)
   under the simulator at the user's values (a shooting calibration made before
   any friction term may have absorbed friction);
 * which parameters to calibrate (:func:`.friction.weakid.check_parameters`): those whose
@@ -41,8 +41,8 @@ import numpy as np
 
 from phast_gym.systems.base import ParameterError, System
 
-from ..rigs.frictioncurve import FrictionCurve, friction_curve
-from ..rigs.shooting import Shooter, ShootFit
+from ..identify.frictioncurve import FrictionCurve, friction_curve
+from ..identify.shooting import Shooter, ShootFit
 from .calibrate import Calibration
 from .evaluate import HeldOut
 from .explainers import Answer, Context, Declined

@@ -53,7 +53,7 @@ def friction_laws(sim: str) -> tuple[str, ...] | None:
     """The joint-friction laws the description ``sim`` declares (``PHAST_FRICTION_LAWS``), None if it declares none."""
     if ":" not in sim or sim.startswith("phast_gym:"):
         return None
-    from ..rigs.simulators import load_simulator
+    from ..identify.simulators import load_simulator
 
     laws = getattr(type(load_simulator(sim).build()), "PHAST_FRICTION_LAWS", None)
     return None if laws is None else tuple(laws)

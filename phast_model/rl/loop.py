@@ -10,7 +10,7 @@ recordings and the policy's own episodes.  The world-model episodes start from w
 (:mod:`.world_env`), so they cost nothing more.  The final evaluation (``eval_trials`` episodes, not used for
 learning) is reported apart.
 
-* the fit is the rig path of ``phast-train --recordings`` (:func:`phast_model.rig.load_rig_data`, ``rig_config``,
+* the fit is the rig path of ``phast-train --recordings`` (:func:`phast_model.train.rig_fit.load_rig_data`, ``rig_config``,
   ``build``, ``fit_recordings``): PARTIAL, the rig description's templates with every coefficient refitted and the
   joint friction learned; later iterations continue from the previous model (warm start, ``refit_epochs``);
 * the agent is SB3's (SAC by default, reflection-equivariant for symmetric plants: :mod:`.mirror_policy`), trained
@@ -265,12 +265,12 @@ def fit_world_model(cfg: LoopConfig, recordings: dict[str, Any], model: Any | No
     """Fit PHAST to all recordings so far by the rig path; continue from ``model`` when given (warm start: the
     rig-template initialisation is skipped and ``refit_epochs`` run at ``lr_mult``, the first fit's rate factor).
 
-    The first fit's factor is the rig path's (:func:`phast_model.rig.fit.lr_mult`): 1, or 1% after UNKNOWN's start
+    The first fit's factor is the rig path's (:func:`phast_model.train.rig_fit.lr_mult`): 1, or 1% after UNKNOWN's start
     from the recorded motion, a fitted model that is refined, not relearned.  Refits keep it: at the base rates the
     first UNKNOWN refit of the pendulum undid the start (validation RMSE 0.008 -> 0.24 rad, the upright no longer a
     maximum of V_hat)."""
-    from ..rig import RigTrainConfig, build, fit_recordings, load_rig_data, rig_config
-    from ..rig.fit import lr_mult as rig_lr_mult
+    from ..train.rig_fit import RigTrainConfig, build, fit_recordings, load_rig_data, rig_config
+    from ..train.rig_fit import lr_mult as rig_lr_mult
 
     data = load_rig_data(recordings, cfg.sim, cfg.fit.sim_kwargs)
     if model is None:

@@ -70,9 +70,9 @@ class PlantSpec:
 
 
 def plant_system(spec: PlantSpec) -> System:
-    """The plant's physics (an env id or a user's rig class, :func:`phast_model.rigs.simulators.load_simulator`)
+    """The plant's physics (an env id or a user's rig class, :func:`phast_model.identify.simulators.load_simulator`)
     sampled at ``spec.dt`` (RK4 substeps scaled so the substep does not grow)."""
-    from ..rigs.simulators import load_simulator
+    from ..identify.simulators import load_simulator
 
     system = load_simulator(spec.env_id, spec.physical_kwargs).build()
     base_dt, base_sub = type(system).dt, type(system).substeps

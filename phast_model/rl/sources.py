@@ -44,7 +44,7 @@ class Machine(Protocol):
 def load_machine(spec: str, kwargs: dict[str, Any] | None = None) -> Machine:
     """The machine made by the factory ``spec`` called with ``kwargs`` (a class is a factory too); ValueError when
     it cannot be loaded or called, or lacks ``reset``, ``step`` or a positive ``dt``."""
-    from ..rigs.simulators import load_object
+    from ..identify.simulators import load_object
 
     factory = load_object(spec, "machine")
     if not callable(factory):
@@ -135,9 +135,9 @@ class Prior:
 def load_prior(path: str | Path | dict[str, Any], system: System, actuated_dofs: list[int], decision_dt: float,
                episode_decisions: int) -> Prior:
     """Read recordings (the rig format: ``q`` (N, T, n), ``u`` (N, T-1, m), ``dt`` or ``t``) of the described rig,
-    check them (:func:`phast_model.rigs.recordings.validate`), check they are sampled at the loop's decision step
+    check them (:func:`phast_model.identify.recordings.validate`), check they are sampled at the loop's decision step
     and cut them into consecutive pieces of ``episode_decisions`` intervals; ValueError naming the problem."""
-    from ..rigs.recordings import load_raw, validate
+    from ..identify.recordings import load_raw, validate
 
     raw, src = load_raw(path)
     rec = validate(raw, system.n, tuple(system.angle_dims), src, min_samples=2,

@@ -5,7 +5,7 @@ training recordings plus the burn-in windows of its episodes.  This module makes
 a real rig would: record the plant (``PHAST/DampedPendulum-v0`` at 0.01 s, the control benchmark's plant) driven
 by random piecewise-constant torques from the start regimes of ``phast_gym.control`` (two of the five start
 within 0.8 rad of the upright, so the recordings visit it), measured every decision (0.05 s) with noise
-``sigma``, and learn a PARTIAL model with ``phast-train --recordings`` (``phast_model.rig``): the rig description
+``sigma``, and learn a PARTIAL model with ``phast-train --recordings`` (``phast_model.train.rig_fit``): the rig description
 (default: the *undamped* ``PHAST/Pendulum-v0`` with a 10% heavier nominal mass) gives the ``1 - cos q`` template,
 whose coefficients are refitted, and the joint friction that the description leaves out is learned.
 
@@ -99,8 +99,8 @@ def train_world_model(spec: PlantRecording, out: Path, sim: str, sim_kwargs: dic
                       window_s: float, holdout: tuple[int, ...], seed: int = 0, progress: bool = False) -> dict[str, Any]:
     """Record the plant, train the PARTIAL recordings model into ``out`` and write the recordings and
     :data:`WORLD_DATA_FILE` beside it; returns the run's metrics."""
-    from ..rig.fit import RigTrainConfig
-    from ..rig.run import RecordingsSpec, train_recordings_run
+    from ..train.rig_fit import RigTrainConfig
+    from ..train.rig_run import RecordingsSpec, train_recordings_run
 
     rec = record_plant(spec)
     t0 = time.time()

@@ -8,7 +8,7 @@ epoch (a curriculum may start a fresh one), a start-of-epoch hook and what its c
 
 * next-step prediction over whole trajectories (the env path, :class:`phast_model.train.fit.NextStep`);
 * multiple shooting on windows of a rig's recordings, with each window's initial state refitted by Gauss-Newton at
-  the start of every epoch (the rig path, :class:`phast_model.rig.fit.Shooting`).
+  the start of every epoch (the rig path, :class:`phast_model.train.rig_fit.Shooting`).
 
 NaN guard: a minibatch whose loss or gradient norm is not finite makes no update (``nan_skipped``); a step that
 leaves non-finite parameters is rolled back to the model and optimizer of the epoch's start, and the learning rates
@@ -195,7 +195,7 @@ def _canonical(obj: Any) -> Any:
 
 def run_identity(cfg: DataclassInstance, identity: dict[str, Any] | None = None) -> dict[str, Any]:
     """What a checkpoint must match to be resumed: the training config (a :class:`TrainConfig`, or the rig path's
-    :class:`phast_model.rig.fit.RigTrainConfig`; all its fields but ``progress``) and the caller's
+    :class:`phast_model.train.rig_fit.RigTrainConfig`; all its fields but ``progress``) and the caller's
     ``identity`` (env, regime, data, model overrides ...), as canonical JSON values."""
     train = {k: v for k, v in asdict(cfg).items() if k not in _NOT_IDENTITY}
     return _canonical({"train": train, **(identity or {})})

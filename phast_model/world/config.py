@@ -33,7 +33,7 @@ class PHASTConfig:
     #: where learned physics starts: "data" (least squares on the training set at the start of training,
     #: :mod:`phast_model.world.data_init`), "physics" (template and mass fitted to the env's true V and M: the
     #: "V given" variant), "rig" (a recordings run: the rig's nominal V and M at the recorded configurations,
-    #: :func:`phast_model.rig.fit_recordings`) or "none" (unit coefficients, identity mass)
+    #: :func:`phast_model.train.rig_fit.fit_recordings`) or "none" (unit coefficients, identity mass)
     init_from: str = "data"
     damping: str = "householder"  # householder | known | none
     damping_rank: int = 2
@@ -68,7 +68,7 @@ class PHASTConfig:
     roll_mode: str = "core"
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     #: a user rig or env id for recordings (``path.py:Class``, ``module:Class`` or an env id, with ``env_kwargs``);
-    #: None: ``env_id`` names the system (phast_model.rigs.simulators.load_simulator resolves it)
+    #: None: ``env_id`` names the system (phast_model.identify.simulators.load_simulator resolves it)
     sim: str | None = None
     #: the model's sampling step when it differs from the system's own ``dt`` (recordings: their grid)
     dt: float | None = None
@@ -134,7 +134,7 @@ def config_system(cfg: PHASTConfig, system: System | None = None) -> tuple[str, 
         name = resolve_env_id(cfg.env_id)
         system = make_env_system(name, **cfg.env_kwargs) if system is None else system
     else:
-        from ..rigs.simulators import load_simulator
+        from ..identify.simulators import load_simulator
 
         name, system = cfg.sim, load_simulator(cfg.sim, cfg.env_kwargs).build()
     if cfg.dt is not None:

@@ -1,4 +1,4 @@
-"""phast_model.bench.fragility (benchmarks/identification_fragility.py): spike detection, perturbation, and a tiny
+"""benchmarks/fragility.py (run by benchmarks/identification_fragility.py): spike detection, perturbation, and a tiny
 end-to-end study."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ from pathlib import Path
 
 import torch
 
-from phast_model.bench import fragility
+from benchmarks import fragility
 
 
 def test_loss_spikes_compare_with_the_running_minimum() -> None:

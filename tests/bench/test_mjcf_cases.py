@@ -9,10 +9,9 @@ import pytest
 pytest.importorskip("mujoco")
 
 from phast_model.bench import mjcf_cases as mc  # noqa: E402
-from tests import ROOT  # noqa: E402
 
 #: the cases with the repository's nominal model files
-CASES = mc.cases(ROOT / "benchmarks" / "mjcf_models")
+CASES = mc.cases()
 CASE_NAMES = list(CASES)
 
 
@@ -58,7 +57,7 @@ def test_recordings_have_the_tools_shapes_and_are_muJoCos_trajectories(name, tmp
     open-loop MuJoCo rollout under the recorded commands (u held over each interval, as the tool simulates it)."""
     import mujoco
 
-    from phast_model.rigs.mujoco_sim import rollout_q
+    from phast_model.identify.mujoco_sim import rollout_q
 
     case = CASES[name]
     real = mc.write_real(case, mc.hidden_effects(case, 0), tmp_path)

@@ -12,11 +12,12 @@ from hypothesis import strategies as st
 
 from phast_gym.registry import make_env_system
 from phast_gym.systems.pendulum import Pendulum
-from phast_model.mismatch import AugmentedSystem, Term, analyze, make_reality
+from phast_model.bench.reality import make_reality
+from phast_model.identify.delays import HISTORY, MAX_DELAY_SAMPLES
+from phast_model.identify.recordings import Recordings
+from phast_model.identify.shooting import Shooter, Windows, simulate_qv
+from phast_model.mismatch import AugmentedSystem, Term, analyze
 from phast_model.mismatch.vocabulary.registry import VOCABULARY, ScaleContext
-from phast_model.rigs.delays import HISTORY, MAX_DELAY_SAMPLES
-from phast_model.rigs.recordings import Recordings
-from phast_model.rigs.shooting import Shooter, Windows, simulate_qv
 
 DT = 0.01
 

@@ -8,7 +8,8 @@ from dataclasses import replace
 
 import pytest
 
-from phast_model.mismatch import AugmentedSystem, Term, analyze, make_reality
+from phast_model.bench.reality import make_reality
+from phast_model.mismatch import AugmentedSystem, Term, analyze
 from phast_model.mismatch.analysis import EXPLAINERS
 from phast_model.mismatch.explainers import Answer, Context, Declined, ShootingExplainer
 from phast_model.mismatch.systematic import WeakFormExplainer

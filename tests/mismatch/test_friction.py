@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 
 from phast_gym.registry import make_env_system
-from phast_model.mismatch import Term, make_reality
+from phast_model.bench.reality import make_reality
+from phast_model.identify.recordings import Recordings
+from phast_model.mismatch import Term
 from phast_model.mismatch.friction import (
     FrictionLaw,
     LawTerm,
@@ -17,7 +19,6 @@ from phast_model.mismatch.friction import (
     plot_friction_curve,
     select_law,
 )
-from phast_model.rigs.recordings import Recordings
 
 ENV = "PHAST/Pendulum-v0"
 TRUE = {"coulomb_friction": 0.03, "viscous_damping": 0.02}

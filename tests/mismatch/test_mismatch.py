@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from phast_gym.registry import make_env_system
-from phast_model.mismatch import AugmentedSystem, Term, analyze, make_reality, validate
-from phast_model.rigs.shooting import estimate_noise
+from phast_model.bench.reality import make_reality
+from phast_model.identify.shooting import estimate_noise
+from phast_model.mismatch import AugmentedSystem, Term, analyze, validate
 
 
 @pytest.fixture(scope="module")
@@ -322,7 +323,7 @@ def test_holdout_trajectories_are_validated_before_any_work(holdout, match, monk
 
 
 def test_split_by_given_trajectories():
-    from phast_model.rigs.holdout import split
+    from phast_model.identify.split import split
 
     rec = validate(make_reality("PHAST/Pendulum-v0", [], n_traj=4, T=60, noise_std=0.01, seed=1), 1, (0,))
     train, hold, on = split(rec, 0.9, [2, 0])
@@ -425,10 +426,10 @@ def test_markdown_to_html_subset():
 # --------------------------------------------------------------------------- candidates
 def test_armature_candidate():
     """The inertia term (c added to M_ii) gets a candidate scaled to 5% of the rms of M_ii."""
+    from phast_model.identify.simulators import load_simulator
     from phast_model.mismatch.fitting.problem import prepare
     from phast_model.mismatch.options import Options, Progress
     from phast_model.mismatch.vocabulary.screening import candidates
-    from phast_model.rigs.simulators import load_simulator
 
     sim = load_simulator("PHAST/Pendulum-v0")
     sys0 = sim.build()
@@ -532,9 +533,9 @@ def test_report_rows_write_the_report_json_keys_in_order():
 def test_heldout_initial_state_refitted_where_it_is_not_determined():
     """A pendulum falling from near its upright: the state fitted to the first 50 samples leaves an open-loop spread
     far above the noise, so it is fitted to more samples (up to half the recording); a small swing keeps 50."""
+    from phast_model.identify.recordings import Recordings
+    from phast_model.identify.shooting import simulate_qv, substeps_for
     from phast_model.mismatch.evaluate import _initial_states
-    from phast_model.rigs.recordings import Recordings
-    from phast_model.rigs.shooting import simulate_qv, substeps_for
 
     system = make_env_system("PHAST/Pendulum-v0")
     q0, v0 = np.array([[0.5], [math.pi - 0.05]]), np.zeros((2, 1))
@@ -547,8 +548,8 @@ def test_heldout_initial_state_refitted_where_it_is_not_determined():
 
 
 def test_a_system_listed_under_two_names_is_scored_once_with_the_same_numbers(coulomb_data, monkeypatch):
+    from phast_model.identify.recordings import validate as validate_recordings
     from phast_model.mismatch import evaluate as ev
-    from phast_model.rigs.recordings import validate as validate_recordings
 
     system = make_env_system("PHAST/Pendulum-v0")
     rec = validate_recordings(coulomb_data, 1, (0,)).subset(np.arange(3))

@@ -14,10 +14,10 @@ import pytest
 
 from phast_gym.registry import make_env_system
 from phast_model.cli.mismatch import main as cli_main
+from phast_model.identify.shooting import simulate_qv
+from phast_model.identify.simulators import load_simulator
 from phast_model.mismatch import analyze
 from phast_model.mismatch.vocabulary.terms import AugmentedSystem, Term
-from phast_model.rigs.shooting import simulate_qv
-from phast_model.rigs.simulators import load_simulator
 from tests import ROOT
 
 
@@ -88,8 +88,8 @@ def _check_arm(rep, tol: float = 0.3) -> None:
 def test_two_motor_arm_weak_form_identification(jitter):
     """Fast check of the systematic regime's core on the arm: the weak form started at the nominal kwargs, with the
     masses and gravity free, recovers Coulomb friction and armature within 30% at both joints."""
+    from phast_model.identify.recordings import validate
     from phast_model.mismatch.friction.weakid import WeakModel, identify
-    from phast_model.rigs.recordings import validate
 
     rec = validate(arm_recordings(4, 500, 0.004, seed=2, jitter=jitter), 2, (0, 1)).resampled()
     model = WeakModel(load_simulator("PHAST/DoublePendulum-v0", ARM), {}, ["mass1", "mass2", "gravity"], [], [0, 1], 0.01, 0.0, 27)

@@ -10,7 +10,9 @@ import pytest
 
 from phast_gym.registry import make_env_system
 from phast_gym.systems.base import ArrayNamespace
-from phast_model.mismatch import Options, Term, analyze, make_reality
+from phast_model.bench.reality import make_reality
+from phast_model.identify.recordings import Recordings
+from phast_model.mismatch import Options, Term, analyze
 from phast_model.mismatch.friction import STRIBECK_FRACTIONS, fit_law, select_law, weak_form
 from phast_model.mismatch.vocabulary.registry import (
     VOCABULARY,
@@ -22,7 +24,6 @@ from phast_model.mismatch.vocabulary.registry import (
     sign,
     unregister,
 )
-from phast_model.rigs.recordings import Recordings
 
 ENV = "PHAST/Pendulum-v0"
 

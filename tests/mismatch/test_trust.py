@@ -8,8 +8,9 @@ import math
 import numpy as np
 import pytest
 
+from phast_model.bench.reality import make_reality
 from phast_model.cli.mismatch import main
-from phast_model.mismatch import Term, analyze, make_reality
+from phast_model.mismatch import Term, analyze
 from phast_model.mismatch.calibrate import identifiability
 from tests import ROOT
 
@@ -117,6 +118,35 @@ def test_exit_codes_bad_input_2_internal_failure_1(tmp_path, monkeypatch, capsys
     assert not (tmp_path / "b" / "error.log").exists()
 
 
+@pytest.mark.parametrize("stage", ["prepare", "held_out"])
+def test_a_failure_in_the_set_up_stages_is_the_tools_own(tmp_path, monkeypatch, capsys, stage):
+    """A ValueError raised inside ``prepare`` or ``held_out`` (after the input checks) is an internal error: exit 1
+    with error.log, never "bad input" (exit 2)."""
+    rec = make_reality("PHAST/DampedPendulum-v0", [], n_traj=6, T=200, noise_std=0.01, seed=1)
+    np.savez(tmp_path / "rec.npz", **rec)
+    import phast_model.mismatch.analysis as analysis
+
+    def broken(*a, **k):
+        raise ValueError(f"injected failure in {stage}")
+
+    monkeypatch.setattr(analysis, stage, broken)
+    args = ["--sim", "PHAST/DampedPendulum-v0", "--recordings", str(tmp_path / "rec.npz"), "--quiet", "--no-plots",
+            "--out", str(tmp_path / "out")]
+    assert main(args) == 1
+    err = capsys.readouterr().err
+    assert "internal error" in err and f"injected failure in {stage}" in err
+    assert f"injected failure in {stage}" in (tmp_path / "out" / "error.log").read_text()
+
+
+def test_a_too_short_rollout_window_is_the_users_input(tmp_path, capsys):
+    rec = make_reality("PHAST/DampedPendulum-v0", [], n_traj=6, T=200, noise_std=0.01, seed=1)
+    np.savez(tmp_path / "rec.npz", **rec)
+    args = ["--sim", "PHAST/DampedPendulum-v0", "--recordings", str(tmp_path / "rec.npz"), "--quiet", "--no-plots",
+            "--out", str(tmp_path / "out"), "--rollout-window", "0.05"]
+    assert main(args) == 2
+    assert "shorter than" in capsys.readouterr().err
+
+
 def test_joint_change_that_is_one_parameter_is_reported_as_it():
     """A free RLC circuit whose capacitor is 8% low: the data fix R/L and 1/(LC); the pivots (resistance, inductance)
     moved together are exactly a capacitance change, which is what is reported."""
@@ -130,7 +160,7 @@ def test_joint_change_that_is_one_parameter_is_reported_as_it():
 def test_three_link_rig_example_is_exact_physics():
     """examples/rigs/triple_pendulum.py: dH/dq matches finite differences of H and a free swing keeps its energy."""
     from phast_gym.integrate import simulate
-    from phast_model.rigs.simulators import load_simulator
+    from phast_model.identify.simulators import load_simulator
 
     rig = ROOT / "examples" / "rigs" / "triple_pendulum.py"
     s = load_simulator(f"{rig}:TriplePendulum", {"friction": 0.0}).build()

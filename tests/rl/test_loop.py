@@ -145,8 +145,8 @@ def test_the_hold_levels_a_learned_potential_at_the_target(tiny_run) -> None:
 def test_refits_keep_the_first_fits_learning_rate_factor(tiny_run) -> None:
     """UNKNOWN's first fit starts from the recorded motion and runs at 1% of the base rates; its warm-started refits
     keep that factor (at the base rates they undid the start).  PARTIAL's stay at 1."""
-    from phast_model.rig.fit import LR_AFTER_START
     from phast_model.rl.loop import fit_world_model
+    from phast_model.train.rig_fit import LR_AFTER_START
 
     cfg, res = tiny_run
     assert fit_world_model(cfg, res.recordings, None).lr_mult == 1.0

@@ -137,10 +137,10 @@ def test_patience_and_the_plateau_schedule() -> None:
 def test_both_trainers_run_through_the_one_loop(monkeypatch: pytest.MonkeyPatch) -> None:
     """The env path (next-step) and the rig path (multiple shooting) are objectives of the same loop function."""
     from phast_gym import make_splits
-    from phast_model.rig.fit import RigTrainConfig, Shooting, build, fit_recordings, load_rig_data, rig_config
     from phast_model.train.fit import NextStep, TrainConfig, fit
+    from phast_model.train.rig_fit import RigTrainConfig, Shooting, build, fit_recordings, load_rig_data, rig_config
     from phast_model.world.regimes import build_model
-    from tests.rig.test_rig_trainer import SIM, _pendulum_recordings
+    from tests.train.test_rig_trainer import SIM, _pendulum_recordings
 
     seen: list[str] = []
     real = loop._epoch
@@ -159,7 +159,7 @@ def test_both_trainers_run_through_the_one_loop(monkeypatch: pytest.MonkeyPatch)
 
 
 def _old_rig_groups(model: Any, lr: float, mult: float) -> list[tuple[list[int], float]]:
-    """The rig path's parameter groups before the shared helper (phast_model/rig/fit.py, issue 39), as a reference."""
+    """The rig path's parameter groups before the shared helper (phast_model/train/rig_fit.py, issue 39), as a reference."""
     from phast_model.components.rigid_body import LearnedBodies
 
     fric = {id(p) for p in model.friction.parameters()} if model.friction is not None else set()
@@ -177,9 +177,9 @@ def _old_rig_groups(model: Any, lr: float, mult: float) -> list[tuple[list[int],
 
 @pytest.mark.parametrize("regime", ["known", "partial", "unknown"])
 def test_one_function_decides_the_parameter_groups_of_both_paths(regime: str) -> None:
-    from phast_model.rig.fit import build, load_rig_data, rig_config
+    from phast_model.train.rig_fit import build, load_rig_data, rig_config
     from phast_model.world.regimes import build_model
-    from tests.rig.test_rig_trainer import SIM, _pendulum_recordings
+    from tests.train.test_rig_trainer import SIM, _pendulum_recordings
 
     data = load_rig_data(_pendulum_recordings(n_traj=3, T=60), SIM, {}, [2])
     rig = build(rig_config(SIM, {}, regime, data))

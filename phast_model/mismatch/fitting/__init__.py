@@ -5,5 +5,5 @@
 * :mod:`.linear`: shooting columns flattened over windows and samples, projections, cluster-robust covariances.
 
 The multiple-shooting fit itself (windows, window states, Gauss-Newton with damping) is shared with the world model's
-rig path and lives in :mod:`phast_model.rigs.shooting`.
+rig path and lives in :mod:`phast_model.identify.shooting`.
 """

@@ -9,10 +9,10 @@ import numpy as np
 
 from phast_gym.systems.base import System
 
-from ...rigs.recordings import Recordings
-from ...rigs.shooting import Shooter, Windows, estimate_noise, odd, smooth, substeps_for, time_scale
-from ...rigs.simulators import Simulator
-from ...rigs.weakform import rms_speed, sign_smoothing, smoothing_window
+from ...identify.recordings import Recordings
+from ...identify.shooting import Shooter, Windows, estimate_noise, odd, smooth, substeps_for, time_scale
+from ...identify.simulators import Simulator
+from ...identify.weakform import rms_speed, sign_smoothing, smoothing_window
 from ..options import Options, Progress
 from ..vocabulary.candidates import Family
 

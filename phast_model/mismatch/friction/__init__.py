@@ -1,12 +1,12 @@
 """Friction from q-only recordings: weak-form law fits, law selection by leave-one-out prediction, passivity.
 
 The stage the systematic regime (:mod:`..systematic`) runs when model error, not noise, dominates the shooting fit.
-It builds on the weak form and the friction curve of the shared rigs layer, which fit nothing (this package
+It builds on the weak form and the friction curve of the shared identification layer (``identify``), which fit nothing (this package
 re-exports their public names with its own):
 
-* :mod:`phast_model.rigs.weakform`: the filtered momentum balance f~ = S*(F_cons + u) - d/dt S*p (the total
+* :mod:`phast_model.identify.weakform`: the filtered momentum balance f~ = S*(F_cons + u) - d/dt S*p (the total
   dissipative force);
-* :mod:`phast_model.rigs.frictioncurve`: :func:`friction_curve`, f~ averaged in speed bands with block-bootstrap 95%
+* :mod:`phast_model.identify.frictioncurve`: :func:`friction_curve`, f~ averaged in speed bands with block-bootstrap 95%
   intervals;
 * :mod:`.laws`: :func:`fit_law`, least squares of f~ - S*(own) on S*(basis) of dissipative vocabulary terms;
 * :mod:`.passivity`: :func:`is_passive` (the total force opposes motion) and :func:`check_against_curve`;
@@ -23,8 +23,8 @@ registering a new one makes it a candidate of every law fit and selection.
 
 from __future__ import annotations
 
-from ...rigs.frictioncurve import CurveOptions, FrictionBand, FrictionCurve, friction_curve
-from ...rigs.weakform import Balance, WeakForm, default_eps, default_window, momentum_balance, weak_form
+from ...identify.frictioncurve import CurveOptions, FrictionBand, FrictionCurve, friction_curve
+from ...identify.weakform import Balance, WeakForm, default_eps, default_window, momentum_balance, weak_form
 from ..vocabulary.registry import law_terms
 from .laws import STRIBECK_FRACTIONS, FrictionLaw, LawTerm, Spec, fit_law
 from .lawselect import (

@@ -17,8 +17,8 @@ from scipy.stats import t as student_t
 
 from phast_gym.systems.base import NUMPY, System
 
-from ...rigs.recordings import Recordings
-from ...rigs.weakform import WeakForm, weak_form
+from ...identify.recordings import Recordings
+from ...identify.weakform import WeakForm, weak_form
 from ..fitting.linear import cluster_cov
 from ..options import Z95
 from ..vocabulary.registry import VOCABULARY, TermKind, VelocityKind, law_terms

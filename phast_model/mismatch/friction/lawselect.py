@@ -24,10 +24,10 @@ from scipy.stats import t as student_t
 from phast_gym.systems import angle_diff
 from phast_gym.systems.base import System
 
-from ...rigs.frictioncurve import FrictionCurve, friction_curve, speed_edges
-from ...rigs.recordings import Recordings
-from ...rigs.shooting import estimate_noise, odd, smooth, time_scale
-from ...rigs.weakform import WeakForm, weak_form
+from ...identify.frictioncurve import FrictionCurve, friction_curve, speed_edges
+from ...identify.recordings import Recordings
+from ...identify.shooting import estimate_noise, odd, smooth, time_scale
+from ...identify.weakform import WeakForm, weak_form
 from ..vocabulary.registry import law_terms
 from .laws import FrictionLaw, Spec, design, fit_law_specs, own_samples, own_terms, parse_terms, spec_of
 from .passivity import check_against_curve, is_passive

@@ -16,7 +16,7 @@ import numpy as np
 
 from phast_gym.systems.base import NUMPY
 
-from ...rigs.frictioncurve import FrictionCurve
+from ...identify.frictioncurve import FrictionCurve
 from ..vocabulary.registry import VOCABULARY
 from .laws import FrictionLaw
 

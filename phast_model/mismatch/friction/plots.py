@@ -7,7 +7,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ...rigs.frictioncurve import FrictionCurve
+from ...identify.frictioncurve import FrictionCurve
 from .laws import FrictionLaw
 from .passivity import law_band_forces
 

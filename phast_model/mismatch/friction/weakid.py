@@ -1,7 +1,7 @@
 """Weak-form identification: the simulator's parameters, the reflected rotor inertia and a friction law in one
 least-squares problem.
 
-The filtered momentum balance of :mod:`phast_model.rigs.weakform` (one Savitzky-Golay filter S on both sides),
+The filtered momentum balance of :mod:`phast_model.identify.weakform` (one Savitzky-Golay filter S on both sides),
 
     f~(theta) = S * (F_cons(theta) + u) - d/dt S * (M(q; theta) qdot),
 
@@ -30,10 +30,10 @@ from scipy.stats import t as student_t
 
 from phast_gym.systems.base import System
 
-from ...rigs.recordings import Recordings
-from ...rigs.signals import SAVGOL, Differentiator
-from ...rigs.simulators import Simulator
-from ...rigs.weakform import WeakForm, weak_form
+from ...identify.recordings import Recordings
+from ...identify.signals import SAVGOL, Differentiator
+from ...identify.simulators import Simulator
+from ...identify.weakform import WeakForm, weak_form
 from ..fitting.linear import cluster_cov, rel_resid
 from ..rows import ParamRow
 from ..vocabulary.registry import ARMATURE

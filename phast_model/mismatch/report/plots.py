@@ -68,7 +68,7 @@ def _heldout_fit(plt: Any, pd: dict[str, Any], out: Path) -> None:
 
 def _decay(plt: Any, pd: dict[str, Any], smoothing_window: int, out: Path) -> None:
     """decay.png: energy of the calibrated H along the smoothed held-out states vs along the models' rollouts."""
-    from ...rigs.shooting import momentum, smooth
+    from ...identify.shooting import momentum, smooth
 
     hold, roll, sysC = pd["hold"], pd["rollouts"], pd["calibrated_system"]
     n = hold.n

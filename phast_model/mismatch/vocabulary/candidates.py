@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from ...rigs.simulators import Simulator
+from ...identify.simulators import Simulator
 from .registry import FD_STEP, VOCABULARY, TermKind
 from .terms import AugmentedSystem, Term
 

@@ -42,7 +42,7 @@ Components:
   ``q_meas = q + c (1 - cos q)``, the even part of an off-centre encoder): the measurement map;
 * delays (``input_delay``, a port term: the port delivers ``u_i(t - c)``; ``sensor_delay``, a sensor term: the sensor
   reports ``q_i(t - c)``), ``c`` in seconds, ``0 <= c <= MAX_DELAY_SAMPLES`` samples, fractions of a sample by linear
-  interpolation (:mod:`phast_model.rigs.delays`).
+  interpolation (:mod:`phast_model.identify.delays`).
 """
 
 from __future__ import annotations
@@ -54,7 +54,7 @@ import numpy as np
 
 from phast_gym.systems.base import NUMPY, ArrayNamespace
 
-from ...rigs.delays import MAX_DELAY_SAMPLES
+from ...identify.delays import MAX_DELAY_SAMPLES
 
 #: the ports of the augmented model a term kind can act through
 COMPONENTS = ("dissipation", "potential", "port", "inertia", "sensor")
@@ -129,7 +129,7 @@ class TermKind:
     magnitude: ClassVar[bool] = False  # the fitted coefficient is |c| (a threshold, an inertia)
     stiff_edge: ClassVar[bool] = False  # a sharp sign(qdot): simulate the "reality" with short substeps
     #: a delay [s] (a port or sensor term that shifts a signal in time): set by :meth:`set_map`, applied around the
-    #: simulation (:mod:`phast_model.rigs.delays`), never in the vector field
+    #: simulation (:mod:`phast_model.identify.delays`), never in the vector field
     delay: ClassVar[bool] = False
     #: the MuJoCo attribute (joint or actuator) that expresses the term exactly, or None
     mjcf: ClassVar[str | None] = None

@@ -7,7 +7,7 @@ import numpy as np
 
 from phast_gym.systems.base import NUMPY
 
-from ...rigs.shooting import momentum
+from ...identify.shooting import momentum
 from ..fitting.problem import Problem
 from .candidates import Candidate
 from .registry import VOCABULARY, ScaleContext, TermKind

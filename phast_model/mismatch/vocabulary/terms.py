@@ -13,7 +13,7 @@ from typing import Any
 
 from phast_gym.systems.base import NUMPY, ArrayNamespace, Components, System, solve_spd
 
-from ...rigs import delays
+from ...identify import delays
 from .registry import VOCABULARY, Maps, TermKind, kind
 
 __all__ = ["VOCABULARY", "AugmentedSystem", "Term", "friction_basis"]
@@ -98,13 +98,13 @@ class AugmentedSystem(System):
 
     def delayed_input(self, u: Any, dt: Any, u_before: Any = None) -> Any:
         """The port input delivered over each interval: the recorded u (B, K, n) delayed by :attr:`input_delay`
-        (:func:`phast_model.rigs.delays.delayed_input`; ``dt`` the step or the (B, K) steps, ``u_before`` (B, P, n) the
+        (:func:`phast_model.identify.delays.delayed_input`; ``dt`` the step or the (B, K) steps, ``u_before`` (B, P, n) the
         recorded inputs before the first interval).  Used by the simulation around the vector field."""
         return delays.delayed_input(u, self.input_delay, dt, u_before)
 
     def delayed_output(self, q: Any, v0: Any, dt: Any) -> Any:
         """What delayed sensors report at the samples of a simulated q (B, K+1, n) started at (q[:, 0], v0):
-        q_i(t_k - sensor_delay_i) (:func:`phast_model.rigs.delays.delayed_output`)."""
+        q_i(t_k - sensor_delay_i) (:func:`phast_model.identify.delays.delayed_output`)."""
         return delays.delayed_output(q, v0, self.sensor_delay, dt)
 
     def measure(self, q: Any) -> Any:

@@ -1,5 +1,5 @@
 """Plots of a recordings run: held-out q (measured, PHAST, nominal) and the learned joint friction over the
-non-parametric friction curve of ``phast-mismatch`` (:func:`phast_model.rigs.frictioncurve.friction_curve`)."""
+non-parametric friction curve of ``phast-mismatch`` (:func:`phast_model.identify.frictioncurve.friction_curve`)."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..rigs.frictioncurve import FrictionCurve, friction_curve
-from ..rigs.recordings import Recordings
-from .heldout import HeldoutWindows
+from ..identify.frictioncurve import FrictionCurve, friction_curve
+from ..identify.recordings import Recordings
+from .rig_heldout import HeldoutWindows
 
 
 def _pyplot() -> Any:

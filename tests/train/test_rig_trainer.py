@@ -1,4 +1,4 @@
-"""The rig path's trainer (phast_model.rig.fit.fit_recordings, ``phast-train --recordings``): the NaN guard, checkpoints
+"""The rig path's trainer (phast_model.train.rig_fit.fit_recordings, ``phast-train --recordings``): the NaN guard, checkpoints
 and an exact resume, opt-in early stopping by validation, and an explicit --lr used as given in both modes."""
 
 from __future__ import annotations
@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 import torch
 
-import phast_model.rig.fit as rigfit
+import phast_model.train.rig_fit as rigfit
 from phast_model.cli.train import main as train_main
-from phast_model.rig.fit import RigFit, RigTrainConfig, build, fit_recordings, load_rig_data, rig_config
 from phast_model.train.fit import TrainConfig
 from phast_model.train.loop import OK, SKIP, finite_params, guarded_step
+from phast_model.train.rig_fit import RigFit, RigTrainConfig, build, fit_recordings, load_rig_data, rig_config
 
 SIM = "PHAST/DampedPendulum-v0"
 TINY = {"window_s": 1.0, "progress": False}
@@ -306,7 +306,7 @@ def test_patience_counts_from_the_final_window_length_after_a_warm_up(data: rigf
 # --------------------------------------------------------------------------- flags
 def test_an_explicit_lr_is_used_as_given_in_both_modes(monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: Any) -> None:
     import phast_model.cli.train as cli
-    import phast_model.rig.run as rigrun
+    import phast_model.train.rig_run as rigrun
 
     got: list[Any] = []
 

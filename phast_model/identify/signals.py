@@ -5,7 +5,7 @@ Shared by the mismatch tool and the rig path of the world model; nothing here fi
 The smoothing and differentiation are one swappable object, as in PySINDy's ``pysindy.differentiation``: a
 :class:`Differentiator` (:meth:`~Differentiator.smooth`, :meth:`~Differentiator.derivative` and its window rule
 :meth:`~Differentiator.fit_window`).  The default, :data:`SAVGOL`, is a cubic :class:`SavitzkyGolay` filter; every
-function here and the weak form (:mod:`phast_model.rigs.weakform`), the weak-form identification and the
+function here and the weak form (:mod:`phast_model.identify.weakform`), the weak-form identification and the
 residual map take another one through their ``differentiator`` argument.
 """
 

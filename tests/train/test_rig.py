@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 import torch
 
+from phast_model.bench.reality import make_reality
 from phast_model.cli.train import main as train_main
-from phast_model.mismatch.synth import make_reality
 from phast_model.mismatch.vocabulary.terms import Term
-from phast_model.rig.fit import RigTrainConfig, build, fit_recordings, load_rig_data, nominal_config, rig_config
-from phast_model.rig.heldout import heldout_rollouts
+from phast_model.train.rig_fit import RigTrainConfig, build, fit_recordings, load_rig_data, nominal_config, rig_config
+from phast_model.train.rig_heldout import heldout_rollouts
 
 SIM = "PHAST/DampedPendulum-v0"
 COULOMB = 0.4
@@ -176,8 +176,8 @@ def test_the_verdict_says_whether_the_run_learned_the_rig(trained: tuple) -> Non
     """A run that fits its training windows near the noise and beats the nominal model is 'converged'; one stuck far
     above the noise and the nominal model says 'did not converge' with its numbers; one that converged but predicts
     the held-out recordings worse says so."""
-    from phast_model.rig.fit import window_rmse
-    from phast_model.rig.run import FitLevels, _noise, verdict
+    from phast_model.train.rig_fit import window_rmse
+    from phast_model.train.rig_run import FitLevels, _noise, verdict
 
     data, cfg, fit = trained
     nominal = build(nominal_config(cfg))

@@ -10,10 +10,10 @@ mujoco = pytest.importorskip("mujoco")
 
 from phast_gym.systems.mjcf import mjcf_system  # noqa: E402
 from phast_gym.systems.mjcf_tree import ModelFileError, read_tree  # noqa: E402
-from phast_model.rigs.mjcf_write import Edit, calibrated_xml  # noqa: E402
-from phast_model.rigs.mujoco_sim import rollout_q  # noqa: E402
-from phast_model.rigs.shooting import merge_systems, simulate_qv  # noqa: E402
-from phast_model.rigs.simulators import load_simulator  # noqa: E402
+from phast_model.identify.mjcf_write import Edit, calibrated_xml  # noqa: E402
+from phast_model.identify.mujoco_sim import rollout_q  # noqa: E402
+from phast_model.identify.shooting import merge_systems, simulate_qv  # noqa: E402
+from phast_model.identify.simulators import load_simulator  # noqa: E402
 
 #: a 4-joint tree with what MuJoCo models allow: rotated frames and inertia axes, joint anchors off the body origin,
 #: a reference angle, a slide joint, a jointless body at the base, armature, damping, a motor and a position servo
@@ -316,8 +316,8 @@ def test_written_body_stays_rigid(tmp_path):
 
 def test_recordings_at_a_joint_limit_are_named(tmp_path):
     """A limited joint the recordings drive into its limit is reported (MuJoCo's limit constraint is not fitted)."""
+    from phast_model.identify.recordings import Recordings
     from phast_model.mismatch.mjcf_answer import joint_limit_contacts
-    from phast_model.rigs.recordings import Recordings
 
     path = tmp_path / "two_link.urdf"
     path.write_text(URDF)

@@ -1,4 +1,5 @@
-"""Concealed-effect "realities" from the env suite (for the benchmark, tests and examples)."""
+"""Concealed-effect "realities" from the env suite: the recordings phast-mismatch-bench, the tests and the examples
+analyse (a term of the vocabulary hidden in a simulated system, with noise)."""
 
 from __future__ import annotations
 
@@ -9,9 +10,9 @@ import numpy as np
 from phast_gym.integrate import simulate
 from phast_gym.systems.base import System
 
-from ..rigs import delays
-from ..rigs.simulators import load_simulator
-from .vocabulary.terms import AugmentedSystem, Term
+from ..identify import delays
+from ..identify.simulators import load_simulator
+from ..mismatch.vocabulary.terms import AugmentedSystem, Term
 
 
 def make_reality(env_id: str | type[System], terms: list[Term] | tuple[Term, ...] = (), true_kwargs: dict[str, Any] | None = None,

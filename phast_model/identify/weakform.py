@@ -2,7 +2,7 @@
 
 The momentum balance of a port-Hamiltonian model, d/dt p = F_cons(q, p) + u - f(q, qdot), with F_cons = -dH/dq and
 f the *total* dissipative generalized force (the model's own D(q) qdot plus whatever it leaves out), is used in
-weak form: one smooth filter (a :class:`~phast_model.rigs.signals.Differentiator`, by default the cubic Savitzky-Golay
+weak form: one smooth filter (a :class:`~phast_model.identify.signals.Differentiator`, by default the cubic Savitzky-Golay
 filter, window ``window`` samples) is applied to both sides,
 
     f~(t) = [S * (F_cons + u)](t) - d/dt [S * p](t),
@@ -12,7 +12,7 @@ so the noisy second derivative of q never appears alone and a law's force is com
 same filter, u the recorded port force held over each interval.  Everything here is per coordinate (friction is
 diagonal, as in the mismatch tool's vocabulary).
 
-It lives in the shared rigs layer because it fits nothing: the mismatch tool's friction laws, weak-form
+It lives in the shared identification layer (``identify``) because it fits nothing: the mismatch tool's friction laws, weak-form
 identification and residual map build on it, and so does the rig path's friction check (through
 :mod:`.frictioncurve`).  A system with friction terms of its own beyond D(q) (the mismatch tool's augmented model)
 declares them through :class:`ExtraDissipation`.

@@ -53,7 +53,7 @@ def rollout_q(model: Any, q0: np.ndarray, v0: np.ndarray, ctrl: np.ndarray | Non
 
 
 def mujoco_simulated(path: str | Path) -> Any:
-    """The model file's :class:`phast_gym.systems.mjcf.MJCFSystem` whose rollouts (:func:`phast_model.rigs.shooting.
+    """The model file's :class:`phast_gym.systems.mjcf.MJCFSystem` whose rollouts (:func:`phast_model.identify.shooting.
     simulate_qv`, so initial-state fits and held-out scores alike) are MuJoCo's own: its timestep, integrator and
     constraint-based frictionloss."""
     from phast_gym.systems.mjcf import mjcf_system

@@ -1,4 +1,5 @@
-"""MuJoCo's own sysid as a peer (phast_model.rigs.sysid_peer): it recovers a pendulum's damping from clean recordings."""
+"""MuJoCo's own sysid as a peer (benchmarks/sysid_peer.py, a library module of the benchmarks): it recovers a
+pendulum's damping from clean recordings."""
 
 from __future__ import annotations
 
@@ -11,8 +12,8 @@ sysid = pytest.importorskip("mujoco.sysid")
 if not hasattr(sysid, "optimize"):  # the package imports without its extra's dependencies, then holds nothing
     pytest.skip("mujoco.sysid needs the mujoco[sysid] extra", allow_module_level=True)
 
-from phast_model.rigs.mujoco_sim import rollout_q  # noqa: E402
-from phast_model.rigs.sysid_peer import fit_with_sysid, zoh_control  # noqa: E402
+from benchmarks.sysid_peer import fit_with_sysid, zoh_control  # noqa: E402
+from phast_model.identify.mujoco_sim import rollout_q  # noqa: E402
 
 PENDULUM = """<mujoco model="pendulum">
   <option timestep="0.002" integrator="RK4"><flag contact="disable"/></option>

@@ -8,19 +8,16 @@ makes.  A run whose result moves far under such a change is an accident of its t
 method.  Per run: the selected (best-validation) epoch, damping R^2, the benchmark metric and the epochs where the
 training loss jumped above ``--spike-ratio`` times its running minimum (a training instability).
 
-This module imports the pre-layout module paths (``phast_model.training``, ...), which every checkout has, and
-no other module of this package, so that it can measure an older checkout's code: run this file with that
-checkout first on the path, ``PYTHONSAFEPATH=1 PYTHONPATH=<checkout> python phast_model/bench/fragility.py ...``
-(the commit recorded is that of the phast_model imported).
+To measure an older checkout's code, add a git worktree at that commit and run the study there, with that
+checkout's own ``benchmarks/identification_fragility.py`` (``git worktree add /tmp/old <commit>``); the commit
+recorded is that of the phast_model imported.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import tempfile
-import warnings
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -29,18 +26,14 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-import phast_model
 from phast_gym import make_splits, resolve_env_id
-
-# the pre-layout module paths on purpose (see the module docstring); newer checkouts map them to the new modules
-with warnings.catch_warnings():
-    warnings.filterwarnings("ignore", message=r"phast_model\.\w+ moved to", category=DeprecationWarning)
-    from phast_model import regimes
-    from phast_model.checkpoint import atomic_write_json
-    from phast_model.metrics import benchmark_metric
-    from phast_model.regimes import build_model
-    from phast_model.runs import train_and_score
-    from phast_model.training import TrainConfig
+from phast_model.train.checkpoint import atomic_write_json
+from phast_model.train.fit import TrainConfig
+from phast_model.train.metrics import benchmark_metric
+from phast_model.train.provenance import code_commit
+from phast_model.train.runs import train_and_score
+from phast_model.world import regimes
+from phast_model.world.regimes import build_model
 
 
 @dataclass
@@ -57,18 +50,8 @@ class Outcome:
 
 
 def model_commit() -> str:
-    """Commit of the checkout whose phast_model is imported (``+dirty`` when its code differs from it).
-
-    Not :func:`phast_model.provenance.code_commit`: this script is run against checkouts older than that module."""
-    where = Path(phast_model.__file__).resolve().parent.parent
-    try:
-        head = subprocess.run(["git", "-C", str(where), "rev-parse", "--short", "HEAD"], capture_output=True,
-                              text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(where), "diff", "--quiet", "HEAD", "--", "phast_gym",
-                                "phast_model"]).returncode != 0
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-    return head + ("+dirty" if dirty else "")
+    """Commit of the checkout whose phast_model is imported (``+dirty`` when its code differs from it)."""
+    return code_commit(short=True, dirty=True) or "unknown"
 
 
 def perturb_(model: torch.nn.Module, eps: float, seed: int) -> None:
@@ -160,7 +143,3 @@ def main(argv: list[str] | None = None) -> int:
     print(markdown(outcomes))
     print(json.dumps({**header, **summarize(outcomes, args.epochs)}))
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -9,8 +9,8 @@ from scipy.integrate import solve_ivp
 
 from phast_gym.registry import make_env_system
 from phast_gym.systems.base import NUMPY
-from phast_model.rigs.recordings import Recordings, validate
-from phast_model.rigs.shooting import (
+from phast_model.identify.recordings import Recordings, validate
+from phast_model.identify.shooting import (
     Shooter,
     Windows,
     angle_diff,
@@ -206,7 +206,7 @@ def test_validation_errors_name_the_problem():
 
 
 def test_csv_with_per_trajectory_jittered_times(tmp_path):
-    from phast_model.rigs.recordings import load_raw
+    from phast_model.identify.recordings import load_raw
 
     d = _raw()
     rows = ["traj,t,q0,u0"] + [f"{i},{float(d['t'][i, j])!r},{float(d['q'][i, j, 0])!r},{0.1 * j!r}" for i in range(N) for j in range(T)]

@@ -1,4 +1,4 @@
-"""UNKNOWN's start from the recorded motion (phast_model.rig.motion_start): the force balance fitted by the model's
+"""UNKNOWN's start from the recorded motion (phast_model.train.motion_start): the force balance fitted by the model's
 own neural potential, mass and friction, before the multiple-shooting fit."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from phast_model.rig.fit import RigTrainConfig, build, load_rig_data, lr_mult, rig_config, window_rmse
-from phast_model.rig.motion_start import MotionStartConfig, force_residual, motion_samples, motion_start
+from phast_model.train.motion_start import MotionStartConfig, force_residual, motion_samples, motion_start
+from phast_model.train.rig_fit import RigTrainConfig, build, load_rig_data, lr_mult, rig_config, window_rmse
 
 SIM = "PHAST/DampedPendulum-v0"
 G, B = 9.81, 0.1  # the recordings' pendulum: qddot = -G sin q - B qdot + u (unit inertia)
@@ -103,8 +103,8 @@ def test_samples_are_interior_and_aligned_with_the_held_input() -> None:
 def test_the_start_is_kept_when_training_does_not_beat_it_on_held_in_windows(monkeypatch: pytest.MonkeyPatch) -> None:
     """fit_recordings scores the start and the trained model on the same held-in validation windows and keeps the
     better: a training at 50x the rates wrecks the model, and the start's weights come back (best epoch 0)."""
-    import phast_model.rig.motion_start as ms
-    from phast_model.rig.fit import fit_recordings
+    import phast_model.train.motion_start as ms
+    from phast_model.train.rig_fit import fit_recordings
 
     torch.set_num_threads(1)
     monkeypatch.setattr(ms, "MotionStartConfig", lambda: MotionStartConfig(steps=400, polish_iters=50, window_taus=(1.0,)))

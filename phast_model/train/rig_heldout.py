@@ -14,11 +14,11 @@ import torch
 
 from phast_gym.systems import System
 
-from ..rigs.recordings import Recordings
-from ..rigs.shooting import Shooter, Windows, estimate_noise, simulate_qv, smooth, substeps_for
+from ..identify.recordings import Recordings
+from ..identify.shooting import Shooter, Windows, estimate_noise, simulate_qv, smooth, substeps_for
 from ..world.interfaces import coordinate_error, wrap_angles
 from ..world.model import PHAST
-from .fit import BURN_IN_S, SMOOTH_S, STATE_FIT_ITERS, check_window_room, fit_states, odd_samples, simulate
+from .rig_fit import BURN_IN_S, SMOOTH_S, STATE_FIT_ITERS, check_window_room, fit_states, odd_samples, simulate
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,6 @@
 """A PHAST world model of the user's rig, learned from real recordings (docs/rig_world_model.md).
 
-The recordings are the ``phast-mismatch`` format, read by the same loader (:mod:`phast_model.rigs.recordings`):
+The recordings are the ``phast-mismatch`` format, read by the same loader (:mod:`phast_model.identify.recordings`):
 q (N, T, n), recorded times ``t`` (jitter allowed) or ``dt``, the measured port input u, ``angle_dims``,
 ``angle_offset``.  The rig (an env id or a user's ``path.py:Class``) gives the template: V and M forms and the port.
 
@@ -15,9 +15,9 @@ q (N, T, n), recorded times ``t`` (jitter allowed) or ``dt``, the measured port 
   on the open-loop error over the windows: the objective :class:`Shooting` of the one epoch loop both trainers
   share (:func:`phast_model.train.loop.train_loop`: the NaN guard, a checkpoint after every epoch and ``resume``,
   the best validation weights, early stopping on the validation windows, ``RigTrainConfig.patience``).
-* :func:`phast_model.rig.heldout.heldout_rollouts`: the held-out score, computed by the same code for every model (PHAST, the nominal rig
-  as a KNOWN model without dissipation): each window's state is fitted to its burn-in, then the model runs open
-  loop with the recorded u; RMSE of q, wrapped on angles.
+* :func:`phast_model.train.rig_heldout.heldout_rollouts`: the held-out score, computed by the same code for every
+  model (PHAST, the nominal rig as a KNOWN model without dissipation): each window's state is fitted to its
+  burn-in, then the model runs open loop with the recorded u; RMSE of q, wrapped on angles.
 """
 
 from __future__ import annotations
@@ -36,10 +36,10 @@ from phast_gym.systems.mjcf import MJCFSystem
 
 from ..components.mass import KnownMass, LinearMass, LowRankMass
 from ..components.potentials import TemplatePotential
-from ..rigs.holdout import check_holdout_indices, split
-from ..rigs.recordings import Recordings, load_raw, validate
-from ..rigs.shooting import odd, smooth
-from ..rigs.simulators import load_simulator
+from ..identify.recordings import Recordings, load_raw, validate
+from ..identify.shooting import odd, smooth
+from ..identify.simulators import load_simulator
+from ..identify.split import check_holdout_indices, split
 from ..train.groups import param_groups
 from ..train.loop import CHECKPOINT, LoopConfig, NanCounts, Optim, train_loop
 from ..world.interfaces import coordinate_error

@@ -11,13 +11,14 @@ import pytest
 from scipy.signal import savgol_filter
 
 from phast_gym.registry import make_env_system
-from phast_model.mismatch import Term, make_reality
+from phast_model.bench.reality import make_reality
+from phast_model.identify.recordings import Recordings
+from phast_model.identify.signals import SAVGOL, Differentiator, SavitzkyGolay, odd, smooth, time_scale
+from phast_model.identify.simulators import load_simulator
+from phast_model.mismatch import Term
 from phast_model.mismatch.friction import fit_law, momentum_balance, weak_form
 from phast_model.mismatch.friction.weakid import WeakModel, identify
 from phast_model.mismatch.locate import locate, residual_force
-from phast_model.rigs.recordings import Recordings
-from phast_model.rigs.signals import SAVGOL, Differentiator, SavitzkyGolay, odd, smooth, time_scale
-from phast_model.rigs.simulators import load_simulator
 
 ENV = "PHAST/Pendulum-v0"
 

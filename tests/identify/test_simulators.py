@@ -11,8 +11,8 @@ import pytest
 
 from phast_gym.integrate import simulate
 from phast_gym.systems import NUMPY, Pendulum
+from phast_model.identify.simulators import load_simulator
 from phast_model.mismatch.vocabulary.terms import AugmentedSystem, Term
-from phast_model.rigs.simulators import load_simulator
 from tests import ROOT
 
 EXAMPLE = ROOT / "examples" / "rigs" / "torsion_pendulum.py"

@@ -40,7 +40,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from .mjcf_write import joint_attr, set_joint_attr
+from phast_model.identify.mjcf_write import joint_attr, set_joint_attr
 
 ParamSet = Literal["joints", "joints+masses"]
 #: the joint attributes of the "joints" parameter set

@@ -6,11 +6,12 @@ import numpy as np
 import pytest
 
 from phast_gym.systems.base import System
-from phast_model.mismatch import Term, make_reality
+from phast_model.bench.reality import make_reality
+from phast_model.identify.recordings import Recordings
+from phast_model.identify.shooting import Shooter, Windows, merge_systems, smooth
+from phast_model.identify.simulators import load_simulator
+from phast_model.mismatch import Term
 from phast_model.mismatch.vocabulary.candidates import Family, ScaledTerm
-from phast_model.rigs.recordings import Recordings
-from phast_model.rigs.shooting import Shooter, Windows, merge_systems, smooth
-from phast_model.rigs.simulators import load_simulator
 
 ARM = {"coordinates": "relative", "mass1": 0.6417, "mass2": 0.5639, "length1": 0.2, "length2": 0.3,
        "com1": 0.2, "com2": 0.3213, "inertia1": 0.02671, "inertia2": 0.05388, "gravity": 9.81}

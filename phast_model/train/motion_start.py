@@ -11,7 +11,7 @@ motion at the recorded samples,
 
     d/dt (M(q) qdot) - 1/2 d/dq (qdot^T M(q) qdot) + dV/dq + f(qdot) = G u          (Eq. 1-3 with p = M qdot)
 
-with q, qdot and qddot from a Savitzky-Golay fit to the recordings (:data:`phast_model.rigs.signals.SAVGOL`): a
+with q, qdot and qddot from a Savitzky-Golay fit to the recordings (:data:`phast_model.identify.signals.SAVGOL`): a
 regression on the model's own components (gradient matching, as in the derivative-based starts of SINDy), each
 coordinate's residual scaled by its typical force.  Without a port input the scale of (V, M, f) is free: the mass
 then keeps its initial gauge (a constant mass is not trained; a configuration-dependent one is held at a mean
@@ -29,12 +29,12 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..rigs.recordings import Recordings
-from ..rigs.signals import SavitzkyGolay, odd, time_scale
+from ..identify.recordings import Recordings
+from ..identify.signals import SavitzkyGolay, odd, time_scale
 from ..world.model import PHAST
 
 #: Savitzky-Golay windows tried, in units of the recordings' time scale (1 / omega of their oscillation,
-#: :func:`phast_model.rigs.signals.time_scale`); the start whose open-loop windows fit best is kept
+#: :func:`phast_model.identify.signals.time_scale`); the start whose open-loop windows fit best is kept
 WINDOW_TAUS = (0.75, 1.1, 1.5, 2.2)
 #: samples kept for the regression (every k-th interior sample of every trajectory)
 MAX_SAMPLES = 8_000
@@ -201,7 +201,7 @@ def motion_start(model: PHAST, rec: Recordings, score: Callable[[PHAST], float],
     """The start of ``model`` from the recorded motion ``rec`` (module docstring), in place: one force-balance fit
     per Savitzky-Golay window of ``cfg.window_taus`` (a narrow window leaves noise in qddot, a wide one bias), each
     from the same initial weights; the one of least ``score`` (the run's open-loop RMSE on its held-in validation
-    windows, :func:`phast_model.rig.fit.window_rmse`) is kept.  Returns what was chosen and every candidate's
+    windows, :func:`phast_model.train.rig_fit.window_rmse`) is kept.  Returns what was chosen and every candidate's
     score."""
     cfg = cfg or MotionStartConfig()
     tau = time_scale(rec.q, rec.dt)

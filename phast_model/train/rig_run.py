@@ -1,8 +1,8 @@
 """``phast-train --recordings``: a run directory of a world model learned from a rig's recordings.
 
 :func:`train_recordings_run` checks everything first (recordings, rig, held-out indices, room for the held-out
-windows), trains by multiple shooting (:func:`phast_model.rig.fit_recordings`), scores PHAST and the nominal rig on
-the held-out recordings by the same code (:func:`phast_model.rig.heldout.heldout_rollouts`) and writes ``model.pt`` +
+windows), trains by multiple shooting (:func:`phast_model.train.rig_fit.fit_recordings`), scores PHAST and the nominal rig on
+the held-out recordings by the same code (:func:`phast_model.train.rig_heldout.heldout_rollouts`) and writes ``model.pt`` +
 ``config.json`` (opened by :func:`phast_model.api.load_run` and
 :class:`phast_model.world.gym_env.PHASTWorldModelEnv`), ``metrics.json`` (key ``heldout``), ``history.json``,
 ``checkpoint.pt`` (written after every epoch; ``resume=True`` continues from it) and the plots ``heldout_rollout.png``
@@ -21,10 +21,10 @@ import numpy as np
 
 from phast_gym.systems import System
 
-from ..rigs.recordings import Recordings
-from ..rigs.signals import estimate_noise
+from ..identify.recordings import Recordings
+from ..identify.signals import estimate_noise
 from ..train.runs import HISTORY_FILE, METRICS_FILE
-from .fit import (
+from .rig_fit import (
     BURN_IN_S,
     RigData,
     RigFit,
@@ -36,7 +36,7 @@ from .fit import (
     rig_config,
     window_rmse,
 )
-from .heldout import heldout_rollouts, heldout_windows
+from .rig_heldout import heldout_rollouts, heldout_windows
 
 
 @dataclass(frozen=True)
@@ -115,7 +115,7 @@ def train_recordings_run(spec: RecordingsSpec, out: str | Path, train: RigTrainC
         metrics = _metrics(spec, data, fit, scores, levels)
         _write(fit, metrics, spec, train, out)
         if plots:
-            from .plots import plot_friction, plot_heldout
+            from .rig_plots import plot_friction, plot_heldout
 
             plot_heldout(windows, rolls, heldout.dt, out / "heldout_rollout.png")
             metrics["friction_check"] = plot_friction(fit.model, nominal.system, data.train, out / "friction.png")
@@ -133,7 +133,7 @@ NOT_CONVERGED = 10.0
 @dataclass(frozen=True)
 class FitLevels:
     """What a run's training-window RMSE is judged against: the recordings' noise and the nominal model's RMSE on the
-    same windows (:func:`phast_model.rig.fit.window_rmse`)."""
+    same windows (:func:`phast_model.train.rig_fit.window_rmse`)."""
 
     noise: float
     nominal: float
