@@ -8,7 +8,7 @@ from pathlib import Path
 
 import torch
 
-from benchmarks import fragility
+import benchmarks.fragility as fragility
 
 
 def test_loss_spikes_compare_with_the_running_minimum() -> None:
