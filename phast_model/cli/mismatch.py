@@ -13,8 +13,8 @@ input (a bug: the traceback is written to ``error.log`` in the report directory,
 from __future__ import annotations
 
 import argparse
-import json
 import sys
+from typing import Any
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -24,10 +24,14 @@ def build_parser() -> argparse.ArgumentParser:
                         "(a phast_gym.systems.System subclass), or a MuJoCo model file robot.xml / robot.urdf "
                         "(the report then also holds calibrated.xml; docs/robot_models.md)")
     p.add_argument("--sim-kwargs", default="{}", help="JSON dict of physical parameters overriding the simulator's")
-    p.add_argument("--recordings", required=True, help=".npz or .csv recordings (keys / columns of docs/mismatch.md)")
-    p.add_argument("--holdout-fraction", type=float, default=0.3, help="share of trajectories (or of time, for one) held out")
+    p.add_argument("--recordings", required=True,
+                   help=".npz or .csv recordings, or a folder of .csv logs (keys / columns of docs/mismatch.md); logs of "
+                        "different lengths are cut into equal pieces, bad rows dropped and counted (report.json data.logs)")
+    p.add_argument("--holdout-fraction", type=float, default=0.3,
+                   help="share of trajectories (of logs, for logs of different lengths; of time, for one) held out")
     p.add_argument("--holdout-trajectories", default=None,
-                   help="comma-separated 0-based trajectory indices to hold out, e.g. 4,5 (overrides --holdout-fraction)")
+                   help="comma-separated 0-based trajectory indices to hold out, e.g. 4,5 (overrides --holdout-fraction); "
+                        "for logs of different lengths, log indices: every piece of a held-out log is held out")
     p.add_argument("--out", required=True, help="report directory (report.json, report.md, report.html, PNG plots)")
     p.add_argument("--threshold", type=float, default=5.0, help="significance a term must reach (|coefficient|/std)")
     p.add_argument("--max-terms", type=int, default=5, help="most terms to add")
@@ -96,8 +100,25 @@ def write_error_log(out_dir: str) -> str:
     return str(path)
 
 
+def checked_recordings(sim: str, recordings: str, kwargs: dict[str, Any]) -> Any:
+    """For a MuJoCo model file: the recordings validated against its joints too (coordinate names, joint ranges:
+    :mod:`phast_model.identify.coordinates`), as the analysis takes them; else the path (the analysis reads it)."""
+    from phast_model.identify.recordings import load_raw, validate
+    from phast_model.identify.simulators import is_model_file, load_simulator
+
+    if not is_model_file(sim):
+        return recordings
+    try:
+        system = load_simulator(sim, kwargs).build()
+    except ValueError:
+        return recordings  # the analysis names the problem
+    raw, src = load_raw(recordings)
+    return validate(raw, system.n, tuple(system.angle_dims), src, actuated_dofs=getattr(system, "actuated_dofs", None), model=system)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    from phast_model.cli.args import json_object
     from phast_model.identify.split import check_holdout_indices
     from phast_model.mismatch import Options, analyze
     from phast_model.mismatch.report.files import check_writable
@@ -106,17 +127,13 @@ def main(argv: list[str] | None = None) -> int:
         check_args(args)
         holdout = check_holdout_indices(parse_indices(args.holdout_trajectories))
         check_writable(args.out)
-        try:
-            kwargs = json.loads(args.sim_kwargs)
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"--sim-kwargs is not valid JSON: {exc}") from None
-        if not isinstance(kwargs, dict):
-            raise ValueError("--sim-kwargs must be a JSON object, e.g. '{\"length\": 0.9}'")
+        kwargs = json_object(args.sim_kwargs, "--sim-kwargs")
         opts = Options().with_(threshold=args.threshold, max_terms=args.max_terms, shoot_window=args.shoot_window,
                                smoothing_window=args.smoothing_window, progress=not args.quiet, rollout_window=args.rollout_window,
                                systematic_chi2=args.systematic_chi2,
                                free=tuple(x.strip() for x in args.free.split(",") if x.strip()))
-        report = analyze(args.sim, args.recordings, sim_kwargs=kwargs, holdout_fraction=args.holdout_fraction, options=opts,
+        recordings = checked_recordings(args.sim, args.recordings, kwargs)
+        report = analyze(args.sim, recordings, sim_kwargs=kwargs, holdout_fraction=args.holdout_fraction, options=opts,
                          holdout_trajectories=holdout)
         out = report.write(args.out, plots=not args.no_plots)
     except ValueError as exc:

@@ -43,11 +43,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--env", help=f"env id, one of {env_ids()} (or --recordings)")
     rec = ap.add_argument_group("recordings of a rig (instead of --env)")
-    rec.add_argument("--recordings", metavar="FILE", help=".npz / .csv recordings (the phast-mismatch format)")
+    rec.add_argument("--recordings", metavar="FILE", help=".npz / .csv recordings or a folder of .csv logs (the phast-mismatch "
+                                                         "format; logs of different lengths are cut into equal pieces)")
     rec.add_argument("--sim", help="the rig: an env id, path/to/rig.py:Class or a MuJoCo model file robot.xml / robot.urdf "
                                    "(with --recordings)")
     rec.add_argument("--sim-kwargs", default="{}", metavar="JSON", help="the rig's constructor kwargs (JSON object)")
-    rec.add_argument("--holdout-trajectories", metavar="I,J", help="0-based trajectories held out for the score")
+    rec.add_argument("--holdout-trajectories", metavar="I,J", help="0-based trajectories held out for the score (log indices for "
+                                                                   "logs of different lengths: all of a log's pieces)")
     rec.add_argument("--rollout-window-s", type=float, default=None, metavar="S",
                      help="held-out open-loop windows of S seconds, each after a 0.1 s burn-in (default: whole recordings)")
     rec.add_argument("--window-s", type=float, default=None, metavar="S",

@@ -6,21 +6,28 @@ the tool simulates between the recorded times), an optional port input
 u (N, T-1 or T, m) held over each interval, the indices of angular coordinates
 and an angle offset (q_env = q_recorded + angle_offset).  Every problem gets a
 ValueError naming it.
+
+Logs of different lengths (a *log set*: ``q_0, q_1, ...`` keys, lists of arrays, a CSV whose trajectories differ in
+length or hold bad rows, a folder of CSV logs) are read as they come and cut into equal-length pieces
+(:mod:`.logs`: bad rows dropped and counted in ``meta["logs"]``, each piece's log in ``origin``); the angles' unit,
+the model's joint order and ranges are checked by :mod:`.coordinates`.
 """
 
 from __future__ import annotations
 
-import csv
 import math
 import zipfile
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from phast_gym.systems import wrap
+
+from .coordinates import angle_unit, check_names, check_radians, check_ranges, to_radians
+from .logs import MAX_PIECE_SAMPLES, Table, cut_pieces, is_log_set, log_set_from_keys, logs_of, read_rows
 
 #: fewest samples per trajectory the analysis accepts (windows + holdout need room)
 MIN_SAMPLES = 40
@@ -46,6 +53,7 @@ class Recordings:
     source: str = "<arrays>"
     meta: dict[str, Any] = field(default_factory=dict)
     t: np.ndarray | None = None  # (N, T) recorded sample times in seconds, or None (uniform at dt)
+    origin: np.ndarray | None = None  # (N, 3) log, first row, last row of each piece of a log set; None: each its own log
 
     def __post_init__(self) -> None:
         if self.t is not None:
@@ -55,6 +63,10 @@ class Recordings:
             if t.shape != self.q.shape[:2]:
                 raise ValueError(f"{self.source}: 't' must have shape (T,) or (N, T) = {self.q.shape[:2]}, got {np.shape(self.t)}")
             self.t = t
+        if self.origin is not None:
+            self.origin = np.asarray(self.origin, dtype=int).reshape(-1, 3)
+            if self.origin.shape[0] != self.q.shape[0]:
+                raise ValueError(f"{self.source}: 'origin' must have one row per trajectory ({self.q.shape[0]}), got {self.origin.shape}")
 
     @property
     def n_traj(self) -> int:
@@ -94,12 +106,20 @@ class Recordings:
             return np.broadcast_to(np.arange(self.T) * float(self.dt), self.q.shape[:2])
         return self.t
 
+    @property
+    def log_of(self) -> np.ndarray | None:
+        """(N,) the log each trajectory is a piece of (a log set), or None (every trajectory is its own log)."""
+        return None if self.origin is None else self.origin[:, 0]
+
     def _with(self, q: np.ndarray, dt: float, u: np.ndarray | None, t: np.ndarray | None) -> Recordings:
-        return Recordings(q, dt, u, self.angle_dims, self.source, self.meta, t)
+        """The same trajectories (same origin) with new samples."""
+        return Recordings(q, dt, u, self.angle_dims, self.source, self.meta, t, self.origin)
 
     def subset(self, idx: Any) -> Recordings:
         """Trajectories ``idx`` (an index array or slice)."""
-        return self._with(self.q[idx], self.dt, None if self.u is None else self.u[idx], None if self.t is None else self.t[idx])
+        origin = None if self.origin is None else self.origin[idx]
+        return Recordings(self.q[idx], self.dt, None if self.u is None else self.u[idx], self.angle_dims, self.source, self.meta,
+                          None if self.t is None else self.t[idx], origin)
 
     def time_slice(self, start: int, stop: int) -> Recordings:
         """Samples ``start:stop`` of every trajectory (u follows the intervals; t keeps absolute times)."""
@@ -146,7 +166,8 @@ class Recordings:
         if self.u is not None:
             u = np.stack([self.u[:, j * W: j * W + W - 1] for j in range(k)], 1).reshape(N * k, W - 1, -1)
         t = None if self.t is None else self.t[:, : k * W].reshape(N * k, W)
-        return self._with(q, self.dt, u, t)
+        origin = None if self.origin is None else np.repeat(self.origin, k, axis=0)
+        return Recordings(q, self.dt, u, self.angle_dims, self.source, self.meta, t, origin)
 
     def resampled(self) -> Recordings:
         """The recordings interpolated onto a uniform grid of step dt from each trajectory's first time
@@ -174,69 +195,118 @@ class Recordings:
 
 
 def _read_csv(path: Path) -> dict[str, Any]:
-    """CSV with columns traj,t,q0..q{n-1}[,u0..] -> the npz-style dict."""
-    with open(path, newline="") as fh:
-        reader = csv.reader(fh)
-        try:
-            header = [h.strip() for h in next(reader)]
-        except StopIteration:
-            raise ValueError(f"{path}: empty CSV file") from None
-        rows = [(reader.line_num, r) for r in reader if r]
+    """CSV with columns traj,t,q0..q{n-1}[,u0..] -> the npz-style dict: equal-length trajectories stacked, else a log set
+    (trajectories of different lengths, or truncated / non-finite rows: :mod:`.logs` drops and counts them)."""
+    table = read_rows(path)
+    header = table.header or []
     for key in ("traj", "t", "q0"):
         if key not in header:
             raise ValueError(f"{path}: CSV is missing column {key!r} (need traj,t,q0..q{{n-1}}[,u0..]); got {header}")
-    if not rows:
+    if not len(table.values):
         raise ValueError(f"{path}: CSV has a header ({','.join(header)}) but no data rows")
-    for line, r in rows:  # ragged rows: name the first one, before any number is parsed
-        if len(r) != len(header):
-            raise ValueError(f"{path}: line {line} has {len(r)} values, the header has {len(header)} columns ({','.join(header)})")
-    values = []
-    for line, r in rows:
-        try:
-            values.append([float(x) for x in r])
-        except ValueError:
-            bad = next(x for x in r if not _is_float(x))
-            raise ValueError(f"{path}: line {line} has a non-numeric value {bad!r}") from None
-    data = np.array(values, dtype=np.float64)
-    col = {h: i for i, h in enumerate(header)}
-    qcols = sorted((h for h in header if h.startswith("q") and h[1:].isdigit()), key=lambda h: int(h[1:]))
-    ucols = sorted((h for h in header if h.startswith("u") and h[1:].isdigit()), key=lambda h: int(h[1:]))
-    trajs = np.unique(data[:, col["traj"]])
-    qs, us, ts = [], [], []
+    data = table.values
+    col, qcols, ucols = _columns(header)
+    traj, when = _filled(data[:, col["traj"]]), _filled(data[:, col["t"]])
+    trajs = np.unique(traj)
+    groups = []
     for tr in trajs:
-        rows_tr = data[data[:, col["traj"]] == tr]
-        rows_tr = rows_tr[np.argsort(rows_tr[:, col["t"]], kind="stable")]
-        ts.append(rows_tr[:, col["t"]])
-        qs.append(rows_tr[:, [col[h] for h in qcols]])
-        if ucols:
-            us.append(rows_tr[:, [col[h] for h in ucols]])
-    lengths = {len(t) for t in ts}
-    if len(lengths) != 1:
-        raise ValueError(f"{path}: trajectories have different lengths {sorted(lengths)}; all must have the same T")
+        rows_tr = np.flatnonzero(traj == tr)
+        groups.append(rows_tr[np.argsort(when[rows_tr], kind="stable")])
+    if table.truncated.any() or not np.all(np.isfinite(data)) or len({len(g) for g in groups}) != 1:
+        return _csv_log_set(path, table, groups, [f"{path.name} traj {tr:g}" for tr in trajs])
     # each trajectory keeps its own time stamps (jittered loggers: they need not agree, nor be uniform)
-    out: dict[str, Any] = {"q": np.stack(qs), "t": np.stack(ts)}
+    out: dict[str, Any] = {"q": np.stack([data[g][:, [col[h] for h in qcols]] for g in groups]),
+                           "t": np.stack([data[g, col["t"]] for g in groups])}
     if ucols:
-        out["u"] = np.stack(us)
+        out["u"] = np.stack([data[g][:, [col[h] for h in ucols]] for g in groups])
     return out
 
 
-def _is_float(x: str) -> bool:
-    try:
-        float(x)
-    except ValueError:
-        return False
-    return True
+def _columns(header: list[str]) -> tuple[dict[str, int], list[str], list[str]]:
+    """(column index by name, the q columns, the u columns in numeric order)."""
+    col = {h: i for i, h in enumerate(header)}
+    qcols = sorted((h for h in header if h.startswith("q") and h[1:].isdigit()), key=lambda h: int(h[1:]))
+    ucols = sorted((h for h in header if h.startswith("u") and h[1:].isdigit()), key=lambda h: int(h[1:]))
+    return col, qcols, ucols
 
 
-def load_raw(source: str | Path | Mapping[str, Any]) -> tuple[dict[str, Any], str]:
-    """Read an .npz / .csv path or take a mapping; returns (dict, description)."""
+def _filled(values: np.ndarray) -> np.ndarray:
+    """A column with each missing value taken from the row before (a truncated row keeps its log and its place)."""
+    values = np.array(values, dtype=np.float64)
+    ok = np.isfinite(values)
+    if not ok.any():
+        return np.zeros_like(values)
+    last = np.maximum.accumulate(np.where(ok, np.arange(len(values)), -1))
+    return values[np.where(last < 0, np.flatnonzero(ok)[0], last)]
+
+
+def _csv_log_set(path: Path, table: Table, groups: list[np.ndarray], names: list[str]) -> dict[str, Any]:
+    """The rows ``groups`` of ``table`` as a log set (each group a log)."""
+    col, qcols, ucols = _columns(table.header or [])
+    data = table.values
+    usable = [int(np.sum(np.all(np.isfinite(data[g]), axis=1))) for g in groups]
+    if max(usable) < 2:
+        raise ValueError(f"{path}: no trajectory has two complete rows ({table.first_truncated or 'rows with NaN / inf'})")
+    out: dict[str, Any] = {"q": [data[g][:, [col[h] for h in qcols]] for g in groups], "t": [data[g, col["t"]] for g in groups],
+                           "log_names": names, "rows_truncated": [int(np.sum(table.truncated[g])) for g in groups],
+                           "truncated_lines": [table.first_truncated] * len(groups)}
+    if ucols:
+        out["u"] = [data[g][:, [col[h] for h in ucols]] for g in groups]
+    return out
+
+
+def _read_csv_logs(paths: Sequence[Path], source: str) -> dict[str, Any]:
+    """CSV files of columns ``[traj,]t,q0..[,u0..]``, each trajectory of each file a log: a log set."""
+    if not paths:
+        raise ValueError(f"{source}: no .csv log found")
+    merged: dict[str, list[Any]] = {"q": [], "t": [], "u": [], "log_names": [], "rows_truncated": [], "truncated_lines": []}
+    layout = None
+    for path in paths:
+        table = read_rows(path)
+        header = table.header or []
+        for key in ("t", "q0"):
+            if key not in header:
+                raise ValueError(f"{path}: CSV is missing column {key!r} (need [traj,]t,q0..q{{n-1}}[,u0..]); got {header}")
+        col, qcols, ucols = _columns(header)
+        if layout is not None and layout != (len(qcols), len(ucols)):
+            raise ValueError(f"{path}: {len(qcols)} q and {len(ucols)} u columns, the first log has {layout[0]} and {layout[1]}")
+        layout = (len(qcols), len(ucols))
+        traj = _filled(table.values[:, col["traj"]]) if "traj" in col else np.zeros(len(table.values))
+        trajs, when = np.unique(traj), _filled(table.values[:, col["t"]])
+        groups = [g[np.argsort(when[g], kind="stable")] for g in (np.flatnonzero(traj == tr) for tr in trajs)]
+        names = [path.name if len(trajs) == 1 else f"{path.name} traj {tr:g}" for tr in trajs]
+        part = _csv_log_set(path, table, groups, names) if len(table.values) else {}
+        for key in merged:
+            merged[key] += list(part.get(key, []))
+    if not layout or not layout[1]:
+        merged.pop("u")
+    return merged
+
+
+def load_raw(source: str | Path | Mapping[str, Any] | Sequence[str | Path]) -> tuple[dict[str, Any], str]:
+    """Read an .npz / .csv path, a folder of .csv logs or a list of .csv paths, or take a mapping; returns (dict,
+    description).  A log set (logs of different lengths) comes back with ``q`` (and ``t``, ``u``) as lists."""
     if isinstance(source, Mapping):
-        return dict(source), "<arrays>"
+        raw = dict(source)
+        return (log_set_from_keys(raw, "<arrays>") if "q" not in raw and "q_0" in raw else raw), "<arrays>"
+    if not isinstance(source, (str, Path)):
+        paths = [Path(p) for p in source]
+        missing = [str(p) for p in paths if not p.is_file()]
+        if missing:
+            raise ValueError(f"recordings files {missing} do not exist")
+        return _read_csv_logs(paths, "recordings"), ",".join(str(p) for p in paths)
     path = Path(source)
     if not path.exists():
         raise ValueError(f"recordings file {path} does not exist")
+    if path.is_dir():
+        return _read_csv_logs(sorted(path.glob("*.csv")), str(path)), str(path)
     if path.suffix.lower() == ".csv":
         return _read_csv(path), str(path)
+    return _read_npz(path), str(path)
+
+
+def _read_npz(path: Path) -> dict[str, Any]:
+    """An .npz archive's arrays (``q_0, q_1, ...`` keys: a log set)."""
     if path.is_file() and path.stat().st_size == 0:
         raise ValueError(f"recordings file {path} is empty (0 bytes)")
     try:
@@ -246,28 +316,108 @@ def load_raw(source: str | Path | Mapping[str, Any]) -> tuple[dict[str, Any], st
         with z:
             if not z.files:
                 raise ValueError(f"recordings file {path} is an .npz archive with no arrays (need at least 'q')")
-            return {k: z[k] for k in z.files}, str(path)
+            files = {k: z[k] for k in z.files}
     except ValueError as exc:
         if str(exc).startswith(f"recordings file {path}"):
             raise
+        if "allow_pickle" in str(exc):
+            raise ValueError(f"recordings file {path} holds object arrays (pickled, not loaded): save logs of different "
+                             "lengths as q_0, q_1, ... (t_0, u_0, ...; docs/mismatch.md)") from None
         raise ValueError(f"recordings file {path} is not a readable .npz or .csv ({exc})") from None
     except (OSError, EOFError, zipfile.BadZipFile) as exc:
         raise ValueError(f"recordings file {path} is not a readable .npz or .csv ({exc})") from None
+    return log_set_from_keys(files, str(path)) if "q" not in files and "q_0" in files else files
 
 
 def validate(raw: Mapping[str, Any], n: int, env_angle_dims: tuple[int, ...], source: str = "<arrays>",
-             min_samples: int = MIN_SAMPLES, actuated_dofs: tuple[int, ...] | None = None) -> Recordings:
-    """Check shapes, finiteness and the time base (strictly increasing t); convert to the env's convention."""
+             min_samples: int = MIN_SAMPLES, actuated_dofs: tuple[int, ...] | None = None, model: Any = None,
+             piece_samples: int = MAX_PIECE_SAMPLES) -> Recordings:
+    """Check shapes, finiteness and the time base (strictly increasing t); convert to the env's convention.
+
+    A log set (:func:`.logs.is_log_set`) is cleaned and cut into pieces of at most ``piece_samples`` samples first
+    (:func:`_validate_logs`).  ``model``, the simulator's system, adds the checks of :mod:`.coordinates` against its
+    coordinate names and (a MuJoCo model file) joint ranges.
+    """
+    if is_log_set(raw):
+        return _validate_logs(raw, n, env_angle_dims, source, min_samples, actuated_dofs, model, piece_samples)
     q = _check_q(raw, n, source, min_samples)
     T = q.shape[1]
     t = _check_t(np.asarray(raw["t"], dtype=np.float64), q.shape[0], T, source) if raw.get("t") is not None else None
     dt = _time_step(raw, t, source)
+    angle_dims = _angle_dims(raw, env_angle_dims, n, source)
+    q, offset = _radians(q, raw, angle_dims, np.diff(t, axis=1) if t is not None else np.full((1, 1), dt), source)
+    limits = _against_model(q, offset, raw, model, source)
+    q = _continuous_angles(q, offset, angle_dims, source)
+    u = _port_input(raw, q.shape, actuated_dofs, source) if raw.get("u") is not None else None
+    rec = Recordings(q=q, dt=dt, u=u, angle_dims=angle_dims, source=source, t=t)
+    if limits:
+        rec.meta["joint_limits_reached"] = limits
+    return rec
+
+
+#: keys of a log set that hold for every log
+_SHARED = ("dt", "angle_dims", "angle_offset", "actuated_dofs", "coordinate_names")
+
+
+def _validate_logs(raw: Mapping[str, Any], n: int, env_angle_dims: tuple[int, ...], source: str, min_samples: int,
+                   actuated_dofs: tuple[int, ...] | None, model: Any, piece_samples: int) -> Recordings:
+    """A log set: units checked on the logs as given, bad rows dropped, the logs cut into equal-length pieces
+    (:func:`.logs.cut_pieces`), the pieces validated like equal-length recordings; ``origin`` and ``meta["logs"]``
+    say where each piece came from and what was dropped."""
+    logs = logs_of(raw, n, source)
+    angle_dims = _angle_dims(raw, env_angle_dims, n, source)
+    given = raw.get("dt")
+    dt = np.asarray(given, dtype=np.float64).reshape(-1)[:1] if given is not None and np.size(given) == 1 else np.full(1, np.nan)
+    offset = raw.get("angle_offset")
+    unit = angle_unit(raw.get("angle_unit"), source)
+    if unit == "deg":
+        logs = [replace(log, q=to_radians(log.q, None, angle_dims)[0]) for log in logs]
+        offset = None if offset is None else to_radians(np.zeros(n), offset, angle_dims)[1]
+    elif unit is None:
+        check_radians([log.q for log in logs], [dt if log.t is None else np.diff(log.t) for log in logs], angle_dims, source)
+    pieces = cut_pieces(logs, angle_dims, min_samples, piece_samples)
+    flat = {k: raw[k] for k in _SHARED if raw.get(k) is not None}
+    flat.update(q=pieces.q, angle_unit="rad")
+    if offset is not None:
+        flat["angle_offset"] = offset
+    if pieces.t is not None:
+        flat["t"] = pieces.t
+    if pieces.u is not None:
+        flat["u"] = pieces.u
+    rec = validate(flat, n, env_angle_dims, source, min_samples, actuated_dofs, model)
+    rec.origin = pieces.origin
+    rec.meta["logs"] = pieces.facts
+    return rec
+
+
+def _angle_dims(raw: Mapping[str, Any], env_angle_dims: tuple[int, ...], n: int, source: str) -> tuple[int, ...]:
     angle_dims = tuple(int(i) for i in np.atleast_1d(raw["angle_dims"])) if "angle_dims" in raw else tuple(env_angle_dims)
     if any(not 0 <= i < n for i in angle_dims):
         raise ValueError(f"{source}: angle_dims {angle_dims} out of range for n={n}")
-    q = _continuous_angles(q, raw.get("angle_offset"), angle_dims, source)
-    u = _port_input(raw, q.shape, actuated_dofs, source) if raw.get("u") is not None else None
-    return Recordings(q=q, dt=dt, u=u, angle_dims=angle_dims, source=source, t=t)
+    return angle_dims
+
+
+def _radians(q: np.ndarray, raw: Mapping[str, Any], angle_dims: tuple[int, ...], steps: np.ndarray,
+             source: str) -> tuple[np.ndarray, Any]:
+    """(q, angle_offset) in radians: converted when ``angle_unit`` is 'deg', checked not to look like degrees when it
+    is not declared (``steps``: the sample intervals, (N, T-1) or a broadcastable dt)."""
+    unit = angle_unit(raw.get("angle_unit"), source)
+    offset = raw.get("angle_offset")
+    if unit == "deg":
+        return to_radians(q, offset, angle_dims)
+    if unit is None:
+        check_radians([q], [steps], angle_dims, source)
+    return q, offset
+
+
+def _against_model(q: np.ndarray, offset: Any, raw: Mapping[str, Any], model: Any, source: str) -> list[dict[str, Any]]:
+    """The recordings' coordinate names and values (offset applied, as recorded) checked against ``model``; the joints
+    that reach a limit."""
+    if model is None:
+        return []
+    check_names(raw.get("coordinate_names"), model, source)
+    shifted = q if offset is None else q + np.asarray(offset, dtype=np.float64).reshape(-1) * np.ones(q.shape[-1])
+    return check_ranges([shifted], model, source)
 
 
 def _check_q(raw: Mapping[str, Any], n: int, source: str, min_samples: int) -> np.ndarray:
@@ -293,7 +443,8 @@ def _check_q(raw: Mapping[str, Any], n: int, source: str, min_samples: int) -> n
         raise ValueError(f"{source}: 'q' holds no trajectory")
     if not np.all(np.isfinite(q)):
         bad = np.argwhere(~np.isfinite(q))[0]
-        raise ValueError(f"{source}: 'q' contains NaN/inf (first at trajectory {bad[0]}, sample {bad[1]}, coordinate {bad[2]})")
+        raise ValueError(f"{source}: 'q' contains NaN/inf (first at trajectory {bad[0]}, sample {bad[1]}, coordinate {bad[2]}); "
+                         "save the trajectories as logs (q_0, q_1, ...) to have such rows dropped and counted")
     return q
 
 

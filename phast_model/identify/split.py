@@ -1,4 +1,9 @@
-"""Which recordings are held out: by index (``--holdout-trajectories``) or by fraction (of trajectories, or of time for one)."""
+"""Which recordings are held out: by index (``--holdout-trajectories``) or by fraction (of trajectories, or of time for one).
+
+For a log set (logs of different lengths cut into pieces, :mod:`.logs`) the unit is the log: indices name logs, a
+fraction holds out the last logs, and every piece of a held-out log is held out, so nothing the fit saw is scored.
+One log is held out in time: its last pieces, without the pieces that overlap them.
+"""
 
 from __future__ import annotations
 
@@ -44,7 +49,10 @@ def check_holdout_range(indices: list[int], n_traj: int) -> None:
 
 
 def split(rec: Recordings, frac: float, indices: list[int] | None = None) -> tuple[Recordings, Recordings, str]:
-    """(training, held-out, description): the given trajectories, else the last ``frac`` of the trajectories (of time for one)."""
+    """(training, held-out, description): the given trajectories, else the last ``frac`` of the trajectories (of time for one);
+    whole logs for a log set (:func:`split_logs`)."""
+    if rec.origin is not None:
+        return split_logs(rec, frac, indices)
     N, T = rec.n_traj, rec.T
     if indices is not None:
         check_holdout_range(indices, N)
@@ -62,3 +70,52 @@ def split(rec: Recordings, frac: float, indices: list[int] | None = None) -> tup
     return rec.time_slice(0, cut), rec.time_slice(cut, T), f"held-out last {frac:.0%} of the recording in time (samples {cut}..{T - 1})"
 
 
+
+
+def split_logs(rec: Recordings, frac: float, indices: list[int] | None = None) -> tuple[Recordings, Recordings, str]:
+    """:func:`split` of a log set's pieces: the logs ``indices`` (0-based, as given), else the last ``frac`` of the logs
+    that kept samples; with one such log, its last pieces in time."""
+    assert rec.origin is not None
+    log = rec.origin[:, 0]
+    facts = rec.meta.get("logs", {})
+    n_logs = int(facts.get("n_logs", log.max() + 1))
+    names = list(facts.get("names", [f"log {k}" for k in range(n_logs)]))
+    used = sorted({int(k) for k in log})
+    if indices is not None:
+        over = [k for k in indices if k >= n_logs]
+        if over:
+            raise ValueError(f"holdout_trajectories out of range: {over} (the recordings are {n_logs} logs, indices 0..{n_logs - 1})")
+        empty = [k for k in indices if k not in used]
+        if empty:
+            raise ValueError(f"holdout_trajectories: logs {empty} ({', '.join(names[k] for k in empty)}) kept no usable piece "
+                             "(report.json data.logs says what was dropped)")
+        if set(used) <= set(indices):
+            raise ValueError(f"holdout_trajectories {sorted(indices)} holds out every log; none is left for fitting")
+        held = sorted(indices)
+    elif not 0.0 < frac < 1.0:
+        raise ValueError(f"holdout_fraction must be in (0, 1), got {frac}")
+    elif len(used) >= 2:
+        held = used[len(used) - min(max(1, int(round(len(used) * frac))), len(used) - 1):]
+    else:
+        return _split_one_log(rec, frac, names[used[0]])
+    hold = np.isin(log, held)
+    what = f"held-out recordings (logs {held}: {', '.join(names[k] for k in held)}; {int(hold.sum())} pieces)"
+    return rec.subset(np.flatnonzero(~hold)), rec.subset(np.flatnonzero(hold)), what
+
+
+def _split_one_log(rec: Recordings, frac: float, name: str) -> tuple[Recordings, Recordings, str]:
+    """One log's pieces: the last ``frac`` of them held out, the pieces overlapping those beyond a boundary sample left
+    out of training; one piece is split in time like one trajectory."""
+    assert rec.origin is not None
+    P = rec.n_traj
+    if P == 1:
+        return split(Recordings(rec.q, rec.dt, rec.u, rec.angle_dims, rec.source, rec.meta, rec.t), frac)
+    order = np.argsort(rec.origin[:, 1], kind="stable")
+    k = min(max(1, int(round(P * frac))), P - 1)
+    held = order[P - k:]
+    first = int(rec.origin[held, 1].min())
+    train = np.array([i for i in order[: P - k] if rec.origin[i, 2] <= first], dtype=int)
+    if not train.size:
+        raise ValueError(f"the one log {name} is too short to hold out {frac:.0%} of it in time without overlap; give more logs "
+                         "or holdout_trajectories")
+    return rec.subset(train), rec.subset(np.sort(held)), f"held-out last {k} of {P} pieces of the one log {name} in time"

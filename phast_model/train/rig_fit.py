@@ -89,12 +89,13 @@ class RigData:
 def load_rig_data(recordings: str | Path | dict[str, Any], sim: str, sim_kwargs: dict[str, Any] | None = None,
                   holdout: list[int] | None = None, decimate: int = 1) -> RigData:
     """Read and check the recordings against the rig ``sim`` (shapes, u width, angles), hold out ``holdout``
-    (trajectory indices) and resample both parts onto the uniform grid of their median step; ``decimate`` keeps every
+    (trajectory indices; log indices for a log set) and resample both parts onto the uniform grid of their median step
+    (the model's joint names and ranges checked too); ``decimate`` keeps every
     k-th sample of free-motion recordings (a 1 kHz encoder on a 1 Hz pendulum: the model then steps at k dt)."""
     system = load_simulator(sim, sim_kwargs or {}).build()
     holdout = check_holdout_indices(holdout)
     raw, src = load_raw(recordings)
-    rec = validate(raw, system.n, tuple(system.angle_dims), src, actuated_dofs=getattr(system, "actuated_dofs", None))
+    rec = validate(raw, system.n, tuple(system.angle_dims), src, actuated_dofs=getattr(system, "actuated_dofs", None), model=system)
     if holdout:
         train, held, _ = split(rec, 0.0, holdout)
     else:
