@@ -135,10 +135,12 @@ def _verdicts(share: float, unconfirmed: list[TermRow], fitres: FitTable) -> lis
 
 
 def _data(rec: Recordings, dec: int, sigma_raw: np.ndarray) -> dict[str, Any]:
-    """report.data (sizes of the recordings as given, before decimation)."""
+    """report.data (sizes of the recordings as given, before decimation; a log set's logs, pieces and dropped rows)."""
+    from ..identify.logs import report_facts
+
     return {"n_traj": rec.n_traj, "T": rec.T, "dt": rec.dt, "decimated_by": dec, "noise_std": float(np.sqrt(np.mean(sigma_raw**2))),
             "noise_std_per_coordinate": [float(s) for s in sigma_raw], "source": rec.source,
-            "angle_dims": list(rec.angle_dims), "has_input": rec.u is not None}
+            "angle_dims": list(rec.angle_dims), "has_input": rec.u is not None, **report_facts(rec.meta)}
 
 
 def _details(ctx: Context, explained: Explained, augmented: System) -> dict[str, Any]:
