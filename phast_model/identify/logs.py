@@ -382,11 +382,12 @@ def _facts(logs: Sequence[Log], cleaned: Cleaned, segs: list[tuple[int, np.ndarr
     text = (f"{len(logs)} logs of {min(rows)}..{max(rows)} rows cut into {n_pieces} pieces of {size} samples "
             f"(neighbours share their boundary sample; {repeated} samples repeated where a segment's last piece overlaps)")
     if n_dropped:
-        text += (f"; {n_dropped} rows dropped: {total['truncated']} truncated, {total['not_finite']} not finite, "
+        rows_text = f"{n_dropped} row{'s' if n_dropped > 1 else ''}"
+        text += (f"; {rows_text} dropped: {total['truncated']} truncated, {total['not_finite']} not finite, "
                  f"{total['isolated']} isolated between breaks (jumps, time not advancing, gaps over {MAX_GAP_STEPS:g} steps)")
     splits = sum(max(0, len(s) - 1) for s in cleaned.segments)
     if splits or sum(cleaned.bridged):
-        text += f"; {splits} logs split at a break, {sum(cleaned.bridged)} gaps of dropped rows bridged by the recorded times"
+        text += f"; {splits} splits of a log at a break, {sum(cleaned.bridged)} gaps of dropped rows bridged by the recorded times"
     return {"n_logs": len(logs), "names": [log.name for log in logs], "rows": rows,
             "rows_used": [int(sum(len(s) for s in segments)) for segments in cleaned.segments],
             "segments": [len(s) for s in cleaned.segments], "n_pieces": n_pieces, "piece_samples": size,
