@@ -6,7 +6,7 @@ samples and wall time as mean and max).  Energy-Casimir rows are deterministic p
 averaged the same way.  ``--floor`` (N m) adds the RMS torque as a multiple of a torque floor (the LQG bound of
 docs/control.md for sigma = 0.01: 0.087 N m).
 
-The pooling: :mod:`phast_model.rl.summary`.
+The pooling: :mod:`benchmarks.sac.summary`.
 
     python benchmarks/control_sac_summary.py docs/control_results/sac/upright_mirror_s* --floor 0.087
 """
@@ -14,11 +14,13 @@ The pooling: :mod:`phast_model.rl.summary`.
 from __future__ import annotations
 
 import argparse
-
-from phast_model.rl.summary import load_rows, summarize
+import sys
+from pathlib import Path
 
 
 def main(argv: list[str] | None = None) -> None:
+    from benchmarks.sac.summary import load_rows, summarize
+
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("dirs", nargs="+", help="control_sac.py output folders (one training seed each)")
     ap.add_argument("--floor", type=float, default=None, help="torque floor (N m) for the RMS / floor column")
@@ -32,4 +34,5 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # the repository root: benchmarks.sac
     main()

@@ -2,7 +2,7 @@
 
 Writes ``OUT/`` (the run directory, usable as ``control_sac.py --phast-run OUT``), ``OUT/recordings.npz`` and
 ``OUT/world_data.json`` (the recording protocol and ``real_samples``, which ``control_sac.py`` adds to
-``sac-world``'s real-env samples).  How the plant is recorded and the model learned: :mod:`phast_model.rl.world_data`.
+``sac-world``'s real-env samples).  How the plant is recorded and the model learned: :mod:`benchmarks.sac.world_data`.
 
     python benchmarks/sac_world_data.py --out runs/damped_rec16 --n-traj 16
 """
@@ -11,12 +11,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
-
-from phast_model.rl.world_data import PlantRecording, train_world_model
 
 
 def main(argv: list[str] | None = None) -> None:
+    from benchmarks.sac.world_data import PlantRecording, train_world_model
+
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", required=True, help="run directory (then: control_sac.py --phast-run OUT)")
     d = PlantRecording()
@@ -56,4 +57,5 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # the repository root: benchmarks.sac
     main()

@@ -40,7 +40,7 @@ from phast_gym.systems.base import NUMPY, System, angle_diff, wrap
 
 from ..control.phast_estimators import PHASTProcess
 from ..world.model import PHAST
-from .envs import ObsBuilder
+from .observation import ObsBuilder
 
 #: the holds: ``auto`` (Energy-Casimir when the input acts on every coordinate, else LQR), ``energy-casimir``, ``lqr``
 HOLD_KINDS = ("auto", "energy-casimir", "lqr")

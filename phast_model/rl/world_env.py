@@ -44,8 +44,8 @@ from phast_gym.systems.base import angle_diff
 
 from ..world.gym_env import PHASTWorldModelEnv
 from ..world.model import PHAST
-from .envs import ObsBuilder
 from .hold import HoldConfig
+from .observation import ObsBuilder
 
 
 def burn_in_pool(q: np.ndarray, window: int, stride: int = 1) -> np.ndarray:

@@ -83,7 +83,7 @@ def test_cartpole_lqg_floor_and_the_quiet_criterion() -> None:
 
 
 def test_cart_position_is_observed_bounded_and_odd() -> None:
-    from phast_model.rl.envs import EUCLID_SCALE, ObsBuilder
+    from phast_model.rl.observation import EUCLID_SCALE, ObsBuilder
 
     ob = ObsBuilder(2, angle_dims=(1,))
     o = ob.reset(np.array([3.0, 0.2]))

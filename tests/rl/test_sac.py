@@ -1,5 +1,5 @@
-"""Fast tests of the SAC benchmark (phast_model.rl, phast_model.cli.control_sac; benchmarks/control_sac.py): flatness
-rule, rewards, frame stack, seeded resets, a tiny end-to-end run."""
+"""Fast tests of the SAC benchmark (benchmarks.sac, benchmarks/control_sac.py): flatness rule, rewards, frame stack,
+seeded resets, the options as a dataclass, a tiny end-to-end run."""
 
 from __future__ import annotations
 
@@ -11,16 +11,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import benchmarks.sac.config as sac_module
+import benchmarks.sac.world_data as wd
 import phast_gym  # noqa: F401  (registers the ids)
-from phast_gym.control import ControlProtocol, make_control_env
-from phast_gym.reward import regulation_reward
-from phast_gym.systems.base import wrap
-from phast_model.cli.control_sac import main, parse_args
-from phast_model.rl import sac as sac_module
-from phast_model.rl import world_data as wd
-from phast_model.rl.envs import FrameObs, ObsBuilder, RepeatRegimeEnv
-from phast_model.rl.evaluation import evaluate_policy_on_plant, is_flat
-from phast_model.rl.rewards import (
+from benchmarks.sac.cli import main, parse_args
+from benchmarks.sac.config import curve_stem, method_tag, quiet_weight_of
+from benchmarks.sac.envs import FrameObs, RepeatRegimeEnv
+from benchmarks.sac.evaluation import evaluate_policy_on_plant, is_flat
+from benchmarks.sac.rewards import (
     PRECISE_WEIGHT,
     PRECISE_WELLS,
     QUIET_WEIGHT,
@@ -31,7 +29,10 @@ from phast_model.rl.rewards import (
     pendulum_reward,
     upright_quiet_weight,
 )
-from phast_model.rl.sac import curve_stem, method_tag, quiet_weight_of
+from phast_gym.control import ControlProtocol, make_control_env
+from phast_gym.reward import regulation_reward
+from phast_gym.systems.base import wrap
+from phast_model.rl.observation import ObsBuilder
 
 
 def test_is_flat_on_synthetic_curves() -> None:

@@ -1,4 +1,4 @@
-"""phast_model.rl.summary (benchmarks/control_sac_summary.py): rows of several seeds pooled by setting and method."""
+"""benchmarks.sac.summary (benchmarks/control_sac_summary.py): rows of several seeds pooled by setting and method."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from phast_model.rl.summary import load_rows, summarize
+from benchmarks.sac.summary import load_rows, summarize
 from tests import ROOT
 
 

@@ -1,4 +1,4 @@
-"""phast_model.rl.world_data (benchmarks/sac_world_data.py): driven noisy plant recordings and the world model learned
+"""benchmarks.sac.world_data (benchmarks/sac_world_data.py): driven noisy plant recordings and the world model learned
 from them."""
 
 from __future__ import annotations
@@ -11,12 +11,12 @@ import sys
 import numpy as np
 import pytest
 
+import benchmarks.sac.agents as sac
+import benchmarks.sac.world_data as wd
+from benchmarks.sac.cli import parse_args
 from phast_gym.control import ControlProtocol
 from phast_gym.control.evaluation import control_system
 from phast_gym.integrate import simulate
-from phast_model.cli.control_sac import parse_args
-from phast_model.rl import sac
-from phast_model.rl import world_data as wd
 from tests import ROOT
 
 

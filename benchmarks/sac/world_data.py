@@ -99,8 +99,8 @@ def train_world_model(spec: PlantRecording, out: Path, sim: str, sim_kwargs: dic
                       window_s: float, holdout: tuple[int, ...], seed: int = 0, progress: bool = False) -> dict[str, Any]:
     """Record the plant, train the PARTIAL recordings model into ``out`` and write the recordings and
     :data:`WORLD_DATA_FILE` beside it; returns the run's metrics."""
-    from ..train.rig_fit import RigTrainConfig
-    from ..train.rig_run import RecordingsSpec, train_recordings_run
+    from phast_model.train.rig_fit import RigTrainConfig
+    from phast_model.train.rig_run import RecordingsSpec, train_recordings_run
 
     rec = record_plant(spec)
     t0 = time.time()

@@ -15,8 +15,9 @@ import numpy as np
 
 from phast_gym.control import START_REGIMES, ControlProtocol, make_control_env, start_states
 from phast_gym.systems.base import wrap
+from phast_model.rl.observation import ObsBuilder
 
-from .envs import ObsBuilder, check_regimes, plant_system
+from .envs import check_regimes, plant_system
 from .rewards import QUIET_WEIGHT
 
 
@@ -32,7 +33,12 @@ def is_flat(curve: Sequence[float], window: int = 4, rel_tol: float = 0.05, abs_
 
 
 def episode_return(model: Any, env: gym.Env, seed: int, options: dict | None = None) -> float:
-    """Return of one deterministic episode of ``model`` in ``env`` (a FrameObs-wrapped env)."""
+    """Return of one deterministic episode of ``model`` in ``env`` (a FrameObs-wrapped env), summed in float64.
+
+    Not SB3's ``evaluate_policy``: a learning-curve point is a fixed set of seeded starts (``seed`` and ``options``
+    per episode: the world model's burn-in windows drawn once), which a ``VecEnv`` reset does not take per episode;
+    its ``DummyVecEnv`` resets the env again after the last episode (on the world model: a fresh real burn-in,
+    counted as real samples) and returns float32 rewards, whose sum differs from this one in the last digits."""
     obs, _ = env.reset(seed=seed, options=options)
     total, done = 0.0, False
     while not done:
