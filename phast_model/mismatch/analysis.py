@@ -6,12 +6,13 @@ shooting of the nominal / augmented simulator on windows of the recordings
 (:mod:`phast_model.identify.shooting`).  Smoothed derivatives are used only to seed window states
 and to draw the residual map, so the answer does not move with the filter.
 
-Stages: :mod:`.fitting.problem` (noise, scales, windows), :mod:`.calibrate`,
-:mod:`.vocabulary.screening` + :mod:`.select` (shooting selection, two-fold validation),
-:mod:`.explainers` (the answer's strategies: the shooting selection's, then :mod:`.systematic`'s weak form and
+Stages (this module composes them, the only one that imports them all; their order is the package docstring's):
+:mod:`.fitting.problem` (noise, scales, windows), :mod:`.calibrate`,
+:mod:`.selection` (screening, shooting selection, two-fold validation, the longer look at laws),
+:mod:`.explainers` (the answer's strategies: the shooting selection's, then :mod:`.friction.systematic`'s weak form and
 :mod:`.friction` when model error dominates, adopted only when it predicts the held-out recordings better),
 :mod:`.evaluate` (the fit on the held-out recordings) and :mod:`.energy`,
-:mod:`.locate`, :mod:`.report` (and :mod:`.mjcf_answer` for a MuJoCo model file).
+:mod:`.locate`, :mod:`.report` (and :mod:`.report.mjcf_answer` for a MuJoCo model file).
 """
 
 from __future__ import annotations
@@ -35,14 +36,13 @@ from .energy import energy_check
 from .evaluate import FitTable, HeldOut, check_rollout_window, held_out
 from .explainers import Context, Explained, Explainer, ShootingExplainer, explain_in_turn
 from .fitting.problem import Problem, prepare
+from .friction.systematic import WeakFormExplainer
 from .locate import locate
-from .mjcf_answer import answer_in_model_terms, is_model_file_system
 from .options import Options, Progress
 from .report.document import Report, summary_text
+from .report.mjcf_answer import answer_in_model_terms, is_model_file_system
 from .rows import ParamRow, TermRow
-from .select import select
-from .systematic import WeakFormExplainer
-from .vocabulary.screening import candidates
+from .selection import candidates, select
 from .vocabulary.terms import VOCABULARY
 
 __all__ = ["EXPLAINERS", "InternalError", "Options", "Report", "analyze", "held_out_scores"]

@@ -9,7 +9,7 @@ and every other parameter's column is written in terms of the pivots (the change
 tell from a change of the pivots).
 
 Which parameters are *changed* is not decided here: every identifiable parameter is a candidate of the one selection
-of :mod:`.select`, where parameter changes and new terms compete (a parameter wins at equal evidence).
+of :mod:`.selection`, where parameter changes and new terms compete (a parameter wins at equal evidence).
 :func:`calibration` then refits the chosen parameters alone: the report's "calibrated" model.
 """
 

@@ -2,7 +2,7 @@
 
 *Held-out* means one thing in the tool: the recordings the split (:mod:`phast_model.identify.split`) sets aside before
 any stage runs, which nothing is fitted to.  The other two checks on recordings left out of a fit are named apart:
-the selection's *two-fold validation* on the training recordings (:mod:`.select`) and the *leave-one-out* of the
+the selection's *two-fold validation* on the training recordings (:mod:`.selection.forward`) and the *leave-one-out* of the
 friction-law selection and the weak-form parameter check (:mod:`.friction`).
 """
 

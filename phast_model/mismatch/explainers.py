@@ -9,16 +9,19 @@ and each later answer challenges it and is adopted only when its augmented model
 better than the calibrated model (rollout RMSE); otherwise it is kept, with the reason, in the report's details.
 
 Two ship with the tool, in :data:`phast_model.mismatch.analysis.EXPLAINERS`' order: :class:`ShootingExplainer` (the
-forward selection by multiple shooting, :mod:`.select`) and
-:class:`~phast_model.mismatch.systematic.WeakFormExplainer` (the friction law from the weak form when model error
-dominates).  A new one is a class in a module of its own plus its place in that list (or ``analyze(...,
-explainers=[...])`` for one run); docs/extending.md shows one.
+forward selection by multiple shooting, :mod:`.selection`) and
+:class:`~phast_model.mismatch.friction.systematic.WeakFormExplainer` (the friction stage's answer: the friction law
+from the weak form when model error dominates).  A new one is a class in a module of its own plus its place in that
+list (or ``analyze(..., explainers=[...])`` for one run); docs/extending.md shows one.
+
+This interface sits between the selection stage (whose result :class:`Context` carries) and the friction stage
+(which implements it): it imports no later stage, so what an answer hands the friction-curve plot is a :class:`Law`.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
@@ -31,13 +34,23 @@ from ..identify.shooting import ShootFit
 from .calibrate import Calibration
 from .evaluate import FitTable, HeldOut
 from .fitting.problem import Problem
-from .friction.laws import FrictionLaw
 from .rows import Alternative, ParamRow, TermRow, param_value
-from .select import INTERVALS, Selection, quantile95
+from .selection import INTERVALS, Selection, quantile95
 from .vocabulary.candidates import Candidate, ParamCandidate
 
-__all__ = ["METHOD", "Answer", "Context", "Declined", "Explained", "Explainer", "ShootingExplainer", "calibrated_rows",
-           "explain_in_turn", "missing_rows"]
+__all__ = ["METHOD", "Answer", "Context", "Declined", "Explained", "Explainer", "Law", "ShootingExplainer",
+           "calibrated_rows", "explain_in_turn", "missing_rows"]
+
+
+class Law(Protocol):
+    """A fitted friction law as an answer hands it to the friction-curve plot (what the plot reads of
+    :class:`.friction.laws.FrictionLaw`; the interface names no stage that implements it)."""
+
+    own_samples: list[tuple[np.ndarray, np.ndarray]]
+
+    def force(self, i: int, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """The law's added force on coordinate i (positive opposes +qdot)."""
+        ...
 
 
 @dataclass(frozen=True)
@@ -56,7 +69,7 @@ class Answer:
     section: str | None = None
     evidence: dict[str, Any] = field(default_factory=dict)
     curve: FrictionCurve | None = None
-    laws: dict[str, FrictionLaw] = field(default_factory=dict)
+    laws: Mapping[str, Law] = field(default_factory=dict)
     not_adopted: str | None = None
 
     def details(self) -> dict[str, Any]:
@@ -112,7 +125,7 @@ METHOD = ("multiple shooting of the simulator on windows (fit by simulation); Le
 
 
 class ShootingExplainer:
-    """The forward selection by multiple shooting (:func:`.select.select`, run before the explainers): its augmented
+    """The forward selection by multiple shooting (:func:`.selection.select`, run before the explainers): its augmented
     model, the calibration's parameter rows and the selected terms' rows."""
 
     def explain(self, ctx: Context) -> Answer:
@@ -152,7 +165,7 @@ class Explained:
         return next((a.curve for a in reversed(self.answers) if a.curve is not None), None)
 
     @property
-    def laws(self) -> dict[str, FrictionLaw]:
+    def laws(self) -> dict[str, Law]:
         return {k: law for a in self.answers for k, law in a.laws.items()}
 
     def details(self) -> dict[str, Any]:

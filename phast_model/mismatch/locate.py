@@ -18,7 +18,7 @@ from phast_gym.systems.base import System
 
 from ..identify.recordings import Recordings
 from ..identify.signals import SAVGOL, Differentiator
-from .friction import momentum_balance
+from ..identify.weakform import momentum_balance
 
 
 def residual_force(system: System, rec: Recordings, smoothing_window: int, differentiator: Differentiator = SAVGOL

@@ -44,7 +44,7 @@ class Options:
     progress: bool = False
     terms: tuple[str, ...] | None = None  # restrict the candidate vocabulary
     # shooting chi^2/dof above this: the misfit is model error, not noise (a right model leaves ~1), and shooting gains
-    # are no evidence; parameters, armature and the friction law then come from the weak form (systematic.py)
+    # are no evidence; parameters, armature and the friction law then come from the weak form (friction/systematic.py)
     systematic_chi2: float = 3.0
     # parameters the user frees although the simulator declares them known (Param(known=True), e.g. gravity)
     free: tuple[str, ...] = ()

@@ -286,7 +286,7 @@ PLANAR = """
 def test_first_body_inertia_about_its_hinge_is_armature(tmp_path):
     """A moment of the body hung from the world by one hinge, about that hinge's axis, is exactly that joint's
     armature (the C.0 arm's rotor inertia comes out this way); other moments are not."""
-    from phast_model.mismatch.mjcf_answer import armature_equivalent
+    from phast_model.mismatch.report.mjcf_answer import armature_equivalent
 
     path = tmp_path / "planar2.xml"
     path.write_text(PLANAR)
@@ -317,7 +317,7 @@ def test_written_body_stays_rigid(tmp_path):
 def test_recordings_at_a_joint_limit_are_named(tmp_path):
     """A limited joint the recordings drive into its limit is reported (MuJoCo's limit constraint is not fitted)."""
     from phast_model.identify.recordings import Recordings
-    from phast_model.mismatch.mjcf_answer import joint_limit_contacts
+    from phast_model.mismatch.report.mjcf_answer import joint_limit_contacts
 
     path = tmp_path / "two_link.urdf"
     path.write_text(URDF)

@@ -12,7 +12,7 @@ from phast_model.bench.reality import make_reality
 from phast_model.mismatch import AugmentedSystem, Term, analyze
 from phast_model.mismatch.analysis import EXPLAINERS
 from phast_model.mismatch.explainers import Answer, Context, Declined, ShootingExplainer
-from phast_model.mismatch.systematic import WeakFormExplainer
+from phast_model.mismatch.friction.systematic import WeakFormExplainer
 
 
 @pytest.fixture(scope="module")
@@ -109,7 +109,7 @@ def test_weak_form_parameters_the_simulator_refuses_leave_the_shooting_answer(da
     not positive definite, seen on a delayed-sensor arm in the model-error regime): the weak form then declines with
     the reason and the shooting answer stands, instead of an internal failure."""
     from phast_gym.systems.base import ParameterError
-    from phast_model.mismatch import systematic as weak
+    from phast_model.mismatch.friction import systematic as weak
 
     def refused(ctx):
         raise ParameterError("DoublePendulum: a mass matrix that is not positive definite")

@@ -429,7 +429,7 @@ def test_armature_candidate():
     from phast_model.identify.simulators import load_simulator
     from phast_model.mismatch.fitting.problem import prepare
     from phast_model.mismatch.options import Options, Progress
-    from phast_model.mismatch.vocabulary.screening import candidates
+    from phast_model.mismatch.selection.screening import candidates
 
     sim = load_simulator("PHAST/Pendulum-v0")
     sys0 = sim.build()

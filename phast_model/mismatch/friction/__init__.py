@@ -1,7 +1,9 @@
-"""Friction from q-only recordings: weak-form law fits, law selection by leave-one-out prediction, passivity.
+"""The friction stage: friction from q-only recordings (weak-form law fits, law selection by leave-one-out
+prediction, passivity) and the weak-form answer built on them.
 
-The stage the systematic regime (:mod:`..systematic`) runs when model error, not noise, dominates the shooting fit.
-It builds on the weak form and the friction curve of the shared identification layer (``identify``), which fit nothing (this package
+:mod:`.systematic` is the stage's answer (:class:`~.systematic.WeakFormExplainer`, an :class:`..explainers.Explainer`):
+the systematic regime, run when model error, not noise, dominates the shooting fit.  The stage builds on the weak
+form and the friction curve of the shared identification layer (``identify``), which fit nothing (this package
 re-exports their public names with its own):
 
 * :mod:`phast_model.identify.weakform`: the filtered momentum balance f~ = S*(F_cons + u) - d/dt S*p (the total
@@ -15,7 +17,10 @@ re-exports their public names with its own):
   :mod:`..evaluate`, which no stage fits);
 * :mod:`.weakid`: :func:`~.weakid.identify`, the simulator's parameters, the reflected rotor inertia and a friction law
   in one weak-form least squares, and :func:`~.weakid.check_parameters` (leave-one-out as well);
-* :mod:`.plots`: :func:`plot_friction_curve`.
+* :mod:`.plots`: :func:`plot_friction_curve`;
+* :mod:`.systematic`: the weak-form answer: which parameters to calibrate, the law chosen per coordinate, the joint
+  refit, the delays of the shooting answer it competes with (not re-exported here: it is the stage's answer, and
+  the earlier stages' modules above need none of it).
 
 The friction laws are built from the dissipative kinds of the term registry (:mod:`..vocabulary.registry`):
 registering a new one makes it a candidate of every law fit and selection.

@@ -2,7 +2,7 @@
 
 *Leave-one-out*: each training recording (one recording: each contiguous time block) is left out of the fit in turn
 and predicted; the held-out recordings of the split (:mod:`..evaluate`) are never used here, and the selection's
-two-fold validation (:mod:`..select`) is a different check.
+two-fold validation (:mod:`..selection.forward`) is a different check.
 
 :func:`select_law`: candidate laws (subsets of up to 3 terms per coordinate), each fitted on all training recordings
 but one and scored on the left-out one (default: by how well it predicts the left-out recording's friction curve;

@@ -4,9 +4,10 @@
   :func:`~.registry.register` adds a kind from anywhere;
 * :mod:`.terms`: :class:`~.terms.Term` (a kind on one coordinate with its coefficient) and
   :class:`~.terms.AugmentedSystem` (the simulator plus named terms, a port-Hamiltonian model again);
-* :mod:`.candidates`: a candidate term or parameter change, and the model family they are fitted in;
-* :mod:`.screening`: :func:`~.screening.candidates`, every vocabulary term on every coordinate where it can act,
-  scaled to that coordinate's force.
+* :mod:`.candidates`: a candidate term or parameter change, and the model family they are fitted in.
+
+The first stage of the tool: it imports no other stage (the selection stage screens its candidates on the prepared
+problem, :mod:`..selection.screening`).
 """
 
 from .registry import VOCABULARY, TermKind, register

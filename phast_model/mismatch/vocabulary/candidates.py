@@ -3,7 +3,7 @@
 A fitted term's coefficient is ``default + scale * z`` (the kind's
 ``default`` is where the term has no effect), so every global of the shooting fit is O(1); a
 calibrated parameter is ``nominal * exp(z)`` (log-relative).  :func:`candidates`
-(:mod:`.screening`) builds the list the selection screens.
+(:mod:`..selection.screening`) builds the list the selection screens.
 """
 
 from __future__ import annotations

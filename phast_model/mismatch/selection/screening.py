@@ -1,5 +1,5 @@
 """The candidate terms the selection screens: every vocabulary term on every coordinate where it can act, scaled (by
-its kind, :meth:`.registry.TermKind.scales`) so that z = 1 is about the force scale of that coordinate."""
+its kind, :meth:`..vocabulary.registry.TermKind.scales`) so that z = 1 is about the force scale of that coordinate."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ from phast_gym.systems.base import NUMPY
 
 from ...identify.shooting import momentum
 from ..fitting.problem import Problem
-from .candidates import Candidate
-from .registry import VOCABULARY, ScaleContext, TermKind
-from .terms import AugmentedSystem
+from ..vocabulary.candidates import Candidate
+from ..vocabulary.registry import VOCABULARY, ScaleContext, TermKind
+from ..vocabulary.terms import AugmentedSystem
 
 
 def _screened(problem: Problem) -> list[TermKind]:
@@ -39,7 +39,7 @@ def _coordinate_scales(problem: Problem, system: AugmentedSystem) -> tuple[np.nd
 
 def candidates(problem: Problem, system: AugmentedSystem) -> list[Candidate]:
     """Every term of the vocabulary (``Options.terms``) on every coordinate where it can act, at the calibrated ``system``:
-    each kind scales its own candidates (:meth:`.registry.TermKind.scales`)."""
+    each kind scales its own candidates (:meth:`..vocabulary.registry.TermKind.scales`)."""
     qs, vs, train = problem.qs, problem.vs, problem.train
     force_rms, mass_rms = _coordinate_scales(problem, system)
     sensor_scale = problem.sigma * 10 + 1e-3 * problem.q_std

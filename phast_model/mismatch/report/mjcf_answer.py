@@ -18,14 +18,14 @@ import numpy as np
 from phast_gym.systems.mjcf import MJCFSystem
 from phast_gym.systems.mjcf_tree import MJCFTree, ModelFileError
 
-from ..identify.mjcf_write import Edit, calibrated_xml
-from ..identify.mujoco_sim import mujoco_simulated
-from ..identify.recordings import Recordings
-from .evaluate import HeldOut
-from .report.document import Report
-from .report.files import CALIBRATED_MODEL
-from .rows import TermRow
-from .vocabulary.registry import VOCABULARY
+from ...identify.mjcf_write import Edit, calibrated_xml
+from ...identify.mujoco_sim import mujoco_simulated
+from ...identify.recordings import Recordings
+from ..evaluate import HeldOut
+from ..rows import TermRow
+from ..vocabulary.registry import VOCABULARY
+from .document import Report
+from .files import CALIBRATED_MODEL
 
 #: the fit table's row of the written model
 CALIBRATED_XML_ROW = "calibrated_xml"

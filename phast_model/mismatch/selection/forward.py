@@ -1,19 +1,20 @@
-"""Stage 2, explain: parameter changes and new terms in one selection (forward selection by shooting).
+"""The selection stage's forward selection: parameter changes and new terms in one selection by shooting.
 
 Parameters before terms: the search starts from the fit with every pivot parameter free (a full-rank calibration,
-:mod:`.calibrate`), so a term is judged only on what no change of the simulator's parameters explains.  Each round
+:mod:`..calibrate`), so a term is judged only on what no change of the simulator's parameters explains.  Each round
 ranks the candidate terms by the chi^2 gain of the linearized shooting problem (window states and the current
 globals projected out; friction coefficients must come out positive) and confirms the best few, and every one of
-equal evidence with the best (:data:`EQUAL_EVIDENCE`), by nonlinear refits.  A term is added when its chi^2 gain
+equal evidence with the best (:data:`.search.EQUAL_EVIDENCE`), by nonlinear refits.  A term is added when its chi^2 gain
 exceeds threshold^2 and |z| / std >= threshold; between terms of equal evidence the one that keeps the parameters
-nearer their nominal values wins, then the one listed first in the vocabulary.
+nearer their nominal values wins, then the one listed first in the vocabulary.  Where dissipation laws of equal
+evidence met on one joint, :mod:`.law_look` compares them on longer windows.
 
 Then the parameter changes are pruned to those the recordings need; sensor / port terms that a nonlinear refit with
 every pivot free replaces are dropped; changes that act as one parameter are reported as it, and changes that act
 as an actuator gain as that gain (:func:`_port_gain_equivalent`: a datasheet error does not scale a whole
 coordinate).  Every chosen item must predict recordings left out of its fit by *two-fold validation* on the
 training recordings (:func:`_two_fold_validation`: each fold predicted by the fit on the other; not the held-out
-recordings of :mod:`.evaluate`, which no stage fits, nor the leave-one-out of :mod:`.friction.lawselect`); a sensor or
+recordings of :mod:`..evaluate`, which no stage fits, nor the leave-one-out of :mod:`..friction.lawselect`); a sensor or
 port term needs a left-out gain of threshold^2 over every parameter change open (local evidence).  A chosen
 term's velocity (a Stribeck v_s) is refined by profiling the refit cost in its kind's steps (quarter octaves).
 """
@@ -21,197 +22,35 @@ term's velocity (a Stribeck v_s) is refined by profiling the refit cost in its k
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from dataclasses import dataclass, field, replace
-from functools import partial
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 from scipy.stats import t as student_t
 
-from phast_gym.systems.base import System
-
-from ..identify.shooting import ShootFit
-from .calibrate import ParameterScreen
-from .fitting.linear import flat, orth_against
-from .fitting.problem import Problem
-from .law_look import LAW_LOOK, LawSet, fit_on_longer_windows
-from .options import Z95
-from .vocabulary.candidates import Candidate, Family, ParamCandidate
-from .vocabulary.registry import ACTUATOR_GAIN, COULOMB, ActuatorDeadzone
+from ...identify.shooting import ShootFit
+from ..calibrate import ParameterScreen
+from ..fitting.linear import flat
+from ..fitting.problem import Problem
+from ..options import Z95
+from ..vocabulary.candidates import Candidate, ParamCandidate
+from ..vocabulary.registry import ACTUATOR_GAIN, COULOMB, ActuatorDeadzone
+from .law_look import contenders, look_longer
+from .search import EQUAL_EVIDENCE, AnyCandidate, Search, Selection
 
 #: refit iterations while confirming a shortlisted candidate (the winner is finished with Options.max_iter)
 CONFIRM_ITER = 6
-#: gains within this share of each other are equal evidence (a parameter change then wins over a term)
-EQUAL_EVIDENCE = 0.05
 #: components whose terms need local evidence (a left-out gain of threshold^2) to be adopted
 LOCAL_EVIDENCE = ("sensor", "port")
 #: a Stribeck term beside a Coulomb term is weighed against that Coulomb edge made this many times sharper
 SHARPER_EDGE = 4.0
-
-AnyCandidate = Candidate | ParamCandidate
 
 
 def _component(cand: AnyCandidate) -> str:
     return "parameter" if isinstance(cand, ParamCandidate) else cand.component
 
 
-@dataclass
-class Selection:
-    """Result of :func:`select`: the chosen parameter changes and terms, fitted together."""
-
-    candidates: list[AnyCandidate]  # as screened (a chosen Stribeck term carries its refined velocity)
-    usable: list[int]  # indices of candidates with a usable column
-    columns: np.ndarray  # (N, len(candidates)) the terms' shooting columns at the full-rank calibration (parameters: 0)
-    chosen: list[int]  # indices of the selected items, in g order (parameters first, then terms)
-    gains: dict[int, float]  # chi^2 drop when each was added
-    family: Family
-    fit: ShootFit
-    cov: np.ndarray | None  # covariance of fit.g (None when nothing was chosen)
-    # the two-fold validation of every item examined (report.json: details.held_out_check, its name kept for readers)
-    validation: list[dict[str, Any]] = field(default_factory=list)
-    equivalent_swap: dict[str, Any] | None = None  # parameter changes reported as an equivalent (one parameter, a port gain)
-    interval_cov: np.ndarray | None = None  # covariance of fit.g for the reported intervals (ShootFit.interval_covariance)
-    q95: float = Z95  # their 95% quantile (Student's t over the recordings)
-
-    @property
-    def params(self) -> list[tuple[str, float]]:
-        """The changed parameters (name, nominal), in g order."""
-        return [(c.name, c.nominal) for c in (self.candidates[k] for k in self.chosen) if isinstance(c, ParamCandidate)]
-
-    @property
-    def terms(self) -> list[Candidate]:
-        return [c for c in (self.candidates[k] for k in self.chosen) if isinstance(c, Candidate)]
-
-    @property
-    def term_indices(self) -> list[int]:
-        return [k for k in self.chosen if not self.candidates[k].is_param]
-
-    @property
-    def system(self) -> Any:
-        return self.family.build(self.fit.g)
-
-
-@dataclass
-class _Marks:
-    """Items already handled: parameters reported as their equivalent port gain, terms whose velocity was refined."""
-
-    swapped: set[int] = field(default_factory=set)
-    refined: set[int] = field(default_factory=set)
-    # (chosen term, another law of equal evidence on its coordinate, that law's linear z) for the longer look
-    contenders: list[tuple[int, int, float]] = field(default_factory=list)  # (.law_look)
-    longer_look: set[int] = field(default_factory=set)  # terms adopted on the longer windows (their evidence is there)
-
-
-def _structure_groups(cands: list[AnyCandidate], ks: list[int]) -> list[list[int]]:
-    """``ks`` in groups whose systems can be simulated as one batch: the parameter changes, the force terms by
-    component (an armature changes how the vector field is assembled, so those terms go together), port and sensor
-    terms by kind (a smoothed deadzone at zero threshold is not the identity)."""
-    groups: dict[str, list[int]] = {}
-    for k in ks:
-        c = cands[k]
-        if isinstance(c, ParamCandidate):
-            key = "param"
-        else:
-            key = c.component if c.component in ("dissipation", "potential", "inertia") else c.term
-        groups.setdefault(key, []).append(k)
-    return list(groups.values())
-
-
-@dataclass
-class _Search:
-    """Shared state of one selection: the problem, the parameter screen and the (mutable) current model."""
-
-    problem: Problem
-    screen: ParameterScreen
-    cands: list[AnyCandidate]
-    fit: ShootFit
-    fam: Family
-    cov: np.ndarray | None = None
-    chosen: list[int] = field(default_factory=list)  # in g order: parameters, then terms
-    gains: dict[int, float] = field(default_factory=dict)
-    raw: dict[int, np.ndarray] = field(default_factory=dict)  # unprojected columns of the last :meth:`columns` call
-    marks: _Marks = field(default_factory=_Marks)
-    eps: tuple[float, ...] | None = None  # the Coulomb edges when one was made sharper (None: the problem's)
-
-    @property
-    def thr2(self) -> float:
-        return self.problem.opts.threshold ** 2
-
-    def pos(self, k: int) -> int:
-        return self.chosen.index(k)
-
-    def add(self, k: int, fam: Family, g: np.ndarray, z: float) -> tuple[Family, np.ndarray, list[int]]:
-        """Family, globals and g-ordered chosen list with candidate k added at ``z``."""
-        fam2, g2 = self.cands[k].add_to(fam, g, z)
-        order = list(self.chosen)
-        order.insert(self.n_params() if self.cands[k].is_param else len(order), k)
-        return fam2, g2, order
-
-    def family_of(self, order: list[int], cands: list[AnyCandidate] | None = None) -> Family:
-        """The family of the items ``order`` (of ``cands``, default the search's candidates), in g order."""
-        pool = self.cands if cands is None else cands
-        params = [(c.name, c.nominal) for c in (pool[k] for k in order) if isinstance(c, ParamCandidate)]
-        terms = [c.family_term for c in (pool[k] for k in order) if isinstance(c, Candidate)]
-        nominal = self.problem.nominal_family if self.eps is None else replace(self.problem.nominal_family, eps=self.eps)
-        return nominal.with_(params=params, terms=terms)
-
-    def columns(self, fit: ShootFit, fam: Family, ks: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Residual and candidate columns at ``fit`` with window states and current globals projected out; the raw
-        columns are kept in :attr:`raw` (for the window-state part of a linear step)."""
-        def build(k: int) -> System:
-            fam2, g2 = self.cands[k].add_to(fam, fit.g, self.cands[k].fd_step)
-            return fam2.build(g2)
-
-        def stand_in(k: int, group: list[int]) -> System:  # every term of the group present, all but k at no effect
-            terms = [c.family_term for c in (self.cands[j] for j in group) if isinstance(c, Candidate)]
-            steps = [self.cands[j].fd_step if j == k else 0.0 for j in group]
-            return fam.with_(terms=fam.terms + terms).build(np.concatenate([fit.g, steps]))
-
-        cols = np.empty(fit.r.shape + (len(ks),))
-        for group in _structure_groups(self.cands, ks):
-            builds: list[Callable[[], System]] = [partial(build, k) for k in group]
-            stand_ins: list[Callable[[], System]] | None = \
-                None if self.cands[group[0]].is_param else [partial(stand_in, k, group) for k in group]
-            cols[..., [ks.index(k) for k in group]] = self.screen.shooter.columns(
-                builds, fit, fit.r, [self.cands[k].fd_step for k in group], stand_ins)
-        self.raw = {k: cols[..., j] for j, k in enumerate(ks)}
-        r_p, cols_p = fit.projected(cols)
-        _, jg_p = fit.projected()
-        G = flat(jg_p) if fit.g.size else None
-        r_p = r_p.reshape(-1)
-        cols_p = flat(cols_p)
-        if G is not None:
-            r_p = r_p - G @ np.linalg.lstsq(G, r_p, rcond=None)[0]
-        return r_p, cols_p, orth_against(cols_p, G)
-
-    def state_step(self, k: int, z: float) -> np.ndarray:
-        """Window states after the linear step that adds candidate k at ``z`` (each window's state re-fitted to the
-        change its column predicts): a start close to the new optimum when the change is large."""
-        fit, col = self.fit, self.raw.get(k)
-        if col is None:
-            return fit.X
-        JX = fit.JX
-        A = np.einsum("wla,wlb->wab", JX, JX) + 1e-12 * np.eye(JX.shape[2])
-        b = np.einsum("wla,wl->wa", JX, fit.r + col * z)
-        return fit.X - np.linalg.solve(A, b[..., None])[..., 0]
-
-    def item_ok(self, fit: ShootFit, cov: np.ndarray, order: list[int], k: int) -> bool:
-        """Item k of ``fit`` is significant (|z| / std >= threshold) and of the passive sign."""
-        j = order.index(k)
-        cand = self.cands[k]
-        z, sd = fit.g[j], math.sqrt(max(cov[j, j], 1e-300))
-        wrong_sign = cand.must_be_positive and cand.coefficient(z) <= 0
-        return abs(z) / sd >= self.problem.opts.threshold and not wrong_sign
-
-    def system_now(self) -> System:
-        return self.fam.build(self.fit.g)
-
-    def n_params(self) -> int:
-        return sum(self.cands[k].is_param for k in self.chosen)
-
-
-def _rank(s: _Search, pool: list[int], r_o: np.ndarray, cols_o: np.ndarray, col_of: dict[int, int],
+def _rank(s: Search, pool: list[int], r_o: np.ndarray, cols_o: np.ndarray, col_of: dict[int, int],
           s2: float) -> list[tuple[float, int, float]]:
     """(chi^2 gain, candidate, linear z) of each candidate term of ``pool``, best first."""
     ranked = []
@@ -244,7 +83,7 @@ def _shortlist(ranked: list[tuple[float, int, float]], thr2: float) -> list[tupl
     return [(k, z) for i, (g, k, z) in enumerate(ranked[:MAX_SHORTLIST]) if g >= thr2 and (i < 2 or g >= equal)]
 
 
-def _displacement(s: _Search, fit: ShootFit, cov: np.ndarray, order: list[int]) -> float:
+def _displacement(s: Search, fit: ShootFit, cov: np.ndarray, order: list[int]) -> float:
     """How far a fit moves the simulator's parameters from their nominal values: sum of (z / std)^2."""
     out = 0.0
     for j, k in enumerate(order):
@@ -253,7 +92,7 @@ def _displacement(s: _Search, fit: ShootFit, cov: np.ndarray, order: list[int]) 
     return out
 
 
-def _better(s: _Search, gain: float, k: int, disp: float, best: tuple | None) -> bool:
+def _better(s: Search, gain: float, k: int, disp: float, best: tuple | None) -> bool:
     """Whether term k (chi^2 ``gain``, parameter displacement ``disp``) beats the best so far: between terms of equal
     evidence the one that keeps the parameters nearer their nominal values (an equivalent explanation that needs
     fewer parameter changes), then the one listed first in the vocabulary."""
@@ -271,7 +110,7 @@ def _better(s: _Search, gain: float, k: int, disp: float, best: tuple | None) ->
 CATCH_UP = 0.75
 
 
-def _confirm(s: _Search, shortlist: list[tuple[int, float]], s2: float, linear: dict[int, float]) -> tuple | None:
+def _confirm(s: Search, shortlist: list[tuple[int, float]], s2: float, linear: dict[int, float]) -> tuple | None:
     """Nonlinear refit with each shortlisted candidate: the best passing one as (gain, k, fit, family, cov, order,
     parameter displacement).  A candidate whose linear gain ``linear[k]`` cannot catch up with the best refit so far
     (below :data:`CATCH_UP` of it) is not refitted."""
@@ -305,7 +144,7 @@ def _confirm(s: _Search, shortlist: list[tuple[int, float]], s2: float, linear: 
     return best
 
 
-def _forward(s: _Search, r_o: np.ndarray, cols_o: np.ndarray, pool: list[int], col_of: dict[int, int]) -> None:
+def _forward(s: Search, r_o: np.ndarray, cols_o: np.ndarray, pool: list[int], col_of: dict[int, int]) -> None:
     """Greedy forward selection: rank on the linearized problem, confirm the best few by nonlinear refits."""
     opts = s.problem.opts
     while pool:
@@ -316,7 +155,7 @@ def _forward(s: _Search, r_o: np.ndarray, cols_o: np.ndarray, pool: list[int], c
         if best is None:
             break
         _, k, fit_new, fam_new, cov_new, order, _ = best
-        s.marks.contenders += _contenders(s, k, ranked)
+        s.marks.contenders += contenders(s, k, ranked)
         if fit_new.iterations >= CONFIRM_ITER:  # finish the winner's refit
             fit_new = s.screen.shooter.fit(fam_new.build, fit_new.X, fit_new.g, max_iter=opts.max_iter)
             cov_new = fit_new.covariance()
@@ -332,85 +171,7 @@ def _forward(s: _Search, r_o: np.ndarray, cols_o: np.ndarray, pool: list[int], c
             col_of = {kk: j for j, kk in enumerate(pool)}
 
 
-#: most laws of equal evidence examined beside one chosen law (the strongest by linear gain)
-MAX_CONTENDERS = 2
-
-
-def _contenders(s: _Search, k: int, ranked: list[tuple[float, int, float]]) -> list[tuple[int, int, float]]:
-    """Other dissipation laws on the coordinate of the chosen term k of equal evidence (linear gain within threshold^2
-    or :data:`EQUAL_EVIDENCE` of its own): the windows did not decide between them (:func:`_law_look` looks longer)."""
-    c = s.cands[k]
-    if not isinstance(c, Candidate) or c.component != "dissipation":
-        return []
-    top = next(g for g, kk, _ in ranked if kk == k)
-    margin = max(s.thr2, EQUAL_EVIDENCE * top)
-    out = [(k, kk, z) for g, kk, z in ranked if kk != k and g >= top - margin and _same_joint_other_law(c, s.cands[kk])]
-    return out[:MAX_CONTENDERS]
-
-
-def _same_joint_other_law(a: Candidate, b: AnyCandidate) -> bool:
-    return isinstance(b, Candidate) and b.component == "dissipation" and b.coordinate == a.coordinate and b.term != a.term
-
-
-def _law_look(s: _Search) -> list[dict[str, Any]]:
-    """Where the selection met dissipation laws of equal evidence on one joint, the chosen set against each law swapped
-    in for the chosen one and each added beside it, all fitted on windows :data:`.law_look.LAW_LOOK` times longer
-    (:mod:`.law_look`); the best there is refitted on the selection's windows and adopted.  An added law must gain
-    threshold^2 there and every term must stay significant and passive; a swap must fit better by 2 chi^2 units."""
-    pairs = [(k, a, z) for k, a, z in s.marks.contenders if k in s.chosen and a not in s.chosen]
-    if not pairs or min(LAW_LOOK * s.problem.shoot_window, s.problem.train.T) <= s.problem.shoot_window:  # none longer
-        return []
-    if s.fit.chi2_red > s.problem.opts.systematic_chi2:  # chi^2 measures misfit there: the weak form chooses the law
-        s.problem.log("model error dominates: no longer look (the weak form chooses the dissipation law)")
-        return []
-    orders, starts = _law_sets(s, pairs)
-    fits = fit_on_longer_windows(s.problem, s.system_now(), [LawSet(o, s.family_of(o).build, g) for o, g in zip(orders, starts)])
-    best = _winner(s, orders, fits)
-    label = {i: " + ".join(s.cands[kk].label for kk in o if not s.cands[kk].is_param) for i, o in enumerate(orders)}
-    row: dict[str, Any] = {
-        "item": f"dissipation law ({label[0]})", "kept": best == 0,
-        "chi2_on_longer_windows": {label[i]: float(f.cost) for i, f in enumerate(fits)},
-        "note": f"laws of equal evidence on one joint: compared on {fits[0].r.shape[0]} windows {LAW_LOOK}x longer"}
-    if best == 0:
-        s.problem.log(f"longer look: {label[0]} stands")
-        return [row]
-    before, gains = s.fit.cost, dict(s.gains)
-    s.chosen, s.fam = orders[best], s.family_of(orders[best])
-    s.fit = s.screen.shooter.fit(s.fam.build, s.fit.X, fits[best].g, max_iter=s.problem.opts.max_iter)
-    s.cov = s.fit.covariance()
-    for k, a, _ in pairs:  # a swapped-in law inherits the gain of the one it replaces; an added one has its own
-        if a in s.chosen:
-            s.marks.longer_look.add(a)
-            s.gains[a] = max((gains[k] if k not in s.chosen else 0.0) + before - s.fit.cost, 0.0)
-    s.problem.log(f"longer look: {label[best]} instead of {label[0]}; chi2/dof = {s.fit.chi2_red:.3g}")
-    return [{**row, "note": f"{row['note']}; adopted: {label[best]}"}]
-
-
-def _law_sets(s: _Search, pairs: list[tuple[int, int, float]]) -> tuple[list[list[int]], list[np.ndarray]]:
-    """The sets the longer look compares (g orders and starts): the chosen one first, then per (chosen law k, other
-    law a, a's linear z) a swapped in for k (from z) and a added beside k (from no effect)."""
-    sets: dict[tuple[int, ...], np.ndarray] = {tuple(s.chosen): s.fit.g.copy()}
-    for k, a, z in pairs:
-        j = s.pos(k)
-        sets.setdefault(tuple(a if kk == k else kk for kk in s.chosen), np.concatenate([s.fit.g[:j], [z], s.fit.g[j + 1:]]))
-        sets.setdefault((*s.chosen, a), np.concatenate([s.fit.g, [0.0]]))
-    return [list(o) for o in sets], list(sets.values())
-
-
-def _winner(s: _Search, orders: list[list[int]], fits: list[ShootFit]) -> int:
-    """Index of the best set on the longer windows, the chosen one (0) unless beaten: a set of equal size by 2 chi^2
-    units, a larger one by threshold^2 per added law, with every term significant and passive."""
-    best = 0
-    for i in range(1, len(orders)):
-        bigger = len(orders[i]) - len(orders[best])
-        cov = fits[i].covariance()
-        ok = all(s.item_ok(fits[i], cov, orders[i], kk) for kk in orders[i] if not s.cands[kk].is_param)
-        if ok and fits[i].cost < fits[best].cost - (2.0 if bigger <= 0 else s.thr2 * bigger):
-            best = i
-    return best
-
-
-def _refit(s: _Search, keep: list[int]) -> None:
+def _refit(s: Search, keep: list[int]) -> None:
     """Refit with the chosen items ``keep`` only (the others set to no effect)."""
     g0 = np.array([s.fit.g[s.pos(k)] for k in keep])
     s.chosen = list(keep)
@@ -419,7 +180,7 @@ def _refit(s: _Search, keep: list[int]) -> None:
     s.cov = s.fit.covariance() if s.chosen else None
 
 
-def _prune(s: _Search) -> None:
+def _prune(s: Search) -> None:
     """Earlier items must stay significant once later ones are in."""
     if len(s.chosen) <= 1 or s.cov is None:
         return
@@ -428,7 +189,7 @@ def _prune(s: _Search) -> None:
         _refit(s, keep)
 
 
-def _two_folds(s: _Search) -> tuple[np.ndarray, str] | None:
+def _two_folds(s: Search) -> tuple[np.ndarray, str] | None:
     """The two validation folds of the windows: alternate training recordings, else the first and second half of the one recording."""
     w = s.screen.shooter.w
     trajs = np.unique(w.traj)
@@ -440,7 +201,7 @@ def _two_folds(s: _Search) -> tuple[np.ndarray, str] | None:
     return None
 
 
-def _open_parameter_columns(s: _Search) -> np.ndarray | None:
+def _open_parameter_columns(s: Search) -> np.ndarray | None:
     """(W, L*n, E) projected columns, at the current fit, of the examined parameters not chosen (None when none)."""
     extra = [k for k, c in enumerate(s.cands) if c.is_param and k not in s.chosen and k not in s.marks.swapped]
     if not extra:
@@ -449,7 +210,7 @@ def _open_parameter_columns(s: _Search) -> np.ndarray | None:
     return cols_p.reshape(s.fit.r.shape + (len(extra),))
 
 
-def _two_fold_gains(s: _Search) -> tuple[dict[int, float], str] | None:
+def _two_fold_gains(s: Search) -> tuple[dict[int, float], str] | None:
     """Per chosen item: how much worse each validation fold is predicted without it (chi^2 units, linearized problem:
     every global refitted on one fold, window states of the other fold refitted, and back).  A sensor or port term is
     compared with every parameter change open (it must predict what no parameter change can: local evidence)."""
@@ -477,14 +238,14 @@ def _two_fold_gains(s: _Search) -> tuple[dict[int, float], str] | None:
     return gains, txt
 
 
-def _parameter_effect(s: _Search) -> np.ndarray:
+def _parameter_effect(s: Search) -> np.ndarray:
     """The joint effect of the chosen parameter changes on the projected residual (linear)."""
     n = s.n_params()
     _, J_p = s.fit.projected()
     return flat(J_p)[:, :n] @ s.fit.g[:n]
 
 
-def _replace_if_as_good(s: _Search, order: list[int], g0: np.ndarray) -> ShootFit | None:
+def _replace_if_as_good(s: Search, order: list[int], g0: np.ndarray) -> ShootFit | None:
     """Refit with the items ``order`` from ``g0``; adopt it when it fits as well as the current model (equal evidence:
     chi^2 within 2 x chi^2/dof or 1%).  Returns the new fit, or None (nothing changed)."""
     fam = s.family_of(order)
@@ -496,7 +257,7 @@ def _replace_if_as_good(s: _Search, order: list[int], g0: np.ndarray) -> ShootFi
     return fit
 
 
-def _sparser_parameters(s: _Search) -> dict[str, Any] | None:
+def _sparser_parameters(s: Search) -> dict[str, Any] | None:
     """When the chosen parameter changes (two or more) act together exactly like a change of one parameter (cosine
     >= 0.99 of their joint effect with its column; e.g. an RLC circuit's resistance and inductance moved together are
     its capacitance), report that one change if it fits as well: the sparsest equivalent."""
@@ -523,7 +284,7 @@ def _sparser_parameters(s: _Search) -> dict[str, Any] | None:
     return swap
 
 
-def _compensating_terms(s: _Search) -> list[str]:
+def _compensating_terms(s: Search) -> list[str]:
     """Sensor and port terms that only stand in for parameter changes: refit without them, every pivot parameter free
     from the current values (the nonlinear check; the selection's screening is linear around the calibration).
     When that fits as well, the terms go and the parameters stay free (pruned again).  Returns the dropped labels."""
@@ -543,7 +304,7 @@ def _compensating_terms(s: _Search) -> list[str]:
     return dropped
 
 
-def _port_gain_equivalent(s: _Search) -> dict[str, Any] | None:
+def _port_gain_equivalent(s: Search) -> dict[str, Any] | None:
     """When the chosen parameter changes act together exactly like an actuator gain (cosine >= 0.99 of their joint
     effect with the gain's column), replace them by the gain if it fits as well: the equivalent that keeps the
     simulator's parameters.  Returns the swap made (for the report), or None."""
@@ -570,7 +331,7 @@ def _port_gain_equivalent(s: _Search) -> dict[str, Any] | None:
     return None
 
 
-def _two_fold_validation(s: _Search) -> list[dict[str, Any]]:
+def _two_fold_validation(s: Search) -> list[dict[str, Any]]:
     """Two-fold validation on the training recordings: drop, one at a time, the item that predicts the other fold
     least (sensor / port terms need threshold^2).  Returns the table of every item examined."""
     table: list[dict[str, Any]] = []
@@ -596,7 +357,7 @@ def _two_fold_validation(s: _Search) -> list[dict[str, Any]]:
     return table
 
 
-def _refine_velocities(s: _Search) -> None:
+def _refine_velocities(s: Search) -> None:
     """A chosen term whose kind refines its velocity (a Stribeck v_s): that velocity around the grid value, in the
     kind's steps (:attr:`.vocabulary.registry.TermKind.refine_steps`; profile of the refit cost), never below its minimum."""
     for k in s.chosen:
@@ -623,7 +384,7 @@ def _refine_velocities(s: _Search) -> None:
         s.problem.log(f"velocity refined: {s.cands[k].label}, chi2/dof = {s.fit.chi2_red:.3g}")
 
 
-def _sharper_edge(s: _Search) -> list[dict[str, Any]]:
+def _sharper_edge(s: Search) -> list[dict[str, Any]]:
     """A Stribeck term (a kind with ``excess_near_rest``) beside a Coulomb term on the same coordinate may only stand
     in for a real Coulomb edge sharper
     than the fits' tanh smoothing (the excess friction near rest that a smoothed edge leaves): refit without it, that
@@ -655,7 +416,7 @@ def _sharper_edge(s: _Search) -> list[dict[str, Any]]:
     return out
 
 
-def _start_calibrated(s: _Search) -> None:
+def _start_calibrated(s: Search) -> None:
     """Start from the fit with every pivot free (a full-rank set spanning the identifiable combinations)."""
     basis = s.screen.identifiability.basis
     by_name = {c.name: k for k, c in enumerate(s.cands) if isinstance(c, ParamCandidate)}
@@ -664,7 +425,7 @@ def _start_calibrated(s: _Search) -> None:
     s.cov = s.fit.covariance() if s.chosen else None
 
 
-def _prune_parameters(s: _Search) -> None:
+def _prune_parameters(s: Search) -> None:
     """Backward elimination of the parameter changes (with the terms in): the least significant one goes while its
     |z| / std < threshold, so only the changes the recordings need are reported.  Skipped when model error dominates
     (chi^2/dof above ``Options.systematic_chi2``): the weak form then checks the parameters on left-out recordings."""
@@ -694,7 +455,7 @@ def _prune_parameters(s: _Search) -> None:
 def select(problem: Problem, screen: ParameterScreen, cands: list[AnyCandidate]) -> Selection:
     """Terms by forward selection on top of a full-rank calibration, then the parameter changes pruned to those the
     recordings need; prune terms, the port-gain equivalent, the left-out check, velocities (Stribeck's)."""
-    s = _Search(problem, screen, list(cands), screen.fit_nominal, problem.nominal_family)
+    s = Search(problem, screen, list(cands), screen.fit_nominal, problem.nominal_family)
     _start_calibrated(s)
     terms = [k for k in range(len(s.cands)) if not s.cands[k].is_param]
     cols = np.zeros((s.fit.r.size, len(s.cands)))
@@ -707,7 +468,7 @@ def select(problem: Problem, screen: ParameterScreen, cands: list[AnyCandidate])
         _forward(s, r, cols_o[:, keep], usable, {k: j for j, k in enumerate(usable)})
     _prune_parameters(s)
     _prune(s)
-    law_look = _law_look(s)
+    law_look = look_longer(s)
     compensating = _compensating_terms(s)
     sparser = _sparser_parameters(s)
     swap = _port_gain_equivalent(s) or sparser
@@ -734,7 +495,7 @@ INTERVALS = ("coefficient +- t_0.975(recordings - 1) x standard error; the stand
              "(the smoothing's own bias)")
 
 
-def _edge_shift(s: _Search) -> np.ndarray | None:
+def _edge_shift(s: Search) -> np.ndarray | None:
     """(P,) how far every item of the final fit moves when the tanh smoothing of sign(qdot) is made
     :data:`EDGE_CHECK` times sharper on the coordinates of its terms with an edge (Coulomb-like, ``stiff_edge``): the
     fits model a real edge, sharper than theirs, and the coefficient they give carries that bias (on the bench a

@@ -1,4 +1,5 @@
-"""Stage 2b, the systematic regime: when model error, not noise, dominates the shooting residual.
+"""The friction stage's weak-form answer (the systematic regime): when model error, not noise, dominates the shooting
+residual.
 
 With chi^2/dof >> 1 (a real encoder's noise is tiny next to any model error) the
 shooting chi^2 gains and |t| values measure misfit, not evidence, and a law
@@ -10,10 +11,10 @@ made by prediction on recordings not used for the fit:
 * the weak-form momentum balance (one filter on both sides, :mod:`phast_model.identify.weakform`)
   under the simulator at the user's values (a shooting calibration made before
   any friction term may have absorbed friction);
-* which parameters to calibrate (:func:`.friction.weakid.check_parameters`): those whose
+* which parameters to calibrate (:func:`.weakid.check_parameters`): those whose
   fit predicts the left-out recordings' weak-form force better;
 * parameters, armature (where u drives) and a provisional friction law in one
-  least squares (:func:`.friction.weakid.identify`);
+  least squares (:func:`.weakid.identify`);
 * a non-parametric friction curve (total dissipative force by speed band, with
   block-bootstrap intervals) from the training recordings;
 * per coordinate, the candidate laws (up to 3 dissipative vocabulary terms,
@@ -28,8 +29,8 @@ made by prediction on recordings not used for the fit:
   with that law by held-out prediction (:func:`with_shooting_delays`): the law with the delays added is adopted only
   when it predicts the held-out recordings better than the law alone.
 
-:class:`WeakFormExplainer` is this regime as an :class:`~.explainers.Explainer`: its answer challenges the shooting
-answer and is adopted only when it predicts the held-out recordings better (:func:`.explainers.explain_in_turn`).
+:class:`WeakFormExplainer` is this regime as an :class:`~..explainers.Explainer`: its answer challenges the shooting
+answer and is adopted only when it predicts the held-out recordings better (:func:`..explainers.explain_in_turn`).
 """
 
 from __future__ import annotations
@@ -41,20 +42,20 @@ import numpy as np
 
 from phast_gym.systems.base import ParameterError, System
 
-from ..identify.frictioncurve import FrictionCurve, friction_curve
-from ..identify.shooting import Shooter, ShootFit
-from .calibrate import Calibration
-from .evaluate import HeldOut
-from .explainers import Answer, Context, Declined
-from .fitting.problem import Problem
-from .friction.laws import FrictionLaw, spec_of
-from .friction.lawselect import LawSelection, select_friction
-from .friction.passivity import check_against_curve, is_passive
-from .friction.weakid import WeakFit, WeakModel, check_parameters, identify
-from .rows import Alternative, ParamRow, TermRow, param_value
-from .vocabulary.candidates import Candidate
-from .vocabulary.registry import ARMATURE, COULOMB, VISCOUS
-from .vocabulary.terms import VOCABULARY, AugmentedSystem, Term
+from ...identify.frictioncurve import FrictionCurve, friction_curve
+from ...identify.shooting import Shooter, ShootFit
+from ..calibrate import Calibration
+from ..evaluate import HeldOut
+from ..explainers import Answer, Context, Declined
+from ..fitting.problem import Problem
+from ..rows import Alternative, ParamRow, TermRow, param_value
+from ..vocabulary.candidates import Candidate
+from ..vocabulary.registry import ARMATURE, COULOMB, VISCOUS
+from ..vocabulary.terms import VOCABULARY, AugmentedSystem, Term
+from .laws import FrictionLaw, spec_of
+from .lawselect import LawSelection, select_friction
+from .passivity import check_against_curve, is_passive
+from .weakid import WeakFit, WeakModel, check_parameters, identify
 
 
 @dataclass
@@ -234,7 +235,7 @@ METHOD_SYSTEMATIC = ("; model error >> noise, so the dissipation law was chosen 
 class WeakFormExplainer:
     """Stage 2b as an explainer: when the shooting-augmented chi^2/dof exceeds ``Options.systematic_chi2`` (model
     error, not noise, dominates), the weak-form answer of :func:`systematic` with the standing answer's delays
-    (:func:`with_shooting_delays`); otherwise :class:`~.explainers.Declined` with the reason (details.friction)."""
+    (:func:`with_shooting_delays`); otherwise :class:`~..explainers.Declined` with the reason (details.friction)."""
 
     def explain(self, ctx: Context) -> Answer | Declined:
         problem, cal, sel = ctx.problem, ctx.cal, ctx.selection
