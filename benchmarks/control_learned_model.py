@@ -18,7 +18,7 @@ from dataclasses import asdict
 from pathlib import Path
 
 from phast_gym.fileio import atomic_write_text
-from phast_model.control.learned_model import markdown, summarize
+from phast_model.control.learned_model import runs_markdown, summarize_runs
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -33,11 +33,11 @@ def main(argv: list[str] | None = None) -> int:
             ap.error(f"--runs takes REGIME=RUN_DIR, got {item!r}")
         runs[name] = Path(path)
     root = Path(args.dir)
-    rows, metrics = summarize(root, runs)
+    rows, metrics = summarize_runs(root, runs)
     if not rows:
         ap.error(f"no phast-control-eval results under {root}")
     atomic_write_text(root / "summary.json", json.dumps({"models": metrics, "rows": [asdict(r) for r in rows]}, indent=1))
-    text = markdown(rows, metrics)
+    text = runs_markdown(rows, metrics)
     atomic_write_text(root / "summary.md", text)
     print(text)
     return 0

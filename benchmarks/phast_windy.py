@@ -35,7 +35,7 @@ from phast_model.bench.acceptance import (
     import_references,
     markdown_table,
     numerics,
-    summarize,
+    summarize_acceptance,
     train_one,
 )
 from phast_model.train.checkpoint import atomic_write_json
@@ -114,11 +114,11 @@ def main(argv: list[str] | None = None) -> int:
             "protocol": {"n_train": args.n_train, "n_val": 200, "n_test": 200, "T": 200, "data_seed": 42,
                          "epochs": args.epochs, "torch_threads": 1},
             "machine": {"platform": platform.platform(), "processor": platform.processor(), **numerics()},
-            "elapsed_s": time.time() - t0, "summary": summarize(results), "runs": results,
+            "elapsed_s": time.time() - t0, "summary": summarize_acceptance(results), "runs": results,
             **({MACHINE_REFS: prev[MACHINE_REFS]} if MACHINE_REFS in prev else {})})
     if pool:
         pool.shutdown()
-    print(json.dumps({k: {kk: v.get(kk) for kk in ("accept", "accept_wall_time")} for k, v in summarize(results).items()},
+    print(json.dumps({k: {kk: v.get(kk) for kk in ("accept", "accept_wall_time")} for k, v in summarize_acceptance(results).items()},
                      indent=1))
     return 0
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import torch
 
 from phast_gym.fileio import atomic_write_text
-from phast_model.bench.diagnostics import diagnose_grid, markdown, merge
+from phast_model.bench.diagnostics import diagnose_grid, diagnoses_markdown, merge
 from phast_model.bench.paper import PAPER
 from phast_model.bench.spec import PHAST_MODELS, parse_seeds
 from phast_model.cli.bench import parse_kv
@@ -48,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
     diags = diagnose_grid(Path(args.out), envs, models, parse_seeds(args.seeds), parse_kv(args.model_kw))
     if args.merge and args.json.exists():
         diags = merge(json.loads(args.json.read_text()), diags, {(e, m) for e in envs for m in models})
-    table = markdown(diags)
+    table = diagnoses_markdown(diags)
     print(table)
     if args.json:
         atomic_write_text(args.json, json.dumps([dataclasses.asdict(d) for d in diags], indent=1) + "\n")

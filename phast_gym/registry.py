@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 import gymnasium as gym
+from gymnasium.envs.registration import get_env_id, parse_env_id
 
 from .systems import System, make_system
 
@@ -40,13 +41,17 @@ def env_ids() -> list[str]:
 
 
 def resolve_env_id(env_id: str) -> str:
-    """Accept ``PHAST/Name-v0``, ``Name-v0`` or ``phast_gym:PHAST/Name-v0``."""
+    """Accept ``PHAST/Name-v0``, ``Name-v0`` or ``phast_gym:PHAST/Name-v0`` (Gymnasium's id grammar, the
+    namespace defaulting to ``PHAST``)."""
     key = env_id.split(":", 1)[1] if env_id.startswith("phast_gym:") else env_id
-    if key not in ENV_TABLE and f"PHAST/{key}" in ENV_TABLE:
-        key = f"PHAST/{key}"
-    if key not in ENV_TABLE:
+    try:
+        namespace, name, version = parse_env_id(key)
+    except gym.error.Error:
+        namespace, name, version = None, key, None
+    full = get_env_id(namespace or "PHAST", name, version)
+    if full not in ENV_TABLE:
         raise gym.error.UnregisteredEnv(f"unknown env id {env_id!r}; registered ids: {env_ids()}")
-    return key
+    return full
 
 
 def make_env_system(env_id: str, **kwargs: Any) -> System:

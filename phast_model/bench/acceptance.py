@@ -151,7 +151,7 @@ def check(out: Path, todo: list[tuple[str, str]], seeds: list[int], epochs: int,
     return 0 if ok else 1
 
 
-def summarize(runs: list[dict]) -> dict:
+def summarize_acceptance(runs: list[dict]) -> dict:
     """mean / std over seeds of the headline keys, per (env, regime), with acceptance checks."""
     out = {}
     keys = ("rollout_theta_wrap_mse_h100", "rollout_mixed_mse_h100", "rollout_mse_h100", "theta_wrap_mse", "mse",
@@ -184,7 +184,7 @@ def markdown_table(doc: dict) -> str:
     """The docs table (docs/phast_model.md) of a results JSON: one row per (env, regime), mean +- std over seeds."""
     lines = ["| env | regime | seeds | headline metric (mean +- std) | damping R^2 (per seed) | damping MAE |"
              " wall time per run [s] (max) | params | acceptance |", "|---|---|---|---|---|---|---|---|---|"]
-    for key, s in summarize(doc["runs"]).items():  # recomputed: tables always match the runs
+    for key, s in summarize_acceptance(doc["runs"]).items():  # recomputed: tables always match the runs
         env, regime = key.split("|")
         bm = s["benchmark_metric"]
 

@@ -39,7 +39,7 @@ from phast_gym.systems import split
 
 from ..train.metrics import benchmark_metric, error_keys, squared_error
 from ..world.model import PHAST, LatentODEModel
-from .figures import load_model
+from .figures import load_run_model
 from .floor import first_step_floor
 from .paper import PAPER
 from .runner import BENCH_MODEL_FILE, load_result, load_splits, work_dir
@@ -74,12 +74,12 @@ class Diagnosis:
 
 
 def load_trained(out: Path, spec: RunSpec, splits: dict[str, Any]) -> PHAST:
-    """The run's trained model from ``work/.../bench_model.pt`` (:func:`phast_model.bench.figures.load_model`)."""
+    """The run's trained model from ``work/.../bench_model.pt`` (:func:`phast_model.bench.figures.load_run_model`)."""
     path = work_dir(out, spec) / BENCH_MODEL_FILE
     if not path.exists():
         raise FileNotFoundError(f"{path} is missing: the run's weights are kept only where it was trained "
                                 "(rerun it there, or into a fresh --out)")
-    return load_model(out, spec, splits["train"])
+    return load_run_model(out, spec, splits["train"])
 
 
 def _true_velocity(system: Any, q: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -221,7 +221,7 @@ def _fmt(x: float | None) -> str:
     return "—" if x is None else f"{x:.3g}"
 
 
-def markdown(diags: list[Diagnosis]) -> str:
+def diagnoses_markdown(diags: list[Diagnosis]) -> str:
     """Mean over seeds per (env, model): the table docs/results.md quotes."""
     cols = ["recorded", "scored", "takeover", "oracle_state", "oracle_state_fine", "oracle_state_true_D",
             "velocity_rel_err", "learned_rate", "true_rate", "worst5_share", "startup_share", "floor_ratio"]

@@ -28,7 +28,7 @@ from .spec import RunSpec
 from .summary import DISPLAY, aggregate, env_metric
 
 
-def load_model(out_dir: str | Path, spec: RunSpec, train: Any) -> Any:
+def load_run_model(out_dir: str | Path, spec: RunSpec, train: Any) -> Any:
     """Rebuild a finished run's model and load its saved weights (``checkpoint.torch_load``: weights_only, and a
     ValueError naming the problem when the file is missing or damaged)."""
     from phast_model.train.checkpoint import torch_load
@@ -93,7 +93,7 @@ def _rollouts(out_dir: Path, env: str, chosen: list[list[dict]], n_traj: int, H:
         model, skipped = None, []
         for rec in runs:
             try:
-                model = load_model(out_dir, RunSpec.from_config(rec["config"]), splits["train"])
+                model = load_run_model(out_dir, RunSpec.from_config(rec["config"]), splits["train"])
                 break
             except (ValueError, RuntimeError, KeyError) as exc:  # weights missing, or from another version of the code
                 skipped.append(f"seed {rec['seed']} ({str(exc).splitlines()[0]})")

@@ -62,7 +62,7 @@ def _rows(sub: Path, regime: str) -> list[Row]:
     return out
 
 
-def summarize(root: Path, runs: dict[str, Path]) -> tuple[list[Row], dict[str, dict]]:
+def summarize_runs(root: Path, runs: dict[str, Path]) -> tuple[list[Row], dict[str, dict]]:
     """All rows under ``root`` (sub-directories named ``*_<regime>``) and the runs' model metrics."""
     rows: list[Row] = []
     for sub in sorted(p for p in root.iterdir() if (p / "results.json").exists()):
@@ -108,7 +108,7 @@ def linearised(run: Path) -> dict[str, float]:
     return out
 
 
-def markdown(rows: list[Row], metrics: dict[str, dict]) -> str:
+def runs_markdown(rows: list[Row], metrics: dict[str, dict]) -> str:
     lines = ["| process model | damping R^2 | rollout wrap-MSE(H=100) | takeover wrap-MSE(H=100) | M^-1 V''(0) | "
              "M^-1 V''(pi) | port gain M^-1 G |", "|---|---|---|---|---|---|---|"]
     nan = float("nan")

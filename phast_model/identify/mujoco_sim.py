@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 
-def load_model(model: Any) -> Any:
+def load_mjmodel(model: Any) -> Any:
     """An ``MjModel`` from a path (MJCF / URDF, through :func:`phast_gym.systems.mjcf_tree.compile_model`) or a model."""
     if isinstance(model, (str, Path)):
         from phast_gym.systems.mjcf_tree import compile_model
@@ -32,7 +32,7 @@ def rollout_q(model: Any, q0: np.ndarray, v0: np.ndarray, ctrl: np.ndarray | Non
     import mujoco
     from mujoco import rollout
 
-    m = load_model(model)
+    m = load_mjmodel(model)
     if m.nq != m.nv:
         raise ValueError("rollout_q takes models of hinge and slide joints only (nq == nv)")
     q0, v0 = np.atleast_2d(np.asarray(q0, dtype=float)), np.atleast_2d(np.asarray(v0, dtype=float))
@@ -59,7 +59,7 @@ def mujoco_simulated(path: str | Path) -> Any:
     from phast_gym.systems.mjcf import mjcf_system
 
     system = mjcf_system(path)()
-    model = load_model(path)
+    model = load_mjmodel(path)
     cols = list(system.actuated_dofs)
     timestep = float(model.opt.timestep)
 

@@ -62,6 +62,6 @@ def test_summary_skips_undefined_values(pw) -> None:
     runs = [{"env_id": "PHAST/DampedPendulum-v0", "regime": "known", "seed": s, "damping_r2": v, "damping_mae": 0.006,
              "rollout_theta_wrap_mse_h100": 6e-4, "train_wall_time_s": 70.0, "n_parameters": 1285}
             for s, v in enumerate([None, float("nan")])]
-    s = pw.summarize(runs)["PHAST/DampedPendulum-v0|known"]
+    s = pw.summarize_acceptance(runs)["PHAST/DampedPendulum-v0|known"]
     assert "damping_r2" not in s and s["damping_mae"]["values"] == [0.006, 0.006]
     assert "| DampedPendulum-v0 | known | 2 |" in pw.markdown_table({"runs": runs})

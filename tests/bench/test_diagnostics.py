@@ -101,4 +101,4 @@ def test_merge_keeps_other_blocks_and_retires_stale_keys(rd) -> None:
     new = [diag(ENV, "phast-partial", 1)]
     merged = rd.merge(old, new, {(ENV, "phast-partial")})
     assert [(d.env, d.model, d.seed) for d in merged] == [(ENV, "phast-known", 0), (ENV, "phast-partial", 1)]
-    assert "| DampedPendulum-v0 | phast-known | 1 |" in rd.markdown(merged)
+    assert "| DampedPendulum-v0 | phast-known | 1 |" in rd.diagnoses_markdown(merged)

@@ -371,7 +371,7 @@ def test_learned_model_summary_reads_the_eval_directories(tmp_path) -> None:
         (tmp_path / name).mkdir()
         (tmp_path / name / "protocol.json").write_text(json.dumps({"q_star": q_star}))
         (tmp_path / name / "results.json").write_text(json.dumps(rows))
-    got = {(r.target, r.process_model): r.success for r in mod.summarize(tmp_path, {})[0]}
+    got = {(r.target, r.process_model): r.success for r in mod.summarize_runs(tmp_path, {})[0]}
     assert got == {("hanging (q* = 0)", "plant physics"): 1.0, ("hanging (q* = 0)", "PHAST KNOWN"): 0.9,
                    ("upright (q* = pi)", "plant physics"): 0.7,  # stored results name it "ekf" (before) or "ukf"
                    ("upright (q* = pi)", "PHAST PARTIAL, excited port"): 0.5}
