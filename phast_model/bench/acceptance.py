@@ -59,9 +59,8 @@ def git_commit() -> str:
 def numerics() -> dict[str, str]:
     """What a run's last digits depend on besides the code: CPU, torch's SIMD kernels, package versions.
 
-    A drift is read together with this fingerprint: before 49cf0b4 the same code gave PARTIAL seed 0 damping R^2 0.883
-    on one machine and 0.851 on another (a rounding-triggered collapse of the one-coordinate damping network, see
-    docs/phast_model.md), and summation order still differs between CPUs.
+    A drift is read together with this fingerprint: summation order differs between CPUs, and the same code has given
+    different damping R^2 on two machines (docs/phast_model.md, "Acceptance benchmark").
     """
     import numpy
     import scipy

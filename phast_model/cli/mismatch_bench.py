@@ -83,7 +83,7 @@ CASES: list[Case] = [
          noise=0.002),
     Case("cartpole_pole_drag_cart_coulomb", "PHAST/WindyCartPole-v0", [("quadratic_drag", 1, 0.01), ("coulomb_friction", 0, 0.3)],
          noise=0.002),
-    # delays (issue 41): an actuator that acts 30 ms late at 100 Hz, a joint encoder that reports 10 ms late
+    # delays: an actuator that acts 30 ms late at 100 Hz, a joint encoder that reports 10 ms late
     Case("pendulum_input_delay", "PHAST/Pendulum-v0", [("input_delay", 0, 0.03)], noise=0.002, u_std=1.0, dt=0.01),
     Case("arm_sensor_delay", "PHAST/DoublePendulum-v0", [("sensor_delay", 1, 0.01)], noise=0.002, u_std=0.5, sim_kwargs=ARM,
          rollout_window=1.0),

@@ -4,7 +4,7 @@
 * :mod:`.potentials` -- potential V(q): known, templates, neural, hybrid (Eq. 80-84).
 * :mod:`.mass`       -- mass M: known M(q), constant diag + low rank (Woodbury, Eq. 79).
 * :mod:`.damping`    -- damping D(q): Householder low rank with optional cap (Eq. 10-11).
-* :mod:`.friction`   -- joint friction f(v): Coulomb / viscous / drag / Stribeck, backward-Euler step (issue 30).
+* :mod:`.friction`   -- joint friction f(v): Coulomb / viscous / drag / Stribeck, backward-Euler step.
 * :mod:`.features`   -- shared input features (angles as sin/cos).
 """
 

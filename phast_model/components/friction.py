@@ -1,6 +1,6 @@
 """Velocity-dependent joint friction: a passive force f(v) added to PHAST's dissipation half-step.
 
-:class:`JointFriction` is the per-joint force (issue 30)
+:class:`JointFriction` is the per-joint force
 
     f_i(v) = sum_k c_ik phi_k(v_i)   on the joints ``joints`` (0 on the other coordinates),   c_ik = softplus(raw_ik) >= 0
 

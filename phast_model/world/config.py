@@ -81,7 +81,7 @@ class PHASTConfig:
     action_bound: list[float] | None = None
     actuated_dofs: list[int] | None = None
     seed: int = 0
-    #: velocity-dependent joint friction (issue 30): "none" or "joint" (:class:`JointFriction`, a backward-Euler
+    #: velocity-dependent joint friction: "none" or "joint" (:class:`JointFriction`, a backward-Euler
     #: step in each dissipation half-step); its shapes (coulomb | viscous | quadratic | stribeck), the Coulomb
     #: tanh smoothing and Stribeck velocities (one value or one per joint), the coordinates with friction (None:
     #: all) and the initial coefficient of every law

@@ -5,7 +5,7 @@ One observation step is ``L`` substeps of the Strang splitting
     Phi_h = Phi_D(h/2) o Phi_H(h) o Phi_D(h/2),     h = dt_model / L   (Eq. 78)
 
 * dissipation half-step, q fixed: ``p <- p - (h/2) D(q) M^-1 p`` (Eq. 42), then, with a velocity-dependent
-  joint friction f(v), its backward-Euler step ``p <- p - (h/2) f(M^-1 p_new)`` (issue 30, passive for any stiffness);
+  joint friction f(v), its backward-Euler step ``p <- p - (h/2) f(M^-1 p_new)`` (passive for any stiffness);
 * conservative step ``Phi_H``: leapfrog / Stormer-Verlet when H is separable
   (constant M), implicit midpoint with fixed-point iterations for M(q);
 * the port force ``G u`` is held over the step and enters the momentum
