@@ -8,6 +8,9 @@
 * the shared identification layer (``identify``) imports neither tool, and the world model and the trainer (with
   its rig path) import nothing from the mismatch tool (the friction curve the rig's friction plot draws lives in
   ``identify``);
+* the mismatch tool's stages point one way: no stage of ``phast_model/mismatch`` imports a later one (so no two import
+  each other), the shared ``options`` / ``rows`` import no stage, and only the composer (``analysis``, the package's
+  ``__init__``) imports them all;
 * scipy's Savitzky-Golay filter is called by the swappable differentiator only (``identify.signals``);
 * no module but the term registry names the Stribeck kind: velocity grids, refinement and candidate scales are asked
   of the kind;
@@ -174,6 +177,54 @@ def test_layers_point_one_way():
               for src, banned in LAYER_RULES
               if _inside(m, src) and _inside(t, banned)]
     assert not broken, "\n".join(broken)
+
+
+#: the mismatch tool's stages in the order they may import one another (a stage imports only earlier ones), each with
+#: its modules and folders under ``phast_model.mismatch``: the prepared fitting problem is fitted in the vocabulary's
+#: model family, the held-out scoring is set up on it, the calibration and the selection fit it, the explainers'
+#: interface carries the selection's result, the friction stage answers through that interface, and the report (with
+#: the MJCF answer) reads every answer
+MISMATCH = "phast_model.mismatch"
+MISMATCH_STAGES = (("vocabulary",), ("fitting",), ("evaluate", "energy"), ("calibrate",), ("selection",), ("explainers",),
+                   ("friction",), ("locate",), ("report",))
+#: imported by any stage, importing none
+MISMATCH_SHARED = ("options", "rows")
+#: composes the stages (the only modules that may import every stage)
+MISMATCH_COMPOSER = ("analysis", "")
+
+
+def _mismatch_part(module: str) -> str | None:
+    """The stage, shared module or composer of a module of the mismatch tool: its first name under the package."""
+    if not _inside(module, MISMATCH):
+        return None
+    return module[len(MISMATCH):].lstrip(".").split(".")[0]
+
+
+def _stage_of() -> dict[str, int]:
+    return {name: i for i, names in enumerate(MISMATCH_STAGES) for name in names}
+
+
+def test_mismatch_stages_point_one_way():
+    """``phast_model/mismatch`` is stages with interfaces, composed in one place (``analysis``): no stage imports a
+    later one or the composer, and every module has its place in :data:`MISMATCH_STAGES` (a new one is placed there)."""
+    stage = _stage_of()
+    parts = {m: _mismatch_part(m) for m in MODULES if _inside(m, MISMATCH)}
+    unplaced = sorted(m for m, part in parts.items() if part not in stage and part not in MISMATCH_SHARED + MISMATCH_COMPOSER)
+    empty = sorted(name for name in stage if not any(part == name for part in parts.values()))
+    broken = []
+    for m, part in parts.items():
+        for t in sorted(_imports(m, TREES[m])):
+            target = _mismatch_part(t)
+            if target is None or target == part or part in MISMATCH_COMPOSER:
+                continue
+            if target in MISMATCH_COMPOSER:
+                broken.append(f"{m} imports the composer {t}")
+            elif part in MISMATCH_SHARED and target not in MISMATCH_SHARED:
+                broken.append(f"{m} (shared) imports the stage {t}")
+            elif target in stage and part in stage and stage[target] > stage[part]:
+                broken.append(f"{m} (stage {part}) imports the later stage {t}")
+    assert not unplaced and not empty and not broken, "\n".join(
+        [f"not in MISMATCH_STAGES: {m}" for m in unplaced] + [f"stage without a module: {n}" for n in empty] + broken)
 
 
 def _names(tree: ast.Module) -> set[str]:
