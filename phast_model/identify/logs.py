@@ -392,7 +392,8 @@ def _facts(logs: Sequence[Log], cleaned: Cleaned, segs: list[tuple[int, np.ndarr
             "rows_used": [int(sum(len(s) for s in segments)) for segments in cleaned.segments],
             "segments": [len(s) for s in cleaned.segments], "n_pieces": n_pieces, "piece_samples": size,
             "samples_repeated": repeated, "rows_dropped": total, "rows_dropped_per_log": cleaned.dropped,
-            "gaps_bridged": int(sum(cleaned.bridged)), "fast_speed": cleaned.scale.speed, "note": text}
+            "gaps_bridged": int(sum(cleaned.bridged)),
+            "fast_speed": cleaned.scale.speed if np.isfinite(cleaned.scale.speed) else None, "note": text}
 
 
 def report_facts(meta: Mapping[str, Any]) -> dict[str, Any]:
