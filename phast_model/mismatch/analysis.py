@@ -110,11 +110,21 @@ def _compared(compare: Mapping[str, System] | None, sys0: System, name: str) -> 
 MIN_DESCRIBED = 0.5
 
 
+def _backed(row: TermRow) -> bool:
+    """The term's own 95% interval excludes zero: the data back a term of its sign."""
+    lo, hi = row.ci95
+    return not lo <= 0.0 <= hi
+
+
 def _confirmed(missing: list[TermRow], fitres: FitTable) -> tuple[list[TermRow], list[TermRow]]:
-    """A term that does not improve the prediction of the held-out recordings is not a discovery: (confirmed, not)."""
-    if missing and fitres.rmse("augmented") >= fitres.rmse("calibrated"):
+    """What is reported as missing physics, and what is set aside (details.unconfirmed_terms): a term whose own
+    interval includes zero is not backed by the data, and terms that do not improve the prediction of the held-out
+    recordings are not a discovery."""
+    unbacked = [m for m in missing if not _backed(m)]
+    backed = [m for m in missing if _backed(m)]
+    if backed and fitres.rmse("augmented") >= fitres.rmse("calibrated"):
         return [], missing
-    return missing, []
+    return backed, unbacked
 
 
 def _verdicts(share: float, unconfirmed: list[TermRow], fitres: FitTable) -> list[str]:
@@ -125,8 +135,15 @@ def _verdicts(share: float, unconfirmed: list[TermRow], fitres: FitTable) -> lis
                    "of their variation beyond a straight line per window (a model of the recorded system explains nearly all "
                    "of it), so no parameter was calibrated and no term is named; check the simulator, the coordinates and "
                    "the units (angle_offset, angle_dims).")
-    if unconfirmed:
-        names = ", ".join(m.label for m in unconfirmed)
+    unbacked = [m for m in unconfirmed if not _backed(m)]
+    if unbacked:
+        out.append("The 95% interval of " + ", ".join(f"{m.label} ({m.coefficient:.3g} [{m.ci95[0]:.3g}, {m.ci95[1]:.3g}])"
+                                                      for m in unbacked)
+                   + " includes zero: the data do not back it, so it is not reported as missing physics "
+                   "(details.unconfirmed_terms).")
+    held_out = [m for m in unconfirmed if _backed(m)]
+    if held_out:
+        names = ", ".join(m.label for m in held_out)
         out.append(f"Terms that fit the training recordings ({names}) do not improve the prediction of the held-out recordings "
                    f"(rollout RMSE calibrated {fitres.rmse('calibrated'):.4g}, with them "
                    f"{fitres.rmse('augmented'):.4g}), so they are not reported as missing physics "
@@ -222,6 +239,10 @@ def held_out_scores(sim: str | type[System] | Simulator, recordings: str | Path 
 
 #: shooting windows of the second look, as a multiple of the first (capped at the recordings' length)
 LONG_LOOK = 4
+#: a fit within the noise: chi^2/dof at most this
+AT_NOISE_CHI2 = 1.5
+#: windows a model cannot follow open loop (e.g. a closed-loop recording replayed on an unstable arm): chi^2/dof above
+CANNOT_FOLLOW_CHI2 = 100.0
 #: the second look is taken when the calibrated model's held-out rollout RMSE exceeds this multiple of the noise
 SECOND_LOOK_RATIO = 3.0
 
@@ -235,7 +256,10 @@ def _second_look(problem: Problem, inputs: _Inputs, report: Report) -> Report:
     than the calibrated one.  The longer look's answer replaces the first only when it names a term that passed the
     same held-out confirmation; a window length the user gave is kept.  It is only taken when the held-out
     recordings say the calibrated model leaves something (rollout RMSE above :data:`SECOND_LOOK_RATIO` x the noise,
-    in the same units): a simulator that already predicts them at the noise level has no slow effect to find."""
+    in the same units): a simulator that already predicts them at the noise level has no slow effect to find.  And it
+    starts from the first pass's answer: when that answer fits the longer windows within the noise there is nothing
+    left to find, and when it cannot follow them open loop (a closed-loop recording replayed on an arm that drifts
+    away) a longer window measures the drift, not missing physics; in both cases the first answer stands."""
     longer = min(LONG_LOOK * problem.shoot_window, inputs.train.T)
     noise = float(np.sqrt(np.mean((problem.sigma_raw / inputs.held.scale) ** 2)))
     done = (report.terms or problem.opts.shoot_window or longer < 2 * problem.shoot_window
@@ -243,13 +267,26 @@ def _second_look(problem: Problem, inputs: _Inputs, report: Report) -> Report:
             or report.fit["calibrated"]["rollout_rmse"] <= SECOND_LOOK_RATIO * noise)
     if done:
         return report
-    problem.log(f"no term in {problem.shoot_window}-sample shooting windows: a second look with {longer}-sample windows")
     long_problem = prepare(inputs.simulator, problem.sys0, inputs.train, problem.opts.with_(shoot_window=longer), problem.log)
+    followed = _followed_on(long_problem, inputs.simulator.build(**report.diagnostics["calibrated_kwargs"]))
+    look: dict[str, Any] = {"shoot_window_samples": longer, "calibrated_chi2_per_dof": followed}
+    if not AT_NOISE_CHI2 < followed <= CANNOT_FOLLOW_CHI2:
+        problem.log(f"no term in {problem.shoot_window}-sample shooting windows; no second look: the calibrated model "
+                    f"{'fits' if followed <= AT_NOISE_CHI2 else 'cannot follow'} {longer}-sample windows "
+                    f"(chi2/dof {followed:.3g})")
+        return replace(report, diagnostics={**report.diagnostics, "second_look": {**look, "taken": False}})
+    problem.log(f"no term in {problem.shoot_window}-sample shooting windows: a second look with {longer}-sample windows "
+                f"(the calibrated model leaves chi2/dof {followed:.3g} there)")
     second = _explain(long_problem, inputs)
-    look = {"shoot_window_samples": longer, "found": [m.label for m in second.terms],
-            "adopted": bool(second.terms)}
+    look.update({"taken": True, "found": [m.label for m in second.terms], "adopted": bool(second.terms)})
     chosen = second if second.terms else report
     return replace(chosen, diagnostics={**chosen.diagnostics, "second_look": look})
+
+
+def _followed_on(problem: Problem, calibrated: System) -> float:
+    """chi^2/dof of the first pass's answer (window states fitted, parameters as calibrated) on ``problem``'s windows."""
+    fit = problem.shooter(problem.shooting.windows).fit_states(calibrated, problem.shooting.X0, max_iter=problem.opts.max_iter)
+    return float(fit.chi2_red)
 
 
 def check_free(free: Sequence[str], numeric: Mapping[str, float]) -> None:
@@ -322,7 +359,7 @@ def _explain(problem: Problem, inputs: _Inputs) -> Report:
             "model": "augmented", "training": energy_check(models["augmented"], train, problem.smoothing_window),
             "held_out": energy_check(models["augmented"], hold, min(problem.smoothing_window, odd(hold.T // 2 - 1)))})
     located, resid_map = locate(models["calibrated"], train.resampled(), problem.smoothing_window, problem.eps)
-    if not missing and ctx.cal.fit.chi2_red < 1.5:  # within the noise
+    if not missing and ctx.cal.fit.chi2_red < AT_NOISE_CHI2:
         located = []
     summary = summary_text(inputs.simulator.name, calibrated, missing, located, fitres, ctx.cal.fit.chi2_red,
                            answer.fit.chi2_red, problem.sigma_raw, _verdicts(share, unconfirmed, fitres))

@@ -247,3 +247,39 @@ def test_two_laws_of_equal_evidence_on_one_joint_are_settled_on_longer_windows()
     chi2 = look["chi2_on_longer_windows"]
     assert chi2["quadratic_drag[0] + viscous_damping[0]"] < chi2["quadratic_drag[0] + coulomb_friction[0]"] - 2.0
     assert rep.fit["augmented"]["rollout_rmse"] < 0.05 * rep.fit["calibrated"]["rollout_rmse"]
+
+
+def test_a_term_whose_interval_includes_zero_is_not_missing_physics():
+    """The data back a term only when its own 95% interval excludes zero; the other is set aside with a sentence."""
+    from types import SimpleNamespace
+
+    from phast_model.mismatch import analysis
+    from phast_model.mismatch.rows import TermRow
+
+    backed = TermRow("actuator_gain", 1, "port", 0.85, (0.84, 0.86), "u1 *= c")
+    unbacked = TermRow("armature", 1, "inertia", 1.7e-6, (-3.3e-5, 2.9e-5), "M11 += c")
+    fitres = SimpleNamespace(rmse=lambda name: {"calibrated": 0.1, "augmented": 0.01}[name])
+    assert analysis._confirmed([backed, unbacked], fitres) == ([backed], [unbacked])
+    text = " ".join(analysis._verdicts(1.0, [unbacked], fitres))
+    assert "armature[1]" in text and "includes zero" in text and "do not improve" not in text
+    worse = SimpleNamespace(rmse=lambda name: {"calibrated": 0.1, "augmented": 0.2}[name])
+    assert analysis._confirmed([backed, unbacked], worse) == ([], [backed, unbacked])
+    text = " ".join(analysis._verdicts(1.0, [backed, unbacked], worse))
+    assert "includes zero" in text and "(actuator_gain[1]) do not improve" in text
+
+
+@pytest.mark.parametrize("chi2", [0.95, 4.2e3])
+def test_no_second_look_when_the_first_answer_fits_the_longer_windows_or_cannot_follow_them(monkeypatch, chi2):
+    """The longer look starts from the first pass's answer: when it fits 4x longer windows within the noise, or cannot
+    follow them at all (chi^2/dof in the thousands), the first answer stands and the report says why."""
+    from dataclasses import replace
+
+    from phast_model.cli.mismatch_bench import CASES, make_case_data
+    from phast_model.mismatch import analysis
+
+    monkeypatch.setattr(analysis, "_followed_on", lambda problem, calibrated: chi2)
+    k, case = next((k, c) for k, c in enumerate(CASES) if c.name == "pendulum_viscous")
+    case = replace(case, noise=2 * case.noise)
+    rep = analyze(case.env_id, make_case_data(case, 30, 350, 500 + k), holdout_fraction=0.3, max_terms=0)
+    assert rep.missing_physics == []
+    assert rep.details["second_look"] == {"shoot_window_samples": 88, "calibrated_chi2_per_dof": chi2, "taken": False}
