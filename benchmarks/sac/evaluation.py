@@ -12,6 +12,7 @@ from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
+from stable_baselines3.common.type_aliases import PolicyPredictor
 
 from phast_gym.control import START_REGIMES, ControlProtocol, make_control_env, start_states
 from phast_gym.systems.base import wrap
@@ -32,7 +33,7 @@ def is_flat(curve: Sequence[float], window: int = 4, rel_tol: float = 0.05, abs_
     return last - prev < max(rel_tol * abs(prev), abs_tol)
 
 
-def episode_return(model: Any, env: gym.Env, seed: int, options: dict | None = None) -> float:
+def episode_return(model: PolicyPredictor, env: gym.Env, seed: int, options: dict | None = None) -> float:
     """Return of one deterministic episode of ``model`` in ``env`` (a FrameObs-wrapped env), summed in float64.
 
     Not SB3's ``evaluate_policy``: a learning-curve point is a fixed set of seeded starts (``seed`` and ``options``
@@ -49,7 +50,7 @@ def episode_return(model: Any, env: gym.Env, seed: int, options: dict | None = N
     return total
 
 
-def evaluate_policy_on_plant(model: Any, protocol: ControlProtocol, sigma: float, trials: int, repeat: int, frames: int,
+def evaluate_policy_on_plant(model: PolicyPredictor, protocol: ControlProtocol, sigma: float, trials: int, repeat: int, frames: int,
                              max_action: float, seed: int = 0, obs_mode: str = "frames",
                              regimes: Sequence[str] = tuple(START_REGIMES)) -> dict[str, Any]:
     """The phast-control-eval metrics for an SB3 policy on the real plant (same initial states and noise seeds).
@@ -97,7 +98,7 @@ def evaluate_policy_on_plant(model: Any, protocol: ControlProtocol, sigma: float
 REST_OFFSETS = (-0.1, 0.0, 0.1)
 
 
-def torque_at_rest(model: Any, q_star: float, frames: int, max_action: float, obs_mode: str = "frames",
+def torque_at_rest(model: PolicyPredictor, q_star: float, frames: int, max_action: float, obs_mode: str = "frames",
                    offsets: Sequence[float] = REST_OFFSETS) -> list[float]:
     """The deterministic torque (N m) a policy applies with the pendulum at rest at ``q_star + e`` for each ``e``
     of ``offsets`` (noise-free frames).  A symmetric policy applies 0 at the target; a nonzero value there is a bias,
@@ -143,12 +144,13 @@ def plot_curve(curve: dict[str, Any], path: Path) -> None:
     plt.close(fig)
 
 
-def evaluate_gym_policy(model: Any, env_id: str, episodes: int, seed: int = 0, window: int = 20,
+def evaluate_gym_policy(model: PolicyPredictor, env_id: str, episodes: int, seed: int = 0, window: int = 20,
                         tol: float = 0.05) -> dict[str, float]:
     """Deterministic returns of ``model`` on ``episodes`` seeded episodes of a Gymnasium env (the zoo's metric), and for
     ``Pendulum-v1`` (observation cos, sin, thetadot; theta = 0 upright) the analogue of our success rule over the last
     ``window`` steps (1 s): the share of episodes with ``|theta| < tol`` throughout, mean final ``|theta|`` and the
-    mean RMS torque over the window."""
+    mean RMS torque over the window.  Per-episode seeds and per-step angles and torques: not SB3's
+    ``evaluate_policy`` (see :func:`episode_return`)."""
     env = gym.make(env_id)
     box = cast(gym.spaces.Box, env.action_space)
     rets, settled, fin, rms = [], [], [], []

@@ -15,11 +15,15 @@ import argparse
 import json
 import shlex
 import sys
-from typing import Any
+from pathlib import Path
+from typing import cast
+
+import gymnasium as gym
 
 from ..rl.hold import HOLD_KINDS, HoldConfig
-from ..rl.loop import ALGOS, AgentSpec, FitSpec, LoopConfig
+from ..rl.loop import ALGOS, AgentSpec, FitSpec, LoopConfig, LoopInterrupted
 from ..rl.plant import TASKS, PlantSpec, Task, quiet_u_tol
+from ..rl.types import Plant
 from .args import json_object
 
 
@@ -149,8 +153,6 @@ def config_from_args(args: argparse.Namespace) -> LoopConfig:
                   refit_epochs=args.refit_epochs)
     u_tol = args.u_tol
     if u_tol is None:
-        import gymnasium as gym
-
         try:
             u_tol = quiet_u_tol(plant)
         except (KeyError, TypeError, ValueError, gym.error.Error):  # a bad --env / --env-kwargs: check_plant says why
@@ -168,11 +170,9 @@ def config_from_args(args: argparse.Namespace) -> LoopConfig:
                                       exit_angle=max(h.exit_angle, args.hold_enter_angle)))
 
 
-def check_plant(cfg: LoopConfig) -> Any:
+def check_plant(cfg: LoopConfig) -> Plant:
     """Build the plant once, before any work (unknown env ids, bad kwargs, a machine that does not load fail here);
     the loop then runs on it."""
-    import gymnasium as gym
-
     from ..rl.plant import make_plant
 
     try:
@@ -186,7 +186,7 @@ def check_plant(cfg: LoopConfig) -> Any:
     return plant
 
 
-def deploy(cfg: LoopConfig, plant: Any, run_dir: str, out: Any, command: str) -> int:
+def deploy(cfg: LoopConfig, plant: Plant, run_dir: str, out: Path, command: str) -> int:
     """``--deploy``: the controller of the run in ``run_dir`` on ``plant`` for the final evaluation's trials, written to
     ``out/evaluation.json``; ValueError when the run does not fit the plant (step, coordinates, inputs)."""
     from dataclasses import asdict
@@ -202,7 +202,7 @@ def deploy(cfg: LoopConfig, plant: Any, run_dir: str, out: Any, command: str) ->
     policy = load_controller(run_dir)
     if policy.hold is not None and int(policy.hold.system.n) != plant.n:
         raise ValueError(f"--deploy {run_dir}: its model has n={policy.hold.system.n} coordinates, the plant {plant.n}")
-    act = int(policy.agent.action_space.shape[0])
+    act = int(cast(gym.spaces.Box, policy.agent.action_space).shape[0])
     if act != plant.m:
         raise ValueError(f"--deploy {run_dir}: its agent gives {act} inputs, the plant takes {plant.m}")
     ev = evaluate(cfg, plant, policy, cfg.task.target(plant.system))
@@ -213,7 +213,7 @@ def deploy(cfg: LoopConfig, plant: Any, run_dir: str, out: Any, command: str) ->
     return 0
 
 
-def keep_recordings(stop: Any, out: Any) -> int:
+def keep_recordings(stop: LoopInterrupted, out: Path) -> int:
     """The loop stopped early: write what the plant recorded to ``out/recordings.npz`` and say how to continue."""
     from ..rl.loop_report import save_recordings
 
@@ -258,7 +258,7 @@ def main(argv: list[str] | None = None) -> int:
     import torch
     from tqdm.auto import tqdm
 
-    from ..rl.loop import LoopInterrupted, run_loop
+    from ..rl.loop import run_loop
     from ..rl.loop_report import write_outputs
 
     torch.set_num_threads(1)

@@ -10,7 +10,8 @@ section "Policies from seconds on the machine"):
 * :mod:`.mirror_policy`: the reflection-equivariant SAC policy;
 * :mod:`.hold`: the Energy-Casimir hold built from the learned model (a UKF on the learned core), the hybrid policy;
 * :mod:`.loop_report`: summary.json, learning curves, policy.zip, the model and the recordings of a run;
-* :mod:`.descriptions`: the rig descriptions and option presets of the plants.
+* :mod:`.descriptions`: the rig descriptions and option presets of the plants;
+* :mod:`.types`: the protocols of the loop's plant, controller and agent.
 
 SAC trained on the plant or in a PHAST world model and compared with Energy-Casimir control (issue 29) is a
 benchmark: ``benchmarks/sac`` (``benchmarks/control_sac.py``).

@@ -41,6 +41,7 @@ from phast_gym.systems.base import NUMPY, System, angle_diff, wrap
 from ..control.phast_estimators import PHASTProcess
 from ..world.model import PHAST
 from .observation import ObsBuilder
+from .types import Policy
 
 #: the holds: ``auto`` (Energy-Casimir when the input acts on every coordinate, else LQR), ``energy-casimir``, ``lqr``
 HOLD_KINDS = ("auto", "energy-casimir", "lqr")
@@ -280,10 +281,10 @@ def make_hold(model: PHAST, q_star: np.ndarray, dt: float, sigma: float, max_act
 
 
 class HybridPolicy:
-    """The deployed controller (a :class:`phast_model.rl.plant.Controller`): the SB3 policy, and the hold near the
+    """The deployed controller (a :class:`phast_model.rl.types.Controller`): the SB3 policy, and the hold near the
     target (module docstring).  ``holding`` says which acts; ``handoffs`` counts entries into the hold."""
 
-    def __init__(self, agent: Any, frames: int, decision_steps: int, max_action: float, q_star: np.ndarray,
+    def __init__(self, agent: Policy, frames: int, decision_steps: int, max_action: float, q_star: np.ndarray,
                  hold: EnergyCasimirController | LQRHold | None = None, cfg: HoldConfig | None = None,
                  angle_dims: Sequence[int] | None = None) -> None:
         self.agent, self.decision_steps, self.max_action = agent, int(decision_steps), float(max_action)

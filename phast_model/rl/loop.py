@@ -27,14 +27,22 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
+import gymnasium as gym
 import numpy as np
 
+from phast_gym.systems.base import System
+
+from ..world.model import PHAST
 from .hold import HoldConfig, HoldGains, HybridPolicy, LQRGains, make_hold
-from .plant import Episode, HeldTorques, PlantSpec, Task, excitation_inputs, make_plant, quiet_metrics, run_episode, to_recordings
+from .plant import Episode, HeldTorques, PlantSpec, Task, excitation_inputs, make_plant, quiet_metrics, record_episode, to_recordings
 from .sources import Prior, join_recordings, load_prior
+from .types import Agent, Plant, Policy
 from .world_env import WorldTask, WorldTaskEnv, burn_in_pool
+
+if TYPE_CHECKING:
+    from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
 
 @dataclass(frozen=True)
@@ -224,8 +232,8 @@ class LoopResult:
     plant_seconds: float
     learning_succeeded: bool
     evaluation: Evaluation | None  # None: offline (no plant to evaluate on)
-    agent: Any
-    model: Any
+    agent: Agent
+    model: PHAST
     wall_s: float
     budget_s: float
     recordings: dict[str, Any] = field(default_factory=dict)  # every plant episode used for learning (rig format)
@@ -251,26 +259,27 @@ class LoopResult:
 
 
 # --------------------------------------------------------------------------- stages
-def collect_excitation(cfg: LoopConfig, plant: Any, seed: int) -> list[Episode]:
+def collect_excitation(cfg: LoopConfig, plant: Plant, seed: int) -> list[Episode]:
     """The excitation episodes: random inputs held ``hold_decisions`` decisions from the task's starts (seeded)."""
     rng = np.random.default_rng(seed)
     x0 = cfg.task.start_states(plant.system, rng, cfg.excitation_episodes)
     hold_steps = cfg.hold_decisions * cfg.plant.decision_steps
-    return [run_episode(plant, HeldTorques(excitation_inputs(rng, cfg.episode_steps, plant.m, hold_steps, cfg.torque_std,
+    return [record_episode(plant, HeldTorques(excitation_inputs(rng, cfg.episode_steps, plant.m, hold_steps, cfg.torque_std,
                                                              cfg.plant.max_action)),
                         x, cfg.episode_steps, int(rng.integers(2**31)), "excitation") for x in x0]
 
 
 @dataclass
 class FitOutcome:
-    model: Any
+    model: PHAST
     val_rmse: float
     first_train_rmse: float
     seconds: float
     lr_mult: float = 1.0  # the learning rates' factor the fit ran at (its refits keep it)
 
 
-def fit_world_model(cfg: LoopConfig, recordings: dict[str, Any], model: Any | None, lr_mult: float | None = None) -> FitOutcome:
+def fit_world_model(cfg: LoopConfig, recordings: dict[str, Any], model: PHAST | None,
+                    lr_mult: float | None = None) -> FitOutcome:
     """Fit PHAST to all recordings so far by the rig path; continue from ``model`` when given (warm start: the
     rig-template initialisation is skipped and ``refit_epochs`` run at ``lr_mult``, the first fit's rate factor).
 
@@ -301,13 +310,15 @@ def fit_world_model(cfg: LoopConfig, recordings: dict[str, Any], model: Any | No
     return FitOutcome(fit.model, float(fit.best_val), first, float(fit.wall_time_s), factor)
 
 
-def algo_class(name: str) -> Any:
+def algo_class(name: str) -> type[OffPolicyAlgorithm]:
+    """The SB3 algorithm ``name`` of :data:`ALGOS`."""
     import stable_baselines3 as sb3
 
-    return {"sac": sb3.SAC, "td3": sb3.TD3}[name]
+    algos: dict[str, type[OffPolicyAlgorithm]] = {"sac": sb3.SAC, "td3": sb3.TD3}
+    return algos[name]
 
 
-def make_agent(cfg: LoopConfig, env: Any) -> Any:
+def make_agent(cfg: LoopConfig, env: gym.Env) -> Agent:
     """The SB3 agent on ``env``: the RL zoo's Pendulum SAC hyperparameters, a linear learning-rate schedule (SB3
     ``LinearSchedule``, formerly ``get_linear_fn``), the mirror-equivariant policy for SAC when ``agent.mirror``
     (reflection q -> -q, u -> -u)."""
@@ -324,13 +335,13 @@ def make_agent(cfg: LoopConfig, env: Any) -> Any:
     policy: Any = "MlpPolicy"
     if spec.algo == "sac" and spec.mirror:
         policy = MirrorSACPolicy
-        kwargs["policy_kwargs"]["mirror"] = mirror_signs(int(env.observation_space.shape[0]) // 2)
+        kwargs["policy_kwargs"]["mirror"] = mirror_signs(int(cast(gym.spaces.Box, env.observation_space).shape[0]) // 2)
     return algo_class(spec.algo)(policy, env, learning_rate=lr, seed=cfg.seed, verbose=0, **kwargs)
 
 
 @dataclass
 class AgentOutcome:
-    agent: Any
+    agent: Agent
     decisions: int
     seconds: float
     eval_timesteps: list[int]
@@ -344,7 +355,7 @@ def training_steps(spec: AgentSpec, first: bool, last: bool) -> int:
     return spec.final_steps if last and spec.final_steps is not None else spec.refit_steps
 
 
-def train_agent(cfg: LoopConfig, model: Any, pool: np.ndarray, q_star: np.ndarray, agent: Any | None,
+def train_agent(cfg: LoopConfig, model: PHAST, pool: np.ndarray, q_star: np.ndarray, agent: Agent | None,
                 iteration: int, actuated: list[int] | None = None, last: bool = False) -> AgentOutcome:
     """Train (or continue) the agent in the world model with SB3's ``EvalCallback`` and
     ``StopTrainingOnNoModelImprovement`` on a second world-model env (its own burn-in draws); ``last``: no plant
@@ -385,7 +396,7 @@ def train_agent(cfg: LoopConfig, model: Any, pool: np.ndarray, q_star: np.ndarra
                         [int(t) for t in ev.evaluations_timesteps], returns)
 
 
-def deployed_policy(cfg: LoopConfig, agent: Any, model: Any, system: Any, actuated: list[int],
+def deployed_policy(cfg: LoopConfig, agent: Policy, model: PHAST, system: System, actuated: list[int],
                     q_star: np.ndarray) -> tuple[HybridPolicy, HoldGains | LQRGains | None]:
     """The controller run on the plant (``system`` its description, ``actuated`` its driven coordinates): the agent,
     with the hold of the learned model when enabled (Energy-Casimir when the plant is fully actuated, else LQR:
@@ -397,19 +408,20 @@ def deployed_policy(cfg: LoopConfig, agent: Any, model: Any, system: Any, actuat
                         system.angle_dims), gains
 
 
-def run_policy(cfg: LoopConfig, plant: Any, policy: HybridPolicy, n: int, steps: int, seed: int, kind: str) -> list[Episode]:
+def run_policy(cfg: LoopConfig, plant: Plant, policy: HybridPolicy, n: int, steps: int, seed: int,
+               kind: str) -> list[Episode]:
     """``n`` plant episodes of ``steps`` steps of the deployed policy from the task's starts (seeded)."""
     rng = np.random.default_rng(seed)
     x0 = cfg.task.start_states(plant.system, rng, n)
     out = []
     for x in x0:
-        ep = run_episode(plant, policy, x, steps, int(rng.integers(2**31)), kind)
+        ep = record_episode(plant, policy, x, steps, int(rng.integers(2**31)), kind)
         ep.handoffs = policy.handoffs
         out.append(ep)
     return out
 
 
-def evaluate(cfg: LoopConfig, plant: Any, policy: HybridPolicy, q_star: np.ndarray) -> Evaluation:
+def evaluate(cfg: LoopConfig, plant: Plant, policy: HybridPolicy, q_star: np.ndarray) -> Evaluation:
     """The final evaluation: ``eval_trials`` episodes of ``eval_s`` seconds, quiet criterion on each."""
     steps = int(round(cfg.eval_s / cfg.plant.dt))
     eps = run_policy(cfg, plant, policy, cfg.eval_trials, steps, cfg.seed * 7919 + 104_729, "evaluation")
@@ -439,14 +451,14 @@ class _Data:
     def seconds(self) -> float:
         return (0.0 if self.prior is None else self.prior.seconds) + sum(e.seconds for e in self.episodes)
 
-    def recordings(self, cfg: LoopConfig, plant: Any) -> dict[str, Any]:
+    def recordings(self, cfg: LoopConfig, plant: Plant) -> dict[str, Any]:
         """All of it in the rig format (with the actuated coordinates of an underactuated plant)."""
         dofs = list(plant.actuated_dofs) if plant.m < plant.n else None
         recs = to_recordings(self.episodes, cfg.plant.decision_steps, plant.system.angle_dims, dofs) if self.episodes else None
         return join_recordings(None if self.prior is None else self.prior.recordings, recs)
 
 
-def first_data(cfg: LoopConfig, plant: Any) -> _Data:
+def first_data(cfg: LoopConfig, plant: Plant) -> _Data:
     """The recordings from before the loop (when given) and the excitation episodes on the plant (none offline)."""
     prior = None
     if cfg.recordings is not None:
@@ -481,12 +493,19 @@ class LoopInterrupted(RuntimeError):
 class _Learner:
     """The loop's learned parts: the world model and the agent (None before the first fit and training)."""
 
-    model: Any = None
-    agent: Any = None
+    model: PHAST | None = None
+    agent: Agent | None = None
     lr_mult: float | None = None  # the first fit's learning-rate factor, kept by the refits
 
+    def trained(self) -> tuple[Agent, PHAST]:
+        """The agent and the world model once an iteration has made them."""
+        if self.agent is None or self.model is None:
+            raise RuntimeError("no iteration of the loop has run")
+        return self.agent, self.model
 
-def _iteration(cfg: LoopConfig, plant: Any, data: _Data, learner: _Learner, it: int, progress: Progress) -> IterationResult:
+
+def _iteration(cfg: LoopConfig, plant: Plant, data: _Data, learner: _Learner, it: int,
+               progress: Progress) -> IterationResult:
     """Fit (warm-started after the first), train the agent, run it on the plant while the budget allows."""
     q_star = cfg.task.target(plant.system)
     recs = data.recordings(cfg, plant)
@@ -515,7 +534,7 @@ def _iteration(cfg: LoopConfig, plant: Any, data: _Data, learner: _Learner, it: 
                            [e.handoffs for e in new], data.seconds, None if gains is None else asdict(gains))
 
 
-def run_loop(cfg: LoopConfig, progress: Progress = _no_progress, plant: Any = None) -> LoopResult:
+def run_loop(cfg: LoopConfig, progress: Progress = _no_progress, plant: Plant | None = None) -> LoopResult:
     """Run the loop of the module docstring and the final evaluation (none offline) on ``plant`` (default: made
     from ``cfg.plant``; a machine's is closed at the end)."""
     import torch
@@ -534,10 +553,11 @@ def run_loop(cfg: LoopConfig, progress: Progress = _no_progress, plant: Any = No
             ran = bool(iterations[-1].plant_success)
             if iterations[-1].success or not ran:
                 break
+        agent, model = learner.trained()
         ev = None
         if not cfg.offline:
             q_star = cfg.task.target(plant.system)
-            policy, _ = deployed_policy(cfg, learner.agent, learner.model, plant.system, list(plant.actuated_dofs), q_star)
+            policy, _ = deployed_policy(cfg, agent, model, plant.system, list(plant.actuated_dofs), q_star)
             ev = evaluate(cfg, plant, policy, q_star)
     except (Exception, KeyboardInterrupt) as exc:
         if data is None:
@@ -547,6 +567,6 @@ def run_loop(cfg: LoopConfig, progress: Progress = _no_progress, plant: Any = No
         close = getattr(plant, "close", None)
         if callable(close):
             close()
-    return LoopResult(iterations, data.seconds, any(i.success for i in iterations), ev, learner.agent, learner.model,
+    return LoopResult(iterations, data.seconds, any(i.success for i in iterations), ev, agent, model,
                       time.perf_counter() - t0, cfg.budget_s, data.recordings(cfg, plant),
                       0.0 if data.prior is None else data.prior.seconds, cfg)

@@ -22,6 +22,7 @@ from phast_gym.fileio import atomic_write_json
 from .hold import HoldConfig, HybridPolicy
 from .loop import AgentSpec, FitSpec, LoopConfig, LoopResult, algo_class, deployed_policy
 from .plant import PlantSpec, Task, plant_system
+from .types import Agent
 
 
 def learning_curves(result: LoopResult) -> dict[str, Any]:
@@ -73,7 +74,7 @@ def plot_learning_curves(curves: dict[str, Any], path: Path) -> None:
     os.replace(tmp, path)
 
 
-def save_agent(agent: Any, path: Path) -> Path:
+def save_agent(agent: Agent, path: Path) -> Path:
     """The agent as an SB3 zip (no replay buffer), written to a temporary name and renamed."""
     tmp = path.with_name(path.stem + ".tmp.zip")
     agent.save(tmp)

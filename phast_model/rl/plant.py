@@ -4,8 +4,8 @@ The loop touches the plant only through ``reset(state)`` / ``step(u)`` of a phas
 measurements (what an encoder gives).  The plant is a registered env id or a rig of the user's own, named as for
 ``phast-mismatch --sim``: ``path/to/rig.py:Class`` or ``module:Class``, a :class:`phast_gym.systems.base.System`
 subclass (docs/describe_your_rig.md), stepped at the control rate ``dt`` (0.01 s by default, the control protocol's).  Every
-plant episode is an :class:`Episode`: the measurements, the applied inputs and (simulation only, for the success
-metrics and never for learning) the true states.  :func:`to_recordings` turns episodes into the ``phast-train
+plant episode is an :class:`Episode` (:func:`record_episode`): the measurements, the applied inputs and (simulation
+only, for the success metrics and never for learning) the true states.  :func:`to_recordings` turns episodes into the ``phast-train
 --recordings`` format at the decision rate, which is what the world model is fitted to.
 
 Success is the quiet criterion of docs/control.md: over the last ``settle_s`` seconds every true angle error is below
@@ -18,13 +18,15 @@ import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
 from phast_gym.control import sample_start_states
 from phast_gym.env import PortHamiltonianEnv
 from phast_gym.systems.base import System, wrap
+
+from .types import Controller, Plant
 
 #: the tasks of ``phast-rl --task``: start regime of the pendulum and the target (pi on every angle: upright)
 TASKS = ("swingup", "upright")
@@ -81,7 +83,7 @@ def plant_system(spec: PlantSpec) -> System:
     return system
 
 
-def make_plant(spec: PlantSpec) -> Any:
+def make_plant(spec: PlantSpec) -> Plant:
     """The plant env: q-only measurements with noise ``sigma``, float64, no time limit (episodes are counted here);
     a machine's (:class:`.sources.MachinePlant`) when ``spec.machine`` names one, its step checked against ``dt``."""
     system = plant_system(spec)
@@ -152,14 +154,6 @@ def quiet_u_tol(spec: PlantSpec, factor: float = FLOOR_FACTOR) -> float:
     return factor * float(floor["rms_torque"])
 
 
-class Controller(Protocol):
-    """A causal controller on the plant's measurements, called every plant step."""
-
-    def reset(self, q_meas: np.ndarray) -> None: ...
-
-    def act(self, q_meas: np.ndarray) -> np.ndarray: ...
-
-
 @dataclass
 class Episode:
     """One plant episode: ``q`` (T+1, n) noisy measurements, ``u`` (T, m) applied inputs, ``x`` (T+1, 2n) true states
@@ -180,9 +174,11 @@ class Episode:
         return float(self.u.shape[0] * self.dt)
 
 
-def run_episode(plant: Any, controller: Controller, x0: np.ndarray, steps: int, seed: int,
-                kind: str) -> Episode:
-    """Run ``controller`` on the plant for ``steps`` steps from the true state ``x0`` (a real rig: its own start)."""
+def record_episode(plant: Plant, controller: Controller, x0: np.ndarray, steps: int, seed: int, kind: str) -> Episode:
+    """Run ``controller`` on the plant for ``steps`` steps from the true state ``x0`` (a real rig: its own start) and
+    record the episode: measurements, applied inputs, true states and the controller's time per step (the loop's
+    learning data and evaluations; ``phast_gym.control.run_episode`` is the control protocol's episode of an
+    Energy-Casimir controller, with its metrics)."""
     obs, info = plant.reset(seed=seed, options={"state": np.asarray(x0, dtype=np.float64)})
     controller.reset(np.asarray(obs, dtype=np.float64))
     qs, us, xs = [np.asarray(obs, dtype=np.float64)], [], [np.asarray(info["state"], dtype=np.float64)]

@@ -122,7 +122,7 @@ def cartpole_model():
 
 def test_lqr_hold_from_the_learned_model_holds_the_cartpole_quietly(cartpole_model) -> None:
     from phast_model.rl.hold import HoldConfig, HybridPolicy, LQRHold, make_hold
-    from phast_model.rl.plant import run_episode
+    from phast_model.rl.plant import record_episode
 
     cfg, plant, model, _ = cartpole_model
     q_star = np.array([0.0, math.pi])
@@ -136,12 +136,12 @@ def test_lqr_hold_from_the_learned_model_holds_the_cartpole_quietly(cartpole_mod
                           plant.system.angle_dims)
     u_tol = quiet_u_tol(cfg.plant)
     x0 = np.array([0.7, math.pi + 0.1, 0.0, 0.0])  # the cart away from 0: the handoff region is on the angle only
-    ep = run_episode(plant, policy, x0, 800, 3, "evaluation")
+    ep = record_episode(plant, policy, x0, 800, 3, "evaluation")
     assert policy.handoffs == 1 and policy.holding
     m = quiet_metrics(ep, q_star, (1,), Task("upright", u_tol=u_tol))
     assert m.settled and m.success, m
     assert abs(ep.x[-1, 0] - 0.7) < 1.0  # the reference is where the cart was at the handoff
-    fall = run_episode(plant, HybridPolicy(_ZeroAgent(), 3, cfg.plant.decision_steps, cfg.plant.max_action, q_star,
+    fall = record_episode(plant, HybridPolicy(_ZeroAgent(), 3, cfg.plant.decision_steps, cfg.plant.max_action, q_star,
                                            angle_dims=(1,)), x0, 300, 3, "evaluation")
     assert not quiet_metrics(fall, q_star, (1,), Task("upright")).settled
 

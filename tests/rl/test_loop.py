@@ -239,7 +239,7 @@ class _ZeroAgent:
 def test_hybrid_policy_hands_off_to_the_learned_hold_and_holds_quietly(tiny_run) -> None:
     from phast_model.rl.hold import HybridPolicy, make_hold
     from phast_model.rl.loop import fit_world_model
-    from phast_model.rl.plant import run_episode
+    from phast_model.rl.plant import record_episode
 
     cfg, res = tiny_run
     # a model from the run's 6 s of recordings and an exact rig description (the tiny run's 30%-heavy description
@@ -249,12 +249,12 @@ def test_hybrid_policy_hands_off_to_the_learned_hold_and_holds_quietly(tiny_run)
     q_star = np.array([math.pi])
     hold, _ = make_hold(model, q_star, cfg.plant.dt, cfg.plant.sigma, cfg.plant.max_action, HoldConfig())
     policy = HybridPolicy(_ZeroAgent(), 3, cfg.plant.decision_steps, cfg.plant.max_action, q_star, hold)
-    ep = run_episode(plant, policy, np.array([math.pi + 0.15, 0.0]), 600, 3, "evaluation")
+    ep = record_episode(plant, policy, np.array([math.pi + 0.15, 0.0]), 600, 3, "evaluation")
     assert ep.handoffs == 0 and policy.handoffs == 1 and policy.holding  # Episode.handoffs is set by run_policy
     m = quiet_metrics(ep, q_star, (0,), Task("upright"))
     assert m.settled and m.success, m
     # without the hold the zero agent lets it fall
-    fall = run_episode(plant, HybridPolicy(_ZeroAgent(), 3, cfg.plant.decision_steps, cfg.plant.max_action, q_star),
+    fall = record_episode(plant, HybridPolicy(_ZeroAgent(), 3, cfg.plant.decision_steps, cfg.plant.max_action, q_star),
                        np.array([math.pi + 0.15, 0.0]), 600, 3, "evaluation")
     assert not quiet_metrics(fall, q_star, (0,), Task("upright")).settled
 
