@@ -28,7 +28,8 @@ from .rlc import RLCCircuit
 
 SYSTEMS: dict[str, type[System]] = {
     cls.name: cls
-    for cls in (Pendulum, CartPole, Oscillator, DoublePendulum, RLCCircuit, LennardJones3, HeatExchange, NBody3, PredatorPrey)
+    for cls in (Pendulum, CartPole, Oscillator, DoublePendulum, RLCCircuit, LennardJones3, HeatExchange, NBody3,
+                PredatorPrey)
 }
 
 

@@ -24,11 +24,23 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, ClassVar, Protocol
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol, TypeAlias, TypeVar
 
 import numpy as np
+import numpy.typing as npt
+
+if TYPE_CHECKING:
+    import torch
 
 Components = Sequence[Any]
+#: one coordinate of a formula, for a helper whose result has its argument's kind: a Python float (``SCALAR``), a
+#: NumPy array (``NUMPY``) or a torch tensor (``TORCH``)
+Coord = TypeVar("Coord", float, np.ndarray, "torch.Tensor")
+_T = TypeVar("_T")
+#: an array of the formulas written over numpy or torch arrays (never Python floats), such as the rigid-body tree's
+#: (:mod:`.tree_dynamics`): a NumPy array, or a torch tensor where autograd flows through (torch only when type
+#: checking)
+Array: TypeAlias = "np.ndarray | torch.Tensor"
 
 
 class ArrayNamespace(Protocol):
@@ -79,7 +91,7 @@ class _ScalarNamespace:
         return x if x > lo else lo
 
     @staticmethod
-    def where(c: bool, a: Any, b: Any) -> Any:
+    def where(c: bool, a: _T, b: _T) -> _T:
         return a if c else b
 
 
@@ -98,7 +110,7 @@ class NumpyNamespace:
     where = staticmethod(np.where)
 
     @staticmethod
-    def clip_min(x: Any, lo: float) -> Any:
+    def clip_min(x: npt.ArrayLike, lo: float) -> np.ndarray:
         return np.maximum(x, lo)
 
 
@@ -121,7 +133,7 @@ TORCH: ArrayNamespace = _TorchNamespace()  # torch's own functions (through __ge
 _NAMESPACES: tuple[ArrayNamespace, ...] = (SCALAR, NUMPY, TORCH)  # mypy checks that each implements the protocol
 
 
-def namespace(x: Any) -> ArrayNamespace:
+def namespace(x: object) -> ArrayNamespace:
     """Pick the namespace matching one coordinate ``x`` (float, ndarray or tensor)."""
     if isinstance(x, (float, int)):
         return SCALAR
@@ -132,7 +144,7 @@ def namespace(x: Any) -> ArrayNamespace:
     raise TypeError(f"unsupported coordinate type {type(x).__name__}")
 
 
-def split(x: Any) -> tuple:
+def split(x: Array) -> tuple:
     """``(..., n)`` array or tensor -> tuple of ``n`` components."""
     if isinstance(x, np.ndarray):
         return tuple(x[..., i] for i in range(x.shape[-1]))
@@ -146,12 +158,13 @@ def stack(components: Components, like: Any = None) -> Any:
         import torch
 
         shape = torch.broadcast_shapes(*[c.shape for c in components if hasattr(c, "shape")])
-        return torch.stack([c.expand(shape) if hasattr(c, "expand") else torch.full(shape, float(c)) for c in components], -1)
+        return torch.stack([c.expand(shape) if hasattr(c, "expand") else torch.full(shape, float(c))
+                            for c in components], -1)
     arrs = np.broadcast_arrays(*[np.asarray(c, dtype=np.float64) for c in components])
     return np.stack(arrs, -1)
 
 
-def const_like(x: Any, c: float) -> Any:
+def const_like(x: Coord, c: float) -> Coord:
     """The constant ``c`` with the type and shape of coordinate ``x``."""
     if type(x) is np.ndarray:
         r = x * 0.0  # the same values as x * 0.0 + c, one temporary fewer (datasets build (N, T) ones)
@@ -187,7 +200,7 @@ def solve_spd(M: Sequence[Components], b: Components) -> tuple:
     return tuple(x)
 
 
-def wrap(a: Any) -> Any:
+def wrap(a: Coord) -> Coord:
     """Wrap angles into ``[-pi, pi)`` (paper Appendix F): ``(a + pi) mod 2 pi - pi``."""
     if type(a) is np.ndarray and a.ndim and a.dtype.kind == "f":
         # same values, faster: x mod 2 pi = x where 0 <= x < 2 pi, so the slow float remainder
@@ -301,7 +314,8 @@ class System:
             if spec.choices:
                 if not isinstance(val, str) or val not in spec.choices:
                     raise ParameterError(
-                        f"{type(self).__name__}: parameter {key}={val!r} must be one of {list(spec.choices)} ({spec.doc})"
+                        f"{type(self).__name__}: parameter {key}={val!r} must be one of {list(spec.choices)} "
+                        f"({spec.doc})"
                     )
             elif val is not None:
                 try:
@@ -394,7 +408,8 @@ class System:
         """
         return None
 
-    def nonconservative_force(self, q: Components, v: Components, u: Components | None, xp: ArrayNamespace = NUMPY) -> tuple:
+    def nonconservative_force(self, q: Components, v: Components, u: Components | None,
+                              xp: ArrayNamespace = NUMPY) -> tuple:
         """Everything in pdot but -dH/dq at the rates ``v``: ``-D(q) v + G u`` (a system with friction laws or an
         actuator model beyond ``G u`` overrides it, e.g. a MuJoCo model's frictionloss and actuator gains)."""
         d = self.damping(q, xp)
@@ -410,7 +425,8 @@ class System:
         return None
 
     # ---- dynamics ------------------------------------------------------------
-    def rhs(self, q: Components, p: Components, u: Components | None, xp: ArrayNamespace = NUMPY) -> tuple[tuple, tuple]:
+    def rhs(self, q: Components, p: Components, u: Components | None,
+            xp: ArrayNamespace = NUMPY) -> tuple[tuple, tuple]:
         """Vector field (qdot, pdot) with the port force ``u`` = G u (n components), Eq. 1-3.
 
         Hot path of both the single env and the batched simulator: one call per RK4 stage.
@@ -427,7 +443,8 @@ class System:
             return tuple(v), tuple([-a for a in dq])
         return tuple(v), tuple([f - a for a, f in zip(dq, u)])
 
-    def power_balance(self, q: Components, p: Components, u: Components | None, xp: ArrayNamespace = NUMPY) -> tuple[Any, Any]:
+    def power_balance(self, q: Components, p: Components, u: Components | None,
+                      xp: ArrayNamespace = NUMPY) -> tuple[Any, Any]:
         """(dissipated power v^T D v, supplied power v^T G u): dH/dt = -first + second."""
         v = self.velocity(q, p, xp)
         d = self.damping(q, xp)
@@ -445,7 +462,8 @@ class System:
 
     # ---- initial states -------------------------------------------------
     def sample_initial(self, rng: np.random.Generator, size: int) -> np.ndarray:
-        """Sample ``size`` initial states ``(q, p)`` from the env's initial-state distribution (docs/envs.md) -> (size, 2n)."""
+        """Sample ``size`` initial states ``(q, p)`` from the env's initial-state distribution (docs/envs.md) -> (size,
+        2n)."""
         raise NotImplementedError
 
     # ---- helpers -------------------------------------------------------------

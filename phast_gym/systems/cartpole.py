@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from .base import NUMPY, ArrayNamespace, Components, Param, ParameterError, System, const_like
+from .base import NUMPY, ArrayNamespace, Components, Coord, Param, ParameterError, System, const_like
 
 
 class CartPole(System):
@@ -45,7 +45,7 @@ class CartPole(System):
     d0: float
     dd: float
 
-    def __init__(self, damping: str = "diag", **params: Any) -> None:
+    def __init__(self, damping: str = "diag", **params: object) -> None:
         if damping not in ("diag", "scalar"):
             raise ParameterError(f"CartPole: damping must be 'diag' or 'scalar', got {damping!r}")
         self.damping_kind = damping
@@ -56,7 +56,7 @@ class CartPole(System):
         return self.pole_mass * self.gravity * self.length * (1.0 - xp.cos(q[1]))
 
     # Each formula below is written once; the public methods and the fused ``rhs`` share them.
-    def _dV_theta(self, s: Any) -> Any:
+    def _dV_theta(self, s: Coord) -> Coord:
         """dV/dtheta from s = sin(theta) (dV/dx = 0)."""
         return self.pole_mass * self.gravity * self.length * s
 
@@ -70,7 +70,7 @@ class CartPole(System):
             (m12, const_like(q[0], self.pole_mass * self.length**2)),
         )
 
-    def _velocity(self, c: Any, p: Components) -> tuple:
+    def _velocity(self, c: Coord, p: Components) -> tuple:
         """M(q)^-1 p from c = cos(theta)."""
         mc, mp, l = self.cart_mass, self.pole_mass, self.length
         m11, m12, m22 = mc + mp, mp * l * c, mp * l * l
@@ -80,7 +80,7 @@ class CartPole(System):
     def velocity(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         return self._velocity(xp.cos(q[1]), p)
 
-    def _dH_dtheta(self, s: Any, v: Sequence) -> Any:
+    def _dH_dtheta(self, s: Coord, v: Sequence) -> Coord:
         """dH/dtheta|_p = dV/dtheta - v^T (dM/dtheta) v / 2, dM12/dtheta = -m_p l sin theta (dH/dx = 0)."""
         mpl = self.pole_mass * self.length
         return mpl * s * (self.gravity + v[0] * v[1])
@@ -88,7 +88,7 @@ class CartPole(System):
     def dH_dq(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         return (const_like(q[0], 0.0), self._dH_dtheta(xp.sin(q[1]), self.velocity(q, p, xp)))
 
-    def _pole_damping(self, s: Any, xp: ArrayNamespace) -> Any:
+    def _pole_damping(self, s: Coord, xp: ArrayNamespace) -> Coord:
         """d0 + dd |sin theta| from s = sin(theta)."""
         return self.d0 + self.dd * xp.abs(s)
 
@@ -98,7 +98,8 @@ class CartPole(System):
             return (pole, pole)
         return (const_like(q[0], self.d_cart), pole)
 
-    def rhs(self, q: Components, p: Components, u: Components | None, xp: ArrayNamespace = NUMPY) -> tuple[tuple, tuple]:
+    def rhs(self, q: Components, p: Components, u: Components | None,
+            xp: ArrayNamespace = NUMPY) -> tuple[tuple, tuple]:
         """:meth:`System.rhs` (Eq. 1-3) with cos/sin(theta) evaluated once per call.
 
         dH/dx = 0, so pdot_x = u_x - d_x v_x (the same value as ``u_x - 0 - d_x v_x``)."""

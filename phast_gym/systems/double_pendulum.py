@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from .base import NUMPY, ArrayNamespace, Components, Param, ParameterError, System, const_like
+from .base import NUMPY, ArrayNamespace, Components, Coord, Param, ParameterError, System, const_like
 
 COORDINATES = ("absolute", "relative")
 
@@ -46,12 +46,16 @@ class DoublePendulum(System):
         "b": Param(0.0, "viscous damping on both coordinate rates", "nonnegative"),
         "d0": Param(0.0, "base of the windy damping d0 + dd |sin q_i|", "nonnegative"),
         "dd": Param(0.0, "amplitude of the windy damping", "nonnegative"),
-        "com1": Param(None, "joint-1 axis to link 1's centre of mass [m] (default length1)", "nonnegative", extension=True),
-        "com2": Param(None, "joint-2 axis to link 2's centre of mass [m] (default length2)", "nonnegative", extension=True),
-        "inertia1": Param(None, "link 1's moment of inertia about joint 1 [kg m^2] (default mass1 com1^2)", extension=True),
-        "inertia2": Param(None, "link 2's moment of inertia about joint 2 [kg m^2] (default mass2 com2^2)", extension=True),
-        "coordinates": Param("absolute", "'absolute': both angles from hanging; 'relative': q2 = link 2 relative to link 1, "
-                             "u_i = torque of the motor at joint i", choices=COORDINATES, extension=True),
+        "com1": Param(None, "joint-1 axis to link 1's centre of mass [m] (default length1)", "nonnegative",
+                      extension=True),
+        "com2": Param(None, "joint-2 axis to link 2's centre of mass [m] (default length2)", "nonnegative",
+                      extension=True),
+        "inertia1": Param(None, "link 1's moment of inertia about joint 1 [kg m^2] (default mass1 com1^2)",
+                          extension=True),
+        "inertia2": Param(None, "link 2's moment of inertia about joint 2 [kg m^2] (default mass2 com2^2)",
+                          extension=True),
+        "coordinates": Param("absolute", "'absolute': both angles from hanging; 'relative': q2 = link 2 relative to "
+                             "link 1, u_i = torque of the motor at joint i", choices=COORDINATES, extension=True),
     }
     mass1: float
     mass2: float
@@ -90,8 +94,9 @@ class DoublePendulum(System):
         # det M = (I1 + m2 l1^2) I2 - (m2 l1 c2 cos phi)^2 in both conventions: M must be positive definite at every q
         # (always so for rigid links, I_i >= m_i c_i^2 by the parallel-axis theorem)
         if not (i2 > 0 and (i1 + m2 * l1 * l1) * i2 > self._k * self._k):
-            raise ParameterError(f"DoublePendulum: inertia1={i1:g}, inertia2={i2:g} with com2={c2:g} give a mass matrix that is not "
-                                 f"positive definite; need inertia2 > 0 and (inertia1 + mass2 length1^2) inertia2 > (mass2 length1 com2)^2 "
+            raise ParameterError(f"DoublePendulum: inertia1={i1:g}, inertia2={i2:g} with com2={c2:g} give a mass "
+                                 "matrix that is not positive definite; need inertia2 > 0 and "
+                                 "(inertia1 + mass2 length1^2) inertia2 > (mass2 length1 com2)^2 "
                                  "(a rigid link has inertia_i >= mass_i com_i^2)")
 
     # Each formula below is written once; the public methods and the fused ``rhs`` share them.
@@ -106,7 +111,7 @@ class DoublePendulum(System):
     def potential(self, q: Components, xp: ArrayNamespace = NUMPY) -> Any:
         return -self._g1 * xp.cos(q[0]) - self._g2 * xp.cos(self._link2(q))
 
-    def _dV(self, s1: Any, s2: Any) -> tuple:
+    def _dV(self, s1: Coord, s2: Coord) -> tuple:
         """dV/dq from s1 = sin(link 1's angle), s2 = sin(link 2's angle)."""
         g2 = self._g2 * s2
         return (self._g1 * s1 + g2, g2) if self.relative else (self._g1 * s1, g2)
@@ -114,7 +119,7 @@ class DoublePendulum(System):
     def grad_potential(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         return self._dV(xp.sin(q[0]), xp.sin(self._link2(q)))
 
-    def _mass(self, c: Any) -> tuple:
+    def _mass(self, c: Coord) -> tuple:
         """(M11, M12, M22) from c = cos(phi); entries that do not depend on q are floats."""
         m12 = self._k * c
         if self.relative:
@@ -127,7 +132,7 @@ class DoublePendulum(System):
             m11 = const_like(q[0], m11)
         return ((m11, m12), (m12, const_like(q[0], m22)))
 
-    def _velocity(self, c: Any, p: Components) -> tuple:
+    def _velocity(self, c: Coord, p: Components) -> tuple:
         """M(q)^-1 p from c = cos(phi)."""
         m11, m12, m22 = self._mass(c)
         det = m11 * m22 - m12 * m12
@@ -136,7 +141,7 @@ class DoublePendulum(System):
     def velocity(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         return self._velocity(xp.cos(self._phi(q)), p)
 
-    def _dH_dq(self, g: tuple, s: Any, v: Sequence) -> tuple:
+    def _dH_dq(self, g: tuple, s: Coord, v: Sequence) -> tuple:
         """dH/dq|_p = dV/dq - v^T (dM/dq) v / 2 from g = dV/dq, s = sin(phi):
         absolute dM12/dt1 = -dM12/dt2 = -k sin(t1 - t2); relative dM11/dq2 = 2 dM12/dq2 = -2 k sin q2."""
         if self.relative:
@@ -147,7 +152,7 @@ class DoublePendulum(System):
     def dH_dq(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         return self._dH_dq(self.grad_potential(q, xp), xp.sin(self._phi(q)), self.velocity(q, p, xp))
 
-    def _wind(self, s: Any, xp: ArrayNamespace) -> Any:
+    def _wind(self, s: Coord, xp: ArrayNamespace) -> Coord:
         """b + d0 + dd |sin q_i| from s = sin(q_i) (dd > 0)."""
         return self.b + self.d0 + self.dd * xp.abs(s)
 
@@ -163,7 +168,8 @@ class DoublePendulum(System):
     def has_damping(self) -> bool:
         return self.b + self.d0 + self.dd > 0.0
 
-    def rhs(self, q: Components, p: Components, u: Components | None, xp: ArrayNamespace = NUMPY) -> tuple[tuple, tuple]:
+    def rhs(self, q: Components, p: Components, u: Components | None,
+            xp: ArrayNamespace = NUMPY) -> tuple[tuple, tuple]:
         """:meth:`System.rhs` (Eq. 1-3) with each sin/cos evaluated once per call."""
         phi = self._phi(q)
         s1, sphi = xp.sin(q[0]), xp.sin(phi)

@@ -2,9 +2,9 @@
 
 :func:`mjcf_system` reads the file once (:mod:`.mjcf_tree`: MuJoCo compiles it) and returns a :class:`MJCFSystem`
 subclass whose parameters are the file's own attributes, named ``<body>.mass``, ``<body>.ipos_x|y|z``,
-``<body>.inertia_x|y|z`` (``diaginertia`` about the ``iquat`` axes), ``<joint>.armature|damping|frictionloss|stiffness``,
-``<actuator>.gear``, plus ``gravity`` (the magnitude of ``option/gravity``, a known constant).  The file's values
-are the defaults, so ``cls()`` is the robot as written.
+``<body>.inertia_x|y|z`` (``diaginertia`` about the ``iquat`` axes),
+``<joint>.armature|damping|frictionloss|stiffness``, ``<actuator>.gear``, plus ``gravity`` (the magnitude of
+``option/gravity``, a known constant).  The file's values are the defaults, so ``cls()`` is the robot as written.
 
 The dynamics are MuJoCo's rigid-body equations written once over numpy or torch arrays (``q`` = ``qpos`` of the
 hinge and slide joints, ``p = M(q) qdot``)::
@@ -30,7 +30,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from . import tree_dynamics as td
-from .base import NUMPY, ArrayNamespace, Components, Param, System
+from .base import NUMPY, Array, ArrayNamespace, Components, Param, System
 from .mjcf_tree import MJCFTree, ModelFileError, read_tree
 from .tree_dynamics import Ops, TreeParams
 
@@ -48,7 +48,8 @@ def param_specs(tree: MJCFTree) -> dict[str, Param]:
     for b, name in enumerate(tree.body_names):
         out[f"{name}.mass"] = Param(float(tree.body_mass[b]), f"mass of body {name} [kg]", "nonnegative")
         for k, ax in enumerate(AXES):
-            out[f"{name}.ipos_{ax}"] = Param(float(tree.body_ipos[b, k]), f"centre of mass of {name}, {ax} in its frame [m]", "any")
+            doc = f"centre of mass of {name}, {ax} in its frame [m]"
+            out[f"{name}.ipos_{ax}"] = Param(float(tree.body_ipos[b, k]), doc, "any")
         for k, ax in enumerate(AXES):
             doc = f"principal moment of inertia of {name} about its {ax} inertia axis [kg m^2]"
             out[f"{name}.inertia_{ax}"] = Param(float(tree.body_inertia[b, k]), doc, "nonnegative")
@@ -57,9 +58,10 @@ def param_specs(tree: MJCFTree) -> dict[str, Param]:
             out[f"{name}.{attr}"] = Param(float(getattr(tree, attr)[j]), f"joint {name} {attr}", "nonnegative")
     for a in tree.actuators:
         # a transmission ratio the file states, held like gravity: a motor that delivers less than u is a port term
-        # (actuator_gain, adopted on left-out evidence only) written back into this gear; --free <actuator>.gear calibrates it
-        out[f"{a.name}.gear"] = Param(a.gear, f"gear of actuator {a.name} (on joint {tree.joint_names[a.joint]})", "any",
-                                      known=True)
+        # (actuator_gain, adopted on left-out evidence only) written back into this gear; --free <actuator>.gear
+        # calibrates it
+        out[f"{a.name}.gear"] = Param(a.gear, f"gear of actuator {a.name} (on joint {tree.joint_names[a.joint]})",
+                                      "any", known=True)
     out["gravity"] = Param(float(np.linalg.norm(tree.gravity)), "gravitational acceleration [m/s^2] (option/gravity)",
                            "nonnegative", known=True)
     return out
@@ -69,10 +71,10 @@ def param_specs(tree: MJCFTree) -> dict[str, Param]:
 class TreeState:
     """The model at one configuration: q (n, ...), its array ops, the bodies' Jacobians and M(q) (n, n, ...)."""
 
-    Q: Any
+    Q: Array
     ops: Ops
     bodies: td.Bodies
-    M: Any
+    M: Array
 
 
 class MJCFSystem(System):
@@ -81,14 +83,14 @@ class MJCFSystem(System):
     TREE: ClassVar[MJCFTree]
     CONSTS: ClassVar[td.TreeConsts]
     # parameter arrays: numpy, a (K*reps, ...) batch of parameter sets, or torch tensors of learned parameters
-    _mass: Any
-    _ipos: Any
-    _inertia: Any
-    _armature: Any
-    _damping: Any
-    _frictionloss: Any
-    _stiffness: Any
-    _gear: Any
+    _mass: Array
+    _ipos: Array
+    _inertia: Array
+    _armature: Array
+    _damping: Array
+    _frictionloss: Array
+    _stiffness: Array
+    _gear: Array
     separable = False
     dt = 0.01
     substeps = 2  # RK4 substeps of 5 ms
@@ -102,7 +104,8 @@ class MJCFSystem(System):
         p = self.params
         self._mass = np.array([p[f"{b}.mass"] for b in t.body_names], dtype=float)
         self._ipos = np.array([[p[f"{b}.ipos_{a}"] for a in AXES] for b in t.body_names], dtype=float).reshape(-1, 3)
-        self._inertia = np.array([[p[f"{b}.inertia_{a}"] for a in AXES] for b in t.body_names], dtype=float).reshape(-1, 3)
+        self._inertia = np.array([[p[f"{b}.inertia_{a}"] for a in AXES] for b in t.body_names],
+                                 dtype=float).reshape(-1, 3)
         joint = {attr: np.array([p[f"{j}.{attr}"] for j in t.joint_names], dtype=float) for attr in JOINT_ATTRS}
         self._armature, self._damping = joint["armature"], joint["damping"]
         self._frictionloss, self._stiffness = joint["frictionloss"], joint["stiffness"]
@@ -116,7 +119,8 @@ class MJCFSystem(System):
         return TreeParams(self._mass, self._ipos, self._inertia, self._armature, self._stiffness, self._g)
 
     def with_armature(self, extra: Any) -> MJCFSystem:
-        """This model with ``extra`` (n,) added to every joint's armature (a rotor inertia found by the mismatch tool)."""
+        """This model with ``extra`` (n,) added to every joint's armature (a rotor inertia found by the mismatch
+        tool)."""
         out = copy.copy(self)
         out._armature = self._armature + np.asarray(extra, dtype=float)
         return out
@@ -131,7 +135,7 @@ class MJCFSystem(System):
         return self.TREE.joint_names
 
     # ---- the rigid-body formulas (phast_gym.systems.tree_dynamics), components in, components out ----
-    def _state(self, q: Components) -> tuple[Any, Any, Ops, td.Bodies]:
+    def _state(self, q: Components) -> tuple[Array, Array, Ops, td.Bodies]:
         """(q, theta = q - qpos0) as (n, ...) arrays, their ops and the bodies at q."""
         first = q[0]
         if not hasattr(first, "shape"):
@@ -143,11 +147,12 @@ class MJCFSystem(System):
         return Q, theta, ops, td.bodies(self._consts, self.tree_params(), theta, ops)
 
     def tree_state(self, q: Components) -> TreeState:
-        """Everything at the configuration q that V, M and dT/dq share (computed once, reused by the ``*_at`` methods)."""
+        """Everything at the configuration q that V, M and dT/dq share (computed once, reused by the ``*_at``
+        methods)."""
         Q, _, ops, bd = self._state(q)
         return TreeState(Q, ops, bd, self._mass_matrix(bd, ops))
 
-    def grad_potential_at(self, st: TreeState) -> Any:
+    def grad_potential_at(self, st: TreeState) -> Array:
         """dV/dq (n, ...) at a :meth:`tree_state`."""
         return self._grad_V(st.Q, st.bodies, st.ops)
 
@@ -155,20 +160,20 @@ class MJCFSystem(System):
         """M(q)^-1 p at a :meth:`tree_state`."""
         return self._velocity(st.M, p, st.Q)
 
-    def kinetic_dq_at(self, st: TreeState, v: Components) -> Any:
+    def kinetic_dq_at(self, st: TreeState, v: Components) -> Array:
         """d(p^T M^-1 p / 2)/dq at fixed p = -v^T (dM/dq) v / 2 (n, ...), v = M^-1 p, at a :meth:`tree_state`."""
         return -td.kinetic_dq(self._consts, self.tree_params(), st.bodies, st.ops.stack(list(v)), st.ops)
 
-    def _mass_matrix(self, bd: td.Bodies, ops: Ops) -> Any:
+    def _mass_matrix(self, bd: td.Bodies, ops: Ops) -> Array:
         """M(q) (n, n, ...) of the bodies at q."""
         return td.mass_matrix(self._consts, self.tree_params(), bd, ops)
 
-    def _grad_V(self, Q: Any, bd: td.Bodies, ops: Ops) -> Any:
+    def _grad_V(self, Q: Array, bd: td.Bodies, ops: Ops) -> Array:
         tp = self.tree_params()
         spring = ops.param(tp.stiffness, 1) * (Q - ops.k(self._consts.qpos_spring))
         return td.gravity_gradient(tp, bd, ops) + spring
 
-    def _velocity(self, M: Any, p: Components, Q: Any) -> tuple:
+    def _velocity(self, M: Array, p: Components, Q: Array) -> tuple:
         return td.solve(M, tuple(pi + 0.0 * Q[i] for i, pi in enumerate(p)))
 
     # ---- System interface ------------------------------------------------
@@ -220,7 +225,8 @@ class MJCFSystem(System):
             f[j] = f[j] + gear * force
         return f
 
-    def nonconservative_force(self, q: Components, v: Components, u: Components | None, xp: ArrayNamespace = NUMPY) -> tuple:
+    def nonconservative_force(self, q: Components, v: Components, u: Components | None,
+                              xp: ArrayNamespace = NUMPY) -> tuple:
         """Joint damping, frictionloss (smoothed sign) and the actuators: everything in pdot but -dH/dq."""
         f = self.actuator_force(q, v, u)
         tanh = _tanh(v[0])
@@ -232,7 +238,8 @@ class MJCFSystem(System):
             out.append(fj)
         return tuple(out)
 
-    def rhs(self, q: Components, p: Components, u: Components | None, xp: ArrayNamespace = NUMPY) -> tuple[tuple, tuple]:
+    def rhs(self, q: Components, p: Components, u: Components | None,
+            xp: ArrayNamespace = NUMPY) -> tuple[tuple, tuple]:
         """Eq. 1-3 with the bodies and M computed once per call."""
         Q, _, ops, bd = self._state(q)
         tp = self.tree_params()
@@ -241,7 +248,8 @@ class MJCFSystem(System):
         f = self.nonconservative_force(tuple(Q[i] for i in range(self.n)), v, u, xp)
         return tuple(v), tuple(fi - dH[i] for i, fi in enumerate(f))
 
-    def power_balance(self, q: Components, p: Components, u: Components | None, xp: ArrayNamespace = NUMPY) -> tuple[Any, Any]:
+    def power_balance(self, q: Components, p: Components, u: Components | None,
+                      xp: ArrayNamespace = NUMPY) -> tuple[Any, Any]:
         v = self.velocity(q, p, xp)
         passive = self.nonconservative_force(q, v, None, xp)
         active = self.actuator_force(q, v, u)

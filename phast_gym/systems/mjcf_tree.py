@@ -13,9 +13,13 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from typing import Any
+from types import ModuleType
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    import mujoco  # untyped to mypy (pyproject.toml): the annotations name MuJoCo's classes for the reader
 
 #: MuJoCo's enum values used below (mjtJoint, mjtTrn, mjtGain, mjtBias, mjtDyn)
 _FREE, _BALL, _SLIDE, _HINGE = 0, 1, 2, 3
@@ -88,7 +92,7 @@ class MJCFTree:
         return tuple(a.joint for a in self.actuators)
 
 
-def _mujoco() -> Any:
+def _mujoco() -> ModuleType:
     try:
         import mujoco
     except ImportError:  # pragma: no cover - mujoco is a dependency
@@ -111,7 +115,7 @@ def strip_urdf_meshes(text: str) -> str:
     return ET.tostring(root, encoding="unicode")
 
 
-def urdf_spec(text: str) -> Any:
+def urdf_spec(text: str) -> mujoco.MjSpec:
     """``mujoco.MjSpec`` of a URDF: meshes dropped (:func:`strip_urdf_meshes`) and, since MuJoCo's importer brings no
     actuators (URDF transmissions are not imported), one torque motor (gear 1) per hinge / slide joint, named after
     the joint and in joint order: the ``u`` columns of a URDF robot are its joints' torques / forces."""
@@ -125,7 +129,7 @@ def urdf_spec(text: str) -> Any:
     return spec
 
 
-def compile_model(path: str | Path) -> Any:
+def compile_model(path: str | Path) -> mujoco.MjModel:
     """``mujoco.MjModel`` of an MJCF (``.xml``) or URDF (``.urdf``) file; ModelFileError with MuJoCo's message."""
     mujoco = _mujoco()
     p = Path(path).expanduser()
@@ -139,7 +143,7 @@ def compile_model(path: str | Path) -> Any:
         raise ModelFileError(f"{p.name} does not compile: {str(exc).strip()}") from None
 
 
-def _name(model: Any, objtype: Any, i: int, prefix: str) -> str:
+def _name(model: mujoco.MjModel, objtype: mujoco.mjtObj, i: int, prefix: str) -> str:
     mujoco = _mujoco()
     nm = mujoco.mj_id2name(model, objtype, i)
     return nm if nm else f"{prefix}{i}"
@@ -152,7 +156,7 @@ def _quat_to_rot(q: np.ndarray) -> np.ndarray:
                      [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 
 
-def _check_supported(model: Any, src: str) -> None:
+def _check_supported(model: mujoco.MjModel, src: str) -> None:
     """Refuse what the port-Hamiltonian tree cannot represent, naming it."""
     mujoco = _mujoco()
     kinds = {_FREE: "free", _BALL: "ball"}
@@ -168,7 +172,8 @@ def _check_supported(model: Any, src: str) -> None:
     for a in range(model.nu):
         name = _name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, a, "actuator")
         if int(model.actuator_trntype[a]) != _TRN_JOINT:
-            raise ModelFileError(f"{src}: actuator {name!r} does not act on a joint (tendon/site transmissions are not supported)")
+            raise ModelFileError(f"{src}: actuator {name!r} does not act on a joint "
+                                 "(tendon/site transmissions are not supported)")
         if int(model.actuator_dyntype[a]) != _DYN_NONE or int(model.actuator_gaintype[a]) != _GAIN_FIXED \
                 or int(model.actuator_biastype[a]) not in (_BIAS_NONE, _BIAS_AFFINE):
             raise ModelFileError(f"{src}: actuator {name!r} has activation dynamics or a non-affine gain/bias; "
@@ -178,7 +183,7 @@ def _check_supported(model: Any, src: str) -> None:
         raise ModelFileError(f"{src}: two actuators drive one joint; give one actuator per joint")
 
 
-def _bodies(model: Any) -> tuple[list[int], dict[int, int]]:
+def _bodies(model: mujoco.MjModel) -> tuple[list[int], dict[int, int]]:
     """The moving bodies (a joint on the path to the world) in model order, and MuJoCo body id -> their index."""
     moving = [False] * model.nbody
     for b in range(1, model.nbody):
@@ -187,7 +192,7 @@ def _bodies(model: Any) -> tuple[list[int], dict[int, int]]:
     return ids, {b: i for i, b in enumerate(ids)}
 
 
-def _frame_to_moving(model: Any, b: int, index: dict[int, int]) -> tuple[int, np.ndarray, np.ndarray]:
+def _frame_to_moving(model: mujoco.MjModel, b: int, index: dict[int, int]) -> tuple[int, np.ndarray, np.ndarray]:
     """Body b's frame relative to its nearest moving ancestor (or the world): (parent index or -1, pos, rot),
     composing the fixed bodies in between."""
     pos, rot = model.body_pos[b].copy(), _quat_to_rot(model.body_quat[b])
@@ -207,7 +212,7 @@ def read_tree(path: str | Path) -> MJCFTree:
     return _tree_from_model(model, str(path), src)
 
 
-def _joint_ranges(model: Any) -> np.ndarray:
+def _joint_ranges(model: mujoco.MjModel) -> np.ndarray:
     out = np.tile([-np.inf, np.inf], (model.njnt, 1))
     for j in range(model.njnt):
         if bool(model.jnt_limited[j]):
@@ -215,7 +220,7 @@ def _joint_ranges(model: Any) -> np.ndarray:
     return out
 
 
-def _tree_from_model(model: Any, source: str, src: str) -> MJCFTree:
+def _tree_from_model(model: mujoco.MjModel, source: str, src: str) -> MJCFTree:
     mujoco = _mujoco()
     ids, index = _bodies(model)
     frames = [_frame_to_moving(model, b, index) for b in ids]
@@ -225,8 +230,9 @@ def _tree_from_model(model: Any, source: str, src: str) -> MJCFTree:
         b = model.actuator_biasprm[a, :3] if int(model.actuator_biastype[a]) else np.zeros(3)
         return float(b[0]), float(b[1]), float(b[2])
 
-    acts = tuple(Actuator(name=_name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, a, "actuator"), joint=int(model.actuator_trnid[a, 0]),
-                          gear=float(model.actuator_gear[a, 0]), gain=float(model.actuator_gainprm[a, 0]), bias=bias(a))
+    acts = tuple(Actuator(name=_name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, a, "actuator"),
+                          joint=int(model.actuator_trnid[a, 0]), gear=float(model.actuator_gear[a, 0]),
+                          gain=float(model.actuator_gainprm[a, 0]), bias=bias(a))
                  for a in range(model.nu))
     model_name = re.sub(r"\W+", "_", Path(source).stem) or "robot"
     return MJCFTree(

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from .base import NUMPY, ArrayNamespace, Components, Param, System, const_like
+from .base import NUMPY, ArrayNamespace, Components, Coord, Param, System, const_like
 
 
 class Pendulum(System):
@@ -53,7 +53,7 @@ class Pendulum(System):
     def potential(self, q: Components, xp: ArrayNamespace = NUMPY) -> Any:
         return self.mgl * (1.0 - xp.cos(q[0]))
 
-    def _dV(self, s: Any) -> Any:
+    def _dV(self, s: Coord) -> Coord:
         """dV/dtheta from s = sin(theta)."""
         return self.mgl * s
 
@@ -66,7 +66,7 @@ class Pendulum(System):
     def velocity(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         return (p[0] / self.inertia,)
 
-    def _wind(self, s: Any, xp: ArrayNamespace) -> Any:
+    def _wind(self, s: Coord, xp: ArrayNamespace) -> Coord:
         """D(theta) from s = sin(theta) when dd > 0 (the kinked wind law)."""
         return self.gamma + self.d0 + self.dd * xp.abs(s)
 
@@ -82,7 +82,8 @@ class Pendulum(System):
     def has_damping(self) -> bool:
         return self.gamma + self.d0 + self.dd > 0.0
 
-    def rhs(self, q: Components, p: Components, u: Components | None, xp: ArrayNamespace = NUMPY) -> tuple[tuple, tuple]:
+    def rhs(self, q: Components, p: Components, u: Components | None,
+            xp: ArrayNamespace = NUMPY) -> tuple[tuple, tuple]:
         """:meth:`System.rhs` (Eq. 1-3) with sin(theta) evaluated once for dV/dq and D(q)."""
         s = xp.sin(q[0])
         (v,) = self.velocity(q, p, xp)

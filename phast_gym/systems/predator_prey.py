@@ -22,7 +22,8 @@ class PredatorPrey(System):
     n = 1
     dt = 0.1
     #: 4 RK4 substeps: both populations within 1e-5 of a DOP853 solve after 50 steps (2.6e-6 worst over 1000
-    #: initial-state draws with held inputs up to the action bound; 2 substeps would miss by up to 4e-5 on the predators)
+    #: initial-state draws with held inputs up to the action bound; 2 substeps would miss by up to 4e-5 on the
+    #: predators)
     substeps = 4
     default_max_action = 5.0
     hamiltonian_system = False
@@ -42,7 +43,8 @@ class PredatorPrey(System):
     K: float
     mu: float
 
-    def rhs(self, q: Components, p: Components, u: Components | None, xp: ArrayNamespace = NUMPY) -> tuple[tuple, tuple]:
+    def rhs(self, q: Components, p: Components, u: Components | None,
+            xp: ArrayNamespace = NUMPY) -> tuple[tuple, tuple]:
         n1, n2 = q[0], p[0]
         dn1 = self.a * n1 * (1.0 - n1 / self.K) - self.b * n1 * n2 - self.mu * n1
         dn2 = self.d * n1 * n2 - self.c * n2 - self.mu * n2

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from .base import solve_spd
+from .base import Array, Components, solve_spd
 from .mjcf_tree import MJCFTree
 
 
@@ -27,12 +27,12 @@ class TreeParams:
     """The parameter arrays: numpy (``(nb,)``, ``(nb, 3)``, ...), a batch of parameter sets (a leading ``(B, ...)``
     axis: several systems simulated as one batch) or torch tensors (learned parameters)."""
 
-    mass: Any  # (nb,)
-    ipos: Any  # (nb, 3)
-    inertia: Any  # (nb, 3) principal moments
-    armature: Any  # (n,)
-    stiffness: Any  # (n,)
-    gravity: Any  # (3,)
+    mass: Array  # (nb,)
+    ipos: Array  # (nb, 3)
+    inertia: Array  # (nb, 3) principal moments
+    armature: Array  # (n,)
+    stiffness: Array  # (n,)
+    gravity: Array  # (3,)
 
 
 class Ops:
@@ -49,15 +49,16 @@ class Ops:
             self.torch = torch
         self._key = (self.torch is not None, str(like.dtype), str(getattr(like, "device", "")), nbat)
 
-    def const(self, a: Any) -> Any:
+    def const(self, a: Any) -> Array:
         """A constant (numpy array) or a learned tensor, with singleton batch axes appended."""
         if self.torch is not None:
-            t = a.to(self.like.dtype) if self.torch.is_tensor(a) else self.torch.as_tensor(np.asarray(a), dtype=self.like.dtype)
+            t = (a.to(self.like.dtype) if self.torch.is_tensor(a)
+                 else self.torch.as_tensor(np.asarray(a), dtype=self.like.dtype))
             return t.reshape(tuple(t.shape) + (1,) * self.nbat)
         a = np.asarray(a, dtype=self.like.dtype)
         return a.reshape(a.shape + (1,) * self.nbat)
 
-    def k(self, a: np.ndarray) -> Any:
+    def k(self, a: np.ndarray) -> Array:
         """:meth:`const` of a load-time constant (an array that lives as long as the cache), converted once."""
         key = (id(a),) + self._key
         c = self.cache.get(key)
@@ -65,7 +66,7 @@ class Ops:
             c = self.cache[key] = self.const(a)
         return c
 
-    def k0(self, a: np.ndarray) -> Any:
+    def k0(self, a: np.ndarray) -> Array:
         """A load-time constant as it is (no batch axes), as a tensor on the torch path; converted once."""
         if self.torch is None:
             return a
@@ -75,7 +76,7 @@ class Ops:
             c = self.cache[key] = self.torch.as_tensor(a, dtype=self.like.dtype, device=self.like.device)
         return c
 
-    def param(self, a: Any, ndim: int) -> Any:
+    def param(self, a: Any, ndim: int) -> Array:
         """A parameter array of ``ndim`` structure axes; a leading batch axis (parameter sets) moves to the end."""
         if np.ndim(a) > ndim:
             a = self.torch.movedim(a, 0, -1) if self.torch is not None else np.moveaxis(np.asarray(a), 0, -1)
@@ -84,34 +85,35 @@ class Ops:
             return a.reshape(a.shape + (1,) * self.nbat)
         return self.const(a)
 
-    def stack(self, xs: list, axis: int = 0) -> Any:
+    def stack(self, xs: list, axis: int = 0) -> Array:
         return self.torch.stack(xs, dim=axis) if self.torch is not None else np.stack(xs, axis=axis)
 
-    def trig(self, x: Any) -> tuple[Any, Any]:
+    def trig(self, x: Array) -> tuple[Array, Array]:
         return (self.torch.cos(x), self.torch.sin(x)) if self.torch is not None else (np.cos(x), np.sin(x))
 
-    def swap01(self, x: Any) -> Any:
+    def swap01(self, x: Array) -> Array:
         return x.transpose(0, 1) if self.torch is not None else np.swapaxes(x, 0, 1)
 
-    def einsum(self, spec: str, *xs: Any) -> Any:
-        """Contraction over structure axes, the batch in ``...`` (broadcast): one call instead of a product and a sum."""
+    def einsum(self, spec: str, *xs: Array) -> Array:
+        """Contraction over structure axes, the batch in ``...`` (broadcast): one call instead of a product and a
+        sum."""
         return self.torch.einsum(spec, *xs) if self.torch is not None else np.einsum(spec, *xs)
 
-    def cat(self, xs: list) -> Any:
+    def cat(self, xs: list) -> Array:
         return self.torch.cat(xs, 0) if self.torch is not None else np.concatenate(xs, 0)
 
 
-def mv(A: Any, v: Any, ops: Ops) -> Any:
+def mv(A: Array, v: Array, ops: Ops) -> Array:
     """(i, j, ...) times (j, ...) -> (i, ...)."""
     return ops.einsum("ij...,j...->i...", A, v)
 
 
-def mm(A: Any, B: Any, ops: Ops) -> Any:
+def mm(A: Array, B: Array, ops: Ops) -> Array:
     """(i, j, ...) times (j, k, ...) -> (i, k, ...)."""
     return ops.einsum("ij...,jk...->ik...", A, B)
 
 
-def cross(a: Any, b: Any, ops: Ops) -> Any:
+def cross(a: Array, b: Array, ops: Ops) -> Array:
     """a x b over the first axis (3, ...): (a_{i+1} b_{i+2} - a_{i+2} b_{i+1})_i from cyclic extensions (four ops)."""
     a5, b5 = ops.cat([a, a[:2]]), ops.cat([b, b[:2]])
     return a5[1:4] * b5[2:5] - a5[2:5] * b5[1:4]
@@ -141,7 +143,8 @@ class JointStep:
 
 @dataclass(frozen=True)
 class BodyPlan:
-    """How :func:`frames` reaches one body: its parent, the fixed rotation and offset of a jointless body, its joints."""
+    """How :func:`frames` reaches one body: its parent, the fixed rotation and offset of a jointless body, its
+    joints."""
 
     parent: int
     rot: np.ndarray | None  # None: identity (a jointless body)
@@ -150,7 +153,8 @@ class BodyPlan:
 
 
 def _rodrigues(a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(a a^T, I - a a^T, [a]x): the rotation by theta about unit a is a a^T + cos(theta) (I - a a^T) + sin(theta) [a]x."""
+    """(a a^T, I - a a^T, [a]x): the rotation by theta about unit a is a a^T + cos(theta) (I - a a^T) + sin(theta)
+    [a]x."""
     K = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
     aa = np.outer(a, a)
     return aa, np.eye(3) - aa, K
@@ -220,29 +224,29 @@ class TreeConsts:
                 order[k, j] = 1.0 if same or (tree.joint_body[j] != bk and anc[bk, j]) else 0.0
         hinge = np.array(tree.joint_hinge, dtype=float)
         return cls(tree, _plans(tree), np.moveaxis(tree.body_irot, 0, -1), anc, anc * hinge, anc * (1.0 - hinge), order,
-                   order.T.copy(), order.T + np.eye(tree.n), hinge, np.eye(tree.n), tree.qpos0.copy(), tree.qpos_spring.copy(),
-                   bool(np.all(hinge == 1.0)))
+                   order.T.copy(), order.T + np.eye(tree.n), hinge, np.eye(tree.n), tree.qpos0.copy(),
+                   tree.qpos_spring.copy(), bool(np.all(hinge == 1.0)))
 
 
 @dataclass(frozen=True)
 class Frames:
     """World-frame joint axes (3, n, ...) and anchors, body rotations (3, 3, nb, ...) and origins (3, nb, ...)."""
 
-    axes: Any
-    anchors: Any
-    R: Any
-    x: Any
+    axes: Array
+    anchors: Array
+    R: Array
+    x: Array
 
 
-def frames(tc: TreeConsts, theta: Any, ops: Ops) -> Frames:
+def frames(tc: TreeConsts, theta: Array, ops: Ops) -> Frames:
     """MuJoCo's mj_kinematics, following the load-time :class:`BodyPlan` of every body."""
     k = ops.k
     one = theta[0] * 0.0 + 1.0
     n = tc.tree.n
-    R_w: list[Any] = []
-    x_w: list[Any] = []
-    axes: list[Any] = [None] * n
-    anchors: list[Any] = [None] * n
+    R_w: list[Array | None] = []
+    x_w: list[Array | None] = []
+    axes: list[Array | None] = [None] * n
+    anchors: list[Array | None] = [None] * n
     for plan in tc.plans:
         R = x = None
         if plan.parent >= 0:
@@ -283,14 +287,14 @@ def frames(tc: TreeConsts, theta: Any, ops: Ops) -> Frames:
 class Bodies:
     """Every body's Jacobians (3, nb, n, ...), inertia axes RI (3, 3, nb, ...) and centre of mass C (3, nb, ...)."""
 
-    Jv: Any
-    Jw: Any
-    RI: Any
-    C: Any
-    axes: Any  # (3, n, ...)
+    Jv: Array
+    Jw: Array
+    RI: Array
+    C: Array
+    axes: Array  # (3, n, ...)
 
 
-def bodies(tc: TreeConsts, p: TreeParams, theta: Any, ops: Ops) -> Bodies:
+def bodies(tc: TreeConsts, p: TreeParams, theta: Array, ops: Ops) -> Bodies:
     f = frames(tc, theta, ops)
     ipos = ops.swap01(ops.param(p.ipos, 2))  # (3, nb, ...)
     C = f.x + mv(f.R, ipos, ops)
@@ -302,26 +306,27 @@ def bodies(tc: TreeConsts, p: TreeParams, theta: Any, ops: Ops) -> Bodies:
     return Bodies(Jv, Jw, mm(f.R, ops.k(tc.irot), ops), C, f.axes)
 
 
-def mass_matrix(tc: TreeConsts, p: TreeParams, bd: Bodies, ops: Ops) -> Any:
+def mass_matrix(tc: TreeConsts, p: TreeParams, bd: Bodies, ops: Ops) -> Array:
     """M(q) (n, n, ...)."""
     m = ops.param(p.mass, 1)  # (nb, ...)
     inertia = ops.swap01(ops.param(p.inertia, 2))  # (3, nb, ...)
     W = ops.einsum("xyb...,xbk...->ybk...", bd.RI, bd.Jw)  # angular Jacobians in the inertia frames, (3, nb, n, ...)
-    M = ops.einsum("xbi...,xbj...,b...->ij...", bd.Jv, bd.Jv, m) + ops.einsum("xbi...,xbj...,xb...->ij...", W, W, inertia)
+    M = (ops.einsum("xbi...,xbj...,b...->ij...", bd.Jv, bd.Jv, m)
+         + ops.einsum("xbi...,xbj...,xb...->ij...", W, W, inertia))
     arm = ops.param(p.armature, 1)
     return M + ops.k(tc.eye) * arm[:, None]
 
 
-def gravity_gradient(p: TreeParams, bd: Bodies, ops: Ops) -> Any:
+def gravity_gradient(p: TreeParams, bd: Bodies, ops: Ops) -> Array:
     """d(-sum_b m_b g . c_b)/dq (n, ...)."""
     return -ops.einsum("xbk...,x...,b...->k...", bd.Jv, ops.param(p.gravity, 1), ops.param(p.mass, 1))
 
 
-def gravity_potential(p: TreeParams, bd: Bodies, ops: Ops) -> Any:
+def gravity_potential(p: TreeParams, bd: Bodies, ops: Ops) -> Array:
     return -ops.einsum("xb...,x...,b...->...", bd.C, ops.param(p.gravity, 1), ops.param(p.mass, 1))
 
 
-def kinetic_dq(tc: TreeConsts, p: TreeParams, bd: Bodies, v: Any, ops: Ops) -> Any:
+def kinetic_dq(tc: TreeConsts, p: TreeParams, bd: Bodies, v: Array, ops: Ops) -> Array:
     """v^T (dM/dq_k) v / 2 = dT/dq_k at fixed rates (n, ...).  A hinge k turns everything after it about a_k, a slide
     moves it along a_k; for body b with centre-of-mass velocity u_b, angular velocity w_b and world inertia I_b::
 
@@ -350,7 +355,7 @@ def kinetic_dq(tc: TreeConsts, p: TreeParams, bd: Bodies, v: Any, ops: Ops) -> A
     return es("xk...,k,xk...->k...", bd.axes, k0(tc.hinge), S) + es("xk...,xk...->k...", w_before, G)
 
 
-def solve(M: Any, b: Any) -> Any:
+def solve(M: Array, b: Components) -> tuple:
     """M^-1 b for (n, n, ...) and (n, ...) (elimination over the batch: no per-sample LAPACK call)."""
     n = M.shape[0]
     x = solve_spd(tuple(tuple(M[i, j] for j in range(n)) for i in range(n)), tuple(b[i] for i in range(n)))

@@ -11,7 +11,7 @@ stay positive); :class:`RigidBodyPotential` and :class:`RigidBodyMass` evaluate 
 from __future__ import annotations
 
 import copy
-from typing import Any
+from typing import cast
 
 import numpy as np
 import torch
@@ -62,7 +62,8 @@ class LearnedBodies(nn.Module):
         self.ipos = nn.Parameter(torch.as_tensor(np.asarray(system._ipos, dtype=float)))
         self.log_inertia = nn.Parameter(torch.as_tensor(np.log(np.where(inertia > 0, inertia, 1.0))))
         self.raw_armature = nn.Parameter(torch.as_tensor(_inv_softplus(_armature_start(system))))
-        self._last: tuple[Any, ...] | None = None  # (q, versions, system, tree state) of the last evaluation
+        # (q, versions, system, tree state) of the last evaluation
+        self._last: tuple[torch.Tensor, tuple[int | bool, ...], MJCFSystem, TreeState] | None = None
 
     def relative_parameters(self) -> list[nn.Parameter]:
         """Softplus coefficients that may start an order of magnitude from the machine's value (the rotor inertia):
@@ -117,7 +118,7 @@ class RigidBodyPotential(Potential):
 
     def grad(self, q: torch.Tensor) -> torch.Tensor:
         s, st = self.bodies.state(q)
-        return s.grad_potential_at(st).movedim(0, -1)
+        return cast(torch.Tensor, s.grad_potential_at(st)).movedim(0, -1)
 
 
 class RigidBodyMass(Mass):
@@ -131,7 +132,7 @@ class RigidBodyMass(Mass):
 
     def matrix(self, q: torch.Tensor) -> torch.Tensor:
         _, st = self.bodies.state(q)
-        return st.M.movedim(0, -1).movedim(0, -1)
+        return cast(torch.Tensor, st.M).movedim(0, -1).movedim(0, -1)
 
     def velocity(self, q: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
         s, st = self.bodies.state(q)
@@ -139,4 +140,4 @@ class RigidBodyMass(Mass):
 
     def kinetic_dq(self, q: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
         s, st = self.bodies.state(q)
-        return s.kinetic_dq_at(st, s.velocity_at(st, split(p))).movedim(0, -1)
+        return cast(torch.Tensor, s.kinetic_dq_at(st, s.velocity_at(st, split(p)))).movedim(0, -1)
