@@ -19,15 +19,23 @@ backend); ``benchmarks/envs.py --compiled`` measures it against the single env.
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, TypeAlias
 
 import numpy as np
 
 from .integrate import Crossing, check_batch, rk4, split_at_crossing, step
 from .systems.base import NUMPY, SCALAR, TORCH, System
 
+if TYPE_CHECKING:
+    import torch
+
+    #: one compiled sampling interval: (q, p, u) -> (q, p, x, overflow), q and p as (n, B) tensors, x the (B, 2n) rows
+    IntervalFn: TypeAlias = Callable[[torch.Tensor, torch.Tensor, torch.Tensor | None],
+                                     tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]]
+
 #: compiled one-interval functions, keyed by the system's identity and the integration settings
-_COMPILED: dict[tuple, Any] = {}
+_COMPILED: dict[tuple, IntervalFn] = {}
 #: distinct (system, substeps, port, batch shape) graphs one process may hold before dynamo gives up
 RECOMPILE_LIMIT = 256
 
@@ -68,7 +76,7 @@ def _gathered_substep(system: System, q: list, p: list, u: list | None, h: float
     return qn, pn, s1.index_put((idx,), torch.as_tensor(system.switching(qc, pc, TORCH))), overflow
 
 
-def _interval_fn(system: System, k: int, with_u: bool) -> Any:
+def _interval_fn(system: System, k: int, with_u: bool) -> IntervalFn:
     """The compiled map (q, p, u) -> (q, p, x, overflow) over one sampling interval: q, p as (n, B) tensors and
     the same state as (B, 2n) rows ``x``."""
     import torch
@@ -133,6 +141,7 @@ def simulate_compiled(
     with torch._dynamo.config.patch(recompile_limit=RECOMPILE_LIMIT, accumulated_recompile_limit=RECOMPILE_LIMIT):
         for t in range(n_steps):
             q0, p0, ut = q, p, None if u_t is None else u_t[t]
+            x: torch.Tensor | None  # the (B, 2n) rows, None when the interval ran on the NumPy path
             try:
                 q, p, x, overflow = fn(q0, p0, ut)
             except Exception as exc:
@@ -140,11 +149,13 @@ def simulate_compiled(
                     raise
                 # the first call compiles: TorchInductor's CPU backend needs a working C++ compiler
                 first = (str(exc).strip().splitlines() or [""])[0][:300]
-                raise RuntimeError(f"backend='compiled' could not compile {system.name} ({type(exc).__name__}: {first}); "
-                                   "it needs torch.compile's CPU backend (a C++ compiler); backend='numpy' needs neither") from exc
+                raise RuntimeError(f"backend='compiled' could not compile {system.name} "
+                                   f"({type(exc).__name__}: {first}); "
+                                   "it needs torch.compile's CPU backend (a C++ compiler); "
+                                   "backend='numpy' needs neither") from exc
             if overflow:  # more kink crossings than the gather holds: this interval on the NumPy path
-                qs, ps = step(system, list(q0.numpy()), list(p0.numpy()), None if ut is None else list(ut.numpy()), NUMPY,
-                              substeps=k)
+                qs, ps = step(system, list(q0.numpy()), list(p0.numpy()), None if ut is None else list(ut.numpy()),
+                              NUMPY, substeps=k)
                 q, p = (torch.from_numpy(np.stack(np.broadcast_arrays(*c, subok=False))) for c in (qs, ps))
                 x = None
             if system.stochastic:

@@ -17,6 +17,7 @@ import math
 import os
 import warnings
 import zipfile
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -77,14 +78,14 @@ class Dataset:
     def __len__(self) -> int:
         return self.n_traj
 
-    def subset(self, idx: Any) -> Dataset:
+    def subset(self, idx: slice | np.ndarray | Sequence[int]) -> Dataset:
         """Trajectories ``idx`` (slice or index array) as a new dataset."""
         kw = {k: getattr(self, k)[idx] for k in _ARRAYS}
         return Dataset(self.env_id, dt=self.dt, angle_dims=self.angle_dims, actuated_dofs=self.actuated_dofs,
                        config=dict(self.config), system=self.system, **kw)
 
 
-def _config_key(config: dict[str, Any]) -> str:
+def _config_key(config: Mapping[str, object]) -> str:
     blob = json.dumps(config, sort_keys=True, default=str).encode()
     return hashlib.sha256(blob).hexdigest()[:24]
 
@@ -107,7 +108,7 @@ def _save(path: Path, ds: Dataset) -> None:
     atomic_write_bytes(path, buf.getvalue())
 
 
-def _load(path: Path, config: dict[str, Any]) -> Dataset:
+def _load(path: Path, config: Mapping[str, object]) -> Dataset:
     """Load a cache file, raising ``ValueError`` on any inconsistency."""
     try:
         with np.load(path, allow_pickle=False) as z:
@@ -124,8 +125,9 @@ def _load(path: Path, config: dict[str, Any]) -> Dataset:
                    actuated_dofs=tuple(meta["actuated_dofs"]), config=meta["config"], **arrays)
 
 
-def check_noise_std(value: Any) -> float:
-    """``obs_noise_std`` as the env takes it: a real number >= 0 and finite, else ValueError (nothing generated or cached)."""
+def check_noise_std(value: object) -> float:
+    """``obs_noise_std`` as the env takes it: a real number >= 0 and finite, else ValueError (nothing generated or
+    cached)."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise ValueError(f"obs_noise_std must be a real number >= 0, got {value!r}")
     noise = float(value)
@@ -190,7 +192,7 @@ def make_dataset(
     return ds
 
 
-def _check_request(n_traj: int, T: int, backend: str, env_kwargs: dict[str, Any]) -> None:
+def _check_request(n_traj: int, T: int, backend: str, env_kwargs: Mapping[str, object]) -> None:
     """ValueError for a bad size, backend or an env kwarg that a dataset cannot take."""
     if backend not in ("numpy", "compiled"):
         raise ValueError(f"backend must be 'numpy' or 'compiled', got {backend!r}")
@@ -295,7 +297,8 @@ class PortExcitation:
 def split_dataset(ds: Dataset, n_train: int = 1000, n_val: int = 200, n_test: int = 200) -> dict[str, Dataset]:
     """Split consecutive trajectories into train / val / test (paper Sec. 4.1.1)."""
     if n_train + n_val + n_test > ds.n_traj:
-        raise ValueError(f"split {n_train}/{n_val}/{n_test} needs {n_train + n_val + n_test} trajectories, have {ds.n_traj}")
+        raise ValueError(f"split {n_train}/{n_val}/{n_test} needs {n_train + n_val + n_test} trajectories, "
+                         f"have {ds.n_traj}")
     a, b = n_train, n_train + n_val
     return {"train": ds.subset(slice(0, a)), "val": ds.subset(slice(a, b)), "test": ds.subset(slice(b, b + n_test))}
 

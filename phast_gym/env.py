@@ -15,6 +15,7 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+import numpy.typing as npt
 from gymnasium import spaces
 
 from . import integrate
@@ -24,7 +25,7 @@ from .systems import SCALAR, ParameterError, System, make_system
 _TWO_PI = 2.0 * math.pi
 
 
-def _real_array(x: Any, what: str, err: type[Exception]) -> np.ndarray:
+def _real_array(x: object, what: str, err: type[Exception]) -> np.ndarray:
     """``x`` as a float64 array if it holds real numbers (bool, int, float); complex values (whose imaginary part
     would be dropped), strings and objects raise ``err`` naming ``what``."""
     try:
@@ -38,7 +39,8 @@ def _real_array(x: Any, what: str, err: type[Exception]) -> np.ndarray:
 
 
 def parse_actuated_dofs(actuated_dofs: Sequence[int] | None, n: int) -> tuple[int, ...]:
-    """Distinct integer indices in [0, n) (default: all n); anything else (0.5, True, duplicates) is a ParameterError."""
+    """Distinct integer indices in [0, n) (default: all n); anything else (0.5, True, duplicates) is a
+    ParameterError."""
     if actuated_dofs is None:
         return tuple(range(n))
     try:
@@ -116,11 +118,11 @@ class PortHamiltonianEnv(gym.Env):
         max_action: float | None = None,
         obs_noise_std: float = 0.0,
         observe: str = "q",
-        dtype: Any = np.float32,
+        dtype: npt.DTypeLike = np.float32,
         target: Sequence[float] | None = None,
         render_mode: str | None = None,
         substeps: int | None = None,
-        **params: Any,
+        **params: object,
     ) -> None:
         if isinstance(system, System):
             if params:
@@ -181,7 +183,8 @@ class PortHamiltonianEnv(gym.Env):
     def _obs(self) -> np.ndarray:
         q = self._q
         if self._plain_obs:  # q only, no noise: the common case, kept cheap
-            return np.array([((x + math.pi) % _TWO_PI - math.pi) if a else x for x, a in zip(q, self._angle)], dtype=self.dtype)
+            return np.array([((x + math.pi) % _TWO_PI - math.pi) if a else x for x, a in zip(q, self._angle)],
+                            dtype=self.dtype)
         if self.observe == "qp":
             vals = q + self._p
             if self.obs_noise_std > 0:
@@ -214,7 +217,8 @@ class PortHamiltonianEnv(gym.Env):
         if options and options.get("state") is not None:  # validated before anything changes (seed included)
             x0 = _real_array(options["state"], "options['state']", ValueError).reshape(-1)
             if x0.shape != (2 * n,):
-                raise ValueError(f"options['state'] must have length 2n = {2 * n} (q then p), got shape {np.shape(options['state'])}")
+                raise ValueError(f"options['state'] must have length 2n = {2 * n} (q then p), "
+                                 f"got shape {np.shape(options['state'])}")
             if not np.all(np.isfinite(x0)):
                 raise ValueError(f"options['state'] must be finite, got {x0}")
             self._check_state(x0)
@@ -246,14 +250,15 @@ class PortHamiltonianEnv(gym.Env):
             raise ValueError(f"options['state'] {x0.tolist()} gives non-finite energy or forces in {sysm.name}; "
                              "the env keeps its previous state")
 
-    def _validate_action(self, action: Any) -> tuple[list[float], bool]:
+    def _validate_action(self, action: object) -> tuple[list[float], bool]:
         """Action -> (clipped values as floats, clipped flag); ValueError on bad input (env untouched)."""
         if type(action) is np.ndarray and action.shape == self._action_shape and action.dtype.kind == "f":
             vals = action.tolist()  # fast path: the usual float array of the right shape
         else:
             a = _real_array(action, "action", ValueError)
             if a.shape != self._action_shape:
-                raise ValueError(f"action must have shape ({self.m},) (actuated dofs {list(self.actuated_dofs)}), got {a.shape}")
+                raise ValueError(f"action must have shape ({self.m},) (actuated dofs {list(self.actuated_dofs)}), "
+                                 f"got {a.shape}")
             vals = a.tolist()
         hi = self.max_action
         out = []
@@ -268,7 +273,7 @@ class PortHamiltonianEnv(gym.Env):
             out.append(float(v))
         return out, clipped
 
-    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
+    def step(self, action: object) -> tuple[np.ndarray, float, bool, bool, dict]:
         u, clipped = self._validate_action(action)
         sysm = self.system
         if self.m == self.n:

@@ -48,7 +48,8 @@ def remove_stale_temps(path: str | Path, max_age_s: float = STALE_TMP_S) -> list
     path = Path(path)
     removed: list[Path] = []
     pat = re.compile(rf"^\.{re.escape(path.name)}\.(?P<host>[A-Za-z0-9_]+)-(?P<pid>\d+)\.[^.]*\.tmp$")
-    legacy = re.compile(rf"^(\.{re.escape(path.name)}\.[^.]*\.tmp|tmp[^.]*\.tmp)$")  # pre-pid names (and torch's tmp*.tmp)
+    # pre-pid names (and torch's tmp*.tmp)
+    legacy = re.compile(rf"^(\.{re.escape(path.name)}\.[^.]*\.tmp|tmp[^.]*\.tmp)$")
     try:
         entries = list(os.scandir(path.parent))
     except OSError:
@@ -96,7 +97,7 @@ def atomic_write_text(path: str | Path, text: str) -> Path:
     return atomic_write_bytes(path, text.encode("utf-8"))
 
 
-def jsonable(x: Any) -> Any:
+def jsonable(x: object) -> Any:
     """Recursively turn numpy / torch scalars and arrays into JSON types; non-finite floats -> None."""
     if isinstance(x, dict):
         return {str(k): jsonable(v) for k, v in x.items()}
@@ -118,7 +119,7 @@ def jsonable(x: Any) -> Any:
     return x
 
 
-def atomic_write_json(path: str | Path, obj: Any, indent: int | None = 2, sort_keys: bool = False) -> Path:
+def atomic_write_json(path: str | Path, obj: object, indent: int | None = 2, sort_keys: bool = False) -> Path:
     """Write ``obj`` as JSON (sanitized by :func:`jsonable`) to ``path`` atomically."""
     text = json.dumps(jsonable(obj), indent=indent, sort_keys=sort_keys, default=str, allow_nan=False) + "\n"
     return atomic_write_text(path, text)

@@ -17,15 +17,19 @@ Each state's switching value is computed once and carried to the next substep.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import Any, NamedTuple
+from collections.abc import Callable, Sequence
+from typing import Any, NamedTuple, TypeAlias
 
 import numpy as np
+import numpy.typing as npt
 
-from .systems.base import NUMPY, SCALAR, NumpyNamespace, System
+from .systems.base import NUMPY, SCALAR, ArrayNamespace, NumpyNamespace, System
+
+#: a system's vector field ``(q, p, u, xp) -> (qdot, pdot)`` in component form (:meth:`System.rhs`)
+VectorField: TypeAlias = Callable[[Sequence, Sequence, Sequence | None, ArrayNamespace], tuple[tuple, tuple]]
 
 
-def rk4(system: System, q: Sequence, p: Sequence, u: Sequence | None, h: Any, xp: Any,
+def rk4(system: System, q: Sequence, p: Sequence, u: Sequence | None, h: Any, xp: ArrayNamespace,
         k1: tuple | None = None) -> tuple[list, list]:
     """One classical RK4 step of length ``h`` (float or per-sample array).
 
@@ -49,13 +53,14 @@ def _any(c: Any) -> bool:
     return bool(c) if isinstance(c, (bool, np.bool_)) else bool(c.any())  # ndarray or tensor
 
 
-def substep(system: System, q: Sequence, p: Sequence, u: Sequence | None, h: Any, xp: Any) -> tuple[list, list]:
+def substep(system: System, q: Sequence, p: Sequence, u: Sequence | None, h: float | np.ndarray,
+            xp: ArrayNamespace) -> tuple[list, list]:
     """RK4 substep that splits at a crossing of the system's switching surface."""
     q, p, _ = _substep(system, q, p, u, h, xp, system.switching(q, p, xp))
     return q, p
 
 
-def _substep(system: System, q: Sequence, p: Sequence, u: Sequence | None, h: Any, xp: Any,
+def _substep(system: System, q: Sequence, p: Sequence, u: Sequence | None, h: float | np.ndarray, xp: ArrayNamespace,
              s0: Any) -> tuple[list, list, Any]:
     """:func:`substep` given the switching value ``s0`` at the start; also returns it at the end
     (the next substep's ``s0``, so each state's switching value is computed once).  ``h``: a float or,
@@ -92,8 +97,8 @@ def _substep(system: System, q: Sequence, p: Sequence, u: Sequence | None, h: An
         s1[idx] = sys_c.switching(qc, pc, xp)
         return qn, pn, s1
     # torch: every sample takes two pieces; non-crossing ones split at tau = h (second piece of length 0)
-    qc, pc = split_at_crossing(system, Crossing(q, p, u, h, k1, qn, pn, xp.where(cross, s0, -1.0), xp.where(cross, s1, 1.0)),
-                                xp, mask=cross)
+    qc, pc = split_at_crossing(system, Crossing(q, p, u, h, k1, qn, pn, xp.where(cross, s0, -1.0),
+                                                xp.where(cross, s1, 1.0)), xp, mask=cross)
     return qc, pc, system.switching(qc, pc, xp)
 
 
@@ -103,7 +108,8 @@ CROSSING_ITERATIONS = 4
 
 class Crossing(NamedTuple):
     """A plain RK4 substep of length ``h`` from (q, p) to (qn, pn) under ``u`` whose switching values ``s0``, ``s1``
-    at its ends have opposite signs; ``k1``: the vector field at the start.  (A named tuple: torch.compile traces it.)"""
+    at its ends have opposite signs; ``k1``: the vector field at the start.  (A named tuple: torch.compile traces
+    it.)"""
 
     q: Sequence
     p: Sequence
@@ -116,7 +122,7 @@ class Crossing(NamedTuple):
     s1: Any
 
 
-def split_at_crossing(system: System, c: Crossing, xp: Any, mask: Any = None) -> tuple[list, list]:
+def split_at_crossing(system: System, c: Crossing, xp: ArrayNamespace, mask: Any = None) -> tuple[list, list]:
     """Integrate a substep known to cross the switching surface in two smooth pieces.
 
     The crossing time is located on the cubic Hermite interpolant of q over the plain RK4 substep
@@ -160,7 +166,7 @@ def step(
     q: Sequence,
     p: Sequence,
     u: Sequence | None,
-    xp: Any = SCALAR,
+    xp: ArrayNamespace = SCALAR,
     dt: float | np.ndarray | None = None,
     substeps: int | None = None,
 ) -> tuple[list, list]:
@@ -187,7 +193,7 @@ def step(
     return system.post_step(list(q), list(p), xp)
 
 
-def _rk4_1(f: Any, q: Sequence, p: Sequence, u: Sequence | None, h: Any, xp: Any = SCALAR,
+def _rk4_1(f: VectorField, q: Sequence, p: Sequence, u: Sequence | None, h: Any, xp: ArrayNamespace = SCALAR,
            k1: tuple | None = None) -> tuple[list, list]:
     """:func:`rk4` for one coordinate (floats or arrays): the same operations in the same order
     (so the single env and the batched path agree), without the per-component loops."""
@@ -201,7 +207,8 @@ def _rk4_1(f: Any, q: Sequence, p: Sequence, u: Sequence | None, h: Any, xp: Any
     return [q0 + h6 * (a1 + 2.0 * (a2 + a3) + a4)], [p0 + h6 * (b1 + 2.0 * (b2 + b3) + b4)]
 
 
-def check_batch(system: System, x0: Any, n_steps: int, u: Any, rng: Any) -> tuple[np.ndarray, np.ndarray | None]:
+def check_batch(system: System, x0: npt.ArrayLike, n_steps: int, u: npt.ArrayLike | None,
+                rng: np.random.Generator | None) -> tuple[np.ndarray, np.ndarray | None]:
     """Validate a batched simulator's inputs (shared by :func:`simulate` and the compiled backend)."""
     x0 = np.asarray(x0, dtype=np.float64)
     n = system.n
@@ -227,7 +234,7 @@ def simulate(
     u: np.ndarray | None = None,
     rng: np.random.Generator | None = None,
     substeps: int | None = None,
-    xp: Any = NUMPY,
+    xp: ArrayNamespace = NUMPY,
 ) -> np.ndarray:
     """Integrate a batch of trajectories at once.
 
@@ -248,7 +255,8 @@ def simulate(
     x0, u = check_batch(system, x0, n_steps, u, rng)
     n = system.n
     if not isinstance(xp, NumpyNamespace):
-        raise ValueError(f"simulate integrates NumPy arrays: xp must be a NumPy namespace such as NUMPY, got {getattr(xp, 'name', xp)!r}")
+        raise ValueError("simulate integrates NumPy arrays: xp must be a NumPy namespace such as NUMPY, "
+                         f"got {getattr(xp, 'name', xp)!r}")
     out = np.empty((x0.shape[0], n_steps + 1, 2 * n))
     out[:, 0] = x0
     q = [x0[:, i].copy() for i in range(n)]

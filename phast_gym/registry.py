@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 import gymnasium as gym
 from gymnasium.envs.registration import get_env_id, parse_env_id
 
 from .systems import System, make_system
 
 #: id -> (system name, registered kwargs, one-line description)
-ENV_TABLE: dict[str, tuple[str, dict[str, Any], str]] = {
+ENV_TABLE: dict[str, tuple[str, dict[str, float], str]] = {
     "PHAST/Pendulum-v0": ("pendulum", {}, "frictionless pendulum"),
     "PHAST/DampedPendulum-v0": ("pendulum", {"gamma": 0.5}, "pendulum with viscous damping gamma = 0.5"),
     "PHAST/WindyPendulum-v0": (
@@ -54,7 +52,7 @@ def resolve_env_id(env_id: str) -> str:
     return full
 
 
-def make_env_system(env_id: str, **kwargs: Any) -> System:
+def make_env_system(env_id: str, **kwargs: object) -> System:
     """The physics of a registered env (registered kwargs overridden by ``kwargs``).
 
     Env-only kwargs (noise, actuation, ...) are ignored, so callers can pass

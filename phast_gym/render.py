@@ -10,9 +10,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import numpy.typing as npt
+
+if TYPE_CHECKING:
+    from .systems import CartPole, DoublePendulum, HeatExchange, Oscillator, Pendulum, PredatorPrey, RLCCircuit, System
 
 RGB = tuple[int, int, int]
 BACKGROUND: RGB = (248, 248, 244)
@@ -47,7 +51,8 @@ class Canvas:
         return (self.w / 2 + (x - self.cx) * self.scale, self.h / 2 - (y - self.cy) * self.scale)
 
     # ---- low level: blend a coverage mask over a pixel box ---------------------------
-    def _box(self, c0: float, r0: float, c1: float, r1: float, pad: float) -> tuple[slice, slice, np.ndarray, np.ndarray] | None:
+    def _box(self, c0: float, r0: float, c1: float, r1: float, pad: float
+             ) -> tuple[slice, slice, np.ndarray, np.ndarray] | None:
         a, b = max(int(math.floor(min(c0, c1) - pad)), 0), min(int(math.ceil(max(c0, c1) + pad)) + 1, self.w)
         c, d = max(int(math.floor(min(r0, r1) - pad)), 0), min(int(math.ceil(max(r0, r1) + pad)) + 1, self.h)
         if a >= b or c >= d:
@@ -164,7 +169,7 @@ def temperature_color(t: float, lo: float = 0.0, hi: float = 2.5) -> RGB:
 
 
 # --------------------------------------------------------------------------- per-system pictures
-def _pendulum(cv: Canvas, system: Any, q: np.ndarray, p: np.ndarray | None, u: np.ndarray) -> None:
+def _pendulum(cv: Canvas, system: Pendulum, q: np.ndarray, p: np.ndarray | None, u: np.ndarray) -> None:
     L = float(system.length)
     th = float(q[0])
     cv.scale = 0.4 * min(cv.h, cv.w) / L
@@ -175,7 +180,7 @@ def _pendulum(cv: Canvas, system: Any, q: np.ndarray, p: np.ndarray | None, u: n
     cv.torque((0, 0), float(u[0]), system.default_max_action)
 
 
-def _cartpole(cv: Canvas, system: Any, q: np.ndarray, p: np.ndarray | None, u: np.ndarray) -> None:
+def _cartpole(cv: Canvas, system: CartPole, q: np.ndarray, p: np.ndarray | None, u: np.ndarray) -> None:
     L = float(system.length)
     x, th = float(q[0]), float(q[1])
     cv.scale = 0.3 * min(cv.h, cv.w) / L
@@ -193,7 +198,7 @@ def _cartpole(cv: Canvas, system: Any, q: np.ndarray, p: np.ndarray | None, u: n
     cv.torque((x, 0), float(u[1]), system.default_max_action, radius_px=20.0)
 
 
-def _double_pendulum(cv: Canvas, system: Any, q: np.ndarray, p: np.ndarray | None, u: np.ndarray) -> None:
+def _double_pendulum(cv: Canvas, system: DoublePendulum, q: np.ndarray, p: np.ndarray | None, u: np.ndarray) -> None:
     l1, l2 = float(system.length1), float(system.length2)
     cv.scale = 0.45 * min(cv.h, cv.w) / (l1 + l2)
     t1, t2 = float(q[0]), float(q[1])
@@ -231,7 +236,7 @@ def _particles(cv: Canvas, system: Any, q: np.ndarray, p: np.ndarray | None, u: 
         cv.force((x, y), float(u[2 * i]), float(u[2 * i + 1]), system.default_max_action, length_px=30.0)
 
 
-def _oscillator(cv: Canvas, system: Any, q: np.ndarray, p: np.ndarray | None, u: np.ndarray) -> None:
+def _oscillator(cv: Canvas, system: Oscillator, q: np.ndarray, p: np.ndarray | None, u: np.ndarray) -> None:
     # a mass on a 2-D spring anchored at the origin: zigzag spring, disc, force arrow
     cv.scale = 0.4 * min(cv.h, cv.w) / 3.0  # +-3 (three standard deviations of the initial q) in view
     for k in (-2, -1, 0, 1, 2):
@@ -262,7 +267,7 @@ def _bar(cv: Canvas, col: float, value: float, full: float, color: RGB, width_px
     cv.line_px(col - width_px / 2 - 6, base, col + width_px / 2 + 6, base, 2, INK)
 
 
-def _rlc(cv: Canvas, system: Any, q: np.ndarray, p: np.ndarray | None, u: np.ndarray) -> None:
+def _rlc(cv: Canvas, system: RLCCircuit, q: np.ndarray, p: np.ndarray | None, u: np.ndarray) -> None:
     # capacitor: two plates, fill proportional to the charge (red +, blue -); inductor current as a bar
     h, w = cv.h, cv.w
     qc = float(q[0])
@@ -288,7 +293,7 @@ def _bar_centered(cv: Canvas, col: float, value: float, full: float, color: RGB,
     cv.line_px(col - width_px / 2 - 6, mid, col + width_px / 2 + 6, mid, 2, INK)
 
 
-def _heat_exchange(cv: Canvas, system: Any, q: np.ndarray, p: np.ndarray | None, u: np.ndarray) -> None:
+def _heat_exchange(cv: Canvas, system: HeatExchange, q: np.ndarray, p: np.ndarray | None, u: np.ndarray) -> None:
     h, w = cv.h, cv.w
     boxes = ((0.08 * w, 0.3 * h, 0.42 * w, 0.7 * h), (0.58 * w, 0.3 * h, 0.92 * w, 0.7 * h))
     cv.rect_px(0.42 * w, 0.46 * h, 0.58 * w, 0.54 * h, TRACK)  # the thermal coupling kc
@@ -301,7 +306,7 @@ def _heat_exchange(cv: Canvas, system: Any, q: np.ndarray, p: np.ndarray | None,
             cv.arrow_px(cc, r0 - 8, cc, r0 - 8 - math.copysign(L, float(u[i])), 3.0, PORT)
 
 
-def _predator_prey(cv: Canvas, system: Any, q: np.ndarray, p: np.ndarray | None, u: np.ndarray) -> None:
+def _predator_prey(cv: Canvas, system: PredatorPrey, q: np.ndarray, p: np.ndarray | None, u: np.ndarray) -> None:
     w = cv.w
     full = float(system.K)
     _bar(cv, 0.3 * w, float(q[0]), full, GREEN, 0.25 * w)
@@ -313,6 +318,7 @@ def _predator_prey(cv: Canvas, system: Any, q: np.ndarray, p: np.ndarray | None,
         cv.arrow_px(c, r, c, r - math.copysign(L, float(u[0])), 3.0, PORT)
 
 
+#: system name -> picture; each drawer takes its own System subclass (the name picks it), hence ``Any``
 _DRAWERS: dict[str, Callable[[Canvas, Any, np.ndarray, np.ndarray | None, np.ndarray], None]] = {
     "pendulum": _pendulum,
     "cartpole": _cartpole,
@@ -327,11 +333,11 @@ _DRAWERS: dict[str, Callable[[Canvas, Any, np.ndarray, np.ndarray | None, np.nda
 
 
 def render_frame(
-    system: Any,
-    q: Any,
-    u: Any = None,
+    system: System,
+    q: npt.ArrayLike,
+    u: npt.ArrayLike | None = None,
     actuated_dofs: Sequence[int] = (),
-    p: Any = None,
+    p: npt.ArrayLike | None = None,
     size: tuple[int, int] = (256, 256),
 ) -> np.ndarray:
     """Draw the configuration ``q`` of ``system`` -> ``(H, W, 3)`` uint8 image.

@@ -15,6 +15,7 @@ ACTION_WEIGHT = 0.001
 
 
 def regulation_reward(error_sq: float, speed_sq: float, effort_sq: float) -> float:
-    """The standard per-step reward ``-(error_sq + VELOCITY_WEIGHT speed_sq + ACTION_WEIGHT effort_sq)`` from the squared
-    norms of the wrapped error to the target, of the velocity and of the port input (the caller sums the squares)."""
+    """The standard per-step reward ``-(error_sq + VELOCITY_WEIGHT speed_sq + ACTION_WEIGHT effort_sq)`` from the
+    squared norms of the wrapped error to the target, of the velocity and of the port input (the caller sums the
+    squares)."""
     return -(error_sq + VELOCITY_WEIGHT * speed_sq + ACTION_WEIGHT * effort_sq)
