@@ -29,6 +29,7 @@ from typing import Any, Protocol, SupportsFloat, runtime_checkable
 
 import gymnasium as gym
 import numpy as np
+import numpy.typing as npt
 
 from ..systems.base import SCALAR, System, wrap
 from .estimators import PortEstimator, make_estimator
@@ -49,7 +50,8 @@ def potential_curvature(system: System, q: np.ndarray, h: float = 1e-4) -> np.nd
 
 
 def validate_gains(
-    k_c: float, d_inj: float, k_xi: float, dt: float, q_star: np.ndarray, system: System | None = None, grad_tol: float = 1e-6
+    k_c: float, d_inj: float, k_xi: float, dt: float, q_star: np.ndarray, system: System | None = None,
+    grad_tol: float = 1e-6
 ) -> None:
     """Refuse gains/targets for which the closed loop cannot stabilise ``q_star``; explain why.
 
@@ -72,7 +74,8 @@ def validate_gains(
     if not (dt > 0 and math.isfinite(dt)):
         raise ValueError(f"dt must be positive and finite, got {dt!r}")
     if k_xi * dt >= 2.0:
-        raise ValueError(f"k_xi * dt = {k_xi * dt:.3g} >= 2: the explicit xi correction (Eq. 29) is unstable; lower k_xi")
+        raise ValueError(f"k_xi * dt = {k_xi * dt:.3g} >= 2: the explicit xi correction (Eq. 29) is unstable; "
+                         "lower k_xi")
     if not np.all(np.isfinite(q_star)):
         raise ValueError(f"q_star must be finite, got {q_star}")
     if system is None:
@@ -80,7 +83,8 @@ def validate_gains(
     if len(q_star) != system.n:
         raise ValueError(f"q_star must have {system.n} components for {system.name}, got {len(q_star)}")
     if not system.hamiltonian_system:
-        raise ValueError(f"{system.name} is not a port-Hamiltonian mechanical system: Energy-Casimir control does not apply")
+        raise ValueError(f"{system.name} is not a port-Hamiltonian mechanical system: Energy-Casimir control does "
+                         "not apply")
     grad = np.array([float(v) for v in system.grad_potential(list(q_star), SCALAR)])
     if np.max(np.abs(grad)) > grad_tol * max(1.0, float(np.max(np.abs(potential_curvature(system, q_star))))):
         raise ValueError(
@@ -152,7 +156,8 @@ class EnergyCasimirController:
         return np.where(self._angle, wrap(d), d)
 
     def shaping_error(self) -> np.ndarray:
-        """``xi - q_star``; wrapped on angles when ``wrap_target`` (H_c = k_c/2 wrap(xi - q_star)^2 lives on the circle)."""
+        """``xi - q_star``; wrapped on angles when ``wrap_target`` (H_c = k_c/2 wrap(xi - q_star)^2 lives on the
+        circle)."""
         d = self.xi - self.q_star
         return self._wrap(d) if self.wrap_target else d
 
@@ -224,8 +229,8 @@ class EnergyCasimirWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         estimator_kwargs: dict[str, Any] | None = None,
         xi_feedback: str = "meas",
     ) -> None:
-        gym.utils.RecordConstructorArgs.__init__(self, estimator=estimator, q_star=q_star, k_c=k_c, d_inj=d_inj, k_xi=k_xi,
-                                                 estimator_kwargs=estimator_kwargs, xi_feedback=xi_feedback)
+        gym.utils.RecordConstructorArgs.__init__(self, estimator=estimator, q_star=q_star, k_c=k_c, d_inj=d_inj,
+                                                 k_xi=k_xi, estimator_kwargs=estimator_kwargs, xi_feedback=xi_feedback)
         gym.Wrapper.__init__(self, env)
         base = env.unwrapped
         if not (isinstance(base, PortPlant) and isinstance(base.system, System)):
@@ -241,7 +246,8 @@ class EnergyCasimirWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             estimator = make_estimator(estimator, system, dt, sigma=float(getattr(base, "obs_noise_std", 0.0)),
                                        **(estimator_kwargs or {}))
         self.controller = EnergyCasimirController(estimator, q_star, k_c, d_inj, k_xi, dt=dt,
-                                                  max_action=float(base.max_action), system=system, xi_feedback=xi_feedback)
+                                                  max_action=float(base.max_action), system=system,
+                                                  xi_feedback=xi_feedback)
         self.action_space = base.action_space
         self._obs: np.ndarray | None = None
         self._info: dict | None = None
@@ -252,7 +258,7 @@ class EnergyCasimirWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._obs, self._info = obs, info
         return obs, info
 
-    def step(self, action: Any) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict]:
+    def step(self, action: npt.ArrayLike) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict]:
         if self._obs is None:
             raise gym.error.ResetNeeded("call reset() before step()")
         v = np.asarray(action, dtype=np.float64)

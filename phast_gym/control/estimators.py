@@ -30,6 +30,7 @@ from collections.abc import Callable, Iterable
 from typing import Any, NamedTuple
 
 import numpy as np
+import numpy.typing as npt
 
 from .. import integrate
 from ..systems.base import NUMPY, SCALAR, System, wrap
@@ -58,7 +59,8 @@ class PortEstimator:
         raise NotImplementedError
 
     def q_estimate(self) -> np.ndarray | None:
-        """Filtered q (n,) after the last :meth:`update` (angles may be unwrapped), or None if this estimator has none."""
+        """Filtered q (n,) after the last :meth:`update` (angles may be unwrapped), or None if this estimator has
+        none."""
         return None
 
     def _wrap_diff(self, d: np.ndarray) -> np.ndarray:
@@ -69,7 +71,7 @@ class PortEstimator:
         return f"{type(self).__name__}(dt={self.dt})"
 
 
-def _as_q(q_meas: Any, n: int) -> np.ndarray:
+def _as_q(q_meas: npt.ArrayLike, n: int) -> np.ndarray:
     q = np.asarray(q_meas, dtype=np.float64).reshape(-1)
     if q.shape != (n,):
         raise ValueError(f"q_meas must have {n} components, got shape {np.shape(q_meas)}")
@@ -158,7 +160,8 @@ class MAPSmootherEstimator(PortEstimator):
         if int(window) != window or window < 2:
             raise ValueError(f"MAP window must be an integer >= 2, got {window!r}")
         self.window, self.sigma, self.sigma_a = int(window), float(sigma), float(sigma_a)
-        self._weights = {L: map_smoother_weights(L, self.dt, self.sigma, self.sigma_a) for L in range(2, self.window + 1)}
+        self._weights = {L: map_smoother_weights(L, self.dt, self.sigma, self.sigma_a)
+                         for L in range(2, self.window + 1)}
         self._q_weights = {L: map_smoother_weights(L, self.dt, self.sigma, self.sigma_a, derivative=False)
                            for L in range(2, self.window + 1)}
         self.reset()
@@ -219,7 +222,8 @@ class PlantPhysics(ProcessModel):
         q = [X[:, i].copy() for i in range(n)]
         p = [X[:, n + i].copy() for i in range(n)]
         qn, pn = integrate.step(self.system, q, p, [float(v) for v in u], NUMPY, dt=self.dt, substeps=self.substeps)
-        return np.stack([np.broadcast_to(np.asarray(c, dtype=np.float64), (X.shape[0],)) for c in list(qn) + list(pn)], -1)
+        return np.stack([np.broadcast_to(np.asarray(c, dtype=np.float64), (X.shape[0],))
+                         for c in list(qn) + list(pn)], -1)
 
     def velocity(self, x: np.ndarray) -> np.ndarray:
         n = self.n

@@ -22,7 +22,7 @@ import math
 import zlib
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, TypedDict
 
 import gymnasium as gym
 import numpy as np
@@ -176,7 +176,8 @@ def run_episode(env: gym.Env, controller: EnergyCasimirController, x0: np.ndarra
     hs.append(controller.storage(x[:n], x[n:]))
     q = np.array(qs)
     qdot, y_hat, u_arr = np.array(qdots), np.array(yh), np.array(us)
-    err = np.linalg.norm(np.where([i in system.angle_dims for i in range(n)], wrap(q - controller.q_star), q - controller.q_star), axis=-1)
+    err = np.linalg.norm(np.where([i in system.angle_dims for i in range(n)], wrap(q - controller.q_star),
+                                  q - controller.q_star), axis=-1)
     finite = bool(np.all(np.isfinite(q)))
     settled = finite and len(q) == T + 1 and bool(np.all(err[-protocol.settle_steps:] < protocol.tol))
     u_rms = float(np.sqrt(np.mean(np.sum(u_arr[-protocol.settle_steps:] ** 2, axis=-1))))
@@ -191,7 +192,7 @@ def run_episode(env: gym.Env, controller: EnergyCasimirController, x0: np.ndarra
     )
 
 
-def stable_seed(*parts: Any) -> int:
+def stable_seed(*parts: object) -> int:
     return zlib.crc32("/".join(str(p) for p in parts).encode()) & 0x7FFFFFFF
 
 
@@ -205,6 +206,23 @@ def start_states(protocol: ControlProtocol, trials_per_regime: int, seed: int = 
 EstimatorFactory = Callable[[str, System, float, float], PortEstimator]
 
 
+class ControlRow(TypedDict):
+    """One row of :func:`evaluate_estimators`: the trials of one (sigma, estimator, start regime), pooled (``regime``
+    ``"all"``: every regime)."""
+
+    sigma: float
+    estimator: str
+    regime: str
+    n_trials: int
+    success_rate: float
+    success_angle_rate: float
+    final_error: float
+    effort: float
+    velocity_error: float
+    u_rms_final: float
+    u_rms_final_p90: float
+
+
 def evaluate_estimators(
     protocol: ControlProtocol,
     estimators: Sequence[str],
@@ -214,7 +232,7 @@ def evaluate_estimators(
     factory: EstimatorFactory | None = None,
     progress: bool = True,
     keep_episodes: Callable[[float, str, str, int], bool] | None = None,
-) -> tuple[list[dict[str, Any]], dict[tuple[float, str, str, int], Episode]]:
+) -> tuple[list[ControlRow], dict[tuple[float, str, str, int], Episode]]:
     """Closed-loop trials of every port estimator at every noise level: one row per (sigma, estimator, start regime)
     plus an ``all`` row per (sigma, estimator).
 
@@ -225,7 +243,7 @@ def evaluate_estimators(
         raise ValueError(f"trials_per_regime must be >= 1, got {trials_per_regime}")
     factory = factory or (lambda name, system, dt, sigma: make_estimator(name, system, dt, sigma=sigma))
     states = start_states(protocol, trials_per_regime, seed)
-    rows: list[dict[str, Any]] = []
+    rows: list[ControlRow] = []
     kept: dict[tuple[float, str, str, int], Episode] = {}
     total = len(sigmas) * len(estimators) * len(START_REGIMES) * trials_per_regime
     from tqdm.auto import tqdm
@@ -239,8 +257,8 @@ def evaluate_estimators(
         system = plant.system
         for name in estimators:
             est = factory(name, system, protocol.dt, float(sigma))
-            ctrl = EnergyCasimirController(est, protocol.q_star, protocol.k_c, protocol.d_inj, protocol.k_xi, dt=protocol.dt,
-                                           max_action=float(plant.max_action), system=system,
+            ctrl = EnergyCasimirController(est, protocol.q_star, protocol.k_c, protocol.d_inj, protocol.k_xi,
+                                           dt=protocol.dt, max_action=float(plant.max_action), system=system,
                                            xi_feedback=protocol.xi_feedback)
             per_all: list[dict[str, float]] = []
             for regime, x0s in states.items():
@@ -258,7 +276,7 @@ def evaluate_estimators(
     return rows, kept
 
 
-def _aggregate(sigma: float, name: str, regime: str, per: list[dict[str, float]]) -> dict[str, Any]:
+def _aggregate(sigma: float, name: str, regime: str, per: list[dict[str, float]]) -> ControlRow:
     arr = {k: np.array([m[k] for m in per]) for k in per[0]}
     return {
         "sigma": sigma, "estimator": name, "regime": regime, "n_trials": len(per),

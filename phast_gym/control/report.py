@@ -11,13 +11,13 @@ matplotlib is imported by the plotting functions only.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from ..systems import break_at_wraps, wrap
-from .evaluation import START_REGIMES, ControlProtocol, Episode
+from .evaluation import START_REGIMES, ControlProtocol, ControlRow, Episode
 
 #: estimator name -> (method, velocity estimate) as the tables print them
 LABELS = {
@@ -39,34 +39,39 @@ def _fmt(v: float, kind: str) -> str:
     return f"{v:.3f}" if kind == "vel" else f"{v:.2f}"
 
 
-def results_markdown(rows: list[dict[str, Any]], protocol: ControlProtocol) -> str:
+def results_markdown(rows: Sequence[ControlRow], protocol: ControlProtocol) -> str:
     """Tables shaped like paper Tables 7-11: one 'all' table per sigma, the near-stable table, and success by regime."""
     star = "pi (upright)" if abs(protocol.q_star - math.pi) < 1e-9 else f"{protocol.q_star:g}"
-    lines = [f"# Energy-Casimir control ({protocol.env_id}, q_star = {star}, k_c = {protocol.k_c:g}, d_inj = {protocol.d_inj:g}, "
-             f"k_xi = {protocol.k_xi:g}, xi feedback {protocol.xi_feedback}, dt = {protocol.dt:g} s, horizon {protocol.horizon} steps)", "",
-             f"Success: |wrap(q - q_star)| < {protocol.tol:g} rad and RMS torque < {protocol.u_tol:g} N m over the last "
-             f"{protocol.settle_steps} steps (success_angle: angle criterion only). Final error: |wrap(q_T - q_star)| (true q). "
+    lines = [f"# Energy-Casimir control ({protocol.env_id}, q_star = {star}, k_c = {protocol.k_c:g}, "
+             f"d_inj = {protocol.d_inj:g}, k_xi = {protocol.k_xi:g}, xi feedback {protocol.xi_feedback}, "
+             f"dt = {protocol.dt:g} s, horizon {protocol.horizon} steps)", "",
+             f"Success: |wrap(q - q_star)| < {protocol.tol:g} rad and RMS torque < {protocol.u_tol:g} N m over the "
+             f"last {protocol.settle_steps} steps (success_angle: angle criterion only). "
+             "Final error: |wrap(q_T - q_star)| (true q). "
              "Effort: sum_t u_t^2. Velocity error: mean_t |qdot_hat - qdot|.", ""]
     sigmas = sorted({r["sigma"] for r in rows})
     per = rows[0]["n_trials"] if rows else 0
     lines += [f"## All regimes ({per} trials per regime, pooled; paper Tables 7, 8, 11)", "",
-              "| sigma | Method | Velocity estimate | Success | Success (angle only) | Final error | Effort | abs(qdot_hat - qdot) "
-              "| RMS torque, last window (mean / p90) |",
+              "| sigma | Method | Velocity estimate | Success | Success (angle only) | Final error | Effort "
+              "| abs(qdot_hat - qdot) | RMS torque, last window (mean / p90) |",
               "|---|---|---|---|---|---|---|---|---|"]
     for s in sigmas:
         for r in rows:
             if r["sigma"] == s and r["regime"] == "all":
                 m, v = LABELS.get(r["estimator"], (r["estimator"], r["estimator"]))
-                lines.append(f"| {s:.2f} | {m} | {v} | {_fmt(r['success_rate'], 's')} | {_fmt(r['success_angle_rate'], 's')} | "
-                             f"{_fmt(r['final_error'], 'err')} | {_fmt(r['effort'], 'eff')} | {_fmt(r['velocity_error'], 'vel')} | "
-                             f"{_fmt(r.get('u_rms_final', math.nan), 'vel')} / {_fmt(r.get('u_rms_final_p90', math.nan), 'vel')} |")
+                lines.append(f"| {s:.2f} | {m} | {v} | {_fmt(r['success_rate'], 's')} | "
+                             f"{_fmt(r['success_angle_rate'], 's')} | {_fmt(r['final_error'], 'err')} | "
+                             f"{_fmt(r['effort'], 'eff')} | {_fmt(r['velocity_error'], 'vel')} | "
+                             f"{_fmt(r.get('u_rms_final', math.nan), 'vel')} / "
+                             f"{_fmt(r.get('u_rms_final_p90', math.nan), 'vel')} |")
     for s in sigmas:
         lines += ["", f"## Near-stable regime, sigma = {s:g} (paper Tables 9-10)", "",
                   "| Method | Success | Final error | Effort | abs(qdot_hat - qdot) |", "|---|---|---|---|---|"]
         for r in rows:
             if r["sigma"] == s and r["regime"] == "near_stable":
-                lines.append(f"| {LABELS.get(r['estimator'], (r['estimator'],))[0]} ({r['estimator']}) | {_fmt(r['success_rate'], 's')} | "
-                             f"{_fmt(r['final_error'], 'err')} | {_fmt(r['effort'], 'eff')} | {_fmt(r['velocity_error'], 'vel')} |")
+                lines.append(f"| {LABELS.get(r['estimator'], (r['estimator'],))[0]} ({r['estimator']}) | "
+                             f"{_fmt(r['success_rate'], 's')} | {_fmt(r['final_error'], 'err')} | "
+                             f"{_fmt(r['effort'], 'eff')} | {_fmt(r['velocity_error'], 'vel')} |")
     regs = list(START_REGIMES)
     lines += ["", "## Success rate by regime (paper Fig. 8)", "", "| sigma | estimator | " + " | ".join(regs) + " |",
               "|---|---|" + "---|" * len(regs)]
@@ -74,7 +79,8 @@ def results_markdown(rows: list[dict[str, Any]], protocol: ControlProtocol) -> s
         for name in dict.fromkeys(r["estimator"] for r in rows):
             vals = {r["regime"]: r["success_rate"] for r in rows if r["sigma"] == s and r["estimator"] == name}
             if vals:
-                lines.append(f"| {s:.2f} | {name} | " + " | ".join(_fmt(vals.get(g, float('nan')), 's') for g in regs) + " |")
+                lines.append(f"| {s:.2f} | {name} | " + " | ".join(_fmt(vals.get(g, float('nan')), 's') for g in regs)
+                             + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -104,7 +110,7 @@ def plot_traces(kept: dict[tuple[float, str, str, int], Episode], protocol: Cont
         plt.close(fig)
 
 
-def plot_success_by_regime(rows: list[dict[str, Any]], out: Path) -> None:
+def plot_success_by_regime(rows: Sequence[ControlRow], out: Path) -> None:
     """Grouped bars: success rate per regime, one panel per sigma (paper Fig. 8)."""
     import matplotlib
 
@@ -118,7 +124,8 @@ def plot_success_by_regime(rows: list[dict[str, Any]], out: Path) -> None:
     w = 0.8 / max(1, len(names))
     for ax, s in zip(axes[0], sigmas):
         for j, name in enumerate(names):
-            vals = [next((r["success_rate"] for r in rows if r["sigma"] == s and r["estimator"] == name and r["regime"] == g), np.nan)
+            vals = [next((r["success_rate"] for r in rows
+                          if r["sigma"] == s and r["estimator"] == name and r["regime"] == g), np.nan)
                     for g in regs]
             ax.bar(np.arange(len(regs)) + j * w, vals, w, label=name)
         ax.set_xticks(np.arange(len(regs)) + 0.4 - w / 2, [g.replace("_", "\n") for g in regs], fontsize=7)

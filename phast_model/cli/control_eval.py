@@ -21,10 +21,20 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from phast_gym.control import START_REGIMES, XI_FEEDBACK, ControlProtocol, estimator_names, evaluate_estimators, make_estimator
+from phast_gym.control import (
+    START_REGIMES,
+    XI_FEEDBACK,
+    ControlProtocol,
+    ControlRow,
+    PortEstimator,
+    estimator_names,
+    evaluate_estimators,
+    make_estimator,
+)
 from phast_gym.control.estimators import resolve_estimator_name
 from phast_gym.control.report import plot_success_by_regime, plot_traces, results_markdown
 from phast_gym.fileio import atomic_write_text, ensure_writable_dir
+from phast_gym.systems import System
 
 #: upright (q_star = pi) defaults: k_c > m g l = 9.81 with margin, stronger damping injection
 UPRIGHT_K_C, UPRIGHT_D_INJ = 20.0, 3.0
@@ -73,7 +83,7 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def run(args: argparse.Namespace) -> list[dict[str, Any]]:
+def run(args: argparse.Namespace) -> list[ControlRow]:
     """The evaluation behind the CLI (callable from Python with a parsed namespace)."""
     sigmas = _parse_floats(args.sigma, "--sigma")
     if any(s < 0 or not math.isfinite(s) for s in sigmas):
@@ -102,7 +112,7 @@ def run(args: argparse.Namespace) -> list[dict[str, Any]]:
         torch.set_num_threads(max(1, args.threads))
         import phast_model.control  # noqa: F401  (registers the torch estimators)
 
-    def factory(name: str, system: Any, dt: float, sigma: float) -> Any:
+    def factory(name: str, system: System, dt: float, sigma: float) -> PortEstimator:
         kw: dict[str, Any] = {}
         if name.startswith("tcn"):
             kw = {"protocol": protocol, "cache_dir": cache, "sigma_max": args.tcn_sigma_max, "progress": not args.no_progress}
