@@ -124,6 +124,20 @@ ARM_BANDWIDTH = {"yaw": 1.5, "shoulder": 1.5, "elbow": 1.5}
 #: 3-body model), hardly by the number of recordings, so the arm cases use the smaller end of 12-16 x 300-400
 ARM_SIZE: dict[str, Any] = {"n_traj": 12, "T": 300}
 
+ARM6_JOINTS = [f"j{i}" for i in range(1, 7)]
+ARM6_TARGETS = {j: Targets(0.0, 0.2, 0.5 - 0.04 * k, 0.2, 1.0) for k, j in enumerate(ARM6_JOINTS)}
+ARM6_BANDWIDTH = {j: 1.5 for j in ARM6_JOINTS}
+
+
+def _drives6(spec: Any, rng: np.random.Generator) -> list[Hidden]:
+    """Geared motors the file leaves out: rotor inertia behind j2..j6 (behind j1 it is one number with link1's inertia
+    about that axis: a parameter change, not a term), frictionloss on j2, j4, j6 and damping on j1, j3."""
+    arm = [Hidden("joint", f"j{i}", "armature", a, "armature") for i, a in zip(range(2, 7), (0.04, 0.02, 0.015, 0.008, 0.004))]
+    fric = [Hidden("joint", j, "frictionloss", c, "coulomb_friction") for j, c in (("j2", 0.3), ("j4", 0.15), ("j6", 0.05))]
+    damp = [Hidden("joint", j, "damping", c, "viscous_damping") for j, c in (("j1", 0.2), ("j3", 0.1))]
+    return arm + fric + damp
+
+
 CASES: dict[str, Case] = {c.name: c for c in [
     Case("furuta", "furuta.xml", "effect", "rotary pendulum; hidden: pendulum frictionloss",
          {"arm": Targets(0.0, 0.5, 0.8, 0.2, 1.0)}, {"arm": 2.0},
@@ -136,6 +150,16 @@ CASES: dict[str, Case] = {c.name: c for c in [
          _cad_errors, gravity_comp=True, **ARM_SIZE),
     Case("weak_motor", "arm3.xml", "gear", "3-joint arm; hidden: shoulder motor gear 0.85", ARM_TARGETS, ARM_BANDWIDTH,
          lambda spec, rng: [Hidden("actuator", "m_shoulder", "gear", 0.85)], gravity_comp=True, **ARM_SIZE),
+    Case("arm3_drives", "arm3.xml", "effect", "3-joint arm; hidden: rotor inertia behind shoulder and elbow (behind the "
+         "yaw it is one number with the turret's inertia), frictionloss on two joints, damping on one", ARM_TARGETS,
+         ARM_BANDWIDTH,
+         lambda spec, rng: [Hidden("joint", "shoulder", "armature", 0.012, "armature"),
+                            Hidden("joint", "elbow", "armature", 0.006, "armature"),
+                            Hidden("joint", "shoulder", "frictionloss", 0.08, "coulomb_friction"),
+                            Hidden("joint", "elbow", "frictionloss", 0.04, "coulomb_friction"),
+                            Hidden("joint", "yaw", "damping", 0.03, "viscous_damping")], gravity_comp=True, **ARM_SIZE),
+    Case("arm6_drives", "arm6.xml", "effect", "6-joint spatial arm; hidden: rotor inertia on five joints, frictionloss on "
+         "three, damping on two", ARM6_TARGETS, ARM6_BANDWIDTH, _drives6, gravity_comp=True, n_traj=16, T=400),
     Case("cartpole", "cartpole.xml", "effect", "cart with hanging pole; hidden: pole damping, cart frictionloss",
          {"slider": Targets(0.0, 0.05, 0.15, 0.15, 0.6)}, {"slider": 1.0},
          lambda spec, rng: [Hidden("joint", "hinge", "damping", 0.004, "viscous_damping"),

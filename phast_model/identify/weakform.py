@@ -74,6 +74,7 @@ class WeakForm:
     filter: WeakFilter
     q_raw: np.ndarray = field(repr=False)  # (N, T, n) smoothed untrimmed (for filtering law forces)
     v_raw: np.ndarray = field(repr=False)
+    carried: np.ndarray | None = field(default=None, repr=False)  # (N, T', n) filtered conservative + port force
 
     @property
     def n(self) -> int:
@@ -196,12 +197,13 @@ def weak_form(system: System, rec: Recordings, window: int | None = None, eps: f
     cons = bal.pdot + own  # conservative + port force (the model's dissipation added back)
     tr = window // 2
     sl = slice(tr, rec.T - tr)
-    total = d.smooth(cons, window)[:, sl] - dp[:, sl]
+    carried_f = d.smooth(cons, window)[:, sl]
+    total = carried_f - dp[:, sl]
     own_f = d.smooth(own, window)[:, sl]
     if block is None:
         period = 2 * math.pi * time_scale(rec.q, dt, d)
         block = max(int(round(2 * period / dt)), 5 * window)
     Tt = rec.T - 2 * tr
     return WeakForm(qs[:, sl], vs[:, sl], total, own_f, _block_labels(rec.n_traj, Tt, int(block)),
-                    WeakFilter(window, dt, eps, tr, d), qs, vs)
+                    WeakFilter(window, dt, eps, tr, d), qs, vs, carried_f)
 

@@ -36,7 +36,7 @@ from .energy import energy_check
 from .evaluate import FitTable, HeldOut, check_rollout_window, held_out
 from .explainers import Context, Explained, Explainer, ShootingExplainer, explain_in_turn
 from .fitting.problem import Problem, prepare
-from .friction.systematic import WeakFormExplainer
+from .friction.systematic import WeakFormExplainer, drive_share
 from .locate import locate
 from .options import Options, Progress
 from .report.document import Report, summary_text
@@ -127,10 +127,11 @@ def _confirmed(missing: list[TermRow], fitres: FitTable) -> tuple[list[TermRow],
     return backed, unbacked
 
 
-def _verdicts(share: float, unconfirmed: list[TermRow], fitres: FitTable) -> list[str]:
+def _verdicts(described: Described, unconfirmed: list[TermRow], fitres: FitTable) -> list[str]:
     """Sentences for the summary when the simulator does not describe the recordings or the found terms do not predict."""
     out = []
-    if share < MIN_DESCRIBED:
+    if not described.ok:
+        share = described.share
         out.append(f"The simulator does not describe these recordings: nominal or calibrated, it explains {max(share, 0.0):.0%} "
                    "of their variation beyond a straight line per window (a model of the recorded system explains nearly all "
                    "of it), so no parameter was calibrated and no term is named; check the simulator, the coordinates and "
@@ -314,20 +315,54 @@ class _Inputs:
     explainers: tuple[Explainer, ...] = EXPLAINERS
 
 
-def _context(problem: Problem, inputs: _Inputs) -> tuple[Context, float]:
-    """The shooting selection, the calibration fitted with its terms, and the share of the recordings the simulator
-    describes (below :data:`MIN_DESCRIBED` nothing is explained: no parameter change, no terms, no model-error regime)."""
+@dataclass(frozen=True)
+class Described:
+    """How much of the recordings the simulator describes: the shooting share (:func:`.calibrate.explained_share`) and,
+    when that is low, the share of the weak-form force a drive (rotor inertia + viscous + Coulomb per driven
+    coordinate) accounts for (:func:`.friction.systematic.drive_share`; None when not computed)."""
+
+    share: float
+    drive_share: float | None = None
+
+    @property
+    def ok(self) -> bool:
+        return self.share >= MIN_DESCRIBED or (self.drive_share is not None and self.drive_share >= MIN_DESCRIBED)
+
+    def to_dict(self) -> dict[str, float]:
+        return {"explained_share": self.share, **({} if self.drive_share is None else {"drive_share": self.drive_share})}
+
+
+def _described(problem: Problem, share: float) -> Described:
+    """A simulator whose windows its model cannot follow may still describe the recordings up to its drives (a CAD
+    model of a motor-driven arm without rotor inertia and gear friction): the weak form checks that before the
+    recordings are called undescribed."""
+    if share >= MIN_DESCRIBED:
+        return Described(share)
+    drives = drive_share(problem)
+    problem.log(f"the nominal model follows the windows no better than a line (share {share:.2f}); rotor inertia and "
+                f"friction per driven joint account for {drives:.0%} of the force it leaves (weak form)")
+    return Described(share, drives)
+
+
+def _context(problem: Problem, inputs: _Inputs) -> tuple[Context, Described]:
+    """The shooting selection, the calibration fitted with its terms, and how much of the recordings the simulator
+    describes (not enough: no parameter change, no terms, no model-error regime).  A simulator described only up to its
+    drives goes to the model-error regime directly (the weak form answers): no shooting selection on windows its model
+    cannot follow."""
     screen = screen_parameters(problem)
-    share = max(explained_share(screen.shooter, screen.fit_nominal), explained_share(screen.shooter, screen.fit_full))
-    if share < MIN_DESCRIBED:
+    described = _described(problem, max(explained_share(screen.shooter, screen.fit_nominal),
+                                        explained_share(screen.shooter, screen.fit_full)))
+    if not described.ok:
         problem = replace(problem, opts=replace(problem.opts, max_terms=0, systematic_chi2=math.inf))
         screen = replace(screen, identifiability=replace(screen.identifiability, basis=(), independence=()))
+    elif described.share < MIN_DESCRIBED:
+        problem = replace(problem, opts=replace(problem.opts, max_terms=0, systematic_chi2=0.0))
     sel = select(problem, screen, [*screen.candidates, *candidates(problem, problem.nominal_family.build(np.zeros(0)))])
     cal = calibration(problem, screen, sel.params, sel.fit, len(sel.terms))
     nominal = problem.nominal_family.build(np.zeros(0))
     # no parameter changed: the calibrated model is the nominal one (the held-out table then scores it once)
     models = {"nominal": nominal, "calibrated": cal.system if cal.fit.g.size else nominal}
-    return Context(problem, cal, sel, inputs.held, models, inputs.compare), share
+    return Context(problem, cal, sel, inputs.held, models, inputs.compare), described
 
 
 def _scored(ctx: Context, explained: Explained, undescribed: bool
@@ -348,11 +383,11 @@ def _scored(ctx: Context, explained: Explained, undescribed: bool
 
 def _explain(problem: Problem, inputs: _Inputs) -> Report:
     """The explainers' answer (:func:`.explainers.explain_in_turn`), the held-out fit, the residual map, the report."""
-    ctx, share = _context(problem, inputs)
+    ctx, described = _context(problem, inputs)
     problem, train, hold, held = ctx.problem, inputs.train, inputs.hold, inputs.held
     explained = explain_in_turn(inputs.explainers, ctx)
     answer = explained.answer
-    models, calibrated, (fitres, rollouts) = _scored(ctx, explained, share < MIN_DESCRIBED)
+    models, calibrated, (fitres, rollouts) = _scored(ctx, explained, not described.ok)
     missing, unconfirmed = _confirmed(list(answer.missing), fitres)
     if train.u is None and any(VOCABULARY[m.term].component == "dissipation" for m in missing):  # a check, no fitting
         fitres = replace(fitres, energy_check={
@@ -362,14 +397,14 @@ def _explain(problem: Problem, inputs: _Inputs) -> Report:
     if not missing and ctx.cal.fit.chi2_red < AT_NOISE_CHI2:
         located = []
     summary = summary_text(inputs.simulator.name, calibrated, missing, located, fitres, ctx.cal.fit.chi2_red,
-                           answer.fit.chi2_red, problem.sigma_raw, _verdicts(share, unconfirmed, fitres))
-    if share < MIN_DESCRIBED:
+                           answer.fit.chi2_red, problem.sigma_raw, _verdicts(described, unconfirmed, fitres))
+    if not described.ok:
         located = []
     return Report(
         simulator={"env_id": inputs.simulator.name, "kwargs": dict(inputs.simulator.kwargs)}, calibrated=calibrated,
         data=_data(inputs.given, inputs.dec, problem.sigma_raw),
         located=located, terms=missing, unconfirmed=unconfirmed, fit=fitres.to_dict(), summary=summary,
-        diagnostics={**_details(ctx, explained, models["augmented"]), "explained_share": share},
+        diagnostics={**_details(ctx, explained, models["augmented"]), **described.to_dict()},
         plot_data={"hold": held.rec, "rollouts": rollouts, "resid_map": resid_map, "train": train,
                    "augmented_system": models["augmented"], "calibrated_system": models["calibrated"],
                    "nominal_system": models["nominal"], "friction_curve": explained.curve, "friction_laws": explained.laws},

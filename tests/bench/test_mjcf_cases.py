@@ -15,8 +15,8 @@ CASES = mc.cases()
 CASE_NAMES = list(CASES)
 
 
-def test_the_five_cases_are_there():
-    assert CASE_NAMES == ["furuta", "arm3", "arm3_cad", "weak_motor", "cartpole"]
+def test_the_cases_are_there():
+    assert CASE_NAMES == ["furuta", "arm3", "arm3_cad", "weak_motor", "arm3_drives", "arm6_drives", "cartpole"]
     assert all(mc.nominal_path(c).is_file() for c in CASES.values())
     with pytest.raises(ValueError, match="cases"):  # a case without its models folder says where to get one
         mc.nominal_path(mc.CASES["furuta"])
@@ -34,7 +34,7 @@ def test_real_model_differs_from_the_nominal_only_in_the_hidden_attributes(name,
         nominal, got = diff[h.param]
         assert got == pytest.approx(h.value, rel=1e-12)
         if case.kind == "effect":  # a term the nominal file leaves at zero
-            assert nominal == 0.0 and h.term in ("coulomb_friction", "viscous_damping")
+            assert nominal == 0.0 and h.term in ("coulomb_friction", "viscous_damping", "armature")
         elif case.kind == "cad":
             assert 0.03 - 1e-9 <= abs(got / nominal - 1) <= 0.08 + 1e-9
         else:

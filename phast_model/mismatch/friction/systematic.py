@@ -55,7 +55,7 @@ from ..vocabulary.terms import VOCABULARY, AugmentedSystem, Term
 from .laws import FrictionLaw, spec_of
 from .lawselect import LawSelection, select_friction
 from .passivity import check_against_curve, is_passive
-from .weakid import WeakFit, WeakModel, check_parameters, identify
+from .weakid import WeakFit, WeakModel, check_parameters, explained_force, identify
 
 
 @dataclass
@@ -160,6 +160,19 @@ def _armature_rows(fit: WeakFit) -> list[TermRow]:
 
 #: a generous law for the first joint fit, so that parameters cannot absorb friction while the law is not yet chosen
 PROVISIONAL_LAW = (VISCOUS.name, COULOMB.name)
+
+
+def drive_share(problem: Problem) -> float:
+    """How much of the force the simulator leaves unexplained in the weak-form momentum balance a rotor inertia and a
+    viscous + Coulomb friction on each driven coordinate account for: 1 - rss / |f~ - own|^2 of one linear least
+    squares (the simulator at the user's values, nothing else fitted).  Near 1 for a motor-driven model whose file
+    leaves out its drives (a CAD model without gears); near 0 when the force it leaves is of another kind."""
+    driven = [i for i in range(problem.n) if problem.has_u[i]]
+    if not driven:
+        return 0.0
+    window = problem.smoothing_window
+    model = WeakModel(problem.sim, {}, [], [], driven, problem.eps, problem.nominal_family.deadzone_width, window)
+    return explained_force(model, problem.train.resampled(), [(nm, i) for i in driven for nm in PROVISIONAL_LAW])
 
 
 def systematic(ctx: SystematicContext) -> SystematicResult:

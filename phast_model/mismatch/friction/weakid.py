@@ -155,6 +155,26 @@ def _solve(wf: WeakForm, cols: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray
     return coef, V, G, float(r @ r)
 
 
+def explained_force(model: WeakModel, rec: Recordings, law: list[Spec]) -> float:
+    """1 - rss / |S (conservative + port force)|^2 of a non-negative least squares of the force the model leaves (at
+    ``model.kwargs``) on the columns of ``law``, ``model.armature`` and ``model.params``: the share of the forces the
+    balance carries (gravity, springs, the recorded input) that the model with those columns accounts for.
+    Non-negative coefficients (physical inertia and friction), so that a negative inertia cannot absorb a balance of
+    another kind."""
+    from scipy.optimize import nnls
+
+    wf, _, cols, _ = _columns(model, dict(model.kwargs), rec, law)
+    y = (wf.total - wf.own).reshape(-1)
+    carried = wf.carried if wf.carried is not None else wf.total
+    scale = max(float(np.sum(carried**2)), 1e-300)
+    if not cols:
+        return 1.0 - float(y @ y) / scale
+    X = np.stack([c.reshape(-1) for c in cols], 1)
+    sc = np.linalg.norm(X, axis=0) + 1e-300
+    _, r = nnls(X / sc, y, maxiter=50 * X.shape[1])
+    return 1.0 - float(r) ** 2 / scale
+
+
 def identify(model: WeakModel, rec: Recordings, law: list[Spec], iterations: int = 3) -> WeakFit:
     """Parameters, armature and the friction law ``law`` (specs with Stribeck velocities fixed) by Gauss-Newton on the
     weak form, starting at ``model.kwargs`` (reported against the simulator's own values); ``rec`` must be uniformly
