@@ -18,8 +18,9 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
+import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -32,7 +33,7 @@ from .delays import history
 from .recordings import Recordings
 from .signals import estimate_noise, odd, smooth, time_scale
 
-__all__ = ["Shooter", "ShootFit", "Windows", "estimate_noise", "odd", "simulate_qv", "smooth", "substeps_for", "time_scale"]
+__all__ = ["Heartbeat", "Shooter", "ShootFit", "Windows", "estimate_noise", "odd", "simulate_qv", "smooth", "substeps_for", "time_scale"]
 
 
 def momentum(system: System, q: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -505,6 +506,25 @@ def _damped_step(normal: Normal, lam: float) -> tuple[np.ndarray, np.ndarray]:
     return -np.einsum("wab,wb->wa", Ainv, gx + np.einsum("wbp,p->wb", B, dg)), dg
 
 
+@dataclass
+class Heartbeat:
+    """A progress line at least every ``every`` seconds of a long fit: the iteration, chi^2/dof and the time left at
+    most (the iterations left at the mean time per iteration so far)."""
+
+    say: Callable[[str], None]
+    every: float = 30.0
+    last: float = field(default_factory=time.monotonic)
+
+    def beat(self, it: int, max_iter: int, chi2_red: float, started: float) -> None:
+        now = time.monotonic()
+        if now - self.last < self.every:
+            return
+        self.last = now
+        per = (now - started) / max(it, 1)
+        self.say(f"  shooting fit: iteration {it} of at most {max_iter}, chi2/dof {chi2_red:.3g}, {per:.0f} s per "
+                 f"iteration (at most {per * (max_iter - it):.0f} s left)")
+
+
 class Shooter:
     """Standardized shooting residuals of a model family ``build(g) -> System`` on windows."""
 
@@ -517,6 +537,7 @@ class Shooter:
         self.n_sims = 0
         self._tb_w: Windows | None = None  # windows the cached time base belongs to
         self._tb: tuple = ()
+        self.heartbeat: Heartbeat | None = None  # progress lines during long fits
 
     def _time_base(self) -> tuple[float | np.ndarray, int | np.ndarray]:
         """(dt, substeps) for simulate_qv: the scalar ones when the windows are uniform, else the recorded
@@ -680,6 +701,7 @@ class Shooter:
         lam = 1e-3
         it = 0
         lin: tuple[np.ndarray, np.ndarray] | None = (JX, Jg)  # the Jacobians at the current point, when known
+        started = time.monotonic()
         for it in range(1, max_iter + 1):  # noqa: B007
             if lin is None:
                 lin = self.linearize(build, system, g, X, g_step, r)[1:]
@@ -690,6 +712,8 @@ class Shooter:
             rel = 0.0 if cost - step[3] < 0.02 else (cost - step[3]) / max(cost, 1e-300)
             X, g, r, cost, system, lam_used = step
             lam, lin = max(lam_used / 5, 1e-9), None
+            if self.heartbeat is not None:
+                self.heartbeat.beat(it, max_iter, cost / max(r.size, 1), started)
             if rel < tol:
                 break
         if not stats:

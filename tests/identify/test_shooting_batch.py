@@ -176,3 +176,17 @@ def test_linearized_drop_predicts_the_refit() -> None:
     sd = np.sqrt(np.diag(refit.covariance()))
     assert np.all(np.abs(drop.g - refit.g) <= 0.2 * sd)
     assert drop.g.size == len(keep) and abs(drop.cost - refit.cost) <= 0.05 * refit.cost + 1.0
+
+
+def test_a_long_fit_says_where_it_is():
+    """The heartbeat of a shooting fit: the iteration, chi^2/dof and the time left at most (every 30 s by default;
+    here at every iteration), and the fit's numbers are those of a fit without it."""
+    from phast_model.identify.shooting import Heartbeat
+
+    sh, fam, g, X = _setup("PHAST/Pendulum-v0", {}, ["length"], [])
+    quiet = sh.fit(fam.build, X, g, max_iter=3)
+    said: list[str] = []
+    sh.heartbeat = Heartbeat(said.append, every=0.0)
+    loud = sh.fit(fam.build, X, g, max_iter=3)
+    assert said and all("of at most 3" in m and "chi2/dof" in m and "s left)" in m for m in said)
+    assert loud.cost == quiet.cost and np.array_equal(loud.g, quiet.g)

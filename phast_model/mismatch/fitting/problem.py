@@ -10,7 +10,7 @@ import numpy as np
 from phast_gym.systems.base import System
 
 from ...identify.recordings import Recordings
-from ...identify.shooting import Shooter, Windows, estimate_noise, odd, smooth, substeps_for, time_scale
+from ...identify.shooting import Heartbeat, Shooter, Windows, estimate_noise, odd, smooth, substeps_for, time_scale
 from ...identify.simulators import Simulator
 from ...identify.weakform import rms_speed, sign_smoothing, smoothing_window
 from ..options import Options, Progress
@@ -114,7 +114,10 @@ class Problem:
         return self.train.n
 
     def shooter(self, windows: Windows) -> Shooter:
-        return Shooter(windows, self.sigma, self.shooting.substeps, self.x_scale)
+        """A shooter on ``windows`` whose long fits report their progress in the analysis' log."""
+        shooter = Shooter(windows, self.sigma, self.shooting.substeps, self.x_scale)
+        shooter.heartbeat = Heartbeat(self.log)
+        return shooter
 
     def q_sample(self) -> np.ndarray:
         """About 200 recorded configurations (parameter-structure probes)."""
