@@ -22,13 +22,14 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 import torch
 from torch import nn
 
 from ..world.interfaces import ForecastModel, wrap_angles
 
 
-def _as_tensor(x: Any) -> torch.Tensor:
+def _as_tensor(x: npt.ArrayLike | torch.Tensor) -> torch.Tensor:
     return x if isinstance(x, torch.Tensor) else torch.as_tensor(np.asarray(x), dtype=torch.float64)
 
 
@@ -65,7 +66,7 @@ class SeqBaseline(ForecastModel):
 
     # ------------------------------------------------------------------ normalization
     @torch.no_grad()
-    def fit_normalizer(self, q: Any, u: Any | None = None) -> None:
+    def fit_normalizer(self, q: np.ndarray | torch.Tensor, u: np.ndarray | torch.Tensor | None = None) -> None:
         """Set the input/increment scales from training data ``q`` (N, T, n), ``u`` (N, T-1, m)."""
         q = _as_tensor(q).to(self.q_mean.dtype)
         if q.ndim != 3 or q.shape[-1] != self.n:
@@ -123,7 +124,8 @@ class SeqBaseline(ForecastModel):
         raise NotImplementedError
 
     def step(self, x: torch.Tensor, state: Any) -> tuple[torch.Tensor, Any]:  # pragma: no cover - abstract
-        """One recurrent step: features (B, F) + state -> hidden (B, d), new state."""
+        """One recurrent step: features (B, F) + state -> hidden (B, d), new state (each subclass its own kind:
+        a GRU's hidden tensor, an LSTM's (h, c), one tensor per SSM layer, a transformer's cache)."""
         raise NotImplementedError
 
     # ------------------------------------------------------------------ rollout

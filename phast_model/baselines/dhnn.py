@@ -15,6 +15,7 @@ Paper Table 25: full-state Windy Pendulum, PHAST vs DHNN.
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -55,7 +56,7 @@ class DHNNBaseline(ForecastModel):
         self.register_buffer("x_std", torch.ones(n))
 
     @torch.no_grad()
-    def fit_normalizer(self, q: torch.Tensor, u: torch.Tensor | None = None) -> None:
+    def fit_normalizer(self, q: np.ndarray | torch.Tensor, u: np.ndarray | torch.Tensor | None = None) -> None:
         """Input standardization of the non-angular coordinates from training states (N, T, n)."""
         x = torch.as_tensor(q).to(self.x_mean.dtype).reshape(-1, self.n)
         self.x_mean.copy_(x.mean(0))

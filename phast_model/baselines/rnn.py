@@ -8,12 +8,15 @@ the first recurrent layer and a linear head reads the increment out.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TypeAlias
 
 import torch
 from torch import nn
 
 from .common import SeqBaseline
+
+#: the recurrent state: a GRU's hidden tensor or an LSTM's (h, c), (depth, B, d) each
+RNNState: TypeAlias = torch.Tensor | tuple[torch.Tensor, torch.Tensor]
 
 
 class _RNNBaseline(SeqBaseline):
@@ -29,10 +32,10 @@ class _RNNBaseline(SeqBaseline):
     def encode(self, x: torch.Tensor) -> torch.Tensor:
         return self.rnn(x)[0]
 
-    def encode_state(self, x: torch.Tensor) -> tuple[torch.Tensor, Any]:
+    def encode_state(self, x: torch.Tensor) -> tuple[torch.Tensor, RNNState]:
         return self.rnn(x)
 
-    def step(self, x: torch.Tensor, state: Any) -> tuple[torch.Tensor, Any]:
+    def step(self, x: torch.Tensor, state: RNNState) -> tuple[torch.Tensor, RNNState]:
         h, state = self.rnn(x[:, None], state)
         return h[:, 0], state
 

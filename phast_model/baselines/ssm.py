@@ -172,19 +172,19 @@ class _SSMLayer(nn.Module):
     def post(self, y: torch.Tensor) -> torch.Tensor:
         return F.gelu(y)
 
-    def sequence(self, z: torch.Tensor) -> tuple[torch.Tensor, Any]:  # pragma: no cover - abstract
+    def sequence(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:  # pragma: no cover - abstract
         """SSM outputs (B, T, d) of normalized inputs z (B, T, d) and the state after the last step."""
         raise NotImplementedError
 
-    def recur(self, z: torch.Tensor, state: Any) -> tuple[torch.Tensor, Any]:  # pragma: no cover - abstract
+    def recur(self, z: torch.Tensor, state: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:  # pragma: no cover
         """One step: SSM output (B, d) of z (B, d) and the new state."""
         raise NotImplementedError
 
-    def forward(self, h: torch.Tensor) -> tuple[torch.Tensor, Any]:
+    def forward(self, h: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         y, state = self.sequence(self.norm(h))
         return h + self.post(y), state
 
-    def step(self, h: torch.Tensor, state: Any) -> tuple[torch.Tensor, Any]:
+    def step(self, h: torch.Tensor, state: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         y, state = self.recur(self.norm(h), state)
         return h + self.post(y), state
 

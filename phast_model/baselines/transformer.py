@@ -53,8 +53,8 @@ def sinusoidal_encoding(T: int, d: int, device: torch.device, dtype: torch.dtype
     return pe
 
 
-def _self_attention(attn: nn.MultiheadAttention, x: torch.Tensor,
-                    past: tuple[torch.Tensor, torch.Tensor] | None) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor]]:
+def _self_attention(attn: nn.MultiheadAttention, x: torch.Tensor, past: tuple[torch.Tensor, torch.Tensor] | None
+                    ) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor]]:
     """Causal multi-head self-attention of ``x`` (B, T, d) with ``attn``'s weights; ``past`` = cached (keys, values).
 
     Without a cache the T positions attend causally to each other; with one, ``x``
@@ -63,7 +63,8 @@ def _self_attention(attn: nn.MultiheadAttention, x: torch.Tensor,
     """
     B, T, d = x.shape
     heads = attn.num_heads
-    q, k, v = F.linear(x, attn.in_proj_weight, attn.in_proj_bias).view(B, T, 3, heads, d // heads).permute(2, 0, 3, 1, 4)
+    q, k, v = (F.linear(x, attn.in_proj_weight, attn.in_proj_bias).view(B, T, 3, heads, d // heads)
+               .permute(2, 0, 3, 1, 4))
     if past is not None:
         k, v = torch.cat([past[0], k], 2), torch.cat([past[1], v], 2)
     out = F.scaled_dot_product_attention(q, k, v, is_causal=past is None)
@@ -120,7 +121,8 @@ class _TriangularResidual(nn.Module):
     def __init__(self, d: int, upper: bool) -> None:
         super().__init__()
         self.upper = upper
-        self.register_buffer("idx", torch.triu_indices(d, d, 1) if upper else torch.tril_indices(d, d, -1), persistent=False)
+        self.register_buffer("idx", torch.triu_indices(d, d, 1) if upper else torch.tril_indices(d, d, -1),
+                             persistent=False)
         self.w = nn.Parameter(torch.randn(self.idx.shape[1]) / math.sqrt(d))
         self.b = nn.Parameter(torch.zeros(d))
         self.d = d

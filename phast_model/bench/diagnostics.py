@@ -153,7 +153,7 @@ def _oracle_parts(model: PHAST, test: Any, q: torch.Tensor, u: torch.Tensor | No
     out["learned_rate"] = float((va * dva).sum() / (va * pa).sum())
 
     def oracle(substeps: int) -> float:
-        step = {"h": model.core.h * model.core.substeps / substeps, "substeps": substeps}
+        step: dict[str, float | torch.Tensor] = {"h": model.core.h * model.core.substeps / substeps, "substeps": substeps}
         if rollout_row:
             return score(model.integrate(qa[:, K - 1], pa[:, K - 1], u, K - 1, H, **step)[0].numpy())
         f = None if u is None else model.port_force(u)

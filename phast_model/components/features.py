@@ -10,8 +10,10 @@ def n_features(n: int, angle_dims: tuple[int, ...]) -> int:
     return n + len(angle_dims)
 
 
-def coordinate_features(q: torch.Tensor, angle_dims: tuple[int, ...], scale: torch.Tensor | None = None) -> torch.Tensor:
-    """(..., n) -> (..., n + len(angle_dims)): Euclidean coordinates (optionally divided by ``scale``), then sin/cos of angles."""
+def coordinate_features(q: torch.Tensor, angle_dims: tuple[int, ...],
+                        scale: torch.Tensor | None = None) -> torch.Tensor:
+    """(..., n) -> (..., n + len(angle_dims)): Euclidean coordinates (optionally divided by ``scale``), then sin/cos of
+    angles."""
     n = q.shape[-1]
     eu = [i for i in range(n) if i not in angle_dims]
     parts = []

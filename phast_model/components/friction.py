@@ -2,7 +2,8 @@
 
 :class:`JointFriction` is the per-joint force
 
-    f_i(v) = sum_k c_ik phi_k(v_i)   on the joints ``joints`` (0 on the other coordinates),   c_ik = softplus(raw_ik) >= 0
+    f_i(v) = sum_k c_ik phi_k(v_i)   on the joints ``joints`` (0 on the other coordinates),
+    c_ik = softplus(raw_ik) >= 0
 
 with the shapes (``laws``)
 

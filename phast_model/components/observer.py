@@ -42,7 +42,8 @@ def backward_difference_weights(order: int) -> np.ndarray:
 class CausalConv1d(nn.Conv1d):
     """Conv1d over (B, C, T) with left padding only (output t sees inputs <= t)."""
 
-    def __init__(self, c_in: int, c_out: int, kernel_size: int, dilation: int = 1, groups: int = 1, bias: bool = True) -> None:
+    def __init__(self, c_in: int, c_out: int, kernel_size: int, dilation: int = 1, groups: int = 1,
+                 bias: bool = True) -> None:
         super().__init__(c_in, c_out, kernel_size, dilation=dilation, groups=groups, bias=bias)
         self.left = (kernel_size - 1) * dilation
 

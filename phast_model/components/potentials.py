@@ -120,12 +120,14 @@ class TemplatePotential(Potential):
     def grad(self, q: torch.Tensor) -> torch.Tensor:
         if self.kind == "cosine":  # analytic (Eq. 80)
             g = torch.zeros_like(q)
-            g = g.index_copy(-1, torch.tensor(self.dims, device=q.device), self.coef * torch.sin(q[..., list(self.dims)]))
+            g = g.index_copy(-1, torch.tensor(self.dims, device=q.device),
+                             self.coef * torch.sin(q[..., list(self.dims)]))
             return g
         if self.kind == "chain_cosine":  # dV/dq_j = sum_{i >= j} a_i sin(Q_i), Q = cumsum(q)
             g = torch.zeros_like(q)
             Q = torch.cumsum(q, -1)
-            g = g.index_copy(-1, torch.tensor(self.dims, device=q.device), self.coef * torch.sin(Q[..., list(self.dims)]))
+            g = g.index_copy(-1, torch.tensor(self.dims, device=q.device),
+                             self.coef * torch.sin(Q[..., list(self.dims)]))
             return torch.flip(torch.cumsum(torch.flip(g, (-1,)), -1), (-1,))
         return autograd_grad(self.energy, q)
 

@@ -113,7 +113,8 @@ def runs_markdown(rows: list[Row], metrics: dict[str, dict]) -> str:
              "M^-1 V''(pi) | port gain M^-1 G |", "|---|---|---|---|---|---|---|"]
     nan = float("nan")
     for name, m in metrics.items():
-        lines.append(f"| {label(name)} | {m.get('damping_r2', nan):.3f} | {m.get('rollout_theta_wrap_mse_h100', nan):.4f} | "
+        lines.append(f"| {label(name)} | {m.get('damping_r2', nan):.3f} | "
+                     f"{m.get('rollout_theta_wrap_mse_h100', nan):.4f} | "
                      f"{m.get('rollout_takeover_theta_wrap_mse_h100', nan):.4f} | {m.get('stiffness_0', nan):.2f} "
                      f"(true {m.get('true_stiffness_0', nan):.2f}) | {m.get('stiffness_pi', nan):.2f} "
                      f"(true {m.get('true_stiffness_pi', nan):.2f}) | {m.get('port_gain', nan):.3f} "
@@ -121,6 +122,6 @@ def runs_markdown(rows: list[Row], metrics: dict[str, dict]) -> str:
     lines += ["", "| target | sigma | filter's process model | n | success | success (angle only) | "
               "RMS torque last 1 s | effort | abs(qdot_hat - qdot) |", "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        lines.append(f"| {r.target} | {r.sigma:g} | {r.process_model} | {r.n} | {r.success:.2f} | {r.success_angle:.2f} | "
-                     f"{r.u_rms_final:.3f} | {r.effort:.1f} | {r.velocity_error:.4f} |")
+        lines.append(f"| {r.target} | {r.sigma:g} | {r.process_model} | {r.n} | {r.success:.2f} | "
+                     f"{r.success_angle:.2f} | {r.u_rms_final:.3f} | {r.effort:.1f} | {r.velocity_error:.4f} |")
     return "\n".join(lines) + "\n"

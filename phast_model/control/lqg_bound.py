@@ -15,11 +15,12 @@ law with xi = q_hat).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 import scipy.linalg as sl
 
 from phast_gym.control.controller import potential_curvature
@@ -28,7 +29,7 @@ from phast_gym.env import parse_actuated_dofs
 from phast_gym.systems.base import SCALAR, System
 
 
-def linearise_system(system: System, q_star: Any, dt: float, actuated_dofs: Sequence[int] | None = None
+def linearise_system(system: System, q_star: npt.ArrayLike, dt: float, actuated_dofs: Sequence[int] | None = None
                      ) -> tuple[np.ndarray, np.ndarray]:
     """Discrete (A, B) of (q - q_star, qdot) about the equilibrium (q_star, p = 0) of an n-dof ``system``, inputs held
     over ``dt`` on the port of ``actuated_dofs`` (G = those columns of I, as :class:`phast_gym.env.PortHamiltonianEnv`;
@@ -48,8 +49,8 @@ def linearise_system(system: System, q_star: Any, dt: float, actuated_dofs: Sequ
     return mm[:2 * n, :2 * n], mm[:2 * n, 2 * n:]
 
 
-def linearise(env_id: str, q_star: Any, dt: float, actuated_dofs: Sequence[int] | None = None,
-              env_kwargs: dict[str, Any] | None = None) -> tuple[np.ndarray, np.ndarray]:
+def linearise(env_id: str, q_star: npt.ArrayLike, dt: float, actuated_dofs: Sequence[int] | None = None,
+              env_kwargs: Mapping[str, object] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Discrete (A, B) of (q - q_star, qdot) under held inputs for the registered plant ``env_id`` sampled at ``dt``
     (:func:`linearise_system`; a 1-dof pendulum: the 2 x 2 and 2 x 1 of the torque floor)."""
     system = control_system(ControlProtocol(env_id=env_id, dt=dt, env_kwargs=dict(env_kwargs or {})))
@@ -59,7 +60,8 @@ def linearise(env_id: str, q_star: Any, dt: float, actuated_dofs: Sequence[int] 
 @dataclass(frozen=True)
 class ClosedLoop:
     """Linear closed loop z' = f z + g v (z = [x, e], e = x - x_hat posterior, v ~ N(0, sigma^2 I_n) the measurement
-    noise of the n coordinates), inputs u = h z, stationary covariance s; ``post`` is the Kalman posterior covariance."""
+    noise of the n coordinates), inputs u = h z, stationary covariance s; ``post`` is the Kalman posterior
+    covariance."""
 
     f: np.ndarray
     g: np.ndarray
@@ -77,7 +79,7 @@ def lqr_gain(a: np.ndarray, b: np.ndarray, state_weights: np.ndarray) -> np.ndar
     return np.linalg.solve(b.T @ x @ b + np.eye(m), b.T @ x @ a)
 
 
-def closed_loop(a: np.ndarray, b: np.ndarray, sigma: float, gains: Any = None,
+def closed_loop(a: np.ndarray, b: np.ndarray, sigma: float, gains: npt.ArrayLike | None = None,
                 eps: float = 1e-6, q_proc: float = 1e-12) -> ClosedLoop:
     """LQG (eps -> 0) or static gains on the stationary Kalman posterior estimate; ``s`` is None when unstable.
 
@@ -123,7 +125,7 @@ def window_pass_rate(loop: ClosedLoop, window: int = 100, tol: float = 0.05, u_t
             "pass_angle": float(np.mean(angle_ok))}
 
 
-def torque_floor(a: np.ndarray, b: np.ndarray, sigma: float, gains: Any = None,
+def torque_floor(a: np.ndarray, b: np.ndarray, sigma: float, gains: npt.ArrayLike | None = None,
                  eps: float = 1e-6, q_proc: float = 1e-12, angle_dims: Sequence[int] = (0,)) -> dict[str, float]:
     """Stationary RMS input and angle std of LQG (eps -> 0), or of static gains on the Kalman posterior estimate."""
     return stationary(closed_loop(a, b, sigma, gains, eps, q_proc), angle_dims)
@@ -145,8 +147,8 @@ def stationary(loop: ClosedLoop, angle_dims: Sequence[int] = (0,)) -> dict[str, 
             "kalman_qdot_std": float(np.sqrt(post[n + i, n + i]))}
 
 
-def lqg_floor(env_id: str, sigma: float, q_star: Any = math.pi, dt: float = 0.01,
-              actuated_dofs: Sequence[int] | None = None, env_kwargs: dict[str, Any] | None = None,
+def lqg_floor(env_id: str, sigma: float, q_star: npt.ArrayLike = math.pi, dt: float = 0.01,
+              actuated_dofs: Sequence[int] | None = None, env_kwargs: Mapping[str, object] | None = None,
               eps: float = 1e-6) -> dict[str, Any]:
     """The LQG floor of a registered plant at its equilibrium ``q_star`` (a scalar: that value on every angle, 0 on
     the other coordinates; or one value per coordinate), q-only measurements with noise ``sigma`` every ``dt``, inputs
@@ -157,7 +159,7 @@ def lqg_floor(env_id: str, sigma: float, q_star: Any = math.pi, dt: float = 0.01
     return {"env": env_id, **system_lqg_floor(system, sigma, q_star, dt, actuated_dofs, eps)}
 
 
-def system_lqg_floor(system: System, sigma: float, q_star: Any = math.pi, dt: float = 0.01,
+def system_lqg_floor(system: System, sigma: float, q_star: npt.ArrayLike = math.pi, dt: float = 0.01,
                      actuated_dofs: Sequence[int] | None = None, eps: float = 1e-6) -> dict[str, Any]:
     """:func:`lqg_floor` of a system (a registered plant's or a user's rig class), sampled at ``dt``."""
     q = np.asarray(q_star, dtype=np.float64)

@@ -31,7 +31,8 @@ def _load(run: str | Path | torch.nn.Module | None) -> PHAST:
     if isinstance(run, torch.nn.Module):
         return cast("PHAST", run.eval())  # a PHAST model (or one with its interface) given in memory
     if run is None:
-        raise ValueError("PHAST-based estimators need a trained run: pass --phast-run DIR (a phast-train run directory)")
+        raise ValueError("PHAST-based estimators need a trained run: pass --phast-run DIR "
+                         "(a phast-train run directory)")
     from ..api import load_run
 
     return load_run(run)
@@ -49,7 +50,8 @@ class PHASTObserverEstimator(PortEstimator):
         ratio = float(obs.dt) / self.dt
         self.stride = int(round(ratio))
         if self.stride < 1 or abs(ratio - self.stride) > 1e-6:
-            raise ValueError(f"the PHAST observer was trained at dt = {obs.dt}; the plant dt = {self.dt} must divide it")
+            raise ValueError(f"the PHAST observer was trained at dt = {obs.dt}; the plant dt = {self.dt} "
+                             "must divide it")
         if self.model.n != system.n:
             raise ValueError(f"the PHAST run has n = {self.model.n}, the plant n = {system.n}")
         self.window = int(obs.window)

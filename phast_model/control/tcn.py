@@ -19,7 +19,7 @@ import time
 from collections import deque
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, cast
+from typing import cast
 
 import numpy as np
 import torch
@@ -67,13 +67,15 @@ class TCNObserver(nn.Module):
 
     v_scale: torch.Tensor  # buffer
 
-    def __init__(self, n: int, dt: float, angle_dims: tuple[int, ...], cfg: TCNObserverConfig, v_scale: float = 1.0) -> None:
+    def __init__(self, n: int, dt: float, angle_dims: tuple[int, ...], cfg: TCNObserverConfig,
+                 v_scale: float = 1.0) -> None:
         super().__init__()
         self.n, self.dt, self.angle_dims, self.cfg = n, float(dt), tuple(angle_dims), cfg
         self.conditioned = cfg.noise_mode == "conditioned"
         c_in = 2 * len(self.angle_dims) + (n - len(self.angle_dims)) + n + (1 if self.conditioned else 0)
         self.convs = nn.ModuleList(
-            CausalConv1d(c_in if i == 0 else cfg.hidden, cfg.hidden, cfg.kernel_size, dilation=2**i) for i in range(cfg.layers))
+            CausalConv1d(c_in if i == 0 else cfg.hidden, cfg.hidden, cfg.kernel_size, dilation=2**i)
+            for i in range(cfg.layers))
         self.head = nn.Conv1d(cfg.hidden, n, 1)
         nn.init.zeros_(self.head.weight)
         nn.init.zeros_(cast(torch.Tensor, self.head.bias))  # a Conv1d with the default bias=True: never None
@@ -99,14 +101,16 @@ class TCNObserver(nn.Module):
         if self.conditioned:
             if sigma is None:
                 raise ValueError("a noise-conditioned observer needs sigma")
-            x = torch.cat([x, (sigma / max(self.cfg.sigma_max, 1e-6)).reshape(-1, 1, 1).expand(q.shape[0], q.shape[1], 1).to(x)], -1)
+            level = (sigma / max(self.cfg.sigma_max, 1e-6)).reshape(-1, 1, 1).expand(q.shape[0], q.shape[1], 1)
+            x = torch.cat([x, level.to(x)], -1)
         x = x.transpose(1, 2)
         for conv in self.convs:
             x = nn.functional.silu(conv(x))
         return (self.fir(v_fd.transpose(1, 2)) + self.head(x) * self.v_scale).transpose(1, 2)
 
 
-def closed_loop_data(protocol: ControlProtocol, n_traj: int, steps: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def closed_loop_data(protocol: ControlProtocol, n_traj: int, steps: int,
+                     seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Batched closed-loop trajectories of the control plant: true q (N, T, n) and qdot (N, T, n).
 
     The loop is the Energy-Casimir law with exact velocity and ``k_xi`` tracking (same gains as the
@@ -139,7 +143,8 @@ def closed_loop_data(protocol: ControlProtocol, n_traj: int, steps: int, seed: i
     return qs, vs
 
 
-def train_tcn_observer(protocol: ControlProtocol, cfg: TCNObserverConfig, progress: bool = False) -> tuple[TCNObserver, dict[str, Any]]:
+def train_tcn_observer(protocol: ControlProtocol, cfg: TCNObserverConfig,
+                       progress: bool = False) -> tuple[TCNObserver, dict[str, float]]:
     """Train an observer on noisy closed-loop data; returns the model and a small report."""
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed + 1)
@@ -179,12 +184,13 @@ def train_tcn_observer(protocol: ControlProtocol, cfg: TCNObserverConfig, progre
     return model, {"final_loss": float(np.mean(losses[-50:])), "train_seconds": time.time() - t0, "v_scale": v_scale}
 
 
-def save_tcn_observer(model: TCNObserver, path: str | Path, protocol: ControlProtocol, report: dict[str, Any]) -> None:
+def save_tcn_observer(model: TCNObserver, path: str | Path, protocol: ControlProtocol,
+                      report: dict[str, float]) -> None:
     """``path`` (.pt state dict) + ``path.json`` (config), both written atomically."""
     path = Path(path)
     atomic_torch_save(model.state_dict(), path)
-    atomic_write_json(path.with_suffix(".json"), {"format": "phast-tcn-observer", "cfg": asdict(model.cfg), "dt": model.dt,
-                                                   "protocol": protocol.to_dict(), "report": report})
+    atomic_write_json(path.with_suffix(".json"), {"format": "phast-tcn-observer", "cfg": asdict(model.cfg),
+                                                   "dt": model.dt, "protocol": protocol.to_dict(), "report": report})
 
 
 def load_tcn_observer(path: str | Path, system: System) -> TCNObserver:

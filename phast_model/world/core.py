@@ -96,8 +96,8 @@ class PHASTCore(SubstepCore):
         q1, p1, _ = self._conservative(q, p, f, h, need_p, None)
         return q1, p1
 
-    def _conservative(self, q: torch.Tensor, p: torch.Tensor, f: torch.Tensor | None, h: torch.Tensor,
-                      need_p: bool, grad_v: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    def _conservative(self, q: torch.Tensor, p: torch.Tensor, f: torch.Tensor | None, h: torch.Tensor, need_p: bool,
+                      grad_v: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
         """Phi_H(h) given dV/dq at q (or None), returning dV/dq at q1 where the leapfrog computed it: the next
         substep starts at q1 (the damping half-steps leave q unchanged), so it need not evaluate it again."""
         if self.integrator == "leapfrog":

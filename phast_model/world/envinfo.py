@@ -96,7 +96,8 @@ _ENTRIES: tuple[EnvInfo, ...] = (
         (0.106, 0.020), (0.092, 0.014), (0.298, 0.048), (1.796, 0.625), (0.600, 0.047), (1.458, 0.324), (0.435, 0.239),
         (0.824, 0.134), (2.218, 0.135)), _P1)),
     _env("PHAST/WindyCartPole-v0", MIXED, "cosine", (1,), mass="cartpole", paper=("Cart-Pole (windy)", "Table 3", {
-        "phast-known": (0.063, 0.019), "phast-partial": (0.083, 0.022), "phast-unknown": (0.109, 0.022), "s5": (0.431, 0.077)},
+        "phast-known": (0.063, 0.019), "phast-partial": (0.083, 0.022), "phast-unknown": (0.109, 0.022),
+        "s5": (0.431, 0.077)},
         {"phast-known": 3589, "phast-partial": 14283, "phast-unknown": 14290, "s5": 17218})),
     _env("PHAST/Oscillator-v0", ROLL, "quadratic", paper=("Oscillator (cons)", "Table 19", _r(
         (0.0010, 0.0003), (0.0010, 0.0002), (0.0072, 0.0031), (1.8470, 0.0754), (2.0200, 0.0899), (1.7241, 0.1787),
@@ -107,36 +108,37 @@ _ENTRIES: tuple[EnvInfo, ...] = (
     _env("PHAST/DoublePendulum-v0", WRAP, "cosine", (0, 1), mass="double_pendulum", paper=("Double pendulum (cons)",
         "Table 18", _r((0.421, 0.061), (0.402, 0.047), (0.629, 0.060), (1.300, 0.143), (0.618, 0.028), (1.640, 0.214),
                        (1.501, 0.124), (1.033, 0.248), (2.848, 0.213)), _P2)),
-    _env("PHAST/DampedDoublePendulum-v0", WRAP, "cosine", (0, 1), mass="double_pendulum", paper=("Double pendulum (damped)",
-        "Table 18", _r((0.332, 0.030), (0.320, 0.032), (0.529, 0.047), (1.346, 0.127), (0.630, 0.031), (1.573, 0.129),
-                       (1.298, 0.105), (0.846, 0.132), (2.721, 0.156)), _P2)),
+    _env("PHAST/DampedDoublePendulum-v0", WRAP, "cosine", (0, 1), mass="double_pendulum", paper=(
+        "Double pendulum (damped)", "Table 18",
+        _r((0.332, 0.030), (0.320, 0.032), (0.529, 0.047), (1.346, 0.127), (0.630, 0.031), (1.573, 0.129),
+           (1.298, 0.105), (0.846, 0.132), (2.721, 0.156)), _P2)),
     _env("PHAST/WindyDoublePendulum-v0", WRAP, "cosine", (0, 1), mass="double_pendulum"),  # not in the paper's Table 4
     _env("PHAST/RLCCircuit-v0", NEXT, "quadratic", paper=("RLC circuit (KNOWN)", "Table 20", _nx(
-        (2.64e-5, 1.5e-8), (2.64e-5, 1.1e-8), (2.63e-5, 3.1e-8), (1.84e-3, 6.69e-4), (8.57e-4, 1.26e-4), (3.22e-3, 3.00e-4),
-        (7.53e-3, 2.78e-4), (8.29e-4, 4.38e-5), (4.81e-4, 1.32e-4)),
-        {"phast-known": 3364, "phast-partial": 11878, "phast-unknown": 11879, "s5": 17089, "linoss": 17089, "gru": 37889,
-         "lstm": 50497, "vpt": 16833, "transformer": 100161})),
+        (2.64e-5, 1.5e-8), (2.64e-5, 1.1e-8), (2.63e-5, 3.1e-8), (1.84e-3, 6.69e-4), (8.57e-4, 1.26e-4),
+        (3.22e-3, 3.00e-4), (7.53e-3, 2.78e-4), (8.29e-4, 4.38e-5), (4.81e-4, 1.32e-4)),
+        {"phast-known": 3364, "phast-partial": 11878, "phast-unknown": 11879, "s5": 17089, "linoss": 17089,
+         "gru": 37889, "lstm": 50497, "vpt": 16833, "transformer": 100161})),
     _env("PHAST/LennardJones3-v0", NEXT, "lennard_jones", paper=("LJ-3 cluster (KNOWN)", "Table 21", _nx(
         (4.61e-10, 4.20e-12), (4.59e-10, 2.04e-12), (6.93e-10, 1.38e-11), (2.05e-4, 4.33e-5), (3.07e-4, 6.64e-5),
         (1.96e-3, 1.80e-4), (3.39e-3, 3.15e-4), (1.49e-3, 8.07e-4), (1.20e-3, 1.62e-4)),
-        {"phast-known": 4490, "phast-partial": 13324, "phast-unknown": 13355, "s5": 17734, "linoss": 17734, "gru": 39174,
-         "lstm": 52102, "vpt": 17478, "transformer": 100806})),
+        {"phast-known": 4490, "phast-partial": 13324, "phast-unknown": 13355, "s5": 17734, "linoss": 17734,
+         "gru": 39174, "lstm": 52102, "vpt": 17478, "transformer": 100806})),
     _env("PHAST/HeatExchange-v0", NEXT, "quadratic", paper=("Heat exchange (KNOWN)", "Table 22", _nx(
         (2.42e-6, 9.74e-10), (2.42e-6, 2.63e-9), (2.48e-6, 1.85e-8), (1.00e-3, 1.62e-4), (4.46e-4, 3.11e-5),
         (3.63e-3, 3.31e-4), (8.03e-3, 1.39e-4), (1.71e-3, 1.53e-4), (7.74e-4, 2.14e-4)),
-        {"phast-known": 3592, "phast-partial": 12170, "phast-unknown": 12173, "s5": 17218, "linoss": 17218, "gru": 38146,
-         "lstm": 50818, "vpt": 16962, "transformer": 100290})),
+        {"phast-known": 3592, "phast-partial": 12170, "phast-unknown": 12173, "s5": 17218, "linoss": 17218,
+         "gru": 38146, "lstm": 50818, "vpt": 16962, "transformer": 100290})),
     _env("PHAST/NBody3-v0", NEXT, "gravity", paper=("N-body gravity (PARTIAL)", "Table 23", _nx(
         (4.28e-8, 1.28e-11), (4.27e-8, 2.25e-11), (4.28e-8, 6.17e-11), (3.03e-3, 5.98e-4), (2.00e-3, 7.74e-5),
         (7.18e-3, 1.79e-3), (4.64e-2, 8.17e-3), (1.47e-2, 1.30e-2), (1.83e-3, 6.88e-4)),
-        {"phast-known": 4489, "phast-partial": 13323, "phast-unknown": 13355, "s5": 17734, "linoss": 17734, "gru": 39174,
-         "lstm": 52102, "vpt": 17478, "transformer": 100806})),
+        {"phast-known": 4489, "phast-partial": 13323, "phast-unknown": 13355, "s5": 17734, "linoss": 17734,
+         "gru": 39174, "lstm": 52102, "vpt": 17478, "transformer": 100806})),
     # not port-Hamiltonian (a latent ODE, phast_model.world.regimes): no potential or mass template
     _env("PHAST/PredatorPrey-v0", NEXT, paper=("Predator-prey (UNKNOWN)", "Table 24", _nx(
         (0.0203, 0.0002), (0.0203, 0.0002), (0.0199, 0.0004), (6.12, 0.58), (3.53, 0.70), (4.72, 0.23), (5.85, 0.14),
         (0.226, 0.012), (0.179, 0.014)),
-        {"phast-known": 3364, "phast-partial": 11878, "phast-unknown": 11879, "s5": 17089, "linoss": 17089, "gru": 37889,
-         "lstm": 50497, "vpt": 16833, "transformer": 100161})),
+        {"phast-known": 3364, "phast-partial": 11878, "phast-unknown": 11879, "s5": 17089, "linoss": 17089,
+         "gru": 37889, "lstm": 50497, "vpt": 16833, "transformer": 100161})),
 )
 
 #: env id -> its facts, in phast_gym.env_ids() order (the paper rows in Table 4 order)

@@ -16,6 +16,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import gymnasium as gym
 import numpy as np
+import numpy.typing as npt
 import torch
 
 import phast_gym  # noqa: F401  (registers the ids)
@@ -23,6 +24,7 @@ from phast_gym.reward import regulation_reward
 from phast_gym.systems import wrap
 
 from ..api import load_run
+from .interfaces import Trajectories
 from .model import PHAST
 
 
@@ -42,8 +44,9 @@ class PHASTWorldModelEnv(gym.Env):
     action_space: gym.spaces.Box
     real: gym.Env | None  # the real env (unwrapped) the burn-in windows come from; None for a model of recordings
 
-    def __init__(self, model: PHAST | str | Path, env_id: str | None = None, burn_in: int = 10, dataset: Any = None,
-                 max_episode_steps: int = 200, target: np.ndarray | None = None, **env_kwargs: Any) -> None:
+    def __init__(self, model: PHAST | str | Path, env_id: str | None = None, burn_in: int = 10,
+                 dataset: Trajectories | None = None, max_episode_steps: int = 200, target: np.ndarray | None = None,
+                 **env_kwargs: Any) -> None:
         super().__init__()
         self.model = load_run(model) if isinstance(model, (str, Path)) else model
         self.model.eval()
@@ -119,7 +122,7 @@ class PHASTWorldModelEnv(gym.Env):
         self._t = 0
         return self._obs(), {"burn_in": np.array(qb, copy=True)}
 
-    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
+    def step(self, action: npt.ArrayLike) -> tuple[np.ndarray, float, bool, bool, dict]:
         if self._hist is None:
             raise RuntimeError("call reset() before step()")
         a = np.asarray(action, dtype=np.float64).reshape(-1)

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from typing import Any, Protocol, runtime_checkable
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -91,6 +92,22 @@ class DampingModel(Protocol):
     def damping_diag(self, q: torch.Tensor) -> torch.Tensor: ...
 
 
+class Trajectories(Protocol):
+    """A batch of trajectories: a :class:`phast_gym.datasets.Dataset`, its full-state view, a rig's recordings.  Only
+    ``q`` (N, T, n) is asked of all; readers take ``u``, ``dt``, ``system``, ``config`` with ``getattr`` where
+    present."""
+
+    @property
+    def q(self) -> np.ndarray: ...
+
+
+class TimedTrajectories(Trajectories, Protocol):
+    """:class:`Trajectories` with their sampling interval ``dt``."""
+
+    @property
+    def dt(self) -> float: ...
+
+
 @runtime_checkable
 class ParamGroupsModel(Protocol):
     """A model that chooses its own optimizer parameter groups."""
@@ -109,5 +126,5 @@ class DataInitModel(Protocol):
 class NormalizedModel(Protocol):
     """A model that fits its input normalization to the training data before training."""
 
-    def fit_normalizer(self, q: Any, u: Any) -> None: ...
+    def fit_normalizer(self, q: np.ndarray | torch.Tensor, u: np.ndarray | torch.Tensor | None) -> None: ...
 

@@ -105,8 +105,10 @@ class PHAST(ForecastModel):
             return torch.zeros_like(q)
         return self.damping.diag(q)
 
-    def step(self, q: torch.Tensor, p: torch.Tensor, u: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-        """One observation step of the core (Strang splitting; RK4 for the predator-prey latent ODE) with port input u (..., m)."""
+    def step(self, q: torch.Tensor, p: torch.Tensor, u: torch.Tensor | None = None
+             ) -> tuple[torch.Tensor, torch.Tensor]:
+        """One observation step of the core (Strang splitting; RK4 for the predator-prey latent ODE) with port input u
+        (..., m)."""
         return self.core(q, p, self.port_force(u))
 
     def infer_state(self, q_hist: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -201,7 +203,7 @@ class PHAST(ForecastModel):
         return (qs, ps) if return_p else qs
 
     def integrate(self, q: torch.Tensor, p: torch.Tensor, u: torch.Tensor | None, start: int, H: int,
-                  **step_kw: Any) -> tuple[torch.Tensor, torch.Tensor]:
+                  **step_kw: float | torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """H steps of the core alone from the state (q, p) at sample ``start``, with u[:, start + k] held over step k
         (zeros past the end of u): (B, H, n) wrapped positions and (B, H, n) momenta.  ``step_kw`` go to the core
         (e.g. ``h`` and ``substeps`` of the Strang step)."""
@@ -249,7 +251,8 @@ class PHAST(ForecastModel):
                 out["pass"] = cfg.lambda_pass * torch.relu(H1 - H0).mean()
             if cfg.lambda_energy > 0:  # Eq. 87
                 dt = self.core.h * self.core.substeps
-                out["energy"] = cfg.lambda_energy * ((H1 - H0) / dt - self.core.power(q[:, :-1], p[:, :-1])).abs().mean()
+                out["energy"] = cfg.lambda_energy * ((H1 - H0) / dt
+                                                     - self.core.power(q[:, :-1], p[:, :-1])).abs().mean()
         if cfg.lambda_roll > 0:
             out["roll"] = cfg.lambda_roll * self._roll_loss(q, u, p, f)
         return out
@@ -360,7 +363,8 @@ class NeuralField(nn.Module):
     def __init__(self, n: int, q_scale: float, v_scale: float, hidden: int = 64) -> None:
         super().__init__()
         self.qs, self.vs = float(q_scale), float(v_scale)
-        self.f = nn.Sequential(nn.Linear(2 * n, hidden), nn.SiLU(), nn.Linear(hidden, hidden), nn.SiLU(), nn.Linear(hidden, 2 * n))
+        self.f = nn.Sequential(nn.Linear(2 * n, hidden), nn.SiLU(), nn.Linear(hidden, hidden), nn.SiLU(),
+                               nn.Linear(hidden, 2 * n))
         self.g = nn.Sequential(nn.Linear(2 * n, hidden), nn.SiLU(), nn.Linear(hidden, n))
         self.n = n
 
@@ -499,7 +503,8 @@ class LatentODEModel(PHAST):
     def param_groups(self, lr: float) -> list[dict[str, Any]]:
         prior = [self.prior_raw] if hasattr(self, "prior_raw") else []  # the prior net trains at the base lr
         rest = [p for p in self.parameters() if p.requires_grad and all(p is not x for x in prior)]
-        return [g for g in ({"params": rest, "lr": lr}, {"params": prior, "lr": lr * self.prior_lr_mult}) if g["params"]]
+        return [g for g in ({"params": rest, "lr": lr}, {"params": prior, "lr": lr * self.prior_lr_mult})
+                if g["params"]]
 
     @property
     def potential(self):  # noqa: ANN201
@@ -550,7 +555,7 @@ class _EnvScales:
     q_scale: np.ndarray
     v_scale: np.ndarray
     #: parts the components of one model share (a model file's learned body parameters, for V and M alike)
-    shared: dict[str, Any] = field(default_factory=dict)
+    shared: dict[str, LearnedBodies] = field(default_factory=dict)
 
 
 def _env_scales(env_id: str, system: System, cfg: PHASTConfig | None = None) -> _EnvScales:
@@ -764,5 +769,5 @@ def build_from_config(cfg: PHASTConfig, system: System | None = None) -> PHAST:
     return PHAST(cfg, observer, core, system, actuated)
 
 
-__all__ = ["PHAST", "PHASTConfig", "LatentODEModel", "build_from_config", "config_system", "system_scales", "n_features",
-           "coordinate_features"]
+__all__ = ["PHAST", "PHASTConfig", "LatentODEModel", "build_from_config", "config_system", "system_scales",
+           "n_features", "coordinate_features"]

@@ -27,8 +27,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, fields, replace
-from typing import Any
+from typing import Any, TypedDict
 
 from phast_gym import make_env_system, resolve_env_id
 from phast_gym.systems import System
@@ -46,15 +47,26 @@ REGIMES = ("known", "partial", "unknown")
 #: 1-epoch linear warm-up keeps the first steps at lr x 100 (the damping net) from overshooting while Adam's
 #: second-moment estimate is still empty.
 KNOWN_TRAIN_DEFAULTS: dict[str, float] = {"adam_eps": 1e-15, "warmup_epochs": 1.0}
+
+
+class Identification(TypedDict):
+    """The :class:`PHASTConfig` fields of the identification settings."""
+
+    observer_trainable: bool
+    learn_dt: bool
+    damping_lr_mult: float
+
+
 #: the identification settings (KNOWN, and PARTIAL on separable windy systems; see :func:`default_config`)
-IDENTIFICATION: dict[str, Any] = {"observer_trainable": False, "learn_dt": False, "damping_lr_mult": 100.0}
+IDENTIFICATION: Identification = {"observer_trainable": False, "learn_dt": False, "damping_lr_mult": 100.0}
 
 
 def _windy(params: dict[str, Any]) -> tuple[float | None, float]:
     """(cap = dd, base damping) of a windy system, or (None, 0) when it has no windy law."""
     dd = params.get("dd") or 0.0
     if dd > 0:
-        return float(dd), float(params.get("d0") or 0.0) + float(params.get("gamma") or 0.0) + float(params.get("b") or 0.0)
+        return float(dd), (float(params.get("d0") or 0.0) + float(params.get("gamma") or 0.0)
+                           + float(params.get("b") or 0.0))
     return None, 0.0
 
 
@@ -73,7 +85,7 @@ class Recipe:
     train: TrainConfig
 
 
-def default_config(env_id: str, regime: str, **env_kwargs: Any) -> PHASTConfig:
+def default_config(env_id: str, regime: str, **env_kwargs: object) -> PHASTConfig:
     """The default :class:`PHASTConfig` of ``regime`` for ``env_id``."""
     env_id = resolve_env_id(env_id)
     regime = _check_regime(regime)
@@ -97,7 +109,7 @@ def recipe(env_id: str, regime: str, train: TrainConfig | None = None, **overrid
 
 
 def _default_config(env_id: str, regime: str, system: System,
-                    env_kwargs: dict[str, Any]) -> tuple[PHASTConfig, dict[str, float]]:
+                    env_kwargs: Mapping[str, object]) -> tuple[PHASTConfig, dict[str, float]]:
     """(:func:`default_config`, its trainer settings) of a resolved ``env_id`` and checked ``regime`` whose
     ``system`` is already built; the trainer settings are KNOWN_TRAIN_DEFAULTS with the identification settings.
 
@@ -106,7 +118,8 @@ def _default_config(env_id: str, regime: str, system: System,
     if not system.hamiltonian_system:
         # learned start-up latents: Eq. 90 scores the first predictions too, where the history is shorter than
         # the backward difference
-        return replace(base, kind="latent_ode", ode_field={"known": "known", "partial": "template", "unknown": "neural"}[regime],
+        ode_field = {"known": "known", "partial": "template", "unknown": "neural"}[regime]
+        return replace(base, kind="latent_ode", ode_field=ode_field,
                        potential="none", mass="none", damping="none", latent_prior="learned"), {}
     n = system.n
     info = ENV_INFO[env_id]
@@ -124,7 +137,8 @@ def _default_config(env_id: str, regime: str, system: System,
     mass_tmpl = info.partial_mass_template(system)
     if regime == "partial":
         cap, base_d = _windy(system.params)
-        mass = {"mass": "template", "mass_template": mass_tmpl} if mass_tmpl else {"mass": "lowrank", "mass_rank": min(4, n)}
+        mass = ({"mass": "template", "mass_template": mass_tmpl} if mass_tmpl
+                else {"mass": "lowrank", "mass_rank": min(4, n)})
         cfg = replace(base, potential="hybrid", template=tmpl, template_dims=dims, **mass,
                       damping_cap=cap, d0=base_d, learn_d0=cap is None, canonicalizer="mass")
         # the identification settings on every row (a trainable observer, a learnable dt and L = 1 let the observer

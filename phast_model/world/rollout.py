@@ -7,15 +7,13 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 import torch
 
 from .interfaces import ForecastModel, TakeoverModel
 
 
-def _u(u: np.ndarray | torch.Tensor | None, sl: Any, dtype: torch.dtype) -> torch.Tensor | None:
+def _u(u: np.ndarray | torch.Tensor | None, sl: slice | tuple[slice, ...], dtype: torch.dtype) -> torch.Tensor | None:
     if u is None or np.size(u) == 0:
         return None
     return torch.as_tensor(np.asarray(u[sl]), dtype=dtype)
