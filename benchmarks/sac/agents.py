@@ -14,6 +14,7 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+from gymnasium.wrappers import TimeLimit
 from stable_baselines3 import SAC
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.monitor import Monitor
@@ -62,9 +63,9 @@ def make_agent_env(name: str, cfg: SacConfig, seed: int) -> tuple[gym.Env, Inner
         return env, env
     if name == "sac-real":
         inner: InnerEnv = RepeatRegimeEnv(make_control_env(ControlProtocol(cfg.env, horizon=10**9), cfg.sigma),
-                                          cfg.repeat, cfg.episode_decisions, cfg.max_action, cfg.q_star,
-                                          reward_of(cfg), seed=seed, regimes=regimes_of(cfg))
-        return FrameObs(inner, cfg.frames, cfg.obs), inner
+                                          cfg.repeat, cfg.max_action, cfg.q_star, reward_of(cfg), seed=seed,
+                                          regimes=regimes_of(cfg))
+        return FrameObs(TimeLimit(inner, cfg.episode_decisions), cfg.frames, cfg.obs), inner
     from phast_model.world.gym_env import PHASTWorldModelEnv
 
     assert cfg.phast_run is not None  # SacConfig requires it of sac-world

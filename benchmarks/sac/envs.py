@@ -68,19 +68,19 @@ class RepeatRegimeEnv(gym.Wrapper):
 
     Resets draw from an own generator (seeded by ``seed`` or the first ``reset(seed=...)``), so a training
     run is reproducible; ``reset(options={"state": x0})`` starts from ``x0``.  ``plant_steps`` counts the
-    plant steps (real-env samples) consumed.
+    plant steps (real-env samples) consumed.  Episodes have no end of their own: Gymnasium's ``TimeLimit`` ends
+    them after the episode's decisions (:func:`benchmarks.sac.agents.make_agent_env`).
     """
 
-    def __init__(self, env: gym.Env, repeat: int, episode_decisions: int, max_action: float, q_star: float = 0.0,
-                 reward: str | Reward = "zoo", seed: int | None = None, regimes: Sequence[str] = tuple(START_REGIMES)) -> None:
+    def __init__(self, env: gym.Env, repeat: int, max_action: float, q_star: float = 0.0, reward: str | Reward = "zoo",
+                 seed: int | None = None, regimes: Sequence[str] = tuple(START_REGIMES)) -> None:
         super().__init__(env)
         self.regimes = check_regimes(regimes)
         self.q_star, self.reward_fn = q_star, reward if isinstance(reward, Reward) else Reward(reward)
-        self.repeat, self.episode_decisions = repeat, episode_decisions
+        self.repeat = repeat
         self.action_space = gym.spaces.Box(-1.0, 1.0, shape=env.action_space.shape, dtype=np.float32)
         self.max_action = max_action
         self._rng = np.random.default_rng(seed)
-        self._k = 0
         self.plant_steps = 0
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
@@ -90,7 +90,6 @@ class RepeatRegimeEnv(gym.Wrapper):
         if options.get("state") is None:
             regime = self.regimes[int(self._rng.integers(len(self.regimes)))]
             options["state"] = sample_start_states(plant_system(self.env), regime, self._rng, 1)[0]
-        self._k = 0
         return self.env.reset(seed=int(self._rng.integers(2**31)), options=options)
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict]:
@@ -109,9 +108,8 @@ class RepeatRegimeEnv(gym.Wrapper):
             self.plant_steps += 1
             if term:
                 break
-        self._k += 1
         info = {**info, "plant_u": us, "plant_err": errs}
-        return obs, total / len(us), term, trunc or self._k >= self.episode_decisions, info
+        return obs, total / len(us), term, trunc, info
 
 
 class RegimeWorldEnv(gym.Wrapper):

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from gymnasium.wrappers import TimeLimit
 
 import benchmarks.sac.config as sac_module
 import benchmarks.sac.world_data as wd
@@ -63,9 +64,8 @@ def test_rewards() -> None:
 
 
 def test_frame_stack_reset_and_decision_rate() -> None:
-    env = RepeatRegimeEnv(make_control_env(ControlProtocol(horizon=10**9), 0.0), repeat=5, episode_decisions=3,
-                             max_action=10.0, seed=0)
-    fo = FrameObs(env, frames=3)
+    env = RepeatRegimeEnv(make_control_env(ControlProtocol(horizon=10**9), 0.0), repeat=5, max_action=10.0, seed=0)
+    fo = FrameObs(TimeLimit(env, 3), frames=3)
     x0 = np.array([0.4, 0.0])
     obs, _ = fo.reset(seed=1, options={"state": x0})
     # filled with copies of the first measurement
@@ -77,7 +77,7 @@ def test_frame_stack_reset_and_decision_rate() -> None:
     assert obs2[2] != pytest.approx(obs2[1])
     assert env.plant_steps == 10
     _, _, _, trunc, _ = fo.step(np.zeros(1))
-    assert trunc  # episode_decisions
+    assert trunc  # episode_decisions: Gymnasium's TimeLimit
     # a second reset forgets the previous episode's frames
     obs, _ = fo.reset(options={"state": np.array([-1.0, 0.0])})
     assert np.allclose(obs[:3], math.sin(-1.0))
@@ -85,7 +85,7 @@ def test_frame_stack_reset_and_decision_rate() -> None:
 
 def test_seeded_resets_are_reproducible() -> None:
     def starts(seed: int) -> list[float]:
-        env = RepeatRegimeEnv(make_control_env(ControlProtocol(horizon=10**9), 0.01), 5, 200, 10.0, seed=seed)
+        env = RepeatRegimeEnv(make_control_env(ControlProtocol(horizon=10**9), 0.01), 5, 10.0, seed=seed)
         return [float(env.reset()[0][0]) for _ in range(4)]
 
     assert starts(3) == starts(3)
@@ -111,7 +111,7 @@ def test_plant_evaluation_frames_match_training() -> None:
     from phast_gym.control.evaluation import stable_seed
 
     x0 = next(iter(start_states(protocol, 1, 0).values()))[0]
-    fo = FrameObs(RepeatRegimeEnv(make_control_env(ControlProtocol(horizon=10**9), 0.0), 5, 10, 10.0), 3)
+    fo = FrameObs(RepeatRegimeEnv(make_control_env(ControlProtocol(horizon=10**9), 0.0), 5, 10.0), 3)
     obs, _ = fo.reset(seed=stable_seed(0, "noise", "near_stable", 0), options={"state": x0})
     for k in range(10):
         assert np.allclose(first[k], obs, atol=1e-6), k
@@ -152,7 +152,7 @@ def test_plant_angle_convention_and_upright_reward() -> None:
         env.reset(seed=0, options={"state": np.array([q0, 0.0])})
         qs = np.array([env.step(np.zeros(1))[4]["state"][0] for _ in range(200)])
         assert bool(np.max(np.abs(wrap(qs - centre))) < 0.31) is stays, q0
-    upright = RepeatRegimeEnv(make_control_env(ControlProtocol(horizon=10**9), 0.0), 5, 200, 10.0, q_star=math.pi)
+    upright = RepeatRegimeEnv(make_control_env(ControlProtocol(horizon=10**9), 0.0), 5, 10.0, q_star=math.pi)
     for q0, err in ((math.pi, 0.0), (-math.pi + 0.01, 0.01), (math.pi - 0.01, 0.01), (0.0, math.pi)):
         upright.reset(seed=0, options={"state": np.array([q0, 0.0])})
         _, r, *_, info = upright.step(np.zeros(1))
@@ -211,7 +211,7 @@ def test_state_observation_ablation_matches_evaluation() -> None:
     from phast_gym.control.evaluation import stable_seed
 
     x0 = next(iter(start_states(protocol, 1, 0).values()))[0]
-    fo = FrameObs(RepeatRegimeEnv(make_control_env(ControlProtocol(horizon=10**9), 0.01), 5, 6, 10.0), 3, "state")
+    fo = FrameObs(RepeatRegimeEnv(make_control_env(ControlProtocol(horizon=10**9), 0.01), 5, 10.0), 3, "state")
     assert fo.observation_space.shape == (3,)
     obs, info = fo.reset(seed=stable_seed(0, "noise", "near_stable", 0), options={"state": x0})
     assert np.allclose(obs, [math.sin(x0[0]), math.cos(x0[0]), x0[1]], atol=1e-6)
