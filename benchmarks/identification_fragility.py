@@ -8,7 +8,11 @@ The study, and how to run it against another checkout's code: benchmarks/fragili
 
 from __future__ import annotations
 
-from benchmarks.fragility import main
+import sys
+from pathlib import Path
 
 if __name__ == "__main__":
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # the repository root: benchmarks.fragility
+    from benchmarks.fragility import main
+
     raise SystemExit(main())

@@ -4,8 +4,8 @@ episode length as phast-rl's world-model env.  UMAX=30 python sac_true_plant.py 
 import math, sys, time, json, numpy as np, torch, gymnasium as gym
 torch.set_num_threads(1)
 import os; UMAX = float(os.environ.get("UMAX", "10"))
-from phast_model.rl.plant import PlantSpec, Task, make_plant, run_episode, quiet_metrics
-from phast_model.rl.envs import ObsBuilder
+from phast_model.rl.plant import PlantSpec, Task, make_plant, record_episode, quiet_metrics
+from phast_model.rl.observation import ObsBuilder
 from phast_model.rl.loop import make_agent, LoopConfig, AgentSpec
 from phast_model.rl.hold import HybridPolicy
 from phast_gym.systems.base import wrap
@@ -49,7 +49,7 @@ def main():
         rng = np.random.default_rng(1)
         res = []
         for x0 in Task("swingup").start_states(plant.system, rng, 3):
-            ep = run_episode(plant, pol, x0, 800, int(rng.integers(1000)), "evaluation")
+            ep = record_episode(plant, pol, x0, 800, int(rng.integers(1000)), "evaluation")
             err = np.abs(wrap(ep.x[:, 1] - math.pi))
             res.append((round(float(err.min()), 2), round(float(err[-100:].max()), 2), round(float(np.abs(ep.x[:, 0]).max()), 1)))
         print(f"{(chunk+1)*5000} decisions {time.time()-t0:.0f}s: (min err, last-1s max err, max|x|) {res}", flush=True)
