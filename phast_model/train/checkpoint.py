@@ -10,6 +10,7 @@ import io
 import json
 import pickle
 import zipfile
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -27,12 +28,12 @@ MODEL_FILE, CONFIG_FILE = "model.pt", "config.json"
 IDENTITY_KEY = "_phast_run_identity"
 
 
-def atomic_write_json(path: Path, obj: Any) -> None:
+def atomic_write_json(path: Path, obj: object) -> None:
     """config.json / metrics.json writer: sorted keys, atomic."""
     _atomic_write_json(path, obj, indent=2, sort_keys=True)
 
 
-def atomic_torch_save(obj: Any, path: str | Path) -> Path:
+def atomic_torch_save(obj: object, path: str | Path) -> Path:
     """``torch.save(obj)`` serialized in memory, then written with :func:`phast_gym.fileio.atomic_write_bytes`:
     a reader (or a killed writer) never leaves a partial file at ``path``."""
     buf = io.BytesIO()
@@ -40,7 +41,7 @@ def atomic_torch_save(obj: Any, path: str | Path) -> Path:
     return atomic_write_bytes(path, buf.getvalue())
 
 
-def save_run(model: PHAST, run_dir: str | Path, extra: dict[str, Any] | None = None) -> Path:
+def save_run(model: PHAST, run_dir: str | Path, extra: Mapping[str, object] | None = None) -> Path:
     """Write ``model.pt`` and ``config.json`` (the model's :class:`PHASTConfig` plus ``extra``) to ``run_dir``."""
     run_dir = Path(run_dir)
     cfg = getattr(model, "config", None)
@@ -57,12 +58,12 @@ def save_run(model: PHAST, run_dir: str | Path, extra: dict[str, Any] | None = N
     return run_dir
 
 
-def _identity(meta: dict[str, Any]) -> dict[str, Any]:
+def _identity(meta: Mapping[str, object]) -> dict[str, object]:
     """What identifies a run in its config.json: everything but the format fields."""
     return {k: v for k, v in meta.items() if k not in ("format", "version")}
 
 
-def _identity_json(meta: dict[str, Any]) -> str:
+def _identity_json(meta: Mapping[str, object]) -> str:
     return json.dumps(_identity(meta), sort_keys=True, default=str)
 
 
@@ -70,11 +71,12 @@ def _identity_json(meta: dict[str, Any]) -> str:
 _FIRST = ("env_id", "regime", "model", "data", "train")
 
 
-def first_difference(stored: Any, wanted: Any, prefix: str = "") -> tuple[str, Any, Any] | None:
+def first_difference(stored: object, wanted: object, prefix: str = "") -> tuple[str, object, object] | None:
     """(dotted field, stored value, wanted value) of the first field where two JSON values differ (env, regime,
     model, data and training fields first), else None."""
     if isinstance(stored, dict) and isinstance(wanted, dict):
-        for k in sorted(set(stored) | set(wanted), key=lambda k: (k not in _FIRST, _FIRST.index(k) if k in _FIRST else 0, k)):
+        for k in sorted(set(stored) | set(wanted),
+                        key=lambda k: (k not in _FIRST, _FIRST.index(k) if k in _FIRST else 0, k)):
             d = first_difference(stored.get(k, "<absent>"), wanted.get(k, "<absent>"), f"{prefix}{k}.")
             if d is not None:
                 return d
@@ -92,7 +94,8 @@ def read_config(run_dir: str | Path) -> dict[str, Any]:
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ValueError(f"corrupted {path}: {exc}") from None
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-        raise ValueError(f"{path} is not a PHAST run config (format {meta.get('format') if isinstance(meta, dict) else None!r})")
+        raise ValueError(f"{path} is not a PHAST run config "
+                         f"(format {meta.get('format') if isinstance(meta, dict) else None!r})")
     if meta.get("version") != VERSION:
         raise ValueError(f"{path} has version {meta.get('version')!r}; this phast reads version {VERSION}")
     return meta
@@ -107,7 +110,8 @@ def torch_load(path: str | Path, what: str = "checkpoint") -> Any:
     try:
         size = path.stat().st_size
         if size == 0:
-            raise ValueError(f"corrupted or unreadable {what} {path}: the file is empty (0 bytes; an interrupted write?)")
+            raise ValueError(f"corrupted or unreadable {what} {path}: the file is empty "
+                             "(0 bytes; an interrupted write?)")
         if not zipfile.is_zipfile(path):
             raise ValueError(f"corrupted or unreadable {what} {path}: truncated or not a torch checkpoint "
                              f"({size} bytes, no zip directory)")
@@ -116,7 +120,8 @@ def torch_load(path: str | Path, what: str = "checkpoint") -> Any:
         if str(exc).startswith("corrupted or unreadable"):
             raise
         reason: Exception = exc
-    except (RuntimeError, EOFError, pickle.UnpicklingError, zipfile.BadZipFile, OSError, AttributeError, KeyError) as exc:
+    except (RuntimeError, EOFError, pickle.UnpicklingError, zipfile.BadZipFile, OSError, AttributeError,
+            KeyError) as exc:
         reason = exc
     text = getattr(reason, "strerror", None) or (str(reason).splitlines() or [""])[0]
     raise ValueError(f"corrupted or unreadable {what} {path}: {type(reason).__name__}"

@@ -11,6 +11,7 @@ add losses through an optional ``model.extra_losses(q, u, pred) -> dict[str, Ten
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -18,7 +19,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..world.interfaces import DataInitModel, ForecastModel, coordinate_error
+from ..world.interfaces import DataInitModel, ForecastModel, Trajectories, coordinate_error
 from .config import TrainConfig
 from .groups import param_groups
 from .loop import (
@@ -55,7 +56,7 @@ class FitResult:
     stopped_early: bool = False
 
 
-def _tensors(ds: Any, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor | None]:
+def _tensors(ds: Trajectories, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor | None]:
     """Dataset -> (q (N, T, n), u (N, T-1, m) or None)."""
     q = torch.as_tensor(np.asarray(ds.q), dtype=dtype)
     u = getattr(ds, "u", None)
@@ -130,7 +131,8 @@ class NextStep:
 
     checkpoint_format, kind = CHECKPOINT_FORMAT, "an --env run"
 
-    def __init__(self, model: ForecastModel, train: Any, val: Any, cfg: TrainConfig, dtype: torch.dtype) -> None:
+    def __init__(self, model: ForecastModel, train: Trajectories, val: Trajectories, cfg: TrainConfig,
+                 dtype: torch.dtype) -> None:
         self.model, self.cfg = model, cfg
         self.q, self.u = _tensors(train, dtype)
         self.q_val, self.u_val = _tensors(val, dtype)
@@ -154,7 +156,7 @@ class NextStep:
     def begin_epoch(self, epoch: int) -> None:
         return None
 
-    def batches(self, gen: torch.Generator) -> Any:
+    def batches(self, gen: torch.Generator) -> Iterator[tuple[torch.Tensor, torch.Tensor | None]]:
         perm = torch.randperm(self.q.shape[0], generator=gen)
         bs = self.cfg.batch_size
         for b in range(self.n_batches):
@@ -176,17 +178,17 @@ class NextStep:
         return validation_loss(self.model, self.q_val, self.u_val, self.cfg.val_batch_size, self.skip)
 
     def record(self, epoch: int, train_loss: float, val_loss: float | None, lr: float, time_s: float,
-               guard: NanCounts) -> dict[str, Any]:
-        rec: dict[str, Any] = {"epoch": epoch, "train_loss": train_loss, "lr": lr, "time_s": time_s,
+               guard: NanCounts) -> dict[str, float]:
+        rec: dict[str, float] = {"epoch": epoch, "train_loss": train_loss, "lr": lr, "time_s": time_s,
                                "nan_events": guard.total}
         if val_loss is not None:
             rec["val_loss"] = val_loss
         return rec
 
-    def state(self) -> dict[str, Any]:
+    def state(self) -> dict[str, object]:
         return {}
 
-    def load_state(self, saved: dict[str, Any]) -> None:
+    def load_state(self, saved: Mapping[str, object]) -> None:
         return None
 
 
@@ -197,8 +199,9 @@ def loop_config(cfg: TrainConfig, desc: str = "fit") -> LoopConfig:
                       progress=cfg.progress, desc=desc)
 
 
-def fit(model: ForecastModel, train: Any, val: Any, cfg: TrainConfig | None = None,
-        run_dir: str | Path | None = None, resume: bool = False, identity: dict[str, Any] | None = None) -> FitResult:
+def fit(model: ForecastModel, train: Trajectories, val: Trajectories, cfg: TrainConfig | None = None,
+        run_dir: str | Path | None = None, resume: bool = False,
+        identity: Mapping[str, object] | None = None) -> FitResult:
     """Train ``model`` on ``train`` (a :class:`phast_gym.datasets.Dataset` or anything with ``q``/``u``),
     select on ``val``; returns a :class:`FitResult` whose ``.model`` holds the best-validation weights.
 

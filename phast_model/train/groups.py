@@ -25,8 +25,9 @@ def param_groups(model: torch.nn.Module, lr: float, friction_lr_mult: float | No
     """The optimizer groups of ``model`` at base learning rate ``lr``.
 
     The model's own groups (``model.param_groups(lr)``: PHAST's damping network at ``damping_lr_mult`` x lr), else one
-    group of its trainable parameters.  With ``friction_lr_mult`` (the rig path, :class:`phast_model.train.rig_fit.RigTrainConfig`)
-    every group is split into one group per parameter tensor at relative rates:
+    group of its trainable parameters.  With ``friction_lr_mult`` (the rig path,
+    :class:`phast_model.train.rig_fit.RigTrainConfig`) every group is split into one group per parameter tensor at
+    relative rates:
 
     * friction coefficients and a component's ``relative_parameters()`` at ``friction_lr_mult`` x the group's lr:
       their softplus makes Adam's steps relative, and at the base lr a coefficient moves by ~e^(lr x steps), too

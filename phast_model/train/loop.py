@@ -23,7 +23,7 @@ import copy
 import json
 import math
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
@@ -160,7 +160,7 @@ class _State:
     """Everything a run carries from epoch to epoch; the checkpoint stores it and a resume restores it."""
 
     gen: torch.Generator
-    best_state: dict[str, Any]
+    best_state: dict[str, torch.Tensor]
     optim: Optim | None = None
     history: list[dict[str, Any]] = field(default_factory=list)
     best_val: float = math.inf
@@ -178,7 +178,7 @@ def finite_params(model: torch.nn.Module) -> bool:
     return all(bool(torch.isfinite(p).all()) for p in model.parameters())
 
 
-def scale_lr(opt: torch.optim.Optimizer, sched: Any, factor: float) -> None:
+def scale_lr(opt: torch.optim.Optimizer, sched: torch.optim.lr_scheduler.LRScheduler, factor: float) -> None:
     """Multiply every group's learning rate by ``factor``, now and in the schedule's base rates."""
     for g in opt.param_groups:
         g["lr"] *= factor
@@ -189,11 +189,11 @@ def scale_lr(opt: torch.optim.Optimizer, sched: Any, factor: float) -> None:
 _NOT_IDENTITY = ("progress",)
 
 
-def _canonical(obj: Any) -> Any:
+def _canonical(obj: object) -> Any:
     return json.loads(json.dumps(obj, sort_keys=True, default=str))
 
 
-def run_identity(cfg: DataclassInstance, identity: dict[str, Any] | None = None) -> dict[str, Any]:
+def run_identity(cfg: DataclassInstance, identity: Mapping[str, object] | None = None) -> dict[str, Any]:
     """What a checkpoint must match to be resumed: the training config (a :class:`TrainConfig`, or the rig path's
     :class:`phast_model.train.rig_fit.RigTrainConfig`; all its fields but ``progress``) and the caller's
     ``identity`` (env, regime, data, model overrides ...), as canonical JSON values."""
@@ -214,7 +214,7 @@ def load_checkpoint(ckpt_path: Path) -> dict[str, Any]:
     return ck
 
 
-def check_resume(ckpt_path: str | Path, cfg: DataclassInstance, identity: dict[str, Any] | None = None,
+def check_resume(ckpt_path: str | Path, cfg: DataclassInstance, identity: Mapping[str, object] | None = None,
                  ck: dict[str, Any] | None = None) -> None:
     """ValueError naming the first differing field when ``ckpt_path`` was written by another run (env, regime,
     data, training config ...); nothing to check when it does not exist.  Cheap enough to call before any work."""
@@ -254,7 +254,7 @@ def guarded_step(opt: torch.optim.Optimizer, model: torch.nn.Module, loss: torch
     return OK if finite_params(model) else ROLL_BACK
 
 
-def _roll_back(model: torch.nn.Module, optim: Optim, good_model: dict[str, Any], good_opt: dict[str, Any],
+def _roll_back(model: torch.nn.Module, optim: Optim, good_model: dict[str, torch.Tensor], good_opt: dict[str, Any],
                factor: float) -> None:
     """Restore the model and optimizer of the epoch's start and continue the schedule from where it stands at
     ``factor`` x its learning rates."""
@@ -292,7 +292,7 @@ def _train_pass(state: _State, obj: Objective, optim: Optim, cfg: LoopConfig) ->
 
 # --------------------------------------------------------------------------- checkpoints
 def _save(state: _State, obj: Objective, path: Path | None, run_cfg: DataclassInstance,
-          identity: dict[str, Any] | None, epoch: int) -> None:
+          identity: Mapping[str, object] | None, epoch: int) -> None:
     """Write the checkpoint atomically (nothing without a run directory): what :func:`_restore` reads back; plain
     Python values and tensors only, so it loads with ``weights_only=True``."""
     if path is None or state.optim is None:
@@ -308,7 +308,7 @@ def _save(state: _State, obj: Objective, path: Path | None, run_cfg: DataclassIn
     }, path)
 
 
-def _model_state(saved: Any, model: torch.nn.Module, what: str) -> dict[str, torch.Tensor]:
+def _model_state(saved: object, model: torch.nn.Module, what: str) -> dict[str, torch.Tensor]:
     """A state dict of the checkpoint, checked to fit ``model`` (the same entries, each of the same shape)."""
     ref = model.state_dict()
     if not (isinstance(saved, dict) and saved.keys() == ref.keys()
@@ -336,8 +336,8 @@ def _load(state: _State, obj: Objective, ck: dict[str, Any], epochs: int) -> Non
     state.stopped, state.elapsed0 = bool(ck["stopped"]), float(ck["elapsed"])
 
 
-def _restore(state: _State, obj: Objective, path: Path, run_cfg: DataclassInstance, identity: dict[str, Any] | None,
-             epochs: int) -> None:
+def _restore(state: _State, obj: Objective, path: Path, run_cfg: DataclassInstance,
+             identity: Mapping[str, object] | None, epochs: int) -> None:
     """Continue from the checkpoint at ``path``; ValueError when it is unreadable, of another kind of run or of
     another run (:func:`check_resume` names the differing field)."""
     ck = load_checkpoint(path)
@@ -402,7 +402,7 @@ def _run_epochs(state: _State, obj: Objective, cfg: LoopConfig, save: Callable[[
 
 
 def train_loop(obj: Objective, cfg: LoopConfig, run_cfg: DataclassInstance, ckpt_path: Path | None = None,
-               resume: bool = False, identity: dict[str, Any] | None = None) -> LoopResult:
+               resume: bool = False, identity: Mapping[str, object] | None = None) -> LoopResult:
     """Train ``obj.model`` on the objective ``obj`` for up to ``cfg.epochs`` epochs; returns a :class:`LoopResult`
     whose model holds the best-validation weights.
 

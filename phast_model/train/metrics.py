@@ -8,7 +8,7 @@ first H open-loop steps after a burn-in of K = 10 true samples.
 from __future__ import annotations
 
 import math
-from typing import Any
+from collections.abc import Mapping
 
 import numpy as np
 import torch
@@ -17,7 +17,7 @@ from phast_gym import make_env_system, resolve_env_id
 from phast_gym.systems import NUMPY, System, angle_diff, fd_velocity, split
 
 from ..world.envinfo import ENV_INFO
-from ..world.interfaces import DampingModel, ForecastModel
+from ..world.interfaces import DampingModel, ForecastModel, TimedTrajectories, Trajectories
 from ..world.rollout import batched_predict, batched_rollout
 
 
@@ -54,13 +54,14 @@ def _fd_energy(system: System, q: np.ndarray, dt: float, angle_dims: tuple[int, 
 
 
 def env_energy(env: System | str, q: np.ndarray, dt: float, angle_dims: tuple[int, ...],
-               env_kwargs: dict[str, Any] | None = None) -> np.ndarray:
+               env_kwargs: Mapping[str, object] | None = None) -> np.ndarray:
     """The env's energy H(q, M(q) qdot_fd) along trajectories (..., T, n) -> (..., T-1), through the system's own
     functions (finite-difference velocities, wrapped on angles); ``env`` is the system (e.g. a dataset's
     ``system``) or an env id built with ``env_kwargs``.  ValueError for a system with no mechanical energy."""
     system = make_env_system(env, **(env_kwargs or {})) if isinstance(env, str) else env
     if not system.hamiltonian_system:  # e.g. predator-prey: no M(q), its invariant needs the unobserved latent
-        raise ValueError(f"{env if isinstance(env, str) else system.name} is not port-Hamiltonian: no energy H(q, M(q) qdot)")
+        raise ValueError(f"{env if isinstance(env, str) else system.name} is not port-Hamiltonian: "
+                         "no energy H(q, M(q) qdot)")
     return _fd_energy(system, q, dt, angle_dims)[0]
 
 
@@ -76,7 +77,7 @@ def energy_diagnostics(system: System, q_roll: np.ndarray, dt: float, angle_dims
     return float(np.abs(rho).mean()), float((dH > tol).mean())
 
 
-def data_system(ds: Any) -> System | None:
+def data_system(ds: Trajectories) -> System | None:
     """The physics that generated dataset ``ds``: its ``system`` (built once by :func:`phast_gym.make_dataset`),
     else one built from its ``env_id`` and the parameters in its ``config``; None without an env id."""
     system = getattr(ds, "system", None)
@@ -86,7 +87,8 @@ def data_system(ds: Any) -> System | None:
     return make_env_system(env_id, **_env_kwargs(ds)) if env_id else None
 
 
-def forecast_metrics(model: ForecastModel, test: Any, horizons: tuple[int, ...] = (10, 50, 100), burn_in: int = 10,
+def forecast_metrics(model: ForecastModel, test: TimedTrajectories, horizons: tuple[int, ...] = (10, 50, 100),
+                     burn_in: int = 10,
                      batch_size: int = 256, takeover: bool = True, energy: bool = True) -> dict[str, float]:
     """Table 16 metrics of ``model`` on ``test`` (a Dataset): one-step, autoregressive and takeover
     rollouts at each H, damping R^2 / MAE (models with a damping field), energy-budget residual and
@@ -137,10 +139,11 @@ def damping_scores(d_hat: np.ndarray, d: np.ndarray) -> dict[str, float]:
     spread = float(((d - d.mean()) ** 2).sum())
     sse = float(((d_hat - d) ** 2).sum())
     varies = spread > 1e-12 * max(float((d * d).sum()), 1e-300)
-    return {"damping_r2": 1.0 - sse / spread if varies else float("nan"), "damping_mae": float(np.abs(d_hat - d).mean())}
+    return {"damping_r2": 1.0 - sse / spread if varies else float("nan"),
+            "damping_mae": float(np.abs(d_hat - d).mean())}
 
 
-def _env_kwargs(ds: Any) -> dict[str, Any]:
+def _env_kwargs(ds: Trajectories) -> dict[str, object]:
     """Physical parameters a dataset was generated with (non-default envs)."""
     cfg = getattr(ds, "config", {}) or {}
     params = cfg.get("params") or {}

@@ -8,14 +8,20 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from types import ModuleType
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from phast_gym.systems import System, break_at_wraps, fd_velocity
 
+from ..world.interfaces import ForecastModel
 
-def _save(plt: Any, fig: Any, path: Path) -> Path:
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+
+def _save(plt: ModuleType, fig: Figure, path: Path) -> Path:
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
@@ -53,7 +59,8 @@ class RolloutView:
         return truth, np.concatenate([truth[:, :1], self.roll[b:b + 1]], 1)
 
 
-def make_plots(model: Any, test: Any, out: Path, burn_in: int = 10, H: int = 100, n_show: int = 4) -> list[Path]:
+def make_plots(model: ForecastModel, test: Any, out: Path, burn_in: int = 10, H: int = 100,
+               n_show: int = 4) -> list[Path]:
     """rollout.png (rollout vs truth), phase.png, damping.png (learned vs true), energy.png; returns the paths."""
     import matplotlib
 
@@ -77,7 +84,7 @@ def make_plots(model: Any, test: Any, out: Path, burn_in: int = 10, H: int = 100
     return paths
 
 
-def plot_rollout(plt: Any, view: RolloutView) -> Any:
+def plot_rollout(plt: ModuleType, view: RolloutView) -> Figure:
     """Each coordinate over time: truth (solid) and the rollout after the burn-in (dashed)."""
     n, end = view.q.shape[-1], view.burn_in + view.H
     fig, axes = plt.subplots(n, 1, figsize=(8, 2.2 * n), squeeze=False)
@@ -92,7 +99,7 @@ def plot_rollout(plt: Any, view: RolloutView) -> Any:
     return fig
 
 
-def plot_phase(plt: Any, view: RolloutView) -> Any:
+def plot_phase(plt: ModuleType, view: RolloutView) -> Figure:
     """Phase portrait of coordinate 0 (finite-difference velocity), truth against rollout."""
     fig, ax = plt.subplots(figsize=(5, 4))
     for b in range(len(view.q)):
@@ -106,7 +113,7 @@ def plot_phase(plt: Any, view: RolloutView) -> Any:
     return fig
 
 
-def plot_damping(plt: Any, model: Any, test: Any, n_traj: int = 64) -> Any:
+def plot_damping(plt: ModuleType, model: Any, test: Any, n_traj: int = 64) -> Figure:
     """The learned damping diagonal D_ii(q) against the env's true one along the test trajectories."""
     import torch
 
@@ -125,7 +132,7 @@ def plot_damping(plt: Any, model: Any, test: Any, n_traj: int = 64) -> Any:
     return fig
 
 
-def plot_energy(plt: Any, view: RolloutView, system: System) -> Any:
+def plot_energy(plt: ModuleType, view: RolloutView, system: System) -> Figure:
     """The energy of the data's ``system`` (finite-difference velocities) along truth and rollout."""
     from .metrics import env_energy
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 import torch
@@ -87,7 +87,14 @@ def system_rollouts(system: System, w: HeldoutWindows, dt: float, angle_dims: tu
     return torch.as_tensor(simulate_qv(system, X[:, :n], X[:, n:], w.burn + w.H - 1, u, dt, sub))
 
 
-def _score(sim: torch.Tensor, w: HeldoutWindows, angle_dims: tuple[int, ...]) -> dict[str, Any]:
+class HeldoutScore(TypedDict):
+    """One model's score on the held-out windows."""
+
+    rollout_rmse: float
+    per_window_rmse: list[float]
+
+
+def _score(sim: torch.Tensor, w: HeldoutWindows, angle_dims: tuple[int, ...]) -> HeldoutScore:
     err = coordinate_error(sim[:, w.burn:], w.q[:, w.burn:], angle_dims)
     rmse = float(torch.sqrt((err ** 2).mean()))
     return {"rollout_rmse": rmse if math.isfinite(rmse) else float("inf"),

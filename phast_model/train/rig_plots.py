@@ -4,17 +4,24 @@ non-parametric friction curve of ``phast-mismatch`` (:func:`phast_model.identify
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from types import ModuleType
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
 
+from phast_gym.systems import System
+
 from ..identify.frictioncurve import FrictionCurve, friction_curve
 from ..identify.recordings import Recordings
+from ..world.model import PHAST
 from .rig_heldout import HeldoutWindows
 
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
-def _pyplot() -> Any:
+
+def _pyplot() -> ModuleType:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -23,7 +30,7 @@ def _pyplot() -> Any:
     return plt
 
 
-def _save(fig: Any, path: Path) -> Path:
+def _save(fig: Figure, path: Path) -> Path:
     tmp = path.with_name(path.stem + ".tmp.png")
     fig.savefig(tmp, dpi=110)
     tmp.replace(path)
@@ -58,7 +65,8 @@ def band_forces(model: Any, curve: FrictionCurve) -> list[float]:
     """Mean sign(v) f_i(v) of the learned joint friction over each band's samples of the curve's smoothed velocities
     (the bands and velocities of the curve, so the two are compared sample for sample)."""
     if curve.weak is None:
-        raise ValueError("this FrictionCurve carries no weak form (built from a dict?); recompute it with friction_curve")
+        raise ValueError("this FrictionCurve carries no weak form (built from a dict?); "
+                         "recompute it with friction_curve")
     vs = curve.weak.vs
     out = []
     for band, mask in zip(curve.bands, curve.band_index):
@@ -86,7 +94,7 @@ def friction_check(model: Any, curve: FrictionCurve) -> dict[str, Any]:
     return out
 
 
-def plot_friction(model: Any, system: Any, rec: Recordings, path: Path) -> dict[str, Any]:
+def plot_friction(model: PHAST, system: System, rec: Recordings, path: Path) -> dict[str, Any]:
     """The friction curve of the recordings under the nominal rig (bands, 95% intervals) with the learned law
     (in the same bands, and as f_i(v) on a speed grid); returns :func:`friction_check`."""
     if model.friction is None:

@@ -1,9 +1,9 @@
 """``phast-train --recordings``: a run directory of a world model learned from a rig's recordings.
 
 :func:`train_recordings_run` checks everything first (recordings, rig, held-out indices, room for the held-out
-windows), trains by multiple shooting (:func:`phast_model.train.rig_fit.fit_recordings`), scores PHAST and the nominal rig on
-the held-out recordings by the same code (:func:`phast_model.train.rig_heldout.heldout_rollouts`) and writes ``model.pt`` +
-``config.json`` (opened by :func:`phast_model.api.load_run` and
+windows), trains by multiple shooting (:func:`phast_model.train.rig_fit.fit_recordings`), scores PHAST and the nominal
+rig on the held-out recordings by the same code (:func:`phast_model.train.rig_heldout.heldout_rollouts`) and writes
+``model.pt`` + ``config.json`` (opened by :func:`phast_model.api.load_run` and
 :class:`phast_model.world.gym_env.PHASTWorldModelEnv`), ``metrics.json`` (key ``heldout``), ``history.json``,
 ``checkpoint.pt`` (written after every epoch; ``resume=True`` continues from it) and the plots ``heldout_rollout.png``
 and ``friction.png``.
@@ -12,7 +12,7 @@ and ``friction.png``.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
@@ -90,7 +90,8 @@ def _heldout(data: RigData) -> Recordings:
 
 
 def train_recordings_run(spec: RecordingsSpec, out: str | Path, train: RigTrainConfig | None = None,
-                         overrides: dict[str, Any] | None = None, plots: bool = True, resume: bool = False) -> dict[str, Any]:
+                         overrides: dict[str, Any] | None = None, plots: bool = True,
+                         resume: bool = False) -> dict[str, Any]:
     """Train on ``spec``'s recordings and write the run directory ``out``; returns the metrics written.  ``resume``
     continues from ``out/checkpoint.pt`` (ValueError when it is missing, unreadable or of another run: another
     recordings spec, model config or training config)."""
@@ -139,11 +140,12 @@ class FitLevels:
     nominal: float
 
 
-def verdict(train_rmse: float, epochs: int, levels: FitLevels, over_nominal: float) -> dict[str, Any]:
+def verdict(train_rmse: float, epochs: int, levels: FitLevels, over_nominal: float) -> dict[str, bool | str | float]:
     """Whether the run learned the rig, in one sentence a user reads first: it did not converge (its training windows'
     RMSE is above :data:`NOT_CONVERGED` x the recordings' noise and above the nominal model's on the same windows),
     or it predicts the held-out recordings worse than the nominal model (``over_nominal`` > 1), or it is usable."""
-    converged = bool(np.isfinite(train_rmse) and (train_rmse <= NOT_CONVERGED * levels.noise or train_rmse < levels.nominal))
+    converged = bool(np.isfinite(train_rmse)
+                     and (train_rmse <= NOT_CONVERGED * levels.noise or train_rmse < levels.nominal))
     better = bool(np.isfinite(over_nominal) and over_nominal < 1.0)
     fit = (f"training RMSE {train_rmse:.3g} after {epochs} epochs (the nominal model {levels.nominal:.3g} on the same "
            f"windows; the recordings' noise about {levels.noise:.2g})")
@@ -163,7 +165,8 @@ def _noise(rec: Recordings) -> float:
     return float(np.sqrt(np.mean(estimate_noise(rec.q, rec.t) ** 2)))
 
 
-def _metrics(spec: RecordingsSpec, data: RigData, fit: RigFit, scores: dict[str, Any], levels: FitLevels) -> dict[str, Any]:
+def _metrics(spec: RecordingsSpec, data: RigData, fit: RigFit, scores: dict[str, Any],
+             levels: FitLevels) -> dict[str, Any]:
     """metrics.json: the held-out scores (``heldout.phast.rollout_rmse``, ``heldout.nominal.rollout_rmse``), the
     learned friction and the training record."""
     nom = scores["nominal"]["rollout_rmse"]
@@ -171,7 +174,8 @@ def _metrics(spec: RecordingsSpec, data: RigData, fit: RigFit, scores: dict[str,
               for name in ("phast", *(spec.compare or {}))}
     friction = fit.model.friction
     return {
-        "sim": spec.sim, "regime": spec.regime, "recordings": str(data.source), "holdout_trajectories": list(data.holdout),
+        "sim": spec.sim, "regime": spec.regime, "recordings": str(data.source),
+        "holdout_trajectories": list(data.holdout),
         "dt": data.train.dt, "train_trajectories": int(data.train.n_traj), "train_samples": int(data.train.T),
         "heldout": {**scores, **ratios},
         "friction": None if friction is None else {k: v.detach().tolist() for k, v in friction.coefficients().items()},
@@ -220,7 +224,8 @@ def headline(metrics: dict[str, Any], regime: str, reference: dict[str, float], 
             "reference": reference, "run_dir": str(out)}
 
 
-def example_cli(argv: list[str] | None, description: str, default_data: Path, run: Any, name: str) -> int:
+def example_cli(argv: list[str] | None, description: str, default_data: Path,
+                run: Callable[..., Mapping[str, object]], name: str) -> int:
     """The command line of a real-rig example: ``--data --out --regime --epochs --json --quiet``; ``run(data, out,
     regime, epochs, progress)`` returns the headline dict."""
     import argparse

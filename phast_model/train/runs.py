@@ -12,22 +12,28 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 from phast_gym.datasets import PortExcitation, check_noise_std
 
 if TYPE_CHECKING:
-    from .fit import TrainConfig
+    from phast_gym.datasets import Dataset
+
+    from ..world.interfaces import ForecastModel, TimedTrajectories
+    from ..world.model import PHAST
+    from .fit import FitResult, TrainConfig
 
 #: the run files :func:`train_run` writes besides the checkpoint
 METRICS_FILE, HISTORY_FILE = "metrics.json", "history.json"
 
 
-def train_and_score(model: Any, splits: dict[str, Any], cfg: Any, run_dir: str | Path, identity: dict[str, Any],
-                    resume: bool = False, test: Any = None, horizons: tuple[int, ...] = (10, 50, 100),
-                    burn_in: int = 10, energy: bool = True) -> tuple[Any, dict[str, float]]:
+def train_and_score(model: ForecastModel, splits: Mapping[str, TimedTrajectories], cfg: TrainConfig,
+                    run_dir: str | Path, identity: Mapping[str, object], resume: bool = False,
+                    test: TimedTrajectories | None = None, horizons: tuple[int, ...] = (10, 50, 100),
+                    burn_in: int = 10, energy: bool = True) -> tuple[FitResult, dict[str, float]]:
     """Train ``model`` on ``splits["train"]`` with best-validation selection on ``splits["val"]``, then score it.
 
     ``run_dir`` holds the resumable ``checkpoint.pt`` (``resume=True`` continues from it; ``identity`` is recorded
@@ -88,7 +94,7 @@ class DataSpec:
             d["port_excitation"] = asdict(self.excitation)
         return d
 
-    def splits(self, env: str) -> dict[str, Any]:
+    def splits(self, env: str) -> dict[str, Dataset]:
         """Generate (or load from the cache) the train / val / test splits of ``env``."""
         from phast_gym import make_splits
 
@@ -130,18 +136,20 @@ def train_run(env: str, regime: str, out: str | Path, *, data: DataSpec | None =
         return _write_run(res, metrics, splits["test"], cfg, identity, out, plots)
 
 
-def _write_run(res: Any, metrics: dict[str, Any], test: Any, cfg: Any, identity: dict[str, Any], out: Path,
-               plots: bool) -> dict[str, Any]:
+def _write_run(res: FitResult, metrics: dict[str, Any], test: TimedTrajectories, cfg: TrainConfig,
+               identity: dict[str, Any], out: Path, plots: bool) -> dict[str, Any]:
     """Save model.pt + config.json, metrics.json / history.json and the plots of a scored run."""
     from .checkpoint import atomic_write_json, save_run
     from .metrics import benchmark_metric
 
     env, regime = identity["env_id"], identity["regime"]
-    save_run(res.model, out, {"train": cfg.__dict__, "data": identity["data"], "overrides": identity["overrides"]})
+    save_run(cast("PHAST", res.model), out,  # train_run trains a PHAST model
+             {"train": cfg.__dict__, "data": identity["data"], "overrides": identity["overrides"]})
     metrics.update({"train_wall_time_s": res.wall_time_s, "best_val": res.best_val, "best_epoch": res.best_epoch,
                     "nan_events": res.nan_events, "benchmark_metric": benchmark_metric(env)})
     metrics["benchmark_value"] = metrics.get(metrics["benchmark_metric"], float("nan"))
-    atomic_write_json(out / METRICS_FILE, {"env_id": env, "regime": regime, "seed": cfg.seed, "epochs": cfg.epochs, **metrics})
+    atomic_write_json(out / METRICS_FILE, {"env_id": env, "regime": regime, "seed": cfg.seed, "epochs": cfg.epochs,
+                                           **metrics})
     atomic_write_json(out / HISTORY_FILE, res.history)
     if plots:
         from .plots import make_plots
