@@ -1,13 +1,13 @@
 """Concealed-effect cases for ``phast-mismatch`` with a MuJoCo model file as the simulator.
 
 ``benchmarks/mjcf_cases.py`` runs them.  Each case has a nominal MJCF file (the repository's
-``mjcf_models/`` beside this module, :func:`cases`).  Its "reality" is the same file edited through ``mujoco.MjSpec`` (the
-effect hidden in MuJoCo's own terms: a joint's ``frictionloss`` / ``damping``, an actuator's ``gear``, the bodies'
-``mass`` / ``ipos`` / ``inertia``), written to a temporary file and simulated by MuJoCo (RK4, 1 ms) under
-closed-loop control: each recording interval (dt = 0.01 s) a PD controller (with gravity compensation from the
-nominal model for the arm) to smooth random targets computes the motor commands from the measured, noisy q; the
-commands actually applied are recorded as ``u``.  The tool gets the recordings (q with Gaussian noise, u, dt) and
-the NOMINAL file; the last 25% of the trajectories are held out.
+``mjcf_models/`` beside this module, :func:`cases`).  Its "reality" is the same file edited through ``mujoco.MjSpec``
+(the effect hidden in MuJoCo's own terms: a joint's ``frictionloss`` / ``damping``, an actuator's ``gear``, the bodies'
+``mass`` / ``ipos`` / ``inertia``), written to a temporary file and simulated by MuJoCo (RK4, 1 ms) under closed-loop
+control: each recording interval (dt = 0.01 s) a PD controller (with gravity compensation from the nominal model for the
+arm) to smooth random targets computes the motor commands from the measured, noisy q; the commands actually applied are
+recorded as ``u``.  The tool gets the recordings (q with Gaussian noise, u, dt) and the NOMINAL file; the last 25% of
+the trajectories are held out.
 
 * ``furuta``: rotary pendulum, the arm driven about z, the pendulum unactuated; hidden: pendulum frictionloss.
 * ``arm3``: 3-joint arm (yaw, shoulder, elbow), 3 motors; hidden: shoulder damping and elbow frictionloss.
@@ -37,9 +37,17 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
+
+if TYPE_CHECKING:
+    import mujoco  # untyped to mypy (pyproject.toml): the annotations name MuJoCo's classes for the reader
+
+    from ..mismatch import Report
+
+#: the hidden physics of a case: (the real model's MjSpec, rng) -> the edits it makes
+HiddenEdits = Callable[["mujoco.MjSpec", np.random.Generator], "list[Hidden]"]
 
 #: where the repository keeps the cases' nominal files; the results name a case's model by this path
 #: the nominal model files, shipped as package data
@@ -88,7 +96,7 @@ class Case:
     describe: str
     targets: dict[str, Targets]  # actuated joint -> targets
     bandwidth_hz: dict[str, float]  # actuated joint -> PD bandwidth (critically damped, zeta 0.7)
-    hidden: Callable[[Any, np.random.Generator], list[Hidden]] = field(repr=False, default=lambda spec, rng: [])
+    hidden: HiddenEdits = field(repr=False, default=lambda spec, rng: [])
     gravity_comp: bool = False
     free_q0: dict[str, float] = field(default_factory=dict)  # unactuated joint -> initial angle uniform in +- value
     n_traj: int = 16
@@ -98,11 +106,11 @@ class Case:
     models_dir: Path | None = None  # the folder of ``model`` (set by :func:`cases`)
 
 
-def _joint_edit(target: str, attr: str, value: float, term: str) -> Callable[[Any, np.random.Generator], list[Hidden]]:
+def _joint_edit(target: str, attr: str, value: float, term: str) -> HiddenEdits:
     return lambda spec, rng: [Hidden("joint", target, attr, value, term)]
 
 
-def _cad_errors(spec: Any, rng: np.random.Generator) -> list[Hidden]:
+def _cad_errors(spec: mujoco.MjSpec, rng: np.random.Generator) -> list[Hidden]:
     """Every non-zero mass, centre-of-mass coordinate and principal inertia of every body 3-8% off (random signs)."""
     out = []
     for body in spec.bodies:
@@ -120,20 +128,31 @@ def _cad_errors(spec: Any, rng: np.random.Generator) -> list[Hidden]:
 ARM_TARGETS = {"yaw": Targets(0.0, 0.3, 0.6, 0.15, 0.8), "shoulder": Targets(0.5, 0.2, 0.45, 0.2, 1.0),
                "elbow": Targets(0.4, 0.2, 0.5, 0.2, 1.2)}
 ARM_BANDWIDTH = {"yaw": 1.5, "shoulder": 1.5, "elbow": 1.5}
+
+
+class CaseSize(TypedDict):
+    """A case's recordings: ``n_traj`` trajectories of ``T`` samples (:class:`Case` fields)."""
+
+    n_traj: int
+    T: int
+
+
 #: the arm's size: its analysis time is set by the number of integration steps the fits take (the per-call cost of the
 #: 3-body model), hardly by the number of recordings, so the arm cases use the smaller end of 12-16 x 300-400
-ARM_SIZE: dict[str, Any] = {"n_traj": 12, "T": 300}
+ARM_SIZE: CaseSize = {"n_traj": 12, "T": 300}
 
 ARM6_JOINTS = [f"j{i}" for i in range(1, 7)]
 ARM6_TARGETS = {j: Targets(0.0, 0.2, 0.5 - 0.04 * k, 0.2, 1.0) for k, j in enumerate(ARM6_JOINTS)}
 ARM6_BANDWIDTH = {j: 1.5 for j in ARM6_JOINTS}
 
 
-def _drives6(spec: Any, rng: np.random.Generator) -> list[Hidden]:
+def _drives6(spec: mujoco.MjSpec, rng: np.random.Generator) -> list[Hidden]:
     """Geared motors the file leaves out: rotor inertia behind j2..j6 (behind j1 it is one number with link1's inertia
     about that axis: a parameter change, not a term), frictionloss on j2, j4, j6 and damping on j1, j3."""
-    arm = [Hidden("joint", f"j{i}", "armature", a, "armature") for i, a in zip(range(2, 7), (0.04, 0.02, 0.015, 0.008, 0.004))]
-    fric = [Hidden("joint", j, "frictionloss", c, "coulomb_friction") for j, c in (("j2", 0.3), ("j4", 0.15), ("j6", 0.05))]
+    arm = [Hidden("joint", f"j{i}", "armature", a, "armature")
+           for i, a in zip(range(2, 7), (0.04, 0.02, 0.015, 0.008, 0.004))]
+    fric = [Hidden("joint", j, "frictionloss", c, "coulomb_friction")
+            for j, c in (("j2", 0.3), ("j4", 0.15), ("j6", 0.05))]
     damp = [Hidden("joint", j, "damping", c, "viscous_damping") for j, c in (("j1", 0.2), ("j3", 0.1))]
     return arm + fric + damp
 
@@ -142,28 +161,32 @@ CASES: dict[str, Case] = {c.name: c for c in [
     Case("furuta", "furuta.xml", "effect", "rotary pendulum; hidden: pendulum frictionloss",
          {"arm": Targets(0.0, 0.5, 0.8, 0.2, 1.0)}, {"arm": 2.0},
          _joint_edit("pendulum", "frictionloss", 3e-4, "coulomb_friction"), free_q0={"pendulum": 0.3}),
-    Case("arm3", "arm3.xml", "effect", "3-joint arm; hidden: shoulder damping, elbow frictionloss", ARM_TARGETS, ARM_BANDWIDTH,
+    Case("arm3", "arm3.xml", "effect", "3-joint arm; hidden: shoulder damping, elbow frictionloss", ARM_TARGETS,
+         ARM_BANDWIDTH,
          lambda spec, rng: [Hidden("joint", "shoulder", "damping", 0.05, "viscous_damping"),
                             Hidden("joint", "elbow", "frictionloss", 0.03, "coulomb_friction")], gravity_comp=True,
          **ARM_SIZE),
-    Case("arm3_cad", "arm3.xml", "cad", "3-joint arm; hidden: every body mass/ipos/inertia 3-8% off", ARM_TARGETS, ARM_BANDWIDTH,
-         _cad_errors, gravity_comp=True, **ARM_SIZE),
+    Case("arm3_cad", "arm3.xml", "cad", "3-joint arm; hidden: every body mass/ipos/inertia 3-8% off", ARM_TARGETS,
+         ARM_BANDWIDTH, _cad_errors, gravity_comp=True, **ARM_SIZE),
     Case("weak_motor", "arm3.xml", "gear", "3-joint arm; hidden: shoulder motor gear 0.85", ARM_TARGETS, ARM_BANDWIDTH,
          lambda spec, rng: [Hidden("actuator", "m_shoulder", "gear", 0.85)], gravity_comp=True, **ARM_SIZE),
-    Case("arm3_drives", "arm3.xml", "effect", "3-joint arm; hidden: rotor inertia behind shoulder and elbow (behind the "
-         "yaw it is one number with the turret's inertia), frictionloss on two joints, damping on one", ARM_TARGETS,
+    Case("arm3_drives", "arm3.xml", "effect", "3-joint arm; hidden: rotor inertia behind shoulder and elbow "
+         "(behind the yaw it is one number with the turret's inertia), frictionloss on two joints, damping on one",
+         ARM_TARGETS,
          ARM_BANDWIDTH,
          lambda spec, rng: [Hidden("joint", "shoulder", "armature", 0.012, "armature"),
                             Hidden("joint", "elbow", "armature", 0.006, "armature"),
                             Hidden("joint", "shoulder", "frictionloss", 0.08, "coulomb_friction"),
                             Hidden("joint", "elbow", "frictionloss", 0.04, "coulomb_friction"),
                             Hidden("joint", "yaw", "damping", 0.03, "viscous_damping")], gravity_comp=True, **ARM_SIZE),
-    Case("arm6_drives", "arm6.xml", "effect", "6-joint spatial arm; hidden: rotor inertia on five joints, frictionloss on "
-         "three, damping on two", ARM6_TARGETS, ARM6_BANDWIDTH, _drives6, gravity_comp=True, n_traj=16, T=400),
+    Case("arm6_drives", "arm6.xml", "effect", "6-joint spatial arm; hidden: rotor inertia on five joints, "
+         "frictionloss on three, damping on two", ARM6_TARGETS, ARM6_BANDWIDTH, _drives6, gravity_comp=True, n_traj=16,
+         T=400),
     Case("cartpole", "cartpole.xml", "effect", "cart with hanging pole; hidden: pole damping, cart frictionloss",
          {"slider": Targets(0.0, 0.05, 0.15, 0.15, 0.6)}, {"slider": 1.0},
          lambda spec, rng: [Hidden("joint", "hinge", "damping", 0.004, "viscous_damping"),
-                            Hidden("joint", "slider", "frictionloss", 0.3, "coulomb_friction")], free_q0={"hinge": 0.3}),
+                            Hidden("joint", "slider", "frictionloss", 0.3, "coulomb_friction")],
+         free_q0={"hinge": 0.3}),
 ]}
 
 
@@ -181,7 +204,7 @@ def nominal_path(case: Case) -> Path:
     return case.models_dir / case.model
 
 
-def apply_hidden(spec: Any, hidden: list[Hidden]) -> None:
+def apply_hidden(spec: mujoco.MjSpec, hidden: list[Hidden]) -> None:
     """Write the concealed values into ``spec`` (MuJoCo 4: joint damping / stiffness and actuator gear are arrays)."""
     for h in hidden:
         if h.kind == "joint":
@@ -237,9 +260,9 @@ def parameter_values(path: str | Path) -> dict[str, float]:
 
 #: compiled-model fields that must not differ between nominal and real (the structure: kinematics, joint types,
 #: transmissions, actuator dynamics, options) - everything a hidden edit must leave alone
-STRUCTURE = ("body_parentid", "body_pos", "body_quat", "body_iquat", "jnt_type", "jnt_bodyid", "jnt_pos", "jnt_axis", "qpos0",
-             "qpos_spring", "actuator_trntype", "actuator_trnid", "actuator_gaintype", "actuator_gainprm", "actuator_biastype",
-             "actuator_biasprm", "actuator_dyntype", "actuator_ctrllimited", "actuator_ctrlrange")
+STRUCTURE = ("body_parentid", "body_pos", "body_quat", "body_iquat", "jnt_type", "jnt_bodyid", "jnt_pos", "jnt_axis",
+             "qpos0", "qpos_spring", "actuator_trntype", "actuator_trnid", "actuator_gaintype", "actuator_gainprm",
+             "actuator_biastype", "actuator_biasprm", "actuator_dyntype", "actuator_ctrllimited", "actuator_ctrlrange")
 
 
 def model_differences(nominal: str | Path, real: str | Path) -> dict[str, tuple[float, float]]:
@@ -263,7 +286,8 @@ def model_differences(nominal: str | Path, real: str | Path) -> dict[str, tuple[
 # ------------------------------------------------------------------------------------------------ the recordings
 
 
-def _targets(case: Case, rng: np.random.Generator, t: np.ndarray) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+def _targets(case: Case, rng: np.random.Generator,
+             t: np.ndarray) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     """Position and velocity targets of each actuated joint at the times ``t``."""
     pos, vel = {}, {}
     for j, tg in case.targets.items():
@@ -277,7 +301,7 @@ def _targets(case: Case, rng: np.random.Generator, t: np.ndarray) -> tuple[dict[
     return pos, vel
 
 
-def _pd_gains(case: Case, nominal: Any) -> tuple[np.ndarray, np.ndarray]:
+def _pd_gains(case: Case, nominal: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
     """Per-actuator PD gains from the nominal model's mass-matrix diagonal at the targets' centre."""
     import mujoco
 
@@ -296,7 +320,8 @@ def _pd_gains(case: Case, nominal: Any) -> tuple[np.ndarray, np.ndarray]:
     return kp, kd
 
 
-def record(case: Case, real_path: str | Path, n_traj: int, T: int, seed: int, noise: float | None = None) -> dict[str, Any]:
+def record(case: Case, real_path: str | Path, n_traj: int, T: int, seed: int,
+           noise: float | None = None) -> dict[str, Any]:
     """Closed-loop recordings of the real model: ``q`` (N, T, n) with noise, ``u`` (N, T-1, m) the commands applied
     over each interval, ``dt``; plus ``q_true``, ``q0``, ``v0`` (what the tool is not given)."""
     import mujoco
@@ -338,7 +363,8 @@ def record(case: Case, real_path: str | Path, n_traj: int, T: int, seed: int, no
             if q_prev is not None:
                 v_est = (1 - alpha) * v_est + alpha * (qm[act_q] - q_prev[act_q]) / DT
             q_prev = qm
-            tau = np.array([kp[a] * (pos[nm][i] - qm[act_q[a]]) + kd[a] * (vel[nm][i] - v_est[a]) for a, nm in enumerate(act_names)])
+            tau = np.array([kp[a] * (pos[nm][i] - qm[act_q[a]]) + kd[a] * (vel[nm][i] - v_est[a])
+                            for a, nm in enumerate(act_names)])
             if case.gravity_comp:
                 dn.qpos[:] = qm
                 dn.qvel[:] = 0
@@ -386,19 +412,29 @@ def actuator_joint(case: Case, actuator: str) -> str:
     return str(mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, int(m.actuator(actuator).trnid[0])))
 
 
-def _rows(rep: Any) -> list[dict[str, Any]]:
+class FoundTerm(TypedDict):
+    """A missing-physics row the tool reported (its term, joint and file attribute, coefficient and 95% interval)."""
+
+    term: str
+    joint: str | None
+    mjcf: str | None
+    coefficient: float
+    ci95: list[float] | None
+
+
+def _rows(rep: Report) -> list[FoundTerm]:
     return [{"term": r["term"], "joint": r.get("joint"), "mjcf": r.get("mjcf"), "coefficient": r["coefficient"],
              "ci95": r.get("ci95")} for r in rep.missing_physics]
 
 
-def _changed(rep: Any) -> dict[str, dict[str, Any]]:
+def _changed(rep: Report) -> dict[str, dict[str, Any]]:
     return {k: v for k, v in rep.sim["calibrated"].items() if v.get("ci95") is not None}
 
 
-def judge(case: Case, hidden: list[Hidden], found: list[dict[str, Any]], changed: dict[str, dict[str, Any]],
+def judge(case: Case, hidden: list[Hidden], found: list[FoundTerm], changed: dict[str, dict[str, Any]],
           fit: dict[str, dict[str, float]]) -> dict[str, Any]:
     """Pass / fail with the reason, and the coefficient errors."""
-    got = {(r["term"], r["joint"]): r["coefficient"] for r in found}
+    got: dict[tuple[str | None, str | None], float] = {(r["term"], r["joint"]): r["coefficient"] for r in found}
     ratio = fit["augmented"]["rollout_rmse"] / max(fit["calibrated"]["rollout_rmse"], 1e-300)
     out: dict[str, Any] = {"ratio_augmented_over_calibrated": ratio, "coef_rel_err": {}}
     if case.kind == "effect":
@@ -411,7 +447,8 @@ def judge(case: Case, hidden: list[Hidden], found: list[dict[str, Any]], changed
                    + ([f"augmented/calibrated held-out RMSE {ratio:.2f} > {RATIO_MAX}"] if ratio > RATIO_MAX else []))
         ok = not reasons
         reason = "; ".join(reasons) if reasons else (
-            f"found exactly the hidden rows, coefficients within {max(errs.values()):.0%}, held-out RMSE ratio {ratio:.2f}")
+            f"found exactly the hidden rows, coefficients within {max(errs.values()):.0%}, "
+            f"held-out RMSE ratio {ratio:.2f}")
     elif case.kind == "cad":
         ok = not found
         reason = ("no missing physics named; " + f"{len(changed)} parameter(s) changed" if ok
@@ -424,7 +461,8 @@ def judge(case: Case, hidden: list[Hidden], found: list[dict[str, Any]], changed
         gain = gear * got.get(("actuator_gain", act_joint), 1.0)
         err = abs(gain - h.value) / h.value
         out["coef_rel_err"] = {f"{h.param} (delivered gain {gain:.4g})": err}
-        reasons = [f"extra {e}" for e in others] + ([f"delivered gain {gain:.4g}, {err:.1%} off {h.value}"] if err > PARAM_TOL else [])
+        reasons = [f"extra {e}" for e in others] + ([f"delivered gain {gain:.4g}, {err:.1%} off {h.value}"]
+                                                    if err > PARAM_TOL else [])
         ok = not reasons
         term = ("actuator_gain", act_joint)
         how = ", ".join(([f"{h.param} fitted {gear:.4g}"] if h.param in changed else [f"{h.param} unchanged"])
@@ -447,7 +485,8 @@ def run_case(case: Case, seed: int, out_dir: Path | None = None, progress: bool 
         real = write_real(case, hidden, tmp)
         diff = model_differences(nominal_path(case), real)
         if set(diff) != {h.param for h in hidden}:
-            raise AssertionError(f"{case.name}: the real model differs in {sorted(diff)}, hidden {sorted(h.param for h in hidden)}")
+            raise AssertionError(f"{case.name}: the real model differs in {sorted(diff)}, "
+                                 f"hidden {sorted(h.param for h in hidden)}")
         t0 = time.time()
         rec = record(case, real, n_traj, T, seed)
         record_s = time.time() - t0
@@ -466,8 +505,8 @@ def run_case(case: Case, seed: int, out_dir: Path | None = None, progress: bool 
         rep.write(out_dir / case.name)
         (out_dir / case.name / "real_model.xml").write_text(real_text)
     return {"case": case.name, "model": f"{MODELS_LABEL}/{case.model}", "kind": case.kind, "describe": case.describe,
-            "hidden": [{"kind": h.kind, "target": h.target, "attr": h.attr, "parameter": h.param, "nominal": diff[h.param][0],
-                        "real": h.value, "term": h.term} for h in hidden],
+            "hidden": [{"kind": h.kind, "target": h.target, "attr": h.attr, "parameter": h.param,
+                        "nominal": diff[h.param][0], "real": h.value, "term": h.term} for h in hidden],
             "n_traj": n_traj, "T": T, "dt": DT, "noise": rec["noise"], "holdout_trajectories": hold,
             "max_abs_q_true": np.max(np.abs(rec["q_true"]), axis=(0, 1)).round(3).tolist(),
             "max_abs_u": np.max(np.abs(rec["u"]), axis=(0, 1)).round(3).tolist(),
@@ -492,22 +531,24 @@ def _found_text(r: dict[str, Any]) -> str:
 
 
 def table(rows: list[dict[str, Any]]) -> str:
-    hdr = (f"{'case':11s} {'hidden':44s} {'eff/noise':>9s} {'found':58s} {'coef err':>8s} {'nominal':>8s} {'calib':>8s} "
-           f"{'augm':>8s} {'xml':>8s} {'ratio':>5s} {'wall':>6s} {'cpu':>6s} ok")
+    hdr = (f"{'case':11s} {'hidden':44s} {'eff/noise':>9s} {'found':58s} {'coef err':>8s} {'nominal':>8s} "
+           f"{'calib':>8s} {'augm':>8s} {'xml':>8s} {'ratio':>5s} {'wall':>6s} {'cpu':>6s} ok")
     lines = [hdr]
     for r in rows:
         ce = max(r["coef_rel_err"].values(), default=None)
         fit = r["fit"]
-        lines.append(f"{r['case']:11s} {_hidden_text(r):44.44s} {r['effect_over_noise_first_100_samples']:9.1f} {_found_text(r):58.58s} "
+        lines.append(f"{r['case']:11s} {_hidden_text(r):44.44s} {r['effect_over_noise_first_100_samples']:9.1f} "
+                     f"{_found_text(r):58.58s} "
                      f"{'-' if ce is None else f'{ce:.3f}':>8s} {fit['nominal']['rollout_rmse']:8.4f} "
                      f"{fit['calibrated']['rollout_rmse']:8.4f} {fit['augmented']['rollout_rmse']:8.4f} "
                      f"{fit.get('calibrated_xml', {}).get('rollout_rmse', float('nan')):8.4f} "
-                     f"{r['ratio_augmented_over_calibrated']:5.2f} {r['wall_s']:6.1f} {r['cpu_s']:6.1f} {'Y' if r['passed'] else 'N'}")
+                     f"{r['ratio_augmented_over_calibrated']:5.2f} {r['wall_s']:6.1f} {r['cpu_s']:6.1f} "
+                     f"{'Y' if r['passed'] else 'N'}")
     n_ok = sum(r["passed"] for r in rows)
     lines.append(f"{n_ok}/{len(rows)} cases right; max analysis time {max(r['wall_s'] for r in rows):.1f} s wall, "
-                 f"{max(r['cpu_s'] for r in rows):.1f} s CPU (one thread: CPU is the time on an idle core); held-out rollout "
-                 "RMSE (nominal, calib = calibrated, augm = augmented, xml = calibrated.xml in MuJoCo) in rad, std-scaled "
-                 "where a model mixes rad and m (cartpole)")
+                 f"{max(r['cpu_s'] for r in rows):.1f} s CPU (one thread: CPU is the time on an idle core); "
+                 "held-out rollout RMSE (nominal, calib = calibrated, augm = augmented, "
+                 "xml = calibrated.xml in MuJoCo) in rad, std-scaled where a model mixes rad and m (cartpole)")
     for r in rows:
         lines.append(f"  {r['case']}: {r['reason']}")
     return "\n".join(lines)
