@@ -170,11 +170,11 @@ CASES: dict[str, Case] = {c.name: c for c in [
          ARM_BANDWIDTH, _cad_errors, gravity_comp=True, **ARM_SIZE),
     Case("weak_motor", "arm3.xml", "gear", "3-joint arm; hidden: shoulder motor gear 0.85", ARM_TARGETS, ARM_BANDWIDTH,
          lambda spec, rng: [Hidden("actuator", "m_shoulder", "gear", 0.85)], gravity_comp=True, **ARM_SIZE),
-    Case("arm3_drives", "arm3.xml", "effect", "3-joint arm; hidden: rotor inertia behind shoulder and elbow "
-         "(behind the yaw it is one number with the turret's inertia), frictionloss on two joints, damping on one",
-         ARM_TARGETS,
+    Case("arm3_drives", "arm3.xml", "effect", "3-joint arm; hidden: rotor inertia on every joint (behind the yaw it "
+         "is one number with the turret's inertia), frictionloss on two joints, damping on one", ARM_TARGETS,
          ARM_BANDWIDTH,
-         lambda spec, rng: [Hidden("joint", "shoulder", "armature", 0.012, "armature"),
+         lambda spec, rng: [Hidden("joint", "yaw", "armature", 0.004, "armature"),
+                            Hidden("joint", "shoulder", "armature", 0.012, "armature"),
                             Hidden("joint", "elbow", "armature", 0.006, "armature"),
                             Hidden("joint", "shoulder", "frictionloss", 0.08, "coulomb_friction"),
                             Hidden("joint", "elbow", "frictionloss", 0.04, "coulomb_friction"),
