@@ -196,7 +196,7 @@ class PortHamiltonianEnv(gym.Env):
             vals = self._wrap_obs(q)
         return np.array(vals, dtype=self.dtype)
 
-    def _info(self) -> dict[str, Any]:
+    def _info(self) -> dict[str, np.ndarray | float]:
         sysm = self.system
         q = self._q
         if self._has_damping:

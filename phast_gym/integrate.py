@@ -23,7 +23,7 @@ from typing import Any, NamedTuple, TypeAlias
 import numpy as np
 import numpy.typing as npt
 
-from .systems.base import NUMPY, SCALAR, ArrayNamespace, NumpyNamespace, System
+from .systems.base import NUMPY, SCALAR, Array, ArrayNamespace, NumpyNamespace, System
 
 #: a system's vector field ``(q, p, u, xp) -> (qdot, pdot)`` in component form (:meth:`System.rhs`)
 VectorField: TypeAlias = Callable[[Sequence, Sequence, Sequence | None, ArrayNamespace], tuple[tuple, tuple]]
@@ -49,7 +49,7 @@ def rk4(system: System, q: Sequence, p: Sequence, u: Sequence | None, h: Any, xp
     return qn, pn
 
 
-def _any(c: Any) -> bool:
+def _any(c: bool | np.bool_ | Array) -> bool:
     return bool(c) if isinstance(c, (bool, np.bool_)) else bool(c.any())  # ndarray or tensor
 
 

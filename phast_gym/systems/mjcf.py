@@ -48,8 +48,8 @@ def param_specs(tree: MJCFTree) -> dict[str, Param]:
     for b, name in enumerate(tree.body_names):
         out[f"{name}.mass"] = Param(float(tree.body_mass[b]), f"mass of body {name} [kg]", "nonnegative")
         for k, ax in enumerate(AXES):
-            doc = f"centre of mass of {name}, {ax} in its frame [m]"
-            out[f"{name}.ipos_{ax}"] = Param(float(tree.body_ipos[b, k]), doc, "any")
+            out[f"{name}.ipos_{ax}"] = Param(float(tree.body_ipos[b, k]),
+                                             f"centre of mass of {name}, {ax} in its frame [m]", "any")
         for k, ax in enumerate(AXES):
             doc = f"principal moment of inertia of {name} about its {ax} inertia axis [kg m^2]"
             out[f"{name}.inertia_{ax}"] = Param(float(tree.body_inertia[b, k]), doc, "nonnegative")

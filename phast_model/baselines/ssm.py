@@ -36,7 +36,7 @@ from typing import Any, cast
 import torch
 import torch.nn.functional as F
 from torch import nn
-from torch.autograd.function import once_differentiable
+from torch.autograd.function import FunctionCtx, once_differentiable
 
 from .common import SeqBaseline
 
@@ -110,7 +110,7 @@ class _Scan2x2(torch.autograd.Function):
     """:func:`_chunked_scan` with its adjoint as the backward: ``g_t + M^T g_{t+1}`` scanned in reverse."""
 
     @staticmethod
-    def forward(ctx: Any, a: torch.Tensor, b: torch.Tensor, c: torch.Tensor, d: torch.Tensor,
+    def forward(ctx: FunctionCtx, a: torch.Tensor, b: torch.Tensor, c: torch.Tensor, d: torch.Tensor,
                 f: torch.Tensor) -> torch.Tensor:
         x = _chunked_scan((a, b, c, d), f)
         ctx.save_for_backward(a, b, c, d, x)

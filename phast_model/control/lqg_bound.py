@@ -138,7 +138,7 @@ def stationary(loop: ClosedLoop, angle_dims: Sequence[int] = (0,)) -> dict[str, 
     k, s, h, post = loop.k, loop.s, loop.h, loop.post
     n = k.shape[1] // 2
     i = int(list(angle_dims)[0])
-    gains: dict[str, Any] = ({"k_q": float(k[0, 0]), "k_qdot": float(k[0, 1])} if k.shape == (1, 2)
+    gains: dict[str, object] = ({"k_q": float(k[0, 0]), "k_qdot": float(k[0, 1])} if k.shape == (1, 2)
                              else {"k": k.tolist()})
     if s is None:
         return {**gains, "rms_torque": math.inf, "angle_std": math.inf}

@@ -101,8 +101,8 @@ class TCNObserver(nn.Module):
         if self.conditioned:
             if sigma is None:
                 raise ValueError("a noise-conditioned observer needs sigma")
-            level = (sigma / max(self.cfg.sigma_max, 1e-6)).reshape(-1, 1, 1).expand(q.shape[0], q.shape[1], 1)
-            x = torch.cat([x, level.to(x)], -1)
+            x = torch.cat([x, (sigma / max(self.cfg.sigma_max, 1e-6)).reshape(-1, 1, 1)
+                           .expand(q.shape[0], q.shape[1], 1).to(x)], -1)
         x = x.transpose(1, 2)
         for conv in self.convs:
             x = nn.functional.silu(conv(x))

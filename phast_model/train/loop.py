@@ -26,7 +26,7 @@ import time
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
 import torch
 from tqdm.auto import tqdm
@@ -72,7 +72,11 @@ class Optim:
             scale_lr(self.opt, self.sched, factor)
 
 
-class Objective(Protocol):
+#: an objective's minibatch (the env path: (q, u) tensors; the rig path: windows)
+BatchT = TypeVar("BatchT")
+
+
+class Objective(Protocol[BatchT]):
     """What :func:`train_loop` trains: a loss over minibatches of some data, with a validation loss.
 
     ``model`` is trained; ``checkpoint_format`` names the kind of run in its checkpoint (a resume checks it),
@@ -93,10 +97,10 @@ class Objective(Protocol):
     def begin_epoch(self, epoch: int) -> None:
         """Start-of-epoch work before the minibatches (the rig's window-state refits)."""
 
-    def batches(self, gen: torch.Generator) -> Iterable[Any]:
+    def batches(self, gen: torch.Generator) -> Iterable[BatchT]:
         """This epoch's minibatches, shuffled with ``gen``."""
 
-    def loss(self, batch: Any) -> tuple[torch.Tensor, int]:
+    def loss(self, batch: BatchT) -> tuple[torch.Tensor, int]:
         """(the loss to minimize, the batch's size: its weight in the epoch's mean)."""
 
     def validation_loss(self) -> float:

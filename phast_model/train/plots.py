@@ -20,6 +20,8 @@ from ..world.interfaces import ForecastModel
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
+    from phast_gym.datasets import Dataset
+
 
 def _save(plt: ModuleType, fig: Figure, path: Path) -> Path:
     fig.tight_layout()
@@ -59,7 +61,7 @@ class RolloutView:
         return truth, np.concatenate([truth[:, :1], self.roll[b:b + 1]], 1)
 
 
-def make_plots(model: ForecastModel, test: Any, out: Path, burn_in: int = 10, H: int = 100,
+def make_plots(model: ForecastModel, test: Dataset, out: Path, burn_in: int = 10, H: int = 100,
                n_show: int = 4) -> list[Path]:
     """rollout.png (rollout vs truth), phase.png, damping.png (learned vs true), energy.png; returns the paths."""
     import matplotlib
@@ -113,7 +115,7 @@ def plot_phase(plt: ModuleType, view: RolloutView) -> Figure:
     return fig
 
 
-def plot_damping(plt: ModuleType, model: Any, test: Any, n_traj: int = 64) -> Figure:
+def plot_damping(plt: ModuleType, model: Any, test: Dataset, n_traj: int = 64) -> Figure:
     """The learned damping diagonal D_ii(q) against the env's true one along the test trajectories."""
     import torch
 

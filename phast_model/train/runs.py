@@ -136,7 +136,7 @@ def train_run(env: str, regime: str, out: str | Path, *, data: DataSpec | None =
         return _write_run(res, metrics, splits["test"], cfg, identity, out, plots)
 
 
-def _write_run(res: FitResult, metrics: dict[str, Any], test: TimedTrajectories, cfg: TrainConfig,
+def _write_run(res: FitResult, metrics: dict[str, Any], test: Dataset, cfg: TrainConfig,
                identity: dict[str, Any], out: Path, plots: bool) -> dict[str, Any]:
     """Save model.pt + config.json, metrics.json / history.json and the plots of a scored run."""
     from .checkpoint import atomic_write_json, save_run

@@ -118,8 +118,8 @@ def _default_config(env_id: str, regime: str, system: System,
     if not system.hamiltonian_system:
         # learned start-up latents: Eq. 90 scores the first predictions too, where the history is shorter than
         # the backward difference
-        ode_field = {"known": "known", "partial": "template", "unknown": "neural"}[regime]
-        return replace(base, kind="latent_ode", ode_field=ode_field,
+        return replace(base, kind="latent_ode",
+                       ode_field={"known": "known", "partial": "template", "unknown": "neural"}[regime],
                        potential="none", mass="none", damping="none", latent_prior="learned"), {}
     n = system.n
     info = ENV_INFO[env_id]
