@@ -8,8 +8,8 @@
 The library code of the repository's benchmark scripts (``benchmarks/``) lives here too: the grid driver
 (:mod:`.grid_driver`), the cost of a training step (:mod:`.cost`), the error decomposition of trained runs
 (:mod:`.diagnostics`), the acceptance runs of the PHAST world model (:mod:`.acceptance`), the robustness of an
-identified D to rounding (``benchmarks/fragility.py``), run-by-run comparison of two grids (:mod:`.compare`) and the mismatch
-tool's concealed-effect cases on MuJoCo model files (:mod:`.mjcf_cases`, its files shipped as package data) and
+identified D to rounding (``benchmarks/fragility.py``), run-by-run comparison of two grids (:mod:`.compare`) and the
+mismatch tool's concealed-effect cases on MuJoCo model files (:mod:`.mjcf_cases`, its files shipped as package data) and
 the concealed-effect realities of ``phast-mismatch-bench`` (:mod:`.reality`).
 """
 

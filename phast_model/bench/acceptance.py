@@ -196,7 +196,8 @@ def markdown_table(doc: dict) -> str:
         if "accept" in s:
             a = s["accept"]
             acc.append(f"{a['metric']} {a['op']} {a['threshold']}: {'PASS' if a['pass'] else 'FAIL'} ({a['mean']:.4f})"
-                       + ("" if "every_seed_pass" not in a else f", every seed: {'PASS' if a['every_seed_pass'] else 'FAIL'}"))
+                       + ("" if "every_seed_pass" not in a
+                          else f", every seed: {'PASS' if a['every_seed_pass'] else 'FAIL'}"))
         if "accept_wall_time" in s:
             acc.append(f"wall <= {MAX_WALL_S:.0f} s: {'PASS' if s['accept_wall_time']['pass'] else 'FAIL'}")
         wall = s["train_wall_time_s"]
@@ -210,6 +211,6 @@ def train_one(env: str, regime: str, seed: int, runs_dir: str, epochs: int, n_tr
     """One ``phast-train`` run (1 torch thread; also the worker of ``--jobs``)."""
     torch.set_num_threads(1)
     rd = Path(runs_dir) / f"{env.split('/')[-1]}_{regime}_s{seed}"
-    m = train_run(env, regime, rd, data=DataSpec(n_train=n_train), train=TrainConfig(epochs=epochs, seed=seed, progress=False),
-                  plots=False)
+    m = train_run(env, regime, rd, data=DataSpec(n_train=n_train),
+                  train=TrainConfig(epochs=epochs, seed=seed, progress=False), plots=False)
     return {"env_id": env, "regime": regime, "seed": seed, "commit": git_commit(), "numerics": numerics(), **m}

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -45,7 +46,7 @@ def _load_runs(out_dir: Path) -> dict[str, dict[str, Any]]:
     return out
 
 
-def _flatten(x: Any, prefix: str = "") -> dict[str, Any]:
+def _flatten(x: object, prefix: str = "") -> dict[str, Any]:
     """Nested dicts / lists -> {"a.b[0].c": leaf}, dropping :data:`VOLATILE_KEYS`."""
     if isinstance(x, dict):
         out: dict[str, Any] = {}
@@ -61,7 +62,7 @@ def _flatten(x: Any, prefix: str = "") -> dict[str, Any]:
     return {prefix: x}
 
 
-def compare_records(a: dict[str, Any], b: dict[str, Any]) -> tuple[bool, int, float, str]:
+def compare_records(a: Mapping[str, object], b: Mapping[str, object]) -> tuple[bool, int, float, str]:
     """(identical, number of values compared, largest |a - b| over numbers, first differing field) of two records."""
     fa = _flatten({k: a.get(k) for k in COMPARED_FIELDS})
     fb = _flatten({k: b.get(k) for k in COMPARED_FIELDS})

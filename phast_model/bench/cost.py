@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from phast_gym.datasets import make_dataset
+from phast_gym.datasets import Dataset, make_dataset
 
 from ..world.interfaces import ForecastModel, coordinate_error
 from ..world.rollout import batched_rollout
@@ -97,7 +97,7 @@ def _compose_core_steps(model: Any) -> None:
             mod.grad = functools.partial(Potential.grad, mod)  # type: ignore[method-assign]
 
 
-def _s5_log_depth_step_ms(env_id: str, ds: Any, q: torch.Tensor, u: torch.Tensor | None, reps: int) -> float:
+def _s5_log_depth_step_ms(env_id: str, ds: Dataset, q: torch.Tensor, u: torch.Tensor | None, reps: int) -> float:
     """S5's training step with the log-depth scan under autograd (the reference of the 2x2 scan)."""
     from ..baselines import ssm
 
@@ -109,7 +109,7 @@ def _s5_log_depth_step_ms(env_id: str, ds: Any, q: torch.Tensor, u: torch.Tensor
         ssm.scan_complex_diag = fast
 
 
-def _build(env_id: str, model_name: str, ds: Any) -> ForecastModel:
+def _build(env_id: str, model_name: str, ds: Dataset) -> ForecastModel:
     spec = RunSpec(env_id, model_name, full_state=model_name == "dhnn")
     torch.manual_seed(0)
     return build_run_model(spec, ds)
@@ -160,4 +160,5 @@ def format_total(rows: list[dict[str, Any]]) -> str:
     env = rows[0]["env"]
     fast = sum(r["train_step_ms"] for r in rows)
     ref = sum(r.get("train_step_ms_ref", r["train_step_ms"]) for r in rows)
-    return f"{env:28s} sum of {len(rows)} models: step {fast:7.1f} ms (with the references {ref:.1f} ms, x{ref / fast:.2f})"
+    return (f"{env:28s} sum of {len(rows)} models: step {fast:7.1f} ms "
+            f"(with the references {ref:.1f} ms, x{ref / fast:.2f})")

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import re
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, cast
 
@@ -35,7 +36,8 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from phast_gym.systems import split
+from phast_gym.datasets import Dataset
+from phast_gym.systems import System, split
 
 from ..train.metrics import benchmark_metric, error_keys, squared_error
 from ..world.model import PHAST, LatentODEModel
@@ -73,21 +75,21 @@ class Diagnosis:
     floor_ratio: float | None = None
 
 
-def load_trained(out: Path, spec: RunSpec, splits: dict[str, Any]) -> PHAST:
+def load_trained(out: Path, spec: RunSpec, splits: Mapping[str, Dataset]) -> PHAST:
     """The run's trained model from ``work/.../bench_model.pt`` (:func:`phast_model.bench.figures.load_run_model`)."""
     path = work_dir(out, spec) / BENCH_MODEL_FILE
     if not path.exists():
         raise FileNotFoundError(f"{path} is missing: the run's weights are kept only where it was trained "
                                 "(rerun it there, or into a fresh --out)")
-    return load_run_model(out, spec, splits["train"])
+    return cast(PHAST, load_run_model(out, spec, splits["train"]))  # a PHAST run's model
 
 
-def _true_velocity(system: Any, q: np.ndarray, p: np.ndarray) -> np.ndarray:
+def _true_velocity(system: System, q: np.ndarray, p: np.ndarray) -> np.ndarray:
     """qdot = M(q)^-1 p of the env, (..., n)."""
     return np.stack(system.velocity(split(q), split(p)), -1)
 
 
-def true_state(model: PHAST, test: Any, t: int | slice) -> tuple[torch.Tensor, torch.Tensor]:
+def true_state(model: PHAST, test: Dataset, t: int | slice) -> tuple[torch.Tensor, torch.Tensor]:
     """(q, p) of the model from the env's true state at sample(s) ``t``: p = M_model(q) qdot, so that the model's
     dH/dp is the true velocity (whatever its canonicalizer)."""
     dtype = next(model.parameters()).dtype
@@ -102,7 +104,7 @@ def _error_kind(metric: str) -> str:
     return re.sub(r"_h\d+$", "", metric.removeprefix("rollout_"))
 
 
-def diagnose(model: PHAST, spec: RunSpec, test: Any, recorded: float, H: int = 100,
+def diagnose(model: PHAST, spec: RunSpec, test: Dataset, recorded: float, H: int = 100,
              floor: float | None = None) -> Diagnosis:
     """Scored, takeover and oracle-start errors of one trained PHAST run on its row metric (``floor``: the row's
     first-step floor, next-step rows)."""
@@ -134,16 +136,16 @@ def diagnose(model: PHAST, spec: RunSpec, test: Any, recorded: float, H: int = 1
     scored = score(scored_pred)
     if floor is not None and not rollout_row:
         res["floor_ratio"] = scored / floor
-    return Diagnosis(env=spec.env_id, model=spec.model, seed=spec.seed, key=run_key(spec), metric=metric, recorded=recorded,
-                     scored=scored, worst5_share=float(worst), true_rate=true_rate, **res)
+    return Diagnosis(env=spec.env_id, model=spec.model, seed=spec.seed, key=run_key(spec), metric=metric,
+                     recorded=recorded, scored=scored, worst5_share=float(worst), true_rate=true_rate, **res)
 
 
-def _oracle_parts(model: PHAST, test: Any, q: torch.Tensor, u: torch.Tensor | None, K: int, H: int,
-                  rollout_row: bool, score: Any) -> dict[str, Any]:
+def _oracle_parts(model: PHAST, test: Dataset, q: torch.Tensor, u: torch.Tensor | None, K: int, H: int,
+                  rollout_row: bool, score: Callable[[np.ndarray], float]) -> dict[str, float]:
     from ..components.damping import KnownDamping
     from ..world.interfaces import wrap_angles
 
-    out: dict[str, Any] = {}
+    out: dict[str, float] = {}
     qa, pa = true_state(model, test, slice(None))
     va = model.velocity(qa, pa)  # the true velocity
     v_obs = model.observer(q[:, :K][:, -model.observer.window:])[:, -1]
@@ -153,7 +155,8 @@ def _oracle_parts(model: PHAST, test: Any, q: torch.Tensor, u: torch.Tensor | No
     out["learned_rate"] = float((va * dva).sum() / (va * pa).sum())
 
     def oracle(substeps: int) -> float:
-        step: dict[str, float | torch.Tensor] = {"h": model.core.h * model.core.substeps / substeps, "substeps": substeps}
+        step: dict[str, float | torch.Tensor] = {"h": model.core.h * model.core.substeps / substeps,
+                                                 "substeps": substeps}
         if rollout_row:
             return score(model.integrate(qa[:, K - 1], pa[:, K - 1], u, K - 1, H, **step)[0].numpy())
         f = None if u is None else model.port_force(u)
@@ -174,14 +177,15 @@ def _oracle_parts(model: PHAST, test: Any, q: torch.Tensor, u: torch.Tensor | No
 
 
 def diagnose_grid(out: Path, envs: list[str], models: list[str], seeds: list[int],
-                  model_kw: dict[str, Any] | None = None) -> list[Diagnosis]:
+                  model_kw: Mapping[str, object] | None = None) -> list[Diagnosis]:
     """:func:`diagnose` for every finished run of the grid whose weights are on disk (others are skipped)."""
-    todo = [RunSpec(env_id=e, model=m, seed=s, model_kw=dict(model_kw or {})) for e in envs for m in models for s in seeds]
+    todo = [RunSpec(env_id=e, model=m, seed=s, model_kw=dict(model_kw or {}))
+            for e in envs for m in models for s in seeds]
     found = [(s, r) for s in todo if (r := load_result(out, s)) is not None
              and (work_dir(out, s) / BENCH_MODEL_FILE).exists()]
     diags: list[Diagnosis] = []
-    splits_cache: dict[str, Any] = {}
-    floors: dict[tuple[Any, ...], float] = {}
+    splits_cache: dict[str, dict[str, Dataset]] = {}
+    floors: dict[tuple[str, int, int, int, int, int], float] = {}
     for spec, rec in tqdm(found, desc="diagnose", unit="run"):
         if spec.env_id not in splits_cache:
             splits_cache = {spec.env_id: load_splits(spec)}
@@ -192,7 +196,7 @@ def diagnose_grid(out: Path, envs: list[str], models: list[str], seeds: list[int
     return diags
 
 
-def _floor(spec: RunSpec, cache: dict[tuple[Any, ...], float]) -> float | None:
+def _floor(spec: RunSpec, cache: dict[tuple[str, int, int, int, int, int], float]) -> float | None:
     """The first-step floor of ``spec``'s test split (next-step rows; None on rollout rows), computed once."""
     if benchmark_metric(spec.env_id).startswith("rollout_"):
         return None
@@ -204,8 +208,8 @@ def _floor(spec: RunSpec, cache: dict[tuple[Any, ...], float]) -> float | None:
 
 
 def merge(old: list[dict[str, Any]], new: list[Diagnosis], redone: set[tuple[str, str]]) -> list[Diagnosis]:
-    """``new`` plus the entries of ``old`` (a --json file) outside the (env, model) blocks just diagnosed whose run key is
-    still the current one (a bumped model revision retires them)."""
+    """``new`` plus the entries of ``old`` (a --json file) outside the (env, model) blocks just diagnosed whose run key
+    is still the current one (a bumped model revision retires them)."""
     kept = []
     for e in old:
         d = Diagnosis(**e)

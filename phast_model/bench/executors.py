@@ -20,19 +20,23 @@ from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from multiprocessing import get_context
+from types import ModuleType
 from typing import Any
 
+from .spec import RunRecord
+
 #: ``on_lost(config, exc)``: the record of a run whose worker was lost
-OnLost = Callable[[dict, BaseException], dict]
+OnLost = Callable[[dict[str, Any], BaseException], RunRecord]
 
 
 class Executor:
-    """Interface: ``map_unordered(fn, configs, out_dir, on_lost)`` yields ``fn(config, out_dir, threads)`` as they finish."""
+    """Interface: ``map_unordered(fn, configs, out_dir, on_lost)`` yields ``fn(config, out_dir, threads)`` as they
+    finish."""
 
     name = "base"
 
-    def map_unordered(self, fn: Callable[..., dict], configs: list[dict], out_dir: str,
-                      on_lost: OnLost | None = None) -> Iterator[dict]:  # pragma: no cover
+    def map_unordered(self, fn: Callable[..., RunRecord], configs: list[dict[str, Any]], out_dir: str,
+                      on_lost: OnLost | None = None) -> Iterator[RunRecord]:  # pragma: no cover
         raise NotImplementedError
 
     def shutdown(self) -> None:
@@ -89,8 +93,8 @@ class LocalExecutor(Executor):
         self.threads = int(threads)
         self._pool: ProcessPoolExecutor | None = None
 
-    def map_unordered(self, fn: Callable[..., dict], configs: list[dict], out_dir: str,
-                      on_lost: OnLost | None = None) -> Iterator[dict]:
+    def map_unordered(self, fn: Callable[..., RunRecord], configs: list[dict[str, Any]], out_dir: str,
+                      on_lost: OnLost | None = None) -> Iterator[RunRecord]:
         if self.workers == 1 or len(configs) <= 1:
             for cfg in configs:  # inline: no process start-up, easiest to debug
                 yield fn(cfg, out_dir, self.threads)
@@ -115,15 +119,16 @@ class LocalExecutor(Executor):
             self._pool = None
 
 
-def _import_ray() -> Any:
+def _import_ray() -> ModuleType:
     try:
         import ray
     except ImportError:
-        raise ImportError("the Ray backend needs the 'ray' extra: pip install 'phast[ray]' (or pip install 'ray[default]')") from None
+        raise ImportError("the Ray backend needs the 'ray' extra: pip install 'phast[ray]' "
+                          "(or pip install 'ray[default]')") from None
     return ray
 
 
-def ray_lost_errors(ray: Any) -> tuple[type[BaseException], ...]:
+def ray_lost_errors(ray: ModuleType) -> tuple[type[BaseException], ...]:
     """The errors ``ray.get`` raises for a task that did not return (``ray.exceptions.RayError``: worker crashed or
     killed, node died, result lost, out of memory, cancelled).  The run function itself never raises: it returns
     failures as records."""
@@ -142,7 +147,8 @@ class RayExecutor(Executor):
 
     name = "ray"
 
-    def __init__(self, address: str | None = None, workers: int | None = None, threads: int = 1, max_retries: int = 1) -> None:
+    def __init__(self, address: str | None = None, workers: int | None = None, threads: int = 1,
+                 max_retries: int = 1) -> None:
         self.ray = _import_ray()
         self.threads = max(1, int(threads))
         self.max_retries = int(max_retries)
@@ -150,15 +156,15 @@ class RayExecutor(Executor):
         self._started = False
         self._pending: list[Any] = []
         if not self.ray.is_initialized():
-            kw: dict[str, Any] = {"address": self.address, "include_dashboard": False, "log_to_driver": True}
+            kw: dict[str, object] = {"address": self.address, "include_dashboard": False, "log_to_driver": True}
             if self.address == "local" and workers:
                 kw["num_cpus"] = int(workers)
             self.ray.init(**kw)
             self._started = True
         self.workers = workers
 
-    def map_unordered(self, fn: Callable[..., dict], configs: list[dict], out_dir: str,
-                      on_lost: OnLost | None = None) -> Iterator[dict]:
+    def map_unordered(self, fn: Callable[..., RunRecord], configs: list[dict[str, Any]], out_dir: str,
+                      on_lost: OnLost | None = None) -> Iterator[RunRecord]:
         ray = self.ray
         lost = ray_lost_errors(ray)
         remote = ray.remote(num_cpus=self.threads, max_retries=self.max_retries)(fn)
@@ -193,7 +199,8 @@ class RayExecutor(Executor):
             self._started = False
 
 
-def make_executor(backend: str = "local", workers: int | None = None, address: str | None = None, threads: int = 1) -> Executor:
+def make_executor(backend: str = "local", workers: int | None = None, address: str | None = None,
+                  threads: int = 1) -> Executor:
     """``"local"`` or ``"ray"``; anything else is a ValueError."""
     if backend == "local":
         return LocalExecutor(workers, threads)

@@ -15,9 +15,10 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -27,8 +28,16 @@ from .runner import BENCH_MODEL_FILE, build_run_model, load_result, load_splits,
 from .spec import RunSpec
 from .summary import DISPLAY, aggregate, env_metric
 
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
 
-def load_run_model(out_dir: str | Path, spec: RunSpec, train: Any) -> Any:
+    from phast_gym.datasets import Dataset
+
+    from ..world.interfaces import ForecastModel
+
+
+def load_run_model(out_dir: str | Path, spec: RunSpec, train: Dataset) -> ForecastModel:
     """Rebuild a finished run's model and load its saved weights (``checkpoint.torch_load``: weights_only, and a
     ValueError naming the problem when the file is missing or damaged)."""
     from phast_model.train.checkpoint import torch_load
@@ -40,7 +49,7 @@ def load_run_model(out_dir: str | Path, spec: RunSpec, train: Any) -> Any:
     return model.eval()
 
 
-def _pick(records: list[dict], env: str, phast: bool) -> list[dict]:
+def _pick(records: Sequence[Mapping[str, Any]], env: str, phast: bool) -> list[Mapping[str, Any]]:
     """The runs of ``env``'s best PHAST regime (or best baseline), lowest seed first (empty: none finished)."""
     agg = aggregate(records)
     metric = env_metric(agg, env)
@@ -63,7 +72,7 @@ class EnvRollouts:
     """One env's test trajectories and the chosen models' open-loop rollouts from its burn-in."""
 
     env: str
-    test: Any
+    test: Dataset
     q: np.ndarray  # (n_traj, T, n) observed test trajectories
     K: int  # burn-in
     H: int  # rollout horizon
@@ -78,7 +87,8 @@ class EnvRollouts:
         return DISPLAY.get(name, name)
 
 
-def _rollouts(out_dir: Path, env: str, chosen: list[list[dict]], n_traj: int, H: int) -> EnvRollouts | None:
+def _rollouts(out_dir: Path, env: str, chosen: list[list[Mapping[str, Any]]], n_traj: int,
+              H: int) -> EnvRollouts | None:
     """Reload each chosen model (its lowest seed whose saved weights load) and roll it out open loop on the first
     ``n_traj`` test trajectories."""
     import torch
@@ -109,7 +119,7 @@ def _rollouts(out_dir: Path, env: str, chosen: list[list[dict]], n_traj: int, H:
     return ro if ro.preds else None
 
 
-def _save(fig: Any, path: Path) -> Path:
+def _save(fig: Figure, path: Path) -> Path:
     import matplotlib.pyplot as plt
 
     fig.tight_layout()
@@ -149,7 +159,7 @@ def _rollout_figure(ro: EnvRollouts, path: Path) -> Path:
     return _save(fig, path)
 
 
-def _damping_panel(ax: Any, ro: EnvRollouts) -> None:
+def _damping_panel(ax: Axes, ro: EnvRollouts) -> None:
     """The first PHAST model's learned damping diagonal against the env's D(q) on the test states."""
     import torch
 
@@ -170,7 +180,7 @@ def _damping_panel(ax: Any, ro: EnvRollouts) -> None:
     ax.legend(fontsize=7)
 
 
-def _energy_panel(ax: Any, ro: EnvRollouts) -> None:
+def _energy_panel(ax: Axes, ro: EnvRollouts) -> None:
     """The env's energy along the true and the predicted trajectories (n/a for systems without one)."""
     from ..train.metrics import data_system, env_energy
 

@@ -22,7 +22,7 @@ import time
 import traceback
 from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -30,7 +30,13 @@ from phast_gym.fileio import atomic_write_text, dir_lock
 from phast_gym.fileio import jsonable as _jsonable
 
 from ..train.provenance import code_commit
-from .spec import RunSpec, run_key
+from .spec import RunRecord, RunSpec, run_key
+
+if TYPE_CHECKING:
+    from phast_gym.datasets import Dataset
+
+    from ..train.config import TrainConfig
+    from ..world.interfaces import ForecastModel
 
 
 def run_slug(spec: RunSpec) -> str:
@@ -54,17 +60,18 @@ def absolute_out_dir(out_dir: str | Path) -> Path:
 TRANSIENT_FIELDS = ("status", "persisted_by")
 
 
-def write_record(out_dir: str | Path, rec: dict[str, Any]) -> Path:
+def write_record(out_dir: str | Path, rec: RunRecord) -> Path:
     """Write a finished run's record (its transient fields dropped) to its result file, atomically; the same bytes
     whether a worker or the driver writes it."""
     spec = RunSpec.from_config(rec["config"])
     if rec.get("key") != run_key(spec) or not isinstance(rec.get("metrics"), dict):
-        raise ValueError(f"not a finished run record of {spec.env_id} {spec.model} seed {spec.seed} (key or metrics missing)")
+        raise ValueError(f"not a finished run record of {spec.env_id} {spec.model} seed {spec.seed} "
+                         "(key or metrics missing)")
     stored = {k: v for k, v in rec.items() if k not in TRANSIENT_FIELDS}
     return atomic_write_text(result_path(out_dir, spec), json.dumps(stored, indent=1, sort_keys=True))
 
 
-def persist_record(out_dir: str | Path, rec: dict[str, Any]) -> dict[str, Any]:
+def persist_record(out_dir: str | Path, rec: RunRecord) -> RunRecord:
     """Driver side: write a returned record (ran or cached on its worker) whose result file this machine lacks.
 
     On one machine, or nodes sharing a disk, the worker already wrote it and nothing happens; on a node with its
@@ -78,16 +85,18 @@ def persist_record(out_dir: str | Path, rec: dict[str, Any]) -> dict[str, Any]:
     return {**rec, "persisted_by": "driver"}
 
 
-def failed_record(config: dict[str, Any], error: str, tb: str = "") -> dict[str, Any]:
+def failed_record(config: dict[str, Any], error: str, tb: str = "") -> RunRecord:
     """The record of a run that produced no result (it raised, or its worker was lost)."""
     return {"status": "failed", "env": config.get("env_id"), "model": config.get("model"), "seed": config.get("seed"),
             "config": config, "error": error, "traceback": tb}
 
 
-def lost_record(config: dict[str, Any], exc: BaseException) -> dict[str, Any]:
-    """The failed record of a run whose worker was lost (``on_lost`` of the executors); rerunning the sweep retries it."""
+def lost_record(config: dict[str, Any], exc: BaseException) -> RunRecord:
+    """The failed record of a run whose worker was lost (``on_lost`` of the executors); rerunning the sweep retries
+    it."""
     first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
-    return failed_record(config, f"worker lost: {type(exc).__name__}: {first}".rstrip(": "), "".join(traceback.format_exception_only(exc)))
+    return failed_record(config, f"worker lost: {type(exc).__name__}: {first}".rstrip(": "),
+                         "".join(traceback.format_exception_only(exc)))
 
 
 #: the trained weights of a benchmark run (a bare state dict) in its :func:`work_dir`, read by the figures
@@ -99,7 +108,7 @@ def work_dir(out_dir: str | Path, spec: RunSpec) -> Path:
     return Path(out_dir) / "work" / run_slug(spec)
 
 
-def load_result(out_dir: str | Path, spec: RunSpec) -> dict[str, Any] | None:
+def load_result(out_dir: str | Path, spec: RunSpec) -> RunRecord | None:
     """The stored result of ``spec`` if it exists, is complete and matches its hash; else None."""
     path = result_path(out_dir, spec)
     if not path.exists():
@@ -118,7 +127,7 @@ _CODE_COMMIT = code_commit()
 
 
 # --------------------------------------------------------------------------- data + models
-def load_splits(spec: RunSpec) -> dict[str, Any]:
+def load_splits(spec: RunSpec) -> dict[str, Dataset]:
     """The run's train/val/test datasets (cached on disk by phast_gym); full-state runs see (q, p)."""
     from phast_gym.datasets import make_splits
 
@@ -128,13 +137,13 @@ def load_splits(spec: RunSpec) -> dict[str, Any]:
     return splits
 
 
-def full_state_view(ds: Any) -> Any:
+def full_state_view(ds: Dataset) -> Dataset:
     """The dataset with ``q`` replaced by the full state ``(q, p)`` (paper Appendix H.1 ablation)."""
     q = np.concatenate([ds.q, ds.p], axis=-1)
     return dataclasses.replace(ds, q=q, q_true=np.concatenate([ds.q_true, ds.p], axis=-1))
 
 
-def build_run_model(spec: RunSpec, train: Any) -> Any:
+def build_run_model(spec: RunSpec, train: Dataset) -> ForecastModel:
     """PHAST (via :func:`phast_model.world.regimes.build_model`) or a baseline (via :func:`make_baseline`)."""
     if spec.model.startswith("phast-"):
         from phast_model.world.regimes import build_model
@@ -161,7 +170,7 @@ def build_run_model(spec: RunSpec, train: Any) -> Any:
     return model
 
 
-def make_train_config(spec: RunSpec) -> Any:
+def make_train_config(spec: RunSpec) -> TrainConfig:
     """``TrainConfig(epochs, seed, progress=False, **spec.train)``, with a PHAST regime's trainer settings
     (:func:`phast_model.world.regimes.recipe`) where it leaves them None; unknown fields are a clear error."""
     from phast_model.train.fit import TrainConfig
@@ -183,7 +192,7 @@ def make_train_config(spec: RunSpec) -> Any:
 RAY_LOCK_WAIT_S = 60.0
 
 
-def run_one(config: dict[str, Any], out_dir: str, threads: int = 1, lock_wait_s: float = 0.0) -> dict[str, Any]:
+def run_one(config: dict[str, Any], out_dir: str, threads: int = 1, lock_wait_s: float = 0.0) -> RunRecord:
     """Train + evaluate one run (or return its stored result).  Same function for every executor.
 
     One writer per run: while another process holds the run's directory this waits up to ``lock_wait_s`` seconds
@@ -203,7 +212,7 @@ def run_one(config: dict[str, Any], out_dir: str, threads: int = 1, lock_wait_s:
         return _train_and_score(spec, out_dir, wdir)
 
 
-def _train_and_score(spec: RunSpec, out_dir: str, wdir: Path) -> dict[str, Any]:
+def _train_and_score(spec: RunSpec, out_dir: str, wdir: Path) -> RunRecord:
     import torch
 
     from phast_model.train.checkpoint import atomic_torch_save
@@ -220,20 +229,21 @@ def _train_and_score(spec: RunSpec, out_dir: str, wdir: Path) -> dict[str, Any]:
     fitted = fit_res.model
     # the weights the metrics came from, for figures (state_dict only: torch.load(weights_only=True))
     atomic_torch_save(fitted.state_dict(), wdir / BENCH_MODEL_FILE)
-    rec = {
+    rec: RunRecord = {
         "key": run_key(spec), "env": spec.env_id, "model": spec.model, "seed": spec.seed,
         "config": spec.config(), "metrics": _jsonable(metrics), "params": int(fitted.n_parameters()),
         "best_val": _jsonable(fit_res.best_val),
         "fit_wall_time_s": float(fit_res.wall_time_s), "wall_time_s": time.perf_counter() - t0,
         "history": _jsonable(list(fit_res.history)),
-        "git_commit": _CODE_COMMIT, "host": socket.gethostname(), "python": platform.python_version(), "torch": str(torch.__version__),
+        "git_commit": _CODE_COMMIT, "host": socket.gethostname(), "python": platform.python_version(),
+        "torch": str(torch.__version__),
         "threads": torch.get_num_threads(), "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }
     write_record(out_dir, rec)
     return {**rec, "status": "ran"}
 
 
-def safe_run_one(config: dict[str, Any], out_dir: str, threads: int = 1, lock_wait_s: float = 0.0) -> dict[str, Any]:
+def safe_run_one(config: dict[str, Any], out_dir: str, threads: int = 1, lock_wait_s: float = 0.0) -> RunRecord:
     """:func:`run_one` that reports a failure as a record instead of raising (one bad run keeps the sweep going)."""
     try:
         return run_one(config, out_dir, threads, lock_wait_s)
@@ -241,7 +251,7 @@ def safe_run_one(config: dict[str, Any], out_dir: str, threads: int = 1, lock_wa
         return failed_record(config, f"{type(exc).__name__}: {exc}", traceback.format_exc())
 
 
-def safe_run_one_waiting(config: dict[str, Any], out_dir: str, threads: int = 1) -> dict[str, Any]:
+def safe_run_one_waiting(config: dict[str, Any], out_dir: str, threads: int = 1) -> RunRecord:
     """:func:`safe_run_one` waiting up to :data:`RAY_LOCK_WAIT_S` for a run directory another process holds (the Ray
     task function: a plain function, as ``ray.remote`` needs)."""
     return safe_run_one(config, out_dir, threads, lock_wait_s=RAY_LOCK_WAIT_S)
@@ -262,7 +272,7 @@ def grid(envs: Iterable[str], models: Iterable[str], seeds: Iterable[int], **com
 
 
 def run_sweep(specs: list[RunSpec], out_dir: str | Path, backend: str = "local", workers: int | None = None,
-              address: str | None = None, progress: bool = True, threads: int = 1) -> list[dict[str, Any]]:
+              address: str | None = None, progress: bool = True, threads: int = 1) -> list[RunRecord]:
     """Run every spec not already finished in ``out_dir``; return all records (cached, ran or failed).
 
     Finished runs are read from disk in this process and never dispatched, so a
@@ -273,7 +283,7 @@ def run_sweep(specs: list[RunSpec], out_dir: str | Path, backend: str = "local",
 
     out_dir = absolute_out_dir(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    records: list[dict[str, Any]] = []
+    records: list[RunRecord] = []
     pending: list[RunSpec] = []
     specs = list({run_key(s): s for s in specs}.values())  # a run asked for twice runs once
     for spec in specs:
@@ -298,10 +308,11 @@ def run_sweep(specs: list[RunSpec], out_dir: str | Path, backend: str = "local",
                 try:
                     rec = persist_record(out_dir, rec)
                 except (OSError, ValueError) as exc:  # keep the sweep (and this record, in memory) going
-                    print(f"[phast-bench] could not store {rec.get('env')} {rec.get('model')} seed {rec.get('seed')}: {exc}",
-                          flush=True)
+                    print(f"[phast-bench] could not store {rec.get('env')} {rec.get('model')} seed {rec.get('seed')}: "
+                          f"{exc}", flush=True)
                 if rec.get("status") == "failed":
-                    print(f"[phast-bench] FAILED {rec['env']} {rec['model']} seed {rec['seed']}: {rec['error']}", flush=True)
+                    print(f"[phast-bench] FAILED {rec['env']} {rec['model']} seed {rec['seed']}: {rec['error']}",
+                          flush=True)
                 records.append(rec)
         finally:
             ex.shutdown()

@@ -13,7 +13,7 @@ from __future__ import annotations
 import hashlib
 import json
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, TypedDict
 
 #: bump when the meaning of a stored result changes (new metrics protocol, ...)
 HARNESS_VERSION = 1
@@ -88,6 +88,33 @@ class RunSpec:
         cfg.pop("model_revision", None)
         cfg["horizons"] = tuple(cfg.get("horizons", (10, 50, 100)))
         return cls(**cfg)
+
+
+class RunRecord(TypedDict, total=False):
+    """One run's record: what its result file holds (:func:`phast_model.bench.runner.write_record`), plus how this
+    delivery got it (``status``: ran, cached or failed; ``persisted_by``) and, for a failed run, its error."""
+
+    key: str
+    env: str | None  # None: a failed run whose config lacks it
+    model: str | None
+    seed: int | None
+    config: dict[str, Any]  # :meth:`RunSpec.config`
+    metrics: dict[str, Any]  # the test metrics, JSON values (NaN as None)
+    params: int
+    best_val: float | None
+    fit_wall_time_s: float
+    wall_time_s: float
+    history: list[dict[str, Any]]
+    git_commit: str | None
+    host: str
+    python: str
+    torch: str
+    threads: int
+    finished_utc: str
+    status: str
+    persisted_by: str
+    error: str
+    traceback: str
 
 
 def run_key(spec: RunSpec) -> str:

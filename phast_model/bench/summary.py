@@ -15,11 +15,11 @@ import csv
 import io
 import math
 from collections import defaultdict
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeAlias, TypedDict
 
 import numpy as np
 from gymnasium.error import Error as GymError
@@ -34,7 +34,20 @@ DISPLAY = {"phast-known": "PHAST (KNOWN)", "phast-partial": "PHAST (PARTIAL)", "
            "dlinoss": "D-LinOSS", "vpt": "VPT", "dhnn": "DHNN"}
 
 
-def _group_key(rec: dict[str, Any]) -> tuple[str, str]:
+class GroupStats(TypedDict, total=False):
+    """One (env, model) of :func:`aggregate` (total=False: a group not run reads as ``{}``)."""
+
+    metrics: dict[str, tuple[float, float, int]]  # metric -> (mean, std, number of seeds)
+    params: int
+    seeds: list[int]
+    wall_time_s: float  # mean over the seeds
+
+
+#: (env, model) -> its :class:`GroupStats`
+Aggregated: TypeAlias = dict[tuple[str, str], GroupStats]
+
+
+def _group_key(rec: Mapping[str, Any]) -> tuple[str, str]:
     env = rec["env"] + (" (full state)" if rec.get("config", {}).get("full_state") else "")
     return env, rec["model"]
 
@@ -48,7 +61,7 @@ def _constant_damping(env_id: str) -> bool:
         return False
 
 
-def _metric_value(env_id: str, key: str, value: Any) -> float | None:
+def _metric_value(env_id: str, key: str, value: object) -> float | None:
     """A record's metric as it enters the mean: a finite float, NaN (for None), or None (left out).
 
     ``damping_r2`` is left out where the true D is constant: its denominator is then round-off (records written
@@ -62,13 +75,13 @@ def _metric_value(env_id: str, key: str, value: Any) -> float | None:
     return float(value)
 
 
-def aggregate(records: list[dict[str, Any]]) -> dict[tuple[str, str], dict[str, Any]]:
+def aggregate(records: Sequence[Mapping[str, Any]]) -> Aggregated:
     """(env, model) -> {"metrics": {key: (mean, std, n)}, "params": int, "seeds": [...], "wall_time_s": mean}."""
-    groups: dict[tuple[str, str], list[dict]] = defaultdict(list)
+    groups: dict[tuple[str, str], list[Mapping[str, Any]]] = defaultdict(list)
     for rec in records:
         if rec.get("status") != "failed" and isinstance(rec.get("metrics"), dict):
             groups[_group_key(rec)].append(rec)
-    out = {}
+    out: Aggregated = {}
     for key, recs in groups.items():
         vals: dict[str, list[float]] = defaultdict(list)
         for r in recs:
@@ -84,8 +97,8 @@ def aggregate(records: list[dict[str, Any]]) -> dict[tuple[str, str], dict[str, 
     return out
 
 
-def summary_rows(agg: dict[tuple[str, str], dict[str, Any]]) -> list[dict[str, Any]]:
-    rows = []
+def summary_rows(agg: Aggregated) -> list[dict[str, str | float | int]]:
+    rows: list[dict[str, str | float | int]] = []
     for (env, model), g in sorted(agg.items()):
         for metric, (mean, std, n) in sorted(g["metrics"].items()):
             rows.append({"env": env, "model": model, "metric": metric, "mean": mean, "std": std, "n_seeds": n,
@@ -93,7 +106,7 @@ def summary_rows(agg: dict[tuple[str, str], dict[str, Any]]) -> list[dict[str, A
     return rows
 
 
-def write_summary_csv(agg: dict[tuple[str, str], dict[str, Any]], path: str | Path) -> Path:
+def write_summary_csv(agg: Aggregated, path: str | Path) -> Path:
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=["env", "model", "metric", "mean", "std", "n_seeds", "params"])
     w.writeheader()
@@ -123,13 +136,13 @@ def paper_row_for(env: str) -> PaperRow | None:
     return PAPER.get(env)
 
 
-def best_of(agg: dict, env: str, metric: str, pick: Callable[[str], bool]) -> tuple[str, tuple] | None:
+def best_of(agg: Aggregated, env: str, metric: str, pick: Callable[[str], bool]) -> tuple[str, tuple] | None:
     rows = [(m, g["metrics"][metric]) for (e, m), g in agg.items()
             if e == env and pick(m) and metric in g["metrics"] and math.isfinite(g["metrics"][metric][0])]
     return min(rows, key=lambda r: r[1][0]) if rows else None
 
 
-def best_sides(agg: dict, env: str, metric: str) -> tuple[tuple[str, tuple] | None, tuple[str, tuple] | None]:
+def best_sides(agg: Aggregated, env: str, metric: str) -> tuple[tuple[str, tuple] | None, tuple[str, tuple] | None]:
     """(best PHAST regime, best baseline) of ``env`` on ``metric``, each (model, (mean, std, n)) or None."""
     return (best_of(agg, env, metric, lambda m: m.startswith("phast-")),
             best_of(agg, env, metric, lambda m: not m.startswith("phast-")))
@@ -154,15 +167,16 @@ def resolve_metric(metric: str, available: set[str]) -> str:
     return f"{stem}_h{max(hs)}" if hs else metric
 
 
-def env_metric(agg: dict, env: str) -> str:
+def env_metric(agg: Aggregated, env: str) -> str:
     """The row metric of ``env`` as measured in ``agg`` (see :func:`resolve_metric`)."""
     keys = {k for (e, _), g in agg.items() if e == env for k in g["metrics"]}
     return resolve_metric(metric_for(env), keys)
 
 
-def markdown_tables(agg: dict[tuple[str, str], dict[str, Any]], title: str = "phast-bench results", note: str = "") -> str:
+def markdown_tables(agg: Aggregated, title: str = "phast-bench results", note: str = "") -> str:
     """Table-4-shaped summary + per-benchmark tables (markdown)."""
-    envs = list(dict.fromkeys(e for e, _ in sorted(agg, key=lambda k: (list(PAPER).index(k[0]) if k[0] in PAPER else 99, k))))
+    envs = list(dict.fromkeys(e for e, _ in sorted(
+        agg, key=lambda k: (list(PAPER).index(k[0]) if k[0] in PAPER else 99, k))))
     lines = [f"# {title}", ""]
     if note:
         lines += [note, ""]
@@ -186,7 +200,8 @@ def markdown_tables(agg: dict[tuple[str, str], dict[str, Any]], title: str = "ph
         lines.append(
             f"| {name} | `{metric}` | {_ms(bp[1]) + ' (' + DISPLAY[bp[0]] + ')' if bp else '—'} | "
             f"{_ms(bb[1]) + ' (' + DISPLAY[bb[0]] + ')' if bb else '—'} | {gain} | {beats} | "
-            f"{fmt(pp[1]) + ' (' + DISPLAY[pp[0]] + ')' if pp else '—'} | {ratio} | {','.join(map(str, seeds)) or '—'} |")
+            f"{fmt(pp[1]) + ' (' + DISPLAY[pp[0]] + ')' if pp else '—'} | {ratio} | "
+            f"{','.join(map(str, seeds)) or '—'} |")
     lines += regime_table(agg, envs)
     lines += floor_rule(agg, envs)
     lines += acceptance_table(agg, envs)
@@ -211,7 +226,7 @@ def markdown_tables(agg: dict[tuple[str, str], dict[str, Any]], title: str = "ph
     return "\n".join(lines) + "\n"
 
 
-def regime_table(agg: dict[tuple[str, str], dict[str, Any]], envs: list[str]) -> list[str]:
+def regime_table(agg: Aggregated, envs: list[str]) -> list[str]:
     """Each PHAST regime next to the paper's number for the same regime (paper Tables 17-24): best-of-regimes
     alone hides the rows where one regime trails."""
     regimes = [m for m in DISPLAY if m.startswith("phast-")]
@@ -266,7 +281,7 @@ class FloorVerdict:
         return self.within and self.beats
 
 
-def floor_verdict(agg: dict[tuple[str, str], dict[str, Any]], env: str, slack: float = 1.1) -> FloorVerdict:
+def floor_verdict(agg: Aggregated, env: str, slack: float = 1.1) -> FloorVerdict:
     """The N-body rule's numbers for ``env`` (see :func:`floor_rule`)."""
     from .floor import first_step_floor
 
@@ -274,7 +289,7 @@ def floor_verdict(agg: dict[tuple[str, str], dict[str, Any]], env: str, slack: f
     return FloorVerdict(float(first_step_floor(env)["floor_mse"]), p90, pab, b90, bab, slack)
 
 
-def floor_rule(agg: dict[tuple[str, str], dict[str, Any]], envs: list[str], slack: float = 1.1) -> list[str]:
+def floor_rule(agg: Aggregated, envs: list[str], slack: float = 1.1) -> list[str]:
     """N-body: the paper's next-step MSE is below the floor no causal model can avoid (the t = 0 prediction,
     :func:`phast_model.bench.floor.first_step_floor`).  The row passes when the best PHAST is within ``slack`` x the
     floor on Eq. 90 and beats every baseline both on Eq. 90 and on the next-step MSE after the burn-in."""
@@ -282,8 +297,9 @@ def floor_rule(agg: dict[tuple[str, str], dict[str, Any]], envs: list[str], slac
     if not rows:
         return []
     lines = ["", "## Next-step rows below the information floor (N-body rule)", "",
-             "| benchmark | floor (Eq. 90) | best PHAST: Eq. 90 | after burn-in | best baseline: Eq. 90 | after burn-in "
-             f"| within {slack:g}x floor | beats baselines on both | passes |", "|---|---|---|---|---|---|---|---|---|"]
+             "| benchmark | floor (Eq. 90) | best PHAST: Eq. 90 | after burn-in | best baseline: Eq. 90 "
+             f"| after burn-in | within {slack:g}x floor | beats baselines on both | passes |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for env in rows:
         v = floor_verdict(agg, env, slack)
 
@@ -301,7 +317,7 @@ def _benchmark(env: str) -> str:
     return row.benchmark if row else env
 
 
-def acceptance_table(agg: dict[tuple[str, str], dict[str, Any]], envs: list[str], n_seeds: int | None = None) -> list[str]:
+def acceptance_table(agg: Aggregated, envs: list[str], n_seeds: int | None = None) -> list[str]:
     """Each row judged as the grid's acceptance asks: complete (every model of the paper's grid over ``n_seeds``
     seeds, default the most any model has), the best PHAST beats the best baseline of the same run, and it matches
     or beats the paper's best PHAST (rows in ``FLOOR_RULE_ENVS``: the floor rule instead)."""
@@ -337,7 +353,7 @@ def acceptance_table(agg: dict[tuple[str, str], dict[str, Any]], envs: list[str]
     return lines
 
 
-def write_reports(records: list[dict[str, Any]], out_dir: str | Path, title: str = "phast-bench results",
+def write_reports(records: Sequence[Mapping[str, Any]], out_dir: str | Path, title: str = "phast-bench results",
                   note: str = "") -> dict[str, Path]:
     """Write ``summary.csv`` and ``tables.md`` into ``out_dir``; return their paths."""
     out_dir = Path(out_dir)

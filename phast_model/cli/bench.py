@@ -18,7 +18,6 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Any
 
 from phast_gym.fileio import ensure_writable_dir
 from phast_model.bench import (
@@ -45,9 +44,9 @@ def _parse_list(text: str, all_values: tuple[str, ...], what: str) -> list[str]:
     return out
 
 
-def parse_kv(items: list[str] | None) -> dict[str, Any]:
+def parse_kv(items: list[str] | None) -> dict[str, object]:
     """``["lr=3e-4", "batch_size=32"]`` -> {"lr": 0.0003, "batch_size": 32} (values parsed as JSON when possible)."""
-    out: dict[str, Any] = {}
+    out: dict[str, object] = {}
     for item in items or []:
         if "=" not in item:
             raise ValueError(f"expected KEY=VALUE, got {item!r}")
@@ -60,9 +59,12 @@ def parse_kv(items: list[str] | None) -> dict[str, Any]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="phast-bench", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--envs", default="all", help="'all' (the 13 benchmarks of paper Table 4) or comma-separated env ids")
-    p.add_argument("--models", default="all", help=f"'all' ({','.join(ALL_MODELS)}) or a comma list from: {','.join(KNOWN_MODELS)}"
+    p = argparse.ArgumentParser(prog="phast-bench", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--envs", default="all",
+                   help="'all' (the 13 benchmarks of paper Table 4) or comma-separated env ids")
+    p.add_argument("--models", default="all",
+                   help=f"'all' ({','.join(ALL_MODELS)}) or a comma list from: {','.join(KNOWN_MODELS)}"
                    " (dhnn = full-state ablation)")
     p.add_argument("--seeds", default="0-4", help="model seeds, e.g. '0-4' or '0,1,2' (default 0-4)")
     p.add_argument("--epochs", type=int, default=50)
@@ -74,19 +76,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--horizons", default="10,50,100")
     p.add_argument("--burn-in", type=int, default=10)
     p.add_argument("--full-state", action="store_true",
-                   help="every run sees the full state (q, p) (paper Table 25: PHAST regimes vs DHNN; dhnn is always full-state)")
-    p.add_argument("--train", action="append", metavar="KEY=VALUE", help="TrainConfig override (repeatable), e.g. batch_size=32")
+                   help="every run sees the full state (q, p) (paper Table 25: PHAST regimes vs DHNN; "
+                        "dhnn is always full-state)")
+    p.add_argument("--train", action="append", metavar="KEY=VALUE",
+                   help="TrainConfig override (repeatable), e.g. batch_size=32")
     p.add_argument("--model-kw", action="append", metavar="KEY=VALUE", help="model constructor override (repeatable)")
     p.add_argument("--out", default="results", help="output directory (default results/)")
     p.add_argument("--backend", choices=("local", "ray"), default="local")
     p.add_argument("--address", default=None,
-                   help="Ray cluster to run on (backend ray): 'auto' (the cluster started on this machine by 'ray start') or "
-                        "HOST:PORT; default: a private local Ray instance for this sweep only")
+                   help="Ray cluster to run on (backend ray): 'auto' (the cluster started on this machine by "
+                        "'ray start') or HOST:PORT; default: a private local Ray instance for this sweep only")
     p.add_argument("--workers", type=int, default=None, help="parallel runs (default: all cores)")
     p.add_argument("--threads", type=int, default=1, help="torch threads per run (default 1)")
-    p.add_argument("--summarize-only", action="store_true", help="do not train: tabulate the finished runs of this grid")
+    p.add_argument("--summarize-only", action="store_true",
+                   help="do not train: tabulate the finished runs of this grid")
     p.add_argument("--dry-run", action="store_true", help="list the grid with done/pending status and exit")
-    p.add_argument("--figures", action="store_true", help="also draw rollout / damping / energy figures (paper Figs. 5-6)")
+    p.add_argument("--figures", action="store_true",
+                   help="also draw rollout / damping / energy figures (paper Figs. 5-6)")
     p.add_argument("--title", default="phast-bench results", help="title of tables.md")
     p.add_argument("--note", default="", help="text placed under the title of tables.md (e.g. the budget)")
     p.add_argument("--no-progress", action="store_true")

@@ -67,14 +67,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--env", default=ControlProtocol.env_id, help="pendulum-family plant env id")
     p.add_argument("--dt", type=float, default=ControlProtocol.dt, help="control sampling interval (s)")
     p.add_argument("--horizon", type=int, default=ControlProtocol.horizon, help="closed-loop steps per trial")
-    p.add_argument("--k-c", type=float, default=None, help="shaping gain (default 0.7; 20 when q_star = pi, which needs k_c > m g l)")
-    p.add_argument("--d-inj", type=float, default=None, help="damping-injection gain (default 0.11; 3 when q_star = pi)")
+    p.add_argument("--k-c", type=float, default=None,
+                   help="shaping gain (default 0.7; 20 when q_star = pi, which needs k_c > m g l)")
+    p.add_argument("--d-inj", type=float, default=None,
+                   help="damping-injection gain (default 0.11; 3 when q_star = pi)")
     p.add_argument("--k-xi", type=float, default=ControlProtocol.k_xi, help="xi predictor-corrector gain")
     p.add_argument("--xi-feedback", choices=XI_FEEDBACK, default=ControlProtocol.xi_feedback,
-                   help="q fed back into the xi update (Eq. 29): the raw measurement (paper) or the estimator's filtered q "
-                        "(UKF posterior, MAP smoothed angle; estimators without one use the measurement)")
+                   help="q fed back into the xi update (Eq. 29): the raw measurement (paper) or the estimator's "
+                        "filtered q (UKF posterior, MAP smoothed angle; estimators without one use the measurement)")
     p.add_argument("--tol", type=float, default=ControlProtocol.tol, help="success angle tolerance (rad)")
-    p.add_argument("--u-tol", type=float, default=ControlProtocol.u_tol, help="success RMS-torque tolerance (N m) over the final window")
+    p.add_argument("--u-tol", type=float, default=ControlProtocol.u_tol,
+                   help="success RMS-torque tolerance (N m) over the final window")
     p.add_argument("--tcn-sigma-max", type=float, default=0.05, help="sigma_max of the U[0, sigma_max] TCN variants")
     p.add_argument("--tcn-cache", default=None, help="directory of trained TCN observers (default DIR/observers)")
     p.add_argument("--no-plots", action="store_true")
@@ -115,7 +118,8 @@ def run(args: argparse.Namespace) -> list[ControlRow]:
     def factory(name: str, system: System, dt: float, sigma: float) -> PortEstimator:
         kw: dict[str, Any] = {}
         if name.startswith("tcn"):
-            kw = {"protocol": protocol, "cache_dir": cache, "sigma_max": args.tcn_sigma_max, "progress": not args.no_progress}
+            kw = {"protocol": protocol, "cache_dir": cache, "sigma_max": args.tcn_sigma_max,
+                  "progress": not args.no_progress}
         elif name.startswith("phast"):
             kw = {"run": args.phast_run}
         return make_estimator(name, system, dt, sigma=sigma, **kw)
@@ -124,8 +128,8 @@ def run(args: argparse.Namespace) -> list[ControlRow]:
     rows, kept = evaluate_estimators(protocol, names, sigmas, args.trials_per_regime, seed=args.seed, factory=factory,
                           progress=not args.no_progress, keep_episodes=keep)
     atomic_write_text(out / "results.json", json.dumps(rows, indent=1))
-    atomic_write_text(out / "protocol.json", json.dumps({**protocol.to_dict(), "regimes": START_REGIMES, "seed": args.seed,
-                                                     "trials_per_regime": args.trials_per_regime,
+    atomic_write_text(out / "protocol.json", json.dumps({**protocol.to_dict(), "regimes": START_REGIMES,
+                                                     "seed": args.seed, "trials_per_regime": args.trials_per_regime,
                                                      "command": "phast-control-eval " + " ".join(sys.argv[1:])},
                                                     indent=1))
     atomic_write_text(out / "results.md", results_markdown(rows, protocol))
@@ -144,7 +148,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     for r in rows:
         if r["regime"] == "all":
-            print(f"sigma={r['sigma']:g} {r['estimator']:>14s}: success {r['success_rate']:.2f} effort {r['effort']:.1f} "
+            print(f"sigma={r['sigma']:g} {r['estimator']:>14s}: success {r['success_rate']:.2f} "
+                  f"effort {r['effort']:.1f} "
                   f"|qdot_hat-qdot| {r['velocity_error']:.3f} final {r['final_error']:.2e}")
     print(f"wrote {Path(args.out) / 'results.json'}")
     return 0

@@ -19,9 +19,13 @@ import argparse
 import sys
 import time
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from phast_gym.systems import System
+    from phast_model.mismatch import Report
 
 
 @dataclass
@@ -36,7 +40,8 @@ class Case:
     u_std: float = 0.0
     x0_scale: float = 1.0
     kind: str = "effect"  # effect | clean | param
-    sim_kwargs: dict[str, Any] = field(default_factory=dict)  # the nominal simulator the tool is given (the CAD values)
+    # the nominal simulator the tool is given (the CAD values)
+    sim_kwargs: dict[str, float | str] = field(default_factory=dict)
     rollout_window: float | None = None  # held-out open-loop windows [s] (a chaotic arm: short windows)
     dt: float | None = None  # sampling step of the recordings [s] (default: the env's)
 
@@ -72,21 +77,22 @@ CASES: list[Case] = [
     Case("oscillator_coulomb_q1", "PHAST/DampedOscillator-v0", [("coulomb_friction", 1, 0.03)]),
     Case("cartpole_cart_coulomb", "PHAST/WindyCartPole-v0", [("coulomb_friction", 0, 0.3)]),
     Case("two_effects_pendulum", "PHAST/DampedPendulum-v0", [("coulomb_friction", 0, 0.1), ("constant_force", 0, 0.2)]),
-    Case("oscillator_stribeck", "PHAST/DampedOscillator-v0", [("coulomb_friction", 0, 0.02), ("stribeck_friction", 0, 0.04, 0.5)]),
+    Case("oscillator_stribeck", "PHAST/DampedOscillator-v0",
+         [("coulomb_friction", 0, 0.02), ("stribeck_friction", 0, 0.04, 0.5)]),
     # parameters before terms (docs/mismatch_claims.md): parameter errors must not become terms
     Case("arm_inertia2", "PHAST/DoublePendulum-v0", params={"inertia2": ARM["inertia2"] * 1.1}, noise=0.002, u_std=0.5,
          kind="param", sim_kwargs=ARM, rollout_window=1.0),
     Case("arm_cad_off_coulomb", "PHAST/DoublePendulum-v0", [("coulomb_friction", 1, 0.08)], params=ARM_OFF, noise=0.002,
          u_std=0.5, sim_kwargs=ARM, rollout_window=1.0),
     Case("pendulum_port_gain", "PHAST/Pendulum-v0", [("actuator_gain", 0, 0.8)], noise=0.002, u_std=1.0),
-    Case("pendulum_viscous_and_drag", "PHAST/Pendulum-v0", [("viscous_damping", 0, 0.003), ("quadratic_drag", 0, 0.001)],
-         noise=0.002),
-    Case("cartpole_pole_drag_cart_coulomb", "PHAST/WindyCartPole-v0", [("quadratic_drag", 1, 0.01), ("coulomb_friction", 0, 0.3)],
-         noise=0.002),
+    Case("pendulum_viscous_and_drag", "PHAST/Pendulum-v0",
+         [("viscous_damping", 0, 0.003), ("quadratic_drag", 0, 0.001)], noise=0.002),
+    Case("cartpole_pole_drag_cart_coulomb", "PHAST/WindyCartPole-v0",
+         [("quadratic_drag", 1, 0.01), ("coulomb_friction", 0, 0.3)], noise=0.002),
     # delays: an actuator that acts 30 ms late at 100 Hz, a joint encoder that reports 10 ms late
     Case("pendulum_input_delay", "PHAST/Pendulum-v0", [("input_delay", 0, 0.03)], noise=0.002, u_std=1.0, dt=0.01),
-    Case("arm_sensor_delay", "PHAST/DoublePendulum-v0", [("sensor_delay", 1, 0.01)], noise=0.002, u_std=0.5, sim_kwargs=ARM,
-         rollout_window=1.0),
+    Case("arm_sensor_delay", "PHAST/DoublePendulum-v0", [("sensor_delay", 1, 0.01)], noise=0.002, u_std=0.5,
+         sim_kwargs=ARM, rollout_window=1.0),
 ]
 
 
@@ -94,12 +100,13 @@ def _term_text(t: tuple) -> str:
     return f"{t[0]}[{t[1]}]={t[2]:g}" + (f"(v_s={t[3]:g})" if len(t) > 3 else "")
 
 
-def run_tool(case: Case, rec: dict[str, Any], holdout: float) -> dict[str, Any]:
+def run_tool(case: Case, rec: dict[str, Any], holdout: float) -> ToolResult:
     """The mismatch tool on one case, scored against the hidden truth."""
     from phast_model.mismatch import analyze
 
     t0, c0 = time.time(), time.process_time()
-    rep = analyze(case.env_id, rec, sim_kwargs=case.sim_kwargs, holdout_fraction=holdout, rollout_window=case.rollout_window)
+    rep = analyze(case.env_id, rec, sim_kwargs=case.sim_kwargs, holdout_fraction=holdout,
+                  rollout_window=case.rollout_window)
     wall, cpu = time.time() - t0, time.process_time() - c0
     found = {(m["term"], m["coordinate"]): m["coefficient"] for m in rep.missing_physics}
     hidden = {(t[0], t[1]): t[2] for t in case.terms}
@@ -126,13 +133,50 @@ def run_tool(case: Case, rec: dict[str, Any], holdout: float) -> dict[str, Any]:
             "ratio": ratio, "time_s": wall, "cpu_s": cpu, "correct": bool(ok), "summary": rep.summary}
 
 
-def _interval(what: str, true: float, estimate: float, ci95: list[float]) -> dict[str, Any]:
+class Interval(TypedDict):
+    """A reported 95% interval against the truth (the bench's coverage column)."""
+
+    what: str
+    true: float
+    estimate: float
+    ci95: list[float]
+    inside: bool
+    rel_width: float  # the interval's width over |true|
+
+
+class ToolResult(TypedDict):
+    """The mismatch tool on one case, scored against the hidden truth."""
+
+    found: list[str]
+    coef_rel_err: dict[str, float]
+    param_rel_err: dict[str, float]
+    intervals: list[Interval]
+    rollout_calibrated: float
+    rollout_augmented: float
+    rollout_nominal: float
+    ratio: float
+    time_s: float
+    cpu_s: float
+    correct: bool
+    summary: str
+
+
+class SindyResult(TypedDict):
+    """The PySINDy peer on one case."""
+
+    found: list[str]
+    coef_rel_err: dict[str, float]
+    correct: bool
+    time_s: float
+
+
+def _interval(what: str, true: float, estimate: float, ci95: list[float]) -> Interval:
     lo, hi = float(ci95[0]), float(ci95[1])
     return {"what": what, "true": true, "estimate": estimate, "ci95": [lo, hi], "inside": bool(lo <= true <= hi),
             "rel_width": (hi - lo) / abs(true)}
 
 
-def _intervals(rep: Any, hidden: dict[tuple[str, int], float], scored: dict[str, float]) -> list[dict[str, Any]]:
+def _intervals(rep: Report, hidden: dict[tuple[str, int], float], scored: dict[str, float]) -> list[Interval]:
     """The reported 95% interval of every hidden coefficient the tool found (at its coordinate) and of every scored
     parameter change, with the truth and whether it lies inside: the bench's coverage column."""
     rows = {(m["term"], m["coordinate"]): m for m in rep.missing_physics}
@@ -153,7 +197,7 @@ def coverage(rows: list[dict[str, Any]]) -> dict[str, Any]:
             "median_rel_width": float(np.median([iv["rel_width"] for iv in items])) if items else float("nan")}
 
 
-def run_sindy(case: Case, rec: dict[str, Any], threshold: float = 0.05) -> dict[str, Any]:
+def run_sindy(case: Case, rec: dict[str, Any], threshold: float = 0.05) -> SindyResult:
     """PySINDy peer: own differentiation + STLSQ on the same named terms, residual to the nominal model (PySINDy's
     UserWarnings silenced for this call only)."""
     import warnings
@@ -181,7 +225,7 @@ def sindy_library(q: np.ndarray, v: np.ndarray, u: np.ndarray | None) -> dict[st
     return lib
 
 
-def _sindy_fit(case: Case, rec: dict[str, Any], threshold: float) -> dict[str, Any]:
+def _sindy_fit(case: Case, rec: dict[str, Any], threshold: float) -> SindyResult:
     import pysindy as ps
 
     from phast_gym.registry import make_env_system
@@ -208,8 +252,8 @@ def _sindy_fit(case: Case, rec: dict[str, Any], threshold: float) -> dict[str, A
         pdot = np.stack([diff(p[k], t) for k in range(N)])
     qc = tuple(q[..., i] for i in range(n))
     pc = tuple(p[..., i] for i in range(n))
-    F = np.stack([np.broadcast_to(f, q.shape[:-1]) for f in sys0.rhs(qc, pc, None if u is None else tuple(u[..., i] for i in range(n)),
-                                                                      NUMPY)[1]], -1)
+    F = np.stack([np.broadcast_to(f, q.shape[:-1])
+                  for f in sys0.rhs(qc, pc, None if u is None else tuple(u[..., i] for i in range(n)), NUMPY)[1]], -1)
     r = (pdot - F)[:, 5:-5].reshape(-1, n)
     found: dict[tuple[str, int], float] = {}
     for i in range(n):
@@ -234,7 +278,7 @@ def _sindy_fit(case: Case, rec: dict[str, Any], threshold: float) -> dict[str, A
             "correct": bool(ok), "time_s": time.time() - t0}
 
 
-def reality_env(case: Case) -> Any:
+def reality_env(case: Case) -> str | type[System]:
     """The env the case's reality is simulated with: its env id, or at ``case.dt`` a subclass of its system sampled at
     that step (substeps no longer than the env's); the tool is given the env id."""
     if case.dt is None:
@@ -252,8 +296,9 @@ def make_case_data(case: Case, n_traj: int, T: int, seed: int) -> dict[str, Any]
     from phast_model.bench.reality import make_reality
     from phast_model.mismatch import Term
 
-    return make_reality(reality_env(case), [Term(*t) for t in case.terms], true_kwargs={**case.sim_kwargs, **case.params}, n_traj=n_traj,
-                        T=T, noise_std=case.noise, seed=seed, u_std=case.u_std, x0_scale=case.x0_scale)
+    return make_reality(reality_env(case), [Term(*t) for t in case.terms],
+                        true_kwargs={**case.sim_kwargs, **case.params}, n_traj=n_traj, T=T, noise_std=case.noise,
+                        seed=seed, u_std=case.u_std, x0_scale=case.x0_scale)
 
 
 def effect_size(case: Case, n_traj: int, T: int, seed: int, window: int = 100) -> float:
@@ -265,8 +310,10 @@ def effect_size(case: Case, n_traj: int, T: int, seed: int, window: int = 100) -
     from phast_model.bench.reality import make_reality
     from phast_model.mismatch import Term
 
-    kw: dict[str, Any] = dict(n_traj=n_traj, T=min(T, window), noise_std=0.0, seed=seed, u_std=case.u_std, x0_scale=case.x0_scale)
-    a = make_reality(reality_env(case), [Term(*t) for t in case.terms], true_kwargs={**case.sim_kwargs, **case.params}, **kw)["q"]
+    kw: dict[str, Any] = dict(n_traj=n_traj, T=min(T, window), noise_std=0.0, seed=seed, u_std=case.u_std,
+                              x0_scale=case.x0_scale)
+    a = make_reality(reality_env(case), [Term(*t) for t in case.terms], true_kwargs={**case.sim_kwargs, **case.params},
+                     **kw)["q"]
     # a delay's reality starts earlier (its history): the same delay at 0 gives the same initial states and inputs
     zero = [Term(t[0], t[1], 0.0) for t in case.terms if Term(*t).kind.delay]
     b = make_reality(reality_env(case), zero, true_kwargs=case.sim_kwargs, **kw)["q"]
@@ -278,15 +325,16 @@ def markdown_table(rows: list[dict[str, Any]]) -> str:
     """The bench rows as the markdown table of docs/mismatch.md (tool and, when run, the PySINDy peer)."""
     sindy = all("sindy" in r for r in rows)
     head = ["case", "kind", "hidden", "eff/noise", "found by the tool", "coef./param. error",
-            "held-out rollout RMSE calibrated -> augmented", "CPU s", "right"] + (["PySINDy found", "PySINDy right"] if sindy else [])
+            "held-out rollout RMSE calibrated -> augmented", "CPU s", "right"] + (
+                ["PySINDy found", "PySINDy right"] if sindy else [])
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
         tl = r["tool"]
         errs = list(tl["coef_rel_err"].values()) + list(tl["param_rel_err"].values())
         cells = [r["case"], r["kind"], ", ".join(r["hidden"]) or "-", f"{r['effect_over_noise_first_100_samples']:.1f}",
                  ", ".join(tl["found"]) or "-", f"{max(errs):.1%}" if errs else "-",
-                 f"{tl['rollout_calibrated']:.4f} -> {tl['rollout_augmented']:.4f} ({tl['ratio']:.2f}x)", f"{tl['cpu_s']:.1f}",
-                 "yes" if tl["correct"] else "no"]
+                 f"{tl['rollout_calibrated']:.4f} -> {tl['rollout_augmented']:.4f} ({tl['ratio']:.2f}x)",
+                 f"{tl['cpu_s']:.1f}", "yes" if tl["correct"] else "no"]
         if sindy:
             cells += [", ".join(r["sindy"]["found"]) or "-", "yes" if r["sindy"]["correct"] else "no"]
         lines.append("| " + " | ".join(cells) + " |")
@@ -299,17 +347,20 @@ def markdown_table(rows: list[dict[str, Any]]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="phast-mismatch-bench", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="phast-mismatch-bench", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--cases", nargs="*", default=None, help=f"case names (default: all): {[c.name for c in CASES]}")
     ap.add_argument("--n-traj", type=int, default=40)
     ap.add_argument("--T", type=int, default=400)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--noise-scale", type=float, default=1.0,
-                    help="multiply every case's q-noise std (robustness sweeps; eff/noise then falls by the same factor)")
+                    help="multiply every case's q-noise std (robustness sweeps; eff/noise then falls by the same "
+                         "factor)")
     ap.add_argument("--holdout-fraction", type=float, default=0.3)
     ap.add_argument("--no-sindy", action="store_true", help="skip the PySINDy peer")
     ap.add_argument("--out", default=None, help="write the results as JSON here")
-    ap.add_argument("--markdown", default=None, help="write the results table as markdown here (the table of docs/mismatch.md)")
+    ap.add_argument("--markdown", default=None,
+                    help="write the results table as markdown here (the table of docs/mismatch.md)")
     args = ap.parse_args(argv)
     from tqdm import tqdm
 
@@ -321,29 +372,31 @@ def main(argv: list[str] | None = None) -> int:
         print(f"phast-mismatch-bench: error: unknown case(s) {bad}; known: {sorted(names)}", file=sys.stderr)
         return 2
     if not (args.noise_scale > 0 and np.isfinite(args.noise_scale)):
-        print(f"phast-mismatch-bench: error: --noise-scale must be a positive number, got {args.noise_scale}", file=sys.stderr)
+        print(f"phast-mismatch-bench: error: --noise-scale must be a positive number, got {args.noise_scale}",
+              file=sys.stderr)
         return 2
     cases = [replace(c, noise=c.noise * args.noise_scale) for c in CASES if not args.cases or c.name in args.cases]
     rows = []
     for k, case in enumerate(tqdm(cases, desc="mismatch bench", file=sys.stderr)):
         rec = make_case_data(case, args.n_traj, args.T, args.seed + k)
         row = {"case": case.name, "env_id": case.env_id, "kind": case.kind,
-               "hidden": sorted(_term_text(t) for t in case.terms) + sorted(f"{p}={v:g}" for p, v in case.params.items()),
+               "hidden": sorted(_term_text(t) for t in case.terms)
+               + sorted(f"{p}={v:g}" for p, v in case.params.items()),
                "effect_over_noise_first_100_samples": effect_size(case, args.n_traj, args.T, args.seed + k),
                "tool": run_tool(case, rec, args.holdout_fraction)}
         if not args.no_sindy:
             row["sindy"] = run_sindy(case, rec)
         rows.append(row)
-    hdr = (f"{'case':34s} {'hidden':38s} {'eff/noise':>9s} {'found (tool)':40s} {'coef err':>8s} {'calib':>7s} {'augm':>7s} {'ratio':>5s} "
-           f"{'wall':>6s} {'cpu':>6s} ok")
+    hdr = (f"{'case':34s} {'hidden':38s} {'eff/noise':>9s} {'found (tool)':40s} {'coef err':>8s} {'calib':>7s} "
+           f"{'augm':>7s} {'ratio':>5s} {'wall':>6s} {'cpu':>6s} ok")
     if not args.no_sindy:
         hdr += f" | {'found (PySINDy)':44s} ok"
     print(hdr)
     for r in rows:
         tl = r["tool"]
         ce = max(list(tl["coef_rel_err"].values()) + list(tl["param_rel_err"].values()) or [0.0])
-        line = (f"{r['case']:34s} {', '.join(r['hidden']) or '-':38.38s} {r['effect_over_noise_first_100_samples']:9.2f} "
-                f"{', '.join(tl['found']) or '-':40.40s} "
+        line = (f"{r['case']:34s} {', '.join(r['hidden']) or '-':38.38s} "
+                f"{r['effect_over_noise_first_100_samples']:9.2f} {', '.join(tl['found']) or '-':40.40s} "
                 f"{ce:8.3f} {tl['rollout_calibrated']:7.4f} {tl['rollout_augmented']:7.4f} {tl['ratio']:5.2f} "
                 f"{tl['time_s']:6.1f} {tl['cpu_s']:6.1f} "
                 f"{'Y' if tl['correct'] else 'N'}")
@@ -352,7 +405,8 @@ def main(argv: list[str] | None = None) -> int:
         print(line)
     n_ok = sum(r["tool"]["correct"] for r in rows)
     print(f"tool: {n_ok}/{len(rows)} cases right ({n_ok / max(len(rows), 1):.0%}); "
-          f"max time per case {max(r['tool']['time_s'] for r in rows):.1f} s wall, {max(r['tool']['cpu_s'] for r in rows):.1f} s CPU")
+          f"max time per case {max(r['tool']['time_s'] for r in rows):.1f} s wall, "
+          f"{max(r['tool']['cpu_s'] for r in rows):.1f} s CPU")
     cov = coverage(rows)
     print(f"95% intervals: {cov['inside']}/{cov['intervals']} hold the truth ({cov['coverage']:.0%}); median width "
           f"{cov['median_rel_width']:.3g} x the true value")
@@ -362,9 +416,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.markdown:
         atomic_write_text(args.markdown, markdown_table(rows))
     if args.out:
-        atomic_write_json(args.out, {"command": " ".join(["phast-mismatch-bench"] + (argv if argv is not None else sys.argv[1:])),
-                                     "n_traj": args.n_traj, "T": args.T, "seed": args.seed, "noise_scale": args.noise_scale,
-                                     "coverage": cov, "rows": rows}, indent=1)
+        atomic_write_json(args.out, {"command": " ".join(["phast-mismatch-bench"]
+                                                         + (argv if argv is not None else sys.argv[1:])),
+                                     "n_traj": args.n_traj, "T": args.T, "seed": args.seed,
+                                     "noise_scale": args.noise_scale, "coverage": cov, "rows": rows}, indent=1)
     return 0
 
 
