@@ -11,6 +11,7 @@ Reward: the real env's, :func:`phast_gym.reward.regulation_reward`,
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
@@ -93,7 +94,7 @@ class PHASTWorldModelEnv(gym.Env):
         q = self._hist[0, -1].numpy().astype(self.observation_space.dtype)
         return np.clip(q, self.observation_space.low, self.observation_space.high)
 
-    def _burn_in_window(self, options: dict[str, Any] | None) -> np.ndarray:
+    def _burn_in_window(self, options: Mapping[str, object] | None) -> np.ndarray:
         if options and options.get("q_burn") is not None:
             qb = np.asarray(options["q_burn"], dtype=np.float64)
             if qb.ndim != 2 or qb.shape[1] != self.model.n or qb.shape[0] < 1:
@@ -115,7 +116,7 @@ class PHASTWorldModelEnv(gym.Env):
             qs.append(obs[: self.model.n])
         return np.asarray(qs, dtype=np.float64)
 
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
+    def reset(self, *, seed: int | None = None, options: Mapping[str, object] | None = None) -> tuple[np.ndarray, dict]:
         super().reset(seed=seed)
         qb = self._burn_in_window(options)
         self._hist = torch.as_tensor(qb[None, -self.model.observer.window:], dtype=self._dtype)
