@@ -347,16 +347,18 @@ def _described(problem: Problem, share: float) -> Described:
 def _context(problem: Problem, inputs: _Inputs) -> tuple[Context, Described]:
     """The shooting selection, the calibration fitted with its terms, and how much of the recordings the simulator
     describes (not enough: no parameter change, no terms, no model-error regime).  A simulator described only up to its
-    drives goes to the model-error regime directly (the weak form answers): no shooting selection on windows its model
-    cannot follow."""
+    drives goes to the model-error regime directly and the weak form answers with the drives alone (rotor inertia and
+    a friction law per joint, the file's body values kept): no shooting selection or calibration on windows its model
+    cannot follow, and no body parameter bent to absorb a drive."""
     screen = screen_parameters(problem)
     described = _described(problem, max(explained_share(screen.shooter, screen.fit_nominal),
                                         explained_share(screen.shooter, screen.fit_full)))
     if not described.ok:
         problem = replace(problem, opts=replace(problem.opts, max_terms=0, systematic_chi2=math.inf))
         screen = replace(screen, identifiability=replace(screen.identifiability, basis=(), independence=()))
-    elif described.share < MIN_DESCRIBED:
+    elif described.share < MIN_DESCRIBED:  # described up to its drives: the drives first, by the weak form alone
         problem = replace(problem, opts=replace(problem.opts, max_terms=0, systematic_chi2=0.0))
+        screen = replace(screen, candidates=[], identifiability=replace(screen.identifiability, basis=(), independence=()))
     sel = select(problem, screen, [*screen.candidates, *candidates(problem, problem.nominal_family.build(np.zeros(0)))])
     cal = calibration(problem, screen, sel.params, sel.fit, len(sel.terms))
     nominal = problem.nominal_family.build(np.zeros(0))

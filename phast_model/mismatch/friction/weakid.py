@@ -97,6 +97,11 @@ def _number(value: object) -> float:
     return float(value)
 
 
+def _exp(x: float) -> float:
+    """exp(x) capped at exp(700): the bound of an interval the data leave open stays a (huge) number."""
+    return math.exp(min(x, 700.0))
+
+
 def _accel(wf: WeakForm, i: int) -> np.ndarray:
     """d/dt S * qdot_i (the armature column: the force a missing inertia A_ii needs), trimmed like the weak form."""
     a = wf.filter.differentiator.derivative(wf.v_raw[..., i], wf.window, wf.dt, 1)
@@ -196,7 +201,7 @@ def identify(model: WeakModel, rec: Recordings, law: list[Spec], iterations: int
         if kind == "param":
             nom = _number(nominal.params[rest])
             z = math.log(kw[rest] / nom)  # the last step's interval, about the converged value
-            params[rest] = ParamRow(nom, kw[rest], (nom * math.exp(z - tq * sd[j]), nom * math.exp(z + tq * sd[j])),
+            params[rest] = ParamRow(nom, kw[rest], (nom * _exp(z - tq * sd[j]), nom * _exp(z + tq * sd[j])),
                                     kw[rest] / nom - 1.0)
         elif kind == ARMATURE.name:
             ci = (float(coef[j] - tq * sd[j]), float(coef[j] + tq * sd[j]))
