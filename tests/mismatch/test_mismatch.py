@@ -497,7 +497,7 @@ def test_real_system_is_described(coulomb_report):
 
 
 def test_terms_that_do_not_improve_held_out_prediction_are_not_reported():
-    from phast_model.mismatch.analysis import _confirmed, _verdicts
+    from phast_model.mismatch.analysis import Described, _confirmed, _verdicts
     from phast_model.mismatch.evaluate import FitTable, ModelScore, RolloutSetup
     from phast_model.mismatch.rows import TermRow
 
@@ -506,7 +506,7 @@ def test_terms_that_do_not_improve_held_out_prediction_are_not_reported():
     fit = FitTable({"calibrated": ModelScore(0.1, 1.818), "augmented": ModelScore(0.1, 1.855)}, "held-out", setup)
     missing, unconfirmed = _confirmed([row], fit)
     assert missing == [] and unconfirmed == [row]
-    assert "not reported as missing physics" in " ".join(_verdicts(1.0, unconfirmed, fit))
+    assert "not reported as missing physics" in " ".join(_verdicts(Described(1.0), unconfirmed, fit))
     fit.models["augmented"] = ModelScore(0.1, 1.0)
     assert _confirmed([row], fit) == ([row], [])
 

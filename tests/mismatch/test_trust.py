@@ -260,11 +260,11 @@ def test_a_term_whose_interval_includes_zero_is_not_missing_physics():
     unbacked = TermRow("armature", 1, "inertia", 1.7e-6, (-3.3e-5, 2.9e-5), "M11 += c")
     fitres = SimpleNamespace(rmse=lambda name: {"calibrated": 0.1, "augmented": 0.01}[name])
     assert analysis._confirmed([backed, unbacked], fitres) == ([backed], [unbacked])
-    text = " ".join(analysis._verdicts(1.0, [unbacked], fitres))
+    text = " ".join(analysis._verdicts(analysis.Described(1.0), [unbacked], fitres))
     assert "armature[1]" in text and "includes zero" in text and "do not improve" not in text
     worse = SimpleNamespace(rmse=lambda name: {"calibrated": 0.1, "augmented": 0.2}[name])
     assert analysis._confirmed([backed, unbacked], worse) == ([], [backed, unbacked])
-    text = " ".join(analysis._verdicts(1.0, [backed, unbacked], worse))
+    text = " ".join(analysis._verdicts(analysis.Described(1.0), [backed, unbacked], worse))
     assert "includes zero" in text and "(actuator_gain[1]) do not improve" in text
 
 
