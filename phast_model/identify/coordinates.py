@@ -46,7 +46,8 @@ def angle_unit(raw_unit: Any, source: str) -> str | None:
     return unit
 
 
-def check_radians(qs: Sequence[np.ndarray], steps: Sequence[np.ndarray], angle_dims: Sequence[int], source: str) -> None:
+def check_radians(qs: Sequence[np.ndarray], steps: Sequence[np.ndarray], angle_dims: Sequence[int],
+                  source: str) -> None:
     """ValueError when an angle coordinate looks like degrees: ``qs`` arrays (..., L, n) of recorded values, ``steps``
     the matching (..., L-1) sample intervals in seconds (pooled over all trajectories)."""
     for j in angle_dims:
@@ -59,9 +60,10 @@ def check_radians(qs: Sequence[np.ndarray], steps: Sequence[np.ndarray], angle_d
         lo, hi = np.percentile(vals, [0.5, 99.5])
         fast = float(np.percentile(speeds, 90))
         if hi - lo > DEGREE_SPAN and fast > DEGREE_SPEED:
-            raise ValueError(f"{source}: angle coordinate {j} looks like degrees, not radians: it spans {lo:.4g}..{hi:.4g} "
-                             f"and moves at {fast:.3g} per second (90th percentile). Record angles in radians, or declare "
-                             "angle_unit = 'deg' (converted) or 'rad' (taken as recorded)")
+            raise ValueError(f"{source}: angle coordinate {j} looks like degrees, not radians: it spans "
+                             f"{lo:.4g}..{hi:.4g} "
+                             f"and moves at {fast:.3g} per second (90th percentile). Record angles in radians, or "
+                             "declare angle_unit = 'deg' (converted) or 'rad' (taken as recorded)")
 
 
 def to_radians(q: np.ndarray, offset: Any, angle_dims: Sequence[int]) -> tuple[np.ndarray, Any]:
@@ -84,8 +86,8 @@ def check_names(given: Any, model: Any, source: str) -> None:
     if got == list(names):
         return
     if sorted(got) == sorted(names):
-        raise ValueError(f"{source}: the log's joint order {got} does not match the model's {list(names)}: put the columns "
-                         "of q (and u) in the model's order")
+        raise ValueError(f"{source}: the log's joint order {got} does not match the model's {list(names)}: put the "
+                         "columns of q (and u) in the model's order")
     unknown, missing = sorted(set(got) - set(names)), sorted(set(names) - set(got))
     raise ValueError(f"{source}: the log's coordinates {got} are not the model's {list(names)} "
                      f"(not in the model: {unknown}; not in the log: {missing})")
@@ -116,9 +118,10 @@ def check_ranges(qs: Sequence[np.ndarray], model: Any, source: str) -> list[dict
         span = hi - lo
         vmin, vmax = float(vals.min()), float(vals.max())
         if vmin < lo - RANGE_SLACK * span or vmax > hi + RANGE_SLACK * span:
-            raise ValueError(f"{source}: joint {j} ({names[j]}) is recorded at {vmin:.4g}..{vmax:.4g}, outside its range "
-                             f"{lo:.4g}..{hi:.4g} in the model: check the joint order (the model's is {list(names)}), the "
-                             "units (radians, metres) and the zero (angle_offset)")
+            raise ValueError(f"{source}: joint {j} ({names[j]}) is recorded at {vmin:.4g}..{vmax:.4g}, outside its "
+                             "range "
+                             f"{lo:.4g}..{hi:.4g} in the model: check the joint order (the model's is {list(names)}), "
+                             "the units (radians, metres) and the zero (angle_offset)")
         at = (vals <= lo + LIMIT_MARGIN * span) | (vals >= hi - LIMIT_MARGIN * span)
         if at.any():
             out.append({"joint": names[j], "range": [float(lo), float(hi)], "share_of_samples": float(at.mean())})

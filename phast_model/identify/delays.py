@@ -70,7 +70,8 @@ def shift(x: np.ndarray, before: np.ndarray, s: np.ndarray) -> np.ndarray:
     return a + f * (b - a)
 
 
-def delayed_input(u: np.ndarray, delays: Sequence[Any], steps: float | np.ndarray, u_before: np.ndarray | None) -> np.ndarray:
+def delayed_input(u: np.ndarray, delays: Sequence[Any], steps: float | np.ndarray,
+                  u_before: np.ndarray | None) -> np.ndarray:
     """The port input actually delivered over each interval: u (B, K, n) delayed per coordinate by ``delays`` [s]
     (module docstring); ``u_before`` (B, P, n) the recorded inputs before the first interval (None: u[:, 0] held)."""
     B, K, n = u.shape

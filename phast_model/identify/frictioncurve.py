@@ -60,7 +60,8 @@ class FrictionCurve:
         return [b for b in self.bands if b.coordinate == i and b.direction == direction]
 
     def to_dict(self) -> dict[str, Any]:
-        return {"quantity": self.quantity, "filter": self.filter, "interval": self.interval, "max_speed": self.max_speed,
+        return {"quantity": self.quantity, "filter": self.filter, "interval": self.interval,
+                "max_speed": self.max_speed,
                 "n_recordings": self.n_recordings,
                 "bands": [{**asdict(b), "ci95": list(b.ci95), "missing": b.missing} for b in self.bands]}
 
@@ -87,7 +88,8 @@ def speed_edges(speed: np.ndarray, bands: int | str | Sequence[float], n_bands: 
     return e
 
 
-def _boot_ratio(num: np.ndarray, den: np.ndarray, rng: np.random.Generator, n_boot: int) -> tuple[float, tuple[float, float]]:
+def _boot_ratio(num: np.ndarray, den: np.ndarray, rng: np.random.Generator,
+                n_boot: int) -> tuple[float, tuple[float, float]]:
     """Ratio estimate sum(num)/sum(den) over clusters with a cluster-bootstrap percentile 95% interval."""
     G = len(num)
     est = float(num.sum() / max(den.sum(), 1e-300))
@@ -116,12 +118,14 @@ class CurveOptions:
     min_speed: float = 0.0
 
 
-def friction_curve(system: System, rec: Recordings, window: int | None = None, eps: float | None = None, block: int | None = None,
+def friction_curve(system: System, rec: Recordings, window: int | None = None, eps: float | None = None,
+                   block: int | None = None,
                    options: CurveOptions | None = None, **overrides: Any) -> FrictionCurve:
     """Total friction force (the model's own dissipation plus what it leaves out) vs |qdot|, per coordinate.
 
     ``options`` (:class:`CurveOptions`; its fields may also be given as keywords, e.g. ``bands=6``) say how speeds are
-    banded.  Intervals: percentile bootstrap over clusters (time blocks of each recording, see :func:`.weakform.weak_form`);
+    banded.  Intervals: percentile bootstrap over clusters (time blocks of each recording, see
+    :func:`.weakform.weak_form`);
     the band value is a ratio estimate sum(f sign(qdot)) / count over the band."""
     opts = replace(options or CurveOptions(), **overrides)
     bands, n_bands, directions, min_speed = opts.bands, opts.n_bands, opts.directions, opts.min_speed
@@ -155,6 +159,7 @@ def friction_curve(system: System, rec: Recordings, window: int | None = None, e
                          "(positive opposes motion; includes the model's own dissipation, listed as model_force)",
                          {"kind": "savitzky-golay cubic, same on both sides", "window_samples": wf.window, "dt": wf.dt,
                           "coulomb_eps": wf.eps},
-                         f"95% percentile bootstrap over {G} clusters (time blocks of {blk} samples within each recording)",
+                         f"95% percentile bootstrap over {G} clusters (time blocks of {blk} samples within each "
+                         "recording)",
                          [float(np.max(np.abs(wf.vs[..., i]))) for i in range(wf.n)], int(rec.n_traj), wf, masks)
 

@@ -63,7 +63,8 @@ class Table:
 
 
 def read_rows(path: str | Path, header: bool = True, columns: int | None = None) -> Table:
-    """The numeric rows of a CSV file, truncated rows (a logger cut off mid-row, or an empty field) kept in place as NaN.
+    """The numeric rows of a CSV file, truncated rows (a logger cut off mid-row, or an empty field) kept in place as
+    NaN.
 
     ``header``: the first row names the columns; without one, rows have ``columns`` values (default: the most common
     count).  A row with more values than that, or a value that is not a number ('nan' and 'inf' are numbers), is a
@@ -123,7 +124,8 @@ class Log:
 
 
 def is_log_set(raw: Mapping[str, Any]) -> bool:
-    """Whether ``raw`` holds logs of their own lengths: ``q`` a list of arrays (or an object array), or ``q_0``, ... keys."""
+    """Whether ``raw`` holds logs of their own lengths: ``q`` a list of arrays (or an object array), or ``q_0``, ...
+    keys."""
     q = raw.get("q")
     if isinstance(q, (list, tuple)) or (isinstance(q, np.ndarray) and q.dtype == object):
         return True
@@ -131,7 +133,8 @@ def is_log_set(raw: Mapping[str, Any]) -> bool:
 
 
 def log_set_from_keys(files: Mapping[str, Any], source: str) -> dict[str, Any]:
-    """An .npz's ``q_0, q_1, ...`` (and ``t_k``, ``u_k``) keys as lists ``q``, ``t``, ``u``; the other keys as they are."""
+    """An .npz's ``q_0, q_1, ...`` (and ``t_k``, ``u_k``) keys as lists ``q``, ``t``, ``u``; the other keys as they
+    are."""
     found: dict[str, dict[int, Any]] = {k: {} for k in PER_LOG}
     out: dict[str, Any] = {}
     for key, value in files.items():
@@ -142,10 +145,12 @@ def log_set_from_keys(files: Mapping[str, Any], source: str) -> dict[str, Any]:
             out[key] = value
     K = len(found["q"])
     if sorted(found["q"]) != list(range(K)):
-        raise ValueError(f"{source}: log keys must be q_0 .. q_{{K-1}} without gaps, got {sorted(f'q_{k}' for k in found['q'])}")
+        raise ValueError(f"{source}: log keys must be q_0 .. q_{{K-1}} without gaps, got "
+                         f"{sorted(f'q_{k}' for k in found['q'])}")
     for key in ("t", "u"):
         if found[key] and sorted(found[key]) != list(range(K)):
-            raise ValueError(f"{source}: give {key}_k for every log q_0 .. q_{K - 1} or for none, got {sorted(found[key])}")
+            raise ValueError(f"{source}: give {key}_k for every log q_0 .. q_{K - 1} or for none, got "
+                             f"{sorted(found[key])}")
         if found[key]:
             out[key] = [found[key][k] for k in range(K)]
     out["q"] = [found["q"][k] for k in range(K)]
@@ -286,7 +291,8 @@ class Cleaned:
 
 
 def clean(logs: Sequence[Log], angle_dims: Sequence[int], min_samples: int) -> Cleaned:
-    """Drop non-finite rows, then rows isolated between breaks in runs shorter than ``min_samples``; the set's fast speed
+    """Drop non-finite rows, then rows isolated between breaks in runs shorter than ``min_samples``; the set's fast
+    speed
     is estimated again without the rows dropped so far until nothing more is dropped (a logger's garbage can be a few
     percent of a short log: the first estimate may be too generous to see all of it)."""
     finite = [finite_rows(log) for log in logs]
@@ -304,7 +310,8 @@ def clean(logs: Sequence[Log], angle_dims: Sequence[int], min_samples: int) -> C
             break
         scale = new
     segments = [[r for r in _runs(log, k, scale, angle_dims) if len(r) >= min_samples] for log, k in zip(logs, keep)]
-    dropped = [{"truncated": log.truncated, "not_finite": int(np.sum(~f)) - log.truncated, "isolated": int(np.sum(f & ~k))}
+    dropped = [{"truncated": log.truncated, "not_finite": int(np.sum(~f)) - log.truncated,
+                "isolated": int(np.sum(f & ~k))}
                for log, f, k in zip(logs, finite, keep)]
     bridged = [sum(int(np.sum(np.diff(s) > 1)) for s in segs) for segs in segments]
     return Cleaned(segments, dropped, bridged, scale)
@@ -349,7 +356,8 @@ class Pieces:
     facts: dict[str, Any] = field(default_factory=dict)
 
 
-def cut_pieces(logs: Sequence[Log], angle_dims: Sequence[int], min_samples: int, longest: int = MAX_PIECE_SAMPLES) -> Pieces:
+def cut_pieces(logs: Sequence[Log], angle_dims: Sequence[int], min_samples: int,
+               longest: int = MAX_PIECE_SAMPLES) -> Pieces:
     """Clean every log (:func:`clean`) and cut its segments into pieces of one length (:func:`piece_size`)."""
     cleaned = clean(logs, angle_dims, min_samples)
     segs = [(k, s) for k, segments in enumerate(cleaned.segments) for s in segments]
@@ -373,21 +381,25 @@ def _dropped_total(dropped: Sequence[Mapping[str, int]]) -> dict[str, int]:
     return {key: int(sum(d[key] for d in dropped)) for key in ("truncated", "not_finite", "isolated")}
 
 
-def _facts(logs: Sequence[Log], cleaned: Cleaned, segs: list[tuple[int, np.ndarray]], size: int, n_pieces: int) -> dict[str, Any]:
+def _facts(logs: Sequence[Log], cleaned: Cleaned, segs: list[tuple[int, np.ndarray]], size: int,
+           n_pieces: int) -> dict[str, Any]:
     """``Recordings.meta["logs"]``: what was read, kept, dropped and cut (report.json ``data.logs``)."""
     rows = [int(log.q.shape[0]) for log in logs]
     total = _dropped_total(cleaned.dropped)
     repeated = int(sum(repeated_samples(len(s), size) for _, s in segs))
     n_dropped = sum(total.values())
     text = (f"{len(logs)} logs of {min(rows)}..{max(rows)} rows cut into {n_pieces} pieces of {size} samples "
-            f"(neighbours share their boundary sample; {repeated} samples repeated where a segment's last piece overlaps)")
+            f"(neighbours share their boundary sample; {repeated} samples repeated where a segment's last piece "
+            "overlaps)")
     if n_dropped:
         rows_text = f"{n_dropped} row{'s' if n_dropped > 1 else ''}"
         text += (f"; {rows_text} dropped: {total['truncated']} truncated, {total['not_finite']} not finite, "
-                 f"{total['isolated']} isolated between breaks (jumps, time not advancing, gaps over {MAX_GAP_STEPS:g} steps)")
+                 f"{total['isolated']} isolated between breaks (jumps, time not advancing, gaps over {MAX_GAP_STEPS:g} "
+                 "steps)")
     splits = sum(max(0, len(s) - 1) for s in cleaned.segments)
     if splits or sum(cleaned.bridged):
-        text += f"; {splits} splits of a log at a break, {sum(cleaned.bridged)} gaps of dropped rows bridged by the recorded times"
+        text += (f"; {splits} splits of a log at a break, {sum(cleaned.bridged)} gaps of dropped rows bridged by the "
+                 "recorded times")
     return {"n_logs": len(logs), "names": [log.name for log in logs], "rows": rows,
             "rows_used": [int(sum(len(s) for s in segments)) for segments in cleaned.segments],
             "segments": [len(s) for s in cleaned.segments], "n_pieces": n_pieces, "piece_samples": size,

@@ -16,7 +16,8 @@ import numpy as np
 
 
 def load_mjmodel(model: Any) -> Any:
-    """An ``MjModel`` from a path (MJCF / URDF, through :func:`phast_gym.systems.mjcf_tree.compile_model`) or a model."""
+    """An ``MjModel`` from a path (MJCF / URDF, through :func:`phast_gym.systems.mjcf_tree.compile_model`) or a
+    model."""
     if isinstance(model, (str, Path)):
         from phast_gym.systems.mjcf_tree import compile_model
 

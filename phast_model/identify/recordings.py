@@ -53,7 +53,8 @@ class Recordings:
     source: str = "<arrays>"
     meta: dict[str, Any] = field(default_factory=dict)
     t: np.ndarray | None = None  # (N, T) recorded sample times in seconds, or None (uniform at dt)
-    origin: np.ndarray | None = None  # (N, 3) log, first row, last row of each piece of a log set; None: each its own log
+    # (N, 3) log, first row, last row of each piece of a log set; None: each its own log
+    origin: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.t is not None:
@@ -61,12 +62,14 @@ class Recordings:
             if t.ndim == 1:
                 t = np.broadcast_to(t, self.q.shape[:2])
             if t.shape != self.q.shape[:2]:
-                raise ValueError(f"{self.source}: 't' must have shape (T,) or (N, T) = {self.q.shape[:2]}, got {np.shape(self.t)}")
+                raise ValueError(f"{self.source}: 't' must have shape (T,) or (N, T) = {self.q.shape[:2]}, got "
+                                 f"{np.shape(self.t)}")
             self.t = t
         if self.origin is not None:
             self.origin = np.asarray(self.origin, dtype=int).reshape(-1, 3)
             if self.origin.shape[0] != self.q.shape[0]:
-                raise ValueError(f"{self.source}: 'origin' must have one row per trajectory ({self.q.shape[0]}), got {self.origin.shape}")
+                raise ValueError(f"{self.source}: 'origin' must have one row per trajectory ({self.q.shape[0]}), got "
+                                 f"{self.origin.shape}")
 
     @property
     def n_traj(self) -> int:
@@ -118,7 +121,8 @@ class Recordings:
     def subset(self, idx: Any) -> Recordings:
         """Trajectories ``idx`` (an index array or slice)."""
         origin = None if self.origin is None else self.origin[idx]
-        return Recordings(self.q[idx], self.dt, None if self.u is None else self.u[idx], self.angle_dims, self.source, self.meta,
+        return Recordings(self.q[idx], self.dt, None if self.u is None else self.u[idx], self.angle_dims, self.source,
+                          self.meta,
                           None if self.t is None else self.t[idx], origin)
 
     def time_slice(self, start: int, stop: int) -> Recordings:
@@ -189,13 +193,15 @@ class Recordings:
         q = np.stack([CubicSpline(t[i], self.q[i], axis=0)(grid[i]) for i in range(self.n_traj)])
         u = None
         if self.u is not None:
-            j = np.stack([np.clip(np.searchsorted(t[i], grid[i, :-1], side="right") - 1, 0, self.T - 2) for i in range(self.n_traj)])
+            j = np.stack([np.clip(np.searchsorted(t[i], grid[i, :-1], side="right") - 1, 0,
+                                  self.T - 2) for i in range(self.n_traj)])
             u = np.take_along_axis(self.u, j[..., None], axis=1)
         return self._with(q, self.dt, u, grid)
 
 
 def _read_csv(path: Path) -> dict[str, Any]:
-    """CSV with columns traj,t,q0..q{n-1}[,u0..] -> the npz-style dict: equal-length trajectories stacked, else a log set
+    """CSV with columns traj,t,q0..q{n-1}[,u0..] -> the npz-style dict: equal-length trajectories stacked, else a log
+    set
     (trajectories of different lengths, or truncated / non-finite rows: :mod:`.logs` drops and counts them)."""
     table = read_rows(path)
     header = table.header or []
@@ -246,8 +252,10 @@ def _csv_log_set(path: Path, table: Table, groups: list[np.ndarray], names: list
     data = table.values
     usable = [int(np.sum(np.all(np.isfinite(data[g]), axis=1))) for g in groups]
     if max(usable) < 2:
-        raise ValueError(f"{path}: no trajectory has two complete rows ({table.first_truncated or 'rows with NaN / inf'})")
-    out: dict[str, Any] = {"q": [data[g][:, [col[h] for h in qcols]] for g in groups], "t": [data[g, col["t"]] for g in groups],
+        raise ValueError(f"{path}: no trajectory has two complete rows "
+                         f"({table.first_truncated or 'rows with NaN / inf'})")
+    out: dict[str, Any] = {"q": [data[g][:, [col[h] for h in qcols]] for g in groups],
+                           "t": [data[g, col["t"]] for g in groups],
                            "log_names": names, "rows_truncated": [int(np.sum(table.truncated[g])) for g in groups],
                            "truncated_lines": [table.first_truncated] * len(groups)}
     if ucols:
@@ -259,17 +267,20 @@ def _read_csv_logs(paths: Sequence[Path], source: str) -> dict[str, Any]:
     """CSV files of columns ``[traj,]t,q0..[,u0..]``, each trajectory of each file a log: a log set."""
     if not paths:
         raise ValueError(f"{source}: no .csv log found")
-    merged: dict[str, list[Any]] = {"q": [], "t": [], "u": [], "log_names": [], "rows_truncated": [], "truncated_lines": []}
+    merged: dict[str, list[Any]] = {"q": [], "t": [], "u": [], "log_names": [], "rows_truncated": [],
+                                    "truncated_lines": []}
     layout = None
     for path in paths:
         table = read_rows(path)
         header = table.header or []
         for key in ("t", "q0"):
             if key not in header:
-                raise ValueError(f"{path}: CSV is missing column {key!r} (need [traj,]t,q0..q{{n-1}}[,u0..]); got {header}")
+                raise ValueError(f"{path}: CSV is missing column {key!r} (need [traj,]t,q0..q{{n-1}}[,u0..]); got "
+                                 f"{header}")
         col, qcols, ucols = _columns(header)
         if layout is not None and layout != (len(qcols), len(ucols)):
-            raise ValueError(f"{path}: {len(qcols)} q and {len(ucols)} u columns, the first log has {layout[0]} and {layout[1]}")
+            raise ValueError(f"{path}: {len(qcols)} q and {len(ucols)} u columns, the first log has {layout[0]} and "
+                             f"{layout[1]}")
         layout = (len(qcols), len(ucols))
         traj = _filled(table.values[:, col["traj"]]) if "traj" in col else np.zeros(len(table.values))
         trajs, when = np.unique(traj), _filled(table.values[:, col["t"]])
@@ -321,8 +332,8 @@ def _read_npz(path: Path) -> dict[str, Any]:
         if str(exc).startswith(f"recordings file {path}"):
             raise
         if "allow_pickle" in str(exc):
-            raise ValueError(f"recordings file {path} holds object arrays (pickled, not loaded): save logs of different "
-                             "lengths as q_0, q_1, ... (t_0, u_0, ...; docs/mismatch.md)") from None
+            raise ValueError(f"recordings file {path} holds object arrays (pickled, not loaded): save logs of "
+                             "different lengths as q_0, q_1, ... (t_0, u_0, ...; docs/mismatch.md)") from None
         raise ValueError(f"recordings file {path} is not a readable .npz or .csv ({exc})") from None
     except (OSError, EOFError, zipfile.BadZipFile) as exc:
         raise ValueError(f"recordings file {path} is not a readable .npz or .csv ({exc})") from None
@@ -367,14 +378,16 @@ def _validate_logs(raw: Mapping[str, Any], n: int, env_angle_dims: tuple[int, ..
     logs = logs_of(raw, n, source)
     angle_dims = _angle_dims(raw, env_angle_dims, n, source)
     given = raw.get("dt")
-    dt = np.asarray(given, dtype=np.float64).reshape(-1)[:1] if given is not None and np.size(given) == 1 else np.full(1, np.nan)
+    dt = (np.asarray(given, dtype=np.float64).reshape(-1)[:1] if given is not None and np.size(given) == 1
+          else np.full(1, np.nan))
     offset = raw.get("angle_offset")
     unit = angle_unit(raw.get("angle_unit"), source)
     if unit == "deg":
         logs = [replace(log, q=to_radians(log.q, None, angle_dims)[0]) for log in logs]
         offset = None if offset is None else to_radians(np.zeros(n), offset, angle_dims)[1]
     elif unit is None:
-        check_radians([log.q for log in logs], [dt if log.t is None else np.diff(log.t) for log in logs], angle_dims, source)
+        check_radians([log.q for log in logs], [dt if log.t is None else np.diff(log.t) for log in logs], angle_dims,
+                      source)
     pieces = cut_pieces(logs, angle_dims, min_samples, piece_samples)
     flat = {k: raw[k] for k in _SHARED if raw.get(k) is not None}
     flat.update(q=pieces.q, angle_unit="rad")
@@ -391,7 +404,8 @@ def _validate_logs(raw: Mapping[str, Any], n: int, env_angle_dims: tuple[int, ..
 
 
 def _angle_dims(raw: Mapping[str, Any], env_angle_dims: tuple[int, ...], n: int, source: str) -> tuple[int, ...]:
-    angle_dims = tuple(int(i) for i in np.atleast_1d(raw["angle_dims"])) if "angle_dims" in raw else tuple(env_angle_dims)
+    angle_dims = tuple(int(i)
+                       for i in np.atleast_1d(raw["angle_dims"])) if "angle_dims" in raw else tuple(env_angle_dims)
     if any(not 0 <= i < n for i in angle_dims):
         raise ValueError(f"{source}: angle_dims {angle_dims} out of range for n={n}")
     return angle_dims
@@ -443,7 +457,8 @@ def _check_q(raw: Mapping[str, Any], n: int, source: str, min_samples: int) -> n
         raise ValueError(f"{source}: 'q' holds no trajectory")
     if not np.all(np.isfinite(q)):
         bad = np.argwhere(~np.isfinite(q))[0]
-        raise ValueError(f"{source}: 'q' contains NaN/inf (first at trajectory {bad[0]}, sample {bad[1]}, coordinate {bad[2]}); "
+        raise ValueError(f"{source}: 'q' contains NaN/inf (first at trajectory {bad[0]}, sample {bad[1]}, coordinate "
+                         f"{bad[2]}); "
                          "save the trajectories as logs (q_0, q_1, ...) to have such rows dropped and counted")
     return q
 
@@ -470,7 +485,8 @@ def _time_step(raw: Mapping[str, Any], t: np.ndarray | None, source: str) -> flo
     elif t is not None:
         dt = float(np.median(np.diff(t, axis=1)))
     else:
-        raise ValueError(f"{source}: recordings are missing the time base: give 'dt' (scalar) or 't' ((T,) or (N, T) seconds)")
+        raise ValueError(f"{source}: recordings are missing the time base: give 'dt' (scalar) or 't' ((T,) or (N, T) "
+                         "seconds)")
     if not (math.isfinite(dt) and dt > 0):
         raise ValueError(f"{source}: dt must be a positive finite number, got {dt}")
     return dt
@@ -498,7 +514,8 @@ def _port_input(raw: Mapping[str, Any], q_shape: tuple[int, ...], actuated_dofs:
     if u_raw.ndim == 2:
         u_raw = u_raw[None]
     if u_raw.ndim != 3 or u_raw.shape[0] != N or u_raw.shape[1] not in (T, T - 1):
-        raise ValueError(f"{source}: 'u' must have shape (N, T, m) or (N, T-1, m) matching q {tuple(q_shape)}, got {u_raw.shape}")
+        raise ValueError(f"{source}: 'u' must have shape (N, T, m) or (N, T-1, m) matching q {tuple(q_shape)}, got "
+                         f"{u_raw.shape}")
     if not np.all(np.isfinite(u_raw)):
         raise ValueError(f"{source}: 'u' contains NaN/inf")
     u_raw = u_raw[:, : T - 1]
@@ -530,5 +547,6 @@ def _check_t(t: np.ndarray, N: int, T: int, source: str) -> np.ndarray:
     d = np.diff(t, axis=1)
     if np.any(d <= 0):
         i, j = np.argwhere(d <= 0)[0]
-        raise ValueError(f"{source}: t is not strictly increasing at trajectory {i}, index {j} (t={t[i, j]!r}, next={t[i, j + 1]!r})")
+        raise ValueError(f"{source}: t is not strictly increasing at trajectory {i}, index {j} (t={t[i, j]!r}, "
+                         f"next={t[i, j + 1]!r})")
     return np.array(t)

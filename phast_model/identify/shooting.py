@@ -33,7 +33,8 @@ from .delays import history
 from .recordings import Recordings
 from .signals import estimate_noise, odd, smooth, time_scale
 
-__all__ = ["Heartbeat", "Shooter", "ShootFit", "Windows", "estimate_noise", "odd", "simulate_qv", "smooth", "substeps_for", "time_scale"]
+__all__ = ["Heartbeat", "Shooter", "ShootFit", "Windows", "estimate_noise", "odd", "simulate_qv", "smooth",
+           "substeps_for", "time_scale"]
 
 
 def momentum(system: System, q: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -128,7 +129,8 @@ def _merge_values(vals: Sequence[Any], reps: int) -> Any:
     """One value standing for ``vals`` (one per system), each system's value repeated over its ``reps`` samples.
 
     Equal values stay as they are (the same arithmetic as a single system); differing floats become a (K*reps,)
-    array, differing float arrays a (K*reps, ...) one; tuples, lists, dicts, systems and dataclasses (terms) are merged field by field.
+    array, differing float arrays a (K*reps, ...) one; tuples, lists, dicts, systems and dataclasses (terms) are merged
+    field by field.
     """
     v0 = vals[0]
     t = type(v0)
@@ -312,7 +314,8 @@ class Windows:
     dt: float  # (median) sampling step
     steps: np.ndarray | None = None  # (W, L-1) recorded interval lengths, None when uniform at dt
     stride: int = 1  # compare every stride-th sample
-    u_before: np.ndarray | None = None  # (W, P, n) the recorded inputs before each window (input delays, :mod:`.delays`)
+    # (W, P, n) the recorded inputs before each window (input delays, :mod:`.delays`)
+    u_before: np.ndarray | None = None
 
     @classmethod
     def cut(cls, rec: Recordings, length: int, stride: int = 1) -> Windows:
@@ -356,14 +359,17 @@ class Windows:
 
     def select(self, keep: np.ndarray) -> Windows:
         """The windows ``keep`` (index array or mask)."""
-        return Windows(self.traj[keep], self.start[keep], self.length, self.q[keep], None if self.u is None else self.u[keep],
+        return Windows(self.traj[keep], self.start[keep], self.length, self.q[keep],
+                       None if self.u is None else self.u[keep],
                        self.angle_dims, self.dt, None if self.steps is None else self.steps[keep], self.stride,
                        None if self.u_before is None else self.u_before[keep])
 
     def prefix(self, length: int) -> Windows:
         """Every window cut to its first ``length`` samples."""
-        return Windows(self.traj, self.start, length, self.q[:, :length], None if self.u is None else self.u[:, : length - 1],
-                       self.angle_dims, self.dt, None if self.steps is None else self.steps[:, : length - 1], self.stride,
+        return Windows(self.traj, self.start, length, self.q[:, :length],
+                       None if self.u is None else self.u[:, : length - 1],
+                       self.angle_dims, self.dt, None if self.steps is None else self.steps[:, : length - 1],
+                       self.stride,
                        self.u_before)
 
 
@@ -410,7 +416,8 @@ class ShootFit:
         JX = self.JX
         dx, dg = _damped_step(Normal.of(JX, Jg, r0), 0.0)
         r = r0 + np.einsum("wla,wa->wl", JX, dx) + np.einsum("wlp,p->wl", Jg, dg)
-        return ShootFit(self.X + dx, self.g[keep] + dg, r, JX, np.ascontiguousarray(Jg), float(np.sum(r**2)), self.n_obs, 0,
+        return ShootFit(self.X + dx, self.g[keep] + dg, r, JX, np.ascontiguousarray(Jg), float(np.sum(r**2)),
+                        self.n_obs, 0,
                         self.groups)
 
     def covariance(self) -> np.ndarray:
@@ -423,7 +430,8 @@ class ShootFit:
         """(covariance of g, degrees of freedom) for reported intervals: :meth:`covariance`, each variance raised to
         that of a sandwich clustered on recordings where it is larger (a misfit that a recording's windows share, e.g.
         over its range of speeds, is one piece of evidence, not one per window), with recordings - 1 degrees of freedom
-        for Student's t quantile; None (the normal quantile) when the windows' recordings are unknown or fewer than 3."""
+        for Student's t quantile; None (the normal quantile) when the windows' recordings are unknown or fewer than
+        3."""
         if not self.g.size:
             return np.zeros((0, 0)), None
         Hinv, scores = self._scores()
@@ -451,7 +459,8 @@ class ShootFit:
 
 
 def _sandwich(Hinv: np.ndarray, scores: np.ndarray) -> np.ndarray:
-    """The cluster-robust covariance H^-1 (S^T S) H^-1 of per-cluster scores S (G, P), with the G / (G - 1) correction."""
+    """The cluster-robust covariance H^-1 (S^T S) H^-1 of per-cluster scores S (G, P), with the G / (G - 1)
+    correction."""
     G = scores.shape[0]
     return Hinv @ (scores.T @ scores * (G / max(G - 1, 1))) @ Hinv
 
@@ -485,7 +494,8 @@ class Normal(NamedTuple):
 
     @classmethod
     def of(cls, JX: np.ndarray, Jg: np.ndarray, r: np.ndarray) -> Normal:
-        return cls(np.einsum("wla,wlb->wab", JX, JX), np.einsum("wla,wlp->wap", JX, Jg), np.einsum("wlp,wlq->pq", Jg, Jg),
+        return cls(np.einsum("wla,wlb->wab", JX, JX), np.einsum("wla,wlp->wap", JX, Jg),
+                   np.einsum("wlp,wlq->pq", Jg, Jg),
                    np.einsum("wla,wl->wa", JX, r), np.einsum("wlp,wl->p", Jg, r))
 
 
@@ -603,7 +613,8 @@ class Shooter:
         R = self._residuals(system, Xs)
         return R[0], np.moveaxis((R[1:] - R[:1]) / h[:, None, None], 0, -1)
 
-    def _jac_params(self, build: Callable[[np.ndarray], System], g: np.ndarray, X: np.ndarray, r: np.ndarray, g_step: float) -> np.ndarray:
+    def _jac_params(self, build: Callable[[np.ndarray], System], g: np.ndarray, X: np.ndarray, r: np.ndarray,
+                    g_step: float) -> np.ndarray:
         """Forward-difference Jacobian of the residual w.r.t. the global parameters g: (..., P).
 
         The P perturbed systems are simulated as one batch of P*W samples when they merge
@@ -615,7 +626,8 @@ class Shooter:
         R = self.residuals_of(_perturbed(build, g, g_step), X)
         return np.ascontiguousarray(np.moveaxis((R - r[None]) / g_step, 0, -1))
 
-    def residuals_of(self, systems: Sequence[System], X: np.ndarray, stand_ins: Sequence[System] | None = None) -> np.ndarray:
+    def residuals_of(self, systems: Sequence[System], X: np.ndarray,
+                     stand_ins: Sequence[System] | None = None) -> np.ndarray:
         """(K, W, L*n) residuals of K systems at the same window states X: one batch of K*W samples when the
         systems merge (and the merged vector field checks out at the windows' first samples), else one by one.
 
@@ -630,7 +642,8 @@ class Shooter:
                     return R
         return np.stack([self.residual(s, X) for s in systems]) if K else np.empty((0, W, 0))
 
-    def residuals_each(self, systems: Sequence[System], Xs: np.ndarray, reference: Sequence[System] | None = None) -> np.ndarray | None:
+    def residuals_each(self, systems: Sequence[System], Xs: np.ndarray,
+                       reference: Sequence[System] | None = None) -> np.ndarray | None:
         """(K, W, L*n) residuals of K systems, the k-th at its own window states ``Xs[k]``, as one batch of K*W
         samples; None when the systems do not merge, or the merged vector field differs from the ``reference``
         systems' (default: the systems themselves) at the windows' first samples."""

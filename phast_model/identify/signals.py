@@ -38,7 +38,8 @@ class Differentiator(Protocol):
         ...
 
     def derivative(self, x: np.ndarray, window: int, dt: float, order: int = 1, axis: int = 1) -> np.ndarray:
-        """The ``order``-th time derivative of ``x`` along ``axis`` (sample time ``dt``), smoothed like :meth:`smooth`."""
+        """The ``order``-th time derivative of ``x`` along ``axis`` (sample time ``dt``), smoothed like
+        :meth:`smooth`."""
         ...
 
 

@@ -78,7 +78,8 @@ def load_object(spec: str, what: str = "simulator") -> Any:
     for part in name.split("."):  # a nested name: module:Outer.Inner
         obj = getattr(obj, part, None)
         if obj is None:
-            public = sorted(k for k, v in vars(module).items() if isinstance(v, type) and issubclass(v, System) and v is not System)
+            public = sorted(k for k, v in vars(module).items()
+                            if isinstance(v, type) and issubclass(v, System) and v is not System)
             there = f" (System subclasses there: {public or 'none'})" if what == "simulator" else ""
             raise ValueError(f"{what} {spec!r}: {target!r} has no attribute {name!r}{there}")
     return obj
@@ -135,20 +136,23 @@ def _check_interface(system: System, name: str) -> None:
 
     def vector(method: str, value: Any) -> None:
         if not isinstance(value, (tuple, list)) or len(value) != n:
-            raise ValueError(f"{where}: {type(system).__name__}.{method} must return a tuple of n={n} components, got {value!r}")
+            raise ValueError(f"{where}: {type(system).__name__}.{method} must return a tuple of n={n} components, got "
+                             f"{value!r}")
         if not all(np.all(np.isfinite(np.asarray(c, dtype=np.float64))) for c in value):
             raise ValueError(f"{where}: {type(system).__name__}.{method} returned NaN/inf at a sampled state")
 
     x = np.asarray(call("sample_initial", np.random.default_rng(0), 2), dtype=np.float64)
     if x.shape != (2, 2 * n):
-        raise ValueError(f"{where}: sample_initial(rng, 2) must return an array of shape (2, 2n) = (2, {2 * n}), got {x.shape}")
+        raise ValueError(f"{where}: sample_initial(rng, 2) must return an array of shape (2, 2n) = (2, {2 * n}), got "
+                         f"{x.shape}")
     q, p = tuple(x[:, i] for i in range(n)), tuple(x[:, n + i] for i in range(n))
     if not np.all(np.isfinite(np.asarray(call("potential", q, NUMPY), dtype=np.float64))):
         raise ValueError(f"{where}: {type(system).__name__}.potential returned NaN/inf at a sampled state")
     for method in ("grad_potential", "damping"):
         vector(method, call(method, q, NUMPY))
     M = call("mass_matrix", q, NUMPY)
-    if not isinstance(M, (tuple, list)) or len(M) != n or any(not isinstance(r, (tuple, list)) or len(r) != n for r in M):
+    if (not isinstance(M, (tuple, list)) or len(M) != n
+            or any(not isinstance(r, (tuple, list)) or len(r) != n for r in M)):
         raise ValueError(f"{where}: {type(system).__name__}.mass_matrix must return an n x n nested tuple (n={n})")
     for method in ("velocity", "dH_dq"):
         vector(method, call(method, q, p, NUMPY))
@@ -198,10 +202,12 @@ def load_simulator(sim: str | type[System] | Simulator, kwargs: Mapping[str, Any
     try:
         system = out.build()
     except Exception as exc:
-        raise ValueError(f"simulator {out.name!r} failed to build with kwargs {out.kwargs}: {type(exc).__name__}: {exc}") from None
+        raise ValueError(f"simulator {out.name!r} failed to build with kwargs {out.kwargs}: {type(exc).__name__}: "
+                         f"{exc}") from None
     if not isinstance(system, System):
         raise ValueError(f"simulator {out.name!r} built {type(system).__name__}, not a phast_gym System")
     if not system.hamiltonian_system:
-        raise ValueError(f"{out.name} is not a port-Hamiltonian system (no H, M, D to augment); the mismatch tool needs one")
+        raise ValueError(f"{out.name} is not a port-Hamiltonian system (no H, M, D to augment); the mismatch tool "
+                         "needs one")
     _check_interface(system, out.name)
     return out

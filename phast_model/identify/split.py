@@ -1,4 +1,5 @@
-"""Which recordings are held out: by index (``--holdout-trajectories``) or by fraction (of trajectories, or of time for one).
+"""Which recordings are held out: by index (``--holdout-trajectories``) or by fraction (of trajectories, or of time for
+one).
 
 For a log set (logs of different lengths cut into pieces, :mod:`.logs`) the unit is the log: indices name logs, a
 fraction holds out the last logs, and every piece of a held-out log is held out, so nothing the fit saw is scored.
@@ -43,13 +44,16 @@ def check_holdout_range(indices: list[int], n_traj: int) -> None:
     """Every index names a recorded trajectory and at least one trajectory is left for fitting."""
     over = [k for k in indices if k >= n_traj]
     if over:
-        raise ValueError(f"holdout_trajectories out of range: {over} (the recordings have {n_traj} trajectories, indices 0..{n_traj - 1})")
+        raise ValueError(f"holdout_trajectories out of range: {over} (the recordings have {n_traj} trajectories, "
+                         f"indices 0..{n_traj - 1})")
     if len(set(indices)) >= n_traj:
-        raise ValueError(f"holdout_trajectories {sorted(indices)} holds out all {n_traj} trajectories; none is left for fitting")
+        raise ValueError(f"holdout_trajectories {sorted(indices)} holds out all {n_traj} trajectories; none is left "
+                         "for fitting")
 
 
 def split(rec: Recordings, frac: float, indices: list[int] | None = None) -> tuple[Recordings, Recordings, str]:
-    """(training, held-out, description): the given trajectories, else the last ``frac`` of the trajectories (of time for one);
+    """(training, held-out, description): the given trajectories, else the last ``frac`` of the trajectories (of time
+    for one);
     whole logs for a log set (:func:`split_logs`)."""
     if rec.origin is not None:
         return split_logs(rec, frac, indices)
@@ -63,11 +67,13 @@ def split(rec: Recordings, frac: float, indices: list[int] | None = None) -> tup
         raise ValueError(f"holdout_fraction must be in (0, 1), got {frac}")
     if N >= 2:
         k = min(max(1, int(round(N * frac))), N - 1)
-        return rec.subset(slice(0, N - k)), rec.subset(slice(N - k, N)), f"held-out recordings (trajectories {list(range(N - k, N))})"
+        return (rec.subset(slice(0, N - k)), rec.subset(slice(N - k, N)),
+                f"held-out recordings (trajectories {list(range(N - k, N))})")
     cut = int(round(T * (1 - frac)))
     if cut < 20 or T - cut < 20:
         raise ValueError(f"recording too short to hold out {frac:.0%} in time (T={T})")
-    return rec.time_slice(0, cut), rec.time_slice(cut, T), f"held-out last {frac:.0%} of the recording in time (samples {cut}..{T - 1})"
+    return (rec.time_slice(0, cut), rec.time_slice(cut, T),
+            f"held-out last {frac:.0%} of the recording in time (samples {cut}..{T - 1})")
 
 
 
@@ -84,11 +90,12 @@ def split_logs(rec: Recordings, frac: float, indices: list[int] | None = None) -
     if indices is not None:
         over = [k for k in indices if k >= n_logs]
         if over:
-            raise ValueError(f"holdout_trajectories out of range: {over} (the recordings are {n_logs} logs, indices 0..{n_logs - 1})")
+            raise ValueError(f"holdout_trajectories out of range: {over} (the recordings are {n_logs} logs, indices "
+                             f"0..{n_logs - 1})")
         empty = [k for k in indices if k not in used]
         if empty:
-            raise ValueError(f"holdout_trajectories: logs {empty} ({', '.join(names[k] for k in empty)}) kept no usable piece "
-                             "(report.json data.logs says what was dropped)")
+            raise ValueError(f"holdout_trajectories: logs {empty} ({', '.join(names[k] for k in empty)}) kept no "
+                             "usable piece (report.json data.logs says what was dropped)")
         if set(used) <= set(indices):
             raise ValueError(f"holdout_trajectories {sorted(indices)} holds out every log; none is left for fitting")
         held = sorted(indices)
@@ -116,6 +123,7 @@ def _split_one_log(rec: Recordings, frac: float, name: str) -> tuple[Recordings,
     first = int(rec.origin[held, 1].min())
     train = np.array([i for i in order[: P - k] if rec.origin[i, 2] <= first], dtype=int)
     if not train.size:
-        raise ValueError(f"the one log {name} is too short to hold out {frac:.0%} of it in time without overlap; give more logs "
-                         "or holdout_trajectories")
-    return rec.subset(train), rec.subset(np.sort(held)), f"held-out last {k} of {P} pieces of the one log {name} in time"
+        raise ValueError(f"the one log {name} is too short to hold out {frac:.0%} of it in time without overlap; give "
+                         "more logs or holdout_trajectories")
+    return (rec.subset(train), rec.subset(np.sort(held)),
+            f"held-out last {k} of {P} pieces of the one log {name} in time")

@@ -2,7 +2,8 @@
 
 The momentum balance of a port-Hamiltonian model, d/dt p = F_cons(q, p) + u - f(q, qdot), with F_cons = -dH/dq and
 f the *total* dissipative generalized force (the model's own D(q) qdot plus whatever it leaves out), is used in
-weak form: one smooth filter (a :class:`~phast_model.identify.signals.Differentiator`, by default the cubic Savitzky-Golay
+weak form: one smooth filter (a :class:`~phast_model.identify.signals.Differentiator`, by default the cubic
+Savitzky-Golay
 filter, window ``window`` samples) is applied to both sides,
 
     f~(t) = [S * (F_cons + u)](t) - d/dt [S * p](t),
@@ -12,7 +13,8 @@ so the noisy second derivative of q never appears alone and a law's force is com
 same filter, u the recorded port force held over each interval.  Everything here is per coordinate (friction is
 diagonal, as in the mismatch tool's vocabulary).
 
-It lives in the shared identification layer (``identify``) because it fits nothing: the mismatch tool's friction laws, weak-form
+It lives in the shared identification layer (``identify``) because it fits nothing: the mismatch tool's friction laws,
+weak-form
 identification and residual map build on it, and so does the rig path's friction check (through
 :mod:`.frictioncurve`).  A system with friction terms of its own beyond D(q) (the mismatch tool's augmented model)
 declares them through :class:`ExtraDissipation`.
@@ -64,7 +66,8 @@ class WeakForm:
 
     Arrays are (N, T', n): ``qs``, ``vs`` the smoothed state, ``total`` the filtered total dissipative force f~
     (positive along +qdot means it decelerates +qdot motion), ``own`` the filtered dissipative force of the model
-    itself (D(q) qdot plus the friction terms of an :class:`ExtraDissipation` system).  ``blocks`` (N, T') cluster labels."""
+    itself (D(q) qdot plus the friction terms of an :class:`ExtraDissipation` system).  ``blocks`` (N, T') cluster
+    labels."""
 
     qs: np.ndarray
     vs: np.ndarray
@@ -150,7 +153,8 @@ def _block_labels(N: int, T: int, block: int) -> np.ndarray:
 
 @dataclass
 class Balance:
-    """The momentum balance along the smoothed recordings, untrimmed (N, T, n): q, qdot, d/dt S*p and the model's pdot."""
+    """The momentum balance along the smoothed recordings, untrimmed (N, T, n): q, qdot, d/dt S*p and the model's
+    pdot."""
 
     qs: np.ndarray
     vs: np.ndarray
@@ -189,7 +193,8 @@ def weak_form(system: System, rec: Recordings, window: int | None = None, eps: f
     d = differentiator
     window = odd(window or default_window(rec, d))
     window = min(window, odd(rec.T // 3))
-    eps = float(eps if eps is not None else (system.coulomb_eps if isinstance(system, ExtraDissipation) else default_eps(rec, window, d)))
+    eps = float(eps if eps is not None else (system.coulomb_eps if isinstance(system, ExtraDissipation)
+                                             else default_eps(rec, window, d)))
     dt = rec.dt
     bal = momentum_balance(system, rec, window, d)
     qs, vs, dp = bal.qs, bal.vs, bal.dp
