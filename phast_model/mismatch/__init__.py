@@ -51,4 +51,5 @@ from .options import Options
 from .report import Report
 from .vocabulary.terms import VOCABULARY, AugmentedSystem, Term
 
-__all__ = ["analyze", "Options", "Report", "Recordings", "load_raw", "validate", "VOCABULARY", "AugmentedSystem", "Term"]
+__all__ = ["analyze", "Options", "Report", "Recordings", "load_raw", "validate", "VOCABULARY", "AugmentedSystem",
+           "Term"]

@@ -87,7 +87,8 @@ def _recordings(recordings: str | Path | Mapping[str, Any] | Recordings, sys0: S
 
 def _decimate(rec: Recordings, opts: Options) -> tuple[Recordings, int]:
     """Every k-th sample, k ~ a twentieth of the time scale, and k.  Never with u (held per recorded interval): then
-    shooting simulates every interval and compares every k-th sample instead (:func:`.fitting.problem.comparison_stride`)."""
+    shooting simulates every interval and compares every k-th sample instead
+    (:func:`.fitting.problem.comparison_stride`)."""
     dec = opts.decimate
     if dec is None:
         dec = 1 if rec.u is not None else max(1, int(time_scale(rec.resampled().q, rec.dt) / (20 * rec.dt)))
@@ -102,7 +103,8 @@ def _compared(compare: Mapping[str, System] | None, sys0: System, name: str) -> 
         if key in ("nominal", "calibrated", "augmented"):
             raise ValueError(f"compare: the name {key!r} is taken by the report's own rows; choose another")
         if not isinstance(system, System) or system.n != sys0.n:
-            raise ValueError(f"compare[{key!r}] must be a phast_gym System with n={sys0.n} coordinates like {name}, got {system!r}")
+            raise ValueError(f"compare[{key!r}] must be a phast_gym System with n={sys0.n} coordinates like {name}, "
+                             f"got {system!r}")
     return out
 
 
@@ -128,25 +130,29 @@ def _confirmed(missing: list[TermRow], fitres: FitTable) -> tuple[list[TermRow],
 
 
 def _verdicts(described: Described, unconfirmed: list[TermRow], fitres: FitTable) -> list[str]:
-    """Sentences for the summary when the simulator does not describe the recordings or the found terms do not predict."""
+    """Sentences for the summary when the simulator does not describe the recordings or the found terms do not
+    predict."""
     out = []
     if not described.ok:
         share = described.share
-        out.append(f"The simulator does not describe these recordings: nominal or calibrated, it explains {max(share, 0.0):.0%} "
-                   "of their variation beyond a straight line per window (a model of the recorded system explains nearly all "
-                   "of it), so no parameter was calibrated and no term is named; check the simulator, the coordinates and "
-                   "the units (angle_offset, angle_dims).")
+        out.append("The simulator does not describe these recordings: nominal or calibrated, it explains "
+                   f"{max(share, 0.0):.0%} "
+                   "of their variation beyond a straight line per window (a model of the recorded system explains "
+                   "nearly all "
+                   "of it), so no parameter was calibrated and no term is named; check the simulator, the coordinates "
+                   "and the units (angle_offset, angle_dims).")
     unbacked = [m for m in unconfirmed if not _backed(m)]
     if unbacked:
-        out.append("The 95% interval of " + ", ".join(f"{m.label} ({m.coefficient:.3g} [{m.ci95[0]:.3g}, {m.ci95[1]:.3g}])"
+        out.append("The 95% interval of "
+                   + ", ".join(f"{m.label} ({m.coefficient:.3g} [{m.ci95[0]:.3g}, {m.ci95[1]:.3g}])"
                                                       for m in unbacked)
                    + " includes zero: the data do not back it, so it is not reported as missing physics "
                    "(details.unconfirmed_terms).")
     held_out = [m for m in unconfirmed if _backed(m)]
     if held_out:
         names = ", ".join(m.label for m in held_out)
-        out.append(f"Terms that fit the training recordings ({names}) do not improve the prediction of the held-out recordings "
-                   f"(rollout RMSE calibrated {fitres.rmse('calibrated'):.4g}, with them "
+        out.append(f"Terms that fit the training recordings ({names}) do not improve the prediction of the held-out "
+                   f"recordings (rollout RMSE calibrated {fitres.rmse('calibrated'):.4g}, with them "
                    f"{fitres.rmse('augmented'):.4g}), so they are not reported as missing physics "
                    "(details.unconfirmed_terms).")
     return out
@@ -156,7 +162,8 @@ def _data(rec: Recordings, dec: int, sigma_raw: np.ndarray) -> dict[str, Any]:
     """report.data (sizes of the recordings as given, before decimation; a log set's logs, pieces and dropped rows)."""
     from ..identify.logs import report_facts
 
-    return {"n_traj": rec.n_traj, "T": rec.T, "dt": rec.dt, "decimated_by": dec, "noise_std": float(np.sqrt(np.mean(sigma_raw**2))),
+    return {"n_traj": rec.n_traj, "T": rec.T, "dt": rec.dt, "decimated_by": dec,
+            "noise_std": float(np.sqrt(np.mean(sigma_raw**2))),
             "noise_std_per_coordinate": [float(s) for s in sigma_raw], "source": rec.source,
             "angle_dims": list(rec.angle_dims), "has_input": rec.u is not None, **report_facts(rec.meta)}
 
@@ -171,7 +178,8 @@ def _details(ctx: Context, explained: Explained, augmented: System) -> dict[str,
             "coulomb_sign_smoothing_per_coordinate": np.broadcast_to(sel.family.eps, (problem.train.n,)).tolist(),
             "threshold": opts.threshold,
             "intervals": explained.intervals,
-            "chi2_per_dof": {"nominal": cal.fit_nominal.chi2_red, "calibrated": cal.fit.chi2_red, "augmented": answer.fit.chi2_red},
+            "chi2_per_dof": {"nominal": cal.fit_nominal.chi2_red, "calibrated": cal.fit.chi2_red,
+                             "augmented": answer.fit.chi2_red},
             "identifiability": cal.screen.identifiability.to_dict(),
             "held_out_check": sel.validation,  # the two-fold validation (select.py); the key's name is kept for readers
             "equivalent_swap": sel.equivalent_swap,
@@ -209,7 +217,8 @@ def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mappin
     log(f"{simulator.name}: {rec.n_traj} recordings x {rec.T} samples, dt={rec.dt}")
     try:  # the input was checked above: anything raised from here on is the tool's own failure
         problem = prepare(simulator, sys0, train, opts, log)
-        held = held_out(hold, evaluated_on, problem.sigma, problem.x_scale, problem.shoot_window, problem.smoothing_window,
+        held = held_out(hold, evaluated_on, problem.sigma, problem.x_scale, problem.shoot_window,
+                        problem.smoothing_window,
                         opts.rollout_window)
         inputs = _Inputs(simulator, given, dec, train, hold, held, comparison,
                          tuple(EXPLAINERS if explainers is None else explainers))
@@ -268,7 +277,8 @@ def _second_look(problem: Problem, inputs: _Inputs, report: Report) -> Report:
             or report.fit["calibrated"]["rollout_rmse"] <= SECOND_LOOK_RATIO * noise)
     if done:
         return report
-    long_problem = prepare(inputs.simulator, problem.sys0, inputs.train, problem.opts.with_(shoot_window=longer), problem.log)
+    long_problem = prepare(inputs.simulator, problem.sys0, inputs.train, problem.opts.with_(shoot_window=longer),
+                           problem.log)
     followed = _followed_on(long_problem, inputs.simulator.build(**report.diagnostics["calibrated_kwargs"]))
     look: dict[str, Any] = {"shoot_window_samples": longer, "calibrated_chi2_per_dof": followed}
     if not AT_NOISE_CHI2 < followed <= CANNOT_FOLLOW_CHI2:
@@ -276,8 +286,8 @@ def _second_look(problem: Problem, inputs: _Inputs, report: Report) -> Report:
                     f"{'fits' if followed <= AT_NOISE_CHI2 else 'cannot follow'} {longer}-sample windows "
                     f"(chi2/dof {followed:.3g})")
         return replace(report, diagnostics={**report.diagnostics, "second_look": {**look, "taken": False}})
-    problem.log(f"no term in {problem.shoot_window}-sample shooting windows: a second look with {longer}-sample windows "
-                f"(the calibrated model leaves chi2/dof {followed:.3g} there)")
+    problem.log(f"no term in {problem.shoot_window}-sample shooting windows: a second look with {longer}-sample "
+                f"windows (the calibrated model leaves chi2/dof {followed:.3g} there)")
     second = _explain(long_problem, inputs)
     look.update({"taken": True, "found": [m.label for m in second.terms], "adopted": bool(second.terms)})
     chosen = second if second.terms else report
@@ -285,8 +295,10 @@ def _second_look(problem: Problem, inputs: _Inputs, report: Report) -> Report:
 
 
 def _followed_on(problem: Problem, calibrated: System) -> float:
-    """chi^2/dof of the first pass's answer (window states fitted, parameters as calibrated) on ``problem``'s windows."""
-    fit = problem.shooter(problem.shooting.windows).fit_states(calibrated, problem.shooting.X0, max_iter=problem.opts.max_iter)
+    """chi^2/dof of the first pass's answer (window states fitted, parameters as calibrated) on ``problem``'s
+    windows."""
+    fit = problem.shooter(problem.shooting.windows).fit_states(calibrated, problem.shooting.X0,
+                                                               max_iter=problem.opts.max_iter)
     return float(fit.chi2_red)
 
 
@@ -294,7 +306,8 @@ def check_free(free: Sequence[str], numeric: Mapping[str, float]) -> None:
     """``Options.free`` names numeric parameters of the simulator (a typo must not silently free nothing)."""
     bad = sorted(set(free) - set(numeric))
     if bad:
-        raise ValueError(f"--free {bad}: not a numeric parameter of the simulator; its parameters are {sorted(numeric)}")
+        raise ValueError(f"--free {bad}: not a numeric parameter of the simulator; its parameters are "
+                         f"{sorted(numeric)}")
 
 
 class InternalError(RuntimeError):
@@ -329,7 +342,8 @@ class Described:
         return self.share >= MIN_DESCRIBED or (self.drive_share is not None and self.drive_share >= MIN_DESCRIBED)
 
     def to_dict(self) -> dict[str, float]:
-        return {"explained_share": self.share, **({} if self.drive_share is None else {"drive_share": self.drive_share})}
+        return {"explained_share": self.share,
+                **({} if self.drive_share is None else {"drive_share": self.drive_share})}
 
 
 def _described(problem: Problem, share: float) -> Described:
@@ -358,7 +372,8 @@ def _context(problem: Problem, inputs: _Inputs) -> tuple[Context, Described]:
         screen = replace(screen, identifiability=replace(screen.identifiability, basis=(), independence=()))
     elif described.share < MIN_DESCRIBED:  # described up to its drives: the drives first, by the weak form alone
         problem = replace(problem, opts=replace(problem.opts, max_terms=0, systematic_chi2=0.0))
-        screen = replace(screen, candidates=[], identifiability=replace(screen.identifiability, basis=(), independence=()))
+        screen = replace(screen, candidates=[],
+                         identifiability=replace(screen.identifiability, basis=(), independence=()))
     sel = select(problem, screen, [*screen.candidates, *candidates(problem, problem.nominal_family.build(np.zeros(0)))])
     cal = calibration(problem, screen, sel.params, sel.fit, len(sel.terms))
     nominal = problem.nominal_family.build(np.zeros(0))
@@ -409,5 +424,6 @@ def _explain(problem: Problem, inputs: _Inputs) -> Report:
         diagnostics={**_details(ctx, explained, models["augmented"]), **described.to_dict()},
         plot_data={"hold": held.rec, "rollouts": rollouts, "resid_map": resid_map, "train": train,
                    "augmented_system": models["augmented"], "calibrated_system": models["calibrated"],
-                   "nominal_system": models["nominal"], "friction_curve": explained.curve, "friction_laws": explained.laws},
+                   "nominal_system": models["nominal"], "friction_curve": explained.curve,
+                   "friction_laws": explained.laws},
     )

@@ -77,7 +77,8 @@ class ParameterScreen:
     shooter: Shooter  # on the windows kept after outlier rejection
     fit_nominal: ShootFit  # window states only, nominal parameters
     n_dropped: int  # windows the nominal model could not follow at all
-    candidates: list[ParamCandidate]  # identifiable parameters (every examined one; the selection keeps the parsimonious)
+    # identifiable parameters (every examined one; the selection keeps the parsimonious)
+    candidates: list[ParamCandidate]
     notes: dict[str, str]  # parameters not examined, with the reason
     identifiability: Identifiability
     fit_full: ShootFit  # every pivot fitted: the most a parameter change alone can do (for the explained share)
@@ -135,7 +136,8 @@ def fit_nominal(problem: Problem) -> tuple[Shooter, ShootFit, int]:
     return shooter, fit, n_dropped
 
 
-def _parameter_columns(problem: Problem, shooter: Shooter, nominal_fit: ShootFit, params: list[tuple[str, float]]) -> np.ndarray:
+def _parameter_columns(problem: Problem, shooter: Shooter, nominal_fit: ShootFit,
+                       params: list[tuple[str, float]]) -> np.ndarray:
     """(N, len(params)) projected shooting columns d r / d log(parameter) at the nominal fit."""
     nominal, h = problem.nominal_family, PARAM_STEP
     if not params:
@@ -185,7 +187,8 @@ def param_in_mass(problem: Problem, name: str, nominal: float) -> bool:
     return any(not np.allclose(np.asarray(x), np.asarray(y)) for ra, rb in zip(Ma, Mb) for x, y in zip(ra, rb))
 
 
-def _examined(problem: Problem, shooter: Shooter, nominal_fit: ShootFit) -> tuple[list[tuple[str, float]], np.ndarray, dict[str, str]]:
+def _examined(problem: Problem, shooter: Shooter,
+              nominal_fit: ShootFit) -> tuple[list[tuple[str, float]], np.ndarray, dict[str, str]]:
     """The free parameters whose change is visible in the recordings, their columns, and a note for every other one."""
     known = known_params(problem.sys0) - set(problem.opts.free)
     params = [(k, v) for k, v in problem.sim.numeric_params(problem.sys0).items() if v != 0]
@@ -201,7 +204,8 @@ def _examined(problem: Problem, shooter: Shooter, nominal_fit: ShootFit) -> tupl
         if norm == 0.0 or not np.isfinite(norm):
             notes[k] = "does not enter the dynamics of q (held at nominal)"
         elif norm * VISIBLE_CHANGE < 1.0:
-            notes[k] = f"not determined by these recordings (a {VISIBLE_CHANGE:.0%} change moves the fit by less than the noise)"
+            notes[k] = (f"not determined by these recordings (a {VISIBLE_CHANGE:.0%} change moves the fit by less "
+                        "than the noise)")
         else:
             keep.append(j)
     return [params[j] for j in keep], cols[:, keep], notes

@@ -42,7 +42,8 @@ def _energy_state(system: System, rec: Recordings, smoothing_window: int) -> tup
     return qs, vs, qc, H, P, j
 
 
-def energy_check(system: System, rec: Recordings, smoothing_window: int, min_intervals: int = 4) -> dict[str, Any] | None:
+def energy_check(system: System, rec: Recordings, smoothing_window: int,
+                 min_intervals: int = 4) -> dict[str, Any] | None:
     """Does ``system``'s dissipation account for the energy the recordings lose?  (A check, nothing is fitted.)
 
     Per half-cycle between turning points, measured loss H(a) - H(b) against the model's

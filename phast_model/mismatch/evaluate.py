@@ -2,7 +2,8 @@
 
 *Held-out* means one thing in the tool: the recordings the split (:mod:`phast_model.identify.split`) sets aside before
 any stage runs, which nothing is fitted to.  The other two checks on recordings left out of a fit are named apart:
-the selection's *two-fold validation* on the training recordings (:mod:`.selection.forward`) and the *leave-one-out* of the
+the selection's *two-fold validation* on the training recordings (:mod:`.selection.forward`) and the *leave-one-out* of
+the
 friction-law selection and the weak-form parameter check (:mod:`.friction`).
 """
 
@@ -20,7 +21,8 @@ from ..identify.shooting import Shooter, Windows, angle_diff, odd, simulate_qv, 
 
 #: fewest samples of a held-out rollout window
 MIN_ROLLOUT_SAMPLES = 20
-#: largest rollout spread (noise units, linearized) an initial state's uncertainty may leave before it is fitted to more samples
+#: largest rollout spread (noise units, linearized) an initial state's uncertainty may leave before it is fitted to more
+#: samples
 MAX_INIT_SPREAD = 1.0
 #: largest spread (noise units, linearized) over the samples of the next fit length that the current fitted state may
 #: leave for the homotopy on the length to jump there directly
@@ -36,7 +38,8 @@ def _ladder(K0: int, K_max: int) -> list[int]:
     return out
 
 
-def _fit_states(system: System, rec: Recordings, K: int, sigma: np.ndarray, x_scale: np.ndarray, X0: np.ndarray) -> np.ndarray:
+def _fit_states(system: System, rec: Recordings, K: int, sigma: np.ndarray, x_scale: np.ndarray,
+                X0: np.ndarray) -> np.ndarray:
     """Each trajectory's initial (q, qdot) fitted to its first K samples with ``system``."""
     sub = int(substeps_for(system, rec.dt))
     shooter = Shooter(Windows.cut(rec.time_slice(0, K), K), sigma, sub, x_scale)
@@ -51,7 +54,8 @@ class _Linearization:
     n: int
 
     @classmethod
-    def at(cls, system: System, rec: Recordings, sigma: np.ndarray, x_scale: np.ndarray, X: np.ndarray) -> _Linearization:
+    def at(cls, system: System, rec: Recordings, sigma: np.ndarray, x_scale: np.ndarray,
+           X: np.ndarray) -> _Linearization:
         shooter = Shooter(Windows.cut(rec, rec.T), sigma, int(substeps_for(system, rec.dt)), x_scale)
         return cls(shooter.residual_and_jac_X(system, X)[1], rec.n)
 
@@ -116,7 +120,8 @@ def _initial_states(models: dict[str, System], rec: Recordings, K: int, sigma: n
 
 
 def evaluate_models(models: dict[str, System], rec: Recordings, sigma: np.ndarray, x_scale: np.ndarray, K: int,
-                    smoothing_window: int, scale: np.ndarray) -> tuple[dict[str, dict[str, float]], dict[str, np.ndarray]]:
+                    smoothing_window: int,
+                    scale: np.ndarray) -> tuple[dict[str, dict[str, float]], dict[str, np.ndarray]]:
     """one_step_mse and rollout_rmse (docs/mismatch.md) of each model on held-out recordings; a system listed under
     several names (the calibrated model when no parameter changed) is scored once."""
     first = {id(s): name for name, s in reversed(list(models.items()))}  # each system's first name
@@ -149,7 +154,8 @@ def _evaluate(models: dict[str, System], rec: Recordings, sigma: np.ndarray, x_s
         d1 = dt if rec.uniform else rec.steps.reshape(-1, 1)
         q1 = simulate_qv(system, q0, v0, 1, u1, d1, substeps_for(system, d1))[:, 1]
         e = angle_diff(q1, rec.q[:, 1:].reshape(-1, n), rec.angle_dims) / scale
-        out[name] = {"one_step_mse": float(np.mean(np.where(np.isfinite(e), e, 1e6) ** 2)), "rollout_rmse": rollout_rmse}
+        out[name] = {"one_step_mse": float(np.mean(np.where(np.isfinite(e), e, 1e6) ** 2)),
+                     "rollout_rmse": rollout_rmse}
         rollouts[name] = q_roll
     return out, rollouts
 
@@ -188,9 +194,11 @@ class FitTable:
 
     def to_dict(self) -> dict[str, Any]:
         """The report.json ``fit`` object."""
-        out: dict[str, Any] = {k: {"one_step_mse": m.one_step_mse, "rollout_rmse": m.rollout_rmse} for k, m in self.models.items()}
+        out: dict[str, Any] = {k: {"one_step_mse": m.one_step_mse, "rollout_rmse": m.rollout_rmse} for k,
+                               m in self.models.items()}
         ro = self.rollout
-        out.update({"evaluated_on": self.evaluated_on, "rollout_window_samples": ro.window_samples, "rollout_n_windows": ro.n_windows,
+        out.update({"evaluated_on": self.evaluated_on, "rollout_window_samples": ro.window_samples,
+                    "rollout_n_windows": ro.n_windows,
                     "rollout_window_s": ro.window_s, "rollout_init_samples": ro.init_samples, "rollout": ro.text})
         if self.energy_check is not None:
             out["energy_check"] = self.energy_check
@@ -213,8 +221,10 @@ class HeldOut:
     mixed: bool
     windowed: bool
 
-    def evaluate(self, models: dict[str, System], rec: Recordings | None = None) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
-        return evaluate_models(models, self.rec if rec is None else rec, self.sigma, self.x_scale, self.init_samples, self.smoothing_window,
+    def evaluate(self, models: dict[str, System],
+                 rec: Recordings | None = None) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+        return evaluate_models(models, self.rec if rec is None else rec, self.sigma, self.x_scale, self.init_samples,
+                               self.smoothing_window,
                                self.scale)
 
     def rollout_rmse(self, system: System, rec: Recordings) -> float:
@@ -224,14 +234,18 @@ class HeldOut:
         """report.fit: the metrics of each model plus what they were computed on; and the rollouts (plots)."""
         hold, init_samples = self.rec, self.init_samples
         metrics, rollouts = self.evaluate(models)
-        win_txt = f"held-out recordings cut into {hold.n_traj} consecutive windows of {hold.T} samples; " if self.windowed else ""
-        text = (win_txt + f"per held-out trajectory / window: initial state fitted to its first {init_samples} samples (2, 4, ... "
-                "times as many, up to half the window, where that state's uncertainty alone, linearized, would spread the rollout by "
-                "more than the noise), open-loop "
+        win_txt = (f"held-out recordings cut into {hold.n_traj} consecutive windows of {hold.T} samples; "
+                   if self.windowed else "")
+        text = (win_txt
+                + f"per held-out trajectory / window: initial state fitted to its first {init_samples} samples (2, 4, "
+                  "... "
+                "times as many, up to half the window, where that state's uncertainty alone, linearized, would spread "
+                "the rollout by more than the noise), open-loop "
                 f"simulation over all {hold.T} samples with the recorded u; RMSE of q"
                 + (" scaled per coordinate by its std" if self.mixed else "")
                 + (" (angles wrapped)" if hold.angle_dims else ""))
-        setup = RolloutSetup(int(hold.T), int(hold.n_traj), float(np.median(hold.times()[:, -1] - hold.times()[:, 0])), init_samples, text)
+        setup = RolloutSetup(int(hold.T), int(hold.n_traj), float(np.median(hold.times()[:, -1] - hold.times()[:, 0])),
+                             init_samples, text)
         scores = {k: ModelScore(m["one_step_mse"], m["rollout_rmse"]) for k, m in metrics.items()}
         return FitTable(scores, self.evaluated_on, setup), rollouts
 
@@ -242,7 +256,8 @@ def check_rollout_window(rollout_window: float | None, dt: float) -> None:
         raise ValueError(f"rollout_window {rollout_window} s is shorter than {MIN_ROLLOUT_SAMPLES} samples (dt={dt})")
 
 
-def held_out(hold: Recordings, evaluated_on: str, sigma: np.ndarray, x_scale: np.ndarray, shoot_window: int, smoothing_window: int,
+def held_out(hold: Recordings, evaluated_on: str, sigma: np.ndarray, x_scale: np.ndarray, shoot_window: int,
+             smoothing_window: int,
              rollout_window: float | None) -> HeldOut:
     """The held-out comparison: rollout windows of ``rollout_window`` seconds (default: whole trajectories), initial
     states fitted to a quarter shooting window."""
@@ -254,5 +269,6 @@ def held_out(hold: Recordings, evaluated_on: str, sigma: np.ndarray, x_scale: np
         check_rollout_window(rollout_window, dt)
         rec = hold.windows(int(round(rollout_window / dt)) + 1)
     init_samples = int(min(rec.T, max(10, shoot_window // 4)))
-    return HeldOut(rec, hold, evaluated_on, sigma, x_scale, scale, init_samples, min(smoothing_window, odd(rec.T // 2 - 1)), mixed,
+    return HeldOut(rec, hold, evaluated_on, sigma, x_scale, scale, init_samples,
+                   min(smoothing_window, odd(rec.T // 2 - 1)), mixed,
                    rollout_window is not None)

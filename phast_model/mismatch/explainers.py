@@ -76,7 +76,8 @@ class Answer:
         """The report.details entries of this answer."""
         if self.section is None:
             return {}
-        return {self.section: {**self.evidence, **({} if self.not_adopted is None else {"not_adopted": self.not_adopted})}}
+        return {self.section: {**self.evidence,
+                               **({} if self.not_adopted is None else {"not_adopted": self.not_adopted})}}
 
 
 @dataclass(frozen=True)
@@ -185,7 +186,8 @@ def explain_in_turn(explainers: Sequence[Explainer], ctx: Context) -> Explained:
             challenge = ctx.fit_table(out.system)
             a, c = challenge[0].rmse("augmented"), challenge[0].rmse("calibrated")
             if a >= c:  # its parameters included, it does not predict: the standing answer stays
-                out = replace(out, not_adopted=(f"the {out.label} does not improve the held-out prediction (rollout RMSE "
+                out = replace(out,
+                              not_adopted=(f"the {out.label} does not improve the held-out prediction (rollout RMSE "
                                                 f"{a:.4g} >= calibrated {c:.4g})"))
             else:
                 table = challenge
@@ -244,7 +246,8 @@ def _alternatives(sel: Selection, k: int, z: float) -> list[Alternative]:
             za = z * float(ca @ ck) / float(ca @ ca)
             cand = cands[kk]
             if isinstance(cand, ParamCandidate):
-                alts.append(Alternative(parameter=cand.name, value=cand.coefficient(za), similarity=float(round(abs(cos), 4)),
+                alts.append(Alternative(parameter=cand.name, value=cand.coefficient(za),
+                                        similarity=float(round(abs(cos), 4)),
                                         note="a parameter change with the same effect on these recordings"))
             else:
                 alts.append(Alternative(term=cand.term, coordinate=cand.coordinate, coefficient=cand.coefficient(za),

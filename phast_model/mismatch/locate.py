@@ -46,7 +46,8 @@ def _component_r2(groups: dict[str, list[np.ndarray]], ri: np.ndarray) -> dict[s
 
 
 def _region(i: int, qi: np.ndarray, vi: np.ndarray, e_i: np.ndarray) -> tuple[str, float]:
-    """The half of state space (by |qdot| or |q|, split at the median) where the squared residual concentrates, and its share."""
+    """The half of state space (by |qdot| or |q|, split at the median) where the squared residual concentrates, and its
+    share."""
     vmed = float(np.median(np.abs(vi)))
     qmed = float(np.median(np.abs(qi)))
     regions = {
@@ -74,7 +75,8 @@ def _when(r_i: np.ndarray) -> str:
     th = th / (th.sum() + 1e-300)
     when = "throughout"
     if th.max() > 0.5:
-        when = ["early (first third of each recording)", "middle third", "late (last third of each recording)"][int(np.argmax(th))]
+        when = ["early (first third of each recording)", "middle third",
+                "late (last third of each recording)"][int(np.argmax(th))]
     top = [int(k) for k in np.argsort(per_traj)[::-1][:3] if per_traj[k] > 2.0 / len(per_traj)]
     if top and len(per_traj) > 2:
         when += f"; largest in trajectories {top}"
@@ -107,8 +109,10 @@ def locate(system: System, rec: Recordings, smoothing_window: int, eps: float, s
         r2 = _component_r2(groups, ri)
         where, where_share = _region(i, qi, vi, ri**2)
         diss = float(np.mean(ri * vi))
-        located.append({"coordinate": i, "component": max(r2, key=lambda k: r2[k]), "where": where, "when": _when(r[..., i]),
-                        "share": round(share_i * where_share, 4), "residual_power": diss, "removes_energy": bool(diss < 0),
+        located.append({"coordinate": i, "component": max(r2, key=lambda k: r2[k]), "where": where,
+                        "when": _when(r[..., i]),
+                        "share": round(share_i * where_share, 4), "residual_power": diss,
+                        "removes_energy": bool(diss < 0),
                         "component_r2": {k: round(v, 4) for k, v in r2.items()}})
     located.sort(key=lambda d: -d["share"])
     return located, {"q": qv, "v": vv, "r": r}

@@ -53,7 +53,8 @@ class Options:
     def flat_names(cls) -> list[str]:
         """Every option's flat name (the groups' fields and the others)."""
         groups = {"windows": WindowOptions, "caps": Caps}
-        return [g.name for grp in groups.values() for g in fields(grp)] + [f.name for f in fields(cls) if f.name not in groups]
+        return ([g.name for grp in groups.values() for g in fields(grp)]
+                + [f.name for f in fields(cls) if f.name not in groups])
 
     def with_(self, **flat: Any) -> Options:
         """These options with the given flat-named fields changed (a new object: options are immutable)."""

@@ -19,7 +19,8 @@ def _present(pairs: Sequence[tuple[str, Any]]) -> dict[str, Any]:
 
 
 def param_value(value: object) -> float:
-    """A numeric parameter's value as the simulator holds it (an int stays an int, as the report has always written it)."""
+    """A numeric parameter's value as the simulator holds it (an int stays an int, as the report has always written
+    it)."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ValueError(f"parameter value {value!r} is not a number")
     return value
@@ -75,14 +76,16 @@ class Alternative:
         return next((s for s in (self.term, self.parameter, self.law) if s is not None), "")
 
     def to_dict(self) -> dict[str, Any]:
-        return _present([("law", self.law), ("term", self.term), ("coordinate", self.coordinate), ("parameter", self.parameter),
+        return _present([("law", self.law), ("term", self.term), ("coordinate", self.coordinate),
+                         ("parameter", self.parameter),
                          ("value", self.value), ("coefficient", self.coefficient), ("similarity", self.similarity),
                          ("note", self.note)])
 
 
 @dataclass(frozen=True)
 class TermRow:
-    """report.missing_physics[i] (and details.unconfirmed_terms[i]): one term of the vocabulary the simulator leaves out.
+    """report.missing_physics[i] (and details.unconfirmed_terms[i]): one term of the vocabulary the simulator leaves
+    out.
 
     ``explains``: the share of the nominal fit's excess chi^2 the term removes (shooting; None from the weak form).
     ``evidence``: how the weak form chose it (None from the shooting selection)."""

@@ -27,7 +27,8 @@ def rel_resid(col: np.ndarray, basis: np.ndarray | None) -> float:
 
 
 def cluster_cov(X: np.ndarray, r: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, int]:
-    """Cluster-robust (CR1) covariance of least-squares coefficients of X with residual r, clusters g; and the cluster count."""
+    """Cluster-robust (CR1) covariance of least-squares coefficients of X with residual r, clusters g; and the cluster
+    count."""
     XtXi = np.linalg.pinv(X.T @ X)
     G = np.unique(g)
     s = np.stack([X[g == k].T @ r[g == k] for k in G]) if len(G) else np.zeros((0, X.shape[1]))

@@ -1,4 +1,5 @@
-"""What every stage of the pipeline shares: the training recordings, their noise and scales, the windows, the nominal family."""
+"""What every stage of the pipeline shares: the training recordings, their noise and scales, the windows, the nominal
+family."""
 
 from __future__ import annotations
 
@@ -126,7 +127,8 @@ class Problem:
 
 
 def _windows(train: Recordings, length: int, stride: int, opts: Options) -> Windows:
-    """Shooting windows of ``length`` samples (every ``stride``-th compared), subsampled evenly to the caps of ``opts``."""
+    """Shooting windows of ``length`` samples (every ``stride``-th compared), subsampled evenly to the caps of
+    ``opts``."""
     win = Windows.cut(train, length, stride=stride)
     max_w = int(min(opts.max_windows, max(40, opts.max_residuals // (len(win.obs) * train.n))))
     if win.count > max_w:
@@ -146,7 +148,8 @@ def longer_windows(problem: Problem, length: int) -> Windows:
 
 
 def comparison_stride(train: Recordings, period: float) -> int:
-    """Compare every k-th sample in shooting when u forbids decimation: ~20 samples per time scale (1 when not oversampled)."""
+    """Compare every k-th sample in shooting when u forbids decimation: ~20 samples per time scale (1 when not
+    oversampled)."""
     if train.u is None:
         return 1
     return max(1, int(period / (2 * math.pi) / (20 * train.dt)))

@@ -25,7 +25,8 @@ from ..vocabulary.registry import VOCABULARY, TermKind, VelocityKind, law_terms
 from ..vocabulary.terms import AugmentedSystem, Term, friction_basis
 
 #: Stribeck velocities tried, as fractions of the coordinate's rms speed: the default grid of a kind with a velocity
-#: (each such kind carries its own, :attr:`..vocabulary.registry.VelocityKind.velocity_fractions`; Stribeck keeps the default)
+#: (each such kind carries its own, :attr:`..vocabulary.registry.VelocityKind.velocity_fractions`; Stribeck keeps the
+#: default)
 STRIBECK_FRACTIONS = VelocityKind.velocity_fractions
 
 
@@ -70,7 +71,8 @@ class FrictionLaw:
     n_obs: int = 0
     interval: str = ""
     own_samples: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list, repr=False)
-    own_terms: list[Term] = field(default_factory=list, repr=False)  # friction terms the system already has (AugmentedSystem)
+    # friction terms the system already has (AugmentedSystem)
+    own_terms: list[Term] = field(default_factory=list, repr=False)
 
     @property
     def name(self) -> str:
@@ -99,7 +101,8 @@ class FrictionLaw:
         return AugmentedSystem(system, terms, self.eps)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"law": self.name, "terms": [{**asdict(t), "ci95": list(t.ci95)} for t in self.terms], "coulomb_eps": self.eps,
+        return {"law": self.name, "terms": [{**asdict(t), "ci95": list(t.ci95)} for t in self.terms],
+                "coulomb_eps": self.eps,
                 "rss": self.rss, "n_obs": self.n_obs, "interval": self.interval,
                 "every_ci_excludes_zero": all(t.excludes_zero for t in self.terms)}
 
@@ -125,7 +128,8 @@ def own_samples(system: System, wf: WeakForm, k: int = 64) -> list[tuple[np.ndar
 
 
 def own_terms(system: System) -> list[Term]:
-    return [t for t in getattr(system, "terms", ()) if t.component == "dissipation"] if isinstance(system, AugmentedSystem) else []
+    return ([t for t in getattr(system, "terms", ()) if t.component == "dissipation"]
+            if isinstance(system, AugmentedSystem) else [])
 
 
 def filtered_basis(wf: WeakForm, name: str, i: int, velocity: float = 0.0) -> np.ndarray:
@@ -233,10 +237,13 @@ def fit_law(system: System, rec: Recordings, terms: Sequence[Any], window: int |
             block: int | None = None, weak: WeakForm | None = None) -> FrictionLaw:
     """Weak-form force-balance least squares of a friction law, coefficients sign free.
 
-    ``terms``: (name, coordinate) pairs, (name, i, v_s) for a kind with a velocity (v_s None: profiled on the kind's grid
-    of fractions of the rms speed), :class:`..vocabulary.terms.Term` objects, or bare names (every coordinate).  The law is *added* to the
+    ``terms``: (name, coordinate) pairs, (name, i, v_s) for a kind with a velocity (v_s None: profiled on the kind's
+    grid
+    of fractions of the rms speed), :class:`..vocabulary.terms.Term` objects, or bare names (every coordinate).  The law
+    is *added* to the
     model's own dissipation: a negative viscous coefficient lowers the model's damping.  95% intervals are
     cluster-robust over time blocks within recordings (see :func:`weak_form`)."""
     wf = weak or weak_form(system, rec, window, eps, block)
-    return fit_law_specs(wf, parse_terms(terms, rec.n), cache={}, own=own_samples(system, wf), own_terms=own_terms(system))
+    return fit_law_specs(wf, parse_terms(terms, rec.n), cache={}, own=own_samples(system, wf),
+                         own_terms=own_terms(system))
 

@@ -69,7 +69,8 @@ def rollout_score(system: System, rec: Recordings, window: int | None, init_samp
     sigma = np.maximum(sigma, 1e-6 * (rec.q.reshape(-1, rec.n).std(0) + 1e-12))
     smoothing = min(smoothing, odd(recw.T // 2 - 1))
     qs, vs = smooth(recw.q, recw.dt, smoothing)
-    x_scale = np.concatenate([np.sqrt(np.mean(qs**2, axis=(0, 1))) + 1e-9, np.sqrt(np.mean(vs**2, axis=(0, 1))) + 1e-12])
+    x_scale = np.concatenate([np.sqrt(np.mean(qs**2, axis=(0, 1))) + 1e-9,
+                              np.sqrt(np.mean(vs**2, axis=(0, 1))) + 1e-12])
     _, rolls = evaluate_models({"m": system}, recw, sigma, x_scale, min(init_samples, recw.T), smoothing,
                                np.ones(rec.n))
     d = angle_diff(rolls["m"], recw.q, recw.angle_dims)
@@ -160,7 +161,8 @@ class CandidateScore:
     def to_dict(self) -> dict[str, Any]:
         f, e = self.folds, self.eligibility
         return {"law": self.law, "n_params": self.n_params, "fold_scores": list(f.scores), "mean": f.mean, "se": f.se,
-                "passive": e.passive, "every_ci_excludes_zero": e.every_ci_excludes_zero, "weak_form_loro": f.weak_form_loro,
+                "passive": e.passive, "every_ci_excludes_zero": e.every_ci_excludes_zero,
+                "weak_form_loro": f.weak_form_loro,
                 "diff_se": f.diff_se, "curve_agreement": e.curve_agreement, "not_worse": self.not_worse,
                 "fitted": self.fitted.to_dict() if self.fitted else None}
 
@@ -184,9 +186,11 @@ class LawSelection:
 def _leave_one_out_folds(rec: Recordings, n_blocks: int) -> tuple[list[tuple[Recordings, Recordings]], str]:
     """(training, left-out) recordings of each leave-one-out fold, and the folds in words."""
     if rec.n_traj >= 2:
-        out = [(rec.subset(np.array([j for j in range(rec.n_traj) if j != k])), rec.subset(slice(k, k + 1))) for k in range(rec.n_traj)]
+        out = [(rec.subset(np.array([j for j in range(rec.n_traj) if j != k])),
+                rec.subset(slice(k, k + 1))) for k in range(rec.n_traj)]
         return out, f"leave-one-recording-out ({rec.n_traj} folds)"
-    # one recording: contiguous time blocks, each left out in turn (fit on the rest, concatenated as separate recordings)
+    # one recording: contiguous time blocks, each left out in turn (fit on the rest, concatenated as separate
+    # recordings)
     e = np.linspace(0, rec.T, n_blocks + 1).round().astype(int)
     out = []
     for k in range(n_blocks):
@@ -301,7 +305,8 @@ def _pooled_reference(wf: WeakForm, edges: list[np.ndarray]) -> list[np.ndarray]
     ref = []
     for i in range(wf.n):
         sp, sign = np.abs(wf.vs[..., i]), np.sign(wf.vs[..., i])
-        vals = [abs(float(np.mean((wf.total[..., i] * sign)[(sp >= a) & (sp < b)]))) if np.any((sp >= a) & (sp < b)) else 0.0
+        vals = [abs(float(np.mean((wf.total[..., i] * sign)[(sp >= a) & (sp < b)])))
+                if np.any((sp >= a) & (sp < b)) else 0.0
                 for a, b in zip(edges[i][:-1], edges[i][1:])]
         ref.append(np.maximum(np.asarray(vals), 0.05 * max(vals + [1e-300])))
     return ref
@@ -315,12 +320,15 @@ def _scoring(system: System, rec: Recordings, window: int | None, eps: float | N
     period = 2 * math.pi * time_scale(rec.q, rec.dt)
     rollout_window = int(round((opts.rollout.rollout_window or 3 * period) / rec.dt)) + 1
     init_samples = int(opts.rollout.init_samples or max(10, int(round(0.5 * period / rec.dt)) // 4))
-    fold_wf = [(weak_form(system, tr, window, eps, block), weak_form(system, te, window, eps, block), te) for tr, te in folds]
+    fold_wf = [(weak_form(system, tr, window, eps, block), weak_form(system, te, window, eps, block), te)
+               for tr, te in folds]
     curve = friction_curve(system, rec, window, bands=opts.bands, n_bands=opts.n_bands, eps=eps, block=block)
     edges = [speed_edges(np.abs(wf_all.vs[..., i]).reshape(-1), opts.bands, opts.n_bands) for i in range(rec.n)]
-    return _Scoring(system, rec, opts, wf_all, _Folds(fold_wf, fold_txt), _CurveReference(curve, edges, _pooled_reference(wf_all, edges)),
+    return _Scoring(system, rec, opts, wf_all, _Folds(fold_wf, fold_txt),
+                    _CurveReference(curve, edges, _pooled_reference(wf_all, edges)),
                     None if coordinate is None else [coordinate], own_samples(system, wf_all),
-                    _RolloutSetup(rollout_window, init_samples, estimate_noise(rec.q)), _Caches([({}, {}) for _ in folds]))
+                    _RolloutSetup(rollout_window, init_samples, estimate_noise(rec.q)),
+                    _Caches([({}, {}) for _ in folds]))
 
 
 def _fold_score(sc: _Scoring, specs: Sequence[Spec], k: int) -> tuple[float, float]:
@@ -343,7 +351,8 @@ def _fold_score(sc: _Scoring, specs: Sequence[Spec], k: int) -> tuple[float, flo
         rel = (opts.criterion == "window_rollout") if opts.rollout.relative is None else opts.rollout.relative
         ro = sc.rollout
         window = ro.window if opts.criterion == "window_rollout" else None
-        return rollout_score(law.augmented(sc.system), te, window, ro.init_samples, wtr.window, ro.sigma, relative=rel)[0], wfs
+        return (rollout_score(law.augmented(sc.system), te, window, ro.init_samples, wtr.window, ro.sigma,
+                              relative=rel)[0], wfs)
     if opts.criterion == "curve":
         ref = sc.reference
         return _curve_score(law, wte, ref.edges, max(10, 2 * wtr.window), ref.ref, sc.scored), wfs
@@ -356,28 +365,33 @@ def _score(sc: _Scoring, specs: Sequence[Spec]) -> CandidateScore:
     full = fit_law_specs(wf, specs, cache=sc.caches.all, own=sc.own, own_terms=own_terms(sc.system))
     passive = is_passive(full, [float(np.max(np.abs(wf.vs[..., i]))) for i in range(sc.rec.n)]).passive
     tot_rms = [float(np.sqrt(np.mean(wf.total[..., i] ** 2))) + 1e-300 for i in range(sc.rec.n)]
-    share = [float(np.sqrt(np.mean((t.coefficient * design(wf, [(t.term, t.coordinate, t.velocity)], sc.caches.all)) ** 2)))
+    share = [float(np.sqrt(np.mean((t.coefficient
+                                    * design(wf, [(t.term, t.coordinate, t.velocity)], sc.caches.all)) ** 2)))
              / tot_rms[t.coordinate] for t in full.terms]
     sig = all(t.excludes_zero and abs(t.t) >= rules.min_t and sh >= rules.min_share for t, sh in zip(full.terms, share))
     fs, wfs = zip(*[_fold_score(sc, specs, k) for k in range(len(sc.folds.weak))])
     se = float(np.std(fs, ddof=1) / math.sqrt(len(fs))) if len(fs) > 1 else 0.0
-    inside = [r["inside"] for r in check_against_curve(full, sc.reference.curve) if sc.scored is None or r["coordinate"] in sc.scored]
+    inside = [r["inside"] for r in check_against_curve(full,
+                                                       sc.reference.curve) if sc.scored is None
+              or r["coordinate"] in sc.scored]
     folds = FoldStats([float(x) for x in fs], float(np.mean(fs)), se, float(np.mean(wfs)))
-    return CandidateScore(full.name, full.n_params, folds, Eligibility(passive, sig, float(np.mean(inside)) if inside else 1.0),
+    return CandidateScore(full.name, full.n_params, folds,
+                          Eligibility(passive, sig, float(np.mean(inside)) if inside else 1.0),
                           fitted=full)
 
 
 def _choose(scores: list[CandidateScore], opts: EligibilityRules) -> tuple[CandidateScore, str]:
     """The eligible law with the fewest parameters not significantly worse than the best; and the rule in words."""
     sig_ok = [s for s in scores if s.passive and (s.every_ci_excludes_zero or not opts.require_significant)]
-    ok = [s for s in sig_ok if s.curve_agreement >= opts.min_agreement] or sig_ok or [s for s in scores if s.passive] or scores
+    ok = ([s for s in sig_ok if s.curve_agreement >= opts.min_agreement] or sig_ok
+          or [s for s in scores if s.passive] or scores)
     scored = [s for s in ok if math.isfinite(s.mean)]
     if not scored:  # e.g. a few short recordings: no fold could score any law
         for s in scores:
             s.not_worse = False
         pick = min(ok, key=lambda s: s.n_params)
-        return pick, ("not enough data to decide: no candidate law could be scored on left-out recordings, so the one with "
-                      "the fewest parameters is kept")
+        return pick, ("not enough data to decide: no candidate law could be scored on left-out recordings, so the one "
+                      "with the fewest parameters is kept")
     ok = scored
     best = min(ok, key=lambda s: s.mean)
     for s in scores:  # paired standard error of the fold-wise difference to the best candidate
@@ -388,17 +402,19 @@ def _choose(scores: list[CandidateScore], opts: EligibilityRules) -> tuple[Candi
     for s in ok:
         s.not_worse = s is best or s.mean - best.mean <= t_margin * s.folds.diff_se
     pick = min([s for s in ok if s.not_worse], key=lambda s: (s.n_params, s.mean))
-    sig_txt = (f", every coefficient |t| >= {opts.min_t:g} (95% interval excludes zero) and its rms force >= {opts.min_share:g} "
+    sig_txt = (f", every coefficient |t| >= {opts.min_t:g} (95% interval excludes zero) and its rms force >= "
+               f"{opts.min_share:g} "
                "of the rms total friction force" if opts.require_significant else "")
     rule = ("passive over observed speeds" + sig_txt + f", inside the training friction curve's 95% interval in >= "
-            f"{opts.min_agreement:.0%} of its speed bands; fewest parameters (a Stribeck term counts 2) among those not "
-            f"significantly worse than the best (one-sided paired t-test over the folds at 5%: mean difference <= "
+            f"{opts.min_agreement:.0%} of its speed bands; fewest parameters (a Stribeck term counts 2) among those "
+            f"not significantly worse than the best (one-sided paired t-test over the folds at 5%: mean difference <= "
             f"{t_margin:.3g} x its standard error); ties: lower mean")
     return pick, rule
 
 
 def select_law(system: System, rec: Recordings, candidates: Sequence[Sequence[Any]] | None = None,
-               window: int | None = None, eps: float | None = None, block: int | None = None, coordinate: int | None = None,
+               window: int | None = None, eps: float | None = None, block: int | None = None,
+               coordinate: int | None = None,
                options: LawSelectionOptions | None = None, **overrides: Any) -> LawSelection:
     """Choose a friction law by prediction on data not used for its fit.
 
@@ -457,10 +473,12 @@ def select_friction(system: System, rec: Recordings, **kwargs: Any) -> tuple[Fri
     only the terms on i, so the choices are independent and the candidate count stays linear in n).  Returns the
     merged law and the per-coordinate selections."""
     opts = LawSelectionOptions().with_(**{k: v for k, v in kwargs.items() if k not in ("window", "eps", "block")})
-    sc = _scoring(system, rec, kwargs.get("window"), kwargs.get("eps"), kwargs.get("block"), None, opts)  # weak forms, folds
+    # weak forms, folds
+    sc = _scoring(system, rec, kwargs.get("window"), kwargs.get("eps"), kwargs.get("block"), None, opts)
     # and curve computed once, shared by the coordinates
     sels = [_select(replace(sc, scored=[i]), coordinate_laws(i, opts.max_terms)) for i in range(rec.n)]
     first = sels[0].chosen
-    merged = FrictionLaw([t for s in sels for t in s.chosen.terms], first.eps, first.n, float(sum(s.chosen.rss for s in sels)),
+    merged = FrictionLaw([t for s in sels for t in s.chosen.terms], first.eps, first.n,
+                         float(sum(s.chosen.rss for s in sels)),
                          first.n_obs, first.interval, first.own_samples, first.own_terms)
     return merged, sels

@@ -24,13 +24,15 @@ from .laws import FrictionLaw
 @dataclass
 class Passivity:
     passive: bool
-    per_coordinate: list[dict[str, Any]]  # {"coordinate", "passive", "max_speed", "worst_speed", "min_force", "negative_terms"}
+    # {"coordinate", "passive", "max_speed", "worst_speed", "min_force", "negative_terms"}
+    per_coordinate: list[dict[str, Any]]
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
 
-def is_passive(law: FrictionLaw, speeds: float | Sequence[float] | FrictionCurve, n_grid: int = 400, tol: float = 0.0) -> Passivity:
+def is_passive(law: FrictionLaw, speeds: float | Sequence[float] | FrictionCurve, n_grid: int = 400,
+               tol: float = 0.0) -> Passivity:
     """Does the *total* dissipative force (model's own D(q) qdot + the law) oppose motion at every speed up to the
     largest observed one?  Checked on a grid of speeds (log-spaced from eps/100 and linear, both directions) at the
     observed positions (the law's ``own_samples``; |sin q| and D(q) enter through them).  ``speeds``: max |qdot| per
@@ -43,7 +45,8 @@ def is_passive(law: FrictionLaw, speeds: float | Sequence[float] | FrictionCurve
     per = []
     for i in range(law.n):
         vm = vmax[i]
-        grid = np.unique(np.concatenate([np.geomspace(max(law.eps * 1e-2, vm * 1e-6), vm, n_grid), np.linspace(0, vm, n_grid)[1:]]))
+        grid = np.unique(np.concatenate([np.geomspace(max(law.eps * 1e-2, vm * 1e-6), vm, n_grid),
+                                         np.linspace(0, vm, n_grid)[1:]]))
         v = np.concatenate([grid, -grid])
         if law.own_samples:
             qi, di = law.own_samples[i]
@@ -58,7 +61,8 @@ def is_passive(law: FrictionLaw, speeds: float | Sequence[float] | FrictionCurve
         k = np.unravel_index(int(np.argmin(power)), power.shape)
         ok = bool(power[k] >= -tol)
         neg = [f"{VOCABULARY[t.term].short}[{i}]" for t in law.terms if t.coordinate == i and t.coefficient < 0]
-        per.append({"coordinate": i, "passive": ok, "max_speed": vm, "worst_speed": float(abs(Vv[k])), "min_force": float(power[k]),
+        per.append({"coordinate": i, "passive": ok, "max_speed": vm, "worst_speed": float(abs(Vv[k])),
+                    "min_force": float(power[k]),
                     "negative_terms": neg})
     return Passivity(all(p["passive"] for p in per), per)
 
@@ -67,7 +71,8 @@ def law_band_forces(law: FrictionLaw, curve: FrictionCurve) -> list[float]:
     """The total force of ``law`` (model's own + law) in each band of ``curve``, through the curve's filter."""
     wf = curve.weak
     if wf is None:
-        raise ValueError("this FrictionCurve carries no weak form (built from a dict?); recompute it with friction_curve")
+        raise ValueError("this FrictionCurve carries no weak form (built from a dict?); recompute it with "
+                         "friction_curve")
     out = []
     cache: dict[int, np.ndarray] = {}
     for b, m in zip(curve.bands, curve.band_index):
@@ -83,5 +88,6 @@ def check_against_curve(law: FrictionLaw, curve: FrictionCurve) -> list[dict[str
     """Band by band: is the law's total force (same filter, same samples) inside the curve's 95% interval?"""
     vals = law_band_forces(law, curve)
     return [{"coordinate": b.coordinate, "direction": b.direction, "band": [b.speed_lo, b.speed_hi], "curve": b.force,
-             "ci95": list(b.ci95), "law": v, "inside": bool(b.ci95[0] <= v <= b.ci95[1])} for b, v in zip(curve.bands, vals)]
+             "ci95": list(b.ci95), "law": v, "inside": bool(b.ci95[0] <= v <= b.ci95[1])} for b,
+            v in zip(curve.bands, vals)]
 

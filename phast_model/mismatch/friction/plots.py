@@ -12,7 +12,8 @@ from .laws import FrictionLaw
 from .passivity import law_band_forces
 
 
-def plot_friction_curve(curve: FrictionCurve, laws: dict[str, FrictionLaw] | Sequence[FrictionLaw] | None, path: str) -> str:
+def plot_friction_curve(curve: FrictionCurve, laws: dict[str, FrictionLaw] | Sequence[FrictionLaw] | None,
+                        path: str) -> str:
     """Curve (bands with 95% intervals, and the model's own force) per coordinate, with candidate laws overlaid
     (through the same filter and bands, and as their unfiltered force vs speed).  Writes a PNG (matplotlib Agg)."""
     import matplotlib

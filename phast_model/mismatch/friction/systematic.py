@@ -99,7 +99,8 @@ class SystematicResult:
         return {"used": self.replaces, "reason": self.reason, **self.evidence}
 
 
-def _law_rows(law: FrictionLaw, sels: list[LawSelection], passive: dict[str, Any], own: dict[int, float]) -> list[TermRow]:
+def _law_rows(law: FrictionLaw, sels: list[LawSelection], passive: dict[str, Any],
+              own: dict[int, float]) -> list[TermRow]:
     """report.missing_physics rows of the chosen law: coefficient, 95% interval, the evidence, near alternatives."""
     rows = []
     for t in law.terms:
@@ -111,9 +112,12 @@ def _law_rows(law: FrictionLaw, sels: list[LawSelection], passive: dict[str, Any
             total = own.get(t.coordinate, 0.0) + t.coefficient if t.term == VISCOUS.name else None
             note = ("negative coefficient: the *total* friction force stays passive at every observed speed "
                     f"(min {passive['per_coordinate'][t.coordinate]['min_force']:.3g} >= 0)"
-                    + (f"; total viscous coefficient with the model's own damping {total:.4g}" if total is not None else ""))
-        alternatives = tuple(Alternative(law=n, note="as good at predicting left-out friction curves") for n in near[:3])
-        rows.append(TermRow(t.term, t.coordinate, term.component, t.coefficient, (t.ci95[0], t.ci95[1]), term.expression(),
+                    + (f"; total viscous coefficient with the model's own damping {total:.4g}" if total is not None
+                       else ""))
+        alternatives = tuple(Alternative(law=n,
+                                         note="as good at predicting left-out friction curves") for n in near[:3])
+        rows.append(TermRow(t.term, t.coordinate, term.component, t.coefficient, (t.ci95[0], t.ci95[1]),
+                            term.expression(),
                             None, alternatives, t.velocity if term.kind.has_velocity else None,
                             f"weak-form force balance; law chosen by {sel.folds}, score: left-out friction curve; "
                             f"|t| = {abs(t.t):.3g}" + (f"; {note}" if note else "")))
@@ -134,10 +138,12 @@ def _weak_model(ctx: SystematicContext, window: int) -> WeakModel:
     problem = ctx.problem
     vocab = problem.opts.terms or tuple(VOCABULARY)
     arm = [i for i in range(problem.n) if problem.has_u[i]] if ARMATURE.name in vocab else []
-    return WeakModel(problem.sim, {}, list(ctx.params), [], arm, problem.eps, problem.nominal_family.deadzone_width, window)
+    return WeakModel(problem.sim, {}, list(ctx.params), [], arm, problem.eps, problem.nominal_family.deadzone_width,
+                     window)
 
 
-def _calibrated_rows(ctx: SystematicContext, fit: WeakFit, held: list[str], no_signal: list[str]) -> dict[str, ParamRow]:
+def _calibrated_rows(ctx: SystematicContext, fit: WeakFit, held: list[str],
+                     no_signal: list[str]) -> dict[str, ParamRow]:
     rows = dict(ctx.calibrated)
     nominal = {k: param_value(ctx.problem.sys0.params[k]) for k in [*held, *no_signal]}
     for k in held:
@@ -147,7 +153,8 @@ def _calibrated_rows(ctx: SystematicContext, fit: WeakFit, held: list[str], no_s
         rows[k] = replace(row, note="weak-form fit jointly with the friction law (and the armature where u drives)")
     for k in no_signal:  # a row the shooting answer or the fit above made keeps its other fields
         note = "held at nominal: the friction law (added to the model's own dissipation) covers it"
-        rows[k] = replace(rows[k], fitted=nominal[k], ci95=None, note=note) if k in rows else ParamRow.held(nominal[k], note)
+        rows[k] = (replace(rows[k], fitted=nominal[k], ci95=None, note=note) if k in rows
+                   else ParamRow.held(nominal[k], note))
     return rows
 
 
@@ -181,7 +188,8 @@ def systematic(ctx: SystematicContext) -> SystematicResult:
     problem = ctx.problem
     train = problem.train.resampled()  # the filters need uniform samples; shooting keeps the recorded times
     window = problem.smoothing_window
-    problem.log(f"model error dominates (chi2/dof {ctx.chi2_aug:.3g}): weak-form identification, window {window} samples")
+    problem.log(f"model error dominates (chi2/dof {ctx.chi2_aug:.3g}): weak-form identification, window {window} "
+                "samples")
     model = _weak_model(ctx, window)
     provisional = [(nm, i) for i in range(problem.n) for nm in PROVISIONAL_LAW]
     pcheck = check_parameters(model, train, provisional)
@@ -198,7 +206,8 @@ def systematic(ctx: SystematicContext) -> SystematicResult:
     passive = is_passive(final.law, curve).to_dict()
     fit = ctx.cal.shooter.fit_states(augmented, ctx.cal.fit.X, max_iter=problem.opts.max_iter)
     missing = _law_rows(final.law, sels, passive, _own_viscous(augmented, problem.q_sample())) + _armature_rows(final)
-    reason = (f"shooting-augmented chi^2/dof {ctx.chi2_aug:.3g} > {problem.opts.systematic_chi2}: the residual is model "
+    reason = (f"shooting-augmented chi^2/dof {ctx.chi2_aug:.3g} > {problem.opts.systematic_chi2}: the residual is "
+              "model "
               "error, not noise, so parameters, armature and the dissipation law were identified from local evidence "
               "(weak form; the law chosen by left-out friction curves)")
     evidence = {"shooting_selection": [c.label for c in ctx.chosen],
@@ -208,19 +217,22 @@ def systematic(ctx: SystematicContext) -> SystematicResult:
                 ARMATURE.name: [{"coordinate": a.coordinate, "coefficient": a.coefficient, "ci95": list(a.ci95)}
                                 for a in final.armature],
                 "parameter_check": pcheck.to_dict(),
-                "armature_absorbed_by_parameters": [int(k.split(":")[1]) for k in final.no_signal if k.startswith("armature:")],
+                "armature_absorbed_by_parameters": [int(k.split(":")[1]) for k in final.no_signal
+                                                    if k.startswith("armature:")],
                 "curve": curve.to_dict(), "law_vs_curve": check_against_curve(final.law, curve),
                 "chi2_per_dof_augmented": fit.chi2_red}
     held_params = [k for k in ctx.params if k not in pcheck.kept and k not in pcheck.no_signal]
     rows = _calibrated_rows(ctx, final, held_params, pcheck.no_signal)
-    return SystematicResult(reason, evidence, augmented, fit, rows, tuple(missing), curve, {f"chosen: {law.name}": final.law})
+    return SystematicResult(reason, evidence, augmented, fit, rows, tuple(missing), curve,
+                            {f"chosen: {law.name}": final.law})
 
 
 def with_shooting_delays(result: SystematicResult, shooting_rows: list[TermRow], held: HeldOut, shooter: Shooter,
                          max_iter: int) -> SystematicResult:
     """The model-error regime's answer with the delays of the shooting answer (``shooting_rows``) added, when that
     predicts the held-out recordings better than the friction law alone (rollout RMSE); the comparison is written to
-    details.friction.delays_vs_law either way.  Unchanged when the regime did not apply or the shooting chose no delay."""
+    details.friction.delays_vs_law either way.  Unchanged when the regime did not apply or the shooting chose no
+    delay."""
     delayed_rows = [r for r in shooting_rows if VOCABULARY[r.term].delay]
     law = result.system
     if not delayed_rows or not isinstance(law, AugmentedSystem) or result.fit is None:
@@ -229,7 +241,8 @@ def with_shooting_delays(result: SystematicResult, shooting_rows: list[TermRow],
     delayed = AugmentedSystem(law.base, terms, law.coulomb_eps_per_coordinate, law.deadzone_width)
     scores = held.evaluate({"law": law, "law_and_delays": delayed})[0]
     a, b = scores["law"]["rollout_rmse"], scores["law_and_delays"]["rollout_rmse"]
-    note = {"delays": [r.label for r in delayed_rows], "held_out_rollout_rmse": {"law": a, "law_and_delays": b}, "adopted": b < a}
+    note = {"delays": [r.label for r in delayed_rows], "held_out_rollout_rmse": {"law": a, "law_and_delays": b},
+            "adopted": b < a}
     evidence = {**result.evidence, "delays_vs_law": note}
     if not b < a:
         return replace(result, evidence=evidence)
@@ -238,11 +251,14 @@ def with_shooting_delays(result: SystematicResult, shooting_rows: list[TermRow],
 
 
 #: details.method appended when the weak-form answer was computed
-METHOD_SYSTEMATIC = ("; model error >> noise, so the dissipation law was chosen per coordinate from the weak-form force "
-                     "balance (one filter on both sides): candidate laws fitted on all training recordings but one, scored by "
-                     "how well they predict the left-out recording's friction curve, passive total force at every observed "
-                     "speed, every 95% interval excluding zero, fewest parameters within one paired standard error; the "
-                     "shooting selection's other terms held fixed")
+METHOD_SYSTEMATIC = ("; model error >> noise, so the dissipation law was chosen per coordinate from the weak-form "
+                     "force "
+                     "balance (one filter on both sides): candidate laws fitted on all training recordings but one, "
+                     "scored by "
+                     "how well they predict the left-out recording's friction curve, passive total force at every "
+                     "observed "
+                     "speed, every 95% interval excluding zero, fewest parameters within one paired standard error; "
+                     "the shooting selection's other terms held fixed")
 
 
 class WeakFormExplainer:
@@ -269,5 +285,6 @@ class WeakFormExplainer:
         # a delay the standing answer chose competes with the friction law by held-out prediction
         result = with_shooting_delays(result, standing, ctx.held, cal.shooter, problem.opts.max_iter)
         assert result.system is not None and result.fit is not None
-        return Answer("weak-form answer", result.system, result.fit, result.calibrated, result.missing, METHOD_SYSTEMATIC,
+        return Answer("weak-form answer", result.system, result.fit, result.calibrated, result.missing,
+                      METHOD_SYSTEMATIC,
                       result.intervals, "friction", result.to_dict(), result.curve, result.laws)

@@ -77,7 +77,8 @@ class WeakFit:
     params: dict[str, ParamRow]  # name -> nominal, fitted, ci95, relative_change
     armature: list[LawTerm]
     law: FrictionLaw
-    no_signal: list[str] = field(default_factory=list)  # parameters the weak form cannot see (held); "armature:i" absorbed
+    # parameters the weak form cannot see (held); "armature:i" absorbed
+    no_signal: list[str] = field(default_factory=list)
     interval: str = ""
 
     def armature_terms(self, significant_only: bool = True) -> list[Term]:
@@ -139,9 +140,11 @@ def _columns(model: WeakModel, kwargs: dict[str, Any], rec: Recordings,
     keep = [j for j in range(len(cols)) if norms[j] > NO_SIGNAL * big]
     none = [names[j].split(":", 1)[1] for j in range(len(cols)) if j not in keep and names[j].startswith("param:")]
     P = [j for j in keep if names[j].startswith("param:")]
-    if P:  # an armature the fitted parameters can represent exactly (e.g. inertia1 on joint 1) is theirs, not a new term
+    # an armature the fitted parameters can represent exactly (e.g. inertia1 on joint 1) is theirs, not a new term
+    if P:
         basis = np.stack([cols[j].reshape(-1) for j in P], 1)
-        absorbed = [j for j in keep if names[j].startswith("armature:") and rel_resid(cols[j].reshape(-1), basis) < ABSORBED]
+        absorbed = [j for j in keep
+                    if names[j].startswith("armature:") and rel_resid(cols[j].reshape(-1), basis) < ABSORBED]
         none += [names[j] for j in absorbed]
         keep = [j for j in keep if j not in absorbed]
     return wf, [names[j] for j in keep], [cols[j] for j in keep], none
@@ -210,11 +213,13 @@ def identify(model: WeakModel, rec: Recordings, law: list[Spec], iterations: int
             name, i = rest.split(":")
             s = next(s for s in law if s[0] == name and s[1] == int(i))
             v = float(s[2]) if len(s) > 2 and s[2] is not None else 0.0
-            terms.append(LawTerm(name, int(i), float(coef[j]), (float(coef[j] - tq * sd[j]), float(coef[j] + tq * sd[j])), v, tq))
+            terms.append(LawTerm(name, int(i), float(coef[j]),
+                                 (float(coef[j] - tq * sd[j]), float(coef[j] + tq * sd[j])), v, tq))
     interval = f"cluster-robust (CR1) over {G} clusters (time blocks within recordings), t({G - 1}) quantile"
     final = model.build({**model.kwargs, **kw})
     wf_final = weak_form(final, rec, model.window, model.eps, differentiator=model.differentiator)
-    fl = FrictionLaw(terms, model.eps, rec.n, rss, int(wf.total.size), interval, own_samples(final, wf_final), own_terms(final))
+    fl = FrictionLaw(terms, model.eps, rec.n, rss, int(wf.total.size), interval, own_samples(final, wf_final),
+                     own_terms(final))
     return WeakFit({**model.kwargs, **kw}, params, arm, fl, none, interval)
 
 

@@ -88,15 +88,18 @@ def _energy_check_sentence(fitres: FitTable) -> str | None:
     r, (lo, hi) = ho["measured_over_predicted"], ho["ci95"]
     rt = tr["measured_over_predicted"] if tr is not None else 1.0
     if (lo > 1.0 or hi < 1.0) and abs(r - 1.0) > 0.1 and abs(rt - 1.0) < 0.5 * abs(r - 1.0):
-        return (f"Held-out check: the recordings not used for fitting lose {r:.3g}x [95% CI {lo:.3g}, {hi:.3g}] the energy the "
-                f"augmented model dissipates (training recordings: {rt:.3g}x), so the dissipation law found on the training "
+        return (f"Held-out check: the recordings not used for fitting lose {r:.3g}x [95% CI {lo:.3g}, {hi:.3g}] the "
+                "energy the "
+                f"augmented model dissipates (training recordings: {rt:.3g}x), so the dissipation law found on the "
+                "training "
                 "recordings does not carry over to them: it changes with amplitude, time or conditions in a way the "
                 "vocabulary does not describe.")
     return None
 
 
 def _alternative_sentences(missing: Sequence[TermRow]) -> list[str]:
-    """Terms the data cannot tell apart (shooting), and friction laws nearly as predictive (weak form), said once each."""
+    """Terms the data cannot tell apart (shooting), and friction laws nearly as predictive (weak form), said once
+    each."""
     out, laws_said = [], set()
     for m in missing:
         terms = [a.name for a in m.alternatives if a.law is None]
@@ -105,34 +108,41 @@ def _alternative_sentences(missing: Sequence[TermRow]) -> list[str]:
         laws = [a.law for a in m.alternatives if a.law is not None]
         if laws and m.coordinate not in laws_said:
             laws_said.add(m.coordinate)
-            out.append(f"On coordinate {m.coordinate}, these friction laws predict the left-out recordings' friction curves "
-                       f"nearly as well: {'; '.join(laws)}.")
+            out.append(f"On coordinate {m.coordinate}, these friction laws predict the left-out recordings' friction "
+                       f"curves nearly as well: {'; '.join(laws)}.")
     return out
 
 
-def summary_text(name: str, calibrated: Mapping[str, ParamRow], missing: Sequence[TermRow], located: list[dict], fitres: FitTable,
+def summary_text(name: str, calibrated: Mapping[str, ParamRow], missing: Sequence[TermRow], located: list[dict],
+                 fitres: FitTable,
                  chi2_calibrated: float, chi2_augmented: float, sigma: np.ndarray, verdicts: Sequence[str] = ()) -> str:
-    """The report's plain-language summary (the chi^2/dof of the calibrated and augmented shooting fits decide what is said)."""
-    parts = [f"Compared {name} with the recordings (estimated measurement noise {float(np.sqrt(np.mean(sigma**2))):.3g})."]
+    """The report's plain-language summary (the chi^2/dof of the calibrated and augmented shooting fits decide what is
+    said)."""
+    parts = [f"Compared {name} with the recordings (estimated measurement noise "
+             f"{float(np.sqrt(np.mean(sigma**2))):.3g})."]
     cal = [f"{k} {v.nominal:.4g} -> {v.fitted:.4g}{_fmt_ci(v.ci95)}" for k, v in calibrated.items() if v.ci95]
     if cal:
         parts.append("Calibrated parameters: " + "; ".join(cal) + ".")
-    parts += list(verdicts)  # the simulator does not describe the recordings / found terms do not predict: nothing is named
+    # the simulator does not describe the recordings / found terms do not predict: nothing is named
+    parts += list(verdicts)
     if missing:
-        items = [f"{m.term} on coordinate {m.coordinate} ({m.component}), coefficient {m.coefficient:.4g}{_fmt_ci(m.ci95)}"
+        items = [f"{m.term} on coordinate {m.coordinate} ({m.component}), coefficient "
+                 f"{m.coefficient:.4g}{_fmt_ci(m.ci95)}"
                  for m in missing]
         parts.append("Missing physics: " + "; ".join(items) + ".")
         neg = [m.label for m in missing if m.component == "dissipation" and m.coefficient < 0]
         if neg:
-            parts.append(f"Negative coefficient(s) {', '.join(neg)}: they lower the model's own dissipation, and the total friction "
-                         "force stays passive (opposes motion) at every speed the recordings reach.")
+            parts.append(f"Negative coefficient(s) {', '.join(neg)}: they lower the model's own dissipation, and the "
+                         "total friction force stays passive (opposes motion) at every speed the recordings reach.")
         parts += _alternative_sentences(missing)
     elif chi2_calibrated < 1.5 and not verdicts:
         parts.append("No missing physics: the calibrated simulator agrees with the recordings within the noise.")
     if located and chi2_augmented >= 1.5 and not any("does not describe" in v for v in verdicts):
         loc = located[0]
-        parts.append(f"Incomplete: the final model's residual on the training recordings is {math.sqrt(chi2_augmented):.3g} "
-                     f"times the noise. Unexplained residual, located at coordinate {loc['coordinate']} ({loc['component']}), "
+        parts.append("Incomplete: the final model's residual on the training recordings is "
+                     f"{math.sqrt(chi2_augmented):.3g} "
+                     f"times the noise. Unexplained residual, located at coordinate {loc['coordinate']} "
+                     f"({loc['component']}), "
                      f"where {loc['where']}, {loc['when']}; no term of the vocabulary explains it.")
     b, c, a = fitres.rmse("nominal"), fitres.rmse("calibrated"), fitres.rmse("augmented")
     parts.append(f"On {fitres.evaluated_on}: rollout RMSE nominal {b:.4g}, calibrated {c:.4g}, augmented {a:.4g}.")
@@ -148,7 +158,8 @@ def markdown(report: Report) -> str:
     d = report.to_dict()
     lines = [f"# Mismatch report: {d['sim']['env_id']}", "", d["summary"], "",
              f"Data: {d['data']['n_traj']} recordings x {d['data']['T']} samples, dt = {d['data']['dt']}, "
-             f"estimated noise std {d['data']['noise_std']:.3g} ({d['data']['source']}).", "", "## Calibrated parameters", "",
+             f"estimated noise std {d['data']['noise_std']:.3g} ({d['data']['source']}).", "",
+             "## Calibrated parameters", "",
              "| parameter | nominal | fitted | 95% CI | note |", "|---|---|---|---|---|"]
     for k, v in report.calibrated.items():
         ci_s = f"[{v.ci95[0]:.4g}, {v.ci95[1]:.4g}]" if v.ci95 else "-"
@@ -157,7 +168,8 @@ def markdown(report: Report) -> str:
     if d["located"]:
         lines += ["| coordinate | component | where | when | share |", "|---|---|---|---|---|"]
         for loc in d["located"]:
-            lines.append(f"| {loc['coordinate']} | {loc['component']} | {loc['where']} | {loc['when']} | {loc['share']:.2f} |")
+            lines.append(f"| {loc['coordinate']} | {loc['component']} | {loc['where']} | {loc['when']} | "
+                         f"{loc['share']:.2f} |")
     else:
         lines.append("Nothing beyond the noise.")
     lines += ["", "## Missing physics", ""]
@@ -173,20 +185,22 @@ def markdown(report: Report) -> str:
         lines.append("None found.")
     f = d["fit"]
     lines += ["", f"## Fit on {f['evaluated_on']}", "", "| model | one-step MSE | rollout RMSE |", "|---|---|---|"]
-    for name in [k for k, v in f.items() if isinstance(v, dict) and "rollout_rmse" in v]:  # ours, then any compared models
+    # ours, then any compared models
+    for name in [k for k, v in f.items() if isinstance(v, dict) and "rollout_rmse" in v]:
         lines.append(f"| {name} | {f[name]['one_step_mse']:.4g} | {f[name]['rollout_rmse']:.4g} |")
     lines += ["", f"Rollout: {f.get('rollout', '')}", ""]
     ec = f.get("energy_check") or {}
     if any(ec.get(k) for k in ("training", "held_out")):
-        lines += ["Energy check (measured energy loss / energy the augmented model dissipates, per half-cycle between turning "
-                  "points; 1 = the found dissipation accounts for all of it):", "",
+        lines += ["Energy check (measured energy loss / energy the augmented model dissipates, per half-cycle between "
+                  "turning points; 1 = the found dissipation accounts for all of it):", "",
                   "| recordings | measured / predicted | 95% CI | per recording |", "|---|---|---|---|"]
         for k in ("training", "held_out"):
             e = ec.get(k)
             if e:
                 per = ", ".join("-" if x is None else f"{x:.3g}" for x in e["per_recording"])
                 lo, hi = e["ci95"]
-                lines.append(f"| {k.replace('_', '-')} | {e['measured_over_predicted']:.3g} | [{lo:.3g}, {hi:.3g}] | {per} |")
+                lines.append(f"| {k.replace('_', '-')} | {e['measured_over_predicted']:.3g} | [{lo:.3g}, {hi:.3g}] | "
+                             f"{per} |")
         lines.append("")
     lines += _friction_lines(d["details"].get("friction") or {})
     plots = list(PLOTS) + ([CURVE_PLOT] if report.plot_data.get("friction_curve") is not None else [])
@@ -205,10 +219,12 @@ def _friction_lines(fr: dict[str, Any]) -> list[str]:
         return []
     law, passive = fr["law"], fr["passivity"]
     lines = ["## Friction from the training recordings", "",
-             f"Chosen law: **{law['law']}** ({fr['selection'][0]['folds']}; score: how well a law fitted on the other recordings "
+             f"Chosen law: **{law['law']}** ({fr['selection'][0]['folds']}; score: how well a law fitted on the other "
+             "recordings "
              "predicts the left-out recording's friction curve). Total friction force passive at every observed speed: "
              f"{'yes' if passive['passive'] else 'NO'}"
-             + "".join(f"; coordinate {p['coordinate']} has negative {', '.join(p['negative_terms'])} (the total stays passive)"
+             + "".join(f"; coordinate {p['coordinate']} has negative {', '.join(p['negative_terms'])} (the total stays "
+                       "passive)"
                        for p in passive["per_coordinate"] if p["negative_terms"] and p["passive"]) + ".", "",
              "Non-parametric friction curve (total dissipative force opposing motion, mean per speed band with a "
              "block-bootstrap 95% interval) and the chosen law through the same filter:", "",

@@ -45,9 +45,11 @@ def is_report_dir(path: Path) -> bool:
 
 def _check_replaceable(out: Path) -> None:
     if out.is_symlink() or (out.exists() and not out.is_dir()):
-        raise ValueError(f"refusing to overwrite {out}: it exists and is not a directory (give a new or report directory as --out)")
+        raise ValueError(f"refusing to overwrite {out}: it exists and is not a directory (give a new or report "
+                         "directory as --out)")
     if out.is_dir() and any(out.iterdir()) and not is_report_dir(out):
-        raise ValueError(f"refusing to overwrite {out}: it is a non-empty directory that is not a phast-mismatch report "
+        raise ValueError(f"refusing to overwrite {out}: it is a non-empty directory that is not a phast-mismatch "
+                         "report "
                          f"(a report directory holds only {', '.join(REPORT_FILES)}); give a new or empty directory")
 
 
@@ -64,7 +66,8 @@ def check_writable(out_dir: str | Path) -> Path:
     try:  # os.access is not enough (root, read-only mounts): create and remove a probe directory
         os.rmdir(tempfile.mkdtemp(prefix=f".{out.name}.probe-", dir=parent))
     except OSError as exc:
-        raise ValueError(f"cannot write the report to {out}: {parent} is not writable ({exc.strerror or exc})") from None
+        raise ValueError(f"cannot write the report to {out}: {parent} is not writable "
+                         f"({exc.strerror or exc})") from None
     return out
 
 

@@ -29,17 +29,20 @@ def _is_rule(line: str) -> bool:
 def _table(rows: list[str]) -> str:
     """A markdown pipe table (header, ``|---|`` rule, body) as an HTML table."""
     head, body = rows[0], rows[2:] if len(rows) > 1 and _is_rule(rows[1]) else rows[1:]
-    out = ["<table>", "<thead><tr>" + "".join(f"<th>{_inline(c)}</th>" for c in _cells(head)) + "</tr></thead>", "<tbody>"]
+    out = ["<table>", "<thead><tr>" + "".join(f"<th>{_inline(c)}</th>" for c in _cells(head)) + "</tr></thead>",
+           "<tbody>"]
     out += ["<tr>" + "".join(f"<td>{_inline(c)}</td>" for c in _cells(r)) + "</tr>" for r in body]
     return "\n".join(out + ["</tbody>", "</table>"])
 
 
 def _figures(images: dict[str, str]) -> str:
-    return "\n".join(f'<figure><img alt="{name}" src="{uri}"><figcaption>{name}</figcaption></figure>' for name, uri in images.items())
+    return "\n".join(f'<figure><img alt="{name}" src="{uri}"><figcaption>{name}</figcaption></figure>' for name,
+                     uri in images.items())
 
 
 def markdown_to_html(text: str, images: dict[str, str] | None = None) -> str:
-    """The subset of markdown :func:`.document.markdown` writes (# / ## headings, pipe tables, paragraphs, `code`) as HTML body
+    """The subset of markdown :func:`.document.markdown` writes (# / ## headings, pipe tables, paragraphs, `code`) as
+    HTML body
     elements; the ``Plots:`` paragraph becomes the embedded ``images`` (name -> data URI) when given."""
     blocks: list[str] = []
     lines = text.splitlines()
@@ -60,7 +63,8 @@ def markdown_to_html(text: str, images: dict[str, str] | None = None) -> str:
             i = j
         else:
             j = i
-            while j < len(lines) and lines[j].strip() and not lines[j].startswith("#") and not lines[j].lstrip().startswith("|"):
+            while (j < len(lines) and lines[j].strip() and not lines[j].startswith("#")
+                   and not lines[j].lstrip().startswith("|")):
                 j += 1
             para = " ".join(s.strip() for s in lines[i:j])
             blocks.append(_figures(images) if images and para.startswith(PLOTS_PREFIX) else f"<p>{_inline(para)}</p>")

@@ -42,7 +42,8 @@ class MJCFWriteBack:
 
     def to_dict(self) -> dict[str, Any]:
         return {"file": CALIBRATED_MODEL, "parameters": self.params,
-                "terms_written": [{"target": e.target, "attribute": e.attr, "op": e.op, "value": e.value} for e in self.edits],
+                "terms_written": [{"target": e.target, "attribute": e.attr, "op": e.op,
+                                   "value": e.value} for e in self.edits],
                 "terms_not_expressed": self.not_expressed, "notes": self.notes}
 
 
@@ -71,7 +72,8 @@ def _edit(row: TermRow, tree: MJCFTree) -> Edit | None:
 
 
 def armature_equivalent(tree: MJCFTree, name: str) -> str | None:
-    """The joint whose ``armature`` acts exactly like a change of the principal moment ``name`` (``<body>.inertia_<ax>``):
+    """The joint whose ``armature`` acts exactly like a change of the principal moment ``name``
+    (``<body>.inertia_<ax>``):
     the body hangs from the world by that single hinge and the hinge's axis is that principal axis, so the moment
     enters M(q) only as a constant on that joint's diagonal.  None otherwise."""
     body, _, attr = name.rpartition(".")
@@ -95,7 +97,8 @@ def _as_armature(report: Report, tree: MJCFTree) -> tuple[dict[str, float], list
         joint, delta = armature_equivalent(tree, k), float(r.fitted) - float(r.nominal)
         if joint is not None and delta > 0:
             edits.append(Edit(joint, "armature", delta))
-            notes.append(f"{k} {r.nominal:.4g} -> {r.fitted:.4g} acts exactly like armature {delta:.4g} at joint {joint}: "
+            notes.append(f"{k} {r.nominal:.4g} -> {r.fitted:.4g} acts exactly like armature {delta:.4g} at joint "
+                         f"{joint}: "
                          f"written as {joint}.armature")
         else:
             params[k] = float(r.fitted)
@@ -140,16 +143,18 @@ def joint_limit_contacts(tree: MJCFTree, rec: Recordings) -> list[dict[str, Any]
         margin = LIMIT_MARGIN * (hi - lo)
         at = (rec.q[..., j] <= lo + margin) | (rec.q[..., j] >= hi - margin)
         if at.any():
-            out.append({"joint": tree.joint_names[j], "range": [float(lo), float(hi)], "share_of_samples": float(at.mean()),
+            out.append({"joint": tree.joint_names[j], "range": [float(lo), float(hi)],
+                        "share_of_samples": float(at.mean()),
                         "trajectories": [int(k) for k in np.flatnonzero(at.any(axis=1))]})
     return out
 
 
 def _limit_sentence(contacts: list[dict[str, Any]]) -> str:
-    names = ", ".join(f"{c['joint']} (range {c['range'][0]:g}..{c['range'][1]:g}, {c['share_of_samples']:.1%} of the samples)"
+    names = ", ".join(f"{c['joint']} (range {c['range'][0]:g}..{c['range'][1]:g}, {c['share_of_samples']:.1%} of the "
+                      "samples)"
                       for c in contacts)
-    return (f" The recordings reach joint limits: {names}. MuJoCo's limit constraint is not part of the fitted model, so a "
-            "residual near those limits is expected; record inside the range for a clean answer.")
+    return (f" The recordings reach joint limits: {names}. MuJoCo's limit constraint is not part of the fitted model, "
+            "so a residual near those limits is expected; record inside the range for a clean answer.")
 
 
 def answer_in_model_terms(report: Report, system: Any, held: HeldOut, recordings: Recordings) -> Report:

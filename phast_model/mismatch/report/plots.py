@@ -29,7 +29,8 @@ def _residual_map(plt: Any, pd: dict[str, Any], out: Path) -> None:
         C, _, _ = np.histogram2d(q, v, bins=[xe, ye])
         M = np.where(C > 0, H / np.maximum(C, 1), np.nan)
         lim = np.nanpercentile(np.abs(M), 98) if np.any(np.isfinite(M)) else 1.0
-        im = ax.imshow(M.T, origin="lower", aspect="auto", extent=[xe[0], xe[-1], ye[0], ye[-1]], cmap="RdBu_r", vmin=-lim, vmax=lim)
+        im = ax.imshow(M.T, origin="lower", aspect="auto", extent=[xe[0], xe[-1], ye[0], ye[-1]], cmap="RdBu_r",
+                       vmin=-lim, vmax=lim)
         fig.colorbar(im, ax=ax, label="residual force (pdot units)")
         ax.set_xlabel(f"q{i}")
         ax.set_ylabel(f"qdot{i}")

@@ -121,7 +121,8 @@ def _confirm(s: Search, shortlist: list[tuple[int, float]], s2: float, linear: d
             continue
         fam_new, g0, order = s.add(k, s.fam, s.fit.g, z0)
         X0 = s.state_step(k, z0)
-        if isinstance(cand, Candidate) and isinstance(cand.kind, ActuatorDeadzone):  # threshold: start from the best of a
+        # threshold: start from the best of a
+        if isinstance(cand, Candidate) and isinstance(cand.kind, ActuatorDeadzone):
             j = order.index(k)                                                       # coarse grid (zero slope at c = 0)
             grid = np.linspace(*ActuatorDeadzone.START_GRID)
             costs = [float(np.sum(shooter.residual(fam_new.build(np.concatenate([g0[:j], [zz], g0[j + 1:]])), X0) ** 2))
@@ -190,7 +191,8 @@ def _prune(s: Search) -> None:
 
 
 def _two_folds(s: Search) -> tuple[np.ndarray, str] | None:
-    """The two validation folds of the windows: alternate training recordings, else the first and second half of the one recording."""
+    """The two validation folds of the windows: alternate training recordings, else the first and second half of the one
+    recording."""
     w = s.screen.shooter.w
     trajs = np.unique(w.traj)
     if len(trajs) >= 2:
@@ -299,7 +301,8 @@ def _compensating_terms(s: Search) -> list[str]:
     if _replace_if_as_good(s, order, g0) is None:
         return []
     dropped = [s.cands[k].label for k in local]
-    s.problem.log(f"{dropped} only stand in for parameter changes (chi2/dof {s.fit.chi2_red:.3g} without them): dropped")
+    s.problem.log(f"{dropped} only stand in for parameter changes (chi2/dof {s.fit.chi2_red:.3g} without them): "
+                  "dropped")
     _prune_parameters(s)
     return dropped
 
@@ -347,10 +350,12 @@ def _two_fold_validation(s: Search) -> list[dict[str, Any]]:
         open_ = [k for k in s.chosen if k not in s.marks.longer_look]  # (a law settled on longer windows stays)
         worst = min(open_, key=lambda k: gains[k] - need[k]) if open_ else None
         if worst is None or gains[worst] > need[worst]:
-            table += [{"item": s.cands[k].label, "left_out_gain": gains[k], "required": need[k], "kept": True, "folds": txt}
+            table += [{"item": s.cands[k].label, "left_out_gain": gains[k], "required": need[k], "kept": True,
+                       "folds": txt}
                       for k in s.chosen]
             return table
-        table.append({"item": s.cands[worst].label, "left_out_gain": gains[worst], "required": need[worst], "kept": False,
+        table.append({"item": s.cands[worst].label, "left_out_gain": gains[worst], "required": need[worst],
+                      "kept": False,
                       "folds": txt})
         s.problem.log(f"dropped {s.cands[worst].label}: left-out chi^2 gain {gains[worst]:.3g} <= {need[worst]:.3g}")
         _refit(s, [k for k in s.chosen if k != worst])
@@ -359,7 +364,8 @@ def _two_fold_validation(s: Search) -> list[dict[str, Any]]:
 
 def _refine_velocities(s: Search) -> None:
     """A chosen term whose kind refines its velocity (a Stribeck v_s): that velocity around the grid value, in the
-    kind's steps (:attr:`.vocabulary.registry.TermKind.refine_steps`; profile of the refit cost), never below its minimum."""
+    kind's steps (:attr:`.vocabulary.registry.TermKind.refine_steps`; profile of the refit cost), never below its
+    minimum."""
     for k in s.chosen:
         cand = s.cands[k]
         if not isinstance(cand, Candidate) or not cand.kind.refines_velocity or k in s.marks.refined:
@@ -396,21 +402,26 @@ def _sharper_edge(s: Search) -> list[dict[str, Any]]:
         if not isinstance(cand, Candidate) or not cand.kind.excess_near_rest:
             continue
         i = cand.coordinate
-        if not any(isinstance(c, Candidate) and c.term == COULOMB.name and c.coordinate == i for c in (s.cands[kk] for kk in s.chosen)):
+        if not any(isinstance(c,
+                              Candidate) and c.term == COULOMB.name and c.coordinate == i
+                   for c in (s.cands[kk] for kk in s.chosen)):
             continue
         eps = list(s.eps or s.problem.eps_coord)
         eps[i] /= SHARPER_EDGE
         keep = [kk for kk in s.chosen if kk != k]
         fam = replace(s.family_of(keep), eps=tuple(eps))
-        fit = s.screen.shooter.fit(fam.build, s.fit.X, np.array([s.fit.g[s.pos(kk)] for kk in keep]), max_iter=s.problem.opts.max_iter)
+        fit = s.screen.shooter.fit(fam.build, s.fit.X, np.array([s.fit.g[s.pos(kk)] for kk in keep]),
+                                   max_iter=s.problem.opts.max_iter)
         rise = fit.cost - s.fit.cost
         row = {"item": cand.label, "chi2_rise_without_it": float(rise), "required": s.thr2,
                "alternative": f"coordinate {i}'s Coulomb edge {SHARPER_EDGE:g}x sharper (tanh(qdot/{eps[i]:.3g}))"}
         if np.isfinite(rise) and rise < s.thr2:
             s.chosen, s.fam, s.fit, s.eps = keep, fam, fit, tuple(eps)
             s.cov = s.fit.covariance() if s.chosen else None
-            out.append({**row, "kept": False, "note": "stands in for a sharper Coulomb edge (refit without it fits as well)"})
-            s.problem.log(f"dropped {cand.label}: a {SHARPER_EDGE:g}x sharper Coulomb edge fits as well (chi^2 {rise:+.3g})")
+            out.append({**row, "kept": False,
+                        "note": "stands in for a sharper Coulomb edge (refit without it fits as well)"})
+            s.problem.log(f"dropped {cand.label}: a {SHARPER_EDGE:g}x sharper Coulomb edge fits as well (chi^2 "
+                          f"{rise:+.3g})")
         else:
             out.append({**row, "kept": True})
     return out
@@ -463,7 +474,8 @@ def select(problem: Problem, screen: ParameterScreen, cands: list[AnyCandidate])
     if terms:
         r, cols_p, cols_o = s.columns(s.fit, s.fam, terms)
         cols[:, terms] = cols_p  # the signatures behind the reported alternatives
-        usable = [k for j, k in enumerate(terms) if np.all(np.isfinite(cols_p[:, j])) and np.linalg.norm(cols_p[:, j]) > 0]
+        usable = [k for j,
+                  k in enumerate(terms) if np.all(np.isfinite(cols_p[:, j])) and np.linalg.norm(cols_p[:, j]) > 0]
         keep = [terms.index(k) for k in usable]
         _forward(s, r, cols_o[:, keep], usable, {k: j for j, k in enumerate(usable)})
     _prune_parameters(s)
@@ -476,13 +488,15 @@ def select(problem: Problem, screen: ParameterScreen, cands: list[AnyCandidate])
     _refine_velocities(s)
     validation += _sharper_edge(s)
     problem.log(f"selected {[s.cands[k].label for k in s.chosen]}: chi2/dof = {s.fit.chi2_red:.3g}")
-    validation += [{"item": label, "kept": False, "note": "only stands in for parameter changes (nonlinear refit without it, "
+    validation += [{"item": label, "kept": False,
+                    "note": "only stands in for parameter changes (nonlinear refit without it, "
                   "every pivot free, fits as well)"} for label in compensating]
     icov, dof = s.fit.interval_covariance() if s.chosen else (None, None)
     edge = _edge_shift(s)
     if icov is not None and edge is not None:
         icov = icov + np.diag(edge**2)
-    return Selection(s.cands, usable, cols, s.chosen, s.gains, s.fam, s.fit, s.cov, validation, swap, icov, quantile95(dof))
+    return Selection(s.cands, usable, cols, s.chosen, s.gains, s.fam, s.fit, s.cov, validation, swap, icov,
+                     quantile95(dof))
 
 
 #: how much sharper the edge of :func:`_edge_shift`'s refit is

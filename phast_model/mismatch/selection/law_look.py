@@ -48,7 +48,8 @@ def fit_on_longer_windows(problem: Problem, current: System, sets: list[LawSet])
     for all, so their chi^2 compare directly."""
     windows = longer_windows(problem, LAW_LOOK * problem.shoot_window)
     shooter = problem.shooter(windows)
-    states = shooter.fit_states(current, smoothed_states(problem.qs, problem.vs, windows), max_iter=problem.opts.max_iter)
+    states = shooter.fit_states(current, smoothed_states(problem.qs, problem.vs, windows),
+                                max_iter=problem.opts.max_iter)
     keep = followed_windows(states.r)
     X = states.X
     if not np.all(keep) and np.sum(keep) >= 2:
@@ -63,7 +64,8 @@ MAX_CONTENDERS = 2
 
 def contenders(s: Search, k: int, ranked: list[tuple[float, int, float]]) -> list[tuple[int, int, float]]:
     """Other dissipation laws on the coordinate of the chosen term k of equal evidence (linear gain within threshold^2
-    or :data:`EQUAL_EVIDENCE` of its own): the windows did not decide between them (:func:`look_longer` looks longer)."""
+    or :data:`EQUAL_EVIDENCE` of its own): the windows did not decide between them (:func:`look_longer` looks
+    longer)."""
     c = s.cands[k]
     if not isinstance(c, Candidate) or c.component != "dissipation":
         return []
@@ -74,14 +76,16 @@ def contenders(s: Search, k: int, ranked: list[tuple[float, int, float]]) -> lis
 
 
 def _same_joint_other_law(a: Candidate, b: AnyCandidate) -> bool:
-    return isinstance(b, Candidate) and b.component == "dissipation" and b.coordinate == a.coordinate and b.term != a.term
+    return isinstance(b,
+                      Candidate) and b.component == "dissipation" and b.coordinate == a.coordinate and b.term != a.term
 
 
 def look_longer(s: Search) -> list[dict[str, Any]]:
     """Where the selection met dissipation laws of equal evidence on one joint, the chosen set against each law swapped
     in for the chosen one and each added beside it, all fitted on windows :data:`LAW_LOOK` times longer
     (:func:`fit_on_longer_windows`); the best there is refitted on the selection's windows and adopted.  An added law
-    must gain threshold^2 there and every term must stay significant and passive; a swap must fit better by 2 chi^2 units."""
+    must gain threshold^2 there and every term must stay significant and passive; a swap must fit better by 2 chi^2
+    units."""
     pairs = [(k, a, z) for k, a, z in s.marks.contenders if k in s.chosen and a not in s.chosen]
     if not pairs or min(LAW_LOOK * s.problem.shoot_window, s.problem.train.T) <= s.problem.shoot_window:  # none longer
         return []
@@ -89,7 +93,8 @@ def look_longer(s: Search) -> list[dict[str, Any]]:
         s.problem.log("model error dominates: no longer look (the weak form chooses the dissipation law)")
         return []
     orders, starts = _law_sets(s, pairs)
-    fits = fit_on_longer_windows(s.problem, s.system_now(), [LawSet(o, s.family_of(o).build, g) for o, g in zip(orders, starts)])
+    fits = fit_on_longer_windows(s.problem, s.system_now(),
+                                 [LawSet(o, s.family_of(o).build, g) for o, g in zip(orders, starts)])
     best = _winner(s, orders, fits)
     label = {i: " + ".join(s.cands[kk].label for kk in o if not s.cands[kk].is_param) for i, o in enumerate(orders)}
     row: dict[str, Any] = {
@@ -117,7 +122,8 @@ def _law_sets(s: Search, pairs: list[tuple[int, int, float]]) -> tuple[list[list
     sets: dict[tuple[int, ...], np.ndarray] = {tuple(s.chosen): s.fit.g.copy()}
     for k, a, z in pairs:
         j = s.pos(k)
-        sets.setdefault(tuple(a if kk == k else kk for kk in s.chosen), np.concatenate([s.fit.g[:j], [z], s.fit.g[j + 1:]]))
+        sets.setdefault(tuple(a if kk == k else kk for kk in s.chosen),
+                        np.concatenate([s.fit.g[:j], [z], s.fit.g[j + 1:]]))
         sets.setdefault((*s.chosen, a), np.concatenate([s.fit.g, [0.0]]))
     return [list(o) for o in sets], list(sets.values())
 

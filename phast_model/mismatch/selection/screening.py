@@ -20,7 +20,8 @@ def _screened(problem: Problem) -> list[TermKind]:
 
 
 def _coordinate_scales(problem: Problem, system: AugmentedSystem) -> tuple[np.ndarray, np.ndarray]:
-    """rms of the conservative force (plus the port force) and of M_ii per coordinate, along the smoothed training states."""
+    """rms of the conservative force (plus the port force) and of M_ii per coordinate, along the smoothed training
+    states."""
     qs, vs, n, train = problem.qs, problem.vs, problem.n, problem.train
     qc = tuple(qs[..., i] for i in range(n))
     p = momentum(system, qs, vs)
@@ -38,7 +39,8 @@ def _coordinate_scales(problem: Problem, system: AugmentedSystem) -> tuple[np.nd
 
 
 def candidates(problem: Problem, system: AugmentedSystem) -> list[Candidate]:
-    """Every term of the vocabulary (``Options.terms``) on every coordinate where it can act, at the calibrated ``system``:
+    """Every term of the vocabulary (``Options.terms``) on every coordinate where it can act, at the calibrated
+    ``system``:
     each kind scales its own candidates (:meth:`..vocabulary.registry.TermKind.scales`)."""
     qs, vs, train = problem.qs, problem.vs, problem.train
     force_rms, mass_rms = _coordinate_scales(problem, system)

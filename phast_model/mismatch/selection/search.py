@@ -46,8 +46,10 @@ class Selection:
     cov: np.ndarray | None  # covariance of fit.g (None when nothing was chosen)
     # the two-fold validation of every item examined (report.json: details.held_out_check, its name kept for readers)
     validation: list[dict[str, Any]] = field(default_factory=list)
-    equivalent_swap: dict[str, Any] | None = None  # parameter changes reported as an equivalent (one parameter, a port gain)
-    interval_cov: np.ndarray | None = None  # covariance of fit.g for the reported intervals (ShootFit.interval_covariance)
+    # parameter changes reported as an equivalent (one parameter, a port gain)
+    equivalent_swap: dict[str, Any] | None = None
+    # covariance of fit.g for the reported intervals (ShootFit.interval_covariance)
+    interval_cov: np.ndarray | None = None
     q95: float = Z95  # their 95% quantile (Student's t over the recordings)
 
     @property
@@ -129,7 +131,8 @@ class Search:
         pool = self.cands if cands is None else cands
         params = [(c.name, c.nominal) for c in (pool[k] for k in order) if isinstance(c, ParamCandidate)]
         terms = [c.family_term for c in (pool[k] for k in order) if isinstance(c, Candidate)]
-        nominal = self.problem.nominal_family if self.eps is None else replace(self.problem.nominal_family, eps=self.eps)
+        nominal = (self.problem.nominal_family if self.eps is None
+                   else replace(self.problem.nominal_family, eps=self.eps))
         return nominal.with_(params=params, terms=terms)
 
     def columns(self, fit: ShootFit, fam: Family, ks: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -78,7 +78,8 @@ class Maps:
 
 @dataclass(frozen=True)
 class ScaleContext:
-    """What a kind needs to scale its shooting candidate on one coordinate: z = 1 is about the coordinate's force scale."""
+    """What a kind needs to scale its shooting candidate on one coordinate: z = 1 is about the coordinate's force
+    scale."""
 
     q: np.ndarray  # smoothed q_i of the training recordings
     v: np.ndarray  # smoothed qdot_i
@@ -134,7 +135,8 @@ class TermKind:
     #: the MuJoCo attribute (joint or actuator) that expresses the term exactly, or None
     mjcf: ClassVar[str | None] = None
     #: what a MuJoCo user adds for a term no attribute expresses
-    mjcf_advice: ClassVar[str] = "no MuJoCo attribute expresses it: apply the force as qfrc_applied (or mjcb_passive) each step"
+    mjcf_advice: ClassVar[str] = ("no MuJoCo attribute expresses it: apply the force as qfrc_applied (or mjcb_passive) "
+                                  "each step")
 
     @property
     def fit_positive(self) -> bool:
@@ -412,7 +414,8 @@ class Armature(TermKind):
 
     def check(self, coefficient: float, velocity: float) -> None:
         if not coefficient >= 0:  # (also rejects NaN)
-            raise ValueError(f"{self.name} is a rotor inertia added to M_ii: its coefficient must be >= 0, got {coefficient!r}")
+            raise ValueError(f"{self.name} is a rotor inertia added to M_ii: its coefficient must be >= 0, got "
+                             f"{coefficient!r}")
 
     def expression(self, c: float, i: int, velocity: float) -> str:
         return self.formula.format(i=i).replace("+= c", f"+= {c:.4g}")
@@ -534,8 +537,8 @@ class InputDelay(DelayKind):
     between samples for a fraction of a sample; at most :data:`MAX_DELAY_SAMPLES` samples)."""
 
     name, component, formula = "input_delay", "port", "port delivers u{i}(t - c)"
-    mjcf_advice = ("MuJoCo has no actuator delay attribute: delay ctrl by c in your controller (a buffer of past commands, "
-                   "interpolated for a fraction of a timestep) before each mj_step")
+    mjcf_advice = ("MuJoCo has no actuator delay attribute: delay ctrl by c in your controller (a buffer of past "
+                   "commands, interpolated for a fraction of a timestep) before each mj_step")
 
     def port(self, u: Any, c: float, deadzone_width: float, xp: ArrayNamespace) -> Any:
         return u  # the delay acts on the input sequence (AugmentedSystem.delayed_input), not on one value
@@ -555,7 +558,8 @@ class SensorDelay(DelayKind):
 
     name, component, formula = "sensor_delay", "sensor", "measured q{i}(t) = true q{i}(t - c)"
     mjcf_advice = ("a sensor term, not dynamics: MuJoCo has no sensor delay for joint positions; compare the model's "
-                   "q(t - c) with the log (or shift the log by c) in your sensor pipeline (the model file is unchanged)")
+                   "q(t - c) with the log (or shift the log by c) in your sensor pipeline (the model file is "
+                   "unchanged)")
 
     def applies(self, ctx: ScaleContext) -> bool:
         return ctx.dt > 0 and ctx.n >= 2
@@ -603,8 +607,10 @@ def law_terms() -> tuple[str, ...]:
 
 #: the built-in kinds other modules refer to by object (their names live here only)
 VISCOUS, COULOMB, STRIBECK, ARMATURE, ACTUATOR_GAIN = Viscous(), Coulomb(), Stribeck(), Armature(), ActuatorGain()
-_BUILT_IN: tuple[TermKind, ...] = (VISCOUS, COULOMB, QuadraticDrag(), PositionDependentDamping(), STRIBECK, LinearStiffness(),
-                                   CubicStiffness(), ConstantForce(), ARMATURE, ACTUATOR_GAIN, ActuatorDeadzone(), SensorOffset(),
+_BUILT_IN: tuple[TermKind, ...] = (VISCOUS, COULOMB, QuadraticDrag(), PositionDependentDamping(), STRIBECK,
+                                   LinearStiffness(),
+                                   CubicStiffness(), ConstantForce(), ARMATURE, ACTUATOR_GAIN, ActuatorDeadzone(),
+                                   SensorOffset(),
                                    SensorGain(), SensorEccentricity(), InputDelay(), SensorDelay())
 for _kind in _BUILT_IN:
     register(_kind)

@@ -61,13 +61,15 @@ class AugmentedSystem(System):
     ``deadzone_width > 0`` smooths the deadzone edge so its threshold can be fitted.
     """
 
-    def __init__(self, base: System, terms: list[Term] | tuple[Term, ...] = (), coulomb_eps: float | tuple[float, ...] = 1e-2,
+    def __init__(self, base: System, terms: list[Term] | tuple[Term, ...] = (),
+                 coulomb_eps: float | tuple[float, ...] = 1e-2,
                  deadzone_width: float = 0.0) -> None:
         # no System.__init__: parameters belong to the base system
         self.base = base
         self.terms = tuple(terms)
         # one smoothing per coordinate (a slow cart and a fast pole need different edges), or one for all
-        eps = tuple(float(e) for e in coulomb_eps) if isinstance(coulomb_eps, (tuple, list)) else (float(coulomb_eps),) * base.n
+        eps = tuple(float(e) for e in coulomb_eps) if isinstance(coulomb_eps,
+                                                                 (tuple, list)) else (float(coulomb_eps),) * base.n
         if len(eps) != base.n:
             raise ValueError(f"coulomb_eps has {len(eps)} entries for {base.n} coordinates")
         self.coulomb_eps_per_coordinate = eps
@@ -80,11 +82,13 @@ class AugmentedSystem(System):
         maps = Maps.identity(base.n)
         for t in self.terms:
             if not 0 <= t.coordinate < base.n:
-                raise ValueError(f"term {t.name} on coordinate {t.coordinate}: {base.name} has coordinates 0..{base.n - 1}")
+                raise ValueError(f"term {t.name} on coordinate {t.coordinate}: {base.name} has coordinates "
+                                 f"0..{base.n - 1}")
             if t.component in ("inertia", "sensor") or t.kind.delay:
                 t.kind.set_map(maps, t.coordinate, t.coefficient)
         self.armature = maps.armature  # A = diag(armature): H = p^T (M(q) + A)^-1 p / 2 + V
-        self.sensor_offset, self.sensor_gain, self.sensor_ecc = maps.sensor_offset, maps.sensor_gain, maps.sensor_eccentricity
+        self.sensor_offset, self.sensor_gain, self.sensor_ecc = (maps.sensor_offset, maps.sensor_gain,
+                                                                 maps.sensor_eccentricity)
         self.input_delay, self.sensor_delay = maps.input_delay, maps.sensor_delay  # [s] per port / coordinate
         self.has_armature = any(a != 0.0 for a in self.armature)
         # a base that carries its own rotor inertia (a MuJoCo model's joint armature) takes A into its M(q), so its
@@ -98,7 +102,8 @@ class AugmentedSystem(System):
 
     def delayed_input(self, u: Any, dt: Any, u_before: Any = None) -> Any:
         """The port input delivered over each interval: the recorded u (B, K, n) delayed by :attr:`input_delay`
-        (:func:`phast_model.identify.delays.delayed_input`; ``dt`` the step or the (B, K) steps, ``u_before`` (B, P, n) the
+        (:func:`phast_model.identify.delays.delayed_input`; ``dt`` the step or the (B, K) steps, ``u_before`` (B, P, n)
+        the
         recorded inputs before the first interval).  Used by the simulation around the vector field."""
         return delays.delayed_input(u, self.input_delay, dt, u_before)
 
@@ -176,7 +181,8 @@ class AugmentedSystem(System):
         M = self.base.mass_matrix(q, xp)
         if not self.has_armature:
             return M
-        return tuple(tuple(mij + self.armature[i] if i == j else mij for j, mij in enumerate(row)) for i, row in enumerate(M))
+        return tuple(tuple(mij + self.armature[i] if i == j else mij for j, mij in enumerate(row)) for i,
+                     row in enumerate(M))
 
     def velocity(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         if not self.has_armature:
@@ -227,12 +233,15 @@ class AugmentedSystem(System):
                 f[i] = f[i] - t.coefficient * t.kind.basis(q[i], v[i], eps, t.velocity, xp)
         return f
 
-    def rhs(self, q: Components, p: Components, u: Components | None, xp: ArrayNamespace = NUMPY) -> tuple[tuple, tuple]:
+    def rhs(self, q: Components, p: Components, u: Components | None,
+            xp: ArrayNamespace = NUMPY) -> tuple[tuple, tuple]:
         uu = self.port(u, xp)
-        if self.has_armature and self.inertial_base is None:  # the base's fused field assumes its own M: generic Eq. 1-3
+        # the base's fused field assumes its own M: generic Eq. 1-3
+        if self.has_armature and self.inertial_base is None:
             qdot = self.velocity(q, p, xp)
             dh = self._dH_dq_at(q, p, qdot, xp)
-            if type(self.base).nonconservative_force is System.nonconservative_force:  # -D v + u, in the order of Eq. 1-3
+            # -D v + u, in the order of Eq. 1-3
+            if type(self.base).nonconservative_force is System.nonconservative_force:
                 pdot = tuple(-a - di * vi for a, di, vi in zip(dh, self.base.damping(q, xp), qdot))
                 if uu is not None:
                     pdot = tuple(ui + a for ui, a in zip(uu, pdot))
@@ -244,7 +253,8 @@ class AugmentedSystem(System):
         f = self.extra_dissipation(q, qdot, xp)
         return tuple(qdot), tuple(a + c for a, c in zip(pdot, f))
 
-    def power_balance(self, q: Components, p: Components, u: Components | None, xp: ArrayNamespace = NUMPY) -> tuple[Any, Any]:
+    def power_balance(self, q: Components, p: Components, u: Components | None,
+                      xp: ArrayNamespace = NUMPY) -> tuple[Any, Any]:
         """(v^T D v + the terms' friction power, v^T u delivered) with v = (M + A)^-1 p."""
         diss, supplied = super().power_balance(q, p, self.port(u, xp), xp)
         v = self.velocity(q, p, xp)
