@@ -28,7 +28,8 @@ class CartPoleDescription(CartPole):
 #: plant env id -> the rig description (``module:Class``) the loop fits from by default
 DESCRIPTIONS = {"PHAST/WindyCartPole-v0": f"{__name__}:CartPoleDescription"}
 
-#: plant env id -> ``phast-rl`` option defaults that differ from the loop's (the option's dest -> value); an option given
+#: plant env id -> ``phast-rl`` option defaults that differ from the loop's (the option's dest -> value); an option
+#: given
 #: on the command line wins.  The cart-pole's (docs/control.md, "The cart-pole"): 10 N does not lift its 1-kg pole at
 #: 1 m above the horizontal, so the bound is 30 N; pumping needs 5-s episodes and a light |qdot|^2 weight; SAC needs
 #: more decisions than on the pendulum, and the last training (no plant episode) is free of plant time; the agent's

@@ -274,7 +274,8 @@ def make_hold(model: PHAST, q_star: np.ndarray, dt: float, sigma: float, max_act
     full = sorted(act) == list(range(n))
     if cfg.kind == "energy-casimir" or (cfg.kind == "auto" and full):
         if not full:
-            raise ValueError(f"an Energy-Casimir hold needs an input on every coordinate; this plant drives {act} of {n}")
+            raise ValueError(f"an Energy-Casimir hold needs an input on every coordinate; this plant drives {act} of "
+                             f"{n}")
         return make_energy_casimir_hold(model, q_star, dt, sigma, max_action, cfg)
     hold = LQRHold(model, q_star, dt, sigma, max_action, act, cfg)
     return hold, hold.gains

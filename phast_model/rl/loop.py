@@ -10,7 +10,8 @@ recordings and the policy's own episodes.  The world-model episodes start from w
 (:mod:`.world_env`), so they cost nothing more.  The final evaluation (``eval_trials`` episodes, not used for
 learning) is reported apart.
 
-* the fit is the rig path of ``phast-train --recordings`` (:func:`phast_model.train.rig_fit.load_rig_data`, ``rig_config``,
+* the fit is the rig path of ``phast-train --recordings`` (:func:`phast_model.train.rig_fit.load_rig_data`,
+  ``rig_config``,
   ``build``, ``fit_recordings``): PARTIAL, the rig description's templates with every coefficient refitted and the
   joint friction learned; later iterations continue from the previous model (warm start, ``refit_epochs``);
 * the agent is SB3's (SAC by default, reflection-equivariant for symmetric plants: :mod:`.mirror_policy`), trained
@@ -36,7 +37,17 @@ from phast_gym.systems.base import System
 
 from ..world.model import PHAST
 from .hold import HoldConfig, HoldGains, HybridPolicy, LQRGains, make_hold
-from .plant import Episode, HeldTorques, PlantSpec, Task, excitation_inputs, make_plant, quiet_metrics, record_episode, to_recordings
+from .plant import (
+    Episode,
+    HeldTorques,
+    PlantSpec,
+    Task,
+    excitation_inputs,
+    make_plant,
+    quiet_metrics,
+    record_episode,
+    to_recordings,
+)
 from .sources import Prior, join_recordings, load_prior
 from .types import Agent, Plant, Policy
 from .world_env import WorldTask, WorldTaskEnv, burn_in_pool
@@ -57,7 +68,8 @@ class FitSpec:
     epochs: int = 60
     refit_epochs: int = 30
     window_s: float = 0.5
-    friction_laws: tuple[str, ...] | None = None  # the joint friction's laws (None: the description's, else the rig path's)
+    # the joint friction's laws (None: the description's, else the rig path's)
+    friction_laws: tuple[str, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -96,7 +108,8 @@ class AgentSpec:
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:
             raise ValueError(f"algo must be one of {ALGOS}, got {self.algo!r}")
-        for k in ("steps", "refit_steps", "eval_every", "eval_episodes", "patience", "min_evals", "episode_decisions", "frames"):
+        for k in ("steps", "refit_steps", "eval_every", "eval_episodes", "patience", "min_evals", "episode_decisions",
+                  "frames"):
             v = getattr(self, k)
             if int(v) != v or v < 1:
                 raise ValueError(f"{k} must be a positive integer, got {v!r}")
@@ -162,7 +175,8 @@ class LoopConfig:
             raise ValueError("without recordings the loop needs excitation episodes (--excitation-episodes >= 1); "
                              "--offline learns from --recordings alone")
         if self.excitation_episodes * self.episode_s > self.budget_s + 1e-9:
-            raise ValueError(f"the excitation alone ({self.excitation_episodes} x {self.episode_s} s) exceeds the budget of "
+            raise ValueError(f"the excitation alone ({self.excitation_episodes} x {self.episode_s} s) exceeds the "
+                             "budget of "
                              f"{self.budget_s} s: lower --excitation-episodes or --episode-s, or raise --budget-s")
 
     @property
@@ -245,7 +259,8 @@ class LoopResult:
         final evaluation; None offline), ``iterations`` (per-iteration success and learning record)."""
         ev = self.evaluation
         final: dict[str, Any] = {"success": None, "success_angle_only": None, "rms_torque": None, "final_error": None,
-                                 "eval_trials": 0, "eval_plant_seconds": 0.0, "trial_success": [], "trial_rms_torque": [],
+                                 "eval_trials": 0, "eval_plant_seconds": 0.0, "trial_success": [],
+                                 "trial_rms_torque": [],
                                  "controller_ms": {}}
         if ev is not None:
             final = {"success": ev.success, "success_angle_only": ev.success_angle_only, "rms_torque": ev.rms_torque,
@@ -264,7 +279,8 @@ def collect_excitation(cfg: LoopConfig, plant: Plant, seed: int) -> list[Episode
     rng = np.random.default_rng(seed)
     x0 = cfg.task.start_states(plant.system, rng, cfg.excitation_episodes)
     hold_steps = cfg.hold_decisions * cfg.plant.decision_steps
-    return [record_episode(plant, HeldTorques(excitation_inputs(rng, cfg.episode_steps, plant.m, hold_steps, cfg.torque_std,
+    return [record_episode(plant,
+                           HeldTorques(excitation_inputs(rng, cfg.episode_steps, plant.m, hold_steps, cfg.torque_std,
                                                              cfg.plant.max_action)),
                         x, cfg.episode_steps, int(rng.integers(2**31)), "excitation") for x in x0]
 
@@ -297,7 +313,8 @@ def fit_world_model(cfg: LoopConfig, recordings: dict[str, Any], model: PHAST | 
         declared = cfg.fit.friction_laws if cfg.fit.friction_laws is not None else friction_laws(cfg.sim)
         laws: dict[str, Any] = {} if declared is None else {"friction_laws": list(declared)}
         mcfg = rig_config(cfg.sim, cfg.fit.sim_kwargs, cfg.fit.regime, data, seed=cfg.seed,
-                          action_bound=[cfg.plant.max_action] * data.train.u.shape[-1] if data.train.u is not None else None,
+                          action_bound=[cfg.plant.max_action] * data.train.u.shape[-1] if data.train.u is not None
+                          else None,
                           **laws)
         model, epochs = build(mcfg), cfg.fit.epochs
     else:
@@ -384,7 +401,8 @@ def train_agent(cfg: LoopConfig, model: PHAST, pool: np.ndarray, q_star: np.ndar
     start = agent.num_timesteps
     with tempfile.TemporaryDirectory() as log:  # EvalCallback keeps its evaluations only when it has a log_path
         ev = EvalCallback(env(cfg.seed * 1000 + 500 + iteration), n_eval_episodes=spec.eval_episodes,
-                          eval_freq=spec.eval_every, log_path=log, callback_after_eval=stop, deterministic=True, verbose=0,
+                          eval_freq=spec.eval_every, log_path=log, callback_after_eval=stop, deterministic=True,
+                          verbose=0,
                           best_model_save_path=log if spec.keep_best else None)
         agent.learn(total_timesteps=training_steps(spec, first, last), callback=ev, reset_num_timesteps=first,
                     progress_bar=False)
@@ -436,7 +454,8 @@ def act_ms(episodes: list[Episode]) -> dict[str, float]:
     """The controller's compute time per plant step over ``episodes`` in ms (mean, 99th percentile, max): on a real
     machine it must fit in the step ``dt``, beside the driver's own I/O."""
     t = np.concatenate([e.act_s for e in episodes if e.act_s is not None] or [np.zeros(1)]) * 1e3
-    return {"mean": round(float(t.mean()), 3), "p99": round(float(np.percentile(t, 99)), 3), "max": round(float(t.max()), 3)}
+    return {"mean": round(float(t.mean()), 3), "p99": round(float(np.percentile(t, 99)), 3),
+            "max": round(float(t.max()), 3)}
 
 
 # --------------------------------------------------------------------------- the loop
@@ -454,7 +473,8 @@ class _Data:
     def recordings(self, cfg: LoopConfig, plant: Plant) -> dict[str, Any]:
         """All of it in the rig format (with the actuated coordinates of an underactuated plant)."""
         dofs = list(plant.actuated_dofs) if plant.m < plant.n else None
-        recs = to_recordings(self.episodes, cfg.plant.decision_steps, plant.system.angle_dims, dofs) if self.episodes else None
+        recs = to_recordings(self.episodes, cfg.plant.decision_steps, plant.system.angle_dims,
+                             dofs) if self.episodes else None
         return join_recordings(None if self.prior is None else self.prior.recordings, recs)
 
 
@@ -522,7 +542,8 @@ def _iteration(cfg: LoopConfig, plant: Plant, data: _Data, learner: _Learner, it
     new: list[Episode] = []
     policy, gains = deployed_policy(cfg, trained.agent, fit.model, plant.system, list(plant.actuated_dofs), q_star)
     if can_run:
-        new = run_policy(cfg, plant, policy, cfg.policy_episodes, cfg.episode_steps, cfg.seed * 1000 + 77 + it, "policy")
+        new = run_policy(cfg, plant, policy, cfg.policy_episodes, cfg.episode_steps, cfg.seed * 1000 + 77 + it,
+                         "policy")
     data.episodes += new
     ms = [quiet_metrics(e, q_star, plant.system.angle_dims, cfg.task) for e in new]
     progress(f"iteration {it}: {sum(m.success for m in ms)}/{len(ms)} plant episodes quiet (angle only "

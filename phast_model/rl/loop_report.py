@@ -36,7 +36,8 @@ def learning_curves(result: LoopResult) -> dict[str, Any]:
         "iteration": [it.iteration for it in its],
         "plant_seconds": [it.plant_seconds for it in its],
         "plant_success": [float(np.mean(it.plant_success)) if it.plant_success else None for it in its],
-        "plant_success_angle_only": [float(np.mean(it.plant_success_angle_only)) if it.plant_success else None for it in its],
+        "plant_success_angle_only": [float(np.mean(it.plant_success_angle_only)) if it.plant_success else None
+                                     for it in its],
         "fit_val_rmse": [it.fit_val_rmse for it in its],
         "agent_decisions": [it.agent_decisions for it in its],
         "world_eval_decisions": steps,
@@ -60,7 +61,8 @@ def plot_learning_curves(curves: dict[str, Any], path: Path) -> None:
     a.set_ylabel("success of the iteration's plant episodes")
     a.set_ylim(-0.05, 1.05)
     final = curves["final_success"]
-    a.set_title("no plant evaluation (offline)" if final is None else f"final evaluation: {final:.2f} (quiet)", fontsize=9)
+    a.set_title("no plant evaluation (offline)" if final is None else f"final evaluation: {final:.2f} (quiet)",
+                fontsize=9)
     a.legend(fontsize=8)
     a.grid(alpha=0.3)
     b.plot(curves["world_eval_decisions"], curves["world_eval_return"], "o-", ms=3)
@@ -108,7 +110,8 @@ def write_outputs(result: LoopResult, out: Path, extra: dict[str, Any]) -> dict[
 
 
 #: the parts of a :class:`LoopConfig` that are dataclasses of their own
-CONFIG_PARTS: dict[str, type] = {"plant": PlantSpec, "task": Task, "fit": FitSpec, "agent": AgentSpec, "hold": HoldConfig}
+CONFIG_PARTS: dict[str, type] = {"plant": PlantSpec, "task": Task, "fit": FitSpec, "agent": AgentSpec,
+                                 "hold": HoldConfig}
 
 
 def _part(cls: type, d: Any, where: str) -> Any:

@@ -3,9 +3,11 @@
 The loop touches the plant only through ``reset(state)`` / ``step(u)`` of a phast_gym env that returns q-only, noisy
 measurements (what an encoder gives).  The plant is a registered env id or a rig of the user's own, named as for
 ``phast-mismatch --sim``: ``path/to/rig.py:Class`` or ``module:Class``, a :class:`phast_gym.systems.base.System`
-subclass (docs/describe_your_rig.md), stepped at the control rate ``dt`` (0.01 s by default, the control protocol's).  Every
+subclass (docs/describe_your_rig.md), stepped at the control rate ``dt`` (0.01 s by default, the control protocol's).
+Every
 plant episode is an :class:`Episode` (:func:`record_episode`): the measurements, the applied inputs and (simulation
-only, for the success metrics and never for learning) the true states.  :func:`to_recordings` turns episodes into the ``phast-train
+only, for the success metrics and never for learning) the true states.  :func:`to_recordings` turns episodes into the
+``phast-train
 --recordings`` format at the decision rate, which is what the world model is fitted to.
 
 Success is the quiet criterion of docs/control.md: over the last ``settle_s`` seconds every true angle error is below
@@ -93,7 +95,8 @@ def make_plant(spec: PlantSpec) -> Plant:
         machine = load_machine(spec.machine, spec.machine_kwargs)
         dt = float(machine_dt(machine))
         if not math.isclose(dt, spec.dt, rel_tol=1e-6):
-            raise ValueError(f"machine {spec.machine!r} steps every {dt:g} s, the loop every {spec.dt:g} s: give --dt {dt:g}")
+            raise ValueError(f"machine {spec.machine!r} steps every {dt:g} s, the loop every {spec.dt:g} s: give --dt "
+                             f"{dt:g}")
         return MachinePlant(machine, system, spec.env_kwargs.get("actuated_dofs"), spec.max_action, spec.machine)
     return PortHamiltonianEnv(system, actuated_dofs=spec.env_kwargs.get("actuated_dofs"), max_action=spec.max_action,
                               obs_noise_std=spec.sigma, dtype=np.float64, substeps=system.substeps)
@@ -128,7 +131,8 @@ class Task:
             return sample_start_states(system, "near_stable" if self.name == "swingup" else "near_unstable", rng, size)
         spread = 0.5 if self.name == "swingup" else 0.3
         base = np.zeros(system.n) if self.name == "swingup" else self.target(system)
-        q = base + rng.uniform(-spread, spread, (size, system.n)) * np.array([i in system.angle_dims for i in range(system.n)])
+        q = base + rng.uniform(-spread, spread,
+                               (size, system.n)) * np.array([i in system.angle_dims for i in range(system.n)])
         v = rng.uniform(-spread, spread, (size, system.n))
         p = np.stack([np.asarray(c, dtype=np.float64) for c in system.momentum(tuple(q.T), tuple(v.T))], -1)
         return np.concatenate([q, np.broadcast_to(p, q.shape)], -1)
@@ -185,7 +189,8 @@ def record_episode(plant: Plant, controller: Controller, x0: np.ndarray, steps: 
     act_s = np.zeros(steps)
     for i in range(steps):
         t0 = time.perf_counter()
-        u = np.clip(np.asarray(controller.act(qs[-1]), dtype=np.float64).reshape(plant.m), -plant.max_action, plant.max_action)
+        u = np.clip(np.asarray(controller.act(qs[-1]), dtype=np.float64).reshape(plant.m), -plant.max_action,
+                    plant.max_action)
         act_s[i] = time.perf_counter() - t0
         obs, _, _, _, info = plant.step(u)
         qs.append(np.asarray(obs, dtype=np.float64))
@@ -210,7 +215,8 @@ class HeldTorques:
         return u
 
 
-def excitation_inputs(rng: np.random.Generator, steps: int, m: int, hold_steps: int, std: float, bound: float) -> np.ndarray:
+def excitation_inputs(rng: np.random.Generator, steps: int, m: int, hold_steps: int, std: float,
+                      bound: float) -> np.ndarray:
     """(steps, m) random inputs ~ N(0, std) clipped at ``bound``, each held ``hold_steps`` plant steps."""
     n_hold = -(-steps // hold_steps)
     u = np.clip(rng.normal(0.0, std, (n_hold, m)), -bound, bound)
@@ -259,4 +265,5 @@ def quiet_metrics(ep: Episode, q_star: np.ndarray, angle_dims: Sequence[int], ta
     err = np.abs(wrap(ep.x[-n_tail:, dims] - q_star[dims]))
     rms = float(np.sqrt(np.mean(ep.u[-n_tail:] ** 2)))
     settled = bool(np.all(err < task.tol))
-    return QuietMetrics(settled, rms, settled and rms <= task.u_tol, float(np.max(np.abs(wrap(ep.x[-1, dims] - q_star[dims])))))
+    return QuietMetrics(settled, rms, settled and rms <= task.u_tol,
+                        float(np.max(np.abs(wrap(ep.x[-1, dims] - q_star[dims])))))

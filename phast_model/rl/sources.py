@@ -48,7 +48,8 @@ def load_machine(spec: str, kwargs: dict[str, Any] | None = None) -> Machine:
 
     factory = load_object(spec, "machine")
     if not callable(factory):
-        raise ValueError(f"machine {spec!r} is not callable (a factory or class returning the machine), got {factory!r}")
+        raise ValueError(f"machine {spec!r} is not callable (a factory or class returning the machine), got "
+                         f"{factory!r}")
     try:
         inspect.signature(factory).bind(**(kwargs or {}))
     except TypeError as exc:
@@ -102,7 +103,8 @@ class MachinePlant:
     def _info(self, q: np.ndarray) -> dict[str, Any]:
         return {"state": np.concatenate([q, np.full(self.n, np.nan)]), "measured_only": True}
 
-    def reset(self, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+    def reset(self, seed: int | None = None,
+              options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
         q = _measured(self.machine.reset(), self.n, f"{self.name}.reset()")
         return q, self._info(q)
 
@@ -143,7 +145,8 @@ def load_prior(path: str | Path | dict[str, Any], system: System, actuated_dofs:
     rec = validate(raw, system.n, tuple(system.angle_dims), src, min_samples=2,
                    actuated_dofs=tuple(actuated_dofs) if len(actuated_dofs) < system.n else None)
     if not rec.uniform:
-        raise ValueError(f"{src}: the loop needs uniformly sampled recordings (its world model steps every {decision_dt} s)")
+        raise ValueError(f"{src}: the loop needs uniformly sampled recordings (its world model steps every "
+                         f"{decision_dt} s)")
     if not math.isclose(rec.dt, decision_dt, rel_tol=1e-3):
         raise ValueError(f"{src}: sampled every {rec.dt:g} s, but the loop decides every {decision_dt:g} s; record at "
                          f"that rate or set the decision step (phast-rl --dt and the decision steps)")
@@ -156,7 +159,8 @@ def load_prior(path: str | Path | dict[str, Any], system: System, actuated_dofs:
     q = np.stack([rec.q[:, j * L: j * L + W] for j in range(k)], 1).reshape(-1, W, system.n)
     u = np.zeros((q.shape[0], L, len(actuated_dofs)))
     if rec.u is not None:
-        u = np.stack([rec.u[:, j * L: j * L + L] for j in range(k)], 1).reshape(-1, L, system.n)[..., list(actuated_dofs)]
+        u = np.stack([rec.u[:, j * L: j * L + L] for j in range(k)],
+                     1).reshape(-1, L, system.n)[..., list(actuated_dofs)]
     out: dict[str, Any] = {"q": q, "u": u, "dt": float(decision_dt),
                            "angle_dims": np.array(list(system.angle_dims), dtype=np.int64)}
     if len(actuated_dofs) < system.n:

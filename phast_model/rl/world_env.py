@@ -5,7 +5,8 @@ simulator behind it) for an SB3 agent: actions in [-1, 1] scaled to the input bo
 suite's regulation reward to the target, with the model's velocity estimate), observations as on the plant ((sin q,
 cos q) of the last ``frames`` measurements, a cart's position as ``tanh(x / 2)``, noise ``sigma`` added to the model's
 noise-free q).  The reward is the suite's regulation reward with the task's weights: ``velocity_weight`` on |qdot|^2
-(the suite's 0.1 by default) and ``position_weight`` on the squared Euclidean errors (1 by default).  On an underactuated
+(the suite's 0.1 by default) and ``position_weight`` on the squared Euclidean errors (1 by default).  On an
+underactuated
 plant the agent drives the ``actuated`` columns of the model's port only.
 
 A model rollout that leaves the region the model can speak for (a Euclidean coordinate beyond ``x_max``, a velocity
@@ -22,7 +23,8 @@ With a ``goal`` (the deployed hold's :class:`phast_model.rl.hold.HoldConfig`) th
 takes over: an episode whose model state enters the hold's handoff region (``HoldConfig.enters``: the angles and
 their rates) ends there, the decisions left counted at the best per-step reward (0).  The agent then learns to bring
 the plant into the hold's region (its handoff, :class:`phast_model.rl.hold.HybridPolicy`), not to balance by itself,
-which it does not do on the plant anyway; on the cart-pole a seed whose agent pumped without reaching the top in the world model
+which it does not do on the plant anyway; on the cart-pole a seed whose agent pumped without reaching the top in the
+world model
 (returns stuck at -420 where others reach -250) is the case this is for.
 
 Every episode starts from a burn-in window of *recorded* measurements: ``pool`` holds windows cut from the
@@ -95,7 +97,8 @@ class WorldTaskEnv(gym.Env):
             raise ValueError(f"pool must be (P >= 1, K, n) burn-in windows, got shape {pool.shape}")
         self.world = PHASTWorldModelEnv(model, burn_in=pool.shape[1], max_episode_steps=decisions,
                                         target=np.asarray(q_star, dtype=np.float64))
-        self.pool, self.sigma, self.max_action, self.frames = pool, float(task.sigma), float(task.max_action), int(task.frames)
+        self.pool, self.sigma, self.max_action, self.frames = (pool, float(task.sigma), float(task.max_action),
+                                                               int(task.frames))
         self.angle_dims = tuple(int(i) for i in model.angle_dims)
         self.euclid = [i for i in range(pool.shape[2]) if i not in self.angle_dims]
         self.decisions = int(decisions)
