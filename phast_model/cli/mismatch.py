@@ -18,30 +18,36 @@ from typing import Any
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="phast-mismatch", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(prog="phast-mismatch", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--sim", required=True,
                    help="nominal simulator: an env id (PHAST/Pendulum-v0), my_pkg.mod:MyRig or path/to/rig.py:MyRig "
                         "(a phast_gym.systems.System subclass), or a MuJoCo model file robot.xml / robot.urdf "
                         "(the report then also holds calibrated.xml; docs/robot_models.md)")
     p.add_argument("--sim-kwargs", default="{}", help="JSON dict of physical parameters overriding the simulator's")
     p.add_argument("--recordings", required=True,
-                   help=".npz or .csv recordings, or a folder of .csv logs (keys / columns of docs/mismatch.md); logs of "
-                        "different lengths are cut into equal pieces, bad rows dropped and counted (report.json data.logs)")
+                   help=".npz or .csv recordings, or a folder of .csv logs (keys / columns of docs/mismatch.md); logs "
+                        "of different lengths are cut into equal pieces, bad rows dropped and counted (report.json "
+                        "data.logs)")
     p.add_argument("--holdout-fraction", type=float, default=0.3,
                    help="share of trajectories (of logs, for logs of different lengths; of time, for one) held out")
     p.add_argument("--holdout-trajectories", default=None,
-                   help="comma-separated 0-based trajectory indices to hold out, e.g. 4,5 (overrides --holdout-fraction); "
+                   help="comma-separated 0-based trajectory indices to hold out, e.g. 4,5 (overrides "
+                        "--holdout-fraction); "
                         "for logs of different lengths, log indices: every piece of a held-out log is held out")
     p.add_argument("--out", required=True, help="report directory (report.json, report.md, report.html, PNG plots)")
     p.add_argument("--threshold", type=float, default=5.0, help="significance a term must reach (|coefficient|/std)")
     p.add_argument("--max-terms", type=int, default=5, help="most terms to add")
     p.add_argument("--shoot-window", type=int, default=None, help="shooting window in samples (default: half a period)")
-    p.add_argument("--smoothing-window", type=int, default=None, help="Savitzky-Golay window in samples (seeds, residual map)")
+    p.add_argument("--smoothing-window", type=int, default=None,
+                   help="Savitzky-Golay window in samples (seeds, residual map)")
     p.add_argument("--rollout-window", type=float, default=None,
                    help="held-out open-loop window in seconds (default: each held-out trajectory whole)")
     p.add_argument("--systematic-chi2", type=float, default=3.0,
-                   help="shooting chi^2/dof above which model error dominates: parameters, armature and friction law from the weak form")
-    p.add_argument("--free", default="", help="comma-separated parameters to calibrate although the simulator declares them "
+                   help="shooting chi^2/dof above which model error dominates: parameters, armature and friction law "
+                        "from the weak form")
+    p.add_argument("--free", default="",
+                   help="comma-separated parameters to calibrate although the simulator declares them "
                                                "known (Param(known=True), e.g. gravity): --free gravity")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
@@ -58,7 +64,8 @@ def parse_indices(text: str | None) -> list[int] | None:
         try:
             out.append(int(item))
         except ValueError:
-            raise ValueError(f"--holdout-trajectories: {item!r} is not an integer (give 0-based indices, e.g. 4,5)") from None
+            raise ValueError(f"--holdout-trajectories: {item!r} is not an integer (give 0-based indices, e.g. "
+                             "4,5)") from None
     return out
 
 
@@ -67,13 +74,15 @@ def check_args(args: argparse.Namespace) -> None:
     import math
 
     if not (math.isfinite(args.threshold) and args.threshold > 0):
-        raise ValueError(f"--threshold must be a positive number (a significance |coefficient|/std), got {args.threshold}")
+        raise ValueError("--threshold must be a positive number (a significance |coefficient|/std), got "
+                         f"{args.threshold}")
     if args.max_terms < 0:
         raise ValueError(f"--max-terms must be >= 0, got {args.max_terms}")
     if args.shoot_window is not None and args.shoot_window < 2:
         raise ValueError(f"--shoot-window must be at least 2 samples, got {args.shoot_window}")
     if args.smoothing_window is not None and args.smoothing_window < 5:
-        raise ValueError(f"--smoothing-window must be at least 5 samples (a cubic Savitzky-Golay filter), got {args.smoothing_window}")
+        raise ValueError("--smoothing-window must be at least 5 samples (a cubic Savitzky-Golay filter), got "
+                         f"{args.smoothing_window}")
     if args.rollout_window is not None and not (math.isfinite(args.rollout_window) and args.rollout_window > 0):
         raise ValueError(f"--rollout-window must be a positive number of seconds, got {args.rollout_window}")
     if not (math.isfinite(args.systematic_chi2) and args.systematic_chi2 > 0):
@@ -113,7 +122,8 @@ def checked_recordings(sim: str, recordings: str, kwargs: dict[str, Any]) -> Any
     except ValueError:
         return recordings  # the analysis names the problem
     raw, src = load_raw(recordings)
-    return validate(raw, system.n, tuple(system.angle_dims), src, actuated_dofs=getattr(system, "actuated_dofs", None), model=system)
+    return validate(raw, system.n, tuple(system.angle_dims), src, actuated_dofs=getattr(system, "actuated_dofs", None),
+                    model=system)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -129,7 +139,8 @@ def main(argv: list[str] | None = None) -> int:
         check_writable(args.out)
         kwargs = json_object(args.sim_kwargs, "--sim-kwargs")
         opts = Options().with_(threshold=args.threshold, max_terms=args.max_terms, shoot_window=args.shoot_window,
-                               smoothing_window=args.smoothing_window, progress=not args.quiet, rollout_window=args.rollout_window,
+                               smoothing_window=args.smoothing_window, progress=not args.quiet,
+                               rollout_window=args.rollout_window,
                                systematic_chi2=args.systematic_chi2,
                                free=tuple(x.strip() for x in args.free.split(",") if x.strip()))
         recordings = checked_recordings(args.sim, args.recordings, kwargs)

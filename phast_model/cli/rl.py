@@ -31,14 +31,14 @@ def add_source_options(ap: argparse.ArgumentParser, p: PlantSpec) -> None:
     """Where the loop's data come from besides a simulated plant: a machine, recordings, an earlier run."""
     ap.add_argument("--machine", default=None,
                     help="a real machine as the plant: a factory path/to/driver.py:make or module:make returning an "
-                         "object with dt, reset() -> q and step(u) -> q (a Gymnasium env with obs q and action u does); "
-                         "--env then describes the rig (docs/control.md, 'A machine of your own')")
+                         "object with dt, reset() -> q and step(u) -> q (a Gymnasium env with obs q and action u "
+                         "does); --env then describes the rig (docs/control.md, 'A machine of your own')")
     ap.add_argument("--machine-kwargs", default="{}", help="the machine factory's keyword arguments as JSON")
     ap.add_argument("--dt", type=float, default=p.dt, help="plant step (s): the machine's dt; the agent decides every "
                                                         f"{p.decision_steps} steps")
     ap.add_argument("--recordings", default=None,
-                    help="recordings made before the loop (the phast-train --recordings format, sampled at the decision "
-                         "step): learned from first, their seconds counted against --budget-s")
+                    help="recordings made before the loop (the phast-train --recordings format, sampled at the "
+                         "decision step): learned from first, their seconds counted against --budget-s")
     ap.add_argument("--offline", action="store_true",
                     help="no plant: learn the policy from --recordings alone (no plant episode, no evaluation; --env "
                          "describes the rig)")
@@ -51,7 +51,8 @@ def add_excitation_options(ap: argparse.ArgumentParser, d: LoopConfig) -> None:
     """The random-input episodes that start the loop, and how many iterations follow (on a real rig, set the
     amplitude to what it safely takes)."""
     ap.add_argument("--excitation-episodes", type=int, default=None,
-                    help=f"random-input plant episodes first (default: {d.excitation_episodes}, none with --recordings)")
+                    help=f"random-input plant episodes first (default: {d.excitation_episodes}, none with "
+                         "--recordings)")
     ap.add_argument("--excitation-std", type=float, default=d.torque_std,
                     help="std of the excitation's random inputs (N m or N; clipped at --max-action)")
     ap.add_argument("--excitation-hold", type=int, default=d.hold_decisions,
@@ -70,9 +71,11 @@ def add_hold_options(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--lqr-position", type=float, default=h.lqr_position,
                     help="LQR hold: weight on the Euclidean position errors (the cart's)")
     ap.add_argument("--lqr-rate", type=float, default=h.lqr_rate, help="LQR hold: weight on every rate")
-    ap.add_argument("--hold-enter-angle", type=float, default=h.enter_angle, help="handoff to the hold within this angle (rad)")
+    ap.add_argument("--hold-enter-angle", type=float, default=h.enter_angle,
+                    help="handoff to the hold within this angle (rad)")
     ap.add_argument("--hold-kc-factor", type=float, default=h.kc_factor, help="hold stiffness k_c / learned m g l")
-    ap.add_argument("--hold-zeta", type=float, default=h.zeta, help="hold damping ratio (sets d_inj from the learned model)")
+    ap.add_argument("--hold-zeta", type=float, default=h.zeta,
+                    help="hold damping ratio (sets d_inj from the learned model)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -85,17 +88,20 @@ def build_parser() -> argparse.ArgumentParser:
                          "defaults (the cart-pole: --max-action 30 and longer agent training; "
                          "phast_model.rl.descriptions.PRESETS), which options given here override")
     add_source_options(ap, p)
-    ap.add_argument("--task", choices=TASKS, default="swingup", help="swingup: from hanging; upright: from near the top")
-    ap.add_argument("--env-kwargs", default="{}", help='the plant env\'s kwargs as JSON, e.g. \'{"actuated_dofs": [0]}\'')
+    ap.add_argument("--task", choices=TASKS, default="swingup",
+                    help="swingup: from hanging; upright: from near the top")
+    ap.add_argument("--env-kwargs", default="{}",
+                    help='the plant env\'s kwargs as JSON, e.g. \'{"actuated_dofs": [0]}\'')
     ap.add_argument("--budget-s", type=float, default=d.budget_s, help="plant seconds allowed for learning")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", required=True, help="output directory")
     ap.add_argument("--sim", default=None, help="the rig description (env id or path.py:Class; default: --env)")
     ap.add_argument("--regime", choices=("known", "partial", "unknown"), default=f.regime,
-                    help="world-model regime of the rig path (partial: the description's templates, refitted; unknown: a "
-                         "neural V and M, which seconds of data near the start do not determine at the target: 0.00 "
+                    help="world-model regime of the rig path (partial: the description's templates, refitted; unknown: "
+                         "a neural V and M, which seconds of data near the start do not determine at the target: 0.00 "
                          "on the pendulum swing-up at 30 s, docs/control.md)")
-    ap.add_argument("--sim-kwargs", default="{}", help="the rig description's parameters as JSON, e.g. '{\"mass\": 1.1}'")
+    ap.add_argument("--sim-kwargs", default="{}",
+                    help="the rig description's parameters as JSON, e.g. '{\"mass\": 1.1}'")
     ap.add_argument("--u-tol", type=float, default=None,
                     help="quiet criterion: largest RMS input over the last second (default: 0.25 N m for a pendulum, "
                          "else 2x the plant's LQG floor at --sigma: 0.387 N for the cart-pole, force on the cart)")
@@ -108,10 +114,11 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--agent-steps", type=int, default=a.steps, help="agent decisions of the first training")
     ap.add_argument("--refit-steps", type=int, default=a.refit_steps, help="agent decisions of each later training")
     ap.add_argument("--final-steps", type=int, default=a.final_steps,
-                    help="agent decisions of the last training, the one after the budget is spent (default: --refit-steps)")
+                    help="agent decisions of the last training, the one after the budget is spent (default: "
+                         "--refit-steps)")
     ap.add_argument("--hold-goal", action=argparse.BooleanOptionalAction, default=a.hold_goal,
-                    help="world-model episodes end with the best reward where the hold takes over (the agent brings the "
-                         "plant into the hold's region)")
+                    help="world-model episodes end with the best reward where the hold takes over (the agent brings "
+                         "the plant into the hold's region)")
     ap.add_argument("--keep-best", action=argparse.BooleanOptionalAction, default=a.keep_best,
                     help="deploy the weights of each training's best world-model evaluation, not the last ones")
     ap.add_argument("--eval-every", type=int, default=a.eval_every, help="decisions between world-model evaluations")
@@ -121,7 +128,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--position-weight", type=float, default=a.position_weight,
                     help="reward weight on the squared Euclidean errors (the cart's position)")
     ap.add_argument("--no-recenter", action="store_true",
-                    help="world-model episodes start where the recordings were (default: the cart's position moved to 0)")
+                    help="world-model episodes start where the recordings were (default: the cart's position moved to "
+                         "0)")
     ap.add_argument("--fit-epochs", type=int, default=f.epochs)
     ap.add_argument("--refit-epochs", type=int, default=f.refit_epochs)
     ap.add_argument("--eval-trials", type=int, default=d.eval_trials, help="final evaluation episodes on the plant")
@@ -180,7 +188,8 @@ def check_plant(cfg: LoopConfig) -> Plant:
     except (KeyError, TypeError, ValueError, gym.error.Error) as e:
         if cfg.plant.machine is not None and str(e).startswith("machine "):
             raise ValueError(f"--machine: {e}") from None
-        raise ValueError(f"--env {cfg.plant.env_id} with --env-kwargs {json.dumps(cfg.plant.env_kwargs)}: {e}") from None
+        raise ValueError(f"--env {cfg.plant.env_id} with --env-kwargs {json.dumps(cfg.plant.env_kwargs)}: "
+                         f"{e}") from None
     if not plant.system.angle_dims:
         raise ValueError(f"--env {cfg.plant.env_id} has no angle coordinate: the tasks swing an angle up")
     return plant
@@ -198,7 +207,8 @@ def deploy(cfg: LoopConfig, plant: Plant, run_dir: str, out: Path, command: str)
 
     run = load_config(run_dir)
     if abs(run.plant.dt - plant.dt) > 1e-9 * max(1.0, plant.dt):
-        raise ValueError(f"--deploy {run_dir}: its controller steps every {run.plant.dt:g} s, the plant every {plant.dt:g} s")
+        raise ValueError(f"--deploy {run_dir}: its controller steps every {run.plant.dt:g} s, the plant every "
+                         f"{plant.dt:g} s")
     policy = load_controller(run_dir)
     if policy.hold is not None and int(policy.hold.system.n) != plant.n:
         raise ValueError(f"--deploy {run_dir}: its model has n={policy.hold.system.n} coordinates, the plant {plant.n}")

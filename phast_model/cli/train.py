@@ -43,19 +43,24 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--env", help=f"env id, one of {env_ids()} (or --recordings)")
     rec = ap.add_argument_group("recordings of a rig (instead of --env)")
-    rec.add_argument("--recordings", metavar="FILE", help=".npz / .csv recordings or a folder of .csv logs (the phast-mismatch "
+    rec.add_argument("--recordings", metavar="FILE",
+                     help=".npz / .csv recordings or a folder of .csv logs (the phast-mismatch "
                                                          "format; logs of different lengths are cut into equal pieces)")
-    rec.add_argument("--sim", help="the rig: an env id, path/to/rig.py:Class or a MuJoCo model file robot.xml / robot.urdf "
+    rec.add_argument("--sim",
+                     help="the rig: an env id, path/to/rig.py:Class or a MuJoCo model file robot.xml / robot.urdf "
                                    "(with --recordings)")
     rec.add_argument("--sim-kwargs", default="{}", metavar="JSON", help="the rig's constructor kwargs (JSON object)")
-    rec.add_argument("--holdout-trajectories", metavar="I,J", help="0-based trajectories held out for the score (log indices for "
+    rec.add_argument("--holdout-trajectories", metavar="I,J",
+                     help="0-based trajectories held out for the score (log indices for "
                                                                    "logs of different lengths: all of a log's pieces)")
     rec.add_argument("--rollout-window-s", type=float, default=None, metavar="S",
-                     help="held-out open-loop windows of S seconds, each after a 0.1 s burn-in (default: whole recordings)")
+                     help="held-out open-loop windows of S seconds, each after a 0.1 s burn-in (default: whole "
+                          "recordings)")
     rec.add_argument("--window-s", type=float, default=None, metavar="S",
                      help=f"training (multiple-shooting) window (default {RIG_DEFAULTS['window_s']:g})")
     rec.add_argument("--warmup-window-s", type=float, default=None, metavar="S",
-                     help="train the first --warmup-epochs epochs on windows of S seconds (a curriculum for an all-neural start)")
+                     help="train the first --warmup-epochs epochs on windows of S seconds (a curriculum for an "
+                          "all-neural start)")
     rec.add_argument("--warmup-epochs", type=int, default=None, metavar="E")
     rec.add_argument("--state-iters", type=int, default=None, metavar="K",
                      help="Gauss-Newton iterations of the window states per epoch (3 for long windows)")
@@ -78,8 +83,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                           "exactly --epochs epochs")
     ap.add_argument("--regime", default="partial", choices=("known", "partial", "unknown"))
     ap.add_argument("--epochs", type=int, default=None,
-                    help=f"training epochs (default {ENV_DEFAULTS['epochs']} with --env; with --recordings a cap, default "
-                         f"{RIG_DEFAULTS['epochs']}, as early stopping chooses the model)")
+                    help=f"training epochs (default {ENV_DEFAULTS['epochs']} with --env; with --recordings a cap, "
+                         f"default {RIG_DEFAULTS['epochs']}, as early stopping chooses the model)")
     ap.add_argument("--seed", type=int, default=0, help="model / training seed")
     ap.add_argument("--data-seed", type=int, default=42, help="dataset seed (paper: 42)")
     ap.add_argument("--n-train", type=int, default=1000)
@@ -90,8 +95,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                     help=f"minibatch size: trajectories with --env (default {ENV_DEFAULTS['batch_size']}), shooting "
                          f"windows with --recordings (default {RIG_DEFAULTS['batch_windows']})")
     ap.add_argument("--lr", type=float, default=None,
-                    help=f"learning rate (default: {ENV_LR:g} with --env, {RECORDINGS_LR:g} with --recordings; a value given "
-                         "is used as given in both)")
+                    help=f"learning rate (default: {ENV_LR:g} with --env, {RECORDINGS_LR:g} with --recordings; a value "
+                         "given is used as given in both)")
     ap.add_argument("--obs-noise-std", type=float, default=0.0)
     ap.add_argument("--port-excitation", type=float, default=0.0, metavar="STD",
                     help="drive the port of the data with random torques/forces of this std, held --excitation-hold "
@@ -154,7 +159,9 @@ def _compared_systems(args: argparse.Namespace) -> dict[str, Any] | None:
     if unknown:
         raise ValueError(f"--compare-kwargs names {unknown}, which no --compare gives")
     default = json_object(args.sim_kwargs, "--sim-kwargs")
-    return {name: load_simulator(sim, json_object(kwargs[name], f"--compare-kwargs {name}") if name in kwargs else default).build()
+    return {name: load_simulator(sim,
+                                 json_object(kwargs[name],
+                                             f"--compare-kwargs {name}") if name in kwargs else default).build()
             for name, sim in sims.items()} or None
 
 
@@ -180,7 +187,8 @@ def _recordings_main(args: argparse.Namespace) -> dict[str, Any]:
     if args.patience is not None:
         flags["patience"] = args.patience or None  # 0: every epoch
     train = RigTrainConfig(seed=args.seed, progress=not args.no_progress, **flags)
-    metrics = train_recordings_run(spec, args.out, train, _overrides(args.set), plots=not args.no_plots, resume=args.resume)
+    metrics = train_recordings_run(spec, args.out, train, _overrides(args.set), plots=not args.no_plots,
+                                   resume=args.resume)
     if not (metrics["verdict"]["converged"] and metrics["verdict"]["better_than_nominal"]):
         print(f"phast-train: warning: {metrics['verdict']['message']}", file=sys.stderr)
     return heldout_summary(metrics)
@@ -203,8 +211,8 @@ def main(argv: list[str] | None = None) -> int:
         print("phast-train: error: give --env (a registered env id) or --recordings FILE --sim SIM", file=sys.stderr)
         return 2
     if args.patience is not None or args.schedule is not None:
-        print("phast-train: error: --patience and --schedule apply to --recordings runs (an --env run keeps its best validation "
-              "epoch of --epochs)", file=sys.stderr)
+        print("phast-train: error: --patience and --schedule apply to --recordings runs (an --env run keeps its best "
+              "validation epoch of --epochs)", file=sys.stderr)
         return 2
     try:
         from ..train.fit import TrainConfig

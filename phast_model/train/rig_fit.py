@@ -95,7 +95,8 @@ def load_rig_data(recordings: str | Path | dict[str, Any], sim: str, sim_kwargs:
     system = load_simulator(sim, sim_kwargs or {}).build()
     holdout = check_holdout_indices(holdout)
     raw, src = load_raw(recordings)
-    rec = validate(raw, system.n, tuple(system.angle_dims), src, actuated_dofs=getattr(system, "actuated_dofs", None), model=system)
+    rec = validate(raw, system.n, tuple(system.angle_dims), src, actuated_dofs=getattr(system, "actuated_dofs", None),
+                   model=system)
     if holdout:
         train, held, _ = split(rec, 0.0, holdout)
     else:
@@ -172,12 +173,13 @@ def rig_config(sim: str, sim_kwargs: dict[str, Any], regime: str, data: RigData,
                        friction_eps=[FRICTION_EPS * v for v in v_scale], friction_vs=[0.2 * v for v in v_scale])
     if regime == "known":
         cfg = replace(base, potential="known", mass="known")
-    elif regime == "partial" and isinstance(system, MJCFSystem):  # the file's rigid-body structure, its parameters learned
+    # the file's rigid-body structure, its parameters learned
+    elif regime == "partial" and isinstance(system, MJCFSystem):
         cfg = replace(base, potential="rigid_body", mass="rigid_body", init_from="none")
     elif regime == "partial":
         tmpl, dims, mass_t = _template(system)
-        mass: dict[str, Any] = {"mass": "template", "mass_template": mass_t} if mass_t else {"mass": "lowrank",
-                                                                                             "mass_rank": min(4, system.n)}
+        mass: dict[str, Any] = ({"mass": "template", "mass_template": mass_t} if mass_t
+                                else {"mass": "lowrank", "mass_rank": min(4, system.n)})
         cfg = replace(base, potential="template", template=tmpl, template_dims=dims, init_from="rig", **mass)
     else:
         mass = {"mass": "lowrank", "mass_rank": min(4, system.n)} if system.separable else {"mass": "cholesky"}
@@ -580,7 +582,8 @@ def fit_recordings(model: PHAST, data: RigData, cfg: RigTrainConfig | None = Non
                   res.stopped)
 
 
-def _start_wins(model: PHAST, start: dict[str, Any], data: RigData, cfg: RigTrainConfig, init: dict[str, float]) -> bool:
+def _start_wins(model: PHAST, start: dict[str, Any], data: RigData, cfg: RigTrainConfig,
+                init: dict[str, float]) -> bool:
     """The start from the recorded motion competes with the trained model on the held-in validation windows, each
     scored by :func:`window_rmse` (the start was scored so when it was chosen); the start's weights are restored
     when they fit better (on the real pendulum the shooting fit improved the 2-s training windows and worsened the
@@ -597,7 +600,8 @@ def window_rmse(model: PHAST, data: RigData, cfg: RigTrainConfig, iters: int = 5
     """RMSE of ``model`` on the validation windows a run of ``cfg`` selects its model on (the final window length,
     the same split), each window's state fitted to this model: the training-window score of another model (the
     nominal one) on the same footing as the run's best validation RMSE."""
-    train, val = _split_windows(cut_windows(data.train, _window_samples(cfg.window_s, data.dt)), cfg.val_fraction, cfg.seed)
+    train, val = _split_windows(cut_windows(data.train, _window_samples(cfg.window_s, data.dt)), cfg.val_fraction,
+                                cfg.seed)
     w = val if val is not None else train
     model = model.double()
     X = fit_states(model, w.X, w.q, w.u, iters)
