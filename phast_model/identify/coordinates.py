@@ -20,9 +20,10 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import TypedDict
 
 import numpy as np
+import numpy.typing as npt
 
 #: an angle coordinate spanning more than this (rad) ...
 DEGREE_SPAN = 4 * math.pi
@@ -36,7 +37,15 @@ RANGE_SLACK = 0.02
 LIMIT_MARGIN = 0.02
 
 
-def angle_unit(raw_unit: Any, source: str) -> str | None:
+class LimitReached(TypedDict):
+    """A joint the recordings reach a limit of (:func:`check_ranges`)."""
+
+    joint: str
+    range: list[float]
+    share_of_samples: float
+
+
+def angle_unit(raw_unit: npt.ArrayLike | None, source: str) -> str | None:
     """The declared ``angle_unit`` ('rad', 'deg') or None (undeclared: checked)."""
     if raw_unit is None:
         return None
@@ -66,7 +75,8 @@ def check_radians(qs: Sequence[np.ndarray], steps: Sequence[np.ndarray], angle_d
                              "declare angle_unit = 'deg' (converted) or 'rad' (taken as recorded)")
 
 
-def to_radians(q: np.ndarray, offset: Any, angle_dims: Sequence[int]) -> tuple[np.ndarray, Any]:
+def to_radians(q: np.ndarray, offset: npt.ArrayLike | None,
+               angle_dims: Sequence[int]) -> tuple[np.ndarray, npt.ArrayLike | None]:
     """q (..., n) and angle_offset with the angle coordinates converted from degrees."""
     q = np.array(q, dtype=np.float64)
     q[..., list(angle_dims)] = np.deg2rad(q[..., list(angle_dims)])
@@ -77,7 +87,7 @@ def to_radians(q: np.ndarray, offset: Any, angle_dims: Sequence[int]) -> tuple[n
     return q, offset
 
 
-def check_names(given: Any, model: Any, source: str) -> None:
+def check_names(given: npt.ArrayLike | None, model: object, source: str) -> None:
     """ValueError when the recordings' ``coordinate_names`` are not the model's, in its order."""
     names = tuple(getattr(model, "coordinate_names", ()) or ())
     if given is None or not names:
@@ -93,21 +103,21 @@ def check_names(given: Any, model: Any, source: str) -> None:
                      f"(not in the model: {unknown}; not in the log: {missing})")
 
 
-def joint_ranges(model: Any) -> np.ndarray | None:
+def joint_ranges(model: object) -> np.ndarray | None:
     """(n, 2) joint ranges of a MuJoCo model file's system ((-inf, inf) where unlimited), or None."""
     tree = getattr(model, "TREE", None)
     ranges = getattr(tree, "joint_range", None)
     return None if ranges is None else np.asarray(ranges, dtype=float)
 
 
-def check_ranges(qs: Sequence[np.ndarray], model: Any, source: str) -> list[dict[str, Any]]:
+def check_ranges(qs: Sequence[np.ndarray], model: object, source: str) -> list[LimitReached]:
     """ValueError when a recorded joint value (``qs``: (..., L, n) arrays, offset applied, before any wrapping) is
     outside the model's range; the joints that reach a limit (noted, not refused)."""
     ranges = joint_ranges(model)
     if ranges is None:
         return []
     names = tuple(getattr(model, "coordinate_names", ())) or tuple(f"q{j}" for j in range(len(ranges)))
-    out = []
+    out: list[LimitReached] = []
     for j, (lo, hi) in enumerate(ranges):
         if not (np.isfinite(lo) and np.isfinite(hi)) or j >= qs[0].shape[-1]:
             continue

@@ -20,7 +20,7 @@ A delay is clipped to ``[0, MAX_DELAY_SAMPLES]`` samples of the recording (5; do
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import TypeAlias
 
 import numpy as np
 
@@ -29,10 +29,13 @@ HISTORY = 6
 #: the longest delay a term may take, in samples of the recording (docs/mismatch.md: 5 samples, 50 ms at 100 Hz)
 MAX_DELAY_SAMPLES = HISTORY - 1
 
+#: per-coordinate delays [s]: floats, or per-sample arrays of a merged system
+Delays: TypeAlias = Sequence["float | np.ndarray"]
+
 __all__ = ["HISTORY", "MAX_DELAY_SAMPLES", "any_delay", "history", "shift", "delay_samples"]
 
 
-def any_delay(delays: Sequence[Any]) -> bool:
+def any_delay(delays: Delays) -> bool:
     """Whether any per-coordinate delay (floats, or per-sample arrays of a merged system) is non-zero."""
     return any(np.any(np.asarray(d) != 0) for d in delays)
 
@@ -44,7 +47,7 @@ def history(u: np.ndarray, traj: np.ndarray, start: np.ndarray, count: int = HIS
     return u[np.asarray(traj)[:, None], idx]
 
 
-def delay_samples(delays: Sequence[Any], steps: float | np.ndarray, B: int, K: int) -> np.ndarray:
+def delay_samples(delays: Delays, steps: float | np.ndarray, B: int, K: int) -> np.ndarray:
     """(B, K, n) each coordinate's delay in samples of the local step ``steps`` (a scalar, (K,) or (B, K))."""
     d = np.stack([np.broadcast_to(np.asarray(di, dtype=float), (B,)) for di in delays], -1)[:, None, :]  # (B, 1, n)
     h = np.asarray(steps, dtype=float)
@@ -70,7 +73,7 @@ def shift(x: np.ndarray, before: np.ndarray, s: np.ndarray) -> np.ndarray:
     return a + f * (b - a)
 
 
-def delayed_input(u: np.ndarray, delays: Sequence[Any], steps: float | np.ndarray,
+def delayed_input(u: np.ndarray, delays: Delays, steps: float | np.ndarray,
                   u_before: np.ndarray | None) -> np.ndarray:
     """The port input actually delivered over each interval: u (B, K, n) delayed per coordinate by ``delays`` [s]
     (module docstring); ``u_before`` (B, P, n) the recorded inputs before the first interval (None: u[:, 0] held)."""
@@ -81,7 +84,7 @@ def delayed_input(u: np.ndarray, delays: Sequence[Any], steps: float | np.ndarra
     return shift(u, before, np.minimum(delay_samples(delays, steps, B, K), MAX_DELAY_SAMPLES))
 
 
-def delayed_output(q: np.ndarray, v0: np.ndarray, delays: Sequence[Any], steps: float | np.ndarray) -> np.ndarray:
+def delayed_output(q: np.ndarray, v0: np.ndarray, delays: Delays, steps: float | np.ndarray) -> np.ndarray:
     """What a sensor with ``delays`` [s] per coordinate reports at the samples of a simulated q (B, K+1, n) that
     started at (q[:, 0], v0): q_i(t_k - d_i), interpolated; before the start extrapolated along v0."""
     B, K1, n = q.shape

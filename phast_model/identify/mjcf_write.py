@@ -11,12 +11,15 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from phast_gym.systems.mjcf import AXES, JOINT_ATTRS
 from phast_gym.systems.mjcf_tree import MJCFTree, ModelFileError, urdf_spec
+
+if TYPE_CHECKING:
+    import mujoco  # untyped to mypy (pyproject.toml): the annotations name MuJoCo's classes for the reader
 
 
 @dataclass(frozen=True)
@@ -29,7 +32,7 @@ class Edit:
     op: str = "add"
 
 
-def _spec(source: str) -> Any:
+def _spec(source: str) -> mujoco.MjSpec:
     import mujoco
 
     p = Path(source).resolve()
@@ -69,7 +72,7 @@ def physical_moments(name: str, moments: list[float], fixed: set[int]) -> tuple[
     return out, notes
 
 
-def _set_body(spec: Any, tree: MJCFTree, params: Mapping[str, float], b: int, fixed: set[int]) -> list[str]:
+def _set_body(spec: mujoco.MjSpec, tree: MJCFTree, params: Mapping[str, float], b: int, fixed: set[int]) -> list[str]:
     name = tree.body_names[b]
     body = spec.body(name)
     if body is None:
@@ -85,12 +88,12 @@ def _set_body(spec: Any, tree: MJCFTree, params: Mapping[str, float], b: int, fi
     return notes
 
 
-def joint_attr(joint: Any, attr: str) -> float:
+def joint_attr(joint: mujoco.MjsJoint, attr: str) -> float:
     """A joint attribute of an ``MjsJoint`` (``damping`` / ``stiffness`` are arrays in MuJoCo >= 4.0: element 0)."""
     return float(np.atleast_1d(getattr(joint, attr))[0])
 
 
-def set_joint_attr(joint: Any, attr: str, value: float) -> None:
+def set_joint_attr(joint: mujoco.MjsJoint, attr: str, value: float) -> None:
     """Set a joint attribute of an ``MjsJoint`` (element 0 where MuJoCo holds an array)."""
     old = getattr(joint, attr)
     if np.ndim(old):
@@ -101,7 +104,7 @@ def set_joint_attr(joint: Any, attr: str, value: float) -> None:
         setattr(joint, attr, float(value))
 
 
-def _apply_params(spec: Any, tree: MJCFTree, params: Mapping[str, float]) -> list[str]:
+def _apply_params(spec: mujoco.MjSpec, tree: MJCFTree, params: Mapping[str, float]) -> list[str]:
     bodies = {b for b, name in enumerate(tree.body_names) for k in params if k.startswith(name + ".")
               and k[len(name) + 1:].split("_")[0] in ("mass", "ipos", "inertia")}
     if bodies:
@@ -137,7 +140,7 @@ def _tree_values(tree: MJCFTree) -> dict[str, float]:
     return {k: float(p.default) for k, p in param_specs(tree).items() if isinstance(p.default, (int, float))}
 
 
-def _apply_edit(spec: Any, tree: MJCFTree, edit: Edit) -> None:
+def _apply_edit(spec: mujoco.MjSpec, tree: MJCFTree, edit: Edit) -> None:
     if edit.attr == "gear":
         act = spec.actuator(edit.target)
         if act is None:

@@ -10,12 +10,17 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+if TYPE_CHECKING:
+    import mujoco  # untyped to mypy (pyproject.toml): the annotations name MuJoCo's classes for the reader
 
-def load_mjmodel(model: Any) -> Any:
+    from phast_gym.systems.mjcf import MJCFSystem
+
+
+def load_mjmodel(model: str | Path | mujoco.MjModel) -> mujoco.MjModel:
     """An ``MjModel`` from a path (MJCF / URDF, through :func:`phast_gym.systems.mjcf_tree.compile_model`) or a
     model."""
     if isinstance(model, (str, Path)):
@@ -25,7 +30,7 @@ def load_mjmodel(model: Any) -> Any:
     return model
 
 
-def rollout_q(model: Any, q0: np.ndarray, v0: np.ndarray, ctrl: np.ndarray | None, dt: float, n_steps: int,
+def rollout_q(model: str | Path | mujoco.MjModel, q0: np.ndarray, v0: np.ndarray, ctrl: np.ndarray | None, dt: float, n_steps: int,
               timestep: float | None = None) -> np.ndarray:
     """Simulate B trajectories with MuJoCo from ``(q0, v0)`` (B, n) for ``n_steps`` intervals of ``dt`` with ``ctrl``
     (B, n_steps, m) held per interval (None: zero) -> q (B, n_steps + 1, n).  ``timestep``: the model's own (default:
@@ -53,7 +58,7 @@ def rollout_q(model: Any, q0: np.ndarray, v0: np.ndarray, ctrl: np.ndarray | Non
     return np.concatenate([q0[:, None, :], q], axis=1)
 
 
-def mujoco_simulated(path: str | Path) -> Any:
+def mujoco_simulated(path: str | Path) -> MJCFSystem:
     """The model file's :class:`phast_gym.systems.mjcf.MJCFSystem` whose rollouts (:func:`phast_model.identify.shooting.
     simulate_qv`, so initial-state fits and held-out scores alike) are MuJoCo's own: its timestep, integrator and
     constraint-based frictionloss."""
@@ -64,7 +69,8 @@ def mujoco_simulated(path: str | Path) -> Any:
     cols = list(system.actuated_dofs)
     timestep = float(model.opt.timestep)
 
-    def external_rollout(q0: np.ndarray, v0: np.ndarray, n_steps: int, u: np.ndarray | None, dt: Any) -> np.ndarray:
+    def external_rollout(q0: np.ndarray, v0: np.ndarray, n_steps: int, u: np.ndarray | None,
+                         dt: float | np.ndarray) -> np.ndarray:
         step = float(np.mean(dt))  # recorded jitter: MuJoCo steps at one rate
         ctrl = None if u is None or not cols else np.broadcast_to(u, (q0.shape[0], n_steps, u.shape[-1]))[..., cols]
         return rollout_q(model, q0, v0, ctrl, step, n_steps, timestep)

@@ -23,10 +23,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from phast_gym.systems import wrap
 
-from .coordinates import angle_unit, check_names, check_radians, check_ranges, to_radians
+from .coordinates import LimitReached, angle_unit, check_names, check_radians, check_ranges, to_radians
 from .logs import MAX_PIECE_SAMPLES, Table, cut_pieces, is_log_set, log_set_from_keys, logs_of, read_rows
 
 #: fewest samples per trajectory the analysis accepts (windows + holdout need room)
@@ -118,7 +119,7 @@ class Recordings:
         """The same trajectories (same origin) with new samples."""
         return Recordings(q, dt, u, self.angle_dims, self.source, self.meta, t, self.origin)
 
-    def subset(self, idx: Any) -> Recordings:
+    def subset(self, idx: slice | Sequence[int] | np.ndarray) -> Recordings:
         """Trajectories ``idx`` (an index array or slice)."""
         origin = None if self.origin is None else self.origin[idx]
         return Recordings(self.q[idx], self.dt, None if self.u is None else self.u[idx], self.angle_dims, self.source,
@@ -341,7 +342,7 @@ def _read_npz(path: Path) -> dict[str, Any]:
 
 
 def validate(raw: Mapping[str, Any], n: int, env_angle_dims: tuple[int, ...], source: str = "<arrays>",
-             min_samples: int = MIN_SAMPLES, actuated_dofs: tuple[int, ...] | None = None, model: Any = None,
+             min_samples: int = MIN_SAMPLES, actuated_dofs: tuple[int, ...] | None = None, model: object = None,
              piece_samples: int = MAX_PIECE_SAMPLES) -> Recordings:
     """Check shapes, finiteness and the time base (strictly increasing t); convert to the env's convention.
 
@@ -371,7 +372,7 @@ _SHARED = ("dt", "angle_dims", "angle_offset", "actuated_dofs", "coordinate_name
 
 
 def _validate_logs(raw: Mapping[str, Any], n: int, env_angle_dims: tuple[int, ...], source: str, min_samples: int,
-                   actuated_dofs: tuple[int, ...] | None, model: Any, piece_samples: int) -> Recordings:
+                   actuated_dofs: tuple[int, ...] | None, model: object, piece_samples: int) -> Recordings:
     """A log set: units checked on the logs as given, bad rows dropped, the logs cut into equal-length pieces
     (:func:`.logs.cut_pieces`), the pieces validated like equal-length recordings; ``origin`` and ``meta["logs"]``
     say where each piece came from and what was dropped."""
@@ -412,7 +413,7 @@ def _angle_dims(raw: Mapping[str, Any], env_angle_dims: tuple[int, ...], n: int,
 
 
 def _radians(q: np.ndarray, raw: Mapping[str, Any], angle_dims: tuple[int, ...], steps: np.ndarray,
-             source: str) -> tuple[np.ndarray, Any]:
+             source: str) -> tuple[np.ndarray, npt.ArrayLike | None]:
     """(q, angle_offset) in radians: converted when ``angle_unit`` is 'deg', checked not to look like degrees when it
     is not declared (``steps``: the sample intervals, (N, T-1) or a broadcastable dt)."""
     unit = angle_unit(raw.get("angle_unit"), source)
@@ -424,7 +425,8 @@ def _radians(q: np.ndarray, raw: Mapping[str, Any], angle_dims: tuple[int, ...],
     return q, offset
 
 
-def _against_model(q: np.ndarray, offset: Any, raw: Mapping[str, Any], model: Any, source: str) -> list[dict[str, Any]]:
+def _against_model(q: np.ndarray, offset: npt.ArrayLike | None, raw: Mapping[str, Any], model: object,
+                   source: str) -> list[LimitReached]:
     """The recordings' coordinate names and values (offset applied, as recorded) checked against ``model``; the joints
     that reach a limit."""
     if model is None:
@@ -492,7 +494,7 @@ def _time_step(raw: Mapping[str, Any], t: np.ndarray | None, source: str) -> flo
     return dt
 
 
-def _continuous_angles(q: np.ndarray, offset: Any, angle_dims: tuple[int, ...], source: str) -> np.ndarray:
+def _continuous_angles(q: np.ndarray, offset: npt.ArrayLike | None, angle_dims: tuple[int, ...], source: str) -> np.ndarray:
     """The env's convention: add the angle offset, wrap, then unwrap along time (a continuous angle)."""
     n = q.shape[-1]
     q = q.copy()

@@ -258,7 +258,7 @@ def _same_field(merged: System, systems: Sequence[System], q: list, p: list, u: 
     B = len(q[0])
     reps = B // K
 
-    def flat(x: Any) -> list:
+    def flat(x: object) -> list:
         if x is None:
             return []
         if isinstance(x, (tuple, list)):

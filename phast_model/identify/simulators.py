@@ -74,7 +74,7 @@ def load_object(spec: str, what: str = "simulator") -> Any:
         hint, noun = ("an env id, ", "Class") if what == "simulator" else ("", "name")
         raise ValueError(f"{what} {spec!r}: expected {hint}'package.module:{noun}' or 'path/to/file.py:{noun}'")
     module = _import_target(spec, target, what)
-    obj: Any = module
+    obj: object = module
     for part in name.split("."):  # a nested name: module:Outer.Inner
         obj = getattr(obj, part, None)
         if obj is None:
@@ -115,7 +115,7 @@ def _load_class(spec: str) -> type:
     return cls
 
 
-def _check_system_class(cls: Any, name: str) -> type[System]:
+def _check_system_class(cls: object, name: str) -> type[System]:
     if not isinstance(cls, type) or not issubclass(cls, System):
         raise ValueError(f"simulator {name!r} is not a phast_gym.systems.System subclass (got {cls!r}); "
                          "see docs/describe_your_rig.md")
@@ -134,7 +134,7 @@ def _check_interface(system: System, name: str) -> None:
         except Exception as exc:
             raise ValueError(f"{where}: {type(system).__name__}.{method} failed: {type(exc).__name__}: {exc}") from None
 
-    def vector(method: str, value: Any) -> None:
+    def vector(method: str, value: object) -> None:
         if not isinstance(value, (tuple, list)) or len(value) != n:
             raise ValueError(f"{where}: {type(system).__name__}.{method} must return a tuple of n={n} components, got "
                              f"{value!r}")
@@ -165,7 +165,7 @@ def _check_interface(system: System, name: str) -> None:
 MODEL_SUFFIXES = (".xml", ".mjcf", ".urdf")
 
 
-def is_model_file(sim: Any) -> bool:
+def is_model_file(sim: object) -> bool:
     """Whether ``sim`` names a MuJoCo model file (MJCF / URDF) rather than an env id or a class."""
     return isinstance(sim, (str, Path)) and str(sim).lower().endswith(MODEL_SUFFIXES)
 

@@ -24,11 +24,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from phast_gym.systems.base import NUMPY, System
+from phast_gym.systems.base import NUMPY, ArrayNamespace, Components, System
 
 from .recordings import Recordings
 from .shooting import momentum, odd, smooth, time_scale
@@ -45,7 +45,7 @@ class ExtraDissipation(Protocol):
 
     coulomb_eps: float
 
-    def extra_dissipation(self, q: Any, v: Any, xp: Any) -> Any: ...
+    def extra_dissipation(self, q: Components, v: Components, xp: ArrayNamespace) -> list: ...
 
 
 @dataclass(frozen=True)
