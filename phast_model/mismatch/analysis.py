@@ -52,7 +52,7 @@ __all__ = ["EXPLAINERS", "InternalError", "Options", "Report", "analyze", "held_
 EXPLAINERS: tuple[Explainer, ...] = (ShootingExplainer(), WeakFormExplainer())
 
 
-def _options(options: Options | None, overrides: Mapping[str, Any]) -> Options:
+def _options(options: Options | None, overrides: Mapping[str, object]) -> Options:
     opts = options or Options()
     bad = sorted(k for k in overrides if k not in Options.flat_names())
     if bad:
@@ -66,7 +66,7 @@ def _options(options: Options | None, overrides: Mapping[str, Any]) -> Options:
     return opts
 
 
-def _simulator(sim: str | type[System] | Simulator, sim_kwargs: Mapping[str, Any] | None) -> tuple[Simulator, System]:
+def _simulator(sim: str | type[System] | Simulator, sim_kwargs: Mapping[str, object] | None) -> tuple[Simulator, System]:
     try:
         simulator = load_simulator(sim, sim_kwargs)
     except ValueError as exc:
@@ -76,7 +76,7 @@ def _simulator(sim: str | type[System] | Simulator, sim_kwargs: Mapping[str, Any
     return simulator, simulator.build()
 
 
-def _recordings(recordings: str | Path | Mapping[str, Any] | Recordings, sys0: System, name: str) -> Recordings:
+def _recordings(recordings: str | Path | Mapping[str, object] | Recordings, sys0: System, name: str) -> Recordings:
     if isinstance(recordings, Recordings):
         if recordings.n != sys0.n:
             raise ValueError(f"recordings have n={recordings.n} coordinates but {name} has n={sys0.n}")
@@ -188,8 +188,8 @@ def _details(ctx: Context, explained: Explained, augmented: System) -> dict[str,
             "wall_time_s": problem.log.elapsed(), "calibrated_kwargs": dict(augmented.params)}
 
 
-def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mapping[str, Any] | Recordings,
-            sim_kwargs: Mapping[str, Any] | None = None, holdout_fraction: float = 0.3, options: Options | None = None,
+def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mapping[str, object] | Recordings,
+            sim_kwargs: Mapping[str, object] | None = None, holdout_fraction: float = 0.3, options: Options | None = None,
             holdout_trajectories: Sequence[int] | None = None, compare: Mapping[str, System] | None = None,
             explainers: Sequence[Explainer] | None = None, **option_overrides: Any) -> Report:
     """Find what the nominal simulator ``sim`` leaves out of ``recordings``.
@@ -228,8 +228,8 @@ def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mappin
         raise InternalError(f"internal failure of the analysis: {type(exc).__name__}: {exc}") from exc
 
 
-def held_out_scores(sim: str | type[System] | Simulator, recordings: str | Path | Mapping[str, Any] | Recordings,
-                    models: Mapping[str, System], *, sim_kwargs: Mapping[str, Any] | None = None,
+def held_out_scores(sim: str | type[System] | Simulator, recordings: str | Path | Mapping[str, object] | Recordings,
+                    models: Mapping[str, System], *, sim_kwargs: Mapping[str, object] | None = None,
                     holdout_trajectories: Sequence[int] | None = None, holdout_fraction: float = 0.3,
                     rollout_window: float | None = None) -> dict[str, dict[str, float]]:
     """The held-out one-step MSE and rollout RMSE of the nominal simulator and ``models`` exactly as :func:`analyze`

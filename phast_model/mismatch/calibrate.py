@@ -111,7 +111,7 @@ class Calibration:
         return self.screen.notes
 
     @property
-    def system(self) -> Any:
+    def system(self) -> System:
         return self.family.build(self.fit.g)
 
 

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from phast_gym.systems.base import System
 from phast_gym.systems.mjcf import MJCFSystem
 from phast_gym.systems.mjcf_tree import MJCFTree, ModelFileError
 
@@ -47,7 +48,7 @@ class MJCFWriteBack:
                 "terms_not_expressed": self.not_expressed, "notes": self.notes}
 
 
-def is_model_file_system(system: Any) -> bool:
+def is_model_file_system(system: object) -> bool:
     return isinstance(getattr(system, "base", system), MJCFSystem)
 
 
@@ -157,7 +158,7 @@ def _limit_sentence(contacts: list[dict[str, Any]]) -> str:
             "so a residual near those limits is expected; record inside the range for a clean answer.")
 
 
-def answer_in_model_terms(report: Report, system: Any, held: HeldOut, recordings: Recordings) -> Report:
+def answer_in_model_terms(report: Report, system: System, held: HeldOut, recordings: Recordings) -> Report:
     """``report`` with joint-named rows, ``calibrated.xml`` among its files, the written model's held-out row
     simulated by MuJoCo, ``details.mjcf`` saying what was written and what could not be, and a sentence when the
     ``recordings`` (all of them, as given) reach a joint limit."""

@@ -4,6 +4,7 @@ friction curve.  They draw ``Report.plot_data`` (matplotlib, Agg backend, import
 from __future__ import annotations
 
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 import numpy as np
@@ -15,7 +16,7 @@ from .files import CURVE_PLOT, PLOTS
 _MODELS = (("nominal", ":"), ("calibrated", "--"), ("augmented", "-"))
 
 
-def _residual_map(plt: Any, pd: dict[str, Any], out: Path) -> None:
+def _residual_map(plt: ModuleType, pd: dict[str, Any], out: Path) -> None:
     """residual_map.png: the calibrated model's residual force over (q_i, qdot_i), per coordinate."""
     rm = pd["resid_map"]
     n = rm["r"].shape[-1]
@@ -40,7 +41,7 @@ def _residual_map(plt: Any, pd: dict[str, Any], out: Path) -> None:
     plt.close(fig)
 
 
-def _heldout_fit(plt: Any, pd: dict[str, Any], out: Path) -> None:
+def _heldout_fit(plt: ModuleType, pd: dict[str, Any], out: Path) -> None:
     """heldout_fit.png: the first held-out recording and the three models' rollouts, with their errors."""
     hold, roll = pd["hold"], pd["rollouts"]
     n = hold.n
@@ -67,7 +68,7 @@ def _heldout_fit(plt: Any, pd: dict[str, Any], out: Path) -> None:
     plt.close(fig)
 
 
-def _decay(plt: Any, pd: dict[str, Any], smoothing_window: int, out: Path) -> None:
+def _decay(plt: ModuleType, pd: dict[str, Any], smoothing_window: int, out: Path) -> None:
     """decay.png: energy of the calibrated H along the smoothed held-out states vs along the models' rollouts."""
     from ...identify.shooting import momentum, smooth
 

@@ -66,7 +66,7 @@ class Selection:
         return [k for k in self.chosen if not self.candidates[k].is_param]
 
     @property
-    def system(self) -> Any:
+    def system(self) -> System:
         return self.family.build(self.fit.g)
 
 

@@ -48,11 +48,11 @@ Components:
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, NamedTuple, TypeVar
+from typing import ClassVar, NamedTuple, TypeVar
 
 import numpy as np
 
-from phast_gym.systems.base import NUMPY, ArrayNamespace
+from phast_gym.systems.base import NUMPY, ArrayNamespace, Coord
 
 from ...identify.delays import MAX_DELAY_SAMPLES
 
@@ -105,7 +105,7 @@ class Scale(NamedTuple):
 FD_STEP = 1e-3
 
 
-def sign(v: Any, eps: float, xp: ArrayNamespace) -> Any:
+def sign(v: Coord, eps: float, xp: ArrayNamespace) -> Coord:
     """sign(qdot) as a basis writes it: smoothed as tanh(qdot / eps), the sharp sign at ``eps = 0`` (a regression
     library's column, :meth:`TermKind.regression_column`)."""
     return xp.tanh(v / eps) if eps > 0 else xp.sign(v)
@@ -176,19 +176,19 @@ class TermKind:
         return None
 
     # ---- the component hooks (only the component's own are called) ----
-    def basis(self, q: Any, v: Any, eps: float, velocity: float, xp: ArrayNamespace) -> Any:
+    def basis(self, q: Coord, v: Coord, eps: float, velocity: float, xp: ArrayNamespace) -> Coord:
         """Dissipation: f(q_i, qdot_i), odd in qdot (force -c f); ``eps`` smooths sign(qdot) as tanh(qdot / eps)."""
         raise ValueError(f"{self.name!r} is not a dissipative term")
 
-    def potential(self, q: Any, c: float) -> Any:
+    def potential(self, q: Coord, c: float) -> Coord:
         """Potential: V_extra(q_i)."""
         raise ValueError(f"{self.name!r} is not a potential term")
 
-    def gradient(self, q: Any, c: float) -> Any:
+    def gradient(self, q: Coord, c: float) -> Coord:
         """Potential: dV_extra/dq_i."""
         raise ValueError(f"{self.name!r} is not a potential term")
 
-    def port(self, u: Any, c: float, deadzone_width: float, xp: ArrayNamespace) -> Any:
+    def port(self, u: Coord, c: float, deadzone_width: float, xp: ArrayNamespace) -> Coord:
         """Port: the delivered port force."""
         raise ValueError(f"{self.name!r} is not a port term")
 
@@ -287,7 +287,7 @@ class Viscous(DissipationKind):
     name, short, formula = "viscous_damping", "viscous", "-c*qdot{i}"
     mjcf = "damping"
 
-    def basis(self, q: Any, v: Any, eps: float, velocity: float, xp: ArrayNamespace) -> Any:
+    def basis(self, q: Coord, v: Coord, eps: float, velocity: float, xp: ArrayNamespace) -> Coord:
         return v
 
     def basis_rms(self, q: np.ndarray, v: np.ndarray, eps: float) -> float:
@@ -299,7 +299,7 @@ class Coulomb(DissipationKind):
     mjcf = "frictionloss"
     stiff_edge = True
 
-    def basis(self, q: Any, v: Any, eps: float, velocity: float, xp: ArrayNamespace) -> Any:
+    def basis(self, q: Coord, v: Coord, eps: float, velocity: float, xp: ArrayNamespace) -> Coord:
         return sign(v, eps, xp)
 
     def basis_rms(self, q: np.ndarray, v: np.ndarray, eps: float) -> float:
@@ -309,7 +309,7 @@ class Coulomb(DissipationKind):
 class QuadraticDrag(DissipationKind):
     name, short, formula = "quadratic_drag", "quadratic", "-c*abs(qdot{i})*qdot{i}"
 
-    def basis(self, q: Any, v: Any, eps: float, velocity: float, xp: ArrayNamespace) -> Any:
+    def basis(self, q: Coord, v: Coord, eps: float, velocity: float, xp: ArrayNamespace) -> Coord:
         return xp.abs(v) * v
 
     def basis_rms(self, q: np.ndarray, v: np.ndarray, eps: float) -> float:
@@ -319,7 +319,7 @@ class QuadraticDrag(DissipationKind):
 class PositionDependentDamping(DissipationKind):
     name, short, formula = "position_dependent_damping", "position_dependent", "-c*abs(sin(q{i}))*qdot{i}"
 
-    def basis(self, q: Any, v: Any, eps: float, velocity: float, xp: ArrayNamespace) -> Any:
+    def basis(self, q: Coord, v: Coord, eps: float, velocity: float, xp: ArrayNamespace) -> Coord:
         return xp.abs(xp.sin(q)) * v
 
     def basis_rms(self, q: np.ndarray, v: np.ndarray, eps: float) -> float:
@@ -335,7 +335,7 @@ class Stribeck(VelocityKind):
         if not velocity > 0:
             raise ValueError(f"{self.name} needs a Stribeck velocity > 0, got {velocity!r}")
 
-    def basis(self, q: Any, v: Any, eps: float, velocity: float, xp: ArrayNamespace) -> Any:
+    def basis(self, q: Coord, v: Coord, eps: float, velocity: float, xp: ArrayNamespace) -> Coord:
         return sign(v, eps, xp) * xp.exp(-((v / velocity) ** 2))
 
 
@@ -361,10 +361,10 @@ class LinearStiffness(PotentialKind):
     name, formula = "linear_stiffness", "-c*q{i}"
     mjcf = "stiffness"
 
-    def potential(self, q: Any, c: float) -> Any:
+    def potential(self, q: Coord, c: float) -> Coord:
         return 0.5 * c * q * q
 
-    def gradient(self, q: Any, c: float) -> Any:
+    def gradient(self, q: Coord, c: float) -> Coord:
         return c * q
 
     def basis_rms(self, q: np.ndarray) -> float:
@@ -374,10 +374,10 @@ class LinearStiffness(PotentialKind):
 class CubicStiffness(PotentialKind):
     name, formula = "cubic_stiffness", "-c*q{i}**3"
 
-    def potential(self, q: Any, c: float) -> Any:
+    def potential(self, q: Coord, c: float) -> Coord:
         return 0.25 * c * q**4
 
-    def gradient(self, q: Any, c: float) -> Any:
+    def gradient(self, q: Coord, c: float) -> Coord:
         return c * q**3
 
     def basis_rms(self, q: np.ndarray) -> float:
@@ -387,10 +387,10 @@ class CubicStiffness(PotentialKind):
 class ConstantForce(PotentialKind):
     name, formula = "constant_force", "c"
 
-    def potential(self, q: Any, c: float) -> Any:
+    def potential(self, q: Coord, c: float) -> Coord:
         return -c * q
 
-    def gradient(self, q: Any, c: float) -> Any:
+    def gradient(self, q: Coord, c: float) -> Coord:
         return -c + 0.0 * q
 
     def basis_rms(self, q: np.ndarray) -> float:
@@ -440,7 +440,7 @@ class ActuatorGain(TermKind):
     def expression(self, c: float, i: int, velocity: float) -> str:
         return f"({c:.4g}-1)*u{i}"
 
-    def port(self, u: Any, c: float, deadzone_width: float, xp: ArrayNamespace) -> Any:
+    def port(self, u: Coord, c: float, deadzone_width: float, xp: ArrayNamespace) -> Coord:
         return c * u
 
     def scales(self, ctx: ScaleContext) -> list[Scale]:
@@ -462,7 +462,7 @@ class ActuatorDeadzone(TermKind):
     def expression(self, c: float, i: int, velocity: float) -> str:
         return _fill(self.formula.format(i=i), c)
 
-    def port(self, u: Any, c: float, deadzone_width: float, xp: ArrayNamespace) -> Any:
+    def port(self, u: Coord, c: float, deadzone_width: float, xp: ArrayNamespace) -> Coord:
         if deadzone_width > 0:  # smooth edge (differentiable in the threshold c) for fitting
             return u * (0.5 + 0.5 * xp.tanh((xp.abs(u) - c) / deadzone_width))
         return xp.where(xp.abs(u) < c, 0.0 * u, u)
@@ -540,7 +540,7 @@ class InputDelay(DelayKind):
     mjcf_advice = ("MuJoCo has no actuator delay attribute: delay ctrl by c in your controller (a buffer of past "
                    "commands, interpolated for a fraction of a timestep) before each mj_step")
 
-    def port(self, u: Any, c: float, deadzone_width: float, xp: ArrayNamespace) -> Any:
+    def port(self, u: Coord, c: float, deadzone_width: float, xp: ArrayNamespace) -> Coord:
         return u  # the delay acts on the input sequence (AugmentedSystem.delayed_input), not on one value
 
     def applies(self, ctx: ScaleContext) -> bool:

@@ -9,12 +9,15 @@ calls the base system for H, M, D and adds only the named terms, each through it
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from phast_gym.systems.base import NUMPY, ArrayNamespace, Components, System, solve_spd
+from phast_gym.systems.base import NUMPY, ArrayNamespace, Components, Coord, System, solve_spd
 
 from ...identify import delays
 from .registry import VOCABULARY, Maps, TermKind, kind
+
+if TYPE_CHECKING:
+    import numpy as np
 
 __all__ = ["VOCABULARY", "AugmentedSystem", "Term", "friction_basis"]
 
@@ -46,7 +49,8 @@ class Term:
         return self.kind.expression(self.coefficient, self.coordinate, self.velocity)
 
 
-def friction_basis(name: str, q: Any, v: Any, eps: float, velocity: float = 0.0, xp: ArrayNamespace = NUMPY) -> Any:
+def friction_basis(name: str, q: Coord, v: Coord, eps: float, velocity: float = 0.0,
+                   xp: ArrayNamespace = NUMPY) -> Coord:
     """f(q_i, qdot_i) of a dissipative term (the force is -c f, f odd in qdot), as its kind writes it.
 
     ``eps`` smooths sign(qdot) as tanh(qdot / eps); ``velocity`` is the Stribeck velocity v_s."""
@@ -100,19 +104,19 @@ class AugmentedSystem(System):
     def has_sensor_terms(self) -> bool:
         return any(t.component == "sensor" and not t.kind.delay for t in self.terms)
 
-    def delayed_input(self, u: Any, dt: Any, u_before: Any = None) -> Any:
+    def delayed_input(self, u: np.ndarray, dt: float | np.ndarray, u_before: np.ndarray | None = None) -> np.ndarray:
         """The port input delivered over each interval: the recorded u (B, K, n) delayed by :attr:`input_delay`
         (:func:`phast_model.identify.delays.delayed_input`; ``dt`` the step or the (B, K) steps, ``u_before`` (B, P, n)
         the
         recorded inputs before the first interval).  Used by the simulation around the vector field."""
         return delays.delayed_input(u, self.input_delay, dt, u_before)
 
-    def delayed_output(self, q: Any, v0: Any, dt: Any) -> Any:
+    def delayed_output(self, q: np.ndarray, v0: np.ndarray, dt: float | np.ndarray) -> np.ndarray:
         """What delayed sensors report at the samples of a simulated q (B, K+1, n) started at (q[:, 0], v0):
         q_i(t_k - sensor_delay_i) (:func:`phast_model.identify.delays.delayed_output`)."""
         return delays.delayed_output(q, v0, self.sensor_delay, dt)
 
-    def measure(self, q: Any) -> Any:
+    def measure(self, q: np.ndarray) -> np.ndarray:
         """The measurement map: (..., n) true coordinates -> what the sensor reports."""
         if not self.has_sensor_terms:
             return q
@@ -125,7 +129,7 @@ class AugmentedSystem(System):
             out = out + ecc * (1.0 - np.cos(q))
         return out
 
-    def unmeasure(self, y: Any) -> Any:
+    def unmeasure(self, y: np.ndarray) -> np.ndarray:
         """Approximate inverse of :meth:`measure` (two fixed-point steps; the effects are small)."""
         if not self.has_sensor_terms:
             return y
@@ -200,7 +204,7 @@ class AugmentedSystem(System):
     def switching(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> Any | None:
         return self.base.switching(q, p, xp)
 
-    def sample_initial(self, rng: Any, size: int) -> Any:
+    def sample_initial(self, rng: np.random.Generator, size: int) -> np.ndarray:
         """The base's states with the same rates qdot: p = (M(q) + A) qdot."""
         x = self.base.sample_initial(rng, size)
         if not self.has_armature:
