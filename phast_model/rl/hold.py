@@ -28,7 +28,6 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from typing import Any
 
 import numpy as np
 import torch
@@ -36,7 +35,7 @@ import torch
 from phast_gym.control import EnergyCasimirController
 from phast_gym.control.controller import potential_curvature
 from phast_gym.control.estimators import UKFEstimator
-from phast_gym.systems.base import NUMPY, System, angle_diff, wrap
+from phast_gym.systems.base import NUMPY, ArrayNamespace, Components, System, angle_diff, wrap
 
 from ..control.phast_estimators import PHASTProcess
 from ..world.model import PHAST
@@ -116,28 +115,28 @@ class LearnedSystem(System):
         self.slope = np.asarray(self.grad_potential(list(q_star)), dtype=np.float64)
         return self.slope
 
-    def _q(self, q: Any) -> torch.Tensor:
+    def _q(self, q: Components) -> torch.Tensor:
         return torch.as_tensor(np.asarray([float(c) for c in q], dtype=np.float64)[None], dtype=torch.float64)
 
-    def potential(self, q: Any, xp: Any = NUMPY) -> Any:
+    def potential(self, q: Components, xp: ArrayNamespace = NUMPY) -> float:
         with torch.no_grad():
             v = float(self.model.potential(self._q(q)).reshape(-1)[0])
         return v - float(self.slope @ (np.asarray([float(c) for c in q]) - self.q_ref))
 
-    def grad_potential(self, q: Any, xp: Any = NUMPY) -> tuple:
+    def grad_potential(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         g = self.model.potential.grad(self._q(q).requires_grad_(True)).detach().reshape(-1).numpy()
         return tuple(float(v) for v in g - self.slope)
 
-    def mass_matrix(self, q: Any, xp: Any = NUMPY) -> tuple[tuple, ...]:
+    def mass_matrix(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple[tuple, ...]:
         with torch.no_grad():
             m = self.model.mass.matrix(self._q(q)).reshape(self.n, self.n).numpy()
         return tuple(tuple(float(v) for v in row) for row in m)
 
-    def velocity(self, q: Any, p: Any, xp: Any = NUMPY) -> tuple:
+    def velocity(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         m = np.array(self.mass_matrix(q))
         return tuple(np.linalg.solve(m, np.asarray([float(c) for c in p])))
 
-    def damping(self, q: Any, xp: Any = NUMPY) -> tuple:
+    def damping(self, q: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         return tuple(0.0 for _ in range(self.n))
 
     def has_damping(self) -> bool:

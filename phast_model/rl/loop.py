@@ -349,7 +349,7 @@ def make_agent(cfg: LoopConfig, env: gym.Env) -> Agent:
     if spec.algo == "sac":
         hp = {k: v for k, v in ZOO_PENDULUM_SAC.items() if k not in ("learning_rate", "policy_kwargs")}
         kwargs.update(hp)
-    policy: Any = "MlpPolicy"
+    policy: str | type[MirrorSACPolicy] = "MlpPolicy"
     if spec.algo == "sac" and spec.mirror:
         policy = MirrorSACPolicy
         kwargs["policy_kwargs"]["mirror"] = mirror_signs(int(cast(gym.spaces.Box, env.observation_space).shape[0]) // 2)

@@ -36,7 +36,7 @@ def mirror_signs(frames: int, velocity: bool = False, state: bool = False) -> li
     return [-1.0] * frames + [1.0] * frames + ([-1.0] if velocity else [])
 
 
-def _obs_size(space: Any) -> int:
+def _obs_size(space: object) -> int:
     shape = getattr(space, "shape", None)
     if not shape or len(shape) != 1:
         raise ValueError(f"a mirrored policy needs a flat Box observation, got shape {shape}")

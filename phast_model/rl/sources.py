@@ -36,9 +36,9 @@ class Machine(Protocol):
 
     dt: float
 
-    def reset(self) -> Any: ...
+    def reset(self) -> object: ...
 
-    def step(self, u: np.ndarray) -> Any: ...
+    def step(self, u: np.ndarray) -> object: ...
 
 
 def load_machine(spec: str, kwargs: dict[str, Any] | None = None) -> Machine:
@@ -67,14 +67,14 @@ def load_machine(spec: str, kwargs: dict[str, Any] | None = None) -> Machine:
     return machine
 
 
-def machine_dt(machine: Any) -> Any:
+def machine_dt(machine: object) -> Any:
     """The machine's ``dt``, or that of the env inside a Gymnasium wrapper (``gym.make`` wraps; wrappers do not
     forward attributes)."""
     dt = getattr(machine, "dt", None)
     return dt if dt is not None else getattr(getattr(machine, "unwrapped", None), "dt", None)
 
 
-def _measured(out: Any, n: int, where: str) -> np.ndarray:
+def _measured(out: object, n: int, where: str) -> np.ndarray:
     """q (n,) from what a machine returned: q itself, ``(q, info)`` or a Gymnasium step's 5-tuple."""
     q = out[0] if isinstance(out, tuple) else out
     q = np.asarray(q, dtype=np.float64).reshape(-1)

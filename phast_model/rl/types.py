@@ -14,14 +14,18 @@ The world model needs no protocol: the loop fits, warm-starts and saves the PHAS
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Any, Protocol, SupportsFloat
+from typing import TYPE_CHECKING, Any, Protocol, SupportsFloat
 
 import gymnasium as gym
 import numpy as np
 
 from phast_gym.systems.base import System
+
+if TYPE_CHECKING:
+    import torch
+    from stable_baselines3.common.callbacks import BaseCallback
 
 
 class Plant(Protocol):
@@ -84,11 +88,13 @@ class Agent(Policy, Protocol):
     @property
     def num_timesteps(self) -> int: ...
 
-    def learn(self, total_timesteps: int, callback: Any = None, log_interval: int = 4, tb_log_name: str = "run",
-              reset_num_timesteps: bool = True, progress_bar: bool = False) -> Any: ...
+    def learn(self, total_timesteps: int, callback: BaseCallback | None = None, log_interval: int = 4,
+              tb_log_name: str = "run", reset_num_timesteps: bool = True, progress_bar: bool = False) -> object: ...
 
-    def set_env(self, env: Any, force_reset: bool = True) -> None: ...
+    def set_env(self, env: gym.Env, force_reset: bool = True) -> None: ...
 
-    def set_parameters(self, load_path_or_dict: str, exact_match: bool = True, device: Any = "auto") -> None: ...
+    def set_parameters(self, load_path_or_dict: str, exact_match: bool = True,
+                       device: torch.device | str = "auto") -> None: ...
 
-    def save(self, path: str | Path, exclude: Any = None, include: Any = None) -> None: ...
+    def save(self, path: str | Path, exclude: Iterable[str] | None = None,
+             include: Iterable[str] | None = None) -> None: ...
