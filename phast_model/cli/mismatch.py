@@ -14,7 +14,10 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from phast_model.identify.recordings import Recordings
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -109,7 +112,7 @@ def write_error_log(out_dir: str) -> str:
     return str(path)
 
 
-def checked_recordings(sim: str, recordings: str, kwargs: dict[str, Any]) -> Any:
+def checked_recordings(sim: str, recordings: str, kwargs: dict[str, Any]) -> str | Recordings:
     """For a MuJoCo model file: the recordings validated against its joints too (coordinate names, joint ranges:
     :mod:`phast_model.identify.coordinates`), as the analysis takes them; else the path (the analysis reads it)."""
     from phast_model.identify.recordings import load_raw, validate

@@ -21,13 +21,16 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from phast_gym import env_ids
 from phast_gym.datasets import PortExcitation
 
 from ..train.runs import DataSpec, train_run
 from .args import json_object
+
+if TYPE_CHECKING:
+    from phast_gym.systems.base import System
 
 __all__ = ["main", "parse_args", "train_run"]
 
@@ -150,7 +153,7 @@ def _named(items: list[str], flag: str) -> dict[str, str]:
     return out
 
 
-def _compared_systems(args: argparse.Namespace) -> dict[str, Any] | None:
+def _compared_systems(args: argparse.Namespace) -> dict[str, System] | None:
     """The ``--compare`` models, built with their ``--compare-kwargs`` (default: the rig's ``--sim-kwargs``)."""
     from ..identify.simulators import load_simulator
 
@@ -159,9 +162,8 @@ def _compared_systems(args: argparse.Namespace) -> dict[str, Any] | None:
     if unknown:
         raise ValueError(f"--compare-kwargs names {unknown}, which no --compare gives")
     default = json_object(args.sim_kwargs, "--sim-kwargs")
-    return {name: load_simulator(sim,
-                                 json_object(kwargs[name],
-                                             f"--compare-kwargs {name}") if name in kwargs else default).build()
+    return {name: load_simulator(sim, json_object(kwargs[name], f"--compare-kwargs {name}") if name in kwargs
+                                 else default).build()
             for name, sim in sims.items()} or None
 
 

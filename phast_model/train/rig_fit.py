@@ -25,6 +25,7 @@ from __future__ import annotations
 import copy
 import math
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -32,6 +33,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from phast_gym.systems.base import System
 from phast_gym.systems.mjcf import MJCFSystem
 
 from ..components.mass import KnownMass, LinearMass, LowRankMass
@@ -115,7 +117,7 @@ def check_window_room(rec: Recordings, samples: int, what: str) -> None:
 
 
 # --------------------------------------------------------------------------- regimes
-def _template(system: Any) -> tuple[str, list[int] | None, str | None]:
+def _template(system: System) -> tuple[str, list[int] | None, str | None]:
     """(potential template, its dims, mass template) of a rig: the class's ``PHAST_TEMPLATES`` when it declares
     them, else the suite's defaults for its kind (a pendulum, a relative or absolute double pendulum)."""
     declared = getattr(system, "PHAST_TEMPLATES", None)
@@ -141,7 +143,7 @@ def data_scales(rec: Recordings) -> tuple[list[float], list[float]]:
     return q_scale, [float(np.sqrt(np.mean(v[..., i] ** 2)) + 1e-3) for i in range(rec.n)]
 
 
-def friction_start(system: Any, rec: Recordings, v_scale: list[float]) -> dict[str, float]:
+def friction_start(system: System, rec: Recordings, v_scale: list[float]) -> dict[str, float]:
     """Starting coefficient of each friction law: a force of FRICTION_INIT x the rig's typical force F (the larger of
     the RMS of dV/dq under the rig and of u, averaged over the coordinates) at the typical speed V: Coulomb and
     Stribeck F, viscous F / V, quadratic F / V^2.  A real pendulum's friction is ~1e-4 N m, an arm joint's ~0.1 N m:
@@ -467,7 +469,7 @@ def _stage_at(model: PHAST, data: RigData, cfg: RigTrainConfig, epoch: int) -> _
     return _stage(model, data, cfg, cfg.window_s, cfg.epochs - warm, cfg.schedule)
 
 
-def _window_states(saved: Any, like: torch.Tensor, what: str) -> torch.Tensor:
+def _window_states(saved: object, like: torch.Tensor, what: str) -> torch.Tensor:
     """The checkpoint's window states, checked against this run's windows."""
     if not isinstance(saved, torch.Tensor) or saved.shape != like.shape:
         shape = tuple(saved.shape) if isinstance(saved, torch.Tensor) else type(saved).__name__
@@ -510,7 +512,7 @@ class Shooting:
             if st.val is not None:
                 st.val.X = fit_states(self.model, st.val.X, st.val.q, st.val.u, iters)
 
-    def batches(self, gen: torch.Generator) -> Any:
+    def batches(self, gen: torch.Generator) -> Iterator[torch.Tensor]:
         st = self._current()
         perm = torch.randperm(st.train.q.shape[0], generator=gen)
         for b in range(st.n_batches):
