@@ -123,7 +123,7 @@ class Log:
     truncated_line: str = ""  # the first truncated row, for messages
 
 
-def is_log_set(raw: Mapping[str, Any]) -> bool:
+def is_log_set(raw: Mapping[str, object]) -> bool:
     """Whether ``raw`` holds logs of their own lengths: ``q`` a list of arrays (or an object array), or ``q_0``, ...
     keys."""
     q = raw.get("q")
@@ -188,14 +188,14 @@ def logs_of(raw: Mapping[str, Any], n: int, source: str) -> list[Log]:
     return out
 
 
-def _float(x: Any, where: str, key: str) -> np.ndarray:
+def _float(x: object, where: str, key: str) -> np.ndarray:
     try:
         return np.array(x, dtype=np.float64)
     except (TypeError, ValueError):
         raise ValueError(f"{where}: '{key}' is not numeric") from None
 
 
-def _row_input(u: Any, L: int, where: str) -> np.ndarray:
+def _row_input(u: object, L: int, where: str) -> np.ndarray:
     u = _float(u, where, "u")
     u = u[:, None] if u.ndim == 1 else u
     if u.ndim != 2 or u.shape[0] not in (L, L - 1):

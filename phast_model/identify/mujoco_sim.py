@@ -30,8 +30,8 @@ def load_mjmodel(model: str | Path | mujoco.MjModel) -> mujoco.MjModel:
     return model
 
 
-def rollout_q(model: str | Path | mujoco.MjModel, q0: np.ndarray, v0: np.ndarray, ctrl: np.ndarray | None, dt: float, n_steps: int,
-              timestep: float | None = None) -> np.ndarray:
+def rollout_q(model: str | Path | mujoco.MjModel, q0: np.ndarray, v0: np.ndarray, ctrl: np.ndarray | None, dt: float,
+              n_steps: int, timestep: float | None = None) -> np.ndarray:
     """Simulate B trajectories with MuJoCo from ``(q0, v0)`` (B, n) for ``n_steps`` intervals of ``dt`` with ``ctrl``
     (B, n_steps, m) held per interval (None: zero) -> q (B, n_steps + 1, n).  ``timestep``: the model's own (default:
     as compiled; give it when the same model is rolled out again, since the step is set to ``dt / k`` here)."""

@@ -295,7 +295,7 @@ def _read_csv_logs(paths: Sequence[Path], source: str) -> dict[str, Any]:
     return merged
 
 
-def load_raw(source: str | Path | Mapping[str, Any] | Sequence[str | Path]) -> tuple[dict[str, Any], str]:
+def load_raw(source: str | Path | Mapping[str, object] | Sequence[str | Path]) -> tuple[dict[str, Any], str]:
     """Read an .npz / .csv path, a folder of .csv logs or a list of .csv paths, or take a mapping; returns (dict,
     description).  A log set (logs of different lengths) comes back with ``q`` (and ``t``, ``u``) as lists."""
     if isinstance(source, Mapping):
@@ -494,7 +494,8 @@ def _time_step(raw: Mapping[str, Any], t: np.ndarray | None, source: str) -> flo
     return dt
 
 
-def _continuous_angles(q: np.ndarray, offset: npt.ArrayLike | None, angle_dims: tuple[int, ...], source: str) -> np.ndarray:
+def _continuous_angles(q: np.ndarray, offset: npt.ArrayLike | None, angle_dims: tuple[int, ...],
+                       source: str) -> np.ndarray:
     """The env's convention: add the angle offset, wrap, then unwrap along time (a continuous angle)."""
     n = q.shape[-1]
     q = q.copy()
