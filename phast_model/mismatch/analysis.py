@@ -66,7 +66,8 @@ def _options(options: Options | None, overrides: Mapping[str, object]) -> Option
     return opts
 
 
-def _simulator(sim: str | type[System] | Simulator, sim_kwargs: Mapping[str, object] | None) -> tuple[Simulator, System]:
+def _simulator(sim: str | type[System] | Simulator,
+               sim_kwargs: Mapping[str, object] | None) -> tuple[Simulator, System]:
     try:
         simulator = load_simulator(sim, sim_kwargs)
     except ValueError as exc:
@@ -189,7 +190,8 @@ def _details(ctx: Context, explained: Explained, augmented: System) -> dict[str,
 
 
 def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mapping[str, object] | Recordings,
-            sim_kwargs: Mapping[str, object] | None = None, holdout_fraction: float = 0.3, options: Options | None = None,
+            sim_kwargs: Mapping[str, object] | None = None, holdout_fraction: float = 0.3,
+            options: Options | None = None,
             holdout_trajectories: Sequence[int] | None = None, compare: Mapping[str, System] | None = None,
             explainers: Sequence[Explainer] | None = None, **option_overrides: Any) -> Report:
     """Find what the nominal simulator ``sim`` leaves out of ``recordings``.

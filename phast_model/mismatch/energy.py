@@ -9,7 +9,7 @@ phase and frequency errors barely enter.  :func:`energy_check` compares the two 
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TypedDict
 
 import numpy as np
 
@@ -42,8 +42,17 @@ def _energy_state(system: System, rec: Recordings, smoothing_window: int) -> tup
     return qs, vs, qc, H, P, j
 
 
+class EnergyCheck(TypedDict):
+    """:func:`energy_check`'s answer: measured over predicted energy loss, its 95% interval, per recording."""
+
+    measured_over_predicted: float
+    ci95: list[float]
+    per_recording: list[float | None]
+    n_half_cycles: int
+
+
 def energy_check(system: System, rec: Recordings, smoothing_window: int,
-                 min_intervals: int = 4) -> dict[str, Any] | None:
+                 min_intervals: int = 4) -> EnergyCheck | None:
     """Does ``system``'s dissipation account for the energy the recordings lose?  (A check, nothing is fitted.)
 
     Per half-cycle between turning points, measured loss H(a) - H(b) against the model's

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from typing import Any
 
 
-def _present(pairs: Sequence[tuple[str, Any]]) -> dict[str, Any]:
+def _present(pairs: Sequence[tuple[str, object]]) -> dict[str, Any]:
     """The (key, value) pairs whose value is not None, in order."""
     return {k: v for k, v in pairs if v is not None}
 
