@@ -114,7 +114,7 @@ CONFIG_PARTS: dict[str, type] = {"plant": PlantSpec, "task": Task, "fit": FitSpe
                                  "hold": HoldConfig}
 
 
-def _part(cls: type, d: Any, where: str) -> Any:
+def _part(cls: type, d: object, where: str) -> Any:
     if not isinstance(d, dict):
         raise ValueError(f"{where}: expected an object, got {type(d).__name__}")
     unknown = sorted(set(d) - {f.name for f in fields(cls)})

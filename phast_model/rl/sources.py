@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import inspect
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
@@ -104,7 +105,7 @@ class MachinePlant:
         return {"state": np.concatenate([q, np.full(self.n, np.nan)]), "measured_only": True}
 
     def reset(self, seed: int | None = None,
-              options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+              options: Mapping[str, object] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
         q = _measured(self.machine.reset(), self.n, f"{self.name}.reset()")
         return q, self._info(q)
 
@@ -134,7 +135,7 @@ class Prior:
         return int(self.recordings["q"].shape[0])
 
 
-def load_prior(path: str | Path | dict[str, Any], system: System, actuated_dofs: list[int], decision_dt: float,
+def load_prior(path: str | Path | Mapping[str, object], system: System, actuated_dofs: list[int], decision_dt: float,
                episode_decisions: int) -> Prior:
     """Read recordings (the rig format: ``q`` (N, T, n), ``u`` (N, T-1, m), ``dt`` or ``t``) of the described rig,
     check them (:func:`phast_model.identify.recordings.validate`), check they are sampled at the loop's decision step

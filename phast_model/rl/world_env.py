@@ -34,9 +34,9 @@ recordings the model was fitted to, so starting there costs no plant time beyond
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, SupportsFloat
+from typing import SupportsFloat
 
 import gymnasium as gym
 import numpy as np
@@ -111,7 +111,8 @@ class WorldTaskEnv(gym.Env):
         self.observation_space = gym.spaces.Box(-1.0, 1.0, shape=(self.builder.size * pool.shape[2],), dtype=np.float32)
         self._rng = np.random.default_rng(seed)
 
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
+    def reset(self, *, seed: int | None = None,
+              options: Mapping[str, object] | None = None) -> tuple[np.ndarray, dict]:
         super().reset(seed=seed)
         if seed is not None:
             self._rng = np.random.default_rng(seed)
