@@ -25,7 +25,7 @@ from __future__ import annotations
 import copy
 import math
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -88,8 +88,9 @@ class RigData:
         return self.train.u is not None
 
 
-def load_rig_data(recordings: str | Path | dict[str, Any], sim: str, sim_kwargs: dict[str, Any] | None = None,
-                  holdout: list[int] | None = None, decimate: int = 1) -> RigData:
+def load_rig_data(recordings: str | Path | Mapping[str, object], sim: str,
+                  sim_kwargs: Mapping[str, object] | None = None, holdout: list[int] | None = None,
+                  decimate: int = 1) -> RigData:
     """Read and check the recordings against the rig ``sim`` (shapes, u width, angles), hold out ``holdout``
     (trajectory indices; log indices for a log set) and resample both parts onto the uniform grid of their median step
     (the model's joint names and ranges checked too); ``decimate`` keeps every
