@@ -129,9 +129,8 @@ def check_ranges(qs: Sequence[np.ndarray], model: object, source: str) -> list[L
         vmin, vmax = float(vals.min()), float(vals.max())
         if vmin < lo - RANGE_SLACK * span or vmax > hi + RANGE_SLACK * span:
             raise ValueError(f"{source}: joint {j} ({names[j]}) is recorded at {vmin:.4g}..{vmax:.4g}, outside its "
-                             "range "
-                             f"{lo:.4g}..{hi:.4g} in the model: check the joint order (the model's is {list(names)}), "
-                             "the units (radians, metres) and the zero (angle_offset)")
+                             f"range {lo:.4g}..{hi:.4g} in the model: check the joint order (the model's is "
+                             f"{list(names)}), the units (radians, metres) and the zero (angle_offset)")
         at = (vals <= lo + LIMIT_MARGIN * span) | (vals >= hi - LIMIT_MARGIN * span)
         if at.any():
             out.append({"joint": names[j], "range": [float(lo), float(hi)], "share_of_samples": float(at.mean())})

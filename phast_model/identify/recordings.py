@@ -460,8 +460,8 @@ def _check_q(raw: Mapping[str, Any], n: int, source: str, min_samples: int) -> n
     if not np.all(np.isfinite(q)):
         bad = np.argwhere(~np.isfinite(q))[0]
         raise ValueError(f"{source}: 'q' contains NaN/inf (first at trajectory {bad[0]}, sample {bad[1]}, coordinate "
-                         f"{bad[2]}); "
-                         "save the trajectories as logs (q_0, q_1, ...) to have such rows dropped and counted")
+                         f"{bad[2]}); save the trajectories as logs (q_0, q_1, ...) to have such rows dropped and "
+                         "counted")
     return q
 
 
