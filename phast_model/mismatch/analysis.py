@@ -139,9 +139,8 @@ def _verdicts(described: Described, unconfirmed: list[TermRow], fitres: FitTable
         out.append("The simulator does not describe these recordings: nominal or calibrated, it explains "
                    f"{max(share, 0.0):.0%} "
                    "of their variation beyond a straight line per window (a model of the recorded system explains "
-                   "nearly all "
-                   "of it), so no parameter was calibrated and no term is named; check the simulator, the coordinates "
-                   "and the units (angle_offset, angle_dims).")
+                   "nearly all of it), so no parameter was calibrated and no term is named; check the simulator, the "
+                   "coordinates and the units (angle_offset, angle_dims).")
     unbacked = [m for m in unconfirmed if not _backed(m)]
     if unbacked:
         out.append("The 95% interval of "

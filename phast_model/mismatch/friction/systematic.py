@@ -207,9 +207,8 @@ def systematic(ctx: SystematicContext) -> SystematicResult:
     fit = ctx.cal.shooter.fit_states(augmented, ctx.cal.fit.X, max_iter=problem.opts.max_iter)
     missing = _law_rows(final.law, sels, passive, _own_viscous(augmented, problem.q_sample())) + _armature_rows(final)
     reason = (f"shooting-augmented chi^2/dof {ctx.chi2_aug:.3g} > {problem.opts.systematic_chi2}: the residual is "
-              "model "
-              "error, not noise, so parameters, armature and the dissipation law were identified from local evidence "
-              "(weak form; the law chosen by left-out friction curves)")
+              "model error, not noise, so parameters, armature and the dissipation law were identified from local "
+              "evidence (weak form; the law chosen by left-out friction curves)")
     evidence = {"shooting_selection": [c.label for c in ctx.chosen],
                 "shooting_selection_note": "chosen by chi^2 gains that measure misfit in this regime; not adopted",
                 "window_samples": int(window),
@@ -252,13 +251,10 @@ def with_shooting_delays(result: SystematicResult, shooting_rows: list[TermRow],
 
 #: details.method appended when the weak-form answer was computed
 METHOD_SYSTEMATIC = ("; model error >> noise, so the dissipation law was chosen per coordinate from the weak-form "
-                     "force "
-                     "balance (one filter on both sides): candidate laws fitted on all training recordings but one, "
-                     "scored by "
-                     "how well they predict the left-out recording's friction curve, passive total force at every "
-                     "observed "
-                     "speed, every 95% interval excluding zero, fewest parameters within one paired standard error; "
-                     "the shooting selection's other terms held fixed")
+                     "force balance (one filter on both sides): candidate laws fitted on all training recordings but "
+                     "one, scored by how well they predict the left-out recording's friction curve, passive total "
+                     "force at every observed speed, every 95% interval excluding zero, fewest parameters within one "
+                     "paired standard error; the shooting selection's other terms held fixed")
 
 
 class WeakFormExplainer:

@@ -89,11 +89,9 @@ def _energy_check_sentence(fitres: FitTable) -> str | None:
     rt = tr["measured_over_predicted"] if tr is not None else 1.0
     if (lo > 1.0 or hi < 1.0) and abs(r - 1.0) > 0.1 and abs(rt - 1.0) < 0.5 * abs(r - 1.0):
         return (f"Held-out check: the recordings not used for fitting lose {r:.3g}x [95% CI {lo:.3g}, {hi:.3g}] the "
-                "energy the "
-                f"augmented model dissipates (training recordings: {rt:.3g}x), so the dissipation law found on the "
-                "training "
-                "recordings does not carry over to them: it changes with amplitude, time or conditions in a way the "
-                "vocabulary does not describe.")
+                f"energy the augmented model dissipates (training recordings: {rt:.3g}x), so the dissipation law found "
+                "on the training recordings does not carry over to them: it changes with amplitude, time or conditions "
+                "in a way the vocabulary does not describe.")
     return None
 
 
@@ -220,9 +218,8 @@ def _friction_lines(fr: dict[str, Any]) -> list[str]:
     law, passive = fr["law"], fr["passivity"]
     lines = ["## Friction from the training recordings", "",
              f"Chosen law: **{law['law']}** ({fr['selection'][0]['folds']}; score: how well a law fitted on the other "
-             "recordings "
-             "predicts the left-out recording's friction curve). Total friction force passive at every observed speed: "
-             f"{'yes' if passive['passive'] else 'NO'}"
+             "recordings predicts the left-out recording's friction curve). Total friction force passive at every "
+             f"observed speed: {'yes' if passive['passive'] else 'NO'}"
              + "".join(f"; coordinate {p['coordinate']} has negative {', '.join(p['negative_terms'])} (the total stays "
                        "passive)"
                        for p in passive["per_coordinate"] if p["negative_terms"] and p["passive"]) + ".", "",

@@ -49,8 +49,8 @@ def _check_replaceable(out: Path) -> None:
                          "directory as --out)")
     if out.is_dir() and any(out.iterdir()) and not is_report_dir(out):
         raise ValueError(f"refusing to overwrite {out}: it is a non-empty directory that is not a phast-mismatch "
-                         "report "
-                         f"(a report directory holds only {', '.join(REPORT_FILES)}); give a new or empty directory")
+                         f"report (a report directory holds only {', '.join(REPORT_FILES)}); give a new or empty "
+                         "directory")
 
 
 def check_writable(out_dir: str | Path) -> Path:

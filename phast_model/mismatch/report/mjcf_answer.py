@@ -99,8 +99,7 @@ def _as_armature(report: Report, tree: MJCFTree) -> tuple[dict[str, float], list
         if joint is not None and delta > 0:
             edits.append(Edit(joint, "armature", delta))
             notes.append(f"{k} {r.nominal:.4g} -> {r.fitted:.4g} acts exactly like armature {delta:.4g} at joint "
-                         f"{joint}: "
-                         f"written as {joint}.armature")
+                         f"{joint}: written as {joint}.armature")
         else:
             params[k] = float(r.fitted)
     return params, edits, notes
