@@ -176,8 +176,8 @@ class LoopConfig:
                              "--offline learns from --recordings alone")
         if self.excitation_episodes * self.episode_s > self.budget_s + 1e-9:
             raise ValueError(f"the excitation alone ({self.excitation_episodes} x {self.episode_s} s) exceeds the "
-                             "budget of "
-                             f"{self.budget_s} s: lower --excitation-episodes or --episode-s, or raise --budget-s")
+                             f"budget of {self.budget_s} s: lower --excitation-episodes or --episode-s, or raise "
+                             "--budget-s")
 
     @property
     def episode_steps(self) -> int:
