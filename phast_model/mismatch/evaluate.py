@@ -194,8 +194,8 @@ class FitTable:
 
     def to_dict(self) -> dict[str, Any]:
         """The report.json ``fit`` object."""
-        out: dict[str, Any] = {k: {"one_step_mse": m.one_step_mse, "rollout_rmse": m.rollout_rmse} for k,
-                               m in self.models.items()}
+        out: dict[str, Any] = {k: {"one_step_mse": m.one_step_mse, "rollout_rmse": m.rollout_rmse}
+                               for k, m in self.models.items()}
         ro = self.rollout
         out.update({"evaluated_on": self.evaluated_on, "rollout_window_samples": ro.window_samples,
                     "rollout_n_windows": ro.n_windows,

@@ -371,9 +371,8 @@ def _score(sc: _Scoring, specs: Sequence[Spec]) -> CandidateScore:
     sig = all(t.excludes_zero and abs(t.t) >= rules.min_t and sh >= rules.min_share for t, sh in zip(full.terms, share))
     fs, wfs = zip(*[_fold_score(sc, specs, k) for k in range(len(sc.folds.weak))])
     se = float(np.std(fs, ddof=1) / math.sqrt(len(fs))) if len(fs) > 1 else 0.0
-    inside = [r["inside"] for r in check_against_curve(full,
-                                                       sc.reference.curve) if sc.scored is None
-              or r["coordinate"] in sc.scored]
+    inside = [r["inside"] for r in check_against_curve(full, sc.reference.curve)
+              if sc.scored is None or r["coordinate"] in sc.scored]
     folds = FoldStats([float(x) for x in fs], float(np.mean(fs)), se, float(np.mean(wfs)))
     return CandidateScore(full.name, full.n_params, folds,
                           Eligibility(passive, sig, float(np.mean(inside)) if inside else 1.0),

@@ -88,6 +88,6 @@ def check_against_curve(law: FrictionLaw, curve: FrictionCurve) -> list[dict[str
     """Band by band: is the law's total force (same filter, same samples) inside the curve's 95% interval?"""
     vals = law_band_forces(law, curve)
     return [{"coordinate": b.coordinate, "direction": b.direction, "band": [b.speed_lo, b.speed_hi], "curve": b.force,
-             "ci95": list(b.ci95), "law": v, "inside": bool(b.ci95[0] <= v <= b.ci95[1])} for b,
-            v in zip(curve.bands, vals)]
+             "ci95": list(b.ci95), "law": v, "inside": bool(b.ci95[0] <= v <= b.ci95[1])}
+            for b, v in zip(curve.bands, vals)]
 

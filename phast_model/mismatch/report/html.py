@@ -36,8 +36,8 @@ def _table(rows: list[str]) -> str:
 
 
 def _figures(images: dict[str, str]) -> str:
-    return "\n".join(f'<figure><img alt="{name}" src="{uri}"><figcaption>{name}</figcaption></figure>' for name,
-                     uri in images.items())
+    return "\n".join(f'<figure><img alt="{name}" src="{uri}"><figcaption>{name}</figcaption></figure>'
+                     for name, uri in images.items())
 
 
 def markdown_to_html(text: str, images: dict[str, str] | None = None) -> str:

@@ -402,8 +402,7 @@ def _sharper_edge(s: Search) -> list[dict[str, Any]]:
         if not isinstance(cand, Candidate) or not cand.kind.excess_near_rest:
             continue
         i = cand.coordinate
-        if not any(isinstance(c,
-                              Candidate) and c.term == COULOMB.name and c.coordinate == i
+        if not any(isinstance(c, Candidate) and c.term == COULOMB.name and c.coordinate == i
                    for c in (s.cands[kk] for kk in s.chosen)):
             continue
         eps = list(s.eps or s.problem.eps_coord)
@@ -474,8 +473,8 @@ def select(problem: Problem, screen: ParameterScreen, cands: list[AnyCandidate])
     if terms:
         r, cols_p, cols_o = s.columns(s.fit, s.fam, terms)
         cols[:, terms] = cols_p  # the signatures behind the reported alternatives
-        usable = [k for j,
-                  k in enumerate(terms) if np.all(np.isfinite(cols_p[:, j])) and np.linalg.norm(cols_p[:, j]) > 0]
+        usable = [k for j, k in enumerate(terms)
+                  if np.all(np.isfinite(cols_p[:, j])) and np.linalg.norm(cols_p[:, j]) > 0]
         keep = [terms.index(k) for k in usable]
         _forward(s, r, cols_o[:, keep], usable, {k: j for j, k in enumerate(usable)})
     _prune_parameters(s)

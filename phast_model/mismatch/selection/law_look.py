@@ -76,8 +76,8 @@ def contenders(s: Search, k: int, ranked: list[tuple[float, int, float]]) -> lis
 
 
 def _same_joint_other_law(a: Candidate, b: AnyCandidate) -> bool:
-    return isinstance(b,
-                      Candidate) and b.component == "dissipation" and b.coordinate == a.coordinate and b.term != a.term
+    return (isinstance(b, Candidate) and b.component == "dissipation" and b.coordinate == a.coordinate
+            and b.term != a.term)
 
 
 def look_longer(s: Search) -> list[dict[str, Any]]:

@@ -72,8 +72,8 @@ class AugmentedSystem(System):
         self.base = base
         self.terms = tuple(terms)
         # one smoothing per coordinate (a slow cart and a fast pole need different edges), or one for all
-        eps = tuple(float(e) for e in coulomb_eps) if isinstance(coulomb_eps,
-                                                                 (tuple, list)) else (float(coulomb_eps),) * base.n
+        eps = (tuple(float(e) for e in coulomb_eps) if isinstance(coulomb_eps, (tuple, list))
+               else (float(coulomb_eps),) * base.n)
         if len(eps) != base.n:
             raise ValueError(f"coulomb_eps has {len(eps)} entries for {base.n} coordinates")
         self.coulomb_eps_per_coordinate = eps
@@ -185,8 +185,8 @@ class AugmentedSystem(System):
         M = self.base.mass_matrix(q, xp)
         if not self.has_armature:
             return M
-        return tuple(tuple(mij + self.armature[i] if i == j else mij for j, mij in enumerate(row)) for i,
-                     row in enumerate(M))
+        return tuple(tuple(mij + self.armature[i] if i == j else mij for j, mij in enumerate(row))
+                     for i, row in enumerate(M))
 
     def velocity(self, q: Components, p: Components, xp: ArrayNamespace = NUMPY) -> tuple:
         if not self.has_armature:
