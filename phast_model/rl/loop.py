@@ -281,8 +281,8 @@ def collect_excitation(cfg: LoopConfig, plant: Plant, seed: int) -> list[Episode
     hold_steps = cfg.hold_decisions * cfg.plant.decision_steps
     return [record_episode(plant,
                            HeldTorques(excitation_inputs(rng, cfg.episode_steps, plant.m, hold_steps, cfg.torque_std,
-                                                             cfg.plant.max_action)),
-                        x, cfg.episode_steps, int(rng.integers(2**31)), "excitation") for x in x0]
+                                                         cfg.plant.max_action)),
+                           x, cfg.episode_steps, int(rng.integers(2**31)), "excitation") for x in x0]
 
 
 @dataclass
@@ -473,8 +473,8 @@ class _Data:
     def recordings(self, cfg: LoopConfig, plant: Plant) -> dict[str, Any]:
         """All of it in the rig format (with the actuated coordinates of an underactuated plant)."""
         dofs = list(plant.actuated_dofs) if plant.m < plant.n else None
-        recs = to_recordings(self.episodes, cfg.plant.decision_steps, plant.system.angle_dims,
-                             dofs) if self.episodes else None
+        recs = (to_recordings(self.episodes, cfg.plant.decision_steps, plant.system.angle_dims, dofs)
+                if self.episodes else None)
         return join_recordings(None if self.prior is None else self.prior.recordings, recs)
 
 

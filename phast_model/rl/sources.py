@@ -160,8 +160,8 @@ def load_prior(path: str | Path | Mapping[str, object], system: System, actuated
     q = np.stack([rec.q[:, j * L: j * L + W] for j in range(k)], 1).reshape(-1, W, system.n)
     u = np.zeros((q.shape[0], L, len(actuated_dofs)))
     if rec.u is not None:
-        u = np.stack([rec.u[:, j * L: j * L + L] for j in range(k)],
-                     1).reshape(-1, L, system.n)[..., list(actuated_dofs)]
+        u = np.stack([rec.u[:, j * L: j * L + L] for j in range(k)], 1).reshape(-1, L, system.n)[
+            ..., list(actuated_dofs)]
     out: dict[str, Any] = {"q": q, "u": u, "dt": float(decision_dt),
                            "angle_dims": np.array(list(system.angle_dims), dtype=np.int64)}
     if len(actuated_dofs) < system.n:
