@@ -216,7 +216,7 @@ def fit_law_specs(wf: WeakForm, specs: Sequence[Spec], rows: np.ndarray | None =
     return FrictionLaw(terms, wf.eps, wf.n, rss, nobs, interval, own or [], list(own_terms or []))
 
 
-def parse_terms(terms: Sequence[Any], n: int) -> list[Spec]:
+def parse_terms(terms: Sequence[Term | str | Spec], n: int) -> list[Spec]:
     """Accept (name, coordinate), (name, coordinate, v_s | None) for a kind with a velocity, Term objects, or bare names
     (every coordinate 0 .. n-1)."""
     out: list[Spec] = []
@@ -233,8 +233,8 @@ def parse_terms(terms: Sequence[Any], n: int) -> list[Spec]:
     return out
 
 
-def fit_law(system: System, rec: Recordings, terms: Sequence[Any], window: int | None = None, eps: float | None = None,
-            block: int | None = None, weak: WeakForm | None = None) -> FrictionLaw:
+def fit_law(system: System, rec: Recordings, terms: Sequence[Term | str | Spec], window: int | None = None,
+            eps: float | None = None, block: int | None = None, weak: WeakForm | None = None) -> FrictionLaw:
     """Weak-form force-balance least squares of a friction law, coefficients sign free.
 
     ``terms``: (name, coordinate) pairs, (name, i, v_s) for a kind with a velocity (v_s None: profiled on the kind's

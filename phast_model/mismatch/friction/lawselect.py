@@ -29,6 +29,7 @@ from ...identify.recordings import Recordings
 from ...identify.shooting import estimate_noise, odd, smooth, time_scale
 from ...identify.weakform import WeakForm, weak_form
 from ..vocabulary.registry import law_terms
+from ..vocabulary.terms import Term
 from .laws import FrictionLaw, Spec, design, fit_law_specs, own_samples, own_terms, parse_terms, spec_of
 from .passivity import check_against_curve, is_passive
 
@@ -411,7 +412,7 @@ def _choose(scores: list[CandidateScore], opts: EligibilityRules) -> tuple[Candi
     return pick, rule
 
 
-def select_law(system: System, rec: Recordings, candidates: Sequence[Sequence[Any]] | None = None,
+def select_law(system: System, rec: Recordings, candidates: Sequence[Sequence[Term | str | Spec]] | None = None,
                window: int | None = None, eps: float | None = None, block: int | None = None,
                coordinate: int | None = None,
                options: LawSelectionOptions | None = None, **overrides: Any) -> LawSelection:
