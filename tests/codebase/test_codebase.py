@@ -1,7 +1,8 @@
 """Static rules for a codebase others can extend (checked by AST, no imports of the code under test besides the vocabulary).
 
 * no function over 80 lines or with over 10 parameters (``self`` / ``cls`` not counted);
-* no module over 800 lines, no package folder with over 15 modules (its ``__init__`` counted);
+* no module over 800 lines, no package folder with over 15 modules (its ``__init__`` counted), no line over 120
+  characters in the packages;
 * no mismatch term name as a string literal in more than 2 modules of ``phast_model/mismatch``;
 * no import cycle among the package's modules (module-level and function-level imports alike);
 * no private name (``_name``) imported from another module of the package;
@@ -66,6 +67,16 @@ def test_functions_are_short_with_few_parameters():
             if f.end_lineno - f.lineno + 1 > MAX_FUNCTION_LINES]
     wide = [f"{m}.{f.name}: {_n_parameters(f)} parameters" for m, f in _functions() if _n_parameters(f) > MAX_PARAMETERS]
     assert not long and not wide, "\n".join(long + wide)
+
+
+#: the packages' lines wrap at this many characters (ruff's limit, 140, also covers tests, examples and benchmarks)
+MAX_LINE = 120
+
+
+def test_package_lines_wrap_at_120():
+    wide = [f"{name}:{i}: {len(line)} characters" for name, path in MODULES.items()
+            for i, line in enumerate(path.read_text().splitlines(), 1) if len(line) > MAX_LINE]
+    assert not wide, "\n".join(wide)
 
 
 def test_modules_are_small():
