@@ -1,4 +1,4 @@
-"""The model-based RL loop that learns a policy from seconds of plant time (``phast-rl``, issue 40; docs/control.md,
+"""The model-based RL loop that learns a policy from seconds of plant time (``phast-rl``; docs/control.md,
 section "Policies from seconds on the machine"):
 
 * :mod:`.loop`: collect -> fit PHAST (rig path, warm-started) -> train an SB3 agent in the world model -> run on the
@@ -13,6 +13,6 @@ section "Policies from seconds on the machine"):
 * :mod:`.descriptions`: the rig descriptions and option presets of the plants;
 * :mod:`.types`: the protocols of the loop's plant, controller and agent.
 
-SAC trained on the plant or in a PHAST world model and compared with Energy-Casimir control (issue 29) is a
+SAC trained on the plant or in a PHAST world model and compared with Energy-Casimir control is a
 benchmark: ``benchmarks/sac`` (``benchmarks/control_sac.py``).
 """

@@ -8,8 +8,8 @@ from seconds of data).  :class:`CartPoleDescription` is that same class with its
 coupling); its dissipation is learned as the rig path's joint friction with the viscous law only
 (``PHAST_FRICTION_LAWS``): the cart-pole's damping is viscous (cart 0.3, the pole's wind 0.3 + 0.5 |sin theta|), and
 a Coulomb term fitted from a few seconds of large excitation came out at 0.2-0.5 N on both coordinates (true 0).  A
-UKF whose model sticks at rest then misestimates the pole near the upright and the LQR hold limit-cycles at
-1.1-3.8 N RMS (true-model UKF: 0.27 N; docs/control.md, issue 40).
+UKF whose model sticks at rest then misestimates the pole near the upright and the LQR hold limit-cycles far above the
+true-model UKF's torque (measured in docs/control.md).
 """
 
 from __future__ import annotations

@@ -1,8 +1,8 @@
 """A hold a motor survives: near the target the learned policy hands off to Energy-Casimir control built from the
 LEARNED world model (its V and M; no m g l is given), with the learned model as the process model of a UKF.
 
-Why this hold (issue 40): every SAC policy balanced on differences of noisy frames and chattered at 2.0-4.9 N m RMS
-at the upright, 8-20x the quiet criterion's 0.25 N m (docs/control.md).  A smoothness cost would trade precision
+Why this hold: a SAC policy balances on differences of noisy frames and chatters at the upright, far above the
+quiet criterion's RMS torque (measured in docs/control.md).  A smoothness cost would trade precision
 for quiet inside the same learned reflex.  Energy-Casimir control is passive by construction, its torque is
 ``-k_c wrap(xi - q*) - d_inj qdot_hat`` and needs a velocity, not a difference of frames: with a model-based UKF it
 held at 1.1-1.2x the LQG floor.  Here both come from the world model the loop has just fitted:

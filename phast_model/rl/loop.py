@@ -1,5 +1,5 @@
-"""Policies from seconds on the machine: the model-based RL loop (issue 40, CONTROL.md "Policies from seconds of
-interaction").
+"""Policies from seconds on the machine: the model-based RL loop (docs/control.md, "Policies from seconds on
+the machine").
 
     collect excitation -> fit PHAST (the rig path) -> train an SB3 agent in the world model -> run it on the plant
     -> add its episodes -> refit (warm-started, on all recordings) -> ...

@@ -4,7 +4,7 @@ A pendulum, damped or not, is symmetric under the reflection ``q -> -q, p -> -p,
 mirror image of a trajectory is a trajectory, and a reward of ``|wrap(q - q*)|``, ``qdot^2`` and ``u^2`` with
 ``q* = 0`` or ``pi`` is unchanged by it.  The optimal policy is then odd: ``pi(M o) = -pi(o)``.  An unconstrained
 SAC actor need not be, and on the upright it typically is not: its action at the target at rest is biased (e.g.
-+4 N m), so it holds the pendulum still at the offset where that bias balances gravity (issue 29; see
++4 N m), so it holds the pendulum still at the offset where that bias balances gravity (see
 docs/control_results/sac/DIAGNOSIS.md).  Exploration around such an offset never visits the target, so the critic
 cannot learn better.
 

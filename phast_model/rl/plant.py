@@ -140,7 +140,7 @@ class Task:
 
 #: the quiet criterion's RMS input of the pendulum (the control protocol's, N m)
 PENDULUM_U_TOL = 0.25
-#: elsewhere the quiet criterion allows this multiple of the plant's own LQG floor (issue 40)
+#: elsewhere the quiet criterion allows this multiple of the plant's own LQG floor (docs/control.md)
 FLOOR_FACTOR = 2.0
 
 

@@ -29,7 +29,7 @@ world model
 
 Every episode starts from a burn-in window of *recorded* measurements: ``pool`` holds windows cut from the
 recordings the model was fitted to, so starting there costs no plant time beyond what the recordings already counted
-(the one-shot world model of issue 29 took a fresh real burn-in per episode: 1,110 of its 4,310 real samples).
+(a fresh real burn-in per episode would spend plant time on every episode: docs/control.md).
 """
 
 from __future__ import annotations
