@@ -320,6 +320,7 @@ def test_phast_mismatch_takes_a_log_set_and_reports_what_it_dropped(tmp_path, ca
     logs = report["data"]["logs"]
     assert logs["n_logs"] == 5 and logs["rows_dropped"]["not_finite"] == 1 and logs["segments"] == [1, 2, 1, 1, 1]
     assert report["fit"]["evaluated_on"].startswith("held-out recordings (logs [4]")
+    assert f"Logs: {logs['note']}." in (tmp_path / "out" / "report.md").read_text()  # the reader sees them too
     assert main(["--sim", "PHAST/Pendulum-v0", "--recordings", str(path), "--holdout-trajectories", "5", "--out",
                  str(tmp_path / "bad"), "--quiet"]) == 2
     assert "5 logs, indices 0..4" in capsys.readouterr().err and not (tmp_path / "bad").exists()

@@ -157,6 +157,7 @@ def markdown(report: Report) -> str:
     lines = [f"# Mismatch report: {d['sim']['env_id']}", "", d["summary"], "",
              f"Data: {d['data']['n_traj']} recordings x {d['data']['T']} samples, dt = {d['data']['dt']}, "
              f"estimated noise std {d['data']['noise_std']:.3g} ({d['data']['source']}).", "",
+             *([f"Logs: {d['data']['logs']['note']}.", ""] if "logs" in d["data"] else []),
              "## Calibrated parameters", "",
              "| parameter | nominal | fitted | 95% CI | note |", "|---|---|---|---|---|"]
     for k, v in report.calibrated.items():
