@@ -43,6 +43,7 @@ from .report.document import Report, summary_text
 from .report.mjcf_answer import answer_in_model_terms, is_model_file_system
 from .rows import ParamRow, TermRow
 from .selection import candidates, select
+from .vocabulary.registry import ACTUATOR_GAIN
 from .vocabulary.terms import VOCABULARY
 
 __all__ = ["EXPLAINERS", "InternalError", "Options", "Report", "analyze", "held_out_scores"]
@@ -130,7 +131,28 @@ def _confirmed(missing: list[TermRow], fitres: FitTable) -> tuple[list[TermRow],
     return backed, unbacked
 
 
-def _verdicts(described: Described, unconfirmed: list[TermRow], fitres: FitTable) -> list[str]:
+#: an input scale the model does not share: every driven coordinate asks for a gain this far from 1 (or its inverse) ...
+INPUT_SCALE_OFF = 2.0
+#: ... and the same one, within this ratio of the largest to the smallest
+INPUT_SCALE_SPREAD = 1.5
+
+
+def input_scale(missing: Sequence[TermRow], driven: Sequence[bool]) -> float | None:
+    """The common gain when an ``actuator_gain`` on every driven coordinate (two or more) asks for the same large
+    factor: the recorded input is in other units than the model's (a motor current for a torque, a missing gear or
+    drive gain), not a weak motor on each joint.  None otherwise."""
+    gains = {m.coordinate: m.coefficient for m in missing if m.term == ACTUATOR_GAIN.name}
+    want = {i for i, d in enumerate(driven) if d}
+    if len(want) < 2 or set(gains) != want or min(gains.values()) <= 0:
+        return None
+    lo, hi = min(gains.values()), max(gains.values())
+    mid = math.exp(float(np.mean(np.log(list(gains.values())))))
+    off = max(mid, 1.0 / mid) >= INPUT_SCALE_OFF
+    return mid if off and hi / lo <= INPUT_SCALE_SPREAD else None
+
+
+def _verdicts(described: Described, unconfirmed: list[TermRow], fitres: FitTable,
+              scale: float | None = None) -> list[str]:
     """Sentences for the summary when the simulator does not describe the recordings or the found terms do not
     predict."""
     out = []
@@ -148,7 +170,13 @@ def _verdicts(described: Described, unconfirmed: list[TermRow], fitres: FitTable
                                                       for m in unbacked)
                    + " includes zero: the data do not back it, so it is not reported as missing physics "
                    "(details.unconfirmed_terms).")
-    held_out = [m for m in unconfirmed if _backed(m)]
+    if scale is not None:
+        out.append(f"The input's scale does not match the model: every driven coordinate asks for the same gain, about "
+                   f"{scale:.3g}x the recorded input. The recorded u is probably in other units than the model's "
+                   "(a motor current where a torque is expected, or a missing gear or drive gain): convert it (drive "
+                   "gain x current) or set the actuators' gear; the gains are not reported as missing physics "
+                   "(details.unconfirmed_terms).")
+    held_out = [m for m in unconfirmed if _backed(m) and not (scale is not None and m.term == ACTUATOR_GAIN.name)]
     if held_out:
         names = ", ".join(m.label for m in held_out)
         out.append(f"Terms that fit the training recordings ({names}) do not improve the prediction of the held-out "
@@ -407,6 +435,10 @@ def _explain(problem: Problem, inputs: _Inputs) -> Report:
     answer = explained.answer
     models, calibrated, (fitres, rollouts) = _scored(ctx, explained, not described.ok)
     missing, unconfirmed = _confirmed(list(answer.missing), fitres)
+    scale = input_scale(missing, problem.has_u)
+    if scale is not None:  # a unit mismatch of the input, not a weak motor on every joint
+        unconfirmed = [*unconfirmed, *(m for m in missing if m.term == ACTUATOR_GAIN.name)]
+        missing = [m for m in missing if m.term != ACTUATOR_GAIN.name]
     if train.u is None and any(VOCABULARY[m.term].component == "dissipation" for m in missing):  # a check, no fitting
         fitres = replace(fitres, energy_check={
             "model": "augmented", "training": energy_check(models["augmented"], train, problem.smoothing_window),
@@ -415,7 +447,7 @@ def _explain(problem: Problem, inputs: _Inputs) -> Report:
     if not missing and ctx.cal.fit.chi2_red < AT_NOISE_CHI2:
         located = []
     summary = summary_text(inputs.simulator.name, calibrated, missing, located, fitres, ctx.cal.fit.chi2_red,
-                           answer.fit.chi2_red, problem.sigma_raw, _verdicts(described, unconfirmed, fitres))
+                           answer.fit.chi2_red, problem.sigma_raw, _verdicts(described, unconfirmed, fitres, scale))
     if not described.ok:
         located = []
     return Report(

@@ -283,3 +283,24 @@ def test_no_second_look_when_the_first_answer_fits_the_longer_windows_or_cannot_
     rep = analyze(case.env_id, make_case_data(case, 30, 350, 500 + k), holdout_fraction=0.3, max_terms=0)
     assert rep.missing_physics == []
     assert rep.details["second_look"] == {"shoot_window_samples": 88, "calibrated_chi2_per_dof": chi2, "taken": False}
+
+
+def test_the_same_large_gain_on_every_driven_joint_is_the_inputs_scale_not_missing_physics():
+    """Currents given where the model expects torques: every motor 'needs' the same gain.  The report says the input's
+    scale does not match (a drive gain or gear), and names no actuator_gain; one weak motor stays a motor."""
+    from types import SimpleNamespace
+
+    from phast_model.mismatch import analysis
+    from phast_model.mismatch.rows import TermRow
+
+    def gain(i: int, c: float) -> TermRow:
+        return TermRow("actuator_gain", i, "port", c, (0.95 * c, 1.05 * c), f"u{i} *= c")
+
+    assert analysis.input_scale([gain(0, 9.8), gain(1, 10.6)], [True, True]) == pytest.approx(math.sqrt(9.8 * 10.6))
+    assert analysis.input_scale([gain(0, 0.85)], [True, True]) is None  # one weak motor
+    assert analysis.input_scale([gain(0, 0.85), gain(1, 0.9)], [True, True]) is None  # near 1: motors
+    assert analysis.input_scale([gain(0, 3.0), gain(1, 9.0)], [True, True]) is None  # not one factor
+    assert analysis.input_scale([gain(0, 9.8)], [True, False]) is None  # one driven joint: cannot tell
+    fitres = SimpleNamespace(rmse=lambda name: {"calibrated": 0.1, "augmented": 0.01}[name])
+    text = " ".join(analysis._verdicts(analysis.Described(1.0), [gain(0, 9.8), gain(1, 10.6)], fitres, 10.2))
+    assert "input's scale does not match" in text and "drive gain" in text and "do not improve" not in text
