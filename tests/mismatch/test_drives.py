@@ -46,3 +46,23 @@ def test_described_up_to_its_drives():
     assert Described(0.9).ok and Described(0.9).to_dict() == {"explained_share": 0.9}
     assert Described(0.1, 0.95).ok and Described(0.1, 0.95).to_dict() == {"explained_share": 0.1, "drive_share": 0.95}
     assert not Described(0.1, 0.2).ok and not Described(0.1).ok
+
+
+def test_the_weak_form_parameter_check_says_where_it_is(drives, monkeypatch):
+    """The backward elimination reports its rounds (every 30 s; here every round) and decides as without a listener."""
+    from phast_model.mismatch.friction import weakid
+    from phast_model.mismatch.friction.weakid import WeakModel, check_parameters
+
+    rec, path = drives
+    problem = _problem(rec["q"], rec, path)
+    params = ["upper_arm.mass", "upper_arm.inertia_y", "forearm.mass", "forearm.inertia_x"]
+    model = WeakModel(problem.sim, {}, params, [], [0, 1, 2], problem.eps, 0.0, problem.smoothing_window)
+    law = [(nm, i) for i in range(3) for nm in ("viscous_damping", "coulomb_friction")]
+    train = problem.train.resampled()
+    quiet = check_parameters(model, train, law)
+    monkeypatch.setattr(weakid, "PROGRESS_EVERY", 0.0)
+    said: list[str] = []
+    loud = check_parameters(model, train, law, said.append)
+    assert loud.kept == quiet.kept and loud.table == quiet.table
+    assert said and len(said) == len(params) - len(quiet.kept)
+    assert all("weak-form parameter check" in m and "parameters left" in m for m in said)

@@ -192,7 +192,7 @@ def systematic(ctx: SystematicContext) -> SystematicResult:
                 "samples")
     model = _weak_model(ctx, window)
     provisional = [(nm, i) for i in range(problem.n) for nm in PROVISIONAL_LAW]
-    pcheck = check_parameters(model, train, provisional)
+    pcheck = check_parameters(model, train, provisional, problem.log)
     model = replace(model, params=pcheck.kept)
     problem.log(f"parameters that predict left-out recordings better when fitted: {pcheck.kept}")
     first = identify(model, train, provisional)
