@@ -518,21 +518,19 @@ def _damped_step(normal: Normal, lam: float) -> tuple[np.ndarray, np.ndarray]:
 
 @dataclass
 class Heartbeat:
-    """A progress line at least every ``every`` seconds of a long fit: the iteration, chi^2/dof and the time left at
-    most (the iterations left at the mean time per iteration so far)."""
+    """A progress line at least every ``every`` seconds of a long computation (a shooting fit, the weak form's
+    parameter check): :meth:`due` says when the next one is owed, :attr:`say` writes it."""
 
     say: Callable[[str], None]
     every: float = 30.0
     last: float = field(default_factory=time.monotonic)
 
-    def beat(self, it: int, max_iter: int, chi2_red: float, started: float) -> None:
+    def due(self) -> bool:
         now = time.monotonic()
         if now - self.last < self.every:
-            return
+            return False
         self.last = now
-        per = (now - started) / max(it, 1)
-        self.say(f"  shooting fit: iteration {it} of at most {max_iter}, chi2/dof {chi2_red:.3g}, {per:.0f} s per "
-                 f"iteration (at most {per * (max_iter - it):.0f} s left)")
+        return True
 
 
 class Shooter:
@@ -725,8 +723,11 @@ class Shooter:
             rel = 0.0 if cost - step[3] < 0.02 else (cost - step[3]) / max(cost, 1e-300)
             X, g, r, cost, system, lam_used = step
             lam, lin = max(lam_used / 5, 1e-9), None
-            if self.heartbeat is not None:
-                self.heartbeat.beat(it, max_iter, cost / max(r.size, 1), started)
+            if self.heartbeat is not None and self.heartbeat.due():
+                per = (time.monotonic() - started) / it
+                self.heartbeat.say(f"  shooting fit: iteration {it} of at most {max_iter}, chi2/dof "
+                                   f"{cost / max(r.size, 1):.3g}, {per:.0f} s per iteration (at most "
+                                   f"{per * (max_iter - it):.0f} s left)")
             if rel < tol:
                 break
         if not stats:

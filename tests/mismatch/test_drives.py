@@ -48,9 +48,9 @@ def test_described_up_to_its_drives():
     assert not Described(0.1, 0.2).ok and not Described(0.1).ok
 
 
-def test_the_weak_form_parameter_check_says_where_it_is(drives, monkeypatch):
+def test_the_weak_form_parameter_check_says_where_it_is(drives):
     """The backward elimination reports its rounds (every 30 s; here every round) and decides as without a listener."""
-    from phast_model.mismatch.friction import weakid
+    from phast_model.identify.shooting import Heartbeat
     from phast_model.mismatch.friction.weakid import WeakModel, check_parameters
 
     rec, path = drives
@@ -60,9 +60,8 @@ def test_the_weak_form_parameter_check_says_where_it_is(drives, monkeypatch):
     law = [(nm, i) for i in range(3) for nm in ("viscous_damping", "coulomb_friction")]
     train = problem.train.resampled()
     quiet = check_parameters(model, train, law)
-    monkeypatch.setattr(weakid, "PROGRESS_EVERY", 0.0)
     said: list[str] = []
-    loud = check_parameters(model, train, law, said.append)
+    loud = check_parameters(model, train, law, Heartbeat(said.append, every=0.0))
     assert loud.kept == quiet.kept and loud.table == quiet.table
     assert said and len(said) == len(params) - len(quiet.kept)
     assert all("weak-form parameter check" in m and "parameters left" in m for m in said)

@@ -43,7 +43,7 @@ import numpy as np
 from phast_gym.systems.base import ParameterError, System
 
 from ...identify.frictioncurve import FrictionCurve, friction_curve
-from ...identify.shooting import Shooter, ShootFit
+from ...identify.shooting import Heartbeat, Shooter, ShootFit
 from ..calibrate import Calibration
 from ..evaluate import HeldOut
 from ..explainers import Answer, Context, Declined
@@ -192,7 +192,7 @@ def systematic(ctx: SystematicContext) -> SystematicResult:
                 "samples")
     model = _weak_model(ctx, window)
     provisional = [(nm, i) for i in range(problem.n) for nm in PROVISIONAL_LAW]
-    pcheck = check_parameters(model, train, provisional, problem.log)
+    pcheck = check_parameters(model, train, provisional, Heartbeat(problem.log))
     model = replace(model, params=pcheck.kept)
     problem.log(f"parameters that predict left-out recordings better when fitted: {pcheck.kept}")
     first = identify(model, train, provisional)

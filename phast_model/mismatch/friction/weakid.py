@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 import numbers
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -32,6 +32,7 @@ from scipy.stats import t as student_t
 from phast_gym.systems.base import System
 
 from ...identify.recordings import Recordings
+from ...identify.shooting import Heartbeat
 from ...identify.signals import SAVGOL, Differentiator
 from ...identify.simulators import Simulator
 from ...identify.weakform import WeakForm, weak_form
@@ -46,8 +47,6 @@ PARAM_STEP = 1e-3
 #: a parameter whose column is below this fraction of the largest one has no weak-form signal (e.g. the model's own
 #: damping, which the total dissipative force f~ does not depend on)
 NO_SIGNAL = 1e-9
-#: seconds between progress lines of the weak-form parameter check
-PROGRESS_EVERY = 30.0
 #: an armature column whose part independent of the parameter columns is below this share is absorbed by them
 ABSORBED = 0.05
 
@@ -262,12 +261,12 @@ def _left_out_rms(X: np.ndarray, y: np.ndarray, folds: np.ndarray, cols: list[in
 
 
 def check_parameters(model: WeakModel, rec: Recordings, law: list[Spec],
-                     progress: Callable[[str], None] | None = None) -> ParameterCheck:
+                     heartbeat: Heartbeat | None = None) -> ParameterCheck:
     """Backward elimination of ``model.params`` by prediction on left-out recordings (the weak form linearized at the
     simulator's values, with ``law`` and the armature columns always in): a parameter stays only if dropping it makes
     the left-out weak-form force residual significantly worse (one-sided paired t-test over the folds, 5%).  A
     calibration that only bends parameters to soak up model error does not predict left-out recordings better.
-    ``progress``: a line at least every :data:`PROGRESS_EVERY` seconds (the rounds take minutes on a 6-joint arm)."""
+    ``heartbeat``: progress lines while the rounds run (minutes on a 6-joint arm)."""
     wf, names, cols, none = _columns(model, dict(model.kwargs), rec, law)
     folds, txt = _fold_labels(wf)
     n = wf.n
@@ -279,7 +278,7 @@ def check_parameters(model: WeakModel, rec: Recordings, law: list[Spec],
     G = len(np.unique(fl))
     tq = float(student_t.ppf(0.95, max(G - 1, 1)))
     kept, table = list(params), {}
-    started = last = time.monotonic()
+    started = time.monotonic()
     while kept:
         base = _left_out_rms(X, y, fl, kept + rest)
         ts = {}
@@ -293,10 +292,9 @@ def check_parameters(model: WeakModel, rec: Recordings, law: list[Spec],
         if ts[worst] >= tq:
             break
         kept.remove(worst)
-        if progress is not None and time.monotonic() - last >= PROGRESS_EVERY:
-            last = time.monotonic()
-            progress(f"  weak-form parameter check: {len(kept)} of {len(params)} parameters left "
-                     f"({last - started:.0f} s; at most {len(kept)} more rounds)")
+        if heartbeat is not None and heartbeat.due():
+            heartbeat.say(f"  weak-form parameter check: {len(kept)} of {len(params)} parameters left "
+                          f"({time.monotonic() - started:.0f} s; at most {len(kept)} more rounds)")
     out = [names[j].split(":", 1)[1] for j in kept]
     rows = [{"parameter": k, "t_left_out_improvement": t, "kept": k in out} for k, t in table.items()]
     return ParameterCheck(out, rows, txt + f"; kept when dropping it worsens the left-out residual with t >= {tq:.3g}",
