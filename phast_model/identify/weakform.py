@@ -77,7 +77,7 @@ class WeakForm:
     filter: WeakFilter
     q_raw: np.ndarray = field(repr=False)  # (N, T, n) smoothed untrimmed (for filtering law forces)
     v_raw: np.ndarray = field(repr=False)
-    carried: np.ndarray | None = field(default=None, repr=False)  # (N, T', n) filtered conservative + port force
+    carried: np.ndarray = field(repr=False)  # (N, T', n) filtered conservative + port force, trimmed
 
     @property
     def n(self) -> int:

@@ -175,8 +175,7 @@ def explained_force(model: WeakModel, rec: Recordings, law: list[Spec]) -> float
 
     wf, _, cols, _ = _columns(model, dict(model.kwargs), rec, law)
     y = (wf.total - wf.own).reshape(-1)
-    carried = wf.carried if wf.carried is not None else wf.total
-    scale = max(float(np.sum(carried**2)), 1e-300)
+    scale = max(float(np.sum(wf.carried**2)), 1e-300)
     if not cols:
         return 1.0 - float(y @ y) / scale
     X = np.stack([c.reshape(-1) for c in cols], 1)
