@@ -165,11 +165,9 @@ def _verdicts(described: Described, unconfirmed: list[TermRow], fitres: FitTable
                    "coordinates and the units (angle_offset, angle_dims).")
     unbacked = [m for m in unconfirmed if not _backed(m)]
     if unbacked:
-        out.append("The 95% interval of "
-                   + ", ".join(f"{m.label} ({m.coefficient:.3g} [{m.ci95[0]:.3g}, {m.ci95[1]:.3g}])"
-                                                      for m in unbacked)
-                   + " includes zero: the data do not back it, so it is not reported as missing physics "
-                   "(details.unconfirmed_terms).")
+        named = ", ".join(f"{m.label} ({m.coefficient:.3g} [{m.ci95[0]:.3g}, {m.ci95[1]:.3g}])" for m in unbacked)
+        out.append(f"The 95% interval of {named} includes zero: the data do not back it, so it is not reported as "
+                   "missing physics (details.unconfirmed_terms).")
     if scale is not None:
         out.append(f"The input's scale does not match the model: every driven coordinate asks for the same gain, about "
                    f"{scale:.3g}x the recorded input. The recorded u is probably in other units than the model's "
