@@ -43,7 +43,7 @@ from .report.document import Report, summary_text
 from .report.mjcf_answer import answer_in_model_terms, is_model_file_system
 from .rows import ParamRow, TermRow
 from .selection import candidates, select
-from .vocabulary.registry import ACTUATOR_GAIN
+from .vocabulary.registry import ACTUATOR_GAIN, mujoco_vocabulary
 from .vocabulary.terms import VOCABULARY
 
 __all__ = ["EXPLAINERS", "InternalError", "Options", "Report", "analyze", "held_out_scores"]
@@ -233,6 +233,8 @@ def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mappin
     holdout = check_holdout_indices(holdout_trajectories)
     log = Progress(opts.progress)
     simulator, sys0 = _simulator(sim, sim_kwargs)
+    if opts.terms is None and is_model_file_system(sys0):  # the friction MuJoCo simulates: the answer is the file
+        opts = replace(opts, terms=mujoco_vocabulary())
     given = _recordings(recordings, sys0, simulator.name)
     if holdout is not None:
         check_holdout_range(holdout, given.n_traj)

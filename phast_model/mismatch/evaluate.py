@@ -18,6 +18,7 @@ from phast_gym.systems.base import System
 
 from ..identify.recordings import Recordings
 from ..identify.shooting import Shooter, Windows, angle_diff, odd, simulate_qv, smooth, substeps_for
+from .written import in_mujoco
 
 #: fewest samples of a held-out rollout window
 MIN_ROLLOUT_SAMPLES = 20
@@ -223,9 +224,14 @@ class HeldOut:
 
     def evaluate(self, models: dict[str, System],
                  rec: Recordings | None = None) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
-        return evaluate_models(models, self.rec if rec is None else rec, self.sigma, self.x_scale, self.init_samples,
-                               self.smoothing_window,
-                               self.scale)
+        """The metrics and rollouts of ``models``; a model file's models are simulated as MuJoCo simulates them
+        written back (:func:`.written.in_mujoco`), each distinct system once."""
+        simulated: dict[int, System] = {}
+        for s in models.values():
+            if id(s) not in simulated:
+                simulated[id(s)] = in_mujoco(s)
+        return evaluate_models({k: simulated[id(s)] for k, s in models.items()}, self.rec if rec is None else rec,
+                               self.sigma, self.x_scale, self.init_samples, self.smoothing_window, self.scale)
 
     def rollout_rmse(self, system: System, rec: Recordings) -> float:
         return self.evaluate({"m": system}, rec)[0]["m"]["rollout_rmse"]

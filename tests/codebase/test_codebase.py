@@ -196,7 +196,7 @@ def test_layers_point_one_way():
 #: interface carries the selection's result, the friction stage answers through that interface, and the report (with
 #: the MJCF answer) reads every answer
 MISMATCH = "phast_model.mismatch"
-MISMATCH_STAGES = (("vocabulary",), ("fitting",), ("evaluate", "energy"), ("calibrate",), ("selection",), ("explainers",),
+MISMATCH_STAGES = (("vocabulary",), ("fitting",), ("evaluate", "energy", "written"), ("calibrate",), ("selection",), ("explainers",),
                    ("friction",), ("locate",), ("report",))
 #: imported by any stage, importing none
 MISMATCH_SHARED = ("options", "rows")

@@ -232,6 +232,7 @@ class LawSelectionOptions:
     rules: EligibilityRules = EligibilityRules()
     n_time_blocks: int = 4  # folds when there is one recording
     max_terms: int = 3
+    terms: tuple[str, ...] | None = None  # the dissipative terms laws are built from (None: every one registered)
     bands: str = "quantile"
     n_bands: int = 8
     progress: bool = False
@@ -446,9 +447,9 @@ def select_law(system: System, rec: Recordings, candidates: Sequence[Sequence[Te
     if candidates is not None:
         specs_list = [parse_terms(c, rec.n) for c in candidates]
     elif coordinate is not None:
-        specs_list = coordinate_laws(coordinate, opts.max_terms)
+        specs_list = coordinate_laws(coordinate, opts.max_terms, opts.terms)
     else:
-        specs_list = candidate_laws(rec.n, opts.max_terms)
+        specs_list = candidate_laws(rec.n, opts.max_terms, opts.terms)
     return _select(_scoring(system, rec, window, eps, block, coordinate, opts), specs_list)
 
 
@@ -476,7 +477,7 @@ def select_friction(system: System, rec: Recordings, **kwargs: Any) -> tuple[Fri
     # weak forms, folds
     sc = _scoring(system, rec, kwargs.get("window"), kwargs.get("eps"), kwargs.get("block"), None, opts)
     # and curve computed once, shared by the coordinates
-    sels = [_select(replace(sc, scored=[i]), coordinate_laws(i, opts.max_terms)) for i in range(rec.n)]
+    sels = [_select(replace(sc, scored=[i]), coordinate_laws(i, opts.max_terms, opts.terms)) for i in range(rec.n)]
     first = sels[0].chosen
     merged = FrictionLaw([t for s in sels for t in s.chosen.terms], first.eps, first.n,
                          float(sum(s.chosen.rss for s in sels)),

@@ -50,7 +50,7 @@ from ..explainers import Answer, Context, Declined
 from ..fitting.problem import Problem
 from ..rows import Alternative, ParamRow, TermRow, param_value
 from ..vocabulary.candidates import Candidate
-from ..vocabulary.registry import ARMATURE, COULOMB, VISCOUS
+from ..vocabulary.registry import ARMATURE, COULOMB, VISCOUS, law_terms
 from ..vocabulary.terms import VOCABULARY, AugmentedSystem, Term
 from .laws import FrictionLaw, spec_of
 from .lawselect import LawSelection, select_friction
@@ -197,7 +197,7 @@ def systematic(ctx: SystematicContext) -> SystematicResult:
     problem.log(f"parameters that predict left-out recordings better when fitted: {pcheck.kept}")
     first = identify(model, train, provisional)
     base = model.build(first.kwargs, first.armature_terms())
-    law, sels = select_friction(base, train, window=window, eps=problem.eps)
+    law, sels = select_friction(base, train, window=window, eps=problem.eps, terms=law_terms(problem.opts.terms))
     problem.log(f"friction law: {law.name}; parameters {first.kwargs}")
     specs = [spec_of(t.term, t.coordinate, t.velocity) for t in law.terms]
     final = identify(replace(model, kwargs=first.kwargs), train, specs)

@@ -25,6 +25,7 @@ from ...identify.recordings import Recordings
 from ..evaluate import HeldOut
 from ..rows import TermRow
 from ..vocabulary.registry import VOCABULARY
+from ..written import term_edit
 from .document import Report
 from .files import CALIBRATED_MODEL
 
@@ -59,17 +60,6 @@ def _tree(system: Any) -> MJCFTree:
 def named_rows(rows: list[TermRow], tree: MJCFTree) -> list[TermRow]:
     """Each row with its joint name and the MuJoCo attribute of its term (None when no attribute expresses it)."""
     return [replace(r, joint=tree.joint_names[r.coordinate], mjcf=VOCABULARY[r.term].mjcf) for r in rows]
-
-
-def _edit(row: TermRow, tree: MJCFTree) -> Edit | None:
-    """The attribute edit that writes a term into the model, or None."""
-    attr = VOCABULARY[row.term].mjcf
-    if attr is None:
-        return None
-    if attr == "gear":
-        act = next((a for a in tree.actuators if a.joint == row.coordinate), None)
-        return None if act is None else Edit(act.name, "gear", row.coefficient, "scale")
-    return Edit(tree.joint_names[row.coordinate], attr, row.coefficient)
 
 
 def armature_equivalent(tree: MJCFTree, name: str) -> str | None:
@@ -110,7 +100,7 @@ def write_back(report: Report, tree: MJCFTree) -> MJCFWriteBack:
     params, edits, notes = _as_armature(report, tree)
     left = []
     for row in report.terms:
-        e = _edit(row, tree)
+        e = term_edit(row.term, row.coordinate, row.coefficient, tree)
         if e is not None:
             edits.append(e)
         else:

@@ -47,6 +47,7 @@ Components:
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import ClassVar, NamedTuple, TypeVar
 
@@ -600,9 +601,17 @@ def kind(name: str) -> TermKind:
         raise ValueError(f"unknown term {name!r}; the vocabulary is {sorted(VOCABULARY)}") from None
 
 
-def law_terms() -> tuple[str, ...]:
-    """The dissipative terms a friction law is built from, in vocabulary order."""
-    return tuple(k.name for k in VOCABULARY.values() if k.component == "dissipation")
+def law_terms(vocabulary: Sequence[str] | None = None) -> tuple[str, ...]:
+    """The dissipative terms a friction law is built from (of ``vocabulary``, default all), in vocabulary order."""
+    return tuple(k.name for k in VOCABULARY.values()
+                 if k.component == "dissipation" and (vocabulary is None or k.name in vocabulary))
+
+
+def mujoco_vocabulary() -> tuple[str, ...]:
+    """The default vocabulary on a MuJoCo model file: every term except the dissipative ones no MuJoCo attribute
+    expresses (quadratic drag, Stribeck, position-dependent damping).  The friction found is then the friction MuJoCo
+    simulates (``damping``, ``frictionloss``), so the answer is the model written back."""
+    return tuple(k.name for k in VOCABULARY.values() if k.component != "dissipation" or k.mjcf is not None)
 
 
 #: the built-in kinds other modules refer to by object (their names live here only)
