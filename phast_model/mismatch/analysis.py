@@ -31,7 +31,7 @@ from ..identify.recordings import Recordings, load_raw, validate
 from ..identify.shooting import odd, time_scale
 from ..identify.simulators import Simulator, load_simulator
 from ..identify.split import check_holdout_indices, check_holdout_range, split
-from .calibrate import calibration, explained_share, screen_parameters
+from .calibrate import ParameterScreen, calibration, drives_screen, explained_share, fit_nominal, screen_parameters
 from .energy import energy_check
 from .evaluate import FitTable, HeldOut, check_rollout_window, held_out
 from .explainers import Context, Explained, Explainer, ShootingExplainer, explain_in_turn
@@ -375,16 +375,32 @@ class Described:
                 **({} if self.drive_share is None else {"drive_share": self.drive_share})}
 
 
-def _described(problem: Problem, share: float) -> Described:
+def _described(problem: Problem, share: float, drives: float | None = None) -> Described:
     """A simulator whose windows its model cannot follow may still describe the recordings up to its drives (a CAD
     model of a motor-driven arm without rotor inertia and gear friction): the weak form checks that before the
-    recordings are called undescribed."""
+    recordings are called undescribed (``drives``: that share, when already computed)."""
     if share >= MIN_DESCRIBED:
         return Described(share)
-    drives = drive_share(problem)
+    if drives is None:
+        drives = drive_share(problem)
     problem.log(f"the nominal model follows the windows no better than a line (share {share:.2f}); rotor inertia and "
                 f"friction per driven joint account for {drives:.0%} of the force it leaves (weak form)")
     return Described(share, drives)
+
+
+def _screen(problem: Problem) -> tuple[ParameterScreen, Described]:
+    """The parameter screen and how much the simulator describes.  A motor-driven model file whose nominal model
+    cannot follow the windows is checked for its drives first: when rotor inertia and friction per driven joint
+    account for the force it leaves, no body value is screened (the weak form answers with the drives and the file's
+    body values), which also spares the fit of every identifiable body value."""
+    nominal = fit_nominal(problem)
+    share, drives = explained_share(nominal[0], nominal[1]), None
+    if share < MIN_DESCRIBED and any(problem.has_u) and is_model_file_system(problem.sys0):
+        drives = drive_share(problem)
+        if drives >= MIN_DESCRIBED:
+            return drives_screen(problem, nominal), _described(problem, share, drives)
+    screen = screen_parameters(problem, nominal)
+    return screen, _described(problem, max(share, explained_share(screen.shooter, screen.fit_full)), drives)
 
 
 def _context(problem: Problem, inputs: _Inputs) -> tuple[Context, Described]:
@@ -393,9 +409,7 @@ def _context(problem: Problem, inputs: _Inputs) -> tuple[Context, Described]:
     drives goes to the model-error regime directly and the weak form answers with the drives alone (rotor inertia and
     a friction law per joint, the file's body values kept): no shooting selection or calibration on windows its model
     cannot follow, and no body parameter bent to absorb a drive."""
-    screen = screen_parameters(problem)
-    described = _described(problem, max(explained_share(screen.shooter, screen.fit_nominal),
-                                        explained_share(screen.shooter, screen.fit_full)))
+    screen, described = _screen(problem)
     if not described.ok:
         problem = replace(problem, opts=replace(problem.opts, max_terms=0, systematic_chi2=math.inf))
         screen = replace(screen, identifiability=replace(screen.identifiability, basis=(), independence=()))

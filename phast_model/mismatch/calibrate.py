@@ -211,9 +211,10 @@ def _examined(problem: Problem, shooter: Shooter,
     return [params[j] for j in keep], cols[:, keep], notes
 
 
-def screen_parameters(problem: Problem) -> ParameterScreen:
-    """Nominal fit, parameter sensitivities, identifiable combinations, and the fit with every pivot free."""
-    shooter, nominal_fit, n_dropped = fit_nominal(problem)
+def screen_parameters(problem: Problem, made: tuple[Shooter, ShootFit, int] | None = None) -> ParameterScreen:
+    """Nominal fit (``made``: :func:`fit_nominal`'s, when already made), parameter sensitivities, identifiable
+    combinations, and the fit with every pivot free."""
+    shooter, nominal_fit, n_dropped = made or fit_nominal(problem)
     params, cols, notes = _examined(problem, shooter, nominal_fit)
     ident = identifiability([k for k, _ in params], cols)
     problem.log(f"identifiable: rank {ident.rank} of {len(params)} examined parameters; basis {list(ident.basis)}")
@@ -228,6 +229,18 @@ def screen_parameters(problem: Problem) -> ParameterScreen:
     problem.log(f"every pivot fitted: chi2/dof = {fit_full.chi2_red:.3g}")
     cands = [ParamCandidate(k, v, PARAM_STEP) for k, v in params]
     return ParameterScreen(shooter, nominal_fit, n_dropped, cands, notes, ident, fit_full, family_full)
+
+
+def drives_screen(problem: Problem, nominal: tuple[Shooter, ShootFit, int]) -> ParameterScreen:
+    """The screen of a model file its nominal model cannot follow but its drives describe (rotor inertia and friction
+    per driven joint account for the force it leaves): no body value is examined, so none can absorb a drive; the
+    weak form then fits the drives with the file's body values."""
+    shooter, fit, n_dropped = nominal
+    note = ("held at the file's value: the model is described up to its drives, so rotor inertia and friction per "
+            "driven joint come first")
+    notes = {k: note for k in problem.sim.numeric_params(problem.sys0)}
+    return ParameterScreen(shooter, fit, n_dropped, [], notes, Identifiability((), (), (), {}), fit,
+                           problem.nominal_family)
 
 
 def calibration(problem: Problem, screen: ParameterScreen, selected: list[tuple[str, float]], start: ShootFit,

@@ -52,6 +52,7 @@ from ..rows import Alternative, ParamRow, TermRow, param_value
 from ..vocabulary.candidates import Candidate
 from ..vocabulary.registry import ARMATURE, COULOMB, VISCOUS, law_terms
 from ..vocabulary.terms import VOCABULARY, AugmentedSystem, Term
+from ..written import in_mujoco
 from .laws import FrictionLaw, spec_of
 from .lawselect import LawSelection, select_friction
 from .passivity import check_against_curve, is_passive
@@ -204,7 +205,8 @@ def systematic(ctx: SystematicContext) -> SystematicResult:
     augmented = final.system(model)
     curve = friction_curve(model.build(final.kwargs, final.armature_terms()), train, window=window, eps=problem.eps)
     passive = is_passive(final.law, curve).to_dict()
-    fit = ctx.cal.shooter.fit_states(augmented, ctx.cal.fit.X, max_iter=problem.opts.max_iter)
+    # its training chi^2 as held-out scores simulate it (a model file's: MuJoCo, whose frictionloss stays stable)
+    fit = ctx.cal.shooter.fit_states(in_mujoco(augmented), ctx.cal.fit.X, max_iter=problem.opts.max_iter)
     missing = _law_rows(final.law, sels, passive, _own_viscous(augmented, problem.q_sample())) + _armature_rows(final)
     reason = (f"shooting-augmented chi^2/dof {ctx.chi2_aug:.3g} > {problem.opts.systematic_chi2}: the residual is "
               "model error, not noise, so parameters, armature and the dissipation law were identified from local "
