@@ -123,6 +123,61 @@ def gains_from(args: argparse.Namespace) -> np.ndarray:
     return np.array(gains) * args.current_scale
 
 
+#: the identified model in the repository
+PARAMETERS = Path("UR10E_parameters.txt")
+#: [kg m^2] added to every principal moment of the authors' links (MuJoCo refuses a zero moment)
+ROD_MOMENT = 1e-6
+
+
+def published_vectors(text: str) -> dict[str, np.ndarray]:
+    """``name = [v1 v2 ...]`` lines of UR10E_parameters.txt -> {name: values}."""
+    out = {}
+    for line in text.splitlines():
+        name, sep, rest = line.partition("=")
+        if sep and rest.strip().startswith("[") and rest.strip().endswith("]"):
+            out[name.strip()] = np.array([float(v) for v in rest.strip()[1:-1].split()])
+    missing = {"pi_rgd": 60, "pi_drvs": 6, "pi_frcn": 18}
+    bad = [k for k, size in missing.items() if k not in out or out[k].size != size]
+    if bad:
+        raise ValueError(f"{PARAMETERS}: expected {missing}, could not read {bad}")
+    return out
+
+
+def link_inertial(pi: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """One link's (mass, centre of mass, full inertia [Ixx Iyy Izz Ixy Ixz Iyz] about it) from the authors' 10
+    standard parameters [Ixx Ixy Ixz Iyy Iyz Izz] about the link frame's origin, m c, m (their parse_urdf.m)."""
+    m, c = float(pi[9]), pi[6:9] / pi[9]
+    about_origin = np.array([[pi[0], pi[1], pi[2]], [pi[1], pi[3], pi[4]], [pi[2], pi[4], pi[5]]])
+    at_com = about_origin - m * (float(c @ c) * np.eye(3) - np.outer(c, c))  # parallel-axis theorem
+    at_com += ROD_MOMENT * np.eye(3)  # some of their links are rods (a zero principal moment): MuJoCo needs > 0
+    return m, c, np.array([at_com[0, 0], at_com[1, 1], at_com[2, 2], at_com[0, 1], at_com[0, 2], at_com[1, 2]])
+
+
+def authors_model(data: Path, out: Path) -> Path:
+    """The authors' identified model (UR10E_parameters.txt) as MJCF, ``OUT/authors_model.xml``: their rigid-body
+    parameters per link (about each URDF link frame), drive inertias as ``armature``, viscous friction Fv as
+    ``damping`` and Coulomb Fc as ``frictionloss``.  Their constant offset per joint has no MuJoCo attribute and is
+    left out; their rod-like links get :data:`ROD_MOMENT` on each principal moment."""
+    from phast_gym.systems.mjcf_tree import urdf_spec
+    from phast_model.identify.mjcf_write import set_joint_attr
+
+    vec = published_vectors((data / PARAMETERS).read_text(encoding="utf-8", errors="replace"))
+    spec = urdf_spec((data / URDF).read_text())
+    friction = vec["pi_frcn"].reshape(6, 3)  # per joint: Fv, Fc, offset
+    for k, joint in enumerate(JOINTS):  # pi_rgd: 10 values per link, the link each joint moves, in joint order
+        j = spec.joint(joint)
+        body = j.parent
+        body.mass, body.ipos, body.fullinertia = link_inertial(vec["pi_rgd"][10 * k: 10 * k + 10])
+        body.explicitinertial = True
+        set_joint_attr(j, "armature", float(vec["pi_drvs"][k]))
+        set_joint_attr(j, "damping", float(friction[k, 0]))
+        set_joint_attr(j, "frictionloss", float(friction[k, 1]))
+    spec.compile()
+    path = out / "authors_model.xml"
+    path.write_text(spec.to_xml())
+    return path
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--data", default=os.environ.get("PHAST_UR10E_DATA"), help="checkout of shamilmamedov/dynamic_calibration")
@@ -135,6 +190,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--every", type=int, default=1, help="keep every K-th row (u then holds over K rows: a smoke run)")
     p.add_argument("--rollout-window", type=float, default=1.0, help="held-out open-loop windows [s] (default 1)")
     p.add_argument("--quick", action="store_true", help=f"a smoke run in minutes: {QUICK}")
+    p.add_argument("--no-compare", action="store_true",
+                   help="do not score the authors' identified model (UR10E_parameters.txt written as MJCF, "
+                        "OUT/authors_model.xml) beside the tool's answer")
     p.add_argument("--convert-only", action="store_true", help="write recordings.npz and runs.json, run no analysis")
     p.add_argument("--with-payload", action="store_true",
                    help="read the payload runs too (to see every run through the loader; the URDF has no payload)")
@@ -171,8 +229,15 @@ def analyse(args: argparse.Namespace, data: Path, recordings: Path, holdout: lis
     from phast_model.cli.mismatch import main as mismatch
 
     start = time.time()
+    compare = []
+    if not args.no_compare:
+        try:
+            compare = ["--compare", f"authors={authors_model(data, out)}"]
+        except (OSError, ValueError) as exc:  # the answer does not depend on it: say so and go on
+            print(f"[ur10e] the authors' model is not scored: {exc}", file=sys.stderr)
     rc = mismatch(["--sim", str(data / URDF), "--recordings", str(recordings), "--holdout-trajectories",
-                   ",".join(str(k) for k in holdout), "--rollout-window", str(args.rollout_window), "--out", str(out / "report")])
+                   ",".join(str(k) for k in holdout), "--rollout-window", str(args.rollout_window), *compare,
+                   "--out", str(out / "report")])
     wall = time.time() - start
     if rc != 0:
         return {"exit_status": rc, "wall_time_s": wall}

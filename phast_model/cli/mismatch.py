@@ -52,6 +52,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--free", default="",
                    help="comma-separated parameters to calibrate although the simulator declares them "
                                                "known (Param(known=True), e.g. gravity): --free gravity")
+    p.add_argument("--compare", action="append", default=[], metavar="NAME=MODEL",
+                   help="one more model scored on the held-out recordings by the same code, as fit.NAME: a MuJoCo "
+                        "model file (simulated by MuJoCo), e.g. a published identification written as MJCF; repeat "
+                        "for more")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     return p
@@ -90,6 +94,28 @@ def check_args(args: argparse.Namespace) -> None:
         raise ValueError(f"--rollout-window must be a positive number of seconds, got {args.rollout_window}")
     if not (math.isfinite(args.systematic_chi2) and args.systematic_chi2 > 0):
         raise ValueError(f"--systematic-chi2 must be a positive number, got {args.systematic_chi2}")
+
+
+def compared_models(items: list[str]) -> dict[str, Any]:
+    """``--compare NAME=MODEL`` items -> {NAME: the model file as MuJoCo simulates it}; ValueError naming a bad item."""
+    from pathlib import Path
+
+    from phast_gym.systems.mjcf_tree import ModelFileError
+    from phast_model.identify.mujoco_sim import mujoco_simulated
+    from phast_model.identify.simulators import is_model_file
+
+    out: dict[str, Any] = {}
+    for item in items:
+        name, sep, path = item.partition("=")
+        if not sep or not name.strip() or not is_model_file(path.strip()):
+            raise ValueError(f"--compare {item!r}: expected NAME=path/to/model.xml (or .urdf)")
+        if not Path(path.strip()).is_file():
+            raise ValueError(f"--compare {item!r}: file {path.strip()!r} not found")
+        try:
+            out[name.strip()] = mujoco_simulated(path.strip())
+        except ModelFileError as exc:
+            raise ValueError(f"--compare {item!r}: {exc}") from None
+    return out
 
 
 def write_error_log(out_dir: str) -> str:
@@ -148,7 +174,7 @@ def main(argv: list[str] | None = None) -> int:
                                free=tuple(x.strip() for x in args.free.split(",") if x.strip()))
         recordings = checked_recordings(args.sim, args.recordings, kwargs)
         report = analyze(args.sim, recordings, sim_kwargs=kwargs, holdout_fraction=args.holdout_fraction, options=opts,
-                         holdout_trajectories=holdout)
+                         holdout_trajectories=holdout, compare=compared_models(args.compare))
         out = report.write(args.out, plots=not args.no_plots)
     except ValueError as exc:
         print(f"phast-mismatch: error: {exc}", file=sys.stderr)

@@ -31,7 +31,15 @@ from ..identify.recordings import Recordings, load_raw, validate
 from ..identify.shooting import odd, time_scale
 from ..identify.simulators import Simulator, load_simulator
 from ..identify.split import check_holdout_indices, check_holdout_range, split
-from .calibrate import ParameterScreen, calibration, drives_screen, explained_share, fit_nominal, screen_parameters
+from .calibrate import (
+    ParameterScreen,
+    calibration,
+    drives_screen,
+    explained_share,
+    fit_nominal,
+    nominal_sample,
+    screen_parameters,
+)
 from .energy import energy_check
 from .evaluate import FitTable, HeldOut, check_rollout_window, held_out
 from .explainers import Context, Explained, Explainer, ShootingExplainer, explain_in_turn
@@ -45,6 +53,7 @@ from .rows import ParamRow, TermRow
 from .selection import candidates, select
 from .vocabulary.registry import ACTUATOR_GAIN, mujoco_vocabulary
 from .vocabulary.terms import VOCABULARY
+from .written import in_mujoco
 
 __all__ = ["EXPLAINERS", "InternalError", "Options", "Report", "analyze", "held_out_scores"]
 
@@ -393,12 +402,19 @@ def _screen(problem: Problem) -> tuple[ParameterScreen, Described]:
     cannot follow the windows is checked for its drives first: when rotor inertia and friction per driven joint
     account for the force it leaves, no body value is screened (the weak form answers with the drives and the file's
     body values), which also spares the fit of every identifiable body value."""
+    drives = None
+    if any(problem.has_u) and is_model_file_system(problem.sys0):
+        # a sample of the windows, simulated as MuJoCo simulates the file, decides; in the drives' regime it stays the
+        # shooting windows (only the answer's chi^2 on the training recordings is read from them)
+        shooter, fit = nominal_sample(problem, in_mujoco(problem.nominal_family.build(np.zeros(0))))
+        share = explained_share(shooter, fit)
+        drives = drive_share(problem) if share < MIN_DESCRIBED else None
+        if drives is not None and drives >= MIN_DESCRIBED:
+            problem.log(f"nominal fit on {len(fit.X)} of the {len(problem.shooting.windows.traj)} windows: chi2/dof = "
+                        f"{fit.chi2_red:.3g}")
+            return drives_screen(problem, (shooter, fit, 0)), _described(problem, share, drives)
     nominal = fit_nominal(problem)
-    share, drives = explained_share(nominal[0], nominal[1]), None
-    if share < MIN_DESCRIBED and any(problem.has_u) and is_model_file_system(problem.sys0):
-        drives = drive_share(problem)
-        if drives >= MIN_DESCRIBED:
-            return drives_screen(problem, nominal), _described(problem, share, drives)
+    share = explained_share(nominal[0], nominal[1])
     screen = screen_parameters(problem, nominal)
     return screen, _described(problem, max(share, explained_share(screen.shooter, screen.fit_full)), drives)
 

@@ -122,18 +122,36 @@ def followed_windows(r: np.ndarray) -> np.ndarray:
     return per_win <= max(30.0 * float(np.median(per_win)), 50.0)
 
 
-def fit_nominal(problem: Problem) -> tuple[Shooter, ShootFit, int]:
-    """Window states of the nominal model; windows it cannot follow at all (e.g. a separatrix crossing) are dropped."""
-    opts, nominal = problem.opts, problem.nominal_family
+def fit_nominal(problem: Problem, simulated: System | None = None) -> tuple[Shooter, ShootFit, int]:
+    """Window states of the nominal model (``simulated``: the nominal model as another engine simulates it, e.g.
+    :func:`.written.in_mujoco`'s); windows it cannot follow at all (e.g. a separatrix crossing) are dropped."""
+    opts = problem.opts
+    system = problem.nominal_family.build(np.zeros(0)) if simulated is None else simulated
     shooter = problem.shooter(problem.shooting.windows)
-    fit = shooter.fit_states(nominal.build(np.zeros(0)), problem.shooting.X0, max_iter=opts.max_iter)
+    fit = shooter.fit_states(system, problem.shooting.X0, max_iter=opts.max_iter)
     keep = followed_windows(fit.r)
     n_dropped = int(np.sum(~keep))
     if n_dropped and np.sum(keep) >= 2:
         shooter = problem.shooter(problem.shooting.windows.select(keep))
-        fit = shooter.fit(lambda g: nominal.build(g), fit.X[keep], np.zeros(0), max_iter=opts.max_iter)
+        fit = shooter.fit(lambda g: system, fit.X[keep], np.zeros(0), max_iter=opts.max_iter)
     problem.log(f"nominal fit: chi2/dof = {fit.chi2_red:.3g} ({fit.iterations} it)")
     return shooter, fit, n_dropped
+
+
+#: windows (at most) the nominal model is first fitted to when a model file may be described only up to its drives,
+#: and the iterations of that fit: enough to tell a model that follows the windows from one that follows none
+SHARE_WINDOWS, SHARE_ITER = 16, 8
+
+
+def nominal_sample(problem: Problem, simulated: System) -> tuple[Shooter, ShootFit]:
+    """The nominal model (``simulated``: as an engine simulates it) fitted to at most :data:`SHARE_WINDOWS` of the
+    shooting windows, spread evenly over them, in at most :data:`SHARE_ITER` iterations: its :func:`explained_share`
+    tells a model that follows the recordings from one that follows none at a fraction of the cost of all windows."""
+    windows = problem.shooting.windows
+    pick = np.unique(np.linspace(0, len(windows.traj) - 1, min(SHARE_WINDOWS, len(windows.traj))).round().astype(int))
+    shooter = problem.shooter(windows.select(pick))
+    return shooter, shooter.fit_states(simulated, problem.shooting.X0[pick], max_iter=min(SHARE_ITER,
+                                                                                         problem.opts.max_iter))
 
 
 def _parameter_columns(problem: Problem, shooter: Shooter, nominal_fit: ShootFit,

@@ -71,6 +71,8 @@ def in_mujoco(system: System) -> System:
     """``system`` written back and simulated by MuJoCo (:mod:`this module <.written>`), or ``system`` itself when it
     cannot be written (not a model file's, a term MuJoCo lacks) or the written model does not compile (a negative
     total damping, say)."""
+    if getattr(system, "external_rollout", None) is not None:  # already simulated by another engine
+        return system
     form = written_form(system)
     if form is None:
         return system

@@ -63,7 +63,20 @@ def dataset(tmp_path: Path) -> Path:
     (ident / "ur-20_02_05-20sec_8harm.csv").write_text("\n".join(rows) + "\n")
     (ident / "ur-20_01_31-load.csv").write_text("\n".join(_run_rows(100, 4, 31)) + "\n")  # a payload
     (valid / "ur-20_01_17-ptp_10_points.csv").write_text("\n".join(_run_rows(150, 5, 31)) + "\n")
+    (root / "UR10E_parameters.txt").write_text(_parameters(), encoding="utf-8")
     return root
+
+
+#: the identified model in the published format: per link [Ixx Ixy Ixz Iyy Iyz Izz mx my mz m] about the link frame
+LINK = [0.1, 0.0, 0.0, 0.1, 0.0, 0.02, 0.0, 0.0, 0.3, 1.5]
+DRIVES = [0.0, 3.0, 0.5, 0.07, 0.2, 0.4]
+FRICTION = [[20.0 - 3 * k, 12.0 - 2 * k, 0.1] for k in range(6)]  # Fv, Fc, offset per joint
+
+
+def _parameters() -> str:
+    vec = lambda name, xs: f"{name} = [" + "\t".join(f"{x:.6g}" for x in xs) + "]"  # noqa: E731
+    return "\n".join(["drvGains - коэффициенты передачи двигателей", "", vec("drvGains", GAINS), "",
+                      vec("pi_drvs", DRIVES), "", vec("pi_frcn", sum(FRICTION, [])), "", vec("pi_rgd", LINK * 6), ""])
 
 
 def _run(*args: str) -> subprocess.CompletedProcess:
@@ -101,6 +114,28 @@ def test_gains_are_a_model_choice_and_bad_options_exit_2(dataset: Path, tmp_path
     assert bad.returncode == 2 and "--drive-gains must be 6 finite numbers" in bad.stderr
     missing = _run("--data", str(tmp_path / "nowhere"), "--out", str(tmp_path / "c"))
     assert missing.returncode == 2 and "shamilmamedov/dynamic_calibration" in missing.stderr
+
+
+@pytest.mark.slow  # a whole analysis of a 6-joint arm (about a minute)
+def test_the_authors_model_is_scored_beside_the_answer(dataset: Path, tmp_path: Path) -> None:
+    """Their identified model (UR10E_parameters.txt) written as MJCF: link mass, centre of mass and inertia about it,
+    drive inertia as armature, Fv as damping, Fc as frictionloss; scored on the held-out runs as fit.authors."""
+    mujoco = pytest.importorskip("mujoco")
+    done = _run("--data", str(dataset), "--out", str(tmp_path / "out"), "--max-runs", "1", "--max-seconds", "0.6",
+                "--holdout", "ur-20_01_17-ptp_10_points", "--rollout-window", "0.3")
+    assert done.returncode == 0, done.stderr + done.stdout
+    m = mujoco.MjModel.from_xml_path(str(tmp_path / "out" / "authors_model.xml"))
+    np.testing.assert_allclose(m.dof_armature, DRIVES)
+    np.testing.assert_allclose(m.dof_damping, [f[0] for f in FRICTION])
+    np.testing.assert_allclose(m.dof_frictionloss, [f[1] for f in FRICTION])
+    mass, com = LINK[9], np.array(LINK[6:9]) / LINK[9]
+    moved = [m.jnt_bodyid[j] for j in range(6)]
+    np.testing.assert_allclose(m.body_mass[moved], mass)
+    np.testing.assert_allclose(m.body_ipos[moved], np.tile(com, (6, 1)), atol=1e-12)
+    about_com = sorted([LINK[0] - mass * com[2] ** 2, LINK[3] - mass * com[2] ** 2, LINK[5]])  # parallel axes
+    np.testing.assert_allclose(np.sort(m.body_inertia[moved], axis=1), np.tile(about_com, (6, 1)), atol=2e-6)
+    report = json.loads((tmp_path / "out" / "report" / "report.json").read_text())
+    assert {"nominal", "augmented", "authors"} <= set(report["fit"])
 
 
 def test_degrees_in_a_log_are_refused(dataset: Path, tmp_path: Path) -> None:
