@@ -433,7 +433,9 @@ def _context(problem: Problem, inputs: _Inputs) -> tuple[Context, Described]:
         problem = replace(problem, opts=replace(problem.opts, max_terms=0, systematic_chi2=0.0))
         screen = replace(screen, candidates=[],
                          identifiability=replace(screen.identifiability, basis=(), independence=()))
-    sel = select(problem, screen, [*screen.candidates, *candidates(problem, problem.nominal_family.build(np.zeros(0)))])
+    # no term can be selected with max_terms 0: their shooting columns (the alternatives of a selected one) are spared
+    terms = candidates(problem, problem.nominal_family.build(np.zeros(0))) if problem.opts.max_terms else []
+    sel = select(problem, screen, [*screen.candidates, *terms])
     cal = calibration(problem, screen, sel.params, sel.fit, len(sel.terms))
     nominal = problem.nominal_family.build(np.zeros(0))
     # no parameter changed: the calibrated model is the nominal one (the held-out table then scores it once)

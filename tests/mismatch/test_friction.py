@@ -110,3 +110,21 @@ def test_selection_accepts_a_passive_negative_coefficient_and_rejects_a_non_pass
     scores = {s.law: s for s in sel.scores}
     assert not scores["coulomb[0]"].passive and scores["coulomb[0]"].fitted.terms[0].coefficient < 0
     assert all(s.passive for s in sel.scores if s.law == sel.chosen_name)
+
+
+def test_a_fold_no_law_can_score_does_not_void_the_selection():
+    """A left-out recording on which no law can be scored (the joint rests there: no speed band has samples) is no
+    evidence either way: the other folds still choose (a real arm whose base joint rests in one run of 17 was left
+    without friction)."""
+    from phast_model.mismatch.friction.lawselect import CandidateScore, Eligibility, EligibilityRules, _choose, fold_stats
+
+    def candidate(law: str, n_params: int, scores: list[float]) -> CandidateScore:
+        stats = fold_stats(scores, [0.0] * len(scores))
+        assert np.isfinite(stats.mean) and np.isfinite(stats.se)
+        return CandidateScore(law, n_params, stats, Eligibility(True, True))
+
+    rng = np.random.default_rng(0)
+    nothing = candidate("model only", 0, [*(1.0 + 0.05 * rng.normal(size=12)), np.nan])
+    law = candidate("viscous + coulomb", 2, [*(0.1 + 0.05 * rng.normal(size=12)), np.nan])
+    pick, rule = _choose([law, nothing], EligibilityRules())
+    assert pick is law and "not enough data" not in rule

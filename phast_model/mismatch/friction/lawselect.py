@@ -361,6 +361,16 @@ def _fold_score(sc: _Scoring, specs: Sequence[Spec], k: int) -> tuple[float, flo
     raise ValueError(f"unknown criterion {opts.criterion!r}")
 
 
+def fold_stats(scores: list[float], weak_form: list[float]) -> FoldStats:
+    """A law's fold scores and their mean and standard error.  A left-out recording on which the score is undefined
+    for every law (a joint that does not move there: no speed band holds its samples) is no evidence: the mean and its
+    standard error are over the folds that scored."""
+    scored = np.asarray(scores, dtype=float)[np.isfinite(scores)]
+    mean = float(np.mean(scored)) if scored.size else math.nan
+    se = float(np.std(scored, ddof=1) / math.sqrt(scored.size)) if scored.size > 1 else 0.0
+    return FoldStats([float(x) for x in scores], mean, se, float(np.mean(weak_form)))
+
+
 def _score(sc: _Scoring, specs: Sequence[Spec]) -> CandidateScore:
     """Fit on all recordings (passivity, significance, curve agreement) and on each fold (the scores)."""
     rules, wf = sc.opts.rules, sc.wf_all
@@ -372,10 +382,9 @@ def _score(sc: _Scoring, specs: Sequence[Spec]) -> CandidateScore:
              / tot_rms[t.coordinate] for t in full.terms]
     sig = all(t.excludes_zero and abs(t.t) >= rules.min_t and sh >= rules.min_share for t, sh in zip(full.terms, share))
     fs, wfs = zip(*[_fold_score(sc, specs, k) for k in range(len(sc.folds.weak))])
-    se = float(np.std(fs, ddof=1) / math.sqrt(len(fs))) if len(fs) > 1 else 0.0
     inside = [r["inside"] for r in check_against_curve(full, sc.reference.curve)
               if sc.scored is None or r["coordinate"] in sc.scored]
-    folds = FoldStats([float(x) for x in fs], float(np.mean(fs)), se, float(np.mean(wfs)))
+    folds = fold_stats(list(fs), list(wfs))
     return CandidateScore(full.name, full.n_params, folds,
                           Eligibility(passive, sig, float(np.mean(inside)) if inside else 1.0),
                           fitted=full)
@@ -395,11 +404,12 @@ def _choose(scores: list[CandidateScore], opts: EligibilityRules) -> tuple[Candi
                       "with the fewest parameters is kept")
     ok = scored
     best = min(ok, key=lambda s: s.mean)
-    for s in scores:  # paired standard error of the fold-wise difference to the best candidate
+    for s in scores:  # paired standard error of the fold-wise difference to the best candidate (folds both scored)
         d = np.asarray(s.fold_scores) - np.asarray(best.fold_scores)
+        d = d[np.isfinite(d)]
         s.folds.diff_se = float(np.std(d, ddof=1) / math.sqrt(len(d))) if len(d) > 1 else 0.0
     # not significantly worse than the best: one-sided paired t-test at 5% over the folds
-    t_margin = float(student_t.ppf(0.95, max(len(best.fold_scores) - 1, 1)))
+    t_margin = float(student_t.ppf(0.95, max(int(np.isfinite(best.fold_scores).sum()) - 1, 1)))
     for s in ok:
         s.not_worse = s is best or s.mean - best.mean <= t_margin * s.folds.diff_se
     pick = min([s for s in ok if s.not_worse], key=lambda s: (s.n_params, s.mean))
