@@ -44,7 +44,7 @@ from .energy import energy_check
 from .evaluate import FitTable, HeldOut, check_rollout_window, held_out
 from .explainers import Context, Explained, Explainer, ShootingExplainer, explain_in_turn
 from .fitting.problem import Problem, prepare
-from .friction.systematic import WeakFormExplainer, drive_share
+from .friction.systematic import WeakFormExplainer, drive_share, parameter_share
 from .locate import locate
 from .options import Options, Progress
 from .report.document import Report, summary_text
@@ -256,14 +256,23 @@ def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mappin
     try:  # the input was checked above: anything raised from here on is the tool's own failure
         problem = prepare(simulator, sys0, train, opts, log)
         held = held_out(hold, evaluated_on, problem.sigma, problem.x_scale, problem.shoot_window,
-                        problem.smoothing_window,
-                        opts.rollout_window)
+                        problem.smoothing_window, held_out_window(problem, hold))
         inputs = _Inputs(simulator, given, dec, train, hold, held, comparison,
                          tuple(EXPLAINERS if explainers is None else explainers))
         report = _second_look(problem, inputs, _explain(problem, inputs))
         return answer_in_model_terms(report, sys0, held, given) if is_model_file_system(sys0) else report
     except ValueError as exc:
         raise InternalError(f"internal failure of the analysis: {type(exc).__name__}: {exc}") from exc
+
+
+def held_out_window(problem: Problem, hold: Recordings) -> float | None:
+    """The held-out open-loop window [s]: the user's; else, for a driven robot's model file, :data:`LONG_LOOK` shooting
+    windows (a robot's recordings are usually closed loop: replayed open loop for their whole length, every model
+    drifts away and the score measures the missing controller, not the model); else None (whole trajectories)."""
+    if problem.opts.rollout_window is not None or not any(problem.has_u) or not is_model_file_system(problem.sys0):
+        return problem.opts.rollout_window
+    samples = LONG_LOOK * problem.shoot_window
+    return (samples - 1) * hold.dt if samples < hold.T else None
 
 
 def held_out_scores(sim: str | type[System] | Simulator, recordings: str | Path | Mapping[str, object] | Recordings,
@@ -280,7 +289,7 @@ def held_out_scores(sim: str | type[System] | Simulator, recordings: str | Path 
     train, hold, evaluated_on = split(rec, holdout_fraction, holdout)
     problem = prepare(simulator, sys0, train, opts, Progress(False))
     held = held_out(hold, evaluated_on, problem.sigma, problem.x_scale, problem.shoot_window, problem.smoothing_window,
-                    opts.rollout_window)
+                    held_out_window(problem, hold))
     metrics, _ = held.evaluate({"nominal": sys0, **models})
     return metrics
 
@@ -398,21 +407,22 @@ def _described(problem: Problem, share: float, drives: float | None = None) -> D
 
 
 def _screen(problem: Problem) -> tuple[ParameterScreen, Described]:
-    """The parameter screen and how much the simulator describes.  A motor-driven model file whose nominal model
-    cannot follow the windows is checked for its drives first: when rotor inertia and friction per driven joint
-    account for the force it leaves, no body value is screened (the weak form answers with the drives and the file's
-    body values), which also spares the fit of every identifiable body value."""
+    """The parameter screen and how much the simulator describes.  A motor-driven model file is first fitted on a
+    sample of the windows, as MuJoCo simulates it (:func:`.calibrate.nominal_sample`): when it follows them no better
+    than a line, and rotor inertia and friction per driven joint account for more of the force it leaves than a change
+    of its own parameters does (weak form), it goes to its drives with the file's body values (the weak form answers)
+    without a screen of every window."""
     drives = None
     if any(problem.has_u) and is_model_file_system(problem.sys0):
-        # a sample of the windows, simulated as MuJoCo simulates the file, decides; in the drives' regime it stays the
-        # shooting windows (only the answer's chi^2 on the training recordings is read from them)
         shooter, fit = nominal_sample(problem, in_mujoco(problem.nominal_family.build(np.zeros(0))))
         share = explained_share(shooter, fit)
-        drives = drive_share(problem) if share < MIN_DESCRIBED else None
-        if drives is not None and drives >= MIN_DESCRIBED:
-            problem.log(f"nominal fit on {len(fit.X)} of the {len(problem.shooting.windows.traj)} windows: chi2/dof = "
-                        f"{fit.chi2_red:.3g}")
-            return drives_screen(problem, (shooter, fit, 0)), _described(problem, share, drives)
+        if share < MIN_DESCRIBED:
+            drives, params = drive_share(problem), parameter_share(problem)
+            problem.log(f"on {len(fit.X)} of the {len(problem.shooting.windows.traj)} windows the model follows no "
+                        f"better than a line (share {share:.3g}); its own parameters account for {params:.0%} of "
+                        "the force it leaves (weak form)")
+            if drives >= MIN_DESCRIBED and drives > params:
+                return drives_screen(problem, (shooter, fit, 0)), _described(problem, share, drives)
     nominal = fit_nominal(problem)
     share = explained_share(nominal[0], nominal[1])
     screen = screen_parameters(problem, nominal)

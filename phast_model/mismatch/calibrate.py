@@ -122,11 +122,10 @@ def followed_windows(r: np.ndarray) -> np.ndarray:
     return per_win <= max(30.0 * float(np.median(per_win)), 50.0)
 
 
-def fit_nominal(problem: Problem, simulated: System | None = None) -> tuple[Shooter, ShootFit, int]:
-    """Window states of the nominal model (``simulated``: the nominal model as another engine simulates it, e.g.
-    :func:`.written.in_mujoco`'s); windows it cannot follow at all (e.g. a separatrix crossing) are dropped."""
+def fit_nominal(problem: Problem) -> tuple[Shooter, ShootFit, int]:
+    """Window states of the nominal model; windows it cannot follow at all (e.g. a separatrix crossing) are dropped."""
     opts = problem.opts
-    system = problem.nominal_family.build(np.zeros(0)) if simulated is None else simulated
+    system = problem.nominal_family.build(np.zeros(0))
     shooter = problem.shooter(problem.shooting.windows)
     fit = shooter.fit_states(system, problem.shooting.X0, max_iter=opts.max_iter)
     keep = followed_windows(fit.r)
@@ -138,20 +137,20 @@ def fit_nominal(problem: Problem, simulated: System | None = None) -> tuple[Shoo
     return shooter, fit, n_dropped
 
 
-#: windows (at most) the nominal model is first fitted to when a model file may be described only up to its drives,
-#: and the iterations of that fit: enough to tell a model that follows the windows from one that follows none
+#: windows (at most) of the sample on which a motor-driven model file is first fitted, and the iterations of that fit:
+#: enough to tell a model that follows the windows from one that follows none
 SHARE_WINDOWS, SHARE_ITER = 16, 8
 
 
 def nominal_sample(problem: Problem, simulated: System) -> tuple[Shooter, ShootFit]:
     """The nominal model (``simulated``: as an engine simulates it) fitted to at most :data:`SHARE_WINDOWS` of the
-    shooting windows, spread evenly over them, in at most :data:`SHARE_ITER` iterations: its :func:`explained_share`
-    tells a model that follows the recordings from one that follows none at a fraction of the cost of all windows."""
+    shooting windows, spread evenly over them, in at most :data:`SHARE_ITER` iterations: a model that follows the
+    recordings is told from one that follows none at a fraction of the cost of all windows."""
     windows = problem.shooting.windows
     pick = np.unique(np.linspace(0, len(windows.traj) - 1, min(SHARE_WINDOWS, len(windows.traj))).round().astype(int))
     shooter = problem.shooter(windows.select(pick))
-    return shooter, shooter.fit_states(simulated, problem.shooting.X0[pick], max_iter=min(SHARE_ITER,
-                                                                                         problem.opts.max_iter))
+    return shooter, shooter.fit_states(simulated, problem.shooting.X0[pick],
+                                       max_iter=min(SHARE_ITER, problem.opts.max_iter))
 
 
 def _parameter_columns(problem: Problem, shooter: Shooter, nominal_fit: ShootFit,

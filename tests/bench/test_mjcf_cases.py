@@ -96,3 +96,15 @@ def test_end_to_end_furuta_small():
     assert [(f["term"], f["joint"], f["mjcf"]) for f in row["found"]] == [("coulomb_friction", "pendulum", "frictionloss")]
     assert row["passed"], row["reason"]
     assert row["fit"]["calibrated_xml"]["rollout_rmse"] < 0.7 * row["fit"]["calibrated"]["rollout_rmse"]
+
+
+def test_a_cad_model_without_its_drives_gets_them():
+    """arm3.xml with rotor inertia on every joint and friction on three, under PD control: the nominal model follows no
+    window, the drives account for more of the force than a change of its body values, so the answer is rotor inertia
+    and friction per joint with the file's body values (12 x 300 samples)."""
+    row = mc.run_case(CASES["arm3_drives"], seed=0, n_traj=12, T=300)
+    assert row["calibrated_changed"] == {}
+    assert {(f["term"], f["joint"]) for f in row["found"]} >= {("coulomb_friction", "shoulder"),
+                                                                 ("coulomb_friction", "elbow"),
+                                                                 ("armature", "shoulder")}
+    assert row["fit"]["augmented"]["rollout_rmse"] < 0.3 * row["fit"]["nominal"]["rollout_rmse"]

@@ -44,6 +44,7 @@ from phast_gym.systems.base import ParameterError, System
 
 from ...identify.frictioncurve import FrictionCurve, friction_curve
 from ...identify.shooting import Heartbeat, Shooter, ShootFit
+from ...identify.simulators import known_params
 from ..calibrate import Calibration
 from ..evaluate import HeldOut
 from ..explainers import Answer, Context, Declined
@@ -56,7 +57,7 @@ from ..written import in_mujoco
 from .laws import FrictionLaw, spec_of
 from .lawselect import LawSelection, select_friction
 from .passivity import check_against_curve, is_passive
-from .weakid import WeakFit, WeakModel, check_parameters, explained_force, identify
+from .weakid import WeakFit, WeakModel, check_parameters, explained_force, identify, parameter_force
 
 
 @dataclass
@@ -181,6 +182,17 @@ def drive_share(problem: Problem) -> float:
     window = problem.smoothing_window
     model = WeakModel(problem.sim, {}, [], [], driven, problem.eps, problem.nominal_family.deadzone_width, window)
     return explained_force(model, problem.train.resampled(), [(nm, i) for i in driven for nm in PROVISIONAL_LAW])
+
+
+def parameter_share(problem: Problem) -> float:
+    """The share of the same balance (:func:`drive_share`) that a change of the simulator's own parameters accounts
+    for, linearized at the user's values: every non-zero numeric one but the known constants (body values, gears).
+    A model whose parameters explain the recordings at least as well as drives do is calibrated, not given drives."""
+    known = known_params(problem.sys0) - set(problem.opts.free)
+    params = [k for k, v in problem.sim.numeric_params(problem.sys0).items() if v != 0 and k not in known]
+    model = WeakModel(problem.sim, {}, params, [], [], problem.eps, problem.nominal_family.deadzone_width,
+                      problem.smoothing_window)
+    return parameter_force(model, problem.train.resampled())
 
 
 def systematic(ctx: SystematicContext) -> SystematicResult:

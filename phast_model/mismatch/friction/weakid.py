@@ -184,6 +184,20 @@ def explained_force(model: WeakModel, rec: Recordings, law: list[Spec]) -> float
     return 1.0 - float(r) ** 2 / scale
 
 
+def parameter_force(model: WeakModel, rec: Recordings) -> float:
+    """1 - rss / |S (conservative + port force)|^2 of a least squares (signs free) of the force the model leaves on the
+    columns of ``model.params``: the share of the forces the balance carries that a change of those parameters
+    (linearized at ``model.kwargs``) accounts for."""
+    wf, _, cols, _ = _columns(model, dict(model.kwargs), rec, [])
+    y = (wf.total - wf.own).reshape(-1)
+    scale = max(float(np.sum(wf.carried**2)), 1e-300)
+    if cols:
+        X = np.stack([c.reshape(-1) for c in cols], 1)
+        X = X / (np.linalg.norm(X, axis=0) + 1e-300)
+        y = y - X @ np.linalg.lstsq(X, y, rcond=None)[0]
+    return 1.0 - float(y @ y) / scale
+
+
 def identify(model: WeakModel, rec: Recordings, law: list[Spec], iterations: int = 3) -> WeakFit:
     """Parameters, armature and the friction law ``law`` (specs with Stribeck velocities fixed) by Gauss-Newton on the
     weak form, starting at ``model.kwargs`` (reported against the simulator's own values); ``rec`` must be uniformly
