@@ -168,19 +168,27 @@ class Balance:
 
 def momentum_balance(system: System, rec: Recordings, window: int, differentiator: Differentiator = SAVGOL) -> Balance:
     """Smoothed q, qdot (measurement map undone), d/dt of the filtered momentum p = M(q) qdot, and the model's pdot
-    (conservative, port and dissipative force) at those states with the recorded u held per interval."""
+    (conservative, port and dissipative force) at those states with the recorded u held per interval (the mean of
+    the two intervals that meet at each sample)."""
     n, dt = rec.n, rec.dt
     qs, vs = smooth(rec.q, dt, window, differentiator=differentiator)
     qs = getattr(system, "unmeasure", lambda y: y)(qs)
     p = momentum(system, qs, vs)
     dp = differentiator.derivative(p, window, dt, 1)
-    u = None
-    if rec.u is not None:
-        uu = np.concatenate([rec.u, rec.u[:, -1:]], axis=1)
-        u = tuple(uu[..., i] for i in range(n))
     qc, pc = tuple(qs[..., i] for i in range(n)), tuple(p[..., i] for i in range(n))
-    pdot = np.stack([np.broadcast_to(f, qs.shape[:-1]) for f in system.rhs(qc, pc, u, NUMPY)[1]], -1)
-    return Balance(qs, vs, dp, pdot)
+
+    def force(u: np.ndarray | None) -> np.ndarray:
+        comps = None if u is None else tuple(u[..., i] for i in range(n))
+        return np.stack([np.broadcast_to(f, qs.shape[:-1]) for f in system.rhs(qc, pc, comps, NUMPY)[1]], -1)
+
+    if rec.u is None:
+        return Balance(qs, vs, dp, force(None))
+    # u_k is held over [t_k, t_k+1): around sample k the force is u_k-1 half the time and u_k the other half, so the
+    # filtered balance takes their mean (u_k alone would shift the input by half a sample: under a stiff PD
+    # controller, a damping of Kp dt / 2)
+    after = np.concatenate([rec.u, rec.u[:, -1:]], axis=1)
+    before = np.concatenate([rec.u[:, :1], rec.u], axis=1)
+    return Balance(qs, vs, dp, 0.5 * (force(after) + force(before)))
 
 
 def weak_form(system: System, rec: Recordings, window: int | None = None, eps: float | None = None,

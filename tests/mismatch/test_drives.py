@@ -65,3 +65,28 @@ def test_the_weak_form_parameter_check_says_where_it_is(drives):
     assert loud.kept == quiet.kept and loud.table == quiet.table
     assert said and len(said) == len(params) - len(quiet.kept)
     assert all("weak-form parameter check" in m and "parameters left" in m for m in said)
+
+
+def test_an_input_held_over_each_interval_is_not_read_half_a_sample_early():
+    """Under a stiff PD controller a half-sample shift of u is a damping of Kp dt / 2: the weak form takes the mean of
+    the two intervals that meet at a sample, so that a frictionless pendulum shows no friction."""
+    from phast_gym.integrate import step
+    from phast_gym.registry import make_env_system
+    from phast_gym.systems.base import NUMPY
+    from phast_model.identify.recordings import Recordings
+    from phast_model.mismatch.friction import fit_law
+
+    system = make_env_system("PHAST/Pendulum-v0")
+    rng = np.random.default_rng(0)
+    dt, T, kp, kd = 0.01, 600, 40.0, 2.0
+    ref = 0.4 * np.sin(np.outer(rng.uniform(1.0, 3.0, 6), np.arange(T) * dt))
+    q, p = [rng.uniform(-0.5, 0.5, 6)], [np.zeros(6)]
+    qs, us = [q[0]], []
+    for k in range(T - 1):  # the controller's torque held over each interval
+        v = system.velocity(q, p, NUMPY)[0]
+        us.append(-kp * (q[0] - ref[:, k]) - kd * v)
+        q, p = step(system, q, p, [us[-1]], NUMPY, dt=dt, substeps=10)
+        qs.append(q[0])
+    rec = Recordings(np.stack(qs, 1)[..., None], dt, np.stack(us, 1)[..., None], (0,))
+    law = fit_law(system, rec, ["viscous_damping"])
+    assert abs(law.terms[0].coefficient) < 0.05 * kp * dt / 2

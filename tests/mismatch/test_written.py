@@ -16,6 +16,7 @@ from phast_model.mismatch.vocabulary.terms import AugmentedSystem, Term  # noqa:
 from phast_model.mismatch.written import in_mujoco, written_form  # noqa: E402
 from tests.identify.test_mjcf import ARM  # noqa: E402  (a 4-joint arm: shoulder, elbow, slide, wrist)
 
+
 @pytest.fixture(scope="module")
 def arm(tmp_path_factory):
     path = tmp_path_factory.mktemp("written") / "arm4.xml"
