@@ -239,6 +239,24 @@ def test_cli_refuses_bad_input_with_exit_2_and_writes_nothing(arm, tmp_path, cap
         assert not out.exists(), name
 
 
+def test_compare_models_are_checked_before_any_work(arm, tmp_path, capsys):
+    """``--compare NAME=MODEL``: a model file, found, that MuJoCo compiles; anything else exits 2 naming the item."""
+    from phast_model.cli.mismatch import main
+
+    np.savez(tmp_path / "rec.npz", q=np.random.default_rng(6).normal(0, 0.1, (2, 60, 4)), dt=0.01)
+    (tmp_path / "broken.xml").write_text(BAD["does not compile"])
+    cases = {"no_name": (str(arm), "expected NAME=path/to/model.xml"),
+             "the_name=nowhere.xml": (None, "file 'nowhere.xml' not found"),
+             "broken": (f"broken={tmp_path / 'broken.xml'}", "does not compile")}
+    for item, (given, message) in cases.items():
+        out = tmp_path / f"out_{len(message)}"
+        argv = ["--sim", str(arm), "--recordings", str(tmp_path / "rec.npz"), "--out", str(out), "--quiet",
+                "--compare", given or item]
+        assert main(argv) == 2, item
+        assert message in capsys.readouterr().err, item
+        assert not out.exists(), item
+
+
 def test_partial_learns_the_files_body_parameters(arm):
     """PARTIAL on a model file: V and M are the file's formulas with learnable body parameters that start at the
     file's values and receive gradients (one set shared by V and M)."""
