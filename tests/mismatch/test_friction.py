@@ -128,3 +128,14 @@ def test_a_fold_no_law_can_score_does_not_void_the_selection():
     law = candidate("viscous + coulomb", 2, [*(0.1 + 0.05 * rng.normal(size=12)), np.nan])
     pick, rule = _choose([law, nothing], EligibilityRules())
     assert pick is law and "not enough data" not in rule
+
+
+def test_the_law_selection_says_where_it_is(rec, system):
+    """A long law selection (minutes on a 6-joint arm) writes progress lines: the coordinate, the candidates scored and
+    the time left."""
+    from phast_model.identify.shooting import Heartbeat
+    from phast_model.mismatch.friction import select_friction
+
+    lines: list[str] = []
+    select_friction(system, rec, Heartbeat(lines.append, every=0.0), terms=("viscous_damping", "coulomb_friction"))
+    assert lines and "coordinate 1 of 1" in lines[-1] and "4 of 4 candidate laws" in lines[-1] and "s left" in lines[-1]

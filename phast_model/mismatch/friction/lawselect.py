@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -26,7 +27,7 @@ from phast_gym.systems.base import System
 
 from ...identify.frictioncurve import FrictionCurve, friction_curve, speed_edges
 from ...identify.recordings import Recordings
-from ...identify.shooting import estimate_noise, odd, smooth, time_scale
+from ...identify.shooting import Heartbeat, estimate_noise, odd, smooth, time_scale
 from ...identify.weakform import WeakForm, weak_form
 from ..vocabulary.registry import law_terms
 from ..vocabulary.terms import Term
@@ -463,12 +464,31 @@ def select_law(system: System, rec: Recordings, candidates: Sequence[Sequence[Te
     return _select(_scoring(system, rec, window, eps, block, coordinate, opts), specs_list)
 
 
-def _select(sc: _Scoring, specs_list: list[list[Spec]]) -> LawSelection:
+@dataclass
+class _Progress:
+    """Where a per-coordinate selection stands, for a progress line at least every 30 s (:class:`Heartbeat`)."""
+
+    heartbeat: Heartbeat
+    total: int  # candidate laws over every coordinate
+    done: int = 0
+    start: float = field(default_factory=time.monotonic)
+
+    def step(self, coordinate: int, n: int) -> None:
+        self.done += 1
+        if self.heartbeat.due():
+            left = (time.monotonic() - self.start) / self.done * (self.total - self.done)
+            self.heartbeat.say(f"  friction laws: coordinate {coordinate + 1} of {n}, {self.done} of {self.total} "
+                               f"candidate laws scored (about {left:.0f} s left)")
+
+
+def _select(sc: _Scoring, specs_list: list[list[Spec]], progress: _Progress | None = None) -> LawSelection:
     """Score every candidate law against ``sc`` and choose."""
     opts = sc.opts
     scores = []
     for c_idx, specs in enumerate(specs_list):
         scores.append(_score(sc, specs))
+        if progress is not None and sc.scored:
+            progress.step(sc.scored[0], sc.rec.n)
         if opts.progress:
             s = scores[-1]
             print(f"[select_law {c_idx + 1}/{len(specs_list)}] {s.law}: {s.mean:.4g} +- {s.se:.2g} passive={s.passive} "
@@ -479,15 +499,19 @@ def _select(sc: _Scoring, specs_list: list[list[Spec]]) -> LawSelection:
     return LawSelection(pick.fitted, pick.law, opts.criterion, scores, sc.folds.text, rule)
 
 
-def select_friction(system: System, rec: Recordings, **kwargs: Any) -> tuple[FrictionLaw, list[LawSelection]]:
+def select_friction(system: System, rec: Recordings, heartbeat: Heartbeat | None = None,
+                    **kwargs: Any) -> tuple[FrictionLaw, list[LawSelection]]:
     """:func:`select_law` coordinate by coordinate (friction is diagonal: the weak-form balance of coordinate i holds
     only the terms on i, so the choices are independent and the candidate count stays linear in n).  Returns the
-    merged law and the per-coordinate selections."""
+    merged law and the per-coordinate selections.  ``heartbeat``: progress lines while the candidates are scored
+    (minutes on a 6-joint arm with many recordings)."""
     opts = LawSelectionOptions().with_(**{k: v for k, v in kwargs.items() if k not in ("window", "eps", "block")})
     # weak forms, folds
     sc = _scoring(system, rec, kwargs.get("window"), kwargs.get("eps"), kwargs.get("block"), None, opts)
     # and curve computed once, shared by the coordinates
-    sels = [_select(replace(sc, scored=[i]), coordinate_laws(i, opts.max_terms, opts.terms)) for i in range(rec.n)]
+    laws = [coordinate_laws(i, opts.max_terms, opts.terms) for i in range(rec.n)]
+    progress = None if heartbeat is None else _Progress(heartbeat, sum(len(c) for c in laws))
+    sels = [_select(replace(sc, scored=[i]), laws[i], progress) for i in range(rec.n)]
     first = sels[0].chosen
     merged = FrictionLaw([t for s in sels for t in s.chosen.terms], first.eps, first.n,
                          float(sum(s.chosen.rss for s in sels)),

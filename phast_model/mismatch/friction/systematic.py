@@ -210,7 +210,8 @@ def systematic(ctx: SystematicContext) -> SystematicResult:
     problem.log(f"parameters that predict left-out recordings better when fitted: {pcheck.kept}")
     first = identify(model, train, provisional)
     base = model.build(first.kwargs, first.armature_terms())
-    law, sels = select_friction(base, train, window=window, eps=problem.eps, terms=law_terms(problem.opts.terms))
+    law, sels = select_friction(base, train, Heartbeat(problem.log), window=window, eps=problem.eps,
+                                terms=law_terms(problem.opts.terms))
     problem.log(f"friction law: {law.name}; parameters {first.kwargs}")
     specs = [spec_of(t.term, t.coordinate, t.velocity) for t in law.terms]
     final = identify(replace(model, kwargs=first.kwargs), train, specs)
