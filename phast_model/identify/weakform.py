@@ -23,7 +23,7 @@ declares them through :class:`ExtraDissipation`.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -98,6 +98,12 @@ class WeakForm:
     @property
     def trim(self) -> int:
         return self.filter.trim
+
+    def subset(self, idx: np.ndarray) -> WeakForm:
+        """The weak form of the recordings ``idx`` alone: the filters run along each recording, so these are the
+        numbers :func:`weak_form` gives on them (only the cluster labels keep the whole set's block length)."""
+        return replace(self, qs=self.qs[idx], vs=self.vs[idx], total=self.total[idx], own=self.own[idx],
+                       blocks=self.blocks[idx], q_raw=self.q_raw[idx], v_raw=self.v_raw[idx], carried=self.carried[idx])
 
     def filt(self, x: np.ndarray) -> np.ndarray:
         """The weak-form filter S along time of an untrimmed (N, T, ...) array, then trimmed."""

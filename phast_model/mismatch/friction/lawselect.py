@@ -323,8 +323,14 @@ def _scoring(system: System, rec: Recordings, window: int | None, eps: float | N
     period = 2 * math.pi * time_scale(rec.q, rec.dt)
     rollout_window = int(round((opts.rollout.rollout_window or 3 * period) / rec.dt)) + 1
     init_samples = int(opts.rollout.init_samples or max(10, int(round(0.5 * period / rec.dt)) // 4))
-    fold_wf = [(weak_form(system, tr, window, eps, block), weak_form(system, te, window, eps, block), te)
-               for tr, te in folds]
+    if rec.n_traj >= 2:  # leave one recording out: each fold's weak forms are slices of the whole one (the filters
+        # run along each recording), not N recomputations of N - 1 recordings
+        every = np.arange(rec.n_traj)
+        fold_wf = [(wf_all.subset(every[every != k]), wf_all.subset(every[k: k + 1]), te)
+                   for k, (_, te) in enumerate(folds)]
+    else:
+        fold_wf = [(weak_form(system, tr, window, eps, block), weak_form(system, te, window, eps, block), te)
+                   for tr, te in folds]
     curve = friction_curve(system, rec, window, bands=opts.bands, n_bands=opts.n_bands, eps=eps, block=block)
     edges = [speed_edges(np.abs(wf_all.vs[..., i]).reshape(-1), opts.bands, opts.n_bands) for i in range(rec.n)]
     return _Scoring(system, rec, opts, wf_all, _Folds(fold_wf, fold_txt),
