@@ -28,7 +28,7 @@ import numpy as np
 from phast_gym.systems.base import System
 
 from ..identify.recordings import Recordings, load_raw, validate
-from ..identify.shooting import odd, time_scale
+from ..identify.shooting import Heartbeat, odd, time_scale
 from ..identify.simulators import Simulator, load_simulator
 from ..identify.split import check_holdout_indices, check_holdout_range, split
 from .calibrate import (
@@ -255,8 +255,8 @@ def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mappin
     log(f"{simulator.name}: {rec.n_traj} recordings x {rec.T} samples, dt={rec.dt}")
     try:  # the input was checked above: anything raised from here on is the tool's own failure
         problem = prepare(simulator, sys0, train, opts, log)
-        held = held_out(hold, evaluated_on, problem.sigma, problem.x_scale, problem.shoot_window,
-                        problem.smoothing_window, held_out_window(problem, hold))
+        held = replace(held_out(hold, evaluated_on, problem.sigma, problem.x_scale, problem.shoot_window,
+                                problem.smoothing_window, held_out_window(problem, hold)), heartbeat=Heartbeat(log))
         inputs = _Inputs(simulator, given, dec, train, hold, held, comparison,
                          tuple(EXPLAINERS if explainers is None else explainers))
         report = _second_look(problem, inputs, _explain(problem, inputs))

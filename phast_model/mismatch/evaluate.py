@@ -17,7 +17,7 @@ import numpy as np
 from phast_gym.systems.base import System
 
 from ..identify.recordings import Recordings
-from ..identify.shooting import Shooter, Windows, angle_diff, odd, simulate_qv, smooth, substeps_for
+from ..identify.shooting import Heartbeat, Shooter, Windows, angle_diff, odd, simulate_qv, smooth, substeps_for
 from .written import in_mujoco
 
 #: fewest samples of a held-out rollout window
@@ -40,10 +40,11 @@ def _ladder(K0: int, K_max: int) -> list[int]:
 
 
 def _fit_states(system: System, rec: Recordings, K: int, sigma: np.ndarray, x_scale: np.ndarray,
-                X0: np.ndarray) -> np.ndarray:
+                X0: np.ndarray, heartbeat: Heartbeat | None = None) -> np.ndarray:
     """Each trajectory's initial (q, qdot) fitted to its first K samples with ``system``."""
     sub = int(substeps_for(system, rec.dt))
     shooter = Shooter(Windows.cut(rec.time_slice(0, K), K), sigma, sub, x_scale)
+    shooter.heartbeat = heartbeat
     return shooter.fit(lambda g: system, X0, np.zeros(0), max_iter=15, stats=False).X
 
 
@@ -91,7 +92,8 @@ class _Linearization:
 
 
 def _initial_states(models: dict[str, System], rec: Recordings, K: int, sigma: np.ndarray, x_scale: np.ndarray,
-                    qs: np.ndarray, vs: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray]:
+                    qs: np.ndarray, vs: np.ndarray,
+                    heartbeat: Heartbeat | None = None) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """Every model's initial states of the held-out trajectories, and the samples each was fitted to.
 
     A trajectory whose state fitted to K samples leaves a rollout spread above :data:`MAX_INIT_SPREAD` under any model
@@ -101,7 +103,7 @@ def _initial_states(models: dict[str, System], rec: Recordings, K: int, sigma: n
     model alike, reached by a homotopy on the length."""
     ladder = _ladder(min(K, rec.T), max(min(K, rec.T), rec.T // 2))
     X = {name: _fit_states(s, rec, ladder[0], sigma, x_scale,
-                           np.concatenate([getattr(s, "unmeasure", lambda y: y)(qs[:, 0]), vs[:, 0]], axis=1))
+                           np.concatenate([getattr(s, "unmeasure", lambda y: y)(qs[:, 0]), vs[:, 0]], axis=1), heartbeat)
          for name, s in models.items()}
     Ks = np.full(rec.n_traj, ladder[0])
     if len(ladder) == 1:
@@ -115,33 +117,34 @@ def _initial_states(models: dict[str, System], rec: Recordings, K: int, sigma: n
             nxt = lin[name].next_lengths(ladder, current, Ks)[todo]
             for k in np.unique(nxt):
                 idx = todo[nxt == k]
-                X[name][idx] = _fit_states(system, rec.subset(idx), int(k), sigma, x_scale, X[name][idx])
+                X[name][idx] = _fit_states(system, rec.subset(idx), int(k), sigma, x_scale, X[name][idx], heartbeat)
                 current[idx] = k
     return X, Ks
 
 
 def evaluate_models(models: dict[str, System], rec: Recordings, sigma: np.ndarray, x_scale: np.ndarray, K: int,
-                    smoothing_window: int,
-                    scale: np.ndarray) -> tuple[dict[str, dict[str, float]], dict[str, np.ndarray]]:
+                    smoothing_window: int, scale: np.ndarray,
+                    heartbeat: Heartbeat | None = None) -> tuple[dict[str, dict[str, float]], dict[str, np.ndarray]]:
     """one_step_mse and rollout_rmse (docs/mismatch.md) of each model on held-out recordings; a system listed under
     several names (the calibrated model when no parameter changed) is scored once."""
     first = {id(s): name for name, s in reversed(list(models.items()))}  # each system's first name
     if len(first) < len(models):
         distinct = {name: s for name, s in models.items() if first[id(s)] == name}
-        out, rolls = _evaluate(distinct, rec, sigma, x_scale, K, smoothing_window, scale)
+        out, rolls = _evaluate(distinct, rec, sigma, x_scale, K, smoothing_window, scale, heartbeat)
         return ({name: out[first[id(s)]] for name, s in models.items()},
                 {name: rolls[first[id(s)]] for name, s in models.items()})
-    return _evaluate(models, rec, sigma, x_scale, K, smoothing_window, scale)
+    return _evaluate(models, rec, sigma, x_scale, K, smoothing_window, scale, heartbeat)
 
 
 def _evaluate(models: dict[str, System], rec: Recordings, sigma: np.ndarray, x_scale: np.ndarray, K: int,
-              smoothing_window: int, scale: np.ndarray) -> tuple[dict[str, dict[str, float]], dict[str, np.ndarray]]:
+              smoothing_window: int, scale: np.ndarray,
+              heartbeat: Heartbeat | None = None) -> tuple[dict[str, dict[str, float]], dict[str, np.ndarray]]:
     """:func:`evaluate_models` of distinct systems."""
     n, dt = rec.n, rec.dt
     qs, vs = smooth(rec.q, dt, smoothing_window, rec.t)
     out: dict[str, dict[str, float]] = {}
     rollouts: dict[str, np.ndarray] = {}
-    states, _ = _initial_states(models, rec, K, sigma, x_scale, qs, vs)
+    states, _ = _initial_states(models, rec, K, sigma, x_scale, qs, vs, heartbeat)
     for name, system in models.items():
         X = states[name]
         q_roll = simulate_qv(system, X[:, :n], X[:, n:], rec.T - 1, rec.u, rec.sim_dt, substeps_for(system, rec.sim_dt))
@@ -221,6 +224,7 @@ class HeldOut:
     smoothing_window: int  # smoothing window of the one-step seeds
     mixed: bool
     windowed: bool
+    heartbeat: Heartbeat | None = None  # progress lines while the models' initial states are fitted (minutes)
 
     def evaluate(self, models: dict[str, System],
                  rec: Recordings | None = None) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
@@ -230,8 +234,11 @@ class HeldOut:
         for s in models.values():
             if id(s) not in simulated:
                 simulated[id(s)] = in_mujoco(s)
+        if self.heartbeat is not None:
+            self.heartbeat.say(f"  held-out: scoring {', '.join(models)}")
         return evaluate_models({k: simulated[id(s)] for k, s in models.items()}, self.rec if rec is None else rec,
-                               self.sigma, self.x_scale, self.init_samples, self.smoothing_window, self.scale)
+                               self.sigma, self.x_scale, self.init_samples, self.smoothing_window, self.scale,
+                               self.heartbeat)
 
     def rollout_rmse(self, system: System, rec: Recordings) -> float:
         return self.evaluate({"m": system}, rec)[0]["m"]["rollout_rmse"]
