@@ -103,7 +103,8 @@ def _initial_states(models: dict[str, System], rec: Recordings, K: int, sigma: n
     model alike, reached by a homotopy on the length."""
     ladder = _ladder(min(K, rec.T), max(min(K, rec.T), rec.T // 2))
     X = {name: _fit_states(s, rec, ladder[0], sigma, x_scale,
-                           np.concatenate([getattr(s, "unmeasure", lambda y: y)(qs[:, 0]), vs[:, 0]], axis=1), heartbeat)
+                           np.concatenate([getattr(s, "unmeasure", lambda y: y)(qs[:, 0]), vs[:, 0]], axis=1),
+                           heartbeat)
          for name, s in models.items()}
     Ks = np.full(rec.n_traj, ladder[0])
     if len(ladder) == 1:
