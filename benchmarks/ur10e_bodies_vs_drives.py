@@ -34,37 +34,13 @@ def _example() -> ModuleType:
     return module
 
 
-def _drives(ex: ModuleType, data: Path, report: dict[str, Any]) -> dict[str, list[dict[str, float]]]:
+def _drives(ex: ModuleType, vec: dict[str, np.ndarray], report: dict[str, Any]) -> dict[str, list[dict[str, float]]]:
     """Per drive set, per joint: {MuJoCo attribute: value}."""
-    vec = ex.published_vectors((data / ex.PARAMETERS).read_text(encoding="utf-8", errors="replace"))
-    friction = vec["pi_frcn"].reshape(6, 3)
-    authors = [{"armature": float(vec["pi_drvs"][k]), "damping": float(friction[k, 0]),
-                "frictionloss": float(friction[k, 1])} for k in range(6)]
     ours: list[dict[str, float]] = [{} for _ in range(6)]
     for row in report["missing_physics"]:
         if row["term"] in TERMS:
             ours[row["coordinate"]][TERMS[row["term"]]] = float(row["coefficient"])
-    return {"none": [{} for _ in range(6)], "ours": ours, "authors": authors}
-
-
-def _model(ex: ModuleType, data: Path, bodies: str, drives: list[dict[str, float]], path: Path) -> Path:
-    """The URDF with the authors' link parameters (``bodies == "authors"``) and ``drives`` written as MJCF."""
-    from phast_gym.systems.mjcf_tree import urdf_spec
-    from phast_model.identify.mjcf_write import set_joint_attr
-
-    vec = ex.published_vectors((data / ex.PARAMETERS).read_text(encoding="utf-8", errors="replace"))
-    spec = urdf_spec((data / ex.URDF).read_text())
-    for k, name in enumerate(ex.JOINTS):
-        joint = spec.joint(name)
-        if bodies == "authors":
-            body = joint.parent
-            body.mass, body.ipos, body.fullinertia = ex.link_inertial(vec["pi_rgd"][10 * k: 10 * k + 10])
-            body.explicitinertial = True
-        for attr, value in drives[k].items():
-            set_joint_attr(joint, attr, value)
-    spec.compile()
-    path.write_text(spec.to_xml())
-    return path
+    return {"none": [{} for _ in range(6)], "ours": ours, "authors": ex.authors_drives(vec)}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -82,9 +58,12 @@ def main(argv: list[str] | None = None) -> int:
     facts = json.loads((run / "runs.json").read_text())
     held = list(range(len(facts["train"]), len(facts["train"]) + len(facts["held_out"])))
     urdf = str(data / ex.URDF)
+    vec = ex.authors_parameters(data)
+    bodies = {"urdf": None, "authors": vec["pi_rgd"]}
     with tempfile.TemporaryDirectory() as d:
-        models = {f"{b}_bodies+{name}_drives": mujoco_simulated(_model(ex, data, b, drives, Path(d) / f"{b}_{name}.xml"))
-                  for b in ("urdf", "authors") for name, drives in _drives(ex, data, report).items()}
+        models = {f"{b}_bodies+{name}_drives": mujoco_simulated(ex.urdf_model(data, drives, Path(d) / f"{b}_{name}.xml",
+                                                                               links))
+                  for b, links in bodies.items() for name, drives in _drives(ex, vec, report).items()}
         rec = checked_recordings(urdf, str(run / "recordings.npz"), {})
         assert not isinstance(rec, str), "a model file's recordings come back validated"
         window = (report["fit"]["rollout_window_samples"] - 1) * rec.dt  # the report's windows, sample for sample

@@ -153,29 +153,45 @@ def link_inertial(pi: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
     return m, c, np.array([at_com[0, 0], at_com[1, 1], at_com[2, 2], at_com[0, 1], at_com[0, 2], at_com[1, 2]])
 
 
-def authors_model(data: Path, out: Path) -> Path:
-    """The authors' identified model (UR10E_parameters.txt) as MJCF, ``OUT/authors_model.xml``: their rigid-body
-    parameters per link (about each URDF link frame), drive inertias as ``armature``, viscous friction Fv as
-    ``damping`` and Coulomb Fc as ``frictionloss``.  Their constant offset per joint has no MuJoCo attribute and is
-    left out; their rod-like links get :data:`ROD_MOMENT` on each principal moment."""
+def authors_parameters(data: Path) -> dict[str, np.ndarray]:
+    """The authors' identified model as published (``UR10E_parameters.txt`` in the checkout ``data``)."""
+    return published_vectors((data / PARAMETERS).read_text(encoding="utf-8", errors="replace"))
+
+
+def authors_drives(vec: dict[str, np.ndarray]) -> list[dict[str, float]]:
+    """Per joint, the authors' drive as MuJoCo attributes: rotor inertia ``pi_drvs`` as ``armature``, viscous Fv as
+    ``damping``, Coulomb Fc as ``frictionloss`` (their constant offset per joint has no attribute)."""
+    friction = vec["pi_frcn"].reshape(6, 3)  # per joint: Fv, Fc, offset
+    return [{"armature": float(vec["pi_drvs"][k]), "damping": float(friction[k, 0]),
+             "frictionloss": float(friction[k, 1])} for k in range(6)]
+
+
+def urdf_model(data: Path, drives: list[dict[str, float]], path: Path, links: np.ndarray | None = None) -> Path:
+    """The published URDF written as MJCF to ``path``, with ``drives`` (per joint: attribute -> value) and, given
+    ``links`` (the authors' ``pi_rgd``: 10 values per link, the link each joint moves, in joint order), those link
+    parameters in place of the URDF's."""
     from phast_gym.systems.mjcf_tree import urdf_spec
     from phast_model.identify.mjcf_write import set_joint_attr
 
-    vec = published_vectors((data / PARAMETERS).read_text(encoding="utf-8", errors="replace"))
     spec = urdf_spec((data / URDF).read_text())
-    friction = vec["pi_frcn"].reshape(6, 3)  # per joint: Fv, Fc, offset
-    for k, joint in enumerate(JOINTS):  # pi_rgd: 10 values per link, the link each joint moves, in joint order
-        j = spec.joint(joint)
-        body = j.parent
-        body.mass, body.ipos, body.fullinertia = link_inertial(vec["pi_rgd"][10 * k: 10 * k + 10])
-        body.explicitinertial = True
-        set_joint_attr(j, "armature", float(vec["pi_drvs"][k]))
-        set_joint_attr(j, "damping", float(friction[k, 0]))
-        set_joint_attr(j, "frictionloss", float(friction[k, 1]))
+    for k, name in enumerate(JOINTS):
+        joint = spec.joint(name)
+        if links is not None:
+            body = joint.parent
+            body.mass, body.ipos, body.fullinertia = link_inertial(links[10 * k: 10 * k + 10])
+            body.explicitinertial = True
+        for attr, value in drives[k].items():
+            set_joint_attr(joint, attr, value)
     spec.compile()
-    path = out / "authors_model.xml"
     path.write_text(spec.to_xml())
     return path
+
+
+def authors_model(data: Path, out: Path) -> Path:
+    """The authors' identified model as MJCF, ``OUT/authors_model.xml``: their link parameters (about each URDF link
+    frame; rod-like links get :data:`ROD_MOMENT` on each principal moment) and their drives (:func:`authors_drives`)."""
+    vec = authors_parameters(data)
+    return urdf_model(data, authors_drives(vec), out / "authors_model.xml", vec["pi_rgd"])
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -106,13 +106,13 @@ def compared_models(items: list[str]) -> dict[str, Any]:
 
     out: dict[str, Any] = {}
     for item in items:
-        name, sep, path = item.partition("=")
-        if not sep or not name.strip() or not is_model_file(path.strip()):
+        name, sep, path = (x.strip() for x in item.partition("="))
+        if not sep or not name or not is_model_file(path):
             raise ValueError(f"--compare {item!r}: expected NAME=path/to/model.xml (or .urdf)")
-        if not Path(path.strip()).is_file():
-            raise ValueError(f"--compare {item!r}: file {path.strip()!r} not found")
+        if not Path(path).is_file():
+            raise ValueError(f"--compare {item!r}: file {path!r} not found")
         try:
-            out[name.strip()] = mujoco_simulated(path.strip())
+            out[name] = mujoco_simulated(path)
         except ModelFileError as exc:
             raise ValueError(f"--compare {item!r}: {exc}") from None
     return out

@@ -25,7 +25,7 @@ from ..identify.mujoco_sim import mujoco_simulated
 from .vocabulary.registry import VOCABULARY
 from .vocabulary.terms import AugmentedSystem
 
-__all__ = ["in_mujoco", "term_edit", "written_form"]
+__all__ = ["in_mujoco", "term_edit", "text_simulated", "written_form"]
 
 
 def term_edit(term: str, coordinate: int, coefficient: float, tree: MJCFTree) -> Edit | None:
@@ -80,6 +80,11 @@ def in_mujoco(system: System) -> System:
         text = calibrated_xml(*form).text
     except ModelFileError:
         return system
+    return text_simulated(text)
+
+
+def text_simulated(text: str) -> System:
+    """The MJCF ``text`` as MuJoCo simulates it (:func:`~phast_model.identify.mujoco_sim.mujoco_simulated`)."""
     with tempfile.TemporaryDirectory(prefix="phast-written-") as d:
         path = Path(d) / "model.xml"
         path.write_text(text)

@@ -8,9 +8,7 @@ fit table.  Terms no attribute expresses are listed with what a MuJoCo user woul
 
 from __future__ import annotations
 
-import tempfile
 from dataclasses import dataclass, replace
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -20,12 +18,11 @@ from phast_gym.systems.mjcf import MJCFSystem
 from phast_gym.systems.mjcf_tree import MJCFTree, ModelFileError
 
 from ...identify.mjcf_write import Edit, calibrated_xml
-from ...identify.mujoco_sim import mujoco_simulated
 from ...identify.recordings import Recordings
 from ..evaluate import HeldOut
 from ..rows import TermRow
 from ..vocabulary.registry import VOCABULARY
-from ..written import term_edit
+from ..written import term_edit, text_simulated
 from .document import Report
 from .files import CALIBRATED_MODEL
 
@@ -111,11 +108,7 @@ def write_back(report: Report, tree: MJCFTree) -> MJCFWriteBack:
 
 def _score_in_mujoco(text: str, held: HeldOut) -> dict[str, float]:
     """The written model's held-out one-step MSE and rollout RMSE, simulated by MuJoCo (same windows and metrics)."""
-    with tempfile.TemporaryDirectory(prefix="phast-calibrated-") as d:
-        path = Path(d) / CALIBRATED_MODEL
-        path.write_text(text)
-        system = mujoco_simulated(path)
-        table, _ = held.fit_table({CALIBRATED_XML_ROW: system})
+    table, _ = held.fit_table({CALIBRATED_XML_ROW: text_simulated(text)})
     return table.to_dict()[CALIBRATED_XML_ROW]
 
 
