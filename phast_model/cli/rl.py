@@ -20,8 +20,10 @@ from typing import cast
 
 import gymnasium as gym
 
+from ..control.mppi import MPPISpec
 from ..rl.hold import HOLD_KINDS, HoldConfig
 from ..rl.loop import ALGOS, AgentSpec, FitSpec, LoopConfig, LoopInterrupted
+from ..rl.planner import AGENTS
 from ..rl.plant import TASKS, PlantSpec, Task, quiet_u_tol
 from ..rl.types import Plant
 from .args import json_object
@@ -51,7 +53,8 @@ def add_excitation_options(ap: argparse.ArgumentParser, d: LoopConfig) -> None:
     """The random-input episodes that start the loop, and how many iterations follow (on a real rig, set the
     amplitude to what it safely takes)."""
     ap.add_argument("--excitation-episodes", type=int, default=None,
-                    help=f"random-input plant episodes first (default: {d.excitation_episodes}, none with "
+                    help=f"random-input plant episodes first (default: {d.excitation_episodes}, 1 with --agent mpc, "
+                         "none with "
                          "--recordings)")
     ap.add_argument("--excitation-std", type=float, default=d.torque_std,
                     help="std of the excitation's random inputs (N m or N; clipped at --max-action)")
@@ -71,11 +74,30 @@ def add_hold_options(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--lqr-position", type=float, default=h.lqr_position,
                     help="LQR hold: weight on the Euclidean position errors (the cart's)")
     ap.add_argument("--lqr-rate", type=float, default=h.lqr_rate, help="LQR hold: weight on every rate")
+    ap.add_argument("--lqr-ukf-p-per-inertia", action=argparse.BooleanOptionalAction, default=h.lqr_ukf_p_per_inertia,
+                    help="LQR hold: its UKF's momentum noise per unit of the learned mass's smallest diagonal entry")
     ap.add_argument("--hold-enter-angle", type=float, default=h.enter_angle,
                     help="handoff to the hold within this angle (rad)")
     ap.add_argument("--hold-kc-factor", type=float, default=h.kc_factor, help="hold stiffness k_c / learned m g l")
     ap.add_argument("--hold-zeta", type=float, default=h.zeta,
                     help="hold damping ratio (sets d_inj from the learned model)")
+
+
+def add_planner_options(ap: argparse.ArgumentParser) -> None:
+    """The agent (``--agent``) and the planner's settings (:class:`phast_model.control.mppi.MPPISpec`)."""
+    s = MPPISpec()
+    ap.add_argument("--agent", choices=AGENTS, default="sac",
+                    help="mpc: MPPI through the learned model every plant interval, no training (its own option "
+                         "defaults: phast_model.rl.descriptions.AGENT_PRESETS); sac: an SB3 agent trained in the world "
+                         "model (--algo)")
+    options: tuple[tuple[str, type, str], ...] = (
+        ("samples", int, "input sequences sampled per decision"),
+        ("horizon_s", float, "planning horizon (s)"),
+        ("plan_every", int, "decisions (of --dt x 5) per planning step; the planner decides at this step"),
+        ("noise", float, "input noise std / --max-action"),
+        ("temperature", float, "the path-integral temperature as a fraction of the sampled costs' spread"))
+    for key, kind, text in options:
+        ap.add_argument("--mpc-" + key.replace("_", "-"), type=kind, default=getattr(s, key), help="MPC: " + text)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -101,7 +123,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "a neural V and M, which seconds of data near the start do not determine at the target: 0.00 "
                          "on the pendulum swing-up at 30 s, docs/control.md)")
     ap.add_argument("--sim-kwargs", default="{}",
-                    help="the rig description's parameters as JSON, e.g. '{\"mass\": 1.1}'")
+                    help="the rig description's parameters as JSON, e.g. '{\"mass\": 1.1}' (default, without --sim "
+                         "and --machine: the plant's physical --env-kwargs)")
     ap.add_argument("--u-tol", type=float, default=None,
                     help="quiet criterion: largest RMS input over the last second (default: 0.25 N m for a pendulum, "
                          "else 2x the plant's LQG floor at --sigma: 0.387 N for the cart-pole, force on the cart)")
@@ -110,6 +133,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--episode-s", type=float, default=d.episode_s, help="seconds per plant episode used for learning")
     add_excitation_options(ap, d)
     ap.add_argument("--policy-episodes", type=int, default=d.policy_episodes, help="plant episodes per iteration")
+    add_planner_options(ap)
     ap.add_argument("--algo", choices=ALGOS, default=a.algo)
     ap.add_argument("--agent-steps", type=int, default=a.steps, help="agent decisions of the first training")
     ap.add_argument("--refit-steps", type=int, default=a.refit_steps, help="agent decisions of each later training")
@@ -157,8 +181,12 @@ def config_from_args(args: argparse.Namespace) -> LoopConfig:
                       mirror=not args.no_mirror, episode_decisions=args.episode_decisions,
                       velocity_weight=args.velocity_weight, position_weight=args.position_weight,
                       recenter=not args.no_recenter)
-    fit = FitSpec(args.sim, json_object(args.sim_kwargs, "--sim-kwargs"), args.regime, epochs=args.fit_epochs,
-                  refit_epochs=args.refit_epochs)
+    sim_kwargs = json_object(args.sim_kwargs, "--sim-kwargs")
+    if args.sim is None and args.sim_kwargs.strip() == "{}" and args.machine is None:
+        sim_kwargs = plant.physical_kwargs  # the description of a simulated plant: its class with its parameters
+    fit = FitSpec(args.sim, sim_kwargs, args.regime, epochs=args.fit_epochs, refit_epochs=args.refit_epochs)
+    planner = MPPISpec(samples=args.mpc_samples, horizon_s=args.mpc_horizon_s, plan_every=args.mpc_plan_every,
+                       noise=args.mpc_noise, temperature=args.mpc_temperature)
     u_tol = args.u_tol
     if u_tol is None:
         try:
@@ -167,7 +195,7 @@ def config_from_args(args: argparse.Namespace) -> LoopConfig:
             u_tol = Task().u_tol
     excitation = args.excitation_episodes
     if excitation is None:
-        excitation = 0 if args.recordings else LoopConfig().excitation_episodes
+        excitation = 0 if args.recordings else getattr(args, "excitation_default", LoopConfig().excitation_episodes)
     return LoopConfig(plant, Task(args.task, u_tol=u_tol), args.budget_s, args.seed, args.episode_s, excitation,
                       args.policy_episodes, eval_trials=args.eval_trials, eval_s=args.eval_s, fit=fit, agent=agent,
                       recordings=args.recordings, offline=args.offline, torque_std=args.excitation_std,
@@ -175,7 +203,9 @@ def config_from_args(args: argparse.Namespace) -> LoopConfig:
                       hold=HoldConfig(enabled=not args.no_hold, kind=args.hold, kc_factor=args.hold_kc_factor,
                                       zeta=args.hold_zeta, lqr_angle=args.lqr_angle, lqr_position=args.lqr_position,
                                       lqr_rate=args.lqr_rate, enter_angle=args.hold_enter_angle,
-                                      exit_angle=max(h.exit_angle, args.hold_enter_angle)))
+                                      exit_angle=max(h.exit_angle, args.hold_enter_angle),
+                                      lqr_ukf_p_per_inertia=args.lqr_ukf_p_per_inertia),
+                      agent_kind=args.agent, planner=planner)
 
 
 def check_plant(cfg: LoopConfig) -> Plant:
@@ -241,8 +271,9 @@ def parse_args(argv: list[str] | None = None) -> tuple[argparse.ArgumentParser, 
     ap = build_parser()
     pre = argparse.ArgumentParser(add_help=False)
     pre.add_argument("--env", default=ap.get_default("env"))
+    pre.add_argument("--agent", default=ap.get_default("agent"))
     known, _ = pre.parse_known_args(argv)
-    ap.set_defaults(**loop_preset(known.env))
+    ap.set_defaults(**loop_preset(known.env, known.agent))
     return ap, ap.parse_args(argv)
 
 
@@ -293,12 +324,13 @@ def main(argv: list[str] | None = None) -> int:
         return keep_recordings(e, out)
     bar.close()
     write_outputs(result, out, {"command": command, "env": cfg.plant.env_id, "machine": cfg.plant.machine,
+                                 "agent": cfg.agent_kind,
                                  "recordings": cfg.recordings, "offline": cfg.offline, "task": cfg.task.name,
                                  "seed": cfg.seed})
     s = result.summary()
     print(json.dumps({k: s[k] for k in ("plant_seconds", "prior_seconds",
                                         "success", "success_angle_only", "rms_torque", "iteration_success",
-                                        "wall_s")}))
+                                        "wall_s", "controller_ms")}))
     return 0
 
 

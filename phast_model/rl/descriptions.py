@@ -41,13 +41,23 @@ PRESETS: dict[str, dict[str, object]] = {
 }
 
 
-def loop_preset(env_id: str) -> dict[str, object]:
-    """The ``phast-rl`` option defaults of ``env_id`` (:data:`PRESETS`; empty for a plant without one)."""
+#: agent -> ``phast-rl`` option defaults of that agent, over the plant's (:data:`PRESETS`).  The planner
+#: (``--agent mpc``) needs no long episodes to learn from: one 2.5-s excitation episode and 2.5-s episodes of its own
+#: (PILCO's length; ``excitation_default``: --excitation-episodes without --recordings), and its LQR hold's UKF
+#: takes the momentum noise per unit of the learned mass (a light pole).
+AGENT_PRESETS: dict[str, dict[str, object]] = {
+    "mpc": {"episode_s": 2.5, "excitation_default": 1, "lqr_ukf_p_per_inertia": True},
+}
+
+
+def loop_preset(env_id: str, agent: str = "sac") -> dict[str, object]:
+    """The ``phast-rl`` option defaults of ``env_id`` (:data:`PRESETS`; empty for a plant without one), then those of
+    ``agent`` (:data:`AGENT_PRESETS`)."""
     try:
         key = resolve_env_id(env_id)
     except Exception:  # gymnasium's UnregisteredEnv: left to the plant's own check
-        return {}
-    return dict(PRESETS.get(key, {}))
+        return dict(AGENT_PRESETS.get(agent, {}))
+    return {**PRESETS.get(key, {}), **AGENT_PRESETS.get(agent, {})}
 
 
 def friction_laws(sim: str) -> tuple[str, ...] | None:

@@ -51,8 +51,10 @@ class HoldConfig:
     """The hold: on or off, its kind (:data:`HOLD_KINDS`); Energy-Casimir: its gains relative to the learned model
     (``kc_factor``, ``zeta``), the Casimir correction ``k_xi``, the xi feedback (``filtered``: the UKF's q); LQR: the
     state weights on the angle errors, the Euclidean position errors and every rate (input weight 1) and its UKF's
-    momentum process noise (per sqrt(s); Energy-Casimir keeps the UKF's default 0.01); the handoff region (angles and
-    angular rates only)."""
+    momentum process noise (per sqrt(s); Energy-Casimir keeps the UKF's default 0.01), with ``lqr_ukf_p_per_inertia``
+    per unit of the smallest diagonal entry of the learned mass at the target (the momenta of a lighter pole are
+    smaller: 0.03 at the 1-kg pole at 1 m, 0.0054 at PILCO's 0.5 kg at 0.6 m); the handoff region (angles and angular
+    rates only)."""
 
     enabled: bool = True
     kind: str = "auto"
@@ -67,6 +69,7 @@ class HoldConfig:
     lqr_position: float = 0.1
     lqr_rate: float = 0.0
     lqr_ukf_p_std: float = 0.03
+    lqr_ukf_p_per_inertia: bool = False
 
     def __post_init__(self) -> None:
         if self.kind not in HOLD_KINDS:
@@ -226,8 +229,11 @@ class LQRHold:
         self.gains = LQRGains(self.k.tolist(), float(lam),
                               float(stationary(closed_loop(a, b, max(sigma, 1e-6), gains=self.k))["rms_torque"]))
         self.dt, self.max_action = float(dt), float(max_action)
+        p_std = cfg.lqr_ukf_p_std
+        if cfg.lqr_ukf_p_per_inertia:
+            p_std *= float(np.diag(np.array(self.system.mass_matrix(list(self.q_star)))).min())
         self.estimator = UKFEstimator(self.system, dt, sigma=sigma, process=PHASTProcess(model, dt),
-                                      process_std=(1e-5, cfg.lqr_ukf_p_std))
+                                      process_std=(1e-5, p_std))
         self.q_ref = self.q_star.copy()
         self.y_hat = np.zeros(n)
         self._force: np.ndarray | None = None

@@ -35,8 +35,10 @@ import numpy as np
 
 from phast_gym.systems.base import System
 
+from ..control.mppi import MPPISpec
 from ..world.model import PHAST
 from .hold import HoldConfig, HoldGains, HybridPolicy, LQRGains, make_hold
+from .planner import AGENTS, planner_policy
 from .plant import (
     Episode,
     HeldTorques,
@@ -159,8 +161,12 @@ class LoopConfig:
     hold: HoldConfig = field(default_factory=HoldConfig)
     recordings: str | None = None  # recordings from before the loop (:func:`.sources.load_prior`), learned from first
     offline: bool = False  # no plant at all: learn from ``recordings`` alone, no plant episode, no evaluation
+    agent_kind: str = "sac"  # :data:`.planner.AGENTS`: ``sac`` (``agent``, trained in the model), ``mpc`` (``planner``)
+    planner: MPPISpec = field(default_factory=MPPISpec)
 
     def __post_init__(self) -> None:
+        if self.agent_kind not in AGENTS:
+            raise ValueError(f"agent_kind must be one of {AGENTS}, got {self.agent_kind!r}")
         for k in ("budget_s", "episode_s", "eval_s", "torque_std"):
             v = getattr(self, k)
             if not (v > 0 and math.isfinite(v)):
@@ -246,7 +252,7 @@ class LoopResult:
     plant_seconds: float
     learning_succeeded: bool
     evaluation: Evaluation | None  # None: offline (no plant to evaluate on)
-    agent: Agent
+    agent: Agent | None  # None: the planner (``agent_kind="mpc"``), rebuilt from the model and the config
     model: PHAST
     wall_s: float
     budget_s: float
@@ -358,7 +364,7 @@ def make_agent(cfg: LoopConfig, env: gym.Env) -> Agent:
 
 @dataclass
 class AgentOutcome:
-    agent: Agent
+    agent: Agent | None
     decisions: int
     seconds: float
     eval_timesteps: list[int]
@@ -414,11 +420,16 @@ def train_agent(cfg: LoopConfig, model: PHAST, pool: np.ndarray, q_star: np.ndar
                         [int(t) for t in ev.evaluations_timesteps], returns)
 
 
-def deployed_policy(cfg: LoopConfig, agent: Policy, model: PHAST, system: System, actuated: list[int],
+def deployed_policy(cfg: LoopConfig, agent: Policy | None, model: PHAST, system: System, actuated: list[int],
                     q_star: np.ndarray) -> tuple[HybridPolicy, HoldGains | LQRGains | None]:
     """The controller run on the plant (``system`` its description, ``actuated`` its driven coordinates): the agent,
     with the hold of the learned model when enabled (Energy-Casimir when the plant is fully actuated, else LQR:
-    :func:`.hold.make_hold`)."""
+    :func:`.hold.make_hold`); with ``cfg.agent_kind == "mpc"`` the planner in ``model`` (:mod:`.planner`; ``agent``
+    unused)."""
+    if cfg.agent_kind == "mpc":
+        return planner_policy(model, cfg.planner, q_star, cfg.plant, cfg.hold, actuated, cfg.seed)
+    if agent is None:
+        raise ValueError("an SB3 agent's controller needs the trained agent")
     hold, gains = None, None
     if cfg.hold.enabled:
         hold, gains = make_hold(model, q_star, cfg.plant.dt, cfg.plant.sigma, cfg.plant.max_action, cfg.hold, actuated)
@@ -517,9 +528,9 @@ class _Learner:
     agent: Agent | None = None
     lr_mult: float | None = None  # the first fit's learning-rate factor, kept by the refits
 
-    def trained(self) -> tuple[Agent, PHAST]:
-        """The agent and the world model once an iteration has made them."""
-        if self.agent is None or self.model is None:
+    def trained(self) -> tuple[Agent | None, PHAST]:
+        """The agent (None for the planner) and the world model once an iteration has made them."""
+        if self.model is None:
             raise RuntimeError("no iteration of the loop has run")
         return self.agent, self.model
 
@@ -536,9 +547,12 @@ def _iteration(cfg: LoopConfig, plant: Plant, data: _Data, learner: _Learner, it
     pool = burn_in_pool(recs["q"], fit.model.observer.window)
     ep_s = cfg.episode_steps * cfg.plant.dt
     can_run = not cfg.offline and data.seconds + cfg.policy_episodes * ep_s <= cfg.budget_s + 1e-9
-    trained = train_agent(cfg, fit.model, pool, q_star, learner.agent, it, list(plant.actuated_dofs), last=not can_run)
-    learner.agent = trained.agent
-    progress(f"iteration {it}: agent trained ({trained.decisions} decisions)", data.seconds)
+    trained = AgentOutcome(None, 0, 0.0, [], [])  # the planner: nothing to train
+    if cfg.agent_kind != "mpc":
+        trained = train_agent(cfg, fit.model, pool, q_star, learner.agent, it, list(plant.actuated_dofs),
+                              last=not can_run)
+        learner.agent = trained.agent
+        progress(f"iteration {it}: agent trained ({trained.decisions} decisions)", data.seconds)
     new: list[Episode] = []
     policy, gains = deployed_policy(cfg, trained.agent, fit.model, plant.system, list(plant.actuated_dofs), q_star)
     if can_run:

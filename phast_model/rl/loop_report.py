@@ -19,6 +19,7 @@ import numpy as np
 from phast_gym.env import parse_actuated_dofs
 from phast_gym.fileio import atomic_write_json
 
+from ..control.mppi import MPPISpec
 from .hold import HoldConfig, HybridPolicy
 from .loop import AgentSpec, FitSpec, LoopConfig, LoopResult, algo_class, deployed_policy
 from .plant import PlantSpec, Task, plant_system
@@ -95,7 +96,9 @@ def write_outputs(result: LoopResult, out: Path, extra: dict[str, Any]) -> dict[
     """Write every output of the run into ``out``; ``extra`` is merged into summary.json (the config, the command)."""
     from ..train.checkpoint import save_run
 
-    paths = {"policy": save_agent(result.agent, out / "policy.zip")}
+    paths: dict[str, Path] = {}
+    if result.agent is not None:  # the planner has no weights: the model and config.json rebuild it
+        paths["policy"] = save_agent(result.agent, out / "policy.zip")
     save_run(result.model, out / "model")
     paths["model"] = out / "model"
     paths["recordings"] = save_recordings(result.recordings, out)
@@ -111,7 +114,7 @@ def write_outputs(result: LoopResult, out: Path, extra: dict[str, Any]) -> dict[
 
 #: the parts of a :class:`LoopConfig` that are dataclasses of their own
 CONFIG_PARTS: dict[str, type] = {"plant": PlantSpec, "task": Task, "fit": FitSpec, "agent": AgentSpec,
-                                 "hold": HoldConfig}
+                                 "hold": HoldConfig, "planner": MPPISpec}
 
 
 def _part(cls: type, d: object, where: str) -> Any:
@@ -145,16 +148,18 @@ def load_config(run_dir: str | Path) -> LoopConfig:
 
 
 def load_controller(run_dir: str | Path) -> HybridPolicy:
-    """The controller the run in ``run_dir`` deployed: its agent (``policy.zip``) and the hold built from its world
-    model (``model/``) as in the loop.  ``reset(q)`` it with the first measurement, then ``act(q)`` every plant step
-    of the run's ``dt`` (``load_config(run_dir).plant.dt``)."""
+    """The controller the run in ``run_dir`` deployed: its agent (``policy.zip``; the planner of an ``--agent mpc``
+    run: its config) and the hold built from its world model (``model/``) as in the loop.  ``reset(q)`` it with the
+    first measurement, then ``act(q)`` every plant step of the run's ``dt`` (``load_config(run_dir).plant.dt``)."""
     from ..api import load_run
 
     run = Path(run_dir)
     cfg = load_config(run)
-    if not (run / "policy.zip").is_file():
-        raise ValueError(f"{run_dir}: no policy.zip")
-    agent = algo_class(cfg.agent.algo).load(run / "policy.zip", device="cpu")
+    agent = None
+    if cfg.agent_kind != "mpc":
+        if not (run / "policy.zip").is_file():
+            raise ValueError(f"{run_dir}: no policy.zip")
+        agent = algo_class(cfg.agent.algo).load(run / "policy.zip", device="cpu")
     model = load_run(run / "model")
     system = plant_system(replace(cfg.plant, machine=None))
     actuated = list(parse_actuated_dofs(cfg.plant.env_kwargs.get("actuated_dofs"), system.n))
