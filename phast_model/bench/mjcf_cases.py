@@ -5,9 +5,9 @@
 (the effect hidden in MuJoCo's own terms: a joint's ``frictionloss`` / ``damping``, an actuator's ``gear``, the bodies'
 ``mass`` / ``ipos`` / ``inertia``), written to a temporary file and simulated by MuJoCo (RK4, 1 ms) under closed-loop
 control: each recording interval (dt = 0.01 s) a PD controller (with gravity compensation from the nominal model for the
-arm) to smooth random targets computes the motor commands from the measured, noisy q; the commands actually applied are
-recorded as ``u``.  The tool gets the recordings (q with Gaussian noise, u, dt) and the NOMINAL file; the last 25% of
-the trajectories are held out.
+arms; on the 6-joint arm a computed-torque PD, acting through the nominal mass matrix) to smooth random targets computes
+the motor commands from the measured, noisy q; the commands actually applied are recorded as ``u``.  The tool gets the
+recordings (q with Gaussian noise, u, dt) and the NOMINAL file; the last 25% of the trajectories are held out.
 
 * ``furuta``: rotary pendulum, the arm driven about z, the pendulum unactuated; hidden: pendulum frictionloss.
 * ``arm3``: 3-joint arm (yaw, shoulder, elbow), 3 motors; hidden: shoulder damping and elbow frictionloss.
@@ -98,6 +98,9 @@ class Case:
     bandwidth_hz: dict[str, float]  # actuated joint -> PD bandwidth (critically damped, zeta 0.7)
     hidden: HiddenEdits = field(repr=False, default=lambda spec, rng: [])
     gravity_comp: bool = False
+    #: the PD acts through the nominal mass matrix (computed torque): every mode of a long chain gets the bandwidth;
+    #: a per-joint PD on the diagonal alone drives the 6-joint arm's fast modes unstable at 100 Hz
+    computed_torque: bool = False
     free_q0: dict[str, float] = field(default_factory=dict)  # unactuated joint -> initial angle uniform in +- value
     n_traj: int = 16
     T: int = 400
@@ -147,14 +150,39 @@ ARM6_BANDWIDTH = {j: 1.5 for j in ARM6_JOINTS}
 
 
 def _drives6(spec: mujoco.MjSpec, rng: np.random.Generator) -> list[Hidden]:
-    """Geared motors the file leaves out: rotor inertia behind j2..j6 (behind j1 it is one number with link1's inertia
-    about that axis: a parameter change, not a term), frictionloss on j2, j4, j6 and damping on j1, j3."""
+    """Geared motors the file leaves out: rotor inertia behind j2..j6, frictionloss on j2, j4, j6 and damping on j1, j3.
+    Behind j1 a rotor inertia is one number with link1's inertia about that axis, and behind j2 with link2's
+    ``inertia_x`` (j2's axis is a principal axis of link2 and link1 turns about an orthogonal one): the data cannot tell
+    them apart, and the tool, which tries a CAD file's drives before its body values, names the j2 one a rotor
+    inertia as it was hidden."""
     arm = [Hidden("joint", f"j{i}", "armature", a, "armature")
            for i, a in zip(range(2, 7), (0.04, 0.02, 0.015, 0.008, 0.004))]
     fric = [Hidden("joint", j, "frictionloss", c, "coulomb_friction")
             for j, c in (("j2", 0.3), ("j4", 0.15), ("j6", 0.05))]
     damp = [Hidden("joint", j, "damping", c, "viscous_damping") for j, c in (("j1", 0.2), ("j3", 0.1))]
     return arm + fric + damp
+
+
+ARM7_JOINTS = [f"j{i}" for i in range(1, 8)]
+ARM7_TARGETS = {j: Targets(0.0, 0.2, 0.45 - 0.03 * k, 0.2, 1.0) for k, j in enumerate(ARM7_JOINTS)}
+ARM7_BANDWIDTH = {j: 1.5 for j in ARM7_JOINTS}
+
+
+def _drives7(spec: mujoco.MjSpec, rng: np.random.Generator) -> list[Hidden]:
+    """Geared motors on every joint with random sizes (drawn from the seed): rotor inertia on j2..j7 (j1's is one
+    number with link1's inertia about z), and on each joint either frictionloss or damping (or both, on the base
+    roll), each value 0.5-2x a nominal size that falls towards the wrist."""
+    out = []
+    for k, j in enumerate(ARM7_JOINTS):
+        scale = 0.6 ** k
+        if k > 0:
+            out.append(Hidden("joint", j, "armature", float(f"{0.05 * scale * rng.uniform(0.5, 2.0):.4g}"), "armature"))
+        kinds = ("frictionloss", "damping") if k == 0 else (("frictionloss",) if rng.uniform() < 0.5 else ("damping",))
+        for attr in kinds:
+            size = (0.4 if attr == "frictionloss" else 0.3) * scale * rng.uniform(0.5, 2.0)
+            term = "coulomb_friction" if attr == "frictionloss" else "viscous_damping"
+            out.append(Hidden("joint", j, attr, float(f"{size:.4g}"), term))
+    return out
 
 
 CASES: dict[str, Case] = {c.name: c for c in [
@@ -180,13 +208,16 @@ CASES: dict[str, Case] = {c.name: c for c in [
                             Hidden("joint", "elbow", "frictionloss", 0.04, "coulomb_friction"),
                             Hidden("joint", "yaw", "damping", 0.03, "viscous_damping")], gravity_comp=True, **ARM_SIZE),
     Case("arm6_drives", "arm6.xml", "effect", "6-joint spatial arm; hidden: rotor inertia on five joints, "
-         "frictionloss on three, damping on two", ARM6_TARGETS, ARM6_BANDWIDTH, _drives6, gravity_comp=True, n_traj=16,
-         T=400),
+         "frictionloss on three, damping on two", ARM6_TARGETS, ARM6_BANDWIDTH, _drives6, gravity_comp=True,
+         computed_torque=True, n_traj=16, T=400),
     Case("cartpole", "cartpole.xml", "effect", "cart with hanging pole; hidden: pole damping, cart frictionloss",
          {"slider": Targets(0.0, 0.05, 0.15, 0.15, 0.6)}, {"slider": 1.0},
          lambda spec, rng: [Hidden("joint", "hinge", "damping", 0.004, "viscous_damping"),
                             Hidden("joint", "slider", "frictionloss", 0.3, "coulomb_friction")],
          free_q0={"hinge": 0.3}),
+    Case("arm7_drives", "arm7.xml", "effect", "7-joint spatial arm (roll, pitch/yaw, wrist roll); hidden: drives "
+         "with random sizes on every joint (rotor inertia on six, frictionloss or damping on each)", ARM7_TARGETS,
+         ARM7_BANDWIDTH, _drives7, gravity_comp=True, computed_torque=True, n_traj=16, T=400),
 ]}
 
 
@@ -302,7 +333,8 @@ def _targets(case: Case, rng: np.random.Generator,
 
 
 def _pd_gains(case: Case, nominal: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
-    """Per-actuator PD gains from the nominal model's mass-matrix diagonal at the targets' centre."""
+    """Per-actuator PD gains: from the nominal model's mass-matrix diagonal at the targets' centre, or per unit
+    inertia for a computed-torque PD (:attr:`Case.computed_torque`); critically damped at zeta 0.7."""
     import mujoco
 
     d = mujoco.MjData(nominal)
@@ -316,8 +348,54 @@ def _pd_gains(case: Case, nominal: mujoco.MjModel) -> tuple[np.ndarray, np.ndarr
         jn = mujoco.mj_id2name(nominal, mujoco.mjtObj.mjOBJ_JOINT, int(nominal.actuator_trnid[a, 0]))
         dof = int(nominal.jnt_dofadr[nominal.joint(jn).id])
         w = 2 * math.pi * case.bandwidth_hz[jn]
-        kp[a], kd[a] = M[dof, dof] * w**2, 2 * 0.7 * w * M[dof, dof]
+        inertia = 1.0 if case.computed_torque else M[dof, dof]
+        kp[a], kd[a] = inertia * w**2, 2 * 0.7 * w * inertia
     return kp, kd
+
+
+@dataclass
+class _Controller:
+    """The recording's controller: PD on the measured q (filtered finite-difference velocity), optionally through the
+    nominal mass matrix, plus the nominal model's gravity torque."""
+
+    case: Case
+    nominal: mujoco.MjModel
+    act_q: list[int]
+    act_v: list[int]
+    gear: np.ndarray
+    alpha: float = 0.5  # first-order filter of the finite-difference velocity
+
+    def __post_init__(self) -> None:
+        import mujoco
+
+        self.kp, self.kd = _pd_gains(self.case, self.nominal)
+        self.data = mujoco.MjData(self.nominal)
+        self.reset()
+
+    def reset(self) -> None:
+        self.v_est = np.zeros(len(self.act_q))
+        self.q_prev: np.ndarray | None = None
+
+    def command(self, qm: np.ndarray, q_ref: np.ndarray, v_ref: np.ndarray) -> np.ndarray:
+        """Motor commands for the measured ``qm`` and the actuated joints' targets ``q_ref``, ``v_ref``."""
+        import mujoco
+
+        if self.q_prev is not None:
+            self.v_est = (1 - self.alpha) * self.v_est + self.alpha * (qm[self.act_q] - self.q_prev[self.act_q]) / DT
+        self.q_prev = qm
+        tau = self.kp * (q_ref - qm[self.act_q]) + self.kd * (v_ref - self.v_est)
+        if self.case.gravity_comp or self.case.computed_torque:
+            dn = self.data
+            dn.qpos[:] = qm
+            dn.qvel[:] = 0
+            mujoco.mj_forward(self.nominal, dn)
+            if self.case.computed_torque:
+                M = np.zeros((self.nominal.nv, self.nominal.nv))
+                mujoco.mj_fullM(self.nominal, dn, M)
+                tau = M[np.ix_(self.act_v, self.act_v)] @ tau
+            if self.case.gravity_comp:
+                tau = tau + dn.qfrc_bias[self.act_v]
+        return tau / self.gear
 
 
 def record(case: Case, real_path: str | Path, n_traj: int, T: int, seed: int,
@@ -331,19 +409,16 @@ def record(case: Case, real_path: str | Path, n_traj: int, T: int, seed: int,
     nom = mujoco.MjModel.from_xml_path(str(nominal_path(case)))
     k = max(1, int(round(DT / real.opt.timestep)))
     real.opt.timestep = DT / k
-    d, dn = mujoco.MjData(real), mujoco.MjData(nom)
-    kp, kd = _pd_gains(case, nom)
+    d = mujoco.MjData(real)
     act_jnt = [int(nom.actuator_trnid[a, 0]) for a in range(nom.nu)]
     act_names = [mujoco.mj_id2name(nom, mujoco.mjtObj.mjOBJ_JOINT, j) for j in act_jnt]
     act_q = [int(nom.jnt_qposadr[j]) for j in act_jnt]
-    act_v = [int(nom.jnt_dofadr[j]) for j in act_jnt]
-    gear = nom.actuator_gear[:, 0].copy()
+    ctl = _Controller(case, nom, act_q, [int(nom.jnt_dofadr[j]) for j in act_jnt], nom.actuator_gear[:, 0].copy())
     rng = np.random.default_rng([seed, 1])
     t = np.arange(T) * DT
     n, m = real.nq, real.nu
     q_true, q_meas, u = np.zeros((n_traj, T, n)), np.zeros((n_traj, T, n)), np.zeros((n_traj, T - 1, m))
     q0s, v0s = np.zeros((n_traj, n)), np.zeros((n_traj, n))
-    alpha = 0.5  # first-order filter of the finite-difference velocity
     for b in range(n_traj):
         pos, vel = _targets(case, rng, t)
         mujoco.mj_resetData(real, d)
@@ -352,25 +427,14 @@ def record(case: Case, real_path: str | Path, n_traj: int, T: int, seed: int,
         for name, r in case.free_q0.items():
             d.qpos[nom.joint(name).qposadr[0]] = rng.uniform(-r, r)
         q0s[b], v0s[b] = d.qpos.copy(), d.qvel.copy()
-        v_est = np.zeros(m)
-        q_prev = None
+        ctl.reset()
         for i in range(T):
             q_true[b, i] = d.qpos
             q_meas[b, i] = d.qpos + rng.normal(0, noise, n)
             if i == T - 1:
                 break
-            qm = q_meas[b, i]
-            if q_prev is not None:
-                v_est = (1 - alpha) * v_est + alpha * (qm[act_q] - q_prev[act_q]) / DT
-            q_prev = qm
-            tau = np.array([kp[a] * (pos[nm][i] - qm[act_q[a]]) + kd[a] * (vel[nm][i] - v_est[a])
-                            for a, nm in enumerate(act_names)])
-            if case.gravity_comp:
-                dn.qpos[:] = qm
-                dn.qvel[:] = 0
-                mujoco.mj_forward(nom, dn)
-                tau += dn.qfrc_bias[act_v]
-            u[b, i] = tau / gear
+            u[b, i] = ctl.command(q_meas[b, i], np.array([pos[nm][i] for nm in act_names]),
+                                  np.array([vel[nm][i] for nm in act_names]))
             d.ctrl[:] = u[b, i]
             for _ in range(k):
                 mujoco.mj_step(real, d)

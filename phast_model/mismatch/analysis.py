@@ -44,16 +44,16 @@ from .energy import energy_check
 from .evaluate import FitTable, HeldOut, check_rollout_window, held_out
 from .explainers import Context, Explained, Explainer, ShootingExplainer, explain_in_turn
 from .fitting.problem import Problem, prepare
-from .friction.systematic import WeakFormExplainer, drive_share, parameter_share
+from .friction.systematic import WeakFormExplainer, drive_share, drives_trial, parameter_share
 from .locate import locate
 from .options import Options, Progress
 from .report.document import Report, summary_text
-from .report.mjcf_answer import answer_in_model_terms, is_model_file_system
+from .report.mjcf_answer import answer_in_model_terms
 from .rows import ParamRow, TermRow
 from .selection import candidates, select
 from .vocabulary.registry import ACTUATOR_GAIN, mujoco_vocabulary
 from .vocabulary.terms import VOCABULARY
-from .written import in_mujoco
+from .written import in_mujoco, is_model_file_system
 
 __all__ = ["EXPLAINERS", "InternalError", "Options", "Report", "analyze", "held_out_scores"]
 
@@ -121,6 +121,9 @@ def _compared(compare: Mapping[str, System] | None, sys0: System, name: str) -> 
 
 #: the nominal simulator must explain at least this share of the recordings beyond a line per window (explained_share)
 MIN_DESCRIBED = 0.5
+#: a motor-driven model file whose drives alone (rotor inertia, joint friction) follow a sample of the windows to
+#: this chi^2/dof (noise: 1) is answered with its drives, its body values kept (:func:`_screen`)
+DRIVES_CHI2 = 2.0
 
 
 def _backed(row: TermRow) -> bool:
@@ -379,54 +382,79 @@ class _Inputs:
 class Described:
     """How much of the recordings the simulator describes: the shooting share (:func:`.calibrate.explained_share`) and,
     when that is low, the share of the weak-form force a drive (rotor inertia + viscous + Coulomb per driven
-    coordinate) accounts for (:func:`.friction.systematic.drive_share`; None when not computed)."""
+    coordinate) accounts for (:func:`.friction.systematic.drive_share`; None when not computed); on a motor-driven
+    model file, the chi^2/dof its drives alone reach on a sample of the windows (:func:`.friction.systematic.
+    drives_trial`; None when not tried)."""
 
     share: float
     drive_share: float | None = None
+    drives_chi2: float | None = None
+
+    @property
+    def drives_follow(self) -> bool:
+        """The drives alone follow the sampled windows to the noise."""
+        return self.drives_chi2 is not None and self.drives_chi2 <= DRIVES_CHI2
 
     @property
     def ok(self) -> bool:
-        return self.share >= MIN_DESCRIBED or (self.drive_share is not None and self.drive_share >= MIN_DESCRIBED)
+        return (self.share >= MIN_DESCRIBED or self.drives_follow
+                or (self.drive_share is not None and self.drive_share >= MIN_DESCRIBED))
+
+    @property
+    def drives_first(self) -> bool:
+        """Described up to its drives: the weak form answers with the drives alone, no body value examined."""
+        return self.ok and (self.share < MIN_DESCRIBED or self.drives_follow)
 
     def to_dict(self) -> dict[str, float]:
         return {"explained_share": self.share,
-                **({} if self.drive_share is None else {"drive_share": self.drive_share})}
+                **({} if self.drive_share is None else {"drive_share": self.drive_share}),
+                **({} if self.drives_chi2 is None else {"drives_alone_chi2_per_dof": self.drives_chi2})}
 
 
-def _described(problem: Problem, share: float, drives: float | None = None) -> Described:
+def _described(problem: Problem, share: float, drives: float | None = None,
+               drives_chi2: float | None = None) -> Described:
     """A simulator whose windows its model cannot follow may still describe the recordings up to its drives (a CAD
     model of a motor-driven arm without rotor inertia and gear friction): the weak form checks that before the
-    recordings are called undescribed (``drives``: that share, when already computed)."""
+    recordings are called undescribed (``drives``: that share, when already computed); ``drives_chi2``: the drives
+    trial's chi^2/dof, when tried."""
     if share >= MIN_DESCRIBED:
-        return Described(share)
+        return Described(share, None, drives_chi2)
     if drives is None:
         drives = drive_share(problem)
     problem.log(f"the nominal model follows the windows no better than a line (share {share:.2f}); rotor inertia and "
                 f"friction per driven joint account for {drives:.0%} of the force it leaves (weak form)")
-    return Described(share, drives)
+    return Described(share, drives, drives_chi2)
 
 
 def _screen(problem: Problem) -> tuple[ParameterScreen, Described]:
     """The parameter screen and how much the simulator describes.  A motor-driven model file is first fitted on a
-    sample of the windows, as MuJoCo simulates it (:func:`.calibrate.nominal_sample`): when it follows them no better
-    than a line, and rotor inertia and friction per driven joint account for more of the force it leaves than a change
-    of its own parameters does (weak form), it goes to its drives with the file's body values (the weak form answers)
-    without a screen of every window."""
-    drives = None
+    sample of the windows, as MuJoCo simulates it (:func:`.calibrate.nominal_sample`), and its drives are tried
+    before any body value: when a rotor inertia per driven joint and friction per joint follow the sample to the noise
+    (:func:`.friction.systematic.drives_trial`), or the model follows the windows no better than a line and the drives
+    account for more of the force it leaves than a change of its own parameters does (weak form), it goes to its
+    drives with the file's body values, without a screen of every window (no body value can absorb a drive)."""
+    drives, chi2 = None, None
     if any(problem.has_u) and is_model_file_system(problem.sys0):
         shooter, fit = nominal_sample(problem, in_mujoco(problem.nominal_family.build(np.zeros(0))))
         share = explained_share(shooter, fit)
+        trial = drives_trial(problem, shooter, fit.X)
+        chi2 = math.inf if trial is None else float(trial.fit.chi2_red)
+        problem.log(f"the drives alone (rotor inertia per driven joint, friction per joint) follow {len(fit.X)} of the "
+                    f"windows to chi2/dof {chi2:.3g} (the file's model: {fit.chi2_red:.3g})")
+        starts = () if trial is None else trial.terms()
+        if trial is not None and chi2 <= DRIVES_CHI2:
+            return drives_screen(problem, (shooter, fit, 0), starts), _described(problem, share, None, chi2)
         if share < MIN_DESCRIBED:
             drives, params = drive_share(problem), parameter_share(problem)
             problem.log(f"on {len(fit.X)} of the {len(problem.shooting.windows.traj)} windows the model follows no "
                         f"better than a line (share {share:.3g}); its own parameters account for {params:.0%} of "
                         "the force it leaves (weak form)")
             if drives >= MIN_DESCRIBED and drives > params:
-                return drives_screen(problem, (shooter, fit, 0)), _described(problem, share, drives)
+                return drives_screen(problem, (shooter, fit, 0), starts), _described(problem, share, drives, chi2)
     nominal = fit_nominal(problem)
     share = explained_share(nominal[0], nominal[1])
     screen = screen_parameters(problem, nominal)
-    return screen, _described(problem, max(share, explained_share(screen.shooter, screen.fit_full)), drives)
+    return screen, _described(problem, max(share, explained_share(screen.shooter, screen.fit_full)), drives, chi2)
 
 
 def _context(problem: Problem, inputs: _Inputs) -> tuple[Context, Described]:
@@ -439,7 +467,7 @@ def _context(problem: Problem, inputs: _Inputs) -> tuple[Context, Described]:
     if not described.ok:
         problem = replace(problem, opts=replace(problem.opts, max_terms=0, systematic_chi2=math.inf))
         screen = replace(screen, identifiability=replace(screen.identifiability, basis=(), independence=()))
-    elif described.share < MIN_DESCRIBED:  # described up to its drives: the drives first, by the weak form alone
+    elif described.drives_first:  # described up to its drives: the drives first, by the weak form alone
         problem = replace(problem, opts=replace(problem.opts, max_terms=0, systematic_chi2=0.0))
         screen = replace(screen, candidates=[],
                          identifiability=replace(screen.identifiability, basis=(), independence=()))

@@ -15,7 +15,7 @@ of :mod:`.selection`, where parameter changes and new terms compete (a parameter
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import partial
 from typing import Any
@@ -30,6 +30,7 @@ from ..identify.simulators import known_params
 from .fitting.linear import flat, rel_resid
 from .fitting.problem import Problem
 from .vocabulary.candidates import Family, ParamCandidate
+from .vocabulary.terms import Term
 
 #: finite-difference step of a parameter column (log-relative)
 PARAM_STEP = 1e-3
@@ -83,6 +84,9 @@ class ParameterScreen:
     identifiability: Identifiability
     fit_full: ShootFit  # every pivot fitted: the most a parameter change alone can do (for the explained share)
     family_full: Family
+    #: the terms a trial of the drives found (rotor inertia, joint friction): the weak-form answer's refit in the engine
+    #: starts there and considers them too (:mod:`.friction.engine_refit`)
+    starts: tuple[Term, ...] = ()
 
 
 @dataclass
@@ -248,7 +252,8 @@ def screen_parameters(problem: Problem, made: tuple[Shooter, ShootFit, int] | No
     return ParameterScreen(shooter, nominal_fit, n_dropped, cands, notes, ident, fit_full, family_full)
 
 
-def drives_screen(problem: Problem, nominal: tuple[Shooter, ShootFit, int]) -> ParameterScreen:
+def drives_screen(problem: Problem, nominal: tuple[Shooter, ShootFit, int],
+                  starts: Sequence[Term] = ()) -> ParameterScreen:
     """The screen of a model file its nominal model cannot follow but its drives describe (rotor inertia and friction
     per driven joint account for the force it leaves): no body value is examined, so none can absorb a drive; the
     weak form then fits the drives with the file's body values."""
@@ -257,7 +262,7 @@ def drives_screen(problem: Problem, nominal: tuple[Shooter, ShootFit, int]) -> P
             "driven joint come first")
     notes = {k: note for k in problem.sim.numeric_params(problem.sys0)}
     return ParameterScreen(shooter, fit, n_dropped, [], notes, Identifiability((), (), (), {}), fit,
-                           problem.nominal_family)
+                           problem.nominal_family, tuple(starts))
 
 
 def calibration(problem: Problem, screen: ParameterScreen, selected: list[tuple[str, float]], start: ShootFit,

@@ -25,7 +25,12 @@ from ..identify.mujoco_sim import mujoco_simulated
 from .vocabulary.registry import VOCABULARY
 from .vocabulary.terms import AugmentedSystem
 
-__all__ = ["in_mujoco", "term_edit", "text_simulated", "written_form"]
+__all__ = ["in_mujoco", "is_model_file_system", "term_edit", "text_simulated", "written_form"]
+
+
+def is_model_file_system(system: object) -> bool:
+    """Whether ``system`` (or the base of an augmented one) is a model file's (MJCF / URDF)."""
+    return isinstance(getattr(system, "base", system), MJCFSystem)
 
 
 def term_edit(term: str, coordinate: int, coefficient: float, tree: MJCFTree) -> Edit | None:

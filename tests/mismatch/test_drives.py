@@ -46,6 +46,46 @@ def test_described_up_to_its_drives():
     assert Described(0.9).ok and Described(0.9).to_dict() == {"explained_share": 0.9}
     assert Described(0.1, 0.95).ok and Described(0.1, 0.95).to_dict() == {"explained_share": 0.1, "drive_share": 0.95}
     assert not Described(0.1, 0.2).ok and not Described(0.1).ok
+    assert Described(0.1, 0.95).drives_first and not Described(0.9).drives_first
+    assert Described(0.9, None, 1.1).drives_first and not Described(0.9, None, 5.0).drives_first
+    assert Described(0.9, None, 1.1).to_dict() == {"explained_share": 0.9, "drives_alone_chi2_per_dof": 1.1}
+
+
+def _trial(rec: dict, path: str):
+    from phast_model.mismatch.calibrate import nominal_sample
+    from phast_model.mismatch.friction.systematic import drives_trial
+    from phast_model.mismatch.written import in_mujoco
+
+    problem = _problem(rec["q"], rec, path)
+    shooter, fit = nominal_sample(problem, in_mujoco(problem.nominal_family.build(np.zeros(0))))
+    return drives_trial(problem, shooter, fit.X)
+
+
+def test_the_drives_alone_follow_a_cad_model_without_its_drives(drives):
+    """Weak form, then a shooting refit in MuJoCo: rotor inertia on every joint (the yaw's too), the shoulder's and
+    elbow's frictionloss and the yaw's damping as MuJoCo means them, and nothing the data do not back."""
+    rec, path = drives
+    trial = _trial(rec, path)
+    assert trial is not None and trial.fit.chi2_red < 1.5
+    found = {it.label: float(v) for it, v in zip(trial.items, trial.values)}
+    truth = {"armature[0]": 0.004, "armature[1]": 0.012, "armature[2]": 0.006, "coulomb_friction[1]": 0.08,
+             "coulomb_friction[2]": 0.04, "viscous_damping[0]": 0.03}
+    assert set(found) == set(truth), found
+    for k, v in truth.items():
+        assert found[k] == pytest.approx(v, rel=0.1), k
+    for it, ci in zip(trial.items, trial.ci95):  # every kept term's interval excludes zero
+        assert ci[0] > 0, it.label
+
+
+@pytest.mark.slow
+def test_body_values_off_are_not_drives(tmp_path):
+    """The same arm with every body value 3-8% off and no drive: the drives alone do not follow it."""
+    from phast_model.mismatch.analysis import DRIVES_CHI2
+
+    case = mc.cases()["arm3_cad"]
+    real = mc.write_real(case, mc.hidden_effects(case, 0), tmp_path)
+    trial = _trial(mc.record(case, real, 6, 300, 0), str(mc.nominal_path(case)))
+    assert trial is None or trial.fit.chi2_red > DRIVES_CHI2
 
 
 def test_the_weak_form_parameter_check_says_where_it_is(drives):

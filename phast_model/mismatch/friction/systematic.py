@@ -25,6 +25,9 @@ made by prediction on recordings not used for the fit:
   curve's intervals; the fewest parameters not significantly worse than the
   best win;
 * the chosen law refitted jointly with the parameters and armature;
+* on a MuJoCo model file, that answer refitted on the shooting windows as MuJoCo simulates it
+  (:mod:`.engine_refit`): the coefficients mean what the written file means, a rotor inertia is refitted on every
+  driven joint, and a term whose interval then reaches zero is dropped;
 * a delay the shooting selection chose (``input_delay``, ``sensor_delay``: no force the weak form can fit) competes
   with that law by held-out prediction (:func:`with_shooting_delays`): the law with the delays added is adopted only
   when it predicts the held-out recordings better than the law alone.
@@ -53,7 +56,8 @@ from ..rows import Alternative, ParamRow, TermRow, param_value
 from ..vocabulary.candidates import Candidate
 from ..vocabulary.registry import ARMATURE, COULOMB, VISCOUS, law_terms
 from ..vocabulary.terms import VOCABULARY, AugmentedSystem, Term
-from ..written import in_mujoco
+from ..written import in_mujoco, is_model_file_system
+from .engine_refit import EngineRefit, engine_refit, updated
 from .laws import FrictionLaw, spec_of
 from .lawselect import LawSelection, select_friction
 from .passivity import check_against_curve, is_passive
@@ -133,6 +137,21 @@ def _own_viscous(system: System, rec_q: np.ndarray) -> dict[int, float]:
     return {i: float(np.mean(np.asarray(d[i], dtype=float))) for i in range(rec_q.shape[1])}
 
 
+def _in_engine(ctx: SystematicContext, model: WeakModel, final: WeakFit) -> EngineRefit | None:
+    """A model file's weak-form answer refitted on the shooting windows as MuJoCo simulates it (:mod:`.engine_refit`);
+    None for another simulator, or when the refit follows the windows worse than its start."""
+    problem = ctx.problem
+    if not is_model_file_system(problem.sys0):
+        return None
+    refit = engine_refit(ctx.cal.shooter, ctx.cal.fit.X, model, final, model.armature, problem.opts.max_iter,
+                         ctx.cal.screen.starts)
+    if refit is not None:
+        problem.log(f"refitted in MuJoCo on the windows: chi2/dof {refit.cost_before / refit.fit.dof:.3g} -> "
+                    f"{refit.fit.chi2_red:.3g}" + (f"; dropped {refit.dropped} (interval reaches zero)"
+                                                   if refit.dropped else ""))
+    return refit
+
+
 def _weak_model(ctx: SystematicContext, window: int) -> WeakModel:
     """Start at the user's nominal values (a shooting calibration made before any friction term may have absorbed
     friction); armature estimated where u drives.  The shooting selection's terms are not carried over: in this regime
@@ -184,6 +203,20 @@ def drive_share(problem: Problem) -> float:
     return explained_force(model, problem.train.resampled(), [(nm, i) for i in driven for nm in PROVISIONAL_LAW])
 
 
+def drives_trial(problem: Problem, shooter: Shooter, X: np.ndarray) -> EngineRefit | None:
+    """The drives alone (a rotor inertia on each driven joint, viscous + Coulomb friction on every joint, the file's
+    body values kept) from the weak form, refitted on ``shooter``'s windows as MuJoCo simulates them
+    (:mod:`.engine_refit`): how well a model file's missing drives explain the recordings, before any body value is
+    examined.  None without a driven joint, or when the refit follows the windows worse than the weak form's values."""
+    driven = [i for i in range(problem.n) if problem.has_u[i]]
+    if not driven:
+        return None
+    model = WeakModel(problem.sim, {}, [], [], driven, problem.eps, problem.nominal_family.deadzone_width,
+                      problem.smoothing_window)
+    first = identify(model, problem.train.resampled(), [(nm, i) for i in range(problem.n) for nm in PROVISIONAL_LAW])
+    return engine_refit(shooter, X, model, first, driven, problem.opts.max_iter)
+
+
 def parameter_share(problem: Problem) -> float:
     """The share of the same balance (:func:`drive_share`) that a change of the simulator's own parameters accounts
     for, linearized at the user's values: every non-zero numeric one but the known constants (body values, gears).
@@ -215,6 +248,9 @@ def systematic(ctx: SystematicContext) -> SystematicResult:
     problem.log(f"friction law: {law.name}; parameters {first.kwargs}")
     specs = [spec_of(t.term, t.coordinate, t.velocity) for t in law.terms]
     final = identify(replace(model, kwargs=first.kwargs), train, specs)
+    refit = _in_engine(ctx, model, final)
+    if refit is not None:
+        final = updated(final, refit.items, refit.values, refit.ci95, refit.t_quantile)
     augmented = final.system(model)
     curve = friction_curve(model.build(final.kwargs, final.armature_terms()), train, window=window, eps=problem.eps)
     passive = is_passive(final.law, curve).to_dict()
@@ -234,7 +270,8 @@ def systematic(ctx: SystematicContext) -> SystematicResult:
                 "armature_absorbed_by_parameters": [int(k.split(":")[1]) for k in final.no_signal
                                                     if k.startswith("armature:")],
                 "curve": curve.to_dict(), "law_vs_curve": check_against_curve(final.law, curve),
-                "chi2_per_dof_augmented": fit.chi2_red}
+                "chi2_per_dof_augmented": fit.chi2_red,
+                "engine_refit": None if refit is None else refit.to_dict()}
     held_params = [k for k in ctx.params if k not in pcheck.kept and k not in pcheck.no_signal]
     rows = _calibrated_rows(ctx, final, held_params, pcheck.no_signal)
     return SystematicResult(reason, evidence, augmented, fit, rows, tuple(missing), curve,

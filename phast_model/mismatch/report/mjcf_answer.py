@@ -14,7 +14,6 @@ from typing import Any
 import numpy as np
 
 from phast_gym.systems.base import System
-from phast_gym.systems.mjcf import MJCFSystem
 from phast_gym.systems.mjcf_tree import MJCFTree, ModelFileError
 
 from ...identify.mjcf_write import Edit, calibrated_xml
@@ -44,10 +43,6 @@ class MJCFWriteBack:
                 "terms_written": [{"target": e.target, "attribute": e.attr, "op": e.op,
                                    "value": e.value} for e in self.edits],
                 "terms_not_expressed": self.not_expressed, "notes": self.notes}
-
-
-def is_model_file_system(system: object) -> bool:
-    return isinstance(getattr(system, "base", system), MJCFSystem)
 
 
 def _tree(system: Any) -> MJCFTree:
