@@ -5,7 +5,8 @@ decision: warm start), rolls all of them out at once through the learned core (t
 :class:`phast_model.world.core.PHASTCore`, at the planning step ``plan_dt``: the learned substep rescaled, as the
 UKF's process model does), scores them with a swing-up cost and averages them with the path-integral weights
 ``exp(-(c - c_min) / (temperature * (c_max - c_min)))`` (Williams et al. 2017; the temperature relative to the cost
-spread, so one value suits every plant).
+spread, so one value suits every plant; the spread of the rollouts that stayed in the model's region: one that left
+would flatten every weight).
 
 The cost of a state (q, p), per planning step: ``angle_weight * sum(1 - cos(q_a - q*_a))`` on the angles,
 ``position_weight * (q_e - q*_e)^2`` on the Euclidean coordinates, ``velocity_weight * |qdot|^2`` and
@@ -68,6 +69,15 @@ class MPPISpec:
                 raise ValueError(f"{k} must be a finite number >= 0, got {v!r}")
         if not 0 <= self.smoothing < 1:
             raise ValueError(f"smoothing must be in [0, 1), got {self.smoothing!r}")
+
+
+def path_weights(cost: torch.Tensor, temperature: float) -> torch.Tensor:
+    """The path-integral weights (B,) of the sampled costs (B,): ``softmax(-(c - c_min) / (temperature * spread))``
+    with the spread of the rollouts that stayed in the model's region (below :data:`LEAVE_COST`)."""
+    lo = cost.min()
+    inside = cost[cost < LEAVE_COST]
+    spread = ((inside.max() if inside.numel() else lo) - lo).clamp(min=1e-9)
+    return torch.softmax(-(cost - lo) / (temperature * spread), 0)
 
 
 class MPPI:
@@ -157,11 +167,8 @@ class MPPI:
             if h + 1 < self.horizon and (h + 1) * slices // self.horizon > h * slices // self.horizon:
                 yield  # the steps spread evenly over the slices
         total = total + s.terminal_weight * self.cost(q, p, None)
-        lo = total.min()
-        spread = (total.clamp(max=LEAVE_COST) - lo).max().clamp(min=1e-9)
-        w = torch.softmax(-(total - lo) / (s.temperature * spread), 0)
-        self.plan = (w[:, None, None] * u).sum(0)
-        return float(lo)
+        self.plan = (path_weights(total, s.temperature)[:, None, None] * u).sum(0)
+        return float(total.min())
 
     def optimize(self, x0: np.ndarray, iterations: int = 1) -> float:
         """``iterations`` whole MPPI updates from ``x0`` at once (tests, offline use); the last lowest cost."""

@@ -9,7 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from phast_model.control.mppi import MPPI, MPPISpec
+from phast_model.control.mppi import LEAVE_COST, MPPI, MPPISpec, path_weights
 from phast_model.rl.hold import HoldConfig
 from phast_model.rl.loop import FitSpec, LoopConfig, _Data, collect_excitation, fit_world_model, run_loop
 from phast_model.rl.planner import PlannerPolicy, planner_policy
@@ -39,6 +39,15 @@ def test_spec_rejects_bad_settings() -> None:
         MPPISpec(smoothing=1.0)
     with pytest.raises(ValueError, match="agent_kind"):
         LoopConfig(agent_kind="ppo")
+
+
+def test_a_rollout_that_left_the_model_does_not_flatten_the_weights() -> None:
+    """The temperature scales the spread of the rollouts that stayed in the model's region: one sample at
+    LEAVE_COST gets no weight, and the best of the others still dominates."""
+    import torch
+
+    w = path_weights(torch.tensor([1.0, 2.0, 3.0, LEAVE_COST], dtype=torch.float64), 0.1)
+    assert float(w[0]) > 0.99 and float(w[3]) == 0.0
 
 
 def test_cycle_spreads_the_horizon_over_the_slices(pendulum_model) -> None:
