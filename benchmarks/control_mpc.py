@@ -4,6 +4,7 @@ settings, --max-action and the plant-time budget; the rest are defaults).
 
     taskset -c 1 python benchmarks/control_mpc.py --case pendulum --seeds 0 1 2 3 4
     taskset -c 1 python benchmarks/control_mpc.py --case pilco --seeds 0 1 2 3 4
+    python benchmarks/control_mpc.py --table     # the rows of docs/control.md from the summaries
 
 Each run writes its phast-rl outputs to ``OUT/<case>_s<seed>/`` (default OUT: docs/control_results/rl_mpc); the case's
 summary (per seed: quiet success, angle only, RMS input and its ratio to the plant's LQG floor, plant seconds, wall
@@ -23,12 +24,15 @@ from typing import Any
 from phast_gym.fileio import atomic_write_json
 
 #: case -> (env id, env kwargs, --max-action, --budget-s, extra options); the issue's targets in docs/control.md
+#: (``pendulum_sim11``: the pendulum with the SAC rows' 10%-heavy description, for the comparison)
 CASES: dict[str, tuple[str, dict[str, Any], float, float, list[str]]] = {
     "pendulum": ("PHAST/Pendulum-v0", {}, 10.0, 5.0, []),
     "pilco": ("PHAST/WindyCartPole-v0", {"cart_mass": 0.5, "pole_mass": 0.5, "length": 0.6, "d_cart": 0.1, "d0": 0.0,
                                          "dd": 0.0, "actuated_dofs": [0]}, 10.0, 17.5, []),
     "windy": ("PHAST/WindyCartPole-v0", {"actuated_dofs": [0]}, 30.0, 30.0, []),
     "acrobot": ("PHAST/DoublePendulum-v0", {"actuated_dofs": [1]}, 10.0, 30.0, []),
+    # the SAC rows' setting: a description 10% heavier than the plant (not the target's setting: a comparison)
+    "pendulum_sim11": ("PHAST/Pendulum-v0", {}, 10.0, 5.0, ["--sim-kwargs", '{"mass": 1.1}']),
 }
 
 
@@ -64,16 +68,42 @@ def summarize(case: str, runs: dict[int, dict[str, Any]], floor: float) -> dict[
             "max_controller_ms_p99": max(r["controller_ms"]["p99"] for r in rows.values())}
 
 
+def table_row(summary: dict[str, Any]) -> str:
+    """One markdown row of docs/control.md's comparison from a case's summary: success mean (per seed), RMS / floor
+    (mean, range), plant seconds, wall s (range), controller ms (mean, p99 and max ranges)."""
+    rows = list(summary["seeds"].values())
+
+    def rng(key: str, fmt: str = "{:.0f}") -> str:
+        vals = [r[key] for r in rows]
+        return f"{fmt.format(min(vals))}-{fmt.format(max(vals))}"
+
+    ms = [r["controller_ms"] for r in rows]
+    per_seed = ", ".join("{:.2f}".format(r["success"]) for r in rows)
+    return (f"| {summary['case']} | `--agent mpc` | {summary['mean_success']:.2f} ({per_seed}) | "
+            f"{sum(r['rms_over_floor'] for r in rows) / len(rows):.2f}x ({rng('rms_over_floor', '{:.2f}')}) | "
+            f"{summary['mean_plant_seconds']:g} | {rng('wall_s')} | "
+            f"{min(m['mean'] for m in ms):.1f}-{max(m['mean'] for m in ms):.1f} / "
+            f"{min(m['p99'] for m in ms):.1f}-{max(m['p99'] for m in ms):.1f} / "
+            f"{min(m['max'] for m in ms):.0f}-{max(m['max'] for m in ms):.0f} |")
+
+
 def main(argv: list[str] | None = None) -> int:
     from phast_model.cli.rl import main as phast_rl
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--case", choices=sorted(CASES), required=True)
+    ap.add_argument("--table", action="store_true", help="print the markdown rows of OUT/*_summary.json and exit")
+    ap.add_argument("--case", choices=sorted(CASES))
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     ap.add_argument("--budget-s", type=float, default=None, help="plant seconds (default: the case's target)")
     ap.add_argument("--out", default="docs/control_results/rl_mpc")
     args = ap.parse_args(argv)
     root = Path(args.out)
+    if args.table:
+        for path in sorted(root.glob("*_summary.json")):
+            print(table_row(json.loads(path.read_text())))
+        return 0
+    if args.case is None:
+        ap.error("--case is required (or --table)")
     runs: dict[int, dict[str, Any]] = {}
     tag = args.case if args.budget_s is None else f"{args.case}_b{args.budget_s:g}"
     for seed in args.seeds:
