@@ -130,3 +130,20 @@ def test_an_input_held_over_each_interval_is_not_read_half_a_sample_early():
     rec = Recordings(np.stack(qs, 1)[..., None], dt, np.stack(us, 1)[..., None], (0,))
     law = fit_law(system, rec, ["viscous_damping"])
     assert abs(law.terms[0].coefficient) < 0.05 * kp * dt / 2
+
+
+def test_a_refit_that_leaves_model_error_hands_on_only_positive_terms():
+    """A refit with chi^2/dof far above the noise (a real arm's model error) is not at the noise, and the terms it
+    hands to a later refit are the physical ones (a rotor inertia or friction fitted below zero is left out)."""
+    from phast_model.identify.shooting import ShootFit
+    from phast_model.mismatch.friction.engine_refit import EngineRefit, Item
+
+    fit = ShootFit(np.zeros((2, 2)), np.array([1.0, -0.5]), np.full((2, 10), 3.0), np.zeros((2, 10, 2)),
+                   np.zeros((2, 10, 2)), 180.0, 20, 1)
+    items = [Item("inertia", "armature", 0, start=0.1, scale=0.1),
+             Item("law", "coulomb_friction", 1, start=0.2, scale=0.2)]
+    refit = EngineRefit(items, fit, np.array([0.1, -0.1]), np.zeros((2, 2)), 1.96, 200.0, [])
+    assert not refit.at_noise  # 180 / (20 - 4 - 2) = 12.9
+    assert [(t.name, t.coordinate, t.coefficient) for t in refit.terms()] == [("armature", 0, 0.1)]
+    assert [it.value(g) for it, g in zip(items, fit.g)] == pytest.approx([0.1, -0.1])
+    assert items[0].g0 == pytest.approx(1.0) and items[1].label == "coulomb_friction[1]"

@@ -7,10 +7,11 @@ of a long arm is a small share of d/dt (M qdot)).  On a MuJoCo model file the an
 short shooting windows, every window's state free, simulated by MuJoCo (:func:`~..written.in_mujoco`): the coefficients
 then mean what the written ``calibrated.xml`` means, and the windows, whose prediction error grows with the inertia,
 pin a rotor inertia far better than the balance does.  A rotor inertia is refitted on every driven joint (the weak form
-may have left one out as not significant); a term whose 95% interval then includes zero is dropped (and the rest
-refitted once), since a term the data do not back is not missing physics (MuJoCo's inertia, damping and
-frictionloss are non-negative, so an interval reaching zero or below does not back one).  The refit is kept only when
-it follows the windows at least as well as the values it starts from (the weak form's, or a trial's).
+may have left one out as not significant); a term whose interval then reaches zero is dropped (and the rest refitted
+once), since a term the data do not back is not missing physics.  Each refitted term is a test, so that interval is
+family-wise (95% with Bonferroni's correction over the terms: z = 2.7 for 8 terms, 3.0 for 18); MuJoCo's inertia,
+damping and frictionloss are non-negative, so an interval reaching zero or below does not back one.  The refit is kept
+only when it follows the windows at least as well as the values it starts from (the weak form's, or a trial's).
 """
 
 from __future__ import annotations
@@ -18,9 +19,11 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
+from scipy.stats import norm
+from scipy.stats import t as student_t
 
 from phast_gym.systems.base import System
 
@@ -34,12 +37,19 @@ from .weakid import WeakFit, WeakModel
 
 #: the least scale of a coefficient that starts at zero, relative to the largest start of its kind
 FLOOR = 0.1
+#: a refit stops when an iteration gains less than this share of chi^2 (about 0.5 chi^2 units on a 6-joint arm's 16
+#: windows: the coefficients move by a small fraction of their standard error); each iteration simulates every window
+#: once per coefficient and state direction, seconds on a 7-joint arm
+TOL = 1e-4
+#: a refit whose chi^2/dof is at most this leaves noise (1) and no model error: its intervals decide which terms stay
+AT_NOISE = 3.0
 
 
 @dataclass(frozen=True)
 class Item:
     """One refitted value: a law term (``law``), a rotor inertia (``inertia``) or a parameter (``param``, log-relative:
-    value = start * exp(g)); a coefficient is start + scale * g."""
+    value = start * exp(g)); a term's coefficient is scale * g, so that g = 0 is the term absent
+    (:meth:`ShootFit.without`)."""
 
     kind: str
     name: str  # term or parameter name
@@ -53,7 +63,12 @@ class Item:
         return self.name if self.kind == "param" else f"{self.name}[{self.coordinate}]"
 
     def value(self, g: float) -> float:
-        return self.start * math.exp(g) if self.kind == "param" else self.start + self.scale * g
+        return self.start * math.exp(g) if self.kind == "param" else self.scale * g
+
+    @property
+    def g0(self) -> float:
+        """The fit's start: the start value."""
+        return 0.0 if self.kind == "param" else self.start / self.scale
 
 
 @dataclass
@@ -68,6 +83,12 @@ class EngineRefit:
     cost_before: float
     dropped: list[str]
 
+    @property
+    def at_noise(self) -> bool:
+        """The refit leaves noise, no model error (chi^2/dof at most :data:`AT_NOISE`): its values and intervals
+        stand."""
+        return self.fit.chi2_red <= AT_NOISE
+
     def to_dict(self) -> dict[str, Any]:
         return {"items": [{"item": it.label, "start": it.start, "refit": float(v), "ci95": list(map(float, c))}
                           for it, v, c in zip(self.items, self.values, self.ci95)],
@@ -75,9 +96,9 @@ class EngineRefit:
                 "dropped_interval_includes_zero": self.dropped}
 
     def terms(self) -> tuple[Term, ...]:
-        """The refitted terms (rotor inertias and the law): where a later refit starts."""
+        """The refitted terms (rotor inertias and the law) with a positive value: where a later refit starts."""
         return tuple(Term(it.name, it.coordinate, float(v), it.velocity)
-                     for it, v in zip(self.items, self.values) if it.kind != "param")
+                     for it, v in zip(self.items, self.values) if it.kind != "param" and v > 0)
 
 
 def _items(final: WeakFit, armature_on: Sequence[int], starts: Sequence[Term]) -> list[Item]:
@@ -133,19 +154,40 @@ def _builder(model: WeakModel, final: WeakFit, items: list[Item]):  # noqa: ANN2
     return build
 
 
-def _fit(shooter: Shooter, model: WeakModel, final: WeakFit, items: list[Item], X: np.ndarray,
-         max_iter: int) -> tuple[ShootFit, np.ndarray, np.ndarray, float]:
-    """The shooting fit of ``items``: (fit, values, 95% intervals (P, 2), t quantile)."""
-    build = _builder(model, final, items)
-    fit = shooter.fit(build, X, np.zeros(len(items)), max_iter=max_iter)
+class _Tested(NamedTuple):
+    ci95: np.ndarray  # (P, 2) 95% intervals of the values
+    t_quantile: float
+    t: np.ndarray  # (P,) each term's value over its standard error at the family-wise level (inf: a parameter)
+
+
+def _tested(fit: ShootFit, items: Sequence[Item]) -> _Tested:
+    """The 95% intervals of ``fit``'s values, and each term's lower bound at the family-wise level (Bonferroni over the
+    terms) in units of that level's half width: a term is backed when it is above 1 (MuJoCo's inertia, damping and
+    frictionloss are >= 0, so a bound at zero or below does not back one)."""
     with np.errstate(over="ignore", invalid="ignore"):  # a term with no effect: an infinite interval, then dropped
         cov, dof = fit.interval_covariance()
     tq = quantile95(dof)
+    level = 1 - 0.025 / max(sum(it.kind != "param" for it in items), 1)
+    t_family = float(student_t.ppf(level, dof)) if dof is not None else float(norm.ppf(level))
     sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    values = np.array([it.value(float(x)) for it, x in zip(items, fit.g)])
-    lo_hi = np.array([[it.value(float(x - tq * s)), it.value(float(x + tq * s))]
-                      for it, x, s in zip(items, fit.g, sd)])
-    return fit, values, lo_hi, tq
+    ci = np.array([[it.value(float(x - tq * s)), it.value(float(x + tq * s))] for it, x, s in zip(items, fit.g, sd)])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where([it.kind == "param" for it in items], np.inf, fit.g / (t_family * sd))
+    return _Tested(ci, tq, np.nan_to_num(t, nan=0.0, posinf=np.inf))
+
+
+def _eliminated(fit: ShootFit, items: list[Item]) -> tuple[ShootFit, list[Item], list[str]]:
+    """Backward elimination on ``fit``'s linearization (:meth:`ShootFit.without`: no new simulation): the least
+    backed term goes first, until every term left is backed, so of two terms that only together explain a force
+    (viscous and Coulomb friction on one joint) the stronger stays."""
+    dropped: list[str] = []
+    while True:
+        t = _tested(fit, items).t
+        if not len(t) or t.min() > 1.0:
+            return fit, items, dropped
+        j = int(np.argmin(t))
+        dropped.append(items[j].label)
+        fit, items = fit.without(j), [it for k, it in enumerate(items) if k != j]
 
 
 def engine_refit(shooter: Shooter, X: np.ndarray, model: WeakModel, final: WeakFit, armature_on: Sequence[int],
@@ -156,14 +198,19 @@ def engine_refit(shooter: Shooter, X: np.ndarray, model: WeakModel, final: WeakF
     items = _items(final, armature_on, starts)
     if not items:
         return None
-    before = shooter.fit_states(_builder(model, final, items)(np.zeros(len(items))), X, max_iter=max_iter)
-    fit, values, ci, tq = _fit(shooter, model, final, items, before.X, max_iter)
-    backed = [j for j, it in enumerate(items) if it.kind == "param" or ci[j, 0] > 0]  # MuJoCo's values are >= 0
-    dropped = [items[j].label for j in range(len(items)) if j not in backed]
+    g0 = np.array([it.g0 for it in items])
+    before = shooter.fit_states(_builder(model, final, items)(g0), X, max_iter=max_iter)
+    fit = shooter.fit(_builder(model, final, items), before.X, g0, max_iter=max_iter, tol=TOL)
+    # a fit that leaves model error has intervals widened by it, which say nothing about a term: nothing is dropped
+    fit, kept, dropped = _eliminated(fit, items) if fit.chi2_red <= AT_NOISE else (fit, items, [])
     if dropped:
-        kept = [replace(items[j], start=float(values[j]), scale=items[j].scale) for j in backed]
-        fit, values, ci, tq = _fit(shooter, model, updated(final, kept, values[backed]), kept, fit.X, max_iter)
-        items = kept
+        values = np.array([it.value(float(x)) for it, x in zip(kept, fit.g)])
+        start = updated(final, kept, values)
+        kept = [replace(it, start=it.value(float(x)) if it.kind == "param" else it.start) for it, x in zip(kept, fit.g)]
+        g = np.where([it.kind == "param" for it in kept], 0.0, fit.g)
+        fit = shooter.fit(_builder(model, start, kept), fit.X, g, max_iter=max_iter, tol=TOL)
     if not fit.cost <= before.cost:
         return None
-    return EngineRefit(items, fit, values, ci, tq, before.cost, dropped)
+    tested = _tested(fit, kept)
+    values = np.array([it.value(float(x)) for it, x in zip(kept, fit.g)])
+    return EngineRefit(kept, fit, values, tested.ci95, tested.t_quantile, before.cost, dropped)
