@@ -43,6 +43,9 @@ FLOOR = 0.1
 TOL = 1e-4
 #: a refit whose chi^2/dof is at most this leaves noise (1) and no model error: its intervals decide which terms stay
 AT_NOISE = 3.0
+#: start values that leave a chi^2/dof above this (a real arm's model error: 1e6 on the UR10e) are not refitted: no
+#: change of the same terms brings them to the noise, and the refit would cost minutes
+FAR = 100 * AT_NOISE
 
 
 @dataclass(frozen=True)
@@ -194,12 +197,16 @@ def engine_refit(shooter: Shooter, X: np.ndarray, model: WeakModel, final: WeakF
                  max_iter: int, starts: Sequence[Term] = ()) -> EngineRefit | None:
     """The weak-form answer ``final`` refitted by shooting through MuJoCo on ``shooter``'s windows (states started at
     ``X``; the terms of ``starts``, e.g. a trial's refit, considered too and started at their values), as the module
-    docstring says; None when it follows the windows worse than its start does."""
+    docstring says; None when it follows the windows worse than its start does, the start itself (not at the noise)
+    when that is :data:`FAR` from following them."""
     items = _items(final, armature_on, starts)
     if not items:
         return None
     g0 = np.array([it.g0 for it in items])
     before = shooter.fit_states(_builder(model, final, items)(g0), X, max_iter=max_iter)
+    if before.chi2_red > FAR:
+        return EngineRefit(items, before, np.array([it.value(g) for it, g in zip(items, g0)]),
+                           np.full((len(items), 2), np.nan), math.nan, before.cost, [])
     fit = shooter.fit(_builder(model, final, items), before.X, g0, max_iter=max_iter, tol=TOL)
     # a fit that leaves model error has intervals widened by it, which say nothing about a term: nothing is dropped
     fit, kept, dropped = _eliminated(fit, items) if fit.chi2_red <= AT_NOISE else (fit, items, [])
