@@ -7,7 +7,7 @@ settings, --max-action and the plant-time budget; the rest are defaults).
     python benchmarks/control_mpc.py --table     # the rows of docs/control.md from the summaries
 
 Each run writes its phast-rl outputs to ``OUT/<case>_s<seed>/`` (default OUT: docs/control_results/rl_mpc); the case's
-summary (per seed: quiet success, angle only, RMS input and its ratio to the plant's LQG floor, plant seconds, wall
+summary over every seed in OUT (per seed: quiet success, angle only, RMS input and its ratio to the plant's LQG floor, plant seconds, wall
 time, controller ms; the mean over seeds and the worst seed) is printed and written to ``OUT/<case>_summary.json``.
 A benchmark, not a test: a run takes minutes.
 """
@@ -115,7 +115,9 @@ def main(argv: list[str] | None = None) -> int:
             return rc
         runs[seed] = json.loads((out / "summary.json").read_text())
         print(f"{tag} seed {seed}: done in {time.perf_counter() - t0:.0f} s", flush=True)
-    summary = summarize(tag, runs, lqg_floor(args.case))
+    for path in sorted(root.glob(f"{tag}_s*/summary.json")):  # with the seeds run before into the same OUT
+        runs.setdefault(int(path.parent.name.rsplit("_s", 1)[1]), json.loads(path.read_text()))
+    summary = summarize(tag, dict(sorted(runs.items())), lqg_floor(args.case))
     atomic_write_json(root / f"{tag}_summary.json", summary)
     print(json.dumps(summary, indent=1))
     return 0
