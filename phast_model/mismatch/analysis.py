@@ -44,6 +44,7 @@ from .energy import energy_check
 from .evaluate import FitTable, HeldOut, check_rollout_window, held_out
 from .explainers import Context, Explained, Explainer, ShootingExplainer, explain_in_turn
 from .fitting.problem import Problem, prepare
+from .friction.engine_refit import FAR
 from .friction.systematic import WeakFormExplainer, drive_share, drives_trial, parameter_share
 from .locate import locate
 from .options import Options, Progress
@@ -450,7 +451,8 @@ def _screen(problem: Problem) -> tuple[ParameterScreen, Described]:
                         f"better than a line (share {share:.3g}); its own parameters account for {params:.0%} of "
                         "the force it leaves (weak form)")
             if drives >= MIN_DESCRIBED and drives > params:
-                return drives_screen(problem, (shooter, fit, 0), starts), _described(problem, share, drives, chi2)
+                screen = drives_screen(problem, (shooter, fit, 0), starts, far=chi2 > FAR)
+                return screen, _described(problem, share, drives, chi2)
     nominal = fit_nominal(problem)
     share = explained_share(nominal[0], nominal[1])
     screen = screen_parameters(problem, nominal)

@@ -87,6 +87,9 @@ class ParameterScreen:
     #: the terms a trial of the drives found (rotor inertia, joint friction): the weak-form answer's refit in the engine
     #: starts there and considers them too (:mod:`.friction.engine_refit`)
     starts: tuple[Term, ...] = ()
+    #: the drives trial was far from following the windows (a real arm's model error): the weak-form answer is not
+    #: refitted in the engine, which could not bring it to the noise either
+    far: bool = False
 
 
 @dataclass
@@ -253,7 +256,7 @@ def screen_parameters(problem: Problem, made: tuple[Shooter, ShootFit, int] | No
 
 
 def drives_screen(problem: Problem, nominal: tuple[Shooter, ShootFit, int],
-                  starts: Sequence[Term] = ()) -> ParameterScreen:
+                  starts: Sequence[Term] = (), far: bool = False) -> ParameterScreen:
     """The screen of a model file its nominal model cannot follow but its drives describe (rotor inertia and friction
     per driven joint account for the force it leaves): no body value is examined, so none can absorb a drive; the
     weak form then fits the drives with the file's body values."""
@@ -262,7 +265,7 @@ def drives_screen(problem: Problem, nominal: tuple[Shooter, ShootFit, int],
             "driven joint come first")
     notes = {k: note for k in problem.sim.numeric_params(problem.sys0)}
     return ParameterScreen(shooter, fit, n_dropped, [], notes, Identifiability((), (), (), {}), fit,
-                           problem.nominal_family, tuple(starts))
+                           problem.nominal_family, tuple(starts), far)
 
 
 def calibration(problem: Problem, screen: ParameterScreen, selected: list[tuple[str, float]], start: ShootFit,

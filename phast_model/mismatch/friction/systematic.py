@@ -143,6 +143,9 @@ def _in_engine(ctx: SystematicContext, model: WeakModel, final: WeakFit) -> Engi
     problem = ctx.problem
     if not is_model_file_system(problem.sys0):
         return None
+    if ctx.cal.screen.far:
+        problem.log("no refit in MuJoCo: the drives alone were far from following the windows (model error)")
+        return None
     refit = engine_refit(ctx.cal.shooter, ctx.cal.fit.X, model, final, model.armature, problem.opts.max_iter,
                          ctx.cal.screen.starts)
     if refit is None:
