@@ -4,9 +4,9 @@
 
 writes ``DIR/summary.json`` (``plant_seconds``: all plant time used for learning; ``success``: the quiet criterion,
 ``success_angle_only`` and ``rms_torque`` of the final evaluation on the plant, ``eval_trials`` trials; per-iteration
-success), ``DIR/curves.json`` + ``DIR/curves.png`` (learning curves), ``DIR/policy.zip`` (the agent: ``SAC.load``) and
-``DIR/model/`` (the world model: ``phast_model.api.load_run``).  A thin front end over the API; ``--help`` lists the
-options.
+success), ``DIR/curves.json`` + ``DIR/curves.png`` (learning curves), ``DIR/policy.zip`` (the agent: ``SAC.load``;
+none with ``--agent mpc``, the planner in the learned model: :mod:`phast_model.rl.planner`) and ``DIR/model/`` (the
+world model: ``phast_model.api.load_run``).  A thin front end over the API; ``--help`` lists the options.
 """
 
 from __future__ import annotations

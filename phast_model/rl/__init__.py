@@ -8,6 +8,8 @@ section "Policies from seconds on the machine"):
 * :mod:`.world_env`: the agent's env inside the learned model, started from recorded windows;
 * :mod:`.observation`: the agent's observation ((sin q, cos q) of the last measurements);
 * :mod:`.mirror_policy`: the reflection-equivariant SAC policy;
+* :mod:`.planner`: the planning agent (``--agent mpc``): MPPI through the learned core
+  (:mod:`phast_model.control.mppi`), sliced over the plant steps, with the hold near the target;
 * :mod:`.hold`: the Energy-Casimir hold built from the learned model (a UKF on the learned core), the hybrid policy;
 * :mod:`.loop_report`: summary.json, learning curves, policy.zip, the model and the recordings of a run;
 * :mod:`.descriptions`: the rig descriptions and option presets of the plants;
