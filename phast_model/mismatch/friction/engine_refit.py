@@ -98,7 +98,7 @@ class EngineRefit:
         return {"items": [{"item": it.label, "start": it.start, "refit": float(v), "ci95": list(map(float, c))}
                           for it, v, c in zip(self.items, self.values, self.ci95)],
                 "chi2_per_dof": {"start": self.cost_before / max(self.fit.dof, 1), "refit": self.fit.chi2_red},
-                "dropped_interval_includes_zero": self.dropped}
+                "dropped_not_backed": self.dropped}
 
     def terms(self) -> tuple[Term, ...]:
         """The refitted terms (rotor inertias and the law) with a positive value: where a later refit starts."""
@@ -133,7 +133,6 @@ def updated(final: WeakFit, items: Sequence[Item], values: np.ndarray, ci95: np.
     def ci(j: int) -> tuple[float, float]:
         return (float(ci95[j, 0]), float(ci95[j, 1])) if ci95 is not None else (math.nan, math.nan)
 
-    law = [it for it in items if it.kind == "law"]
     terms = [LawTerm(it.name, it.coordinate, float(values[j]), ci(j), it.velocity, t_quantile)
              for j, it in enumerate(items) if it.kind == "law"]
     armature = [LawTerm(ARMATURE.name, it.coordinate, float(values[j]), ci(j), 0.0, t_quantile)
@@ -145,7 +144,6 @@ def updated(final: WeakFit, items: Sequence[Item], values: np.ndarray, ci95: np.
             row = params[it.name]
             params[it.name] = replace(row, fitted=float(values[j]), ci95=ci(j) if ci95 is not None else row.ci95,
                                       relative_change=float(values[j]) / row.nominal - 1.0 if row.nominal else None)
-    assert len(terms) == len(law)
     return replace(final, kwargs=kwargs, params=params, armature=armature, law=replace(final.law, terms=terms))
 
 

@@ -106,8 +106,9 @@ class SystematicResult:
 
 
 def _law_rows(law: FrictionLaw, sels: list[LawSelection], passive: dict[str, Any],
-              own: dict[int, float]) -> list[TermRow]:
-    """report.missing_physics rows of the chosen law: coefficient, 95% interval, the evidence, near alternatives."""
+              own: dict[int, float], refitted: bool = False) -> list[TermRow]:
+    """report.missing_physics rows of the chosen law: coefficient, 95% interval, the evidence, near alternatives
+    (``refitted``: the coefficients and the terms kept come from the refit in MuJoCo)."""
     rows = []
     for t in law.terms:
         sel = sels[t.coordinate]
@@ -126,7 +127,7 @@ def _law_rows(law: FrictionLaw, sels: list[LawSelection], passive: dict[str, Any
                             term.expression(),
                             None, alternatives, t.velocity if term.kind.has_velocity else None,
                             f"weak-form force balance; law chosen by {sel.folds}, score: left-out friction curve; "
-                            f"|t| = {abs(t.t):.3g}" + (f"; {note}" if note else "")))
+                            + (REFITTED if refitted else "") + f"|t| = {abs(t.t):.3g}" + (f"; {note}" if note else "")))
     return rows
 
 
@@ -155,7 +156,7 @@ def _in_engine(ctx: SystematicContext, model: WeakModel, final: WeakFit) -> Engi
         problem.log(f"refitted in MuJoCo on the windows: {chi2}, model error left: the weak form's answer stands")
         return None
     problem.log(f"refitted in MuJoCo on the windows: {chi2}"
-                + (f"; dropped {refit.dropped} (interval reaches zero)" if refit.dropped else ""))
+                + (f"; dropped {refit.dropped} (not backed by the data)" if refit.dropped else ""))
     return refit
 
 
@@ -186,10 +187,16 @@ def _calibrated_rows(ctx: SystematicContext, fit: WeakFit, held: list[str],
     return rows
 
 
-def _armature_rows(fit: WeakFit) -> list[TermRow]:
+#: the evidence of a row whose value the refit in MuJoCo gave (:mod:`.engine_refit`)
+REFITTED = ("refitted on the shooting windows as MuJoCo simulates the written model, with the drives trial's terms, "
+            "kept by backward elimination; ")
+
+
+def _armature_rows(fit: WeakFit, refitted: bool = False) -> list[TermRow]:
     return [TermRow(ARMATURE.name, t.coordinate, ARMATURE.component, t.coefficient, (t.ci95[0], t.ci95[1]),
                     t.to_term().expression(), None, (),
-                    evidence=f"weak-form fit jointly with the parameters and the friction law, |t| = {abs(t.t):.3g}")
+                    evidence="weak-form fit jointly with the parameters and the friction law; "
+                             + (REFITTED if refitted else "") + f"|t| = {abs(t.t):.3g}")
             for t in fit.armature if t.coefficient > 0 and t.excludes_zero]
 
 
@@ -267,7 +274,8 @@ def systematic(ctx: SystematicContext) -> SystematicResult:
     passive = is_passive(final.law, curve).to_dict()
     # its training chi^2 as held-out scores simulate it (a model file's: MuJoCo, whose frictionloss stays stable)
     fit = ctx.cal.shooter.fit_states(in_mujoco(augmented), ctx.cal.fit.X, max_iter=problem.opts.max_iter)
-    missing = _law_rows(final.law, sels, passive, _own_viscous(augmented, problem.q_sample())) + _armature_rows(final)
+    own = _own_viscous(augmented, problem.q_sample())
+    missing = _law_rows(final.law, sels, passive, own, refit is not None) + _armature_rows(final, refit is not None)
     reason = (f"shooting-augmented chi^2/dof {ctx.chi2_aug:.3g} > {problem.opts.systematic_chi2}: the residual is "
               "model error, not noise, so parameters, armature and the dissipation law were identified from local "
               "evidence (weak form; the law chosen by left-out friction curves)")
