@@ -20,6 +20,8 @@ learning) is reported apart.
 * the deployed controller is :class:`.hold.HybridPolicy`: the agent, and near the target a hold built from the
   learned model (the quiet criterion): Energy-Casimir when the input acts on every coordinate, else LQR of the
   learned linearisation (a cart-pole; see :mod:`.hold`).
+* with ``agent_kind="mpc"`` (``phast-rl --agent mpc``) nothing is trained: the deployed controller plans in the model
+  just fitted (:class:`.planner.PlannerPolicy`, MPPI through the learned core), with the same hold.
 """
 
 from __future__ import annotations
