@@ -16,10 +16,22 @@ CASE_NAMES = list(CASES)
 
 
 def test_the_cases_are_there():
-    assert CASE_NAMES == ["furuta", "arm3", "arm3_cad", "weak_motor", "arm3_drives", "arm6_drives", "cartpole"]
+    assert CASE_NAMES == ["furuta", "arm3", "arm3_cad", "weak_motor", "arm3_drives", "arm6_drives", "cartpole",
+                          "arm7_drives"]
     assert all(mc.nominal_path(c).is_file() for c in CASES.values())
     with pytest.raises(ValueError, match="cases"):  # a case without its models folder says where to get one
         mc.nominal_path(mc.CASES["furuta"])
+
+
+@pytest.mark.parametrize("name", ["arm6_drives", "arm7_drives"])
+def test_a_long_arm_is_recorded_under_a_stable_loop(name, tmp_path):
+    """The computed-torque PD keeps the 6- and 7-joint arms near their targets, nominal or real (a per-joint PD on the
+    mass-matrix diagonal drove the nominal 6-joint arm to 1e11 rad)."""
+    case = CASES[name]
+    for hidden in ([], mc.hidden_effects(case, 0)):
+        rec = mc.record(case, mc.write_real(case, hidden, tmp_path), 2, 150, 0)
+        v = np.diff(rec["q_true"], axis=1) / rec["dt"]
+        assert np.abs(rec["q_true"]).max() < 1.5 and np.sqrt(np.mean(v**2)) < 3.0
 
 
 @pytest.mark.parametrize("name", CASE_NAMES)
