@@ -1,6 +1,7 @@
 """The held-out score of a rig's world model (``phast-train --recordings``): every model (PHAST, the nominal rig as a
-KNOWN model, a compared phast_gym system) on the same held-out windows, each after a burn-in its state is fitted to,
-then open loop with the recorded u; RMSE of q, wrapped on angles."""
+KNOWN model, a compared phast_gym system, a sequence baseline) on the same held-out windows, each after a burn-in (its
+state fitted to it, or a sequence model's warm-up of observed positions), then open loop with the recorded u; RMSE of
+q, wrapped on angles."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from phast_gym.systems import System
 
 from ..identify.recordings import Recordings
 from ..identify.shooting import Shooter, Windows, estimate_noise, simulate_qv, smooth, substeps_for
-from ..world.interfaces import coordinate_error, wrap_angles
+from ..world.interfaces import ForecastModel, coordinate_error, wrap_angles
 from ..world.model import PHAST
 from .rig_fit import BURN_IN_S, SMOOTH_S, STATE_FIT_ITERS, check_window_room, fit_states, odd_samples, simulate
 
@@ -87,6 +88,17 @@ def system_rollouts(system: System, w: HeldoutWindows, dt: float, angle_dims: tu
     return torch.as_tensor(simulate_qv(system, X[:, :n], X[:, n:], w.burn + w.H - 1, u, dt, sub))
 
 
+@torch.no_grad()
+def forecast_rollouts(model: ForecastModel, w: HeldoutWindows) -> torch.Tensor:
+    """(W, burn + H, n) open-loop q of a sequence model (a :class:`ForecastModel`: the baselines) on the windows: the
+    burn-in's measured q is its warm-up (the samples PHAST's state is fitted to), then ``model.rollout`` with the
+    recorded u over the window; the burn-in part of the result is the measured q (not scored)."""
+    dtype = next(iter(model.parameters())).dtype
+    u = None if w.u is None or model.m == 0 else w.u.to(dtype)
+    pred = model.rollout(w.q[:, : w.burn].to(dtype), u, w.H).to(w.q.dtype)
+    return torch.cat([w.q[:, : w.burn], pred], 1)
+
+
 class HeldoutScore(TypedDict):
     """One model's score on the held-out windows."""
 
@@ -102,13 +114,19 @@ def _score(sim: torch.Tensor, w: HeldoutWindows, angle_dims: tuple[int, ...]) ->
 
 
 def heldout_rollouts(models: dict[str, PHAST], rec: Recordings, window_s: float | None, burn_s: float = BURN_IN_S,
-                     compare: Mapping[str, System] | None = None
+                     compare: Mapping[str, System] | None = None,
+                     forecasters: Mapping[str, ForecastModel] | None = None
                      ) -> tuple[dict[str, Any], dict[str, np.ndarray], HeldoutWindows]:
     """``{name: {"rollout_rmse", "per_window_rmse"}}`` of every model on the held-out windows (the same windows,
     the same burn-in, the same error), plus the rollouts themselves (plots) and the windows.  ``compare``: phast_gym
-    systems scored beside the PHAST models (:func:`system_rollouts`)."""
+    systems scored beside the PHAST models (:func:`system_rollouts`); ``forecasters``: sequence models, the burn-in
+    their warm-up (:func:`forecast_rollouts`)."""
     w = heldout_windows(rec, window_s, burn_s)
     sims = {name: (rollout_windows(model, w, rec.dt), tuple(model.angle_dims)) for name, model in models.items()}
+    for name, forecaster in (forecasters or {}).items():
+        if name in sims:
+            raise ValueError(f"forecasters: {name!r} is already a scored model's name ({sorted(sims)})")
+        sims[name] = (forecast_rollouts(forecaster, w), tuple(rec.angle_dims))
     for name, system in (compare or {}).items():
         if name in sims:
             raise ValueError(f"compare: {name!r} is already a scored model's name ({sorted(sims)})")

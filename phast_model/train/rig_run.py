@@ -62,7 +62,7 @@ class RecordingsSpec:
             raise ValueError(f"--rollout-window-s must be a positive number of seconds, got {w!r}")
 
 
-def _sim_name(sim: str) -> str:
+def sim_name(sim: str) -> str:
     """A rig file path made absolute, so the run opens from any working directory."""
     path, sep, cls = sim.rpartition(":")
     if sep and path.endswith(".py"):
@@ -78,11 +78,11 @@ def prepare(spec: RecordingsSpec) -> RigData:
     """Load and check the recordings; ValueError (a message naming the problem) before any training."""
     data = load_rig_data(_source(spec.recordings), spec.sim, spec.sim_kwargs,
                          list(spec.holdout) if spec.holdout else None, spec.decimate)
-    heldout_windows(_heldout(data), spec.rollout_window_s, BURN_IN_S)  # room for a burn-in plus one window
+    heldout_windows(heldout_part(data), spec.rollout_window_s, BURN_IN_S)  # room for a burn-in plus one window
     return data
 
 
-def _heldout(data: RigData) -> Recordings:
+def heldout_part(data: RigData) -> Recordings:
     """The held-out recordings (ValueError without them: the score needs recordings the model is not trained on)."""
     if data.heldout is None:
         raise ValueError("give --holdout-trajectories: the held-out score needs recordings the model is not trained on")
@@ -98,16 +98,16 @@ def train_recordings_run(spec: RecordingsSpec, out: str | Path, train: RigTrainC
     from phast_gym.fileio import dir_lock, ensure_writable_dir
 
     train = train or RigTrainConfig()
-    spec = replace(spec, sim=_sim_name(spec.sim))
+    spec = replace(spec, sim=sim_name(spec.sim))
     data = prepare(spec)
-    heldout = _heldout(data)
+    heldout = heldout_part(data)
     bound = list(spec.action_bound) if spec.action_bound else [max(b, 1e-6) for b in data.u_bound]
     cfg = rig_config(spec.sim, spec.sim_kwargs, spec.regime, data, seed=train.seed, action_bound=bound,
                      **(overrides or {}))
     out = ensure_writable_dir(out, "--out")
     with dir_lock(out):
         model = build(cfg)
-        identity = {"model": cfg.to_dict(), "recordings": _spec_record(spec, str(data.source))}
+        identity = {"model": cfg.to_dict(), "recordings": spec_record(spec, str(data.source))}
         fit = fit_recordings(model, data, train, run_dir=out, resume=resume, identity=identity)
         nominal = build(nominal_config(cfg))
         scores, rolls, windows = heldout_rollouts({"phast": fit.model, "nominal": nominal}, heldout,
@@ -186,7 +186,7 @@ def _metrics(spec: RecordingsSpec, data: RigData, fit: RigFit, scores: dict[str,
     }
 
 
-def _spec_record(spec: RecordingsSpec, source: str) -> dict[str, Any]:
+def spec_record(spec: RecordingsSpec, source: str) -> dict[str, Any]:
     """The recordings spec as config.json records it (and as the checkpoint's identity checks it on resume)."""
     return {**{f.name: getattr(spec, f.name) for f in fields(spec) if f.name != "compare"},
             "recordings": source, "holdout": list(spec.holdout or ()), "compare": sorted(spec.compare or {})}
@@ -195,7 +195,7 @@ def _spec_record(spec: RecordingsSpec, source: str) -> dict[str, Any]:
 def _write(fit: RigFit, metrics: dict[str, Any], spec: RecordingsSpec, train: RigTrainConfig, out: Path) -> None:
     from ..train.checkpoint import atomic_write_json, save_run
 
-    save_run(fit.model, out, {"train": asdict(train), "recordings": _spec_record(spec, metrics["recordings"])})
+    save_run(fit.model, out, {"train": asdict(train), "recordings": spec_record(spec, metrics["recordings"])})
     atomic_write_json(out / METRICS_FILE, metrics)
     atomic_write_json(out / HISTORY_FILE, fit.history)
 
@@ -213,7 +213,8 @@ def heldout_summary(metrics: dict[str, Any]) -> dict[str, float]:
     return out
 
 
-__all__ = ["RecordingsSpec", "train_recordings_run", "prepare", "heldout_summary"]
+__all__ = ["RecordingsSpec", "train_recordings_run", "prepare", "heldout_part", "heldout_summary", "sim_name",
+           "spec_record"]
 
 
 def headline(metrics: dict[str, Any], regime: str, reference: dict[str, float], out: Path) -> dict[str, Any]:
