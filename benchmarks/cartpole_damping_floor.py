@@ -1,6 +1,7 @@
 """What limits the damping R^2 of the windy cart-pole KNOWN model (issue 39 item 1): the oracle fit of D.
 
     .venv/bin/python benchmarks/cartpole_damping_floor.py --n-traj 1000 --fd-orders 3 4 5 6 [--out FILE.json]
+    .venv/bin/python benchmarks/cartpole_damping_floor.py --fd-orders 4 --central-orders 2 4 6 8
 
 With the TRUE mass M(q) and potential V(q) of the env (what the KNOWN regime is given), it fits ONLY the damping
 D(q), linear in a basis, by Gauss-Newton on the model's own objective: the teacher-forced next-step MSE of
@@ -9,7 +10,9 @@ is the best any learner of this model class can do from these data; its damping 
 ``damping_scores``) is the floor.  Velocity sources:
 
 * ``fd<k>``: the KNOWN observer (fixed backward-difference formula of order k; the default is k = 4);
-* ``exact``: the simulator's own velocity M(q)^-1 p (not available to a q-only model: shows what the observer costs).
+* ``exact``: the simulator's own velocity M(q)^-1 p (not available to a q-only model: shows what the observer costs);
+* ``central<k>``: the non-causal central difference of accuracy k (:class:`CentralDifference`, one-sided at the
+  trajectory ends), what ``PHASTConfig.train_velocity="central"`` puts in the training loss.
 
 Bases (the true D is diag(0.3, 0.3 + 0.5 |sin theta|)):
 
@@ -19,7 +22,10 @@ Bases (the true D is diag(0.3, 0.3 + 0.5 |sin theta|)):
 * ``freediag``: the same basis on the two diagonal entries only (12 coefficients, D diagonal).
 
 Measured at 341aa8f (docs/phast_model.md, "KNOWN, windy cart-pole"): order 4, 1000 trajectories: form 0.9990,
-freediag 0.9889, free 0.9868; exact velocities >= 0.9997 with every basis.
+freediag 0.9889, free 0.9868; exact velocities >= 0.9997 with every basis.  Central differences (at 03a7559, the
+second command, docs/results/cartpole_damping_floor_central.json): order 2 0.83-0.87 (its O(dt^2) error is larger
+than the backward difference's O(dt^4)), order 4, 6, 8 >= 0.9996 with every basis, true-D loss 4.4e-12 / 3.4e-12 /
+3.4e-12 (fd4 1.8e-10, exact 2.9e-12).
 """
 
 from __future__ import annotations
@@ -34,6 +40,7 @@ import torch
 
 from phast_gym import make_splits
 from phast_model.components.damping import Damping, KnownDamping
+from phast_model.components.observer import CentralDifference
 from phast_model.train.metrics import damping_scores
 from phast_model.world.regimes import build_model
 
@@ -113,6 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--n-traj", type=int, default=1000, help="training trajectories used by the fit (of 1000)")
     ap.add_argument("--n-train", type=int, default=1000, help="size of the training split generated")
     ap.add_argument("--fd-orders", type=int, nargs="+", default=[3, 4, 5, 6])
+    ap.add_argument("--central-orders", type=int, nargs="*", default=[], help="central-difference accuracies (even)")
     ap.add_argument("--bases", nargs="+", default=["form", "freediag", "free"])
     ap.add_argument("--out", default=None)
     args = ap.parse_args(argv)
@@ -125,10 +133,17 @@ def main(argv: list[str] | None = None) -> int:
     d_te = np.asarray(te.damping)
     skip = 8  # the same steps for every observer order (>= any fd_order's start-up)
     rows = []
-    sources = [("exact", 4)] + [(f"fd{k}", k) for k in args.fd_orders]
+    sources = ([("exact", 4)] + [(f"fd{k}", k) for k in args.fd_orders]
+               + [(f"central{k}", k) for k in args.central_orders])
     for src, k in sources:
-        model = known_model(k)
-        v = model.mass.velocity(q, p_true) if src == "exact" else model.observer(q).detach()
+        model = known_model(4 if src.startswith("central") else k)
+        v_true = model.mass.velocity(q, p_true)
+        if src.startswith("central"):
+            v = CentralDifference(model.n, model.dt, model.angle_dims, k).double()(q)
+        else:
+            v = v_true if src == "exact" else model.observer(q).detach()
+        v_rms = [float(x) for x in (v - v_true)[:, skip:-1].pow(2).mean((0, 1)).sqrt()]
+        print(f"velocity {src}: rms error vs M^-1 p {v_rms[0]:.2e} / {v_rms[1]:.2e}", flush=True)
         r = residual_fn(model, q, v, skip)
         model.core.damping = KnownDamping(tr.system)
         with torch.no_grad():
@@ -141,7 +156,7 @@ def main(argv: list[str] | None = None) -> int:
             w, loss = gauss_newton(r, kind, n_w)
             d_hat = BasisDamping(kind, w).diag(q_te).detach().numpy()
             sc = damping_scores(d_hat, d_te)
-            rows.append({"velocity": src, "basis": kind, "loss_fit": loss, "loss_true_D": loss_true,
+            rows.append({"velocity": src, "basis": kind, "v_rms": v_rms, "loss_fit": loss, "loss_true_D": loss_true,
                          "damping_r2": sc["damping_r2"], "damping_mae": sc["damping_mae"],
                          "cart_mean": float(d_hat[..., 0].mean()), "w": [round(float(x), 4) for x in w]})
             print(f"velocity {src:6s} basis {kind:5s}: next-step loss fit {loss:.3e} (true D {loss_true:.3e})  "

@@ -31,11 +31,7 @@ def finite_difference(q: torch.Tensor, dt: float, angle_dims: tuple[int, ...]) -
 def backward_difference_weights(order: int) -> np.ndarray:
     """Weights w_k with qdot_t ~= sum_k w_k qdot_fd_{t-k} (k = 0..order-1): the backward-difference
     formula of the given order, rewritten on first differences."""
-    nodes = -np.arange(order + 1, dtype=np.float64)
-    V = np.stack([nodes**m for m in range(order + 1)])
-    rhs = np.zeros(order + 1)
-    rhs[1] = 1.0
-    c = np.linalg.solve(V, rhs)  # qdot_t ~= sum_j c_j q_{t-j} / dt
+    c = derivative_weights(-np.arange(order + 1))  # qdot_t ~= sum_j c_j q_{t-j} / dt
     return -np.array([c[k + 1:].sum() for k in range(order)])
 
 
@@ -114,3 +110,85 @@ class FDTCNObserver(nn.Module):
         k = min(self.fd_order, q.shape[1])
         v0 = torch.einsum("tj,bjn->btn", self.startup[:k, :k].to(v_fd.dtype), v_fd[:, :k])
         return torch.cat([v0, v[:, k:]], 1)
+
+
+def derivative_weights(offsets: np.ndarray) -> np.ndarray:
+    """Weights c_j with qdot(0) ~= sum_j c_j q(offsets_j) / dt: the finite-difference formula of order
+    ``len(offsets) - 1`` on the given (integer) sample offsets (Vandermonde solve)."""
+    nodes = np.asarray(offsets, dtype=np.float64)
+    V = np.stack([nodes**m for m in range(len(nodes))])
+    rhs = np.zeros(len(nodes))
+    rhs[1] = 1.0
+    return np.linalg.solve(V, rhs)
+
+
+def unwrap_angles(q: torch.Tensor, angle_dims: tuple[int, ...]) -> torch.Tensor:
+    """(B, T, n) with the angular coordinates made continuous along time (first sample + cumulative wrapped
+    differences); Euclidean coordinates unchanged."""
+    if not angle_dims or q.shape[1] < 2:
+        return q
+    idx = list(angle_dims)
+    a = q[..., idx]
+    steps = wrap(a[:, 1:] - a[:, :-1])
+    out = q.clone()
+    out[..., idx] = torch.cat([a[:, :1], a[:, :1] + torch.cumsum(steps, 1)], 1)
+    return out
+
+
+class CentralDifference(nn.Module):
+    """NON-causal velocity estimate for training only: the central finite difference of accuracy ``order`` (even;
+    ``order + 1`` samples, ``order / 2`` either side; order 4: (q_{t-2} - 8 q_{t-1} + 8 q_{t+1} - q_{t+2}) / (12 dt)),
+    on angles unwrapped along time.  The first and last ``order / 2`` samples, where the centred stencil would leave
+    the trajectory, use the ``order + 1`` samples nearest to them (a one-sided formula of the same order); a
+    trajectory shorter than the stencil uses all its samples.
+
+    Same interface as :class:`FDTCNObserver` (q (B, T, n) -> velocities (B, T, n)) but it reads q after t, so it
+    never infers a state for a rollout: ``PHASTConfig.train_velocity="central"`` puts it in the training loss only
+    (:meth:`phast_model.world.model.PHAST.loss_forward`).  No parameters."""
+
+    causal = False
+
+    def __init__(self, n: int, dt: float, angle_dims: tuple[int, ...] = (), order: int = 4) -> None:
+        super().__init__()
+        if int(order) != order or order < 2 or order % 2:
+            raise ValueError(f"central-difference order must be an even integer >= 2, got {order!r}")
+        self.n, self.dt, self.angle_dims, self.order = n, float(dt), tuple(angle_dims), int(order)
+        self.half = self.order // 2
+
+    def weights(self, T: int) -> np.ndarray:
+        """(T, T) differentiation matrix of a trajectory of length T (rows: times, columns: samples), / dt."""
+        w = min(self.order + 1, T)
+        D = np.zeros((T, T))
+        for t in range(T):
+            start = min(max(t - w // 2, 0), T - w)  # centred where the trajectory allows it
+            D[t, start:start + w] = derivative_weights(np.arange(start, start + w) - t)
+        return D / self.dt
+
+    def forward(self, q: torch.Tensor) -> torch.Tensor:
+        """(B, T, n) positions -> (B, T, n) velocity estimates (0 for a single sample)."""
+        T = q.shape[1]
+        if T < 2:
+            return torch.zeros_like(q)
+        qu = unwrap_angles(q, self.angle_dims)
+        w, k = min(self.order + 1, T), self.half
+        if T < 2 * w:  # short: the dense matrix
+            return torch.einsum("st,btn->bsn", torch.as_tensor(self.weights(T), dtype=q.dtype, device=q.device), qu)
+        ends = torch.as_tensor(self.weights(2 * w), dtype=q.dtype, device=q.device)  # first/last rows of any T
+        head = torch.einsum("st,btn->bsn", ends[:k, :w], qu[:, :w])
+        tail = torch.einsum("st,btn->bsn", ends[-k:, -w:], qu[:, -w:])
+        c = torch.as_tensor(derivative_weights(np.arange(-k, k + 1)) / self.dt, dtype=q.dtype, device=q.device)
+        mid = qu.unfold(1, w, 1) @ c  # (B, T - 2k, n): windows q_{t-k .. t+k}
+        return torch.cat([head, mid, tail], 1)
+
+
+#: ``PHASTConfig.train_velocity`` -> the class of the training loss's velocity estimate (None: the causal observer)
+TRAIN_VELOCITIES: dict[str, type[CentralDifference] | None] = {"observer": None, "central": CentralDifference}
+
+
+def training_velocity(name: str, n: int, dt: float, angle_dims: tuple[int, ...], order: int) -> nn.Module | None:
+    """The training velocity estimate ``name`` of :data:`TRAIN_VELOCITIES` (None: the observer); ValueError for an
+    unknown name."""
+    if name not in TRAIN_VELOCITIES:
+        raise ValueError(f"train_velocity must be one of {sorted(TRAIN_VELOCITIES)}, got {name!r}")
+    cls = TRAIN_VELOCITIES[name]
+    return None if cls is None else cls(n, dt, angle_dims, order)

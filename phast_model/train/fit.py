@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..world.interfaces import DataInitModel, ForecastModel, Trajectories, coordinate_error
+from ..world.interfaces import DataInitModel, ForecastModel, LossForwardModel, Trajectories, coordinate_error
 from .config import TrainConfig
 from .groups import param_groups
 from .loop import (
@@ -70,11 +70,13 @@ def _tensors(ds: Trajectories, dtype: torch.dtype) -> tuple[torch.Tensor, torch.
 
 def next_step_loss(model: ForecastModel, q: torch.Tensor, u: torch.Tensor | None,
                    skip_first: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
-    """(L_data, predictions): mean squared next-step error, wrapped on angles (Eq. 85).
+    """(L_data, predictions): mean squared next-step error, wrapped on angles (Eq. 85), of the model's
+    ``loss_forward`` when it has one (PHAST: from its training velocity estimate, ``PHASTConfig.train_velocity``),
+    else of its teacher-forced ``forward``.
 
     ``skip_first`` leaves out predictions made from fewer than ``skip_first + 1`` samples (a q-only model
     cannot know the velocity at t = 0; fitting those steps only biases the dynamics)."""
-    pred = model(q, u)
+    pred = model.loss_forward(q, u) if isinstance(model, LossForwardModel) else model(q, u)
     s = min(int(skip_first), q.shape[1] - 2)
     err = coordinate_error(pred[:, s:-1], q[:, s + 1:], model.angle_dims)
     return (err * err).mean(), pred

@@ -51,6 +51,13 @@ class PHASTConfig:
     use_tcn: bool = True
     observer_fd_order: int = 4
     observer_trainable: bool = True  # False: the observer stays the backward-difference formula it starts as
+    #: the velocity estimate the training loss starts each step from (L_data, Eq. 85, and the states of L_pass,
+    #: L_energy and the core's L_roll; the validation loss that selects the epoch too): "observer" (the causal
+    #: observer, as at test time) or "central" (:class:`~phast_model.components.observer.CentralDifference` of
+    #: accuracy ``train_velocity_order``: non-causal, so for training only; rollouts, metrics and the states of the
+    #: saved model keep the causal observer).  "central" needs a frozen observer (the loss would not train it)
+    train_velocity: str = "observer"
+    train_velocity_order: int = 4
     damping_lr_mult: float = 1.0  # learning-rate multiplier of the damping parameters (see param_groups)
     potential_hidden: int = 64
     potential_layers: int = 3

@@ -86,6 +86,14 @@ class TakeoverModel(Protocol):
 
 
 @runtime_checkable
+class LossForwardModel(Protocol):
+    """A model whose training loss compares other teacher-forced predictions than ``forward``'s (PHAST with a
+    non-causal training velocity, ``PHASTConfig.train_velocity``); the trainer's next-step loss calls it."""
+
+    def loss_forward(self, q: torch.Tensor, u: torch.Tensor | None = None) -> torch.Tensor: ...
+
+
+@runtime_checkable
 class DampingModel(Protocol):
     """A model with a learned damping field whose diagonal can be scored (``damping_r2``, ``damping_mae``)."""
 

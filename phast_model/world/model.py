@@ -38,6 +38,7 @@ from ..components.damping import Damping
 from ..components.features import coordinate_features, n_features
 from ..components.friction import JointFriction
 from ..components.mass import Mass
+from ..components.observer import training_velocity
 from ..components.potentials import Potential, TemplatePotential
 from ..components.rigid_body import LearnedBodies, RigidBodyMass, RigidBodyPotential
 from . import data_init
@@ -53,12 +54,14 @@ class PHAST(ForecastModel):
     G: torch.Tensor  # buffer: the port's input matrix (identity columns of the actuated coordinates)
 
     def __init__(self, config: PHASTConfig, observer: FDTCNObserver, core: SubstepCore, system: System,
-                 actuated_dofs: tuple[int, ...]) -> None:
+                 actuated_dofs: tuple[int, ...], loss_observer: nn.Module | None = None) -> None:
         super().__init__(system.n, len(actuated_dofs), system.angle_dims)
         self.config = config
         self.system = system  # the env's physics (metrics, known parts); not a parameter
         self.dt = float(system.dt)
         self.observer = observer
+        #: the training loss's velocity estimate when it is not the observer (``train_velocity``; no parameters)
+        self.loss_observer = loss_observer
         # a PHASTCore here; LatentODEModel passes its LatentODECore (and annotates core as one)
         self.core = core  # type: ignore[assignment]
         self.actuated_dofs = tuple(actuated_dofs)
@@ -160,9 +163,21 @@ class PHAST(ForecastModel):
 
     def forward(self, q: torch.Tensor, u: torch.Tensor | None = None) -> torch.Tensor:
         """Teacher-forced next-step predictions for every t at once: (B, T, n) -> (B, T, n)."""
+        return self._teacher_forced(q, u, self.observer)
+
+    def loss_forward(self, q: torch.Tensor, u: torch.Tensor | None = None) -> torch.Tensor:
+        """The teacher-forced predictions the training loss compares (Eq. 85): :meth:`forward`'s, each step started
+        from the training velocity estimate (:meth:`loss_velocity`) instead of the causal observer's."""
+        return self(q, u) if self.loss_observer is None else self._teacher_forced(q, u, self.loss_observer)
+
+    def loss_velocity(self, q: torch.Tensor) -> torch.Tensor:
+        """Velocities (B, T, n) the training loss starts from (``train_velocity``)."""
+        return (self.observer if self.loss_observer is None else self.loss_observer)(q)
+
+    def _teacher_forced(self, q: torch.Tensor, u: torch.Tensor | None, observer: nn.Module) -> torch.Tensor:
+        """One core step from (q_t, M(q_t) observer(q)_t) at every t (Algorithm 1, teacher-forced)."""
         q, u = self._prep(q, u)
-        v = self.observer(q)
-        p = self.canonicalize(q, v)
+        p = self.canonicalize(q, observer(q))
         q1, _ = self.core(q, p, self.port_force(u), need_p=False)
         return wrap_angles(q1, self.angle_dims)
 
@@ -241,7 +256,7 @@ class PHAST(ForecastModel):
             return out
         q, u = self._prep(q, u)
         needs_p = cfg.lambda_pass > 0 or cfg.lambda_energy > 0 or cfg.roll_mode == "core"
-        p = self.canonicalize(q, self.observer(q)) if needs_p else None  # the observer-mode L_roll infers its own
+        p = self.canonicalize(q, self.loss_velocity(q)) if needs_p else None  # observer-mode L_roll: its own
         f = self.port_force(u)
         if cfg.lambda_pass > 0 or cfg.lambda_energy > 0:
             assert p is not None  # needs_p
@@ -576,6 +591,16 @@ def _observer(cfg: PHASTConfig, env: _EnvScales) -> FDTCNObserver:
                          use_tcn=cfg.use_tcn, fd_order=cfg.observer_fd_order)
 
 
+def _loss_observer(cfg: PHASTConfig, env: _EnvScales) -> nn.Module | None:
+    """The training velocity estimate of ``cfg.train_velocity`` (:data:`TRAIN_VELOCITIES`); a non-causal one needs
+    a frozen observer (the loss would not train it) and a PHAST model (not the latent ODE)."""
+    est = training_velocity(cfg.train_velocity, env.n, env.system.dt, env.angle, cfg.train_velocity_order)
+    if est is not None and (cfg.observer_trainable or cfg.kind != "phast"):
+        raise ValueError(f"train_velocity={cfg.train_velocity!r} needs observer_trainable=False and kind='phast' "
+                         "(the training loss would not use the observer)")
+    return est
+
+
 def _latent_ode_model(cfg: PHASTConfig, env: _EnvScales, observer: FDTCNObserver,
                       actuated: tuple[int, ...]) -> LatentODEModel:
     """The latent-ODE model (non-Hamiltonian envs): ``cfg.ode_field`` as vector field, prior fitted to typical q."""
@@ -760,13 +785,14 @@ def build_from_config(cfg: PHASTConfig, system: System | None = None) -> PHAST:
     torch.manual_seed(cfg.seed)
     env = _env_scales(env_id, system, cfg)
     observer = _observer(cfg, env)
+    loss_observer = _loss_observer(cfg, env)  # no parameters: draws nothing
     if cfg.kind == "latent_ode":
         return _latent_ode_model(cfg, env, observer, actuated)
     _check_phast_config(cfg, env)
     core = _phast_core(cfg, env)
     if not cfg.observer_trainable:
         observer.requires_grad_(False)
-    return PHAST(cfg, observer, core, system, actuated)
+    return PHAST(cfg, observer, core, system, actuated, loss_observer)
 
 
 __all__ = ["PHAST", "PHASTConfig", "LatentODEModel", "build_from_config", "config_system", "system_scales",
