@@ -44,7 +44,7 @@ from ..train.rig_fit import (
 )
 from ..train.rig_heldout import heldout_rollouts, heldout_windows
 from ..train.rig_run import RecordingsSpec, heldout_part, prepare, sim_name, spec_record
-from ..world.interfaces import ForecastModel, NormalizedModel
+from ..world.interfaces import ForecastModel, NormalizedModel, wrap_angles
 from ..world.model import PHAST
 from . import BASELINES, FULL_STATE, make_baseline
 
@@ -54,6 +54,13 @@ MODEL_FILE = "baseline_model.pt"
 SWEEP_LRS = (3e-4, 1e-3, 3e-3)
 #: the sweep's short budget [epochs] (a fifth of the grid's 50)
 SWEEP_EPOCHS = 10
+#: a baseline's default step [s]: the grid's double pendulums' (phast_gym DoublePendulum dt), where the grid's
+#: sequence models are known to learn.  At a real arm's 2 ms a q-only model must resolve 1e-3 rad differences of its
+#: inputs to know the velocity: on the DFKI arm the grid's GRU and LSTM then ended no better than holding q still
+#: (next-step validation MSE 3.2e-5 against 5.2e-5 for holding q and 6.8e-7 for constant velocity)
+GRID_STEP_S = 0.01
+#: training windows per epoch: the grid's n_train (1000 trajectories, 16 minibatches of 64: 800 steps in 50 epochs)
+GRID_WINDOWS = 1000
 
 
 def model_names() -> tuple[str, ...]:
@@ -64,21 +71,26 @@ def model_names() -> tuple[str, ...]:
 @dataclass(frozen=True)
 class BaselineConfig:
     """A baseline run: the model, the grid's :class:`TrainConfig` (``epochs``, ``batch_size``, ``lr`` ...), the
-    training window (``window_s``; None: the held-out window's burn-in plus rollout, at most a quarter of a training
-    recording), the training windows' stride as a fraction of their length and the validation share."""
+    model's step (``step_s``: every k-th recorded sample, k = step_s / dt rounded, at least 1; the input u averaged
+    over the k intervals), the training window (``window_s``; None: the held-out window's burn-in plus rollout, at
+    most a quarter of a training recording), the training windows per epoch (``n_windows``: their stride is the
+    largest that gives at least that many) and the validation share."""
 
     model: str
     train: TrainConfig = field(default_factory=lambda: TrainConfig(progress=False))
     window_s: float | None = None
-    stride_fraction: float = 0.125
+    step_s: float | None = GRID_STEP_S
+    n_windows: int = GRID_WINDOWS
     val_fraction: float = 0.15
     model_kw: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.model not in BASELINES:
             raise ValueError(f"unknown baseline {self.model!r}; --model takes one of {', '.join(model_names())}")
-        if not 0.0 < self.stride_fraction <= 1.0:
-            raise ValueError(f"stride_fraction must be in (0, 1], got {self.stride_fraction!r}")
+        if int(self.n_windows) != self.n_windows or self.n_windows < 1:
+            raise ValueError(f"n_windows must be a positive integer, got {self.n_windows!r}")
+        if self.step_s is not None and not (self.step_s > 0 and math.isfinite(self.step_s)):
+            raise ValueError(f"step_s must be a positive number of seconds, got {self.step_s!r}")
         if not 0.0 < self.val_fraction < 1.0:
             raise ValueError(f"val_fraction must be in (0, 1), got {self.val_fraction!r}")
         if self.window_s is not None and not (self.window_s > 0 and math.isfinite(self.window_s)):
@@ -100,13 +112,15 @@ class BaselineWindows:
 
     train: SeqWindows
     val: SeqWindows
-    length: int  # samples per window
-    stride: int  # samples between training windows
+    length: int  # model steps per window
+    stride: int  # model steps between training windows
+    k: int = 1  # recorded samples per model step
 
     def record(self) -> dict[str, Any]:
         """config.json's and metrics.json's description of the windows."""
-        return {"samples": self.length, "seconds": self.length * self.train.dt, "stride": self.stride,
-                "train": int(self.train.q.shape[0]), "val": int(self.val.q.shape[0])}
+        return {"steps": self.length, "seconds": (self.length - 1) * self.train.dt, "stride": self.stride,
+                "step_s": self.train.dt, "samples_per_step": self.k, "train": int(self.train.q.shape[0]),
+                "val": int(self.val.q.shape[0])}
 
 
 def velocity(q: np.ndarray, dt: float) -> np.ndarray:
@@ -115,39 +129,60 @@ def velocity(q: np.ndarray, dt: float) -> np.ndarray:
     return smooth(q, dt, min(odd_samples(SMOOTH_S, dt), T - (1 - T % 2)))[1]
 
 
-def window_length(cfg: BaselineConfig, rec: Recordings, heldout: Recordings, rollout_window_s: float | None) -> int:
-    """Samples per training window: ``cfg.window_s``, else the held-out window's burn-in plus rollout (the length
-    the model is scored on), at most a quarter of a training recording (room for validation blocks)."""
+def step_samples(cfg: BaselineConfig, dt: float) -> int:
+    """Recorded samples per model step (at least 1)."""
+    return 1 if cfg.step_s is None else max(1, int(round(cfg.step_s / dt)))
+
+
+def coarsen(rec: Recordings, k: int) -> Recordings:
+    """Every ``k``-th sample of q, u averaged over each k intervals (the mean input over the model's step: a sequence
+    model's input, not a simulation's)."""
+    if k == 1:
+        return rec
+    q = rec.q[:, ::k]
+    u = None
+    if rec.u is not None:
+        steps = q.shape[1] - 1
+        u = rec.u[:, : steps * k].reshape(rec.n_traj, steps, k, -1).mean(2)
+    return replace(rec, q=q, u=u, dt=rec.dt * k, t=None, origin=None)
+
+
+def window_length(cfg: BaselineConfig, rec: Recordings, heldout: Recordings, rollout_window_s: float | None,
+                  k: int) -> int:
+    """Model steps per training window of ``rec`` (already at the model's step, k recorded samples): ``cfg.window_s``,
+    else the held-out window's burn-in plus rollout (the length the model is scored on), at most a quarter of a
+    training recording (room for validation blocks)."""
     if cfg.window_s is not None:
         length = max(5, int(round(cfg.window_s / rec.dt)) + 1)
     else:
         w = heldout_windows(heldout, rollout_window_s, BURN_IN_S)
-        length = min(w.burn + w.H, max(5, rec.T // 4))
+        length = min(-(-(w.burn + w.H - 1) // k) + 1, max(5, rec.T // 4))
     check_window_room(rec, length, "one training window of a baseline")
     return length
 
 
-def cut_seq_windows(rec: Recordings, length: int, cfg: BaselineConfig, seed: int) -> BaselineWindows:
-    """Blocks of ``length`` samples; a seeded random ``cfg.val_fraction`` of them (at least one) for validation;
-    training windows every ``stride`` samples wherever they overlap no validation block."""
+def cut_seq_windows(rec: Recordings, length: int, cfg: BaselineConfig, seed: int, k: int = 1) -> BaselineWindows:
+    """Blocks of ``length`` samples of ``rec`` (at the model's step, ``k`` recorded samples); a seeded random
+    ``cfg.val_fraction`` of them (at least one) for validation; training windows every ``stride`` samples wherever
+    they overlap no validation block, the largest stride that gives ``cfg.n_windows`` windows (or every start)."""
     blocks = [(i, s) for i in range(rec.n_traj) for s in range(0, rec.T - length + 1, length)]
     if len(blocks) < 2:
         raise ValueError(f"{rec.source}: the training recordings hold {len(blocks)} window(s) of {length} samples; a "
                          "baseline needs two (training and validation): give a shorter --window-s")
-    k = min(len(blocks) - 1, max(1, int(round(cfg.val_fraction * len(blocks)))))
+    n_val = min(len(blocks) - 1, max(1, int(round(cfg.val_fraction * len(blocks)))))
     perm = np.random.default_rng(seed).permutation(len(blocks))
-    val = [blocks[j] for j in sorted(perm[:k])]
+    val = [blocks[j] for j in sorted(perm[:n_val])]
     free = np.ones((rec.n_traj, rec.T), dtype=bool)
     for i, s in val:
         free[i, s:s + length] = False
-    stride = max(1, int(round(cfg.stride_fraction * length)))
-    train = [(i, s) for i in range(rec.n_traj) for s in range(0, rec.T - length + 1, stride)
-             if free[i, s:s + length].all()]
-    if not train:
+    starts = [(i, s) for i in range(rec.n_traj) for s in range(rec.T - length + 1) if free[i, s:s + length].all()]
+    if not starts:
         raise ValueError(f"{rec.source}: no training window of {length} samples is left beside the validation blocks")
+    stride = max(1, len(starts) // cfg.n_windows)
+    train = [(i, s) for i, s in starts if s % stride == 0]
     full = cfg.model in FULL_STATE
     x = np.concatenate([rec.q, velocity(rec.q, rec.dt)], -1) if full else rec.q
-    return BaselineWindows(_take(x, rec, train, length), _take(x, rec, val, length), length, stride)
+    return BaselineWindows(_take(x, rec, train, length), _take(x, rec, val, length), length, stride, k)
 
 
 def _take(x: np.ndarray, rec: Recordings, where: list[tuple[int, int]], length: int) -> SeqWindows:
@@ -174,6 +209,35 @@ class WithVelocity(ForecastModel):
     @torch.no_grad()
     def rollout(self, q_burn: torch.Tensor, u: torch.Tensor | None, H: int) -> torch.Tensor:
         return self.inner.rollout(self._state(q_burn), u, H)[..., : self.n]
+
+
+class Coarse(ForecastModel):
+    """A model stepping every ``k`` recorded samples, scored on the recorded grid: the warm-up's every k-th sample
+    (ending at its last), u averaged over each step, the rollout linearly interpolated back to every sample."""
+
+    def __init__(self, inner: ForecastModel, k: int) -> None:
+        super().__init__(inner.n, inner.m, inner.angle_dims)
+        self.inner, self.k = inner, int(k)
+
+    @torch.no_grad()
+    def rollout(self, q_burn: torch.Tensor, u: torch.Tensor | None, H: int) -> torch.Tensor:
+        k, K = self.k, q_burn.shape[1]
+        first = (K - 1) % k
+        steps = -(-H // k)
+        uc = None
+        if u is not None:
+            up = torch.cat([u, u.new_zeros(u.shape[0], max(0, K - 1 + steps * k - u.shape[1]), u.shape[2])], 1)
+            uc = up[:, first: K - 1 + steps * k].reshape(u.shape[0], -1, k, u.shape[-1]).mean(2)
+        pred = self.inner.rollout(q_burn[:, first::k], uc, steps)
+        path = torch.cat([q_burn[:, -1:], pred.to(q_burn.dtype)], 1)  # at recorded samples K-1, K-1+k, ...
+        if self.angle_dims:  # unwrapped along time before interpolating
+            d = list(self.angle_dims)
+            step = wrap_angles(path[:, 1:] - path[:, :-1], self.angle_dims)[..., d]
+            path[:, 1:, d] = path[:, :1, d] + torch.cumsum(step, 1)
+        t = torch.arange(1, H + 1, device=path.device)
+        i, f = t // k, ((t % k).to(path.dtype) / k)[None, :, None]
+        out = path[:, i] * (1 - f) + path[:, torch.clamp(i + 1, max=path.shape[1] - 1)] * f
+        return wrap_angles(out, self.angle_dims)
 
 
 @dataclass(frozen=True)
@@ -204,8 +268,10 @@ def prepare_baseline(spec: RecordingsSpec, cfg: BaselineConfig) -> BaselineData:
     baseline's training and validation windows; ValueError before any training."""
     spec = replace(spec, sim=sim_name(spec.sim))
     rig = prepare(spec)
-    length = window_length(cfg, rig.train, heldout_part(rig), spec.rollout_window_s)
-    windows = cut_seq_windows(rig.train, length, cfg, cfg.train.seed)
+    k = step_samples(cfg, rig.dt)
+    coarse = coarsen(rig.train, k)
+    length = window_length(cfg, coarse, heldout_part(rig), spec.rollout_window_s, k)
+    windows = cut_seq_windows(coarse, length, cfg, cfg.train.seed, k)
     return BaselineData(spec, rig, windows, 0 if rig.train.u is None else rig.train.n)
 
 
@@ -214,7 +280,7 @@ def build_baseline(cfg: BaselineConfig, data: BaselineData) -> ForecastModel:
     :func:`phast_model.bench.runner.build_run_model` does); DHNN on (q, qdot), stepping at the recordings' dt."""
     torch.manual_seed(cfg.train.seed)
     full = cfg.model in FULL_STATE
-    kw = {"dt": float(data.train.dt), **cfg.model_kw} if full else dict(cfg.model_kw)
+    kw = {"dt": float(data.windows.train.dt), **cfg.model_kw} if full else dict(cfg.model_kw)
     n = 2 * data.n if full else data.n
     model = make_baseline(cfg.model, n, data.m, tuple(data.train.angle_dims), **kw)
     if isinstance(model, NormalizedModel):
@@ -277,7 +343,7 @@ def train_baseline_run(spec: RecordingsSpec, out: str | Path, cfg: BaselineConfi
         res = train_baseline(cfg, data, out, resume, identity={k: v for k, v in record.items() if k != "train"})
         scores, rolls, windows = heldout_rollouts({"nominal": _nominal(data)}, data.heldout,
                                                   data.spec.rollout_window_s, compare=data.spec.compare,
-                                                  forecasters={cfg.model: _scored(cfg, res.model, data)})
+                                                  forecasters={cfg.model: scored_model(cfg, res.model, data)})
         metrics = _metrics(cfg, data, res, scores, lr_sweep)
         _write(out, res, record, metrics)
         if plots:
@@ -287,8 +353,12 @@ def train_baseline_run(spec: RecordingsSpec, out: str | Path, cfg: BaselineConfi
     return metrics
 
 
-def _scored(cfg: BaselineConfig, model: ForecastModel, data: BaselineData) -> ForecastModel:
-    return WithVelocity(model, data.train.dt) if cfg.model in FULL_STATE else model
+def scored_model(cfg: BaselineConfig, model: ForecastModel, data: BaselineData) -> ForecastModel:
+    """The trained model as scored on the recorded grid: DHNN's velocity estimated from q, a coarser step
+    interpolated back (:class:`WithVelocity`, :class:`Coarse`)."""
+    step = data.windows.train.dt
+    model = WithVelocity(model, step) if cfg.model in FULL_STATE else model
+    return Coarse(model, data.windows.k) if data.windows.k > 1 else model
 
 
 def _nominal(data: BaselineData) -> PHAST:
@@ -345,6 +415,6 @@ def baseline_summary(metrics: dict[str, Any]) -> dict[str, Any]:
             "train_wall_time_s": metrics["train_wall_time_s"], "best_epoch": metrics["best_epoch"]}
 
 
-__all__ = ["BaselineConfig", "BaselineData", "LrSweep", "MODEL_FILE", "SWEEP_EPOCHS", "SWEEP_LRS", "WithVelocity",
-           "baseline_summary", "build_baseline", "cut_seq_windows", "model_names", "prepare_baseline", "sweep_lr",
-           "train_baseline", "train_baseline_run"]
+__all__ = ["BaselineConfig", "BaselineData", "Coarse", "LrSweep", "MODEL_FILE", "SWEEP_EPOCHS", "SWEEP_LRS",
+           "WithVelocity", "baseline_summary", "build_baseline", "coarsen", "cut_seq_windows", "model_names",
+           "prepare_baseline", "scored_model", "sweep_lr", "train_baseline", "train_baseline_run"]

@@ -10,6 +10,9 @@ With ``--recordings`` (the ``phast-mismatch`` format: q, t or dt, u, angle_dims,
 and is scored on the held-out recordings against the nominal rig (``metrics.json["heldout"]``):
 :func:`phast_model.train.rig_run.train_recordings_run`.  It writes ``checkpoint.pt`` after every epoch too, and
 ``--resume`` continues from it; ``--patience N`` stops once the validation windows' RMSE has not improved for N epochs.
+``--model NAME`` trains a sequence baseline of the grid instead (gru, lstm, transformer, s5, linoss, dlinoss, vpt,
+dhnn) on windows of the training recordings, by the grid's trainer, and scores it on the same held-out windows
+(``metrics.json["heldout"][NAME]`` beside ``nominal``): :func:`phast_model.baselines.rig.train_baseline_run`.
 
 Writes ``model.pt``, ``config.json``, ``metrics.json`` (Table 16 keys on the test split
 plus the training wall time), ``history.json``, ``checkpoint.pt`` and plots
@@ -32,6 +35,8 @@ from .args import json_object
 if TYPE_CHECKING:
     from phast_gym.systems.base import System
 
+    from ..train.rig_run import RecordingsSpec
+
 __all__ = ["main", "parse_args", "train_run"]
 
 #: the defaults --help shows for the two modes (TrainConfig's and RigTrainConfig's; written out so --help needs no
@@ -39,6 +44,27 @@ __all__ = ["main", "parse_args", "train_run"]
 ENV_DEFAULTS: dict[str, Any] = {"lr": 1e-3, "epochs": 50, "batch_size": 64}
 RIG_DEFAULTS: dict[str, Any] = {"lr": 2e-2, "epochs": 150, "batch_windows": 64, "window_s": 0.15, "patience": 12}
 ENV_LR, RECORDINGS_LR = ENV_DEFAULTS["lr"], RIG_DEFAULTS["lr"]
+#: what --model takes with --recordings (written out so --help needs no torch; a test checks it against the grid's
+#: registry, phast_model.baselines.rig.model_names)
+MODELS = ("phast", "gru", "lstm", "transformer", "s5", "linoss", "dlinoss", "vpt", "dhnn")
+#: flags of the PHAST recordings path that a baseline run does not take
+PHAST_ONLY = {"patience": "--patience", "schedule": "--schedule", "state_iters": "--state-iters",
+              "warmup_window_s": "--warmup-window-s", "warmup_epochs": "--warmup-epochs", "set": "--set"}
+
+
+def _baseline_args(rec: argparse._ArgumentGroup) -> None:
+    """The flags of a baseline run on recordings (``--model NAME``)."""
+    rec.add_argument("--model", default=None, metavar="NAME",
+                     help=f"what to train: {', '.join(MODELS)} (default phast; a baseline of the grid is trained on "
+                          "windows of --window-s seconds (default: the held-out window) by the grid's trainer, "
+                          f"--epochs default {ENV_DEFAULTS['epochs']}, --lr default {ENV_LR:g}, and scored on the same "
+                          "held-out windows as PHAST)")
+    rec.add_argument("--step-s", type=float, default=None, metavar="S",
+                     help="a baseline --model's step: every k-th recorded sample, k = S / dt, u averaged over it "
+                          "(default 0.01, the grid's double pendulums' step; 0: the recorded step)")
+    rec.add_argument("--lr-sweep", default=None, metavar="LR,LR,...",
+                     help="with a baseline --model: train a short budget at each rate first and keep the rate of the "
+                          "lowest validation loss (e.g. 3e-4,1e-3,3e-3)")
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -60,7 +86,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                      help="held-out open-loop windows of S seconds, each after a 0.1 s burn-in (default: whole "
                           "recordings)")
     rec.add_argument("--window-s", type=float, default=None, metavar="S",
-                     help=f"training (multiple-shooting) window (default {RIG_DEFAULTS['window_s']:g})")
+                     help=f"training window: PHAST's multiple-shooting window (default {RIG_DEFAULTS['window_s']:g}); "
+                          "a baseline --model's sequence length (default: the held-out burn-in plus window)")
     rec.add_argument("--warmup-window-s", type=float, default=None, metavar="S",
                      help="train the first --warmup-epochs epochs on windows of S seconds (a curriculum for an "
                           "all-neural start)")
@@ -80,6 +107,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                      help="early stopping: stop when the validation windows' RMSE has not improved for N epochs (the "
                           f"best-validation weights are kept either way; default {RIG_DEFAULTS['patience']}; 0: run "
                           "every epoch)")
+    _baseline_args(rec)
     rec.add_argument("--schedule", choices=("plateau", "cosine"), default=None,
                      help="learning-rate schedule: 'plateau' (the default) halves the rates when the validation RMSE "
                           "stalls, so the model is chosen by validation, not by --epochs; 'cosine' decays them over "
@@ -167,6 +195,53 @@ def _compared_systems(args: argparse.Namespace) -> dict[str, System] | None:
             for name, sim in sims.items()} or None
 
 
+def _model(args: argparse.Namespace) -> str:
+    """The ``--model`` asked for (default phast); ValueError naming the choices."""
+    name = (args.model or "phast").lower().replace("-", "").replace("_", "")
+    if name not in MODELS:
+        raise ValueError(f"unknown --model {args.model!r}; one of {', '.join(MODELS)}")
+    if args.env is not None and name != "phast":
+        raise ValueError(f"--model {name} trains a baseline on --recordings; on an --env the grid trains the "
+                         f"baselines: phast-bench --envs {args.env} --models {name}")
+    if name == "phast" and (args.lr_sweep is not None or args.step_s is not None):
+        raise ValueError("--lr-sweep and --step-s apply to a baseline --model (PHAST's rig trainer steps at the "
+                         "recorded dt and has its own default rate)")
+    return name
+
+
+def _float_list(text: str, flag: str) -> tuple[float, ...]:
+    try:
+        out = tuple(float(x) for x in text.replace(" ", "").split(",") if x != "")
+    except ValueError:
+        raise ValueError(f"{flag} expects comma-separated numbers, got {text!r}") from None
+    if not out or not all(x > 0 for x in out):
+        raise ValueError(f"{flag} expects positive learning rates, got {text!r}")
+    return out
+
+
+def _baseline_main(args: argparse.Namespace, name: str, spec: RecordingsSpec) -> dict[str, Any]:
+    """``--recordings --model NAME``: a baseline of the grid trained on the training recordings' windows and scored on
+    the held-out windows beside the nominal rig; returns what to print."""
+    from dataclasses import replace
+
+    from ..baselines.rig import BaselineConfig, baseline_summary, train_baseline_run
+    from ..train.config import TrainConfig
+
+    given = [flag for key, flag in PHAST_ONLY.items() if getattr(args, key) not in (None, [])]
+    if given:
+        raise ValueError(f"{', '.join(given)} apply to PHAST's recordings trainer, not to --model {name}")
+    flags = {k: v for k, v in {"epochs": args.epochs, "lr": args.lr, "batch_size": args.batch_size}.items()
+             if v is not None}  # a flag not given keeps the grid's TrainConfig default
+    cfg = BaselineConfig(name, TrainConfig(seed=args.seed, progress=not args.no_progress, **flags), args.window_s)
+    if args.step_s is not None:
+        cfg = replace(cfg, step_s=args.step_s or None)  # 0: the recorded step
+    sweep = None if args.lr_sweep is None else _float_list(args.lr_sweep, "--lr-sweep")
+    if sweep is not None and args.lr is not None:
+        raise ValueError("give either --lr or --lr-sweep, not both")
+    metrics = train_baseline_run(spec, args.out, cfg, plots=not args.no_plots, resume=args.resume, sweep=sweep)
+    return baseline_summary(metrics)
+
+
 def _recordings_main(args: argparse.Namespace) -> dict[str, Any]:
     """The ``--recordings`` path: checks, training, held-out score; returns what to print."""
     from ..train.rig_fit import RigTrainConfig
@@ -174,12 +249,15 @@ def _recordings_main(args: argparse.Namespace) -> dict[str, Any]:
 
     if args.env is not None:
         raise ValueError("give either --env or --recordings, not both")
+    name = _model(args)
     if not args.sim:
         raise ValueError("--recordings needs --sim (an env id or path/to/rig.py:Class)")
     spec = RecordingsSpec(args.recordings, args.sim, json_object(args.sim_kwargs, "--sim-kwargs"), args.regime,
                           _int_list(args.holdout_trajectories, "--holdout-trajectories"), args.rollout_window_s,
                           tuple(args.action_bound) if args.action_bound else None, args.decimate,
                           compare=_compared_systems(args))
+    if name != "phast":
+        return _baseline_main(args, name, spec)
     given = {"epochs": args.epochs, "window_s": args.window_s, "lr": args.lr, "batch_windows": args.batch_size,
              "state_iters": args.state_iters, "warmup_window_s": args.warmup_window_s,
              "warmup_epochs": args.warmup_epochs, "schedule": args.schedule}
@@ -211,6 +289,11 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.env is None:
         print("phast-train: error: give --env (a registered env id) or --recordings FILE --sim SIM", file=sys.stderr)
+        return 2
+    try:
+        _model(args)
+    except ValueError as exc:
+        print(f"phast-train: error: {exc}", file=sys.stderr)
         return 2
     if args.patience is not None or args.schedule is not None:
         print("phast-train: error: --patience and --schedule apply to --recordings runs (an --env run keeps its best "
