@@ -22,7 +22,7 @@ Bases (the true D is diag(0.3, 0.3 + 0.5 |sin theta|)):
 * ``freediag``: the same basis on the two diagonal entries only (12 coefficients, D diagonal).
 
 Measured at 341aa8f (docs/phast_model.md, "KNOWN, windy cart-pole"): order 4, 1000 trajectories: form 0.9990,
-freediag 0.9889, free 0.9868; exact velocities >= 0.9997 with every basis.  Central differences (at 03a7559, the
+freediag 0.9889, free 0.9868; exact velocities >= 0.9997 with every basis.  Central differences (at 41c5271, the
 second command, docs/results/cartpole_damping_floor_central.json): order 2 0.83-0.87 (its O(dt^2) error is larger
 than the backward difference's O(dt^4)), order 4, 6, 8 >= 0.9996 with every basis, true-D loss 4.4e-12 / 3.4e-12 /
 3.4e-12 (fd4 1.8e-10, exact 2.9e-12).

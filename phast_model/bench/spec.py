@@ -24,7 +24,7 @@ HARNESS_VERSION = 1
 MODEL_REVISIONS: dict[str, int] = {"transformer": 2, "phast-known": 3, "phast-partial": 5, "phast-unknown": 5}
 #: (model, env id) -> revision, where a change touches one env's runs of a model only (overrides MODEL_REVISIONS)
 ENV_MODEL_REVISIONS: dict[tuple[str, str], int] = {
-    ("phast-partial", "PHAST/WindyPendulum-v0"): 3,
+    ("phast-partial", "PHAST/WindyPendulum-v0"): 3, ("phast-known", "PHAST/WindyCartPole-v0"): 4,
     **{(m, "PHAST/PredatorPrey-v0"): 6 for m in ("phast-known", "phast-partial", "phast-unknown")},
     **{("phast-unknown", f"PHAST/{e}-v0"): 4
        for e in ("WindyCartPole", "DoublePendulum", "DampedDoublePendulum", "WindyDoublePendulum")}}

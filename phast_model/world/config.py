@@ -59,6 +59,9 @@ class PHASTConfig:
     train_velocity: str = "observer"
     train_velocity_order: int = 4
     damping_lr_mult: float = 1.0  # learning-rate multiplier of the damping parameters (see param_groups)
+    #: a learned damping floor d0 starts at this fraction of the smallest damping the data show (init_from="data";
+    #: below 1 so that the softplus terms above the floor are not pushed negative where D is smallest)
+    damping_floor_margin: float = 0.8
     potential_hidden: int = 64
     potential_layers: int = 3
     hybrid_eps: float = 0.01

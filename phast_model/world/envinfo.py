@@ -11,6 +11,7 @@ Every paper number in the code base is typed here (with :data:`PAPER_FULL_STATE`
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 from phast_gym.systems import System
 
@@ -43,6 +44,8 @@ class EnvInfo:
     template_dims: tuple[int, ...] | None = None  # the template's angular dims (cosine); None: all
     mass_template: str | None = None  # PARTIAL mass template of a configuration-dependent M(q)
     paper: PaperRow | None = None
+    #: PHASTConfig fields of this env's KNOWN default that differ from every env's (docs/phast_model.md)
+    known: dict[str, Any] = field(default_factory=dict)
 
     def partial_mass_template(self, system: System) -> str | None:
         """The PARTIAL mass template of ``system`` (this env's physics, possibly with custom kwargs): None when M is
@@ -79,10 +82,11 @@ def _nx(k: tuple, p: tuple, u: tuple, s5: tuple, lin: tuple, gru: tuple, lstm: t
 
 
 def _env(env_id: str, metric: str, template: str | None = None, dims: tuple[int, ...] | None = None,
-         mass: str | None = None, paper: tuple[str, str, dict, dict] | None = None) -> EnvInfo:
+         mass: str | None = None, paper: tuple[str, str, dict, dict] | None = None,
+         known: dict[str, Any] | None = None) -> EnvInfo:
     """``paper`` = (benchmark, table, results, params); its row metric is ``metric``."""
     row = PaperRow(paper[0], metric, *paper[1:]) if paper else None
-    return EnvInfo(env_id, metric, template, dims, mass, row)
+    return EnvInfo(env_id, metric, template, dims, mass, row, dict(known or {}))
 
 
 _ENTRIES: tuple[EnvInfo, ...] = (
@@ -98,7 +102,10 @@ _ENTRIES: tuple[EnvInfo, ...] = (
     _env("PHAST/WindyCartPole-v0", MIXED, "cosine", (1,), mass="cartpole", paper=("Cart-Pole (windy)", "Table 3", {
         "phast-known": (0.063, 0.019), "phast-partial": (0.083, 0.022), "phast-unknown": (0.109, 0.022),
         "s5": (0.431, 0.077)},
-        {"phast-known": 3589, "phast-partial": 14283, "phast-unknown": 14290, "s5": 17218})),
+        {"phast-known": 3589, "phast-partial": 14283, "phast-unknown": 14290, "s5": 17218}),
+        # KNOWN: the loss from the central difference (the causal observer's velocity error biases D's cart entry)
+        # and the damping floor d0 from the data's full floor (at 0.8 it stays under the cart's constant damping)
+        known={"train_velocity": "central", "damping_floor_margin": 1.0}),
     _env("PHAST/Oscillator-v0", ROLL, "quadratic", paper=("Oscillator (cons)", "Table 19", _r(
         (0.0010, 0.0003), (0.0010, 0.0002), (0.0072, 0.0031), (1.8470, 0.0754), (2.0200, 0.0899), (1.7241, 0.1787),
         (1.8603, 0.2750), (1.0873, 0.2987), (3.0941, 1.1140)), _PO)),

@@ -121,9 +121,10 @@ class PHAST(ForecastModel):
         return q, self.canonicalize(q, v)
 
     # ---- least-squares start (init_from="data") ----------------------------------
-    #: the KNOWN damping floor starts at this fraction of the smallest damping the data show (below it, so the
-    #: softplus terms above the floor are not pushed negative where D is smallest)
-    floor_margin = 0.8
+    @property
+    def floor_margin(self) -> float:
+        """The learned damping floor starts at this fraction of the smallest damping the data show."""
+        return float(self.config.damping_floor_margin)
 
     @torch.no_grad()
     def initialize_from_data(self, q: torch.Tensor, u: torch.Tensor | None) -> dict[str, float]:

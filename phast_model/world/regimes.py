@@ -133,7 +133,7 @@ def _default_config(env_id: str, regime: str, system: System,
         # on the costlier implicit midpoint of a configuration-dependent M(q).
         return replace(base, potential="known", mass="known", damping="householder", damping_cap=None, d0=0.0,
                        learn_d0=True, canonicalizer="mass", substeps=8 if system.separable else 4,
-                       **IDENTIFICATION), dict(KNOWN_TRAIN_DEFAULTS)
+                       **IDENTIFICATION, **info.known), dict(KNOWN_TRAIN_DEFAULTS)
     mass_tmpl = info.partial_mass_template(system)
     if regime == "partial":
         cap, base_d = _windy(system.params)

@@ -68,13 +68,14 @@ def test_long_path_matches_the_dense_matrix_and_rejects_odd_orders() -> None:
 
 
 def test_phast_uses_it_in_the_loss_only() -> None:
-    """``train_velocity="central"``: the loss's predictions start from the central difference, ``forward`` (rollouts,
-    metrics) keeps the causal observer, the saved weights are the same, and a trainable observer is refused."""
+    """``train_velocity="central"`` (the cart-pole KNOWN default): the loss's predictions start from the central
+    difference, ``forward`` (rollouts, metrics) keeps the causal observer, the saved weights are the same, and a
+    trainable observer is refused."""
     from phast_model.train.fit import next_step_loss
     from phast_model.world.regimes import build_model
 
     env = "PHAST/WindyCartPole-v0"
-    causal, central = build_model(env, "known"), build_model(env, "known", train_velocity="central")
+    causal, central = build_model(env, "known", train_velocity="observer"), build_model(env, "known")
     assert central.state_dict().keys() == causal.state_dict().keys()
     q = torch.as_tensor(_trajectory(30)[0], dtype=torch.float32) * 0.1
     assert torch.equal(central(q), causal(q))
