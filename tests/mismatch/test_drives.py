@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 pytest.importorskip("mujoco")
 
@@ -147,3 +149,23 @@ def test_a_refit_that_leaves_model_error_hands_on_only_positive_terms():
     assert [(t.name, t.coordinate, t.coefficient) for t in refit.terms()] == [("armature", 0, 0.1)]
     assert [it.value(g) for it, g in zip(items, fit.g)] == pytest.approx([0.1, -0.1])
     assert items[0].g0 == pytest.approx(1.0) and items[1].label == "coulomb_friction[1]"
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 10_000), folds=st.integers(2, 6), p=st.integers(1, 5))
+def test_left_out_fits_from_fold_grams_equal_the_direct_ones(seed: int, folds: int, p: int) -> None:
+    """The parameter check's leave-one-fold-out residuals from per-fold normal equations are those of refitting the
+    design without each fold."""
+    from phast_model.mismatch.friction.weakid import _FoldGrams
+
+    rng = np.random.default_rng(seed)
+    X = rng.normal(size=(40 * folds, p)) * rng.uniform(0.01, 100.0, size=p)
+    y = X @ rng.normal(size=p) + rng.normal(size=40 * folds)
+    labels = np.repeat(np.arange(folds), 40)
+    cols = list(range(p))
+    direct = []
+    for f in range(folds):
+        te = labels == f
+        c = np.linalg.lstsq(X[~te], y[~te], rcond=None)[0]
+        direct.append(np.sqrt(np.mean((y[te] - X[te] @ c) ** 2)))
+    np.testing.assert_allclose(_FoldGrams.of(X, y, labels).left_out_rms(cols), direct, rtol=1e-7)
