@@ -34,12 +34,20 @@ from .base import NUMPY, Array, ArrayNamespace, Components, Param, System
 from .mjcf_tree import MJCFTree, ModelFileError, read_tree
 from .tree_dynamics import Ops, TreeParams
 
-__all__ = ["MJCFSystem", "ModelFileError", "mjcf_system", "param_specs"]
+__all__ = ["BODY_ATTRS", "MJCFSystem", "ModelFileError", "is_body_value", "mjcf_system", "param_specs"]
 
 #: sign(qdot) of frictionloss is smoothed as tanh(qdot / eps) (rad/s or m/s), as the mismatch tool's Coulomb term
 FRICTION_EPS = 1e-2
 AXES = ("x", "y", "z")
 JOINT_ATTRS = ("armature", "damping", "frictionloss", "stiffness")
+#: a body's inertial values, as parameters ``<body>.mass``, ``<body>.ipos_<axis>``, ``<body>.inertia_<axis>``
+BODY_ATTRS = ("mass", "ipos", "inertia")
+
+
+def is_body_value(name: str) -> bool:
+    """Whether parameter ``name`` is a body's mass, centre of mass or principal moment (not a joint's or a gear's)."""
+    owner, dot, attr = name.rpartition(".")
+    return bool(dot and owner) and attr.split("_")[0] in BODY_ATTRS
 
 
 def param_specs(tree: MJCFTree) -> dict[str, Param]:

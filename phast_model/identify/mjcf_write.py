@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from phast_gym.systems.mjcf import AXES, JOINT_ATTRS
+from phast_gym.systems.mjcf import AXES, JOINT_ATTRS, is_body_value
 from phast_gym.systems.mjcf_tree import MJCFTree, ModelFileError, urdf_spec
 
 if TYPE_CHECKING:
@@ -106,7 +106,7 @@ def set_joint_attr(joint: mujoco.MjsJoint, attr: str, value: float) -> None:
 
 def _apply_params(spec: mujoco.MjSpec, tree: MJCFTree, params: Mapping[str, float]) -> list[str]:
     bodies = {b for b, name in enumerate(tree.body_names) for k in params if k.startswith(name + ".")
-              and k[len(name) + 1:].split("_")[0] in ("mass", "ipos", "inertia")}
+              and is_body_value(k)}
     if bodies:
         import mujoco
 

@@ -433,7 +433,8 @@ def _screen(problem: Problem) -> tuple[ParameterScreen, Described]:
     before any body value: when a rotor inertia per driven joint and friction per joint follow the sample to the noise
     (:func:`.friction.systematic.drives_trial`), or the model follows the windows no better than a line and the drives
     account for more of the force it leaves than a change of its own parameters does (weak form), it goes to its
-    drives with the file's body values, without a screen of every window (no body value can absorb a drive)."""
+    drives without a screen of every window: with the file's body values in the first case, and in the second with
+    those body values fitted after the drives that cannot stand in for them (:func:`.friction.weakid.beyond_drives`)."""
     drives, chi2 = None, None
     if any(problem.has_u) and is_model_file_system(problem.sys0):
         shooter, fit = nominal_sample(problem, in_mujoco(problem.nominal_family.build(np.zeros(0))))
@@ -451,7 +452,7 @@ def _screen(problem: Problem) -> tuple[ParameterScreen, Described]:
                         f"better than a line (share {share:.3g}); its own parameters account for {params:.0%} of "
                         "the force it leaves (weak form)")
             if drives >= MIN_DESCRIBED and drives > params:
-                screen = drives_screen(problem, (shooter, fit, 0), starts, far=chi2 > FAR)
+                screen = drives_screen(problem, (shooter, fit, 0), starts, far=chi2 > FAR, bodies_after=True)
                 return screen, _described(problem, share, drives, chi2)
     nominal = fit_nominal(problem)
     share = explained_share(nominal[0], nominal[1])
@@ -462,9 +463,9 @@ def _screen(problem: Problem) -> tuple[ParameterScreen, Described]:
 def _context(problem: Problem, inputs: _Inputs) -> tuple[Context, Described]:
     """The shooting selection, the calibration fitted with its terms, and how much of the recordings the simulator
     describes (not enough: no parameter change, no terms, no model-error regime).  A simulator described only up to its
-    drives goes to the model-error regime directly and the weak form answers with the drives alone (rotor inertia and
-    a friction law per joint, the file's body values kept): no shooting selection or calibration on windows its model
-    cannot follow, and no body parameter bent to absorb a drive."""
+    drives goes to the model-error regime directly and the weak form answers with the drives (rotor inertia and a
+    friction law per joint; body values only where they cannot stand in for a drive): no shooting selection or
+    calibration on windows its model cannot follow, and no body parameter bent to absorb a drive."""
     screen, described = _screen(problem)
     if not described.ok:
         problem = replace(problem, opts=replace(problem.opts, max_terms=0, systematic_chi2=math.inf))

@@ -90,6 +90,9 @@ class ParameterScreen:
     #: the drives trial was far from following the windows (a real arm's model error): the weak-form answer is not
     #: refitted in the engine, which could not bring it to the noise either
     far: bool = False
+    #: the drives did not follow the windows to the noise: the weak form fits the file's body values after them, where
+    #: fitting them predicts left-out recordings better (a rotor inertia kept from a link's inertia)
+    bodies_after: bool = False
 
 
 @dataclass
@@ -256,16 +259,17 @@ def screen_parameters(problem: Problem, made: tuple[Shooter, ShootFit, int] | No
 
 
 def drives_screen(problem: Problem, nominal: tuple[Shooter, ShootFit, int],
-                  starts: Sequence[Term] = (), far: bool = False) -> ParameterScreen:
+                  starts: Sequence[Term] = (), far: bool = False, bodies_after: bool = False) -> ParameterScreen:
     """The screen of a model file its nominal model cannot follow but its drives describe (rotor inertia and friction
     per driven joint account for the force it leaves): no body value is examined, so none can absorb a drive; the
-    weak form then fits the drives with the file's body values."""
+    weak form then fits the drives with the file's body values (and, with ``bodies_after``, the body values after
+    them)."""
     shooter, fit, n_dropped = nominal
     note = ("held at the file's value: the model is described up to its drives, so rotor inertia and friction per "
             "driven joint come first")
     notes = {k: note for k in problem.sim.numeric_params(problem.sys0)}
     return ParameterScreen(shooter, fit, n_dropped, [], notes, Identifiability((), (), (), {}), fit,
-                           problem.nominal_family, tuple(starts), far)
+                           problem.nominal_family, tuple(starts), far, bodies_after)
 
 
 def calibration(problem: Problem, screen: ParameterScreen, selected: list[tuple[str, float]], start: ShootFit,

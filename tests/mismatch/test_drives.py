@@ -151,6 +151,28 @@ def test_a_refit_that_leaves_model_error_hands_on_only_positive_terms():
     assert items[0].g0 == pytest.approx(1.0) and items[1].label == "coulomb_friction[1]"
 
 
+def test_after_the_drives_only_body_values_that_cannot_stand_in_for_them_are_fitted(drives):
+    """turret.inertia_z adds to M_00 exactly what a rotor inertia on the yaw joint adds, and the turret's mass moves
+    nothing: neither is fitted after the drives; the links' masses (gravity) are."""
+    from phast_model.mismatch.friction.weakid import WeakModel, beyond_drives, identify
+
+    rec, path = drives
+    problem = _problem(rec["q"], rec, path)
+    law = [(nm, i) for i in range(3) for nm in ("viscous_damping", "coulomb_friction")]
+    train = problem.train.resampled()
+    params = ["turret.inertia_z", "upper_arm.mass", "forearm.mass"]
+    model = WeakModel(problem.sim, {}, params, [], [0, 1, 2], problem.eps, 0.0, problem.smoothing_window)
+    assert "armature:0" in identify(model, train, law).no_signal  # fitted freely, the body value takes its place
+    assert beyond_drives(model, train, law) == ["upper_arm.mass", "forearm.mass"]
+
+
+def test_body_values_are_told_from_joint_and_gear_values():
+    from phast_gym.systems.mjcf import is_body_value
+
+    assert all(is_body_value(k) for k in ("link.mass", "upper_arm_link.ipos_z", "a.b.inertia_x"))
+    assert not any(is_body_value(k) for k in ("elbow.armature", "j1.damping", "m1.gear", "gravity", "mass"))
+
+
 @settings(max_examples=20, deadline=None)
 @given(seed=st.integers(0, 10_000), folds=st.integers(2, 6), p=st.integers(1, 5))
 def test_left_out_fits_from_fold_grams_equal_the_direct_ones(seed: int, folds: int, p: int) -> None:

@@ -38,12 +38,14 @@ answer and is adopted only when it predicts the held-out recordings better (:fun
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
 from phast_gym.systems.base import ParameterError, System
+from phast_gym.systems.mjcf import is_body_value
 
 from ...identify.frictioncurve import FrictionCurve, friction_curve
 from ...identify.shooting import Heartbeat, Shooter, ShootFit
@@ -61,7 +63,15 @@ from .engine_refit import EngineRefit, engine_refit, updated
 from .laws import FrictionLaw, spec_of
 from .lawselect import LawSelection, select_friction
 from .passivity import check_against_curve, is_passive
-from .weakid import WeakFit, WeakModel, check_parameters, explained_force, identify, parameter_force
+from .weakid import (
+    WeakFit,
+    WeakModel,
+    beyond_drives,
+    check_parameters,
+    explained_force,
+    identify,
+    parameter_force,
+)
 
 
 @dataclass
@@ -172,8 +182,12 @@ def _weak_model(ctx: SystematicContext, window: int) -> WeakModel:
 
 
 def _calibrated_rows(ctx: SystematicContext, fit: WeakFit, held: list[str],
-                     no_signal: list[str]) -> dict[str, ParamRow]:
+                     no_signal: list[str], drive_like: Sequence[str] = ()) -> dict[str, ParamRow]:
     rows = dict(ctx.calibrated)
+    for k in drive_like:
+        rows[k] = ParamRow.held(param_value(ctx.problem.sys0.params[k]),
+                                "held at the file's value: the drives come first, and on these recordings it acts "
+                                "like a rotor inertia, a friction or other body values (weak form)")
     nominal = {k: param_value(ctx.problem.sys0.params[k]) for k in [*held, *no_signal]}
     for k in held:
         rows[k] = ParamRow.held(nominal[k], "held at nominal: fitting it does not predict left-out recordings better "
@@ -235,6 +249,14 @@ def drives_trial(problem: Problem, shooter: Shooter, X: np.ndarray) -> EngineRef
     return engine_refit(shooter, X, model, first, driven, min(TRIAL_ITER, problem.opts.max_iter))
 
 
+def body_values(problem: Problem) -> list[str]:
+    """A model file's non-zero body values (masses, centres of mass, principal moments) but the known constants: what
+    the weak form may fit after the drives."""
+    known = known_params(problem.sys0) - set(problem.opts.free)
+    return [k for k, v in problem.sim.numeric_params(problem.sys0).items()
+            if v != 0 and k not in known and is_body_value(k)]
+
+
 def parameter_share(problem: Problem) -> float:
     """The share of the same balance (:func:`drive_share`) that a change of the simulator's own parameters accounts
     for, linearized at the user's values: every non-zero numeric one but the known constants (body values, gears).
@@ -256,6 +278,13 @@ def systematic(ctx: SystematicContext) -> SystematicResult:
                 "samples")
     model = _weak_model(ctx, window)
     provisional = [(nm, i) for i in range(problem.n) for nm in PROVISIONAL_LAW]
+    drive_like: list[str] = []
+    if ctx.cal.screen.bodies_after:
+        beyond = beyond_drives(model, train, provisional)
+        drive_like = [k for k in model.params if k not in beyond]
+        model = replace(model, params=beyond)
+        problem.log(f"after the drives, {len(beyond)} of {len(ctx.params)} body values can be told from them and "
+                    f"from each other (weak form): {beyond}")
     pcheck = check_parameters(model, train, provisional, Heartbeat(problem.log))
     model = replace(model, params=pcheck.kept)
     problem.log(f"parameters that predict left-out recordings better when fitted: {pcheck.kept}")
@@ -291,8 +320,8 @@ def systematic(ctx: SystematicContext) -> SystematicResult:
                 "curve": curve.to_dict(), "law_vs_curve": check_against_curve(final.law, curve),
                 "chi2_per_dof_augmented": fit.chi2_red,
                 "engine_refit": None if refit is None else refit.to_dict()}
-    held_params = [k for k in ctx.params if k not in pcheck.kept and k not in pcheck.no_signal]
-    rows = _calibrated_rows(ctx, final, held_params, pcheck.no_signal)
+    held_params = [k for k in ctx.params if k not in {*pcheck.kept, *pcheck.no_signal, *drive_like}]
+    rows = _calibrated_rows(ctx, final, held_params, pcheck.no_signal, drive_like)
     return SystematicResult(reason, evidence, augmented, fit, rows, tuple(missing), curve,
                             {f"chosen: {law.name}": final.law})
 
@@ -340,7 +369,7 @@ class WeakFormExplainer:
                       "the shooting selection stands")
             return Declined({"friction": SystematicResult(reason).to_dict()})
         calibrated, standing = (ctx.current.calibrated, list(ctx.current.missing)) if ctx.current else ({}, [])
-        params = list(cal.screen.identifiability.basis)
+        params = body_values(problem) if cal.screen.bodies_after else list(cal.screen.identifiability.basis)
         try:
             result = systematic(SystematicContext(problem, cal, sel.terms, sel.fit.chi2_red, calibrated, params))
         except ParameterError as exc:  # the weak form's least squares left the simulator's valid parameters

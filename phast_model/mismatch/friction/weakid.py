@@ -36,7 +36,7 @@ from ...identify.shooting import Heartbeat
 from ...identify.signals import SAVGOL, Differentiator
 from ...identify.simulators import Simulator
 from ...identify.weakform import WeakForm, weak_form
-from ..fitting.linear import cluster_cov, rel_resid
+from ..fitting.linear import cluster_cov, orth_against, rel_resid
 from ..rows import ParamRow
 from ..vocabulary.registry import ARMATURE
 from ..vocabulary.terms import AugmentedSystem, Term
@@ -118,9 +118,10 @@ def _on(i: int, col: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
-def _columns(model: WeakModel, kwargs: dict[str, Any], rec: Recordings,
-             law: list[Spec]) -> tuple[WeakForm, list[str], list[np.ndarray], list[str]]:
-    """The weak form at ``kwargs`` and the design columns: -d f~/dz per parameter, each law term, each armature."""
+def _columns(model: WeakModel, kwargs: dict[str, Any], rec: Recordings, law: list[Spec],
+             absorb: bool = True) -> tuple[WeakForm, list[str], list[np.ndarray], list[str]]:
+    """The weak form at ``kwargs`` and the design columns: -d f~/dz per parameter, each law term, each armature
+    (``absorb``: without the armature columns the parameters can represent)."""
     system = model.build(kwargs)
     wf = weak_form(system, rec, model.window, model.eps, differentiator=model.differentiator)
     names, cols, none = [], [], []
@@ -143,13 +144,45 @@ def _columns(model: WeakModel, kwargs: dict[str, Any], rec: Recordings,
     none = [names[j].split(":", 1)[1] for j in range(len(cols)) if j not in keep and names[j].startswith("param:")]
     P = [j for j in keep if names[j].startswith("param:")]
     # an armature the fitted parameters can represent exactly (e.g. inertia1 on joint 1) is theirs, not a new term
-    if P:
+    if P and absorb:
         basis = np.stack([cols[j].reshape(-1) for j in P], 1)
         absorbed = [j for j in keep
                     if names[j].startswith("armature:") and rel_resid(cols[j].reshape(-1), basis) < ABSORBED]
         none += [names[j] for j in absorbed]
         keep = [j for j in keep if j not in absorbed]
     return wf, [names[j] for j in keep], [cols[j] for j in keep], none
+
+
+#: a body value is fitted after the drives only where at least this share of its weak-form column lies outside the
+#: span of the drives' columns and of the values picked before it (pivoted QR): the rest would take a rotor inertia's
+#: or a friction's place, or repeat other body values (a centre of mass against a mass)
+BEYOND_DRIVES = 0.2
+#: recordings (evenly spread) the test of :func:`beyond_drives` reads: it asks which columns are independent, not
+#: how large any coefficient is, and a 6-joint arm's 168 recordings cost a weak form per body value
+BEYOND_DRIVES_RECORDINGS = 32
+
+
+def beyond_drives(model: WeakModel, rec: Recordings, law: list[Spec]) -> list[str]:
+    """The parameters of ``model.params`` the weak form can tell from the drives (``law`` and the armature columns)
+    and from each other, linearized at ``model.kwargs``: the greedy pivoted QR of their columns with the drives'
+    span projected out, each column measured against its own norm, kept while the new share is >=
+    :data:`BEYOND_DRIVES`, on at most :data:`BEYOND_DRIVES_RECORDINGS` of the recordings.  The drives come first: no
+    body value is fitted that could stand in for them."""
+    from scipy.linalg import qr
+
+    if rec.n_traj > BEYOND_DRIVES_RECORDINGS:
+        rec = rec.subset(np.unique(np.linspace(0, rec.n_traj - 1, BEYOND_DRIVES_RECORDINGS).round().astype(int)))
+    _, names, cols, _ = _columns(model, dict(model.kwargs), rec, law, absorb=False)
+    P = [j for j, nm in enumerate(names) if nm.startswith("param:")]
+    if not P:
+        return []
+    D = [cols[j].reshape(-1) for j in range(len(names)) if j not in P]
+    B = np.stack([cols[j].reshape(-1) for j in P], 1)
+    B = orth_against(B, np.stack(D, 1) if D else None) / np.linalg.norm(B, axis=0)
+    _, R, pivots = qr(B, mode="economic", pivoting=True)
+    share = np.abs(np.diag(R))
+    picked = {names[P[j]].split(":", 1)[1] for j, r in zip(pivots, share) if r >= BEYOND_DRIVES}
+    return [k for k in model.params if k in picked]
 
 
 def _solve(wf: WeakForm, cols: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, int, float]:
