@@ -153,7 +153,7 @@ class CentralDifference(nn.Module):
         if int(order) != order or order < 2 or order % 2:
             raise ValueError(f"central-difference order must be an even integer >= 2, got {order!r}")
         self.n, self.dt, self.angle_dims, self.order = n, float(dt), tuple(angle_dims), int(order)
-        self.half = self.order // 2
+        self.reach = self.order // 2  # samples either side of a centred stencil
 
     def weights(self, T: int) -> np.ndarray:
         """(T, T) differentiation matrix of a trajectory of length T (rows: times, columns: samples), / dt."""
@@ -170,7 +170,7 @@ class CentralDifference(nn.Module):
         if T < 2:
             return torch.zeros_like(q)
         qu = unwrap_angles(q, self.angle_dims)
-        w, k = min(self.order + 1, T), self.half
+        w, k = min(self.order + 1, T), self.reach
         if T < 2 * w:  # short: the dense matrix
             return torch.einsum("st,btn->bsn", torch.as_tensor(self.weights(T), dtype=q.dtype, device=q.device), qu)
         ends = torch.as_tensor(self.weights(2 * w), dtype=q.dtype, device=q.device)  # first/last rows of any T
