@@ -289,6 +289,8 @@ def systematic(ctx: SystematicContext) -> SystematicResult:
     model = replace(model, params=pcheck.kept)
     problem.log(f"parameters that predict left-out recordings better when fitted: {pcheck.kept}")
     first = identify(model, train, provisional)
+    problem.log(f"weak-form fit with the provisional law done; choosing each coordinate's friction law by left-out "
+                f"prediction ({train.n_traj} recordings)")
     base = model.build(first.kwargs, first.armature_terms())
     law, sels = select_friction(base, train, Heartbeat(problem.log), window=window, eps=problem.eps,
                                 terms=law_terms(problem.opts.terms))
