@@ -29,7 +29,6 @@ import numpy as np
 import torch
 
 from ..identify.recordings import Recordings
-from ..identify.shooting import smooth
 from ..train.config import TrainConfig
 from ..train.fit import FitResult, fit
 from ..train.rig_fit import (
@@ -39,10 +38,9 @@ from ..train.rig_fit import (
     build,
     check_window_room,
     nominal_config,
-    odd_samples,
     rig_config,
 )
-from ..train.rig_heldout import heldout_rollouts, heldout_windows
+from ..train.rig_heldout import heldout_rollouts, heldout_windows, smoothed
 from ..train.rig_run import RecordingsSpec, heldout_part, prepare, sim_name, spec_record
 from ..world.interfaces import ForecastModel, NormalizedModel, wrap_angles
 from ..world.model import PHAST
@@ -124,9 +122,8 @@ class BaselineWindows:
 
 
 def velocity(q: np.ndarray, dt: float) -> np.ndarray:
-    """Savitzky-Golay velocity of ``q`` (N, T, n) over about :data:`SMOOTH_S` (at most the recording's length)."""
-    T = q.shape[1]
-    return smooth(q, dt, min(odd_samples(SMOOTH_S, dt), T - (1 - T % 2)))[1]
+    """Savitzky-Golay velocity of ``q`` (N, T, n), as PHAST's window states start from it."""
+    return smoothed(q, dt)[1]
 
 
 def step_samples(cfg: BaselineConfig, dt: float) -> int:

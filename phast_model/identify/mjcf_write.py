@@ -105,8 +105,8 @@ def set_joint_attr(joint: mujoco.MjsJoint, attr: str, value: float) -> None:
 
 
 def _apply_params(spec: mujoco.MjSpec, tree: MJCFTree, params: Mapping[str, float]) -> list[str]:
-    bodies = {b for b, name in enumerate(tree.body_names) for k in params if k.startswith(name + ".")
-              and is_body_value(k)}
+    bodies = {b for b, name in enumerate(tree.body_names) for k in params
+              if k.rpartition(".")[0] == name and is_body_value(k)}
     if bodies:
         import mujoco
 

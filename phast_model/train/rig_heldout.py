@@ -48,11 +48,16 @@ def heldout_windows(rec: Recordings, window_s: float | None, burn_s: float = BUR
                           np.tile(starts, rec.n_traj))
 
 
+def smoothed(q: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Savitzky-Golay q and qdot of ``q`` (N, T, n) over about ``SMOOTH_S`` (at most the recordings' length)."""
+    T = q.shape[1]
+    return smooth(q, dt, min(odd_samples(SMOOTH_S, dt), T - (1 - T % 2)))
+
+
 def burn_in_states(w: HeldoutWindows, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """(W, n) q and qdot at every window's first sample, from Savitzky-Golay smoothing of its burn-in: where every
     model's state fit starts."""
-    qb = w.q[:, : w.burn].numpy()
-    qs, vs = smooth(qb, dt, min(odd_samples(SMOOTH_S, dt), w.burn - (1 - w.burn % 2)))
+    qs, vs = smoothed(w.q[:, : w.burn].numpy(), dt)
     return qs[:, 0], vs[:, 0]
 
 
