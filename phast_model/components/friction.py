@@ -23,7 +23,8 @@ coordinate's velocity unit (rad/s for a hinge, m/s for a slider); the defaults s
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from functools import partial
 from typing import Literal, overload
 
 import torch
@@ -78,6 +79,12 @@ def _matvec(m: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
     return (m @ v.unsqueeze(-1)).squeeze(-1)
 
 
+def _stribeck_slope(g: torch.Tensor, x: torch.Tensor, th: torch.Tensor, inv_eps: torch.Tensor,
+                    inv_vs: torch.Tensor) -> torch.Tensor:
+    """d/dv of g tanh(v / eps) with g = exp(-x^2), x = v / vs: g' = -2 x g / vs."""
+    return g * ((1 - th * th) * inv_eps - 2 * x * inv_vs * th)
+
+
 class JointFriction(nn.Module):
     """Learnable passive per-joint friction ``f_i(v_i) = sum_k softplus(raw_ik) phi_k(v_i)`` (module docstring).
 
@@ -122,6 +129,32 @@ class JointFriction(nn.Module):
         full = torch.full((*t.shape[:-1], self.n), fill, dtype=dtype, device=t.device)
         return full.index_copy(-1, self.index, t.to(dtype))
 
+    def _shapes(self, v: torch.Tensor) -> list[tuple[torch.Tensor, Callable[[], torch.Tensor]]]:
+        """(phi_k(v), a thunk for phi_k'(v)) of each law, on all n coordinates (module docstring)."""
+        inv_eps = 1 / self._per_coordinate(self.eps, 1.0, v.dtype)
+        th = torch.tanh(v * inv_eps)
+        out: list[tuple[torch.Tensor, Callable[[], torch.Tensor]]] = []
+        for law in self.laws:
+            if law == "coulomb":
+                out.append((th, lambda: (1 - th * th) * inv_eps))
+            elif law == "viscous":
+                out.append((v, lambda: torch.ones_like(v)))
+            elif law == "quadratic":
+                out.append((v * v.abs(), lambda: 2 * v.abs()))
+            else:  # stribeck: g tanh with g = exp(-x^2), x = v / vs, g' = -2 x g / vs
+                inv_vs = 1 / self._per_coordinate(self.vs, 1.0, v.dtype)
+                x = v * inv_vs
+                g = torch.exp(-x * x)
+                out.append((g * th, partial(_stribeck_slope, g, x, th, inv_eps, inv_vs)))
+        return out
+
+    def _off_joints(self, x: torch.Tensor) -> torch.Tensor:
+        """``x`` (..., n) with zeros off the joints (0 * inf would be nan where v overflows a law)."""
+        if len(self.joints) == self.n:
+            return x
+        on = self._per_coordinate(torch.ones_like(self.eps), 0.0, x.dtype) > 0
+        return torch.where(on, x, torch.zeros_like(x))
+
     @overload
     def _law(self, v: torch.Tensor, slope: Literal[False] = False) -> tuple[torch.Tensor, None]: ...
     @overload
@@ -131,30 +164,26 @@ class JointFriction(nn.Module):
         """f(v) and, with ``slope``, the diagonal f'(v): (..., n) -> (..., n), zero off the joints.  Evaluated on all n
         coordinates with zero coefficients off the joints (cheaper than gathering and scattering v)."""
         c = self._per_coordinate(nn.functional.softplus(self.raw), 0.0, v.dtype)  # (K, n)
-        inv_eps = 1 / self._per_coordinate(self.eps, 1.0, v.dtype)
-        th = torch.tanh(v * inv_eps)
         f = torch.zeros_like(v)
         df = torch.zeros_like(v) if slope else None
-        for k, law in enumerate(self.laws):
-            if law == "coulomb":
-                phi, dphi = th, (lambda: (1 - th * th) * inv_eps)
-            elif law == "viscous":
-                phi, dphi = v, (lambda: torch.ones_like(v))
-            elif law == "quadratic":
-                phi, dphi = v * v.abs(), (lambda: 2 * v.abs())
-            else:  # stribeck: g tanh with g = exp(-x^2), x = v / vs, g' = -2 x g / vs
-                inv_vs = 1 / self._per_coordinate(self.vs, 1.0, v.dtype)
-                x = v * inv_vs
-                g = torch.exp(-x * x)
-                phi, dphi = g * th, (lambda: g * ((1 - th * th) * inv_eps - 2 * x * inv_vs * th))  # noqa: B023
+        for k, (phi, dphi) in enumerate(self._shapes(v)):
             f = f + c[k] * phi
             if df is not None:
                 df = df + c[k] * dphi()
-        if len(self.joints) < self.n:  # 0 * inf would be nan where v overflows a law
-            on = self._per_coordinate(torch.ones_like(self.eps), 0.0, v.dtype) > 0
-            f = torch.where(on, f, torch.zeros_like(f))
-            df = None if df is None else torch.where(on, df, torch.zeros_like(df))
-        return f, df
+        return self._off_joints(f), None if df is None else self._off_joints(df)
+
+    def basis(self, v: torch.Tensor) -> torch.Tensor:
+        """(K, ..., n) the laws' shapes phi_k(v), zero off the joints: f = sum_k c_k * basis[k] (a regressor)."""
+        return torch.stack([self._off_joints(phi) for phi, _ in self._shapes(v)])
+
+    @torch.no_grad()
+    def set_coefficients(self, c: Mapping[str, torch.Tensor | Sequence[float]], floor: float = 1e-9) -> None:
+        """Set each law's coefficients (len(joints),) to ``c[law]`` (clipped at ``floor``: a softplus never reaches 0);
+        laws not in ``c`` keep theirs."""
+        for k, law in enumerate(self.laws):
+            if law in c:
+                x = torch.as_tensor(c[law], dtype=torch.float64).clamp_min(floor)
+                self.raw[k].copy_(x + torch.log(-torch.expm1(-x)))  # softplus^-1(x) = log(expm1(x)), stably
 
     def force(self, v: torch.Tensor) -> torch.Tensor:
         """f(v): (..., n) -> (..., n), with f_i(v_i) v_i >= 0."""

@@ -70,6 +70,16 @@ class LearnedBodies(nn.Module):
         the rig trainer steps them like its friction coefficients."""
         return [self.raw_armature]
 
+    def armature(self) -> torch.Tensor:
+        """(n,) each joint's rotor inertia, softplus(raw) > 0."""
+        return nn.functional.softplus(self.raw_armature)
+
+    @torch.no_grad()
+    def set_armature(self, values: torch.Tensor | np.ndarray, floor: float = 1e-9) -> None:
+        """Set each joint's armature (clipped at ``floor``: a softplus never reaches 0)."""
+        x = torch.as_tensor(values, dtype=torch.float64).clamp_min(floor)
+        self.raw_armature.copy_(x + torch.log(-torch.expm1(-x)))
+
     def state(self, q: torch.Tensor) -> tuple[MJCFSystem, TreeState]:
         """The system with the current parameters and its tree state at q (..., n), reused while neither q nor a
         parameter has changed: V, M^-1 p and dT/dq of one splitting step share one evaluation of the kinematics."""
@@ -88,7 +98,7 @@ class LearnedBodies(nn.Module):
         s._mass = torch.where(self.mass_on, torch.exp(self.log_mass), torch.zeros_like(self.log_mass))
         s._ipos = self.ipos * 1.0  # a tensor of the graph (not the Parameter itself)
         s._inertia = torch.where(self.inertia_on, torch.exp(self.log_inertia), torch.zeros_like(self.log_inertia))
-        s._armature = nn.functional.softplus(self.raw_armature)
+        s._armature = self.armature()
         return s
 
     def values(self) -> dict[str, float]:

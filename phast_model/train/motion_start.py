@@ -17,6 +17,12 @@ coordinate's residual scaled by its typical force.  Without a port input the sca
 then keeps its initial gauge (a constant mass is not trained; a configuration-dependent one is held at a mean
 diagonal of 1).  The shooting fit then refines the start on open-loop windows, where the differentiated signal's
 noise no longer enters.
+
+PARTIAL on a model file (an MJCF or URDF arm) starts from its drives instead (:func:`fit_drives`): the file's bodies
+are kept and the same balance, linear in each joint's rotor inertia and friction coefficients, is solved by
+non-negative least squares.  A file without rotor inertia is far off on a geared arm: the UR10e's wrist links have
+1e-4 kg m^2 about their axes, its motors reflect 0.2-0.3, so the recorded torques spin the file's wrists up within a
+step and the first shooting fit overflows.
 """
 
 from __future__ import annotations
@@ -28,7 +34,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from tqdm.auto import tqdm
 
+from ..components.rigid_body import RigidBodyMass
 from ..identify.recordings import Recordings
 from ..identify.signals import SavitzkyGolay, odd, time_scale
 from ..world.model import PHAST
@@ -137,7 +145,10 @@ def _trained(model: PHAST, driven: bool) -> list[torch.nn.Parameter]:
         mods.append(model.friction)
     if driven or not getattr(model.mass, "constant", True):
         mods.append(model.mass)
-    return [p for m in mods for p in m.parameters() if p.requires_grad]
+    seen: dict[int, torch.nn.Parameter] = {}  # a rigid-body V and M share one set of body parameters
+    for p in (p for m in mods for p in m.parameters() if p.requires_grad):
+        seen.setdefault(id(p), p)
+    return list(seen.values())
 
 
 def _polish(params: list[torch.nn.Parameter], loss_fn: Callable[[], torch.Tensor], iters: int) -> None:
@@ -196,10 +207,57 @@ def fit_force_balance(model: PHAST, s: MotionSamples, cfg: MotionStartConfig) ->
     return math.sqrt(float(loss_on(None).detach()))
 
 
+#: the drives' start's smallest coefficient, as a share of the one that alone would carry the joint's whole force (a
+#: softplus cannot start at 0, and one far below its scale takes many relative steps to come back)
+DRIVES_FLOOR = 0.01
+
+
+def drives_regressors(model: PHAST, s: MotionSamples) -> tuple[torch.Tensor, torch.Tensor]:
+    """(y, A): y (S, n) the force the bodies leave, G u - (M_bodies(q) qddot + C(q, qdot) qdot + dV/dq), and A (S, n,
+    1 + K) each joint's regressors: qddot_j (its armature) and the friction laws' shapes phi_k(qdot_j)."""
+    if not isinstance(model.mass, RigidBodyMass) or model.friction is None or s.f is None:
+        raise ValueError("the drives' start needs a model file's rigid-body mass (PARTIAL on an MJCF/URDF rig), joint "
+                         "friction and a port input (u)")
+    r = force_residual(model, s).detach()  # includes the current armature and friction
+    with torch.no_grad():
+        arm = model.mass.bodies.armature().to(s.a.dtype)
+        y = -(r - arm * s.a - model.friction.force(s.v))
+        A = torch.cat([s.a.unsqueeze(-1), model.friction.basis(s.v).movedim(0, -1)], -1)
+    return y, A
+
+
+def fit_drives(model: PHAST, s: MotionSamples, cfg: MotionStartConfig) -> float:
+    """Each joint's rotor inertia (armature) and friction coefficients by non-negative least squares on the force the
+    file's bodies leave at the samples (:func:`drives_regressors`), the bodies kept as the file gives them; each
+    coefficient at least :data:`DRIVES_FLOOR` of its scale.  A rigid-body arm's equation of motion is linear in these,
+    so no descent is needed.  Returns the relative residual (RMS residual / RMS force left by the bodies)."""
+    from scipy.optimize import nnls
+
+    y, A = (x.numpy() for x in drives_regressors(model, s))
+    coef = np.zeros(A.shape[1:])  # (n, 1 + K)
+    fitted = np.zeros_like(y)
+    for j in range(y.shape[1]):
+        scale = np.sqrt(np.mean(A[:, j] ** 2, 0)) + 1e-300
+        x = nnls(A[:, j] / scale, y[:, j])[0]
+        floor = DRIVES_FLOOR * np.sqrt(np.mean(y[:, j] ** 2))
+        coef[j] = np.maximum(x, floor) / scale
+        fitted[:, j] = A[:, j] @ coef[j]
+    assert isinstance(model.mass, RigidBodyMass)  # drives_regressors checked it
+    model.mass.bodies.set_armature(coef[:, 0])
+    friction = model.friction
+    assert friction is not None
+    joints = friction.index.numpy()
+    friction.set_coefficients({law: torch.as_tensor(coef[joints, 1 + k]) for k, law in enumerate(friction.laws)})
+    return float(np.sqrt(np.mean((y - fitted) ** 2) / max(np.mean(y**2), 1e-300)))
+
+
 def motion_start(model: PHAST, rec: Recordings, score: Callable[[PHAST], float],
-                 cfg: MotionStartConfig | None = None) -> dict[str, float]:
+                 cfg: MotionStartConfig | None = None,
+                 fit: Callable[[PHAST, MotionSamples, MotionStartConfig], float] = fit_force_balance,
+                 progress: bool = False) -> dict[str, float]:
     """The start of ``model`` from the recorded motion ``rec`` (module docstring), in place: one force-balance fit
-    per Savitzky-Golay window of ``cfg.window_taus`` (a narrow window leaves noise in qddot, a wide one bias), each
+    (``fit``: :func:`fit_force_balance`, or :func:`fit_drives` for a model file's drives) per Savitzky-Golay window of
+    ``cfg.window_taus`` (a narrow window leaves noise in qddot, a wide one bias), each
     from the same initial weights; the one of least ``score`` (the run's open-loop RMSE on its held-in validation
     windows, :func:`phast_model.train.rig_fit.window_rmse`) is kept.  Returns what was chosen and every candidate's
     score."""
@@ -208,10 +266,10 @@ def motion_start(model: PHAST, rec: Recordings, score: Callable[[PHAST], float],
     initial = copy.deepcopy(model.state_dict())
     best: tuple[float, dict[str, torch.Tensor] | None] = (math.inf, None)
     info: dict[str, float] = {"time_scale_s": tau}
-    for k in cfg.window_taus:
+    for k in tqdm(cfg.window_taus, desc="start from the recorded motion", disable=not progress):
         model.load_state_dict(initial)
         s = motion_samples(rec, k * tau, cfg.max_samples, cfg.polyorder)
-        residual = fit_force_balance(model, s, cfg)
+        residual = fit(model, s, cfg)
         rmse = float(score(model))
         info[f"window_{k:g}tau_force_residual"], info[f"window_{k:g}tau_rmse"] = residual, rmse
         if rmse < best[0]:

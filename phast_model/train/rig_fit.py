@@ -39,7 +39,7 @@ from phast_gym.systems.mjcf import MJCFSystem
 from ..components.mass import KnownMass, LinearMass, LowRankMass
 from ..components.potentials import TemplatePotential
 from ..identify.recordings import Recordings, load_raw, validate
-from ..identify.shooting import odd, smooth
+from ..identify.shooting import odd, smooth, substeps_for
 from ..identify.simulators import load_simulator
 from ..identify.split import check_holdout_indices, split
 from ..train.groups import param_groups
@@ -178,7 +178,7 @@ def rig_config(sim: str, sim_kwargs: dict[str, Any], regime: str, data: RigData,
         cfg = replace(base, potential="known", mass="known")
     # the file's rigid-body structure, its parameters learned
     elif regime == "partial" and isinstance(system, MJCFSystem):
-        cfg = replace(base, potential="rigid_body", mass="rigid_body", init_from="none")
+        cfg = replace(base, potential="rigid_body", mass="rigid_body", init_from="drives" if data.driven else "none")
     elif regime == "partial":
         tmpl, dims, mass_t = _template(system)
         mass: dict[str, Any] = ({"mass": "template", "mass_template": mass_t} if mass_t
@@ -191,9 +191,14 @@ def rig_config(sim: str, sim_kwargs: dict[str, Any], regime: str, data: RigData,
 
 
 def nominal_config(cfg: PHASTConfig) -> PHASTConfig:
-    """The rig itself as a model: its V and M, no dissipation beyond its own (scored by the same code as PHAST)."""
+    """The rig itself as a model: its V and M, no dissipation beyond its own (scored by the same code as PHAST),
+    integrated with substeps no longer than the rig's own (:func:`substeps_for`): a file's arm whose light wrists
+    the recorded torques spin up overflows a step of the recordings' 10 ms, and its score is then inf, not the
+    rig's."""
+    system = load_simulator(cfg.sim or cfg.env_id, dict(cfg.env_kwargs)).build()
+    sub = max(int(cfg.substeps), int(substeps_for(system, system.dt if cfg.dt is None else cfg.dt)))
     return replace(cfg, regime="nominal", potential="known", mass="known", damping="known", friction="none",
-                   init_from="none")
+                   init_from="none", substeps=sub)
 
 
 def odd_samples(seconds: float, dt: float) -> int:
@@ -291,6 +296,10 @@ class RigTrainConfig:
     refit_every: int = 1
     state_iters: int = 1  # Gauss-Newton iterations of the window states per refit after the first epoch (3)
     val_fraction: float = 0.15
+    #: each epoch trains on a fresh draw of at most this many training windows, their states refitted first (None:
+    #: every window): a large arm's logs are many alike windows (the UR10e's 17 runs: 3,800 windows of 0.15 s, 3 min
+    #: a pass), and validation, patience and the plateau rule need epochs, not passes
+    epoch_windows: int | None = 1024
     friction_lr_mult: float = 5.0  # friction coefficients' lr factor (phast_model.train.groups.param_groups)
     #: every rate's factor; None: LR_AFTER_START after UNKNOWN's start from the recorded motion, else 1
     lr_mult: float | None = None
@@ -334,6 +343,8 @@ class RigTrainConfig:
             raise ValueError(f"warmup_epochs must be in [0, epochs), got {self.warmup_epochs!r}")
         if self.warmup_epochs and w is None:
             raise ValueError("warmup_epochs needs warmup_window_s (the warm-up's window length)")
+        if self.epoch_windows is not None and (int(self.epoch_windows) != self.epoch_windows or self.epoch_windows < 1):
+            raise ValueError(f"epoch_windows must be a positive integer or None, got {self.epoch_windows!r}")
         if not 0.0 <= self.val_fraction < 1.0:
             raise ValueError(f"val_fraction must be in [0, 1), got {self.val_fraction!r}")
 
@@ -383,13 +394,15 @@ def _template_start(model: PHAST, rec: Recordings) -> dict[str, float]:
 
 def _start(model: PHAST, data: RigData, cfg: RigTrainConfig) -> dict[str, float]:
     """The model's start before the shooting fit: PARTIAL's template coefficients from the rig (``init_from='rig'``),
-    UNKNOWN's components from the recorded force balance (``'motion'``: :mod:`.motion_start`), else as built."""
+    UNKNOWN's components from the recorded force balance (``'motion'``: :mod:`.motion_start`), a model file's rotor
+    inertias and friction from it (``'drives'``), else as built."""
     if model.config.init_from == "rig":
         return _template_start(model, data.train)
-    if model.config.init_from == "motion":
-        from .motion_start import motion_start
+    if model.config.init_from in ("motion", "drives"):
+        from .motion_start import fit_drives, fit_force_balance, motion_start
 
-        return motion_start(model, data.train, lambda m: window_rmse(m, data, cfg))
+        fit = fit_drives if model.config.init_from == "drives" else fit_force_balance
+        return motion_start(model, data.train, lambda m: window_rmse(m, data, cfg), fit=fit, progress=cfg.progress)
     return {}
 
 
@@ -430,6 +443,10 @@ class _Stage:
     val: ShootWindows | None
     optim: Optim
     n_batches: int
+    #: the training windows whose states have been fitted (a window's first fit takes 3 Gauss-Newton iterations)
+    fitted: torch.Tensor
+    #: this epoch's training windows (all, or a draw of ``epoch_windows``)
+    drawn: torch.Tensor | None = None
 
 
 def lr_mult(model: PHAST, cfg: RigTrainConfig) -> float:
@@ -452,13 +469,15 @@ def _stage(model: PHAST, data: RigData, cfg: RigTrainConfig, window_s: float, ep
     train, val = _split_windows(cut_windows(data.train, _window_samples(window_s, data.dt)), cfg.val_fraction, cfg.seed)
     lr = cfg.lr * lr_mult(model, cfg)
     opt = torch.optim.AdamW(param_groups(model, lr, cfg.friction_lr_mult), lr=lr, weight_decay=cfg.weight_decay)
-    n_batches = max(1, math.ceil(train.q.shape[0] / cfg.batch_windows))
+    W = train.q.shape[0]
+    n_batches = max(1, math.ceil(min(W, cfg.epoch_windows or W) / cfg.batch_windows))
+    fitted = torch.zeros(W, dtype=torch.bool)
     if schedule == "plateau":
         plateau = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=cfg.plateau_factor,
                                                              patience=cfg.plateau_epochs - 1, threshold=1e-3)
-        return _Stage(train, val, Optim(opt, plateau), n_batches)
+        return _Stage(train, val, Optim(opt, plateau), n_batches, fitted)
     cosine = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=epochs * n_batches)
-    return _Stage(train, val, Optim(opt, cosine), n_batches)
+    return _Stage(train, val, Optim(opt, cosine), n_batches, fitted)
 
 
 def _stage_at(model: PHAST, data: RigData, cfg: RigTrainConfig, epoch: int) -> _Stage:
@@ -504,18 +523,33 @@ class Shooting:
         return self.stage
 
     def begin_epoch(self, epoch: int) -> None:
-        """The window states refitted (3 Gauss-Newton iterations at a stage's start, ``state_iters`` after: the
-        states move little between epochs)."""
+        """This epoch's training windows drawn (``epoch_windows``, from a generator of the seed and the epoch, so a
+        resumed run draws the same) and their states refitted: 3 Gauss-Newton iterations for a window fitted for the
+        first time, ``state_iters`` after (the states move little between epochs); the validation states likewise."""
         st, cfg = self._current(), self.cfg
+        W = st.train.q.shape[0]
+        if cfg.epoch_windows is None or cfg.epoch_windows >= W:
+            st.drawn = torch.arange(W)
+        else:
+            gen = torch.Generator().manual_seed(1_000_003 * cfg.seed + epoch)
+            st.drawn = torch.randperm(W, generator=gen)[: cfg.epoch_windows].sort().values
         if epoch % cfg.refit_every == 0:
-            iters = 3 if epoch in (0, cfg.warmup_epochs) else cfg.state_iters
-            st.train.X = fit_states(self.model, st.train.X, st.train.q, st.train.u, iters)
+            first = epoch in (0, cfg.warmup_epochs)
+            self._refit(st.train, st.drawn, st.fitted, cfg.state_iters)
             if st.val is not None:
-                st.val.X = fit_states(self.model, st.val.X, st.val.q, st.val.u, iters)
+                st.val.X = fit_states(self.model, st.val.X, st.val.q, st.val.u, 3 if first else cfg.state_iters)
+
+    def _refit(self, w: ShootWindows, idx: torch.Tensor, fitted: torch.Tensor, iters: int) -> None:
+        """The states of windows ``idx`` refitted, 3 iterations where never fitted before, else ``iters``."""
+        for part, k in ((idx[~fitted[idx]], 3), (idx[fitted[idx]], iters)):
+            if len(part):
+                w.X[part] = fit_states(self.model, w.X[part], w.q[part], None if w.u is None else w.u[part], k)
+        fitted[idx] = True
 
     def batches(self, gen: torch.Generator) -> Iterator[torch.Tensor]:
         st = self._current()
-        perm = torch.randperm(st.train.q.shape[0], generator=gen)
+        drawn = torch.arange(st.train.q.shape[0]) if st.drawn is None else st.drawn
+        perm = drawn[torch.randperm(len(drawn), generator=gen)]
         for b in range(st.n_batches):
             yield perm[b * self.cfg.batch_windows:(b + 1) * self.cfg.batch_windows]
 
@@ -535,11 +569,13 @@ class Shooting:
 
     def state(self) -> dict[str, Any]:
         st = self._current()
-        return {"X_train": st.train.X, "X_val": None if st.val is None else st.val.X}
+        return {"X_train": st.train.X, "X_val": None if st.val is None else st.val.X, "fitted": st.fitted}
 
     def load_state(self, saved: dict[str, Any]) -> None:
         st = self._current()
         st.train.X = _window_states(saved["X_train"], st.train.X, "training")
+        fitted = saved.get("fitted")  # a checkpoint of before the draws refitted every window every epoch
+        st.fitted = torch.ones_like(st.fitted) if fitted is None else torch.as_tensor(fitted, dtype=torch.bool)
         if st.val is not None:
             st.val.X = _window_states(saved["X_val"], st.val.X, "validation")
 

@@ -33,7 +33,10 @@ class PHASTConfig:
     #: where learned physics starts: "data" (least squares on the training set at the start of training,
     #: :mod:`phast_model.world.data_init`), "physics" (template and mass fitted to the env's true V and M: the
     #: "V given" variant), "rig" (a recordings run: the rig's nominal V and M at the recorded configurations,
-    #: :func:`phast_model.train.rig_fit.fit_recordings`) or "none" (unit coefficients, identity mass)
+    #: :func:`phast_model.train.rig_fit.fit_recordings`), "motion" (a recordings run: every component fitted to the
+    #: recorded force balance), "drives" (a recordings run on a model file: its bodies kept, rotor inertias and joint
+    #: friction by least squares on that balance; :mod:`phast_model.train.motion_start`) or "none" (unit
+    #: coefficients, identity mass)
     init_from: str = "data"
     damping: str = "householder"  # householder | known | none
     damping_rank: int = 2

@@ -625,8 +625,8 @@ def _latent_ode_model(cfg: PHASTConfig, env: _EnvScales, observer: FDTCNObserver
 def _check_phast_config(cfg: PHASTConfig, env: _EnvScales) -> None:
     """ValueError for a PHAST config that cannot be built: unknown ``init_from`` or ``kind``, or an env that is not
     port-Hamiltonian."""
-    if cfg.init_from not in ("data", "physics", "none", "rig", "motion"):
-        raise ValueError(f"init_from must be data, physics, rig, motion or none, got {cfg.init_from!r}")
+    if cfg.init_from not in ("data", "physics", "none", "rig", "motion", "drives"):
+        raise ValueError(f"init_from must be data, physics, rig, motion, drives or none, got {cfg.init_from!r}")
     if cfg.kind != "phast":
         raise ValueError(f"kind must be 'phast' or 'latent_ode', got {cfg.kind!r}")
     if not env.system.hamiltonian_system:
