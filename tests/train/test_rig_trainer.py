@@ -166,15 +166,17 @@ def test_an_epoch_ending_with_non_finite_weights_is_undone_and_the_lr_halved(dat
 
 
 # --------------------------------------------------------------------------- checkpoints and resume
-@pytest.mark.parametrize("warmup_epochs,crash_after", [(0, 2), (2, 1), (2, 2)],
-                         ids=["final-stage", "inside-warm-up", "at-the-switch"])
+@pytest.mark.parametrize("warmup_epochs,crash_after,epoch_windows", [(0, 2, None), (2, 1, None), (2, 2, None),
+                                                                     (0, 2, 7)],
+                         ids=["final-stage", "inside-warm-up", "at-the-switch", "drawn-windows"])
 def test_resume_ends_with_the_model_of_an_uninterrupted_run(data: rigfit.RigData, tmp_path: Path,
                                                             monkeypatch: pytest.MonkeyPatch, warmup_epochs: int,
-                                                            crash_after: int) -> None:
+                                                            crash_after: int, epoch_windows: int | None) -> None:
     """3 epochs straight against ``crash_after`` epochs, a kill and a resume: the same weights, bit for bit; the
-    resume rebuilds the curriculum stage it stopped in (warm-up or final), optimizer, schedule and window states."""
+    resume rebuilds the curriculum stage it stopped in (warm-up or final), optimizer, schedule and window states,
+    and draws an epoch's windows as the uninterrupted run did."""
     warm = {"warmup_window_s": 0.5, "warmup_epochs": warmup_epochs} if warmup_epochs else {}
-    cfg = RigTrainConfig(epochs=3, batch_windows=8, **warm, **TINY)  # minibatches: the batch order matters
+    cfg = RigTrainConfig(epochs=3, batch_windows=8, epoch_windows=epoch_windows, **warm, **TINY)
     straight = _fit(data, cfg, run_dir=tmp_path / "straight")
     with monkeypatch.context() as m:
         _crash_after(m, crash_after)
@@ -335,3 +337,30 @@ def test_an_explicit_lr_is_used_as_given_in_both_modes(monkeypatch: pytest.Monke
     with pytest.raises(SystemExit):
         cli.parse_args(["--help"])
     assert "default: 0.001 with --env, 0.02 with --recordings" in " ".join(capsys.readouterr().out.split())
+
+
+def test_an_epoch_trains_on_a_draw_of_epoch_windows_whose_states_are_fitted_first(data: rigfit.RigData) -> None:
+    """``epoch_windows``: each epoch's minibatches come from a fresh draw of that many training windows (the same
+    draw for the same seed and epoch), and only the drawn windows' states are refitted before it."""
+    model = build(rig_config(SIM, {}, "partial", data))
+    cfg = RigTrainConfig(epochs=3, batch_windows=4, epoch_windows=6, **TINY)
+    obj = rigfit.Shooting(model, data, cfg)
+    obj.optimizer(0, None)
+    st = obj.stage
+    assert st is not None and st.train.q.shape[0] > 6 and st.n_batches == 2
+    before = st.train.X.clone()
+    obj.begin_epoch(0)
+    drawn = st.drawn
+    assert drawn is not None and len(drawn) == 6 and int(st.fitted.sum()) == 6
+    moved = (st.train.X != before).any(-1)
+    assert not moved[~st.fitted].any()  # windows not drawn keep their states
+    batches = list(obj.batches(torch.Generator().manual_seed(0)))
+    assert sorted(torch.cat(batches).tolist()) == drawn.tolist()
+    obj.begin_epoch(1)
+    assert not torch.equal(st.drawn, drawn) and int(st.fitted.sum()) > 6
+    again = rigfit.Shooting(model, data, cfg)
+    again.optimizer(0, None)
+    again.begin_epoch(1)
+    assert again.stage is not None and torch.equal(again.stage.drawn, st.drawn)
+    with pytest.raises(ValueError, match="epoch_windows"):
+        RigTrainConfig(epoch_windows=0)
