@@ -183,16 +183,22 @@ def _named(items: list[str], flag: str) -> dict[str, str]:
 
 def _compared_systems(args: argparse.Namespace) -> dict[str, System] | None:
     """The ``--compare`` models, built with their ``--compare-kwargs`` (default: the rig's ``--sim-kwargs``)."""
-    from ..identify.simulators import load_simulator
+    from ..identify.mujoco_sim import mujoco_simulated
+    from ..identify.simulators import is_model_file, load_simulator
 
     sims, kwargs = _named(args.compare, "--compare"), _named(args.compare_kwargs, "--compare-kwargs")
     unknown = sorted(set(kwargs) - set(sims))
     if unknown:
         raise ValueError(f"--compare-kwargs names {unknown}, which no --compare gives")
     default = json_object(args.sim_kwargs, "--sim-kwargs")
-    return {name: load_simulator(sim, json_object(kwargs[name], f"--compare-kwargs {name}") if name in kwargs
-                                 else default).build()
-            for name, sim in sims.items()} or None
+    out: dict[str, System] = {}
+    for name, sim in sims.items():
+        if is_model_file(sim):  # a model file is scored as MuJoCo simulates it (what the file means)
+            out[name] = mujoco_simulated(sim)
+        else:
+            out[name] = load_simulator(sim, json_object(kwargs[name], f"--compare-kwargs {name}") if name in kwargs
+                                       else default).build()
+    return out or None
 
 
 def _model(args: argparse.Namespace) -> str:
