@@ -447,7 +447,13 @@ def _screen(problem: Problem) -> tuple[ParameterScreen, Described]:
         if trial is not None and chi2 <= DRIVES_CHI2:
             return drives_screen(problem, (shooter, fit, 0), starts), _described(problem, share, None, chi2)
         if share < MIN_DESCRIBED:
-            drives, params = drive_share(problem), parameter_share(problem)
+            n_rec = problem.train.n_traj
+            problem.log(f"weak form on {n_rec} recordings: how much of the force rotor inertia and friction per driven "
+                        "joint account for")
+            drives = drive_share(problem)
+            problem.log(f"weak form on {n_rec} recordings: how much of it a change of the file's own parameters "
+                        "accounts for")
+            params = parameter_share(problem)
             problem.log(f"on {len(fit.X)} of the {len(problem.shooting.windows.traj)} windows the model follows no "
                         f"better than a line (share {share:.3g}); its own parameters account for {params:.0%} of "
                         "the force it leaves (weak form)")

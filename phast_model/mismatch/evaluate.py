@@ -9,6 +9,7 @@ friction-law selection and the weak-form parameter check (:mod:`.friction`).
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from typing import Any
 
@@ -91,6 +92,13 @@ class _Linearization:
         return nxt
 
 
+def _say(heartbeat: Heartbeat | None, text: str) -> None:
+    """A progress line at a stage's start (the held-out scoring of a UR10e takes minutes)."""
+    if heartbeat is not None:
+        heartbeat.say(text)
+        heartbeat.last = time.monotonic()
+
+
 def _initial_states(models: dict[str, System], rec: Recordings, K: int, sigma: np.ndarray, x_scale: np.ndarray,
                     qs: np.ndarray, vs: np.ndarray,
                     heartbeat: Heartbeat | None = None) -> tuple[dict[str, np.ndarray], np.ndarray]:
@@ -102,17 +110,23 @@ def _initial_states(models: dict[str, System], rec: Recordings, K: int, sigma: n
     is predicted to leave a small spread (one linearization at the K-sample fit, :class:`_Linearization`), for every
     model alike, reached by a homotopy on the length."""
     ladder = _ladder(min(K, rec.T), max(min(K, rec.T), rec.T // 2))
-    X = {name: _fit_states(s, rec, ladder[0], sigma, x_scale,
-                           np.concatenate([getattr(s, "unmeasure", lambda y: y)(qs[:, 0]), vs[:, 0]], axis=1),
-                           heartbeat)
-         for name, s in models.items()}
+    X = {}
+    for k, (name, s) in enumerate(models.items()):
+        _say(heartbeat, f"  held-out: {name}: initial states of {rec.n_traj} windows ({k + 1} of {len(models)})")
+        X[name] = _fit_states(s, rec, ladder[0], sigma, x_scale,
+                              np.concatenate([getattr(s, "unmeasure", lambda y: y)(qs[:, 0]), vs[:, 0]], axis=1),
+                              heartbeat)
     Ks = np.full(rec.n_traj, ladder[0])
     if len(ladder) == 1:
         return X, Ks
+    _say(heartbeat, "  held-out: how far each initial state's uncertainty spreads the rollouts")
     lin = {name: _Linearization.at(s, rec, sigma, x_scale, X[name]) for name, s in models.items()}
     Ks = np.max([m.needed(ladder) for m in lin.values()], axis=0)
     for name, system in models.items():
         current = np.full(rec.n_traj, ladder[0])
+        if np.any(current < Ks):
+            longer = int(np.sum(current < Ks))
+            _say(heartbeat, f"  held-out: {name}: initial states of {longer} windows on longer spans")
         while np.any(current < Ks):
             todo = np.flatnonzero(current < Ks)
             nxt = lin[name].next_lengths(ladder, current, Ks)[todo]
@@ -147,6 +161,7 @@ def _evaluate(models: dict[str, System], rec: Recordings, sigma: np.ndarray, x_s
     rollouts: dict[str, np.ndarray] = {}
     states, _ = _initial_states(models, rec, K, sigma, x_scale, qs, vs, heartbeat)
     for name, system in models.items():
+        _say(heartbeat, f"  held-out: {name}: rollouts and one-step predictions")
         X = states[name]
         q_roll = simulate_qv(system, X[:, :n], X[:, n:], rec.T - 1, rec.u, rec.sim_dt, substeps_for(system, rec.sim_dt))
         d = angle_diff(q_roll, rec.q, rec.angle_dims) / scale
