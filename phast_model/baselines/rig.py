@@ -29,6 +29,7 @@ import numpy as np
 import torch
 
 from ..identify.recordings import Recordings
+from ..identify.simulators import is_model_file
 from ..train.config import TrainConfig
 from ..train.fit import FitResult, fit
 from ..train.rig_fit import (
@@ -40,7 +41,7 @@ from ..train.rig_fit import (
     nominal_config,
     rig_config,
 )
-from ..train.rig_heldout import heldout_rollouts, heldout_windows, smoothed
+from ..train.rig_heldout import heldout_rollouts, heldout_windows, nominal_entries, smoothed
 from ..train.rig_run import RecordingsSpec, heldout_part, prepare, sim_name, spec_record
 from ..world.interfaces import ForecastModel, NormalizedModel, wrap_angles
 from ..world.model import PHAST
@@ -338,8 +339,8 @@ def train_baseline_run(spec: RecordingsSpec, out: str | Path, cfg: BaselineConfi
             cfg = replace(cfg, train=replace(cfg.train, lr=lr_sweep.chosen))
         record = _config_record(cfg, data)
         res = train_baseline(cfg, data, out, resume, identity={k: v for k, v in record.items() if k != "train"})
-        scores, rolls, windows = heldout_rollouts({"nominal": _nominal(data)}, data.heldout,
-                                                  data.spec.rollout_window_s, compare=data.spec.compare,
+        nominal, compare = nominal_entries(_nominal(data), data.spec.sim, data.spec.compare)
+        scores, rolls, windows = heldout_rollouts(nominal, data.heldout, data.spec.rollout_window_s, compare=compare,
                                                   forecasters={cfg.model: scored_model(cfg, res.model, data)})
         metrics = _metrics(cfg, data, res, scores, lr_sweep)
         _write(out, res, record, metrics)
@@ -386,6 +387,7 @@ def _metrics(cfg: BaselineConfig, data: BaselineData, res: FitResult, scores: di
             "holdout_trajectories": list(data.rig.holdout),
             "dt": data.train.dt, "train_trajectories": int(data.train.n_traj), "train_samples": int(data.train.T),
             "windows": data.windows.record(), "heldout": {**scores, f"{cfg.model}_over_nominal": ratio},
+            "nominal_simulated_by": "mujoco" if is_model_file(data.spec.sim) else "phast_known",
             "lr": cfg.train.lr, "lr_sweep": None if lr_sweep is None else asdict(lr_sweep),
             "params": int(res.model.n_parameters()), "train_wall_time_s": res.wall_time_s,
             "best_val_loss": res.best_val, "best_epoch": res.best_epoch, "epochs_run": len(res.history),

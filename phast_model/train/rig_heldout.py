@@ -17,6 +17,7 @@ from phast_gym.systems import System
 
 from ..identify.recordings import Recordings
 from ..identify.shooting import Shooter, Windows, estimate_noise, simulate_qv, smooth, substeps_for
+from ..identify.simulators import is_model_file
 from ..world.interfaces import ForecastModel, coordinate_error, wrap_angles
 from ..world.model import PHAST
 from .rig_fit import BURN_IN_S, SMOOTH_S, STATE_FIT_ITERS, check_window_room, fit_states, odd_samples, simulate
@@ -102,6 +103,21 @@ def forecast_rollouts(model: ForecastModel, w: HeldoutWindows) -> torch.Tensor:
     u = None if w.u is None or model.m == 0 else w.u.to(dtype)
     pred = model.rollout(w.q[:, : w.burn].to(dtype), u, w.H).to(w.q.dtype)
     return torch.cat([w.q[:, : w.burn], pred], 1)
+
+
+def nominal_entries(nominal: PHAST, sim: str, compare: Mapping[str, System] | None
+                    ) -> tuple[dict[str, PHAST], Mapping[str, System] | None]:
+    """The nominal rig's entry for :func:`heldout_rollouts`, as (PHAST models, compared systems): the rig as a KNOWN
+    PHAST model, or, for a MuJoCo model file, the file as MuJoCo simulates it (what the file means: on a geared arm
+    whose file leaves out the motors the recorded torques spin the light links up, and a 10-ms step of PHAST's
+    integrator overflows where MuJoCo's own step does not; the UR10e's nominal score was inf)."""
+    if not is_model_file(sim):
+        return {"nominal": nominal}, compare
+    from ..identify.mujoco_sim import mujoco_simulated
+
+    if "nominal" in (compare or {}):
+        raise ValueError("compare: 'nominal' is the rig's own score; name the compared model otherwise")
+    return {}, {"nominal": mujoco_simulated(sim), **(compare or {})}
 
 
 class HeldoutScore(TypedDict):

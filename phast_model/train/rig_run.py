@@ -25,7 +25,6 @@ from ..identify.recordings import Recordings
 from ..identify.signals import estimate_noise
 from ..identify.simulators import is_model_file
 from ..train.runs import HISTORY_FILE, METRICS_FILE
-from ..world.model import PHAST
 from .rig_fit import (
     BURN_IN_S,
     RigData,
@@ -38,7 +37,7 @@ from .rig_fit import (
     rig_config,
     window_rmse,
 )
-from .rig_heldout import heldout_rollouts, heldout_windows
+from .rig_heldout import heldout_rollouts, heldout_windows, nominal_entries
 
 
 @dataclass(frozen=True)
@@ -112,8 +111,9 @@ def train_recordings_run(spec: RecordingsSpec, out: str | Path, train: RigTrainC
         identity = {"model": cfg.to_dict(), "recordings": spec_record(spec, str(data.source))}
         fit = fit_recordings(model, data, train, run_dir=out, resume=resume, identity=identity)
         nominal = build(nominal_config(cfg))
-        models, compare = nominal_scored(fit.model, nominal, spec)
-        scores, rolls, windows = heldout_rollouts(models, heldout, spec.rollout_window_s, compare=compare)
+        models, compare = nominal_entries(nominal, spec.sim, spec.compare)
+        scores, rolls, windows = heldout_rollouts({"phast": fit.model, **models}, heldout, spec.rollout_window_s,
+                                                  compare=compare)
         levels = FitLevels(_noise(data.train), window_rmse(nominal, data, train))
         metrics = _metrics(spec, data, fit, scores, levels)
         _write(fit, metrics, spec, train, out)
@@ -126,21 +126,6 @@ def train_recordings_run(spec: RecordingsSpec, out: str | Path, train: RigTrainC
 
             atomic_write_json(out / METRICS_FILE, metrics)
     return metrics
-
-
-def nominal_scored(model: PHAST, nominal: PHAST, spec: RecordingsSpec
-                   ) -> tuple[dict[str, PHAST], Mapping[str, System] | None]:
-    """(PHAST models, compared systems) for :func:`heldout_rollouts`: the nominal rig as a KNOWN PHAST model, or, for
-    a MuJoCo model file, the file as MuJoCo simulates it (what the file means; on a geared arm whose file leaves out
-    the motors the recorded torques spin the light links up, and a 10-ms step of PHAST's integrator overflows where
-    MuJoCo's own step does not: the UR10e's nominal score was inf)."""
-    if not is_model_file(spec.sim):
-        return {"phast": model, "nominal": nominal}, spec.compare
-    from ..identify.mujoco_sim import mujoco_simulated
-
-    if "nominal" in (spec.compare or {}):
-        raise ValueError("compare: 'nominal' is the rig's own score; name the compared model otherwise")
-    return {"phast": model}, {"nominal": mujoco_simulated(spec.sim), **(spec.compare or {})}
 
 
 #: a run whose training windows' RMSE is above this multiple of the recordings' noise, and above the nominal model's
