@@ -265,7 +265,7 @@ def parameter_share(problem: Problem) -> float:
     params = [k for k, v in problem.sim.numeric_params(problem.sys0).items() if v != 0 and k not in known]
     model = WeakModel(problem.sim, {}, params, [], [], problem.eps, problem.nominal_family.deadzone_width,
                       problem.smoothing_window)
-    return parameter_force(model, problem.train.resampled())
+    return parameter_force(model, problem.train.resampled(), Heartbeat(problem.log))
 
 
 def systematic(ctx: SystematicContext) -> SystematicResult:
@@ -288,7 +288,9 @@ def systematic(ctx: SystematicContext) -> SystematicResult:
     pcheck = check_parameters(model, train, provisional, Heartbeat(problem.log))
     model = replace(model, params=pcheck.kept)
     problem.log(f"parameters that predict left-out recordings better when fitted: {pcheck.kept}")
-    first = identify(model, train, provisional)
+    problem.log(f"weak-form fit of {len(model.params)} parameters, rotor inertia and the provisional friction law "
+                f"({train.n_traj} recordings)")
+    first = identify(model, train, provisional, heartbeat=Heartbeat(problem.log))
     problem.log(f"weak-form fit with the provisional law done; choosing each coordinate's friction law by left-out "
                 f"prediction ({train.n_traj} recordings)")
     base = model.build(first.kwargs, first.armature_terms())

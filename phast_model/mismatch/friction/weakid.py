@@ -119,13 +119,20 @@ def _on(i: int, col: np.ndarray, n: int) -> np.ndarray:
 
 
 def _columns(model: WeakModel, kwargs: dict[str, Any], rec: Recordings, law: list[Spec],
-             absorb: bool = True) -> tuple[WeakForm, list[str], list[np.ndarray], list[str]]:
+             absorb: bool = True, heartbeat: Heartbeat | None = None
+             ) -> tuple[WeakForm, list[str], list[np.ndarray], list[str]]:
     """The weak form at ``kwargs`` and the design columns: -d f~/dz per parameter, each law term, each armature
-    (``absorb``: without the armature columns the parameters can represent)."""
+    (``absorb``: without the armature columns the parameters can represent); ``heartbeat``: progress lines over the
+    parameters' columns (a weak form of every recording each: a minute for a UR10e's 30 body values)."""
     system = model.build(kwargs)
     wf = weak_form(system, rec, model.window, model.eps, differentiator=model.differentiator)
     names, cols, none = [], [], []
-    for k in model.params:
+    t0 = time.monotonic()
+    for j, k in enumerate(model.params):
+        if heartbeat is not None and j and heartbeat.due():
+            left = (time.monotonic() - t0) / j * (len(model.params) - j)
+            heartbeat.say(f"  weak form: column {j + 1} of {len(model.params)} parameters ({rec.n_traj} recordings; "
+                          f"about {left:.0f} s left)")
         kw = dict(kwargs)
         kw[k] = _number(system.params[k]) * math.exp(PARAM_STEP)
         col = -(weak_form(model.build(kw), rec, model.window, model.eps, differentiator=model.differentiator).total
@@ -217,11 +224,11 @@ def explained_force(model: WeakModel, rec: Recordings, law: list[Spec]) -> float
     return 1.0 - float(r) ** 2 / scale
 
 
-def parameter_force(model: WeakModel, rec: Recordings) -> float:
+def parameter_force(model: WeakModel, rec: Recordings, heartbeat: Heartbeat | None = None) -> float:
     """1 - rss / |S (conservative + port force)|^2 of a least squares (signs free) of the force the model leaves on the
     columns of ``model.params``: the share of the forces the balance carries that a change of those parameters
     (linearized at ``model.kwargs``) accounts for."""
-    wf, _, cols, _ = _columns(model, dict(model.kwargs), rec, [])
+    wf, _, cols, _ = _columns(model, dict(model.kwargs), rec, [], heartbeat=heartbeat)
     y = (wf.total - wf.own).reshape(-1)
     scale = max(float(np.sum(wf.carried**2)), 1e-300)
     if cols:
@@ -231,15 +238,16 @@ def parameter_force(model: WeakModel, rec: Recordings) -> float:
     return 1.0 - float(y @ y) / scale
 
 
-def identify(model: WeakModel, rec: Recordings, law: list[Spec], iterations: int = 3) -> WeakFit:
+def identify(model: WeakModel, rec: Recordings, law: list[Spec], iterations: int = 3,
+             heartbeat: Heartbeat | None = None) -> WeakFit:
     """Parameters, armature and the friction law ``law`` (specs with Stribeck velocities fixed) by Gauss-Newton on the
     weak form, starting at ``model.kwargs`` (reported against the simulator's own values); ``rec`` must be uniformly
-    sampled."""
+    sampled; ``heartbeat``: progress lines (:func:`_columns`)."""
     nominal = model.sim.build()  # the user's values: intervals and relative changes are reported against them
     start = model.sim.build(**model.kwargs)
     kw = {k: _number(start.params[k]) for k in model.params}
     for _ in range(iterations):
-        wf, names, cols, none = _columns(model, {**model.kwargs, **kw}, rec, law)
+        wf, names, cols, none = _columns(model, {**model.kwargs, **kw}, rec, law, heartbeat=heartbeat)
         coef, V, G, rss = _solve(wf, cols)
         step = {nm.split(":", 1)[1]: float(c) for nm, c in zip(names, coef) if nm.startswith("param:")}
         kw = {k: v * math.exp(float(np.clip(step.get(k, 0.0), -1.0, 1.0))) for k, v in kw.items()}
