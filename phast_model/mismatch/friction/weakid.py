@@ -338,8 +338,8 @@ def check_parameters(model: WeakModel, rec: Recordings, law: list[Spec],
     simulator's values, with ``law`` and the armature columns always in): a parameter stays only if dropping it makes
     the left-out weak-form force residual significantly worse (one-sided paired t-test over the folds, 5%).  A
     calibration that only bends parameters to soak up model error does not predict left-out recordings better.
-    ``heartbeat``: progress lines while the rounds run (minutes on a 6-joint arm)."""
-    wf, names, cols, none = _columns(model, dict(model.kwargs), rec, law)
+    ``heartbeat``: progress lines while the columns are built and the rounds run (minutes on a 6-joint arm)."""
+    wf, names, cols, none = _columns(model, dict(model.kwargs), rec, law, heartbeat=heartbeat)
     folds, txt = _fold_labels(wf)
     n = wf.n
     X = np.stack([c.reshape(-1) for c in cols], 1)
