@@ -29,7 +29,6 @@ import numpy as np
 import torch
 
 from ..identify.recordings import Recordings
-from ..identify.simulators import is_model_file
 from ..train.config import TrainConfig
 from ..train.fit import FitResult, fit
 from ..train.rig_fit import (
@@ -41,7 +40,7 @@ from ..train.rig_fit import (
     nominal_config,
     rig_config,
 )
-from ..train.rig_heldout import heldout_rollouts, heldout_windows, nominal_entries, smoothed
+from ..train.rig_heldout import heldout_rollouts, heldout_windows, nominal_entries, nominal_source, smoothed
 from ..train.rig_run import RecordingsSpec, heldout_part, prepare, sim_name, spec_record
 from ..world.interfaces import ForecastModel, NormalizedModel, wrap_angles
 from ..world.model import PHAST
@@ -387,7 +386,7 @@ def _metrics(cfg: BaselineConfig, data: BaselineData, res: FitResult, scores: di
             "holdout_trajectories": list(data.rig.holdout),
             "dt": data.train.dt, "train_trajectories": int(data.train.n_traj), "train_samples": int(data.train.T),
             "windows": data.windows.record(), "heldout": {**scores, f"{cfg.model}_over_nominal": ratio},
-            "nominal_simulated_by": "mujoco" if is_model_file(data.spec.sim) else "phast_known",
+            "nominal_simulated_by": nominal_source(data.spec.sim),
             "lr": cfg.train.lr, "lr_sweep": None if lr_sweep is None else asdict(lr_sweep),
             "params": int(res.model.n_parameters()), "train_wall_time_s": res.wall_time_s,
             "best_val_loss": res.best_val, "best_epoch": res.best_epoch, "epochs_run": len(res.history),

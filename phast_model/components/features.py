@@ -1,8 +1,15 @@
-"""Input features shared by the neural components: angles enter as (sin, cos)."""
+"""Helpers shared by the components: the neural components' input features (angles enter as (sin, cos)), and the
+inverse of the softplus that keeps positive coefficients positive."""
 
 from __future__ import annotations
 
 import torch
+
+
+def inv_softplus(x: torch.Tensor | float) -> torch.Tensor:
+    """softplus^-1(x) = log(expm1(x)) for x > 0, written as x + log(-expm1(-x)) so that a large x does not overflow."""
+    x = torch.as_tensor(x, dtype=torch.float64)
+    return x + torch.log(-torch.expm1(-x))
 
 
 def n_features(n: int, angle_dims: tuple[int, ...]) -> int:

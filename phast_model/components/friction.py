@@ -30,6 +30,7 @@ from typing import Literal, overload
 import torch
 from torch import nn
 
+from .features import inv_softplus
 from .mass import Mass
 
 LAWS = ("coulomb", "viscous", "quadratic", "stribeck")
@@ -40,11 +41,6 @@ DEFAULT_EPS = 0.01
 DEFAULT_VS = 0.1
 #: default initial coefficient of every law (weak friction: the data raise what they need)
 DEFAULT_INIT = 1e-3
-
-
-def _inv_softplus(c: float) -> float:
-    """softplus^-1(c) = log(expm1(c)), written so it does not overflow for a large c."""
-    return c + math.log(-math.expm1(-c))
 
 
 def _per_joint(value: float | Sequence[float], k: int, name: str) -> torch.Tensor:
@@ -115,7 +111,7 @@ class JointFriction(nn.Module):
         self.register_buffer("index", torch.tensor(joints, dtype=torch.long), persistent=False)
         self.register_buffer("eps", _per_joint(eps, len(joints), "eps"))
         self.register_buffer("vs", _per_joint(vs, len(joints), "vs"))
-        raw = [[_inv_softplus(c)] * len(joints) for c in _per_law(init, laws)]
+        raw = [[float(inv_softplus(c))] * len(joints) for c in _per_law(init, laws)]
         self.raw = nn.Parameter(torch.tensor(raw, dtype=torch.float32))  # (laws, joints)
 
     # ---- the force law ------------------------------------------------------------
@@ -182,8 +178,7 @@ class JointFriction(nn.Module):
         laws not in ``c`` keep theirs."""
         for k, law in enumerate(self.laws):
             if law in c:
-                x = torch.as_tensor(c[law], dtype=torch.float64).clamp_min(floor)
-                self.raw[k].copy_(x + torch.log(-torch.expm1(-x)))  # softplus^-1(x) = log(expm1(x)), stably
+                self.raw[k].copy_(inv_softplus(torch.as_tensor(c[law], dtype=torch.float64).clamp_min(floor)))
 
     def force(self, v: torch.Tensor) -> torch.Tensor:
         """f(v): (..., n) -> (..., n), with f_i(v_i) v_i >= 0."""

@@ -20,6 +20,7 @@ from torch import nn
 from phast_gym.systems import TORCH, System, split, stack
 from phast_gym.systems.mjcf import MJCFSystem, TreeState
 
+from .features import inv_softplus
 from .mass import Mass
 from .potentials import Potential
 
@@ -36,10 +37,6 @@ def _armature_start(system: MJCFSystem) -> np.ndarray:
     diag = np.array([float(np.ravel(M[j][j])[0]) for j in range(system.n)])
     given = np.asarray(system._armature, dtype=float)
     return np.where(given > 0, given, ARMATURE_START * diag)
-
-
-def _inv_softplus(x: np.ndarray) -> np.ndarray:
-    return np.log(np.expm1(x))
 
 
 class LearnedBodies(nn.Module):
@@ -61,7 +58,7 @@ class LearnedBodies(nn.Module):
         self.log_mass = nn.Parameter(torch.as_tensor(np.log(np.where(mass > 0, mass, 1.0))))
         self.ipos = nn.Parameter(torch.as_tensor(np.asarray(system._ipos, dtype=float)))
         self.log_inertia = nn.Parameter(torch.as_tensor(np.log(np.where(inertia > 0, inertia, 1.0))))
-        self.raw_armature = nn.Parameter(torch.as_tensor(_inv_softplus(_armature_start(system))))
+        self.raw_armature = nn.Parameter(inv_softplus(torch.as_tensor(_armature_start(system))))
         # (q, versions, system, tree state) of the last evaluation
         self._last: tuple[torch.Tensor, tuple[int | bool, ...], MJCFSystem, TreeState] | None = None
 
@@ -77,8 +74,7 @@ class LearnedBodies(nn.Module):
     @torch.no_grad()
     def set_armature(self, values: torch.Tensor | np.ndarray, floor: float = 1e-9) -> None:
         """Set each joint's armature (clipped at ``floor``: a softplus never reaches 0)."""
-        x = torch.as_tensor(values, dtype=torch.float64).clamp_min(floor)
-        self.raw_armature.copy_(x + torch.log(-torch.expm1(-x)))
+        self.raw_armature.copy_(inv_softplus(torch.as_tensor(values, dtype=torch.float64).clamp_min(floor)))
 
     def state(self, q: torch.Tensor) -> tuple[MJCFSystem, TreeState]:
         """The system with the current parameters and its tree state at q (..., n), reused while neither q nor a

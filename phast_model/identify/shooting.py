@@ -526,6 +526,11 @@ class Heartbeat:
     every: float = 20.0
     last: float = field(default_factory=time.monotonic)
 
+    def mark(self, text: str) -> None:
+        """A line now, at a stage's start, and the next one owed ``every`` seconds later."""
+        self.say(text)
+        self.last = time.monotonic()
+
     def due(self) -> bool:
         now = time.monotonic()
         if now - self.last < self.every:

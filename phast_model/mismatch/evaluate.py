@@ -9,7 +9,6 @@ friction-law selection and the weak-form parameter check (:mod:`.friction`).
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 from typing import Any
 
@@ -95,8 +94,7 @@ class _Linearization:
 def _say(heartbeat: Heartbeat | None, text: str) -> None:
     """A progress line at a stage's start (the held-out scoring of a UR10e takes minutes)."""
     if heartbeat is not None:
-        heartbeat.say(text)
-        heartbeat.last = time.monotonic()
+        heartbeat.mark(text)
 
 
 def _initial_states(models: dict[str, System], rec: Recordings, K: int, sigma: np.ndarray, x_scale: np.ndarray,

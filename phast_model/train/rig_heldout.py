@@ -105,13 +105,18 @@ def forecast_rollouts(model: ForecastModel, w: HeldoutWindows) -> torch.Tensor:
     return torch.cat([w.q[:, : w.burn], pred], 1)
 
 
+def nominal_source(sim: str) -> str:
+    """How :func:`nominal_entries` scores the nominal rig: ``"mujoco"`` (a model file) or ``"phast_known"``."""
+    return "mujoco" if is_model_file(sim) else "phast_known"
+
+
 def nominal_entries(nominal: PHAST, sim: str, compare: Mapping[str, System] | None
                     ) -> tuple[dict[str, PHAST], Mapping[str, System] | None]:
     """The nominal rig's entry for :func:`heldout_rollouts`, as (PHAST models, compared systems): the rig as a KNOWN
     PHAST model, or, for a MuJoCo model file, the file as MuJoCo simulates it (what the file means: on a geared arm
     whose file leaves out the motors the recorded torques spin the light links up, and a 10-ms step of PHAST's
     integrator overflows where MuJoCo's own step does not; the UR10e's nominal score was inf)."""
-    if not is_model_file(sim):
+    if nominal_source(sim) == "phast_known":
         return {"nominal": nominal}, compare
     from ..identify.mujoco_sim import mujoco_simulated
 

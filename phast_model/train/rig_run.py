@@ -23,7 +23,6 @@ from phast_gym.systems import System
 
 from ..identify.recordings import Recordings
 from ..identify.signals import estimate_noise
-from ..identify.simulators import is_model_file
 from ..train.runs import HISTORY_FILE, METRICS_FILE
 from .rig_fit import (
     BURN_IN_S,
@@ -37,7 +36,7 @@ from .rig_fit import (
     rig_config,
     window_rmse,
 )
-from .rig_heldout import heldout_rollouts, heldout_windows, nominal_entries
+from .rig_heldout import heldout_rollouts, heldout_windows, nominal_entries, nominal_source
 
 
 @dataclass(frozen=True)
@@ -180,7 +179,7 @@ def _metrics(spec: RecordingsSpec, data: RigData, fit: RigFit, scores: dict[str,
         "holdout_trajectories": list(data.holdout),
         "dt": data.train.dt, "train_trajectories": int(data.train.n_traj), "train_samples": int(data.train.T),
         "heldout": {**scores, **ratios},
-        "nominal_simulated_by": "mujoco" if is_model_file(spec.sim) else "phast_known",
+        "nominal_simulated_by": nominal_source(spec.sim),
         "friction": None if friction is None else {k: v.detach().tolist() for k, v in friction.coefficients().items()},
         "train_wall_time_s": fit.wall_time_s, "best_val_rmse": fit.best_val, "best_epoch": fit.best_epoch,
         "epochs_run": len(fit.history), "stopped_early": fit.stopped_early, "nan_skipped": fit.nan_skipped,
