@@ -466,10 +466,17 @@ def _sandwich(Hinv: np.ndarray, scores: np.ndarray) -> np.ndarray:
 
 
 def _widened(cov: np.ndarray, var: np.ndarray) -> np.ndarray:
-    """``cov`` with each parameter's variance raised to ``var`` where that is larger (correlations kept)."""
-    d = np.diag(cov)
-    scale = np.sqrt(np.maximum(var, d) / np.maximum(d, 1e-300))
-    return cov * np.outer(scale, scale)
+    """``cov`` with each parameter's variance raised to ``var`` where that is larger (correlations kept). Variances
+    that round-off in a near-singular inverse left at or below zero count as zero: such a parameter takes ``var``
+    (clipped at zero) with no correlations."""
+    d = np.clip(np.diag(cov), 0.0, None)
+    target = np.maximum(np.clip(var, 0.0, None), d)
+    ok = d > 0
+    scale = np.where(ok, np.sqrt(target / np.where(ok, d, 1.0)), 0.0)
+    out = cov * np.outer(scale, scale)
+    flat = np.flatnonzero(~ok)
+    out[flat, flat] = target[flat]
+    return out
 
 
 def _perturbed(build: Callable[[np.ndarray], System], g: np.ndarray, g_step: float) -> list[System]:

@@ -190,3 +190,18 @@ def test_a_long_fit_says_where_it_is():
     loud = sh.fit(fam.build, X, g, max_iter=3)
     assert said and all("of at most 3" in m and "chi2/dof" in m and "s left)" in m for m in said)
     assert loud.cost == quiet.cost and np.array_equal(loud.g, quiet.g)
+
+
+def test_widened_covariance_stays_a_covariance_where_the_inverse_rounds_below_zero() -> None:
+    """A near-singular inverse can leave a variance at -1e-20: the widened covariance is finite with non-negative
+    variances, each at least the sandwich's, and the well-conditioned block keeps its correlation."""
+    from phast_model.identify.shooting import _widened
+
+    cov = np.array([[4.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, -1e-20]])
+    out = _widened(cov, np.array([1.0, 9.0, 2.5e-3]))
+    assert np.all(np.isfinite(out))
+    np.testing.assert_allclose(np.diag(out), [4.0, 9.0, 2.5e-3])
+    np.testing.assert_allclose(out[0, 1] / np.sqrt(out[0, 0] * out[1, 1]), 0.5)
+    assert out[2, 0] == out[2, 1] == 0.0
+    out = _widened(cov, np.array([1.0, 1.0, -1e-22]))  # both at round-off: zero, not NaN
+    assert out[2, 2] == 0.0
