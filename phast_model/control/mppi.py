@@ -14,10 +14,11 @@ The cost of a state (q, p), per planning step: ``angle_weight * sum(1 - cos(q_a 
 that leaves the model's region (a Euclidean coordinate beyond ``x_max``, a non-finite state) costs ``1e6``.
 
 Real time: one rollout of the whole horizon costs ``H`` core steps whatever the batch (the core's small ops are
-dispatch-bound on a CPU: about 1 ms per step for a pendulum, 2 ms for a cart-pole, at 256 samples), more than one
-plant step of 10 ms allows.  :meth:`MPPI.cycle` is therefore a generator that yields every few core steps: the
-deployed controller (:class:`phast_model.rl.planner.PlannerPolicy`) advances it by one slice per plant step and plans
-the next decision from the state the model predicts for it, so no plant step waits for a whole plan.
+dispatch-bound on a CPU: about 2 ms per step for a pendulum, 5 ms for a cart-pole at 256 samples eager, 1 ms each
+traced: :mod:`.traced`, the default), more than one plant step of 10 ms allows.  :meth:`MPPI.cycle` is therefore a
+generator that yields every few core steps: the deployed controller (:class:`phast_model.rl.planner.PlannerPolicy`)
+advances it by one slice per plant step and plans the next decision from the state the model predicts for it, so no
+plant step waits for a whole plan.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ import numpy as np
 import torch
 
 from ..world.model import PHAST
+from .traced import Traced
 
 #: the cost of a rollout that leaves the model's region
 LEAVE_COST = 1e6
@@ -39,7 +41,8 @@ LEAVE_COST = 1e6
 class MPPISpec:
     """The planner: sampled sequences, horizon (s), planning step (a multiple of the model's step), input noise (a
     fraction of the bound), temperature (a fraction of the cost spread), the cost's weights (module docstring), the
-    Euclidean region ``x_max`` (m) and the plan's smoothing (the noise's correlation between neighbouring steps)."""
+    Euclidean region ``x_max`` (m), the plan's smoothing (the noise's correlation between neighbouring steps) and
+    whether the rollout step runs traced (:mod:`.traced`)."""
 
     samples: int = 256
     horizon_s: float = 1.5
@@ -53,6 +56,7 @@ class MPPISpec:
     terminal_weight: float = 5.0
     x_max: float = 10.0
     smoothing: float = 0.5
+    traced: bool = True  # the rollout step traced once per shape (:mod:`.traced`): same numbers, 2-5x less time
 
     def __post_init__(self) -> None:
         for k in ("samples", "plan_every"):
@@ -105,6 +109,11 @@ class MPPI:
         self.q_star = torch.as_tensor(np.asarray(q_star, dtype=np.float64).reshape(self.n), dtype=self._dtype)
         self._gen = torch.Generator().manual_seed(int(seed))
         self.plan = torch.zeros(self.horizon, self.m, dtype=self._dtype)
+        self._rollout_step = Traced(model, self._step_and_cost, spec.traced)
+        self._step = Traced(model, self.step, spec.traced)
+        z = torch.zeros(spec.samples, self.n, dtype=self._dtype)
+        self._rollout_step.warm(z, z, torch.zeros(spec.samples, self.m, dtype=self._dtype))
+        self._step.warm(z[:1], z[:1], torch.zeros(1, self.m, dtype=self._dtype))
 
     def reset(self) -> None:
         """Forget the plan (a new episode)."""
@@ -126,8 +135,14 @@ class MPPI:
         """The state (2n,) one planning step after ``x`` under the input ``u`` (m,), by the model."""
         t = torch.as_tensor(np.asarray(x, dtype=np.float64), dtype=self._dtype)[None]
         ut = torch.as_tensor(np.asarray(u, dtype=np.float64), dtype=self._dtype)[None]
-        q, p = self.step(t[:, : self.n], t[:, self.n:], ut)
+        q, p = self._step(t[:, : self.n], t[:, self.n:], ut)
         return torch.cat([q, p], -1)[0].double().numpy()
+
+    def _step_and_cost(self, q: torch.Tensor, p: torch.Tensor,
+                       u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """One planning step of the rollouts and its stage cost (the unit :meth:`cycle` repeats)."""
+        q, p = self.step(q, p, u)
+        return q, p, self.cost(q, p, u)
 
     def cost(self, q: torch.Tensor, p: torch.Tensor, u: torch.Tensor | None) -> torch.Tensor:
         """The stage cost (B,) of states (B, n) and inputs (B, m) (module docstring)."""
@@ -162,8 +177,8 @@ class MPPI:
         total = torch.zeros(s.samples, dtype=self._dtype)
         slices = max(1, int(slices))
         for h in range(self.horizon):
-            q, p = self.step(q, p, u[:, h])
-            total = total + self.cost(q, p, u[:, h])
+            q, p, c = self._rollout_step(q, p, u[:, h].contiguous())
+            total = total + c
             if h + 1 < self.horizon and (h + 1) * slices // self.horizon > h * slices // self.horizon:
                 yield  # the steps spread evenly over the slices
         total = total + s.terminal_weight * self.cost(q, p, None)

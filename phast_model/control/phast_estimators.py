@@ -23,6 +23,8 @@ import torch
 from phast_gym.control.estimators import PortEstimator, ProcessModel, UKFEstimator
 from phast_gym.systems.base import System
 
+from .traced import Traced
+
 if TYPE_CHECKING:
     from ..world.model import PHAST
 
@@ -99,10 +101,11 @@ class PHASTProcess(ProcessModel):
     One control interval ``dt`` is ``k`` Strang substeps of the learned core (Eq. 78) with the learned
     substep rescaled to ``dt`` (so a learned time-scale correction carries over), ``k`` chosen so the
     substep is no longer than the one the run was trained with.  The port input enters through the
-    run's G (``PHAST.port_force``).  All sigma points go through the network in one batch.
+    run's G (``PHAST.port_force``).  All sigma points go through the network in one batch, traced once per batch
+    shape (:mod:`.traced`; ``traced=False``: eager).
     """
 
-    def __init__(self, model: PHAST, dt: float) -> None:
+    def __init__(self, model: PHAST, dt: float, traced: bool = True) -> None:
         from ..world.core import PHASTCore
 
         if not isinstance(getattr(model, "core", None), PHASTCore):
@@ -114,15 +117,23 @@ class PHASTProcess(ProcessModel):
         self.substeps = max(1, math.ceil(core.substeps * ratio - 1e-9))
         self._h_scale = ratio * core.substeps / self.substeps
         self._dtype = next(model.parameters()).dtype
+        self._step = Traced(model, self._interval, traced)
+        sigma_points = 4 * self.n + 1  # the UKF's on a (q, p) state
+        self._step.warm(torch.zeros(sigma_points, 2 * self.n, dtype=self._dtype),
+                        torch.zeros(sigma_points, self.n, dtype=self._dtype))
+
+    def _interval(self, x: torch.Tensor, u: torch.Tensor) -> tuple[torch.Tensor]:
+        """The states (B, 2n) one control interval on under the inputs (B, m)."""
+        n, core = self.n, self.model.core
+        q, p = core.strang_step(x[:, :n], x[:, n:], self.model.port_force(u), h=core.h * self._h_scale,
+                                substeps=self.substeps)
+        return (torch.cat([q, p], -1),)
 
     @torch.no_grad()
     def propagate(self, X: np.ndarray, u: np.ndarray) -> np.ndarray:
-        n, core = self.n, self.model.core
         x = torch.as_tensor(np.asarray(X, dtype=np.float64), dtype=self._dtype)
-        ut = torch.as_tensor(np.asarray(u, dtype=np.float64), dtype=self._dtype).expand(x.shape[0], -1)
-        q, p = core.strang_step(x[:, :n], x[:, n:], self.model.port_force(ut), h=core.h * self._h_scale,
-                                substeps=self.substeps)
-        return torch.cat([q, p], -1).double().numpy()
+        ut = torch.as_tensor(np.asarray(u, dtype=np.float64), dtype=self._dtype).expand(x.shape[0], -1).contiguous()
+        return self._step(x, ut)[0].double().numpy()
 
     @torch.no_grad()
     def velocity(self, x: np.ndarray) -> np.ndarray:

@@ -54,7 +54,8 @@ class HoldConfig:
     momentum process noise (per sqrt(s); Energy-Casimir keeps the UKF's default 0.01), with ``lqr_ukf_p_per_inertia``
     per unit of the smallest diagonal entry of the learned mass at the target (the momenta of a lighter pole are
     smaller: 0.03 at the 1-kg pole at 1 m, 0.0054 at PILCO's 0.5 kg at 0.6 m); the handoff region (angles and angular
-    rates only)."""
+    rates only); whether the UKF steps the learned core traced (:mod:`phast_model.control.traced`: the same numbers
+    in less time)."""
 
     enabled: bool = True
     kind: str = "auto"
@@ -70,6 +71,7 @@ class HoldConfig:
     lqr_rate: float = 0.0
     lqr_ukf_p_std: float = 0.03
     lqr_ukf_p_per_inertia: bool = False
+    traced: bool = True
 
     def __post_init__(self) -> None:
         if self.kind not in HOLD_KINDS:
@@ -177,7 +179,7 @@ def make_energy_casimir_hold(model: PHAST, q_star: np.ndarray, dt: float, sigma:
     system = learned_system(model, dt)
     slope = system.level_at(q_star)
     gains = replace(hold_gains(system, q_star, cfg), slope_removed=tuple(float(v) for v in slope))
-    est = UKFEstimator(system, dt, sigma=sigma, process=PHASTProcess(model, dt))
+    est = UKFEstimator(system, dt, sigma=sigma, process=PHASTProcess(model, dt, cfg.traced))
     ctrl = EnergyCasimirController(est, q_star=q_star, k_c=gains.k_c, d_inj=gains.d_inj, k_xi=cfg.k_xi, dt=dt,
                                    max_action=max_action, system=system, xi_feedback=cfg.xi_feedback)
     return ctrl, gains
@@ -232,7 +234,7 @@ class LQRHold:
         p_std = cfg.lqr_ukf_p_std
         if cfg.lqr_ukf_p_per_inertia:
             p_std *= float(np.diag(np.array(self.system.mass_matrix(list(self.q_star)))).min())
-        self.estimator = UKFEstimator(self.system, dt, sigma=sigma, process=PHASTProcess(model, dt),
+        self.estimator = UKFEstimator(self.system, dt, sigma=sigma, process=PHASTProcess(model, dt, cfg.traced),
                                       process_std=(1e-5, p_std))
         self.q_ref = self.q_star.copy()
         self.y_hat = np.zeros(n)
