@@ -17,7 +17,9 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import shlex
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -39,12 +41,12 @@ CASES: dict[str, tuple[str, dict[str, Any], float, float, list[str]]] = {
 }
 
 
-def run_args(case: str, seed: int, out: Path, budget: float | None) -> list[str]:
-    """The phast-rl command line of one run (``budget`` None: the case's)."""
+def run_args(case: str, seed: int, out: Path, budget: float | None, more: Sequence[str] = ()) -> list[str]:
+    """The phast-rl command line of one run (``budget`` None: the case's; ``more``: options added to the case's)."""
     env, kw, max_action, default_budget, extra = CASES[case]
     return ["--agent", "mpc", "--env", env, "--env-kwargs", json.dumps(kw), "--max-action", str(max_action),
             "--task", "swingup", "--budget-s", str(default_budget if budget is None else budget), "--seed", str(seed),
-            "--out", str(out), "--no-progress", *(x.replace("SEED", str(seed)) for x in extra)]
+            "--out", str(out), "--no-progress", *(x.replace("SEED", str(seed)) for x in extra), *more]
 
 
 def lqg_floor(case: str) -> float:
@@ -99,6 +101,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     ap.add_argument("--budget-s", type=float, default=None, help="plant seconds (default: the case's target)")
     ap.add_argument("--out", default="docs/control_results/rl_mpc")
+    ap.add_argument("--more", default="", help="phast-rl options added to the case's, e.g. '--hold lqr' (a variant: "
+                                               "give --tag too)")
+    ap.add_argument("--tag", default=None, help="the runs' name in OUT (default: the case, with _b<budget>)")
     args = ap.parse_args(argv)
     root = Path(args.out)
     if args.table:
@@ -108,11 +113,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.case is None:
         ap.error("--case is required (or --table)")
     runs: dict[int, dict[str, Any]] = {}
-    tag = args.case if args.budget_s is None else f"{args.case}_b{args.budget_s:g}"
+    tag = args.tag or (args.case if args.budget_s is None else f"{args.case}_b{args.budget_s:g}")
     for seed in args.seeds:
         out = root / f"{tag}_s{seed}"
         t0 = time.perf_counter()
-        rc = phast_rl(run_args(args.case, seed, out, args.budget_s))
+        rc = phast_rl(run_args(args.case, seed, out, args.budget_s, shlex.split(args.more)))
         if rc != 0:
             print(f"{tag} seed {seed}: phast-rl exited {rc}")
             return rc
