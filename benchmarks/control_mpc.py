@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import re
 import shlex
 import time
 from collections.abc import Sequence
@@ -98,7 +99,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--table", action="store_true", help="print the markdown rows of OUT/*_summary.json and exit")
     ap.add_argument("--case", choices=sorted(CASES))
-    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
+    ap.add_argument("--seeds", type=int, nargs="*", default=[0, 1, 2, 3, 4],
+                    help="seeds to run (none: only summarize the case's runs already in OUT)")
     ap.add_argument("--budget-s", type=float, default=None, help="plant seconds (default: the case's target)")
     ap.add_argument("--out", default="docs/control_results/rl_mpc")
     ap.add_argument("--more", default="", help="phast-rl options added to the case's, e.g. '--hold lqr' (a variant: "
@@ -124,7 +126,9 @@ def main(argv: list[str] | None = None) -> int:
         runs[seed] = json.loads((out / "summary.json").read_text())
         print(f"{tag} seed {seed}: done in {time.perf_counter() - t0:.0f} s", flush=True)
     for path in sorted(root.glob(f"{tag}_s*/summary.json")):  # with the seeds run before into the same OUT
-        runs.setdefault(int(path.parent.name.rsplit("_s", 1)[1]), json.loads(path.read_text()))
+        seed_dir = re.fullmatch(rf"{re.escape(tag)}_s(\d+)", path.parent.name)  # not pendulum_sim11_s0 for pendulum
+        if seed_dir:
+            runs.setdefault(int(seed_dir.group(1)), json.loads(path.read_text()))
     summary = summarize(tag, dict(sorted(runs.items())), lqg_floor(args.case))
     atomic_write_json(root / f"{tag}_summary.json", summary)
     print(json.dumps(summary, indent=1))

@@ -1,12 +1,13 @@
 """``phast-rl``: learn a policy from seconds of plant time (the model-based RL loop of :mod:`phast_model.rl.loop`).
 
-    phast-rl --env PHAST/Pendulum-v0 --task swingup --budget-s 30 --seed 0 --out DIR
+    phast-rl --env PHAST/Pendulum-v0 --task swingup --budget-s 5 --seed 0 --out DIR
 
 writes ``DIR/summary.json`` (``plant_seconds``: all plant time used for learning; ``success``: the quiet criterion,
 ``success_angle_only`` and ``rms_torque`` of the final evaluation on the plant, ``eval_trials`` trials; per-iteration
-success), ``DIR/curves.json`` + ``DIR/curves.png`` (learning curves), ``DIR/policy.zip`` (the agent: ``SAC.load``;
-none with ``--agent mpc``, the planner in the learned model: :mod:`phast_model.rl.planner`) and ``DIR/model/`` (the
-world model: ``phast_model.api.load_run``).  A thin front end over the API; ``--help`` lists the options.
+success), ``DIR/curves.json`` + ``DIR/curves.png`` (learning curves) and ``DIR/model/`` (the world model:
+``phast_model.api.load_run``).  The agent is the planner in the learned model by default (``--agent mpc``:
+:mod:`phast_model.rl.planner`, nothing to train); ``--agent sac`` trains an SB3 agent in the model and writes it to
+``DIR/policy.zip`` (``SAC.load``).  A thin front end over the API; ``--help`` lists the options.
 """
 
 from __future__ import annotations
@@ -53,9 +54,8 @@ def add_excitation_options(ap: argparse.ArgumentParser, d: LoopConfig) -> None:
     """The random-input episodes that start the loop, and how many iterations follow (on a real rig, set the
     amplitude to what it safely takes)."""
     ap.add_argument("--excitation-episodes", type=int, default=None,
-                    help=f"random-input plant episodes first (default: {d.excitation_episodes}, 1 with --agent mpc, "
-                         "none with "
-                         "--recordings)")
+                    help="random-input plant episodes first (default: 1 with --agent mpc, "
+                         f"{d.excitation_episodes} with --agent sac, none with --recordings)")
     ap.add_argument("--excitation-std", type=float, default=d.torque_std,
                     help="std of the excitation's random inputs (N m or N; clipped at --max-action)")
     ap.add_argument("--excitation-hold", type=int, default=d.hold_decisions,
@@ -86,10 +86,10 @@ def add_hold_options(ap: argparse.ArgumentParser) -> None:
 def add_planner_options(ap: argparse.ArgumentParser) -> None:
     """The agent (``--agent``) and the planner's settings (:class:`phast_model.control.mppi.MPPISpec`)."""
     s = MPPISpec()
-    ap.add_argument("--agent", choices=AGENTS, default="sac",
+    ap.add_argument("--agent", choices=AGENTS, default="mpc",
                     help="mpc: MPPI through the learned model every plant interval, no training (its own option "
                          "defaults: phast_model.rl.descriptions.AGENT_PRESETS); sac: an SB3 agent trained in the world "
-                         "model (--algo)")
+                         "model (--algo), written to policy.zip")
     options: tuple[tuple[str, type, str], ...] = (
         ("samples", int, "input sequences sampled per decision"),
         ("horizon_s", float, "planning horizon (s)"),

@@ -43,10 +43,12 @@ PRESETS: dict[str, dict[str, object]] = {
 
 #: agent -> ``phast-rl`` option defaults of that agent, over the plant's (:data:`PRESETS`).  The planner
 #: (``--agent mpc``) needs no long episodes to learn from: one 2.5-s excitation episode and 2.5-s episodes of its own
-#: (PILCO's length; ``excitation_default``: --excitation-episodes without --recordings), and its LQR hold's UKF
-#: takes the momentum noise per unit of the learned mass (a light pole).
+#: (PILCO's length; ``excitation_default``: --excitation-episodes without --recordings); its hold is LQR of the
+#: learned linearisation on every plant (``hold``: on the stand-in machine's 5-s models the Energy-Casimir hold kept a
+#: +-0.12 rad limit cycle where LQR on the same model held within 0.04 rad; docs/control.md), whose UKF takes the
+#: momentum noise per unit of the learned mass (a light pole).
 AGENT_PRESETS: dict[str, dict[str, object]] = {
-    "mpc": {"episode_s": 2.5, "excitation_default": 1, "lqr_ukf_p_per_inertia": True},
+    "mpc": {"episode_s": 2.5, "excitation_default": 1, "hold": "lqr", "lqr_ukf_p_per_inertia": True},
 }
 
 

@@ -212,8 +212,8 @@ def test_cli_tiny_run_writes_the_contract(tmp_path) -> None:
     from stable_baselines3 import SAC
 
     out = tmp_path / "run"
-    r = _cli("--env", "PHAST/Pendulum-v0", "--task", "swingup", "--budget-s", "4", "--seed", "1", "--out", str(out),
-             "--episode-s", "2", "--excitation-episodes", "1", "--agent-steps", "120", "--refit-steps", "60",
+    r = _cli("--agent", "sac", "--env", "PHAST/Pendulum-v0", "--task", "swingup", "--budget-s", "4", "--seed", "1",
+             "--out", str(out), "--episode-s", "2", "--excitation-episodes", "1", "--agent-steps", "120", "--refit-steps", "60",
              "--eval-every", "60", "--fit-epochs", "3", "--refit-epochs", "2", "--eval-trials", "1", "--eval-s", "1",
              "--no-progress")
     assert r.returncode == 0, r.stderr

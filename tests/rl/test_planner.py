@@ -110,8 +110,9 @@ def test_the_loop_runs_the_planner_and_deploy_rebuilds_it(tmp_path) -> None:
 
 
 def test_cli_mpc_defaults_and_the_description_of_the_plant() -> None:
-    """``--agent mpc`` brings its defaults (2.5-s episodes, one excitation episode, none with --recordings); the
-    description of a simulated plant takes its physical --env-kwargs unless --sim-kwargs is given."""
+    """``--agent mpc`` (the default) brings its defaults (2.5-s episodes, one excitation episode, none with
+    --recordings), ``--agent sac`` its own; the description of a simulated plant takes its physical --env-kwargs
+    unless --sim-kwargs is given."""
     from phast_model.cli.rl import config_from_args, parse_args
 
     kw = '{"cart_mass": 0.5, "pole_mass": 0.5, "length": 0.6, "actuated_dofs": [0]}'
@@ -121,7 +122,11 @@ def test_cli_mpc_defaults_and_the_description_of_the_plant() -> None:
     assert cfg.agent_kind == "mpc" and cfg.episode_s == 2.5 and cfg.excitation_episodes == 1
     assert cfg.plant.max_action == 10 and cfg.hold.lqr_ukf_p_per_inertia
     assert cfg.fit.sim_kwargs == {"cart_mass": 0.5, "pole_mass": 0.5, "length": 0.6}
-    _, args = parse_args(["--out", "x", "--sim-kwargs", '{"mass": 1.1}'])
+    _, args = parse_args(["--out", "x"])  # the planner is the default agent
+    cfg = config_from_args(args)
+    assert cfg.agent_kind == "mpc" and cfg.episode_s == 2.5 and cfg.excitation_episodes == 1
+    assert cfg.hold.kind == "lqr"  # the planner's hold on every plant, the pendulum too
+    _, args = parse_args(["--agent", "sac", "--out", "x", "--sim-kwargs", '{"mass": 1.1}'])
     cfg = config_from_args(args)
     assert cfg.agent_kind == "sac" and cfg.episode_s == 5.0 and cfg.excitation_episodes == 2
     assert cfg.fit.sim_kwargs == {"mass": 1.1} and not cfg.hold.lqr_ukf_p_per_inertia

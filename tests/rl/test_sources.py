@@ -149,7 +149,7 @@ def test_recordings_are_cut_to_episodes_and_counted(tmp_path: Path) -> None:
         load_prior(path, Pendulum(), [0], 0.05, 90)
 
 
-FAST = ["--agent-steps", "160", "--refit-steps", "80", "--eval-every", "80", "--fit-epochs", "3", "--refit-epochs", "2",
+FAST = ["--agent", "sac", "--agent-steps", "160", "--refit-steps", "80", "--eval-every", "80", "--fit-epochs", "3", "--refit-epochs", "2",
         "--eval-trials", "1", "--eval-s", "1", "--no-progress"]
 
 

@@ -55,7 +55,8 @@ def test_phast_rl_runs_the_loop_on_a_user_rig(rig: str, tmp_path: Path, capsys: 
 
     torch.set_num_threads(1)
     out = tmp_path / "run"
-    code = rl_main(["--env", f"{rig}:HeavyPendulum", "--budget-s", "4", "--episode-s", "2", "--agent-steps", "160",
+    code = rl_main(["--agent", "sac", "--env", f"{rig}:HeavyPendulum", "--budget-s", "4", "--episode-s", "2",
+                    "--agent-steps", "160",
                     "--refit-steps", "80", "--eval-every", "80", "--fit-epochs", "3", "--refit-epochs", "2",
                     "--eval-trials", "1", "--eval-s", "1", "--out", str(out), "--no-progress"])
     assert code == 0
