@@ -2,7 +2,7 @@
 in the plant's dt on one core).
 
 For each plant: PHAST fitted to one 2.5-s excitation episode (``--epochs``), then ``phast-rl --agent mpc``'s deployed
-controller (MPPI + the learned hold's UKF, :func:`phast_model.rl.planner.planner_policy`) run for ``--steps`` plant
+controller (MPPI + the learned LQR hold and its UKF, :func:`phast_model.rl.planner.planner_policy`) run for ``--steps`` plant
 steps from hanging, once with the model's steps traced (:mod:`phast_model.control.traced`) and once eager, on the
 same plant seed.  Prints mean / p99 / max ms per step and the eager / traced ratio; ``--out`` writes the JSON.
 
@@ -49,8 +49,9 @@ def controller_ms(plant_name: str, steps: int, epochs: int) -> dict[str, dict[st
     q_star = cfg.task.target(plant.system)
     out = {}
     for name, traced in (("traced", True), ("eager", False)):
-        policy, _ = planner_policy(model, replace(MPPISpec(), traced=traced), q_star, cfg.plant,
-                                   replace(HoldConfig(), traced=traced), list(plant.actuated_dofs))
+        hold = HoldConfig(kind="lqr", lqr_ukf_p_per_inertia=True, traced=traced)  # phast-rl's planner preset
+        policy, _ = planner_policy(model, replace(MPPISpec(), traced=traced), q_star, cfg.plant, hold,
+                                   list(plant.actuated_dofs))
         q, _ = plant.reset(seed=1, options={"state": np.zeros(2 * plant.n)})
         policy.reset(q)
         t = np.empty(steps)

@@ -1,7 +1,7 @@
 """A pendulum bench behind a step function: the shape of a driver ``phast-rl --machine`` drives.
 
     phast-rl --machine examples/machines/pendulum_bench.py:make --env PHAST/Pendulum-v0 \
-        --task swingup --budget-s 30 --out runs/bench
+        --task swingup --budget-s 10 --out runs/bench
 
 The loop sees only what a driver gives: ``dt``, ``reset() -> q`` and ``step(u) -> q`` (encoder angles, inputs in
 N m).  Nothing sets the state and nothing reads a velocity.  This stand-in hides a simulated pendulum whose physics
