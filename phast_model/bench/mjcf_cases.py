@@ -14,6 +14,8 @@ recordings (q with Gaussian noise, u, dt) and the NOMINAL file; the last 25% of 
 * ``arm3_cad``: the same arm, every non-zero body mass / centre of mass / principal inertia 3-8% off its file
   value (random signs); nothing else.
 * ``weak_motor``: the same arm, the shoulder motor's gear 0.85 instead of 1.
+* ``arm2_drives``: a 2-joint planar arm (shoulder, elbow), 2 motors; hidden: rotor inertia on both joints,
+  shoulder frictionloss, elbow damping.
 * ``arm6_mixed``: the 6-joint arm with the drives of ``arm6_drives`` and every body value 3-8% off at once (a
   vendor's file against the machine: motors left out, CAD values off); the drives are the rows to find.
 * ``cartpole``: a cart on a rail with a hanging pole, force on the cart; hidden: pole-hinge damping and cart
@@ -216,6 +218,15 @@ CASES: dict[str, Case] = {c.name: c for c in [
                             Hidden("joint", "shoulder", "frictionloss", 0.08, "coulomb_friction"),
                             Hidden("joint", "elbow", "frictionloss", 0.04, "coulomb_friction"),
                             Hidden("joint", "yaw", "damping", 0.03, "viscous_damping")], gravity_comp=True, **ARM_SIZE),
+    Case("arm2_drives", "arm2.xml", "effect", "2-joint planar arm; hidden: rotor inertia on both joints (the "
+         "shoulder's is one number with the upper arm's inertia about its axis), frictionloss on the shoulder, "
+         "damping on the elbow", {j: ARM_TARGETS[j] for j in ("shoulder", "elbow")},
+         {j: ARM_BANDWIDTH[j] for j in ("shoulder", "elbow")},
+         lambda spec, rng: [Hidden("joint", "shoulder", "armature", 0.01, "armature"),
+                            Hidden("joint", "elbow", "armature", 0.005, "armature"),
+                            Hidden("joint", "shoulder", "frictionloss", 0.06, "coulomb_friction"),
+                            Hidden("joint", "elbow", "damping", 0.02, "viscous_damping")], gravity_comp=True,
+         **ARM_SIZE),
     Case("arm6_drives", "arm6.xml", "effect", "6-joint spatial arm; hidden: rotor inertia on five joints, "
          "frictionloss on three, damping on two", ARM6_TARGETS, ARM6_BANDWIDTH, _drives6, gravity_comp=True,
          computed_torque=True, n_traj=16, T=400),

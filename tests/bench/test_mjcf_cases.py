@@ -16,8 +16,8 @@ CASE_NAMES = list(CASES)
 
 
 def test_the_cases_are_there():
-    assert CASE_NAMES == ["furuta", "arm3", "arm3_cad", "weak_motor", "arm3_drives", "arm6_drives", "arm6_mixed",
-                          "cartpole", "arm7_drives"]
+    assert CASE_NAMES == ["furuta", "arm3", "arm3_cad", "weak_motor", "arm3_drives", "arm2_drives", "arm6_drives",
+                          "arm6_mixed", "cartpole", "arm7_drives"]
     assert all(mc.nominal_path(c).is_file() for c in CASES.values())
     with pytest.raises(ValueError, match="cases"):  # a case without its models folder says where to get one
         mc.nominal_path(mc.CASES["furuta"])
