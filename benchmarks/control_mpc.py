@@ -4,6 +4,9 @@ settings, --max-action and the plant-time budget; the rest are defaults).
 
     taskset -c 1 python benchmarks/control_mpc.py --case pendulum --seeds 0 1 2 3 4
     taskset -c 1 python benchmarks/control_mpc.py --case pilco --seeds 0 1 2 3 4
+    python benchmarks/control_mpc.py --case pilco --budget-s 2.5        # a case at another plant-time budget
+    python benchmarks/control_mpc.py --case machine --more '--hold auto' --tag machine_ec   # a variant of a case
+    python benchmarks/control_mpc.py --case pilco --seeds               # only summarize the runs already in OUT
     python benchmarks/control_mpc.py --table     # the rows of docs/control.md from the summaries
 
 Each run writes its phast-rl outputs to ``OUT/<case>_s<seed>/`` (default OUT: docs/control_results/rl_mpc); the case's
