@@ -28,6 +28,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--n-traj", type=int, default=None, help="override every case's number of trajectories")
     ap.add_argument("--T", type=int, default=None, help="override every case's samples per trajectory")
     ap.add_argument("--progress", action="store_true", help="the tool's progress lines")
+    ap.add_argument("--threads", type=int, default=1, help="MuJoCo threads for the rollouts (default 1)")
     args = ap.parse_args(argv)
     bad = sorted(set(args.cases or []) - set(CASES))
     if bad:
@@ -40,7 +41,8 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for name in args.cases or list(CASES):
         print(f"[{name}] recording and analysing ...", file=sys.stderr, flush=True)
-        rows.append(run_case(CASES[name], case_seed(args.seed, name), out, args.progress, args.n_traj, args.T))
+        rows.append(run_case(CASES[name], case_seed(args.seed, name), out, args.progress, args.n_traj, args.T,
+                             args.threads))
         print(f"[{name}] {rows[-1]['wall_s']:.1f} s: {'right' if rows[-1]['passed'] else 'WRONG'}: {rows[-1]['reason']}",
               file=sys.stderr, flush=True)
         if out is not None:  # after every case, so a long run keeps what it has

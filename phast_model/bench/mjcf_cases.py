@@ -563,7 +563,7 @@ def judge(case: Case, hidden: list[Hidden], found: list[FoundTerm], changed: dic
 
 
 def run_case(case: Case, seed: int, out_dir: Path | None = None, progress: bool = False, n_traj: int | None = None,
-             T: int | None = None) -> dict[str, Any]:
+             T: int | None = None, threads: int = 1) -> dict[str, Any]:
     from ..mismatch import analyze
 
     n_traj, T = n_traj or case.n_traj, T or case.T
@@ -582,7 +582,7 @@ def run_case(case: Case, seed: int, out_dir: Path | None = None, progress: bool 
     hold = holdout_indices(n_traj)
     t0, c0 = time.time(), time.process_time()
     rep = analyze(str(nominal_path(case)), {"q": rec["q"], "u": rec["u"], "dt": rec["dt"]}, holdout_trajectories=hold,
-                  progress=progress, rollout_window=case.rollout_window)
+                  progress=progress, rollout_window=case.rollout_window, threads=threads)
     wall, cpu = time.time() - t0, time.process_time() - c0
     found, changed = _rows(rep), _changed(rep)
     fit = {k: {"rollout_rmse": v["rollout_rmse"], "one_step_mse": v["one_step_mse"]} for k, v in rep.fit.items()
@@ -598,7 +598,8 @@ def run_case(case: Case, seed: int, out_dir: Path | None = None, progress: bool 
             "max_abs_q_true": np.max(np.abs(rec["q_true"]), axis=(0, 1)).round(3).tolist(),
             "max_abs_u": np.max(np.abs(rec["u"]), axis=(0, 1)).round(3).tolist(),
             "effect_over_noise_first_100_samples": eff, "found": found, "calibrated_changed": changed, "fit": fit,
-            "record_s": record_s, "wall_s": wall, "cpu_s": cpu, **verdict, "summary": rep.summary}
+            "record_s": record_s, "wall_s": wall, "cpu_s": cpu, "threads": threads,
+            "fit_step": rep.diagnostics.get("mjcf", {}).get("fit_step"), **verdict, "summary": rep.summary}
 
 
 def _hidden_text(r: dict[str, Any]) -> str:

@@ -58,6 +58,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "for more")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument("--threads", type=int, default=1,
+                   help="native MuJoCo threads for a model file's rollouts (default 1; the answer does not depend on "
+                        "it)")
     return p
 
 
@@ -92,6 +95,8 @@ def check_args(args: argparse.Namespace) -> None:
                          f"{args.smoothing_window}")
     if args.rollout_window is not None and not (math.isfinite(args.rollout_window) and args.rollout_window > 0):
         raise ValueError(f"--rollout-window must be a positive number of seconds, got {args.rollout_window}")
+    if args.threads < 1:
+        raise ValueError(f"--threads must be at least 1, got {args.threads}")
     if not (math.isfinite(args.systematic_chi2) and args.systematic_chi2 > 0):
         raise ValueError(f"--systematic-chi2 must be a positive number, got {args.systematic_chi2}")
 
@@ -170,7 +175,7 @@ def main(argv: list[str] | None = None) -> int:
         opts = Options().with_(threshold=args.threshold, max_terms=args.max_terms, shoot_window=args.shoot_window,
                                smoothing_window=args.smoothing_window, progress=not args.quiet,
                                rollout_window=args.rollout_window,
-                               systematic_chi2=args.systematic_chi2,
+                               systematic_chi2=args.systematic_chi2, threads=args.threads,
                                free=tuple(x.strip() for x in args.free.split(",") if x.strip()))
         recordings = checked_recordings(args.sim, args.recordings, kwargs)
         report = analyze(args.sim, recordings, sim_kwargs=kwargs, holdout_fraction=args.holdout_fraction, options=opts,

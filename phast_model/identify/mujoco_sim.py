@@ -4,11 +4,18 @@ Used to record bench "reality" from a model file and to evaluate a written ``cal
 it.  ``q`` columns are the model's ``qpos`` (hinge / slide joints), ``ctrl`` columns its actuators; each control is
 held over one recording interval ``dt``, which MuJoCo covers in ``k = ceil(dt / timestep)`` steps (the timestep is
 shortened to ``dt / k`` when it does not divide ``dt``).
+
+Two settings serve the fits (:class:`~phast_model.identify.shooting.Shooter`), never the held-out scores:
+``max_substeps`` caps k at the fits' own RK4 substeps (a 1-ms file step under 10-ms samples: 10 steps an interval
+cut to 2, the same RK4 at the step the fits use on every other simulator), and :func:`engine_threads` spreads a
+batch over MuJoCo's native threads (``mujoco.rollout``'s thread pool).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -18,6 +25,32 @@ if TYPE_CHECKING:
     import mujoco  # untyped to mypy (pyproject.toml): the annotations name MuJoCo's classes for the reader
 
     from phast_gym.systems.mjcf import MJCFSystem
+
+
+#: MuJoCo threads a rollout may use (:func:`engine_threads`); 1: the calling thread alone
+_THREADS = [1]
+#: windows per thread below which a batch runs on the calling thread (the pool's hand-off costs more than it saves)
+MIN_PER_THREAD = 4
+
+
+@contextmanager
+def engine_threads(n: int) -> Iterator[None]:
+    """Within the block, MuJoCo rollouts of at least ``MIN_PER_THREAD * n`` trajectories run on ``n`` native threads
+    (the numbers do not depend on it: every trajectory is integrated on its own)."""
+    if n < 1:
+        raise ValueError(f"threads must be at least 1, got {n}")
+    before = _THREADS[0]
+    _THREADS[0] = int(n)
+    try:
+        yield
+    finally:
+        _THREADS[0] = before
+
+
+def steps_per_interval(dt: float, timestep: float, max_substeps: int | None = None) -> int:
+    """MuJoCo steps per recording interval: ``ceil(dt / timestep)``, at most ``max_substeps`` when given."""
+    k = max(1, int(math.ceil(dt / timestep - 1e-9)))
+    return k if max_substeps is None else max(1, min(k, int(max_substeps)))
 
 
 def load_mjmodel(model: str | Path | mujoco.MjModel) -> mujoco.MjModel:
@@ -31,10 +64,11 @@ def load_mjmodel(model: str | Path | mujoco.MjModel) -> mujoco.MjModel:
 
 
 def rollout_q(model: str | Path | mujoco.MjModel, q0: np.ndarray, v0: np.ndarray, ctrl: np.ndarray | None, dt: float,
-              n_steps: int, timestep: float | None = None) -> np.ndarray:
+              n_steps: int, timestep: float | None = None, max_substeps: int | None = None) -> np.ndarray:
     """Simulate B trajectories with MuJoCo from ``(q0, v0)`` (B, n) for ``n_steps`` intervals of ``dt`` with ``ctrl``
     (B, n_steps, m) held per interval (None: zero) -> q (B, n_steps + 1, n).  ``timestep``: the model's own (default:
-    as compiled; give it when the same model is rolled out again, since the step is set to ``dt / k`` here)."""
+    as compiled; give it when the same model is rolled out again, since the step is set to ``dt / k`` here).
+    ``max_substeps``: at most this many steps per interval (:func:`steps_per_interval`)."""
     import mujoco
     from mujoco import rollout
 
@@ -43,9 +77,11 @@ def rollout_q(model: str | Path | mujoco.MjModel, q0: np.ndarray, v0: np.ndarray
         raise ValueError("rollout_q takes models of hinge and slide joints only (nq == nv)")
     q0, v0 = np.atleast_2d(np.asarray(q0, dtype=float)), np.atleast_2d(np.asarray(v0, dtype=float))
     B = q0.shape[0]
-    k = max(1, int(math.ceil(dt / (timestep or m.opt.timestep) - 1e-9)))
+    k = steps_per_interval(dt, timestep or m.opt.timestep, max_substeps)
     m.opt.timestep = dt / k
-    d = mujoco.MjData(m)
+    threads = _THREADS[0] if B >= MIN_PER_THREAD * _THREADS[0] else 1
+    datas = [mujoco.MjData(m) for _ in range(threads)]
+    d = datas[0]
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
     rest = np.empty(mujoco.mj_stateSize(m, spec))
     mujoco.mj_getState(m, d, rest, spec)  # the model's rest state; FULLPHYSICS lays out time, qpos, qvel, ...
@@ -53,7 +89,8 @@ def rollout_q(model: str | Path | mujoco.MjModel, q0: np.ndarray, v0: np.ndarray
     state0[:, 1: 1 + m.nq], state0[:, 1 + m.nq: 1 + m.nq + m.nv] = q0, v0
     c = np.zeros((B, n_steps, m.nu)) if ctrl is None else np.asarray(ctrl, dtype=float).reshape(B, n_steps, m.nu)
     control = np.repeat(c, k, axis=1)
-    state, _ = rollout.rollout(m, d, state0, control, nstep=n_steps * k)
+    state, _ = rollout.rollout(m, datas if threads > 1 else d, state0, control, nstep=n_steps * k,
+                               persistent_pool=threads > 1)
     q = state[:, k - 1:: k, 1: 1 + m.nq]
     return np.concatenate([q0[:, None, :], q], axis=1)
 
@@ -61,7 +98,7 @@ def rollout_q(model: str | Path | mujoco.MjModel, q0: np.ndarray, v0: np.ndarray
 def mujoco_simulated(path: str | Path) -> MJCFSystem:
     """The model file's :class:`phast_gym.systems.mjcf.MJCFSystem` whose rollouts (:func:`phast_model.identify.shooting.
     simulate_qv`, so initial-state fits and held-out scores alike) are MuJoCo's own: its timestep, integrator and
-    constraint-based frictionloss."""
+    constraint-based frictionloss (at most ``max_substeps`` steps an interval where a fit asks for its own step)."""
     from phast_gym.systems.mjcf import mjcf_system
 
     system = mjcf_system(path)()
@@ -70,10 +107,11 @@ def mujoco_simulated(path: str | Path) -> MJCFSystem:
     timestep = float(model.opt.timestep)
 
     def external_rollout(q0: np.ndarray, v0: np.ndarray, n_steps: int, u: np.ndarray | None,
-                         dt: float | np.ndarray) -> np.ndarray:
+                         dt: float | np.ndarray, max_substeps: int | None = None) -> np.ndarray:
         step = float(np.mean(dt))  # recorded jitter: MuJoCo steps at one rate
         ctrl = None if u is None or not cols else np.broadcast_to(u, (q0.shape[0], n_steps, u.shape[-1]))[..., cols]
-        return rollout_q(model, q0, v0, ctrl, step, n_steps, timestep)
+        return rollout_q(model, q0, v0, ctrl, step, n_steps, timestep, max_substeps)
 
     system.external_rollout = external_rollout  # type: ignore[attr-defined]
+    system.engine_timestep = timestep  # type: ignore[attr-defined]
     return system

@@ -27,6 +27,7 @@ import numpy as np
 
 from phast_gym.systems.base import System
 
+from ..identify.mujoco_sim import engine_threads
 from ..identify.recordings import Recordings, load_raw, validate
 from ..identify.shooting import Heartbeat, odd, time_scale
 from ..identify.simulators import Simulator, load_simulator
@@ -257,16 +258,22 @@ def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mappin
     check_free(opts.free, simulator.numeric_params(sys0))
     comparison = _compared(compare, sys0, simulator.name)
     log(f"{simulator.name}: {rec.n_traj} recordings x {rec.T} samples, dt={rec.dt}")
-    try:  # the input was checked above: anything raised from here on is the tool's own failure
-        problem = prepare(simulator, sys0, train, opts, log)
-        held = replace(held_out(hold, evaluated_on, problem.sigma, problem.x_scale, problem.shoot_window,
-                                problem.smoothing_window, held_out_window(problem, hold)), heartbeat=Heartbeat(log))
-        inputs = _Inputs(simulator, given, dec, train, hold, held, comparison,
-                         tuple(EXPLAINERS if explainers is None else explainers))
-        report = _second_look(problem, inputs, _explain(problem, inputs))
-        return answer_in_model_terms(report, sys0, held, given) if is_model_file_system(sys0) else report
-    except ValueError as exc:
-        raise InternalError(f"internal failure of the analysis: {type(exc).__name__}: {exc}") from exc
+    if opts.threads < 1:
+        raise ValueError(f"threads must be at least 1, got {opts.threads}")
+    with engine_threads(opts.threads):
+        try:  # the input was checked above: anything raised from here on is the tool's own failure
+            problem = prepare(simulator, sys0, train, opts, log)
+            held = replace(held_out(hold, evaluated_on, problem.sigma, problem.x_scale, problem.shoot_window,
+                                    problem.smoothing_window, held_out_window(problem, hold)),
+                           heartbeat=Heartbeat(log))
+            inputs = _Inputs(simulator, given, dec, train, hold, held, comparison,
+                             tuple(EXPLAINERS if explainers is None else explainers))
+            report = _second_look(problem, inputs, _explain(problem, inputs))
+            if not is_model_file_system(sys0):
+                return report
+            return answer_in_model_terms(report, sys0, held, given, problem.shooting.substeps)
+        except ValueError as exc:
+            raise InternalError(f"internal failure of the analysis: {type(exc).__name__}: {exc}") from exc
 
 
 def held_out_window(problem: Problem, hold: Recordings) -> float | None:

@@ -48,6 +48,8 @@ class Options:
     systematic_chi2: float = 3.0
     # parameters the user frees although the simulator declares them known (Param(known=True), e.g. gravity)
     free: tuple[str, ...] = ()
+    # MuJoCo threads for a model file's rollouts (mujoco.rollout's pool; the answer does not depend on it)
+    threads: int = 1
 
     @classmethod
     def flat_names(cls) -> list[str]:

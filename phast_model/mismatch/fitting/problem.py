@@ -115,9 +115,11 @@ class Problem:
         return self.train.n
 
     def shooter(self, windows: Windows) -> Shooter:
-        """A shooter on ``windows`` whose long fits report their progress in the analysis' log."""
+        """A shooter on ``windows`` whose long fits report their progress in the analysis' log, and simulate a model
+        file at the fits' own step (the held-out scores and ``calibrated.xml`` keep the file's)."""
         shooter = Shooter(windows, self.sigma, self.shooting.substeps, self.x_scale)
         shooter.heartbeat = Heartbeat(self.log)
+        shooter.fit_step = True
         return shooter
 
     def q_sample(self) -> np.ndarray:

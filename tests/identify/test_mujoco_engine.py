@@ -1,0 +1,74 @@
+"""MuJoCo as the fits' engine: the fits' own step, native threads, and how far the fits' integration departs from
+the file's (phast_model.identify.mujoco_sim, Shooter.fit_step, mjcf_answer.fit_step_departure)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+mujoco = pytest.importorskip("mujoco")
+
+from phast_model.bench.mjcf_cases import MODELS_DIR  # noqa: E402
+from phast_model.identify.mujoco_sim import (  # noqa: E402
+    engine_threads,
+    mujoco_simulated,
+    rollout_q,
+    steps_per_interval,
+)
+from phast_model.identify.recordings import Recordings  # noqa: E402
+from phast_model.identify.shooting import Shooter, Windows, simulate_qv  # noqa: E402
+
+ARM3 = MODELS_DIR / "arm3.xml"  # RK4 at 1 ms
+
+
+def _batch(B: int, L: int = 30, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    return rng.normal(0, 0.5, (B, 3)), rng.normal(0, 0.5, (B, 3)), rng.normal(0, 0.3, (B, L, 3))
+
+
+def test_steps_per_interval():
+    assert steps_per_interval(0.01, 0.001) == 10
+    assert steps_per_interval(0.01, 0.001, 2) == 2
+    assert steps_per_interval(0.01, 0.003) == 4  # 0.0025 s steps: never longer than the file's
+    assert steps_per_interval(0.01, 0.02, 2) == 1
+    assert steps_per_interval(0.01, 0.001, 0) == 1
+
+
+def test_threads_give_the_same_numbers():
+    q0, v0, u = _batch(40)
+    one = rollout_q(str(ARM3), q0, v0, u, 0.01, 30)
+    with engine_threads(2):
+        two = rollout_q(str(ARM3), q0, v0, u, 0.01, 30)
+    np.testing.assert_array_equal(one, two)  # every trajectory is integrated on its own
+    with pytest.raises(ValueError, match="threads"):
+        with engine_threads(0):
+            pass
+
+
+def test_fit_step_is_the_fits_rk4_step_and_close_to_the_files():
+    system = mujoco_simulated(ARM3)
+    q0, v0, u = _batch(8)
+    file_q = simulate_qv(system, q0, v0, 30, u, 0.01, 2)
+    fit_q = simulate_qv(system, q0, v0, 30, u, 0.01, 2, fit_step=True)
+    direct = rollout_q(str(ARM3), q0, v0, u, 0.01, 30, max_substeps=2)
+    np.testing.assert_array_equal(fit_q, direct)  # MuJoCo's RK4 at dt / 2
+    np.testing.assert_array_equal(file_q, rollout_q(str(ARM3), q0, v0, u, 0.01, 30))  # the file's 1 ms
+    gap = np.max(np.abs(fit_q - file_q))
+    assert 0 < gap < 1e-3  # RK4 at 5 ms against 1 ms over 0.3 s: well under a sensor's noise
+    # asking for more substeps than the file's step needs gives the file's own rollout
+    np.testing.assert_array_equal(simulate_qv(system, q0, v0, 30, u, 0.01, 50, fit_step=True), file_q)
+
+
+def test_shooter_fit_step_only_where_asked():
+    system = mujoco_simulated(ARM3)
+    q0, v0, u = _batch(4, L=20)
+    q = rollout_q(str(ARM3), q0, v0, u, 0.01, 20)
+    rec = Recordings(q=q, u=u, dt=0.01, angle_dims=(0, 1, 2))
+    w = Windows.cut(rec, 21)
+    X = np.concatenate([q0, v0], axis=1)
+    shooter = Shooter(w, np.full(3, 1e-3), 2, np.ones(6))
+    at_file = shooter.residual(system, X)
+    assert np.max(np.abs(at_file)) < 1e-9  # the recordings are the file's own rollouts
+    shooter.fit_step = True
+    at_fit = shooter.residual(system, X)
+    assert 0 < np.max(np.abs(at_fit)) < 1.0  # under the noise of 1e-3 rad
