@@ -41,10 +41,12 @@ def _ladder(K0: int, K_max: int) -> list[int]:
 
 def _fit_states(system: System, rec: Recordings, K: int, sigma: np.ndarray, x_scale: np.ndarray,
                 X0: np.ndarray, heartbeat: Heartbeat | None = None) -> np.ndarray:
-    """Each trajectory's initial (q, qdot) fitted to its first K samples with ``system``."""
+    """Each trajectory's initial (q, qdot) fitted to its first K samples with ``system`` (a model file's MuJoCo at the
+    fits' own step, as the analysis fits: the rollouts scored from these states run at the file's)."""
     sub = int(substeps_for(system, rec.dt))
     shooter = Shooter(Windows.cut(rec.time_slice(0, K), K), sigma, sub, x_scale)
     shooter.heartbeat = heartbeat
+    shooter.fit_step = True
     return shooter.fit(lambda g: system, X0, np.zeros(0), max_iter=15, stats=False).X
 
 
@@ -59,6 +61,7 @@ class _Linearization:
     def at(cls, system: System, rec: Recordings, sigma: np.ndarray, x_scale: np.ndarray,
            X: np.ndarray) -> _Linearization:
         shooter = Shooter(Windows.cut(rec, rec.T), sigma, int(substeps_for(system, rec.dt)), x_scale)
+        shooter.fit_step = True  # a linearization for the fit lengths, not a score
         return cls(shooter.residual_and_jac_X(system, X)[1], rec.n)
 
     def spread(self, fitted: int, over: int) -> np.ndarray:
