@@ -207,6 +207,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-seconds", type=float, default=None, help="the first S seconds of each run")
     p.add_argument("--every", type=int, default=1, help="keep every K-th row (u then holds over K rows: a smoke run)")
     p.add_argument("--rollout-window", type=float, default=1.0, help="held-out open-loop windows [s] (default 1)")
+    p.add_argument("--threads", type=int, default=1, help="MuJoCo threads for the analysis' rollouts (default 1)")
     p.add_argument("--quick", action="store_true", help=f"a smoke run in minutes: {QUICK}")
     p.add_argument("--no-compare", action="store_true",
                    help="do not score the authors' identified model (UR10E_parameters.txt written as MJCF, "
@@ -258,6 +259,7 @@ def analyse(args: argparse.Namespace, data: Path, recordings: Path, holdout: lis
             print(f"[ur10e] the authors' model is not scored: {exc}", file=sys.stderr)
     rc = mismatch(["--sim", str(data / URDF), "--recordings", str(recordings), "--holdout-trajectories",
                    ",".join(str(k) for k in holdout), "--rollout-window", str(args.rollout_window), *compare,
+                   "--threads", str(args.threads),
                    "--out", str(out / "report")])
     wall = time.time() - start
     if rc != 0:

@@ -5,10 +5,11 @@ it.  ``q`` columns are the model's ``qpos`` (hinge / slide joints), ``ctrl`` col
 held over one recording interval ``dt``, which MuJoCo covers in ``k = ceil(dt / timestep)`` steps (the timestep is
 shortened to ``dt / k`` when it does not divide ``dt``).
 
-Two settings serve the fits (:class:`~phast_model.identify.shooting.Shooter`), never the held-out scores:
-``max_substeps`` caps k at the fits' own RK4 substeps (a 1-ms file step under 10-ms samples: 10 steps an interval
-cut to 2, the same RK4 at the step the fits use on every other simulator), and :func:`engine_threads` spreads a
-batch over MuJoCo's native threads (``mujoco.rollout``'s thread pool).
+Two settings serve the fits (:class:`~phast_model.identify.shooting.Shooter`): ``max_substeps`` caps k at the fits'
+own RK4 substeps (a 1-ms RK4 file under 10-ms samples: 10 steps an interval cut to 2, the same RK4 at the step the
+fits use on every other simulator; a file with another integrator keeps its step; the rollouts a held-out score
+compares are always at the file's), and :func:`engine_threads` spreads a batch over MuJoCo's native threads
+(``mujoco.rollout``'s thread pool).
 """
 
 from __future__ import annotations
@@ -98,20 +99,26 @@ def rollout_q(model: str | Path | mujoco.MjModel, q0: np.ndarray, v0: np.ndarray
 def mujoco_simulated(path: str | Path) -> MJCFSystem:
     """The model file's :class:`phast_gym.systems.mjcf.MJCFSystem` whose rollouts (:func:`phast_model.identify.shooting.
     simulate_qv`, so initial-state fits and held-out scores alike) are MuJoCo's own: its timestep, integrator and
-    constraint-based frictionloss (at most ``max_substeps`` steps an interval where a fit asks for its own step)."""
+    constraint-based frictionloss (an RK4 file: at most ``max_substeps`` steps an interval where a fit asks for its own
+    step; any other integrator always at the file's)."""
+    import mujoco
+
     from phast_gym.systems.mjcf import mjcf_system
 
     system = mjcf_system(path)()
     model = load_mjmodel(path)
     cols = list(system.actuated_dofs)
     timestep = float(model.opt.timestep)
+    # a coarser step only for RK4, whose error at the fits' step is O(h^4) (Euler's would grow with h)
+    coarsens = int(model.opt.integrator) == int(mujoco.mjtIntegrator.mjINT_RK4)
 
     def external_rollout(q0: np.ndarray, v0: np.ndarray, n_steps: int, u: np.ndarray | None,
                          dt: float | np.ndarray, max_substeps: int | None = None) -> np.ndarray:
         step = float(np.mean(dt))  # recorded jitter: MuJoCo steps at one rate
         ctrl = None if u is None or not cols else np.broadcast_to(u, (q0.shape[0], n_steps, u.shape[-1]))[..., cols]
-        return rollout_q(model, q0, v0, ctrl, step, n_steps, timestep, max_substeps)
+        return rollout_q(model, q0, v0, ctrl, step, n_steps, timestep, max_substeps if coarsens else None)
 
     system.external_rollout = external_rollout  # type: ignore[attr-defined]
     system.engine_timestep = timestep  # type: ignore[attr-defined]
+    system.engine_coarsens = coarsens  # type: ignore[attr-defined]
     return system

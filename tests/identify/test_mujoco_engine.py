@@ -72,3 +72,12 @@ def test_shooter_fit_step_only_where_asked():
     shooter.fit_step = True
     at_fit = shooter.residual(system, X)
     assert 0 < np.max(np.abs(at_fit)) < 1.0  # under the noise of 1e-3 rad
+
+
+def test_a_file_with_another_integrator_keeps_its_step(tmp_path):
+    euler = tmp_path / "arm3_euler.xml"
+    euler.write_text(ARM3.read_text().replace('integrator="RK4"', 'integrator="Euler"'))
+    system = mujoco_simulated(euler)
+    q0, v0, u = _batch(4)
+    np.testing.assert_array_equal(simulate_qv(system, q0, v0, 30, u, 0.01, 2, fit_step=True),
+                                  simulate_qv(system, q0, v0, 30, u, 0.01, 2))

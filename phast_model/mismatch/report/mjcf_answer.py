@@ -117,7 +117,8 @@ def fit_step_departure(text: str, held: HeldOut, substeps: int) -> dict[str, flo
     system = text_simulated(text)
     rec = held.rec
     file_step = float(system.engine_timestep)  # type: ignore[attr-defined]
-    fit_k, file_k = steps_per_interval(rec.dt, file_step, substeps), steps_per_interval(rec.dt, file_step)
+    file_k = steps_per_interval(rec.dt, file_step)
+    fit_k = steps_per_interval(rec.dt, file_step, substeps) if system.engine_coarsens else file_k  # type: ignore[attr-defined]
     info = {"fit_step_s": rec.dt / fit_k, "file_step_s": rec.dt / file_k}
     if fit_k == file_k:
         return {**info, "rms_over_noise": 0.0, "max_over_noise": 0.0}
