@@ -125,7 +125,7 @@ def run(n: int, n_traj: int, T: int, dt: float, seed: int, out: Path, threads: i
             "stages_cpu_s": {k: round(v, 1) for k, v in clock.seconds.items()},
             "hidden": "frictionloss 0.05 on j2", "found": found,
             "right": [(m["term"], m["joint"]) for m in found] == [("coulomb_friction", "j2")],
-            "fit_step": report.diagnostics.get("mjcf", {}).get("fit_step"),
+            "engine_step": report.diagnostics.get("engine_step"),
             "heldout_rollout_rmse": {k: v["rollout_rmse"] for k, v in f.items()
                                      if isinstance(v, dict) and "rollout_rmse" in v}}
 

@@ -599,7 +599,7 @@ def run_case(case: Case, seed: int, out_dir: Path | None = None, progress: bool 
             "max_abs_u": np.max(np.abs(rec["u"]), axis=(0, 1)).round(3).tolist(),
             "effect_over_noise_first_100_samples": eff, "found": found, "calibrated_changed": changed, "fit": fit,
             "record_s": record_s, "wall_s": wall, "cpu_s": cpu, "threads": threads,
-            "fit_step": rep.diagnostics.get("mjcf", {}).get("fit_step"), **verdict, "summary": rep.summary}
+            "engine_step": rep.diagnostics.get("engine_step"), **verdict, "summary": rep.summary}
 
 
 def _hidden_text(r: dict[str, Any]) -> str:

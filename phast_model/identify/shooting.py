@@ -66,7 +66,7 @@ def _interval_counts(substeps: int | np.ndarray, n_steps: int) -> np.ndarray:
 
 def simulate_qv(system: System, q0: np.ndarray, v0: np.ndarray, n_steps: int, u: np.ndarray | None,
                 dt: float | np.ndarray, substeps: int | np.ndarray, u_before: np.ndarray | None = None,
-                fit_step: bool = False) -> np.ndarray:
+                engine_substeps: int | None = None) -> np.ndarray:
     """Simulate a batch from (q0, qdot0) (B, n) and return measured q (B, n_steps+1, n).
 
     ``dt``: the sampling step (scalar), or the per-sample length of every interval, (B, n_steps) or
@@ -78,8 +78,8 @@ def simulate_qv(system: System, q0: np.ndarray, v0: np.ndarray, n_steps: int, u:
     The model's measurement map (``measure``: sensor terms) is applied to the output.
     A model with delays (``delayed_input`` / ``delayed_output``, :mod:`.delays`) gets u delayed (``u_before``
     (B, P, n): the recorded inputs before the first interval; None: the first one held) and reports q delayed.
-    A model another engine simulates (``external_rollout``: MuJoCo) takes its own step, or with ``fit_step`` no more
-    steps an interval than ``substeps`` (the fits' step; :mod:`.mujoco_sim`).
+    A model another engine simulates (``external_rollout``: MuJoCo) takes its own step, or with ``engine_substeps`` no
+    more steps an interval than that (a fit's coarser step; :mod:`.mujoco_sim`).
     """
     B, n = q0.shape
     delay_in = getattr(system, "delayed_input", None)
@@ -87,7 +87,7 @@ def simulate_qv(system: System, q0: np.ndarray, v0: np.ndarray, n_steps: int, u:
         u = delay_in(u, dt, u_before)
     external = getattr(system, "external_rollout", None)  # a model another simulator runs (MuJoCo: mujoco_sim)
     if external is not None:
-        return external(q0, v0, n_steps, u, dt, int(np.max(substeps))) if fit_step else external(q0, v0, n_steps, u, dt)
+        return external(q0, v0, n_steps, u, dt, engine_substeps) if engine_substeps else external(q0, v0, n_steps, u, dt)
     p0 = momentum(system, q0, v0)
     q = [q0[:, i].copy() for i in range(n)]
     p = [p0[:, i].copy() for i in range(n)]
@@ -562,9 +562,8 @@ class Shooter:
         self._tb_w: Windows | None = None  # windows the cached time base belongs to
         self._tb: tuple = ()
         self.heartbeat: Heartbeat | None = None  # progress lines during long fits
-        #: MuJoCo-simulated systems at the fits' own step (:func:`simulate_qv`'s ``fit_step``), not the file's finer
-        #: one; held-out scores keep the file's
-        self.fit_step = False
+        #: MuJoCo-simulated systems at most this many steps an interval (:func:`simulate_qv`; None: the file's step)
+        self.engine_substeps: int | None = None
 
     def _time_base(self) -> tuple[float | np.ndarray, int | np.ndarray]:
         """(dt, substeps) for simulate_qv: the scalar ones when the windows are uniform, else the recorded
@@ -598,7 +597,7 @@ class Shooter:
             dt = np.tile(dt, (K, 1))
         u = w.u if w.u is None or K == 1 else np.tile(w.u, (K, 1, 1))
         ub = w.u_before if w.u_before is None or K == 1 else np.tile(w.u_before, (K, 1, 1))
-        sim = simulate_qv(system, X[:, :n], X[:, n:], w.length - 1, u, dt, sub, ub, fit_step=self.fit_step)
+        sim = simulate_qv(system, X[:, :n], X[:, n:], w.length - 1, u, dt, sub, ub, engine_substeps=self.engine_substeps)
         sim = sim.reshape((K, -1) + sim.shape[1:])
         if w.stride == 1:
             d = angle_diff(sim, w.q[None], w.angle_dims) / self.sigma

@@ -44,7 +44,7 @@ from .calibrate import (
 from .energy import energy_check
 from .evaluate import FitTable, HeldOut, check_rollout_window, held_out
 from .explainers import Context, Explained, Explainer, ShootingExplainer, explain_in_turn
-from .fitting.problem import Problem, prepare
+from .fitting.problem import Problem, at_file_step, prepare, step_departure
 from .friction.engine_refit import FAR
 from .friction.systematic import WeakFormExplainer, drive_share, drives_trial, parameter_share
 from .locate import locate
@@ -265,15 +265,42 @@ def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mappin
             problem = prepare(simulator, sys0, train, opts, log)
             held = replace(held_out(hold, evaluated_on, problem.sigma, problem.x_scale, problem.shoot_window,
                                     problem.smoothing_window, held_out_window(problem, hold)),
-                           heartbeat=Heartbeat(log))
+                           heartbeat=Heartbeat(log), engine_substeps=problem.shooting.engine_substeps)
             inputs = _Inputs(simulator, given, dec, train, hold, held, comparison,
                              tuple(EXPLAINERS if explainers is None else explainers))
             report = _second_look(problem, inputs, _explain(problem, inputs))
             if not is_model_file_system(sys0):
                 return report
-            return answer_in_model_terms(report, sys0, held, given, problem.shooting.substeps)
+            problem, inputs, report = _checked_step(problem, inputs, report)
+            return answer_in_model_terms(report, sys0, inputs.held, given)
         except ValueError as exc:
             raise InternalError(f"internal failure of the analysis: {type(exc).__name__}: {exc}") from exc
+
+
+#: RMS departure (noise units) of the answer at the fits' coarser MuJoCo step from the file's step above which the
+#: fits are redone at the file's step
+ANSWER_STEP_TOL = 0.2
+
+
+def _checked_step(problem: Problem, inputs: _Inputs, report: Report) -> tuple[Problem, _Inputs, Report]:
+    """A model file's answer from fits at a coarser MuJoCo step (:func:`.fitting.problem.coarse_substeps`), kept when
+    the answer itself, as MuJoCo simulates it, follows the file's step within :data:`ANSWER_STEP_TOL` noise units on
+    the shooting windows; else the analysis again at the file's step (a fitted friction can make a step that held for
+    the nominal model depart).  ``details.engine_step`` says which."""
+    k, s = problem.shooting.engine_substeps, problem.shooting
+    dep = 0.0 if k is None else step_departure(in_mujoco(report.augmented_system()), s.windows, s.X0, s.substeps, k,
+                                                 problem.sigma, problem.x_scale)
+    redo = k is not None and not dep <= ANSWER_STEP_TOL
+    if redo:
+        problem.log(f"the answer at {k} MuJoCo steps a sample departs from the file's step by {dep:.3g} noise units "
+                    "RMS: the fits again at the file's step")
+        problem = at_file_step(problem)
+        inputs = replace(inputs, held=replace(inputs.held, engine_substeps=None))
+        report = _second_look(problem, inputs, _explain(problem, inputs))
+    info = {"fit_steps_per_sample": k, "answer_departure_noise_rms": dep, "redone_at_file_step": redo,
+            "note": "MuJoCo steps a sample in the fits (None: the file's own step); the held-out rollouts and "
+                    "calibrated.xml are at the file's step"}
+    return problem, inputs, replace(report, diagnostics={**report.diagnostics, "engine_step": info})
 
 
 def held_out_window(problem: Problem, hold: Recordings) -> float | None:

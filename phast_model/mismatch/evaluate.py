@@ -40,13 +40,14 @@ def _ladder(K0: int, K_max: int) -> list[int]:
 
 
 def _fit_states(system: System, rec: Recordings, K: int, sigma: np.ndarray, x_scale: np.ndarray,
-                X0: np.ndarray, heartbeat: Heartbeat | None = None) -> np.ndarray:
-    """Each trajectory's initial (q, qdot) fitted to its first K samples with ``system`` (a model file's MuJoCo at the
-    fits' own step, as the analysis fits: the rollouts scored from these states run at the file's)."""
+                X0: np.ndarray, heartbeat: Heartbeat | None = None, engine_substeps: int | None = None) -> np.ndarray:
+    """Each trajectory's initial (q, qdot) fitted to its first K samples with ``system`` (a model file's MuJoCo at
+    ``engine_substeps``, the analysis' coarser step where one holds: the rollouts scored from these states run at the
+    file's)."""
     sub = int(substeps_for(system, rec.dt))
     shooter = Shooter(Windows.cut(rec.time_slice(0, K), K), sigma, sub, x_scale)
     shooter.heartbeat = heartbeat
-    shooter.fit_step = True
+    shooter.engine_substeps = engine_substeps
     return shooter.fit(lambda g: system, X0, np.zeros(0), max_iter=15, stats=False).X
 
 
@@ -59,9 +60,9 @@ class _Linearization:
 
     @classmethod
     def at(cls, system: System, rec: Recordings, sigma: np.ndarray, x_scale: np.ndarray,
-           X: np.ndarray) -> _Linearization:
+           X: np.ndarray, engine_substeps: int | None = None) -> _Linearization:
         shooter = Shooter(Windows.cut(rec, rec.T), sigma, int(substeps_for(system, rec.dt)), x_scale)
-        shooter.fit_step = True  # a linearization for the fit lengths, not a score
+        shooter.engine_substeps = engine_substeps  # a linearization for the fit lengths, not a score
         return cls(shooter.residual_and_jac_X(system, X)[1], rec.n)
 
     def spread(self, fitted: int, over: int) -> np.ndarray:
@@ -101,8 +102,8 @@ def _say(heartbeat: Heartbeat | None, text: str) -> None:
 
 
 def _initial_states(models: dict[str, System], rec: Recordings, K: int, sigma: np.ndarray, x_scale: np.ndarray,
-                    qs: np.ndarray, vs: np.ndarray,
-                    heartbeat: Heartbeat | None = None) -> tuple[dict[str, np.ndarray], np.ndarray]:
+                    qs: np.ndarray, vs: np.ndarray, heartbeat: Heartbeat | None = None,
+                    engine_substeps: int | None = None) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """Every model's initial states of the held-out trajectories, and the samples each was fitted to.
 
     A trajectory whose state fitted to K samples leaves a rollout spread above :data:`MAX_INIT_SPREAD` under any model
@@ -116,12 +117,12 @@ def _initial_states(models: dict[str, System], rec: Recordings, K: int, sigma: n
         _say(heartbeat, f"  held-out: {name}: initial states of {rec.n_traj} windows ({k + 1} of {len(models)})")
         X[name] = _fit_states(s, rec, ladder[0], sigma, x_scale,
                               np.concatenate([getattr(s, "unmeasure", lambda y: y)(qs[:, 0]), vs[:, 0]], axis=1),
-                              heartbeat)
+                              heartbeat, engine_substeps)
     Ks = np.full(rec.n_traj, ladder[0])
     if len(ladder) == 1:
         return X, Ks
     _say(heartbeat, "  held-out: how far each initial state's uncertainty spreads the rollouts")
-    lin = {name: _Linearization.at(s, rec, sigma, x_scale, X[name]) for name, s in models.items()}
+    lin = {name: _Linearization.at(s, rec, sigma, x_scale, X[name], engine_substeps) for name, s in models.items()}
     Ks = np.max([m.needed(ladder) for m in lin.values()], axis=0)
     for name, system in models.items():
         current = np.full(rec.n_traj, ladder[0])
@@ -133,34 +134,36 @@ def _initial_states(models: dict[str, System], rec: Recordings, K: int, sigma: n
             nxt = lin[name].next_lengths(ladder, current, Ks)[todo]
             for k in np.unique(nxt):
                 idx = todo[nxt == k]
-                X[name][idx] = _fit_states(system, rec.subset(idx), int(k), sigma, x_scale, X[name][idx], heartbeat)
+                X[name][idx] = _fit_states(system, rec.subset(idx), int(k), sigma, x_scale, X[name][idx], heartbeat,
+                                           engine_substeps)
                 current[idx] = k
     return X, Ks
 
 
 def evaluate_models(models: dict[str, System], rec: Recordings, sigma: np.ndarray, x_scale: np.ndarray, K: int,
-                    smoothing_window: int, scale: np.ndarray,
-                    heartbeat: Heartbeat | None = None) -> tuple[dict[str, dict[str, float]], dict[str, np.ndarray]]:
+                    smoothing_window: int, scale: np.ndarray, heartbeat: Heartbeat | None = None,
+                    engine_substeps: int | None = None) -> tuple[dict[str, dict[str, float]], dict[str, np.ndarray]]:
     """one_step_mse and rollout_rmse (docs/mismatch.md) of each model on held-out recordings; a system listed under
-    several names (the calibrated model when no parameter changed) is scored once."""
+    several names (the calibrated model when no parameter changed) is scored once.  ``engine_substeps``: MuJoCo's
+    steps an interval in the initial-state fits (None: the file's; the scored rollouts are always at the file's)."""
     first = {id(s): name for name, s in reversed(list(models.items()))}  # each system's first name
     if len(first) < len(models):
         distinct = {name: s for name, s in models.items() if first[id(s)] == name}
-        out, rolls = _evaluate(distinct, rec, sigma, x_scale, K, smoothing_window, scale, heartbeat)
+        out, rolls = _evaluate(distinct, rec, sigma, x_scale, K, smoothing_window, scale, heartbeat, engine_substeps)
         return ({name: out[first[id(s)]] for name, s in models.items()},
                 {name: rolls[first[id(s)]] for name, s in models.items()})
-    return _evaluate(models, rec, sigma, x_scale, K, smoothing_window, scale, heartbeat)
+    return _evaluate(models, rec, sigma, x_scale, K, smoothing_window, scale, heartbeat, engine_substeps)
 
 
 def _evaluate(models: dict[str, System], rec: Recordings, sigma: np.ndarray, x_scale: np.ndarray, K: int,
-              smoothing_window: int, scale: np.ndarray,
-              heartbeat: Heartbeat | None = None) -> tuple[dict[str, dict[str, float]], dict[str, np.ndarray]]:
+              smoothing_window: int, scale: np.ndarray, heartbeat: Heartbeat | None = None,
+              engine_substeps: int | None = None) -> tuple[dict[str, dict[str, float]], dict[str, np.ndarray]]:
     """:func:`evaluate_models` of distinct systems."""
     n, dt = rec.n, rec.dt
     qs, vs = smooth(rec.q, dt, smoothing_window, rec.t)
     out: dict[str, dict[str, float]] = {}
     rollouts: dict[str, np.ndarray] = {}
-    states, _ = _initial_states(models, rec, K, sigma, x_scale, qs, vs, heartbeat)
+    states, _ = _initial_states(models, rec, K, sigma, x_scale, qs, vs, heartbeat, engine_substeps)
     for name, system in models.items():
         _say(heartbeat, f"  held-out: {name}: rollouts and one-step predictions")
         X = states[name]
@@ -242,6 +245,7 @@ class HeldOut:
     mixed: bool
     windowed: bool
     heartbeat: Heartbeat | None = None  # progress lines while the models' initial states are fitted (minutes)
+    engine_substeps: int | None = None  # MuJoCo's steps an interval in the initial-state fits (None: the file's)
 
     def evaluate(self, models: dict[str, System],
                  rec: Recordings | None = None) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
@@ -255,7 +259,7 @@ class HeldOut:
             self.heartbeat.say(f"  held-out: scoring {', '.join(models)}")
         return evaluate_models({k: simulated[id(s)] for k, s in models.items()}, self.rec if rec is None else rec,
                                self.sigma, self.x_scale, self.init_samples, self.smoothing_window, self.scale,
-                               self.heartbeat)
+                               self.heartbeat, self.engine_substeps)
 
     def rollout_rmse(self, system: System, rec: Recordings) -> float:
         return self.evaluate({"m": system}, rec)[0]["m"]["rollout_rmse"]

@@ -108,9 +108,10 @@ def test_end_to_end_furuta_small():
     assert [(f["term"], f["joint"], f["mjcf"]) for f in row["found"]] == [("coulomb_friction", "pendulum", "frictionloss")]
     assert row["passed"], row["reason"]
     assert row["fit"]["calibrated_xml"]["rollout_rmse"] < 0.7 * row["fit"]["calibrated"]["rollout_rmse"]
-    # the fits integrate at their own RK4 step, the file at its finer one: how far apart, said in noise units
-    step = row["fit_step"]
-    assert step["fit_step_s"] > step["file_step_s"] and step["rms_over_noise"] < 0.1
+    # the fits ran MuJoCo at 2 RK4 steps a sample (the file's: 10), and the answer follows the file's step
+    step = row["engine_step"]
+    assert step["fit_steps_per_sample"] == 2 and step["answer_departure_noise_rms"] < 0.2
+    assert not step["redone_at_file_step"]
 
 
 def test_a_cad_model_without_its_drives_gets_them():
@@ -123,3 +124,15 @@ def test_a_cad_model_without_its_drives_gets_them():
                                                                  ("coulomb_friction", "elbow"),
                                                                  ("armature", "shoulder")}
     assert row["fit"]["augmented"]["rollout_rmse"] < 0.3 * row["fit"]["nominal"]["rollout_rmse"]
+
+
+def test_an_answer_that_departs_from_the_files_step_is_fitted_again_at_it(monkeypatch):
+    """The coarser MuJoCo step of the fits is checked on the answer; where the answer departs from the file's step
+    (forced here by a tolerance below zero) the analysis runs again at the file's step and says so."""
+    from phast_model.mismatch import analysis
+
+    monkeypatch.setattr(analysis, "ANSWER_STEP_TOL", -1.0)
+    row = mc.run_case(CASES["furuta"], seed=0, n_traj=8, T=200)
+    assert row["engine_step"]["redone_at_file_step"] and row["engine_step"]["fit_steps_per_sample"] == 2
+    assert [(f["term"], f["joint"]) for f in row["found"]] == [("coulomb_friction", "pendulum")]
+    assert row["passed"], row["reason"]

@@ -1,5 +1,5 @@
 """MuJoCo as the fits' engine: the fits' own step, native threads, and how far the fits' integration departs from
-the file's (phast_model.identify.mujoco_sim, Shooter.fit_step, mjcf_answer.fit_step_departure)."""
+the file's (phast_model.identify.mujoco_sim, Shooter.engine_substeps, mjcf_answer.fit_step_departure)."""
 
 from __future__ import annotations
 
@@ -49,17 +49,17 @@ def test_fit_step_is_the_fits_rk4_step_and_close_to_the_files():
     system = mujoco_simulated(ARM3)
     q0, v0, u = _batch(8)
     file_q = simulate_qv(system, q0, v0, 30, u, 0.01, 2)
-    fit_q = simulate_qv(system, q0, v0, 30, u, 0.01, 2, fit_step=True)
+    fit_q = simulate_qv(system, q0, v0, 30, u, 0.01, 2, engine_substeps=2)
     direct = rollout_q(str(ARM3), q0, v0, u, 0.01, 30, max_substeps=2)
     np.testing.assert_array_equal(fit_q, direct)  # MuJoCo's RK4 at dt / 2
     np.testing.assert_array_equal(file_q, rollout_q(str(ARM3), q0, v0, u, 0.01, 30))  # the file's 1 ms
     gap = np.max(np.abs(fit_q - file_q))
     assert 0 < gap < 1e-3  # RK4 at 5 ms against 1 ms over 0.3 s: well under a sensor's noise
     # asking for more substeps than the file's step needs gives the file's own rollout
-    np.testing.assert_array_equal(simulate_qv(system, q0, v0, 30, u, 0.01, 50, fit_step=True), file_q)
+    np.testing.assert_array_equal(simulate_qv(system, q0, v0, 30, u, 0.01, 2, engine_substeps=50), file_q)
 
 
-def test_shooter_fit_step_only_where_asked():
+def test_shooter_engine_substeps_only_where_asked():
     system = mujoco_simulated(ARM3)
     q0, v0, u = _batch(4, L=20)
     q = rollout_q(str(ARM3), q0, v0, u, 0.01, 20)
@@ -69,7 +69,7 @@ def test_shooter_fit_step_only_where_asked():
     shooter = Shooter(w, np.full(3, 1e-3), 2, np.ones(6))
     at_file = shooter.residual(system, X)
     assert np.max(np.abs(at_file)) < 1e-9  # the recordings are the file's own rollouts
-    shooter.fit_step = True
+    shooter.engine_substeps = 2
     at_fit = shooter.residual(system, X)
     assert 0 < np.max(np.abs(at_fit)) < 1.0  # under the noise of 1e-3 rad
 
@@ -79,5 +79,24 @@ def test_a_file_with_another_integrator_keeps_its_step(tmp_path):
     euler.write_text(ARM3.read_text().replace('integrator="RK4"', 'integrator="Euler"'))
     system = mujoco_simulated(euler)
     q0, v0, u = _batch(4)
-    np.testing.assert_array_equal(simulate_qv(system, q0, v0, 30, u, 0.01, 2, fit_step=True),
+    np.testing.assert_array_equal(simulate_qv(system, q0, v0, 30, u, 0.01, 2, engine_substeps=2),
                                   simulate_qv(system, q0, v0, 30, u, 0.01, 2))
+
+
+def _nominal_problem(path, n_traj: int = 4, T: int = 120):
+    from phast_model.identify.simulators import load_simulator
+    from phast_model.mismatch.fitting.problem import prepare
+    from phast_model.mismatch.options import Options, Progress
+
+    q0, v0, u = _batch(n_traj, L=T - 1, seed=1)
+    q = rollout_q(str(path), q0, v0, u, 0.01, T - 1) + np.random.default_rng(2).normal(0, 1e-3, (n_traj, T, 3))
+    sim = load_simulator(str(path))
+    return prepare(sim, sim.build(), Recordings(q=q, u=u, dt=0.01, angle_dims=(0, 1, 2)), Options(), Progress(False))
+
+
+def test_a_coarser_step_only_where_the_nominal_model_follows_the_files(tmp_path):
+    assert _nominal_problem(ARM3).shooting.engine_substeps == 2
+    for stiffness, steps in ((1000, 8), (10000, None)):  # elbow modes of about 700 and 2200 rad/s
+        stiff = tmp_path / f"arm3_stiff{stiffness}.xml"
+        stiff.write_text(ARM3.read_text().replace('<joint name="elbow"', f'<joint name="elbow" stiffness="{stiffness}"'))
+        assert _nominal_problem(stiff).shooting.engine_substeps == steps

@@ -17,9 +17,7 @@ from phast_gym.systems.base import System
 from phast_gym.systems.mjcf_tree import MJCFTree, ModelFileError
 
 from ...identify.mjcf_write import Edit, calibrated_xml
-from ...identify.mujoco_sim import steps_per_interval
 from ...identify.recordings import Recordings
-from ...identify.shooting import simulate_qv
 from ..evaluate import HeldOut
 from ..rows import TermRow
 from ..vocabulary.registry import VOCABULARY
@@ -109,27 +107,6 @@ def _score_in_mujoco(text: str, held: HeldOut) -> dict[str, float]:
     return table.to_dict()[CALIBRATED_XML_ROW]
 
 
-def fit_step_departure(text: str, held: HeldOut, substeps: int) -> dict[str, float]:
-    """How far the written model as the fits integrate it (MuJoCo at the fits' own step, :class:`~phast_model.identify.
-    shooting.Shooter`'s ``fit_step``) departs from it at the file's own step (what ``calibrated.xml`` means): both
-    rolled out from the held-out windows' first samples under their recorded commands; RMS and largest |dq| over the
-    noise."""
-    system = text_simulated(text)
-    rec = held.rec
-    file_step = float(system.engine_timestep)  # type: ignore[attr-defined]
-    file_k = steps_per_interval(rec.dt, file_step)
-    fit_k = steps_per_interval(rec.dt, file_step, substeps) if system.engine_coarsens else file_k  # type: ignore[attr-defined]
-    info = {"fit_step_s": rec.dt / fit_k, "file_step_s": rec.dt / file_k}
-    if fit_k == file_k:
-        return {**info, "rms_over_noise": 0.0, "max_over_noise": 0.0}
-    q = rec.q
-    v0 = (-3 * q[:, 0] + 4 * q[:, 1] - q[:, 2]) / (2 * rec.dt)  # a plausible start: the comparison needs no fit
-    runs = [simulate_qv(system, q[:, 0], v0, rec.T - 1, rec.u, rec.dt, substeps, fit_step=f) for f in (True, False)]
-    d = (runs[0] - runs[1]) / held.sigma
-    d = np.where(np.isfinite(d), d, np.inf)
-    return {**info, "rms_over_noise": float(np.sqrt(np.mean(d**2))), "max_over_noise": float(np.max(np.abs(d)))}
-
-
 #: a recorded joint within this share of its range's span of a limit is at the limit
 LIMIT_MARGIN = 0.02
 
@@ -158,12 +135,10 @@ def _limit_sentence(contacts: list[dict[str, Any]]) -> str:
             "so a residual near those limits is expected; record inside the range for a clean answer.")
 
 
-def answer_in_model_terms(report: Report, system: System, held: HeldOut, recordings: Recordings,
-                          fit_substeps: int | None = None) -> Report:
+def answer_in_model_terms(report: Report, system: System, held: HeldOut, recordings: Recordings) -> Report:
     """``report`` with joint-named rows, ``calibrated.xml`` among its files, the written model's held-out row
-    simulated by MuJoCo, ``details.mjcf`` saying what was written and what could not be (and, given the fits' RK4
-    ``fit_substeps``, how far the fits' integration of it departs from the file's: :func:`fit_step_departure`), and a
-    sentence when the ``recordings`` (all of them, as given) reach a joint limit."""
+    simulated by MuJoCo, ``details.mjcf`` saying what was written and what could not be, and a sentence when the
+    ``recordings`` (all of them, as given) reach a joint limit."""
     tree = _tree(system)
     report = replace(report, terms=named_rows(report.terms, tree), unconfirmed=named_rows(report.unconfirmed, tree))
     contacts = joint_limit_contacts(tree, recordings)
@@ -178,8 +153,6 @@ def answer_in_model_terms(report: Report, system: System, held: HeldOut, recordi
         return replace(report, diagnostics={**report.diagnostics, "mjcf": info})
     info = {**info, "notes": [*back.notes, *written.notes],
             "fit_row": f"fit.{CALIBRATED_XML_ROW}: {CALIBRATED_MODEL} as MuJoCo simulates it"}
-    if fit_substeps is not None:
-        info["fit_step"] = fit_step_departure(written.text, held, fit_substeps)
     fit = {**report.fit, CALIBRATED_XML_ROW: _score_in_mujoco(written.text, held)}
     return replace(report, fit=fit, diagnostics={**report.diagnostics, "mjcf": info},
                    files={**report.files, CALIBRATED_MODEL: written.text})
