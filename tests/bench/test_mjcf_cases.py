@@ -136,3 +136,12 @@ def test_an_answer_that_departs_from_the_files_step_is_fitted_again_at_it(monkey
     assert row["engine_step"]["redone_at_file_step"] and row["engine_step"]["fit_steps_per_sample"] == 2
     assert [(f["term"], f["joint"]) for f in row["found"]] == [("coulomb_friction", "pendulum")]
     assert row["passed"], row["reason"]
+
+
+def test_a_cases_data_seed_does_not_depend_on_the_list():
+    """Every case has its frozen data seed; the 7-joint arm's hidden drives at seed 0 are those its documented runs
+    drew (docs/robot_models.md), whatever cases were added before it."""
+    assert set(mc.SEED_INDEX) == set(CASES)
+    hidden = {h.param: h.value for h in mc.hidden_effects(CASES["arm7_drives"], mc.case_seed(0, "arm7_drives"))}
+    assert hidden["j1.frictionloss"] == pytest.approx(0.3011, abs=1e-4)
+    assert hidden["j2.armature"] == pytest.approx(0.03534, abs=1e-5)
