@@ -527,6 +527,24 @@ def _damped_step(normal: Normal, lam: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 @dataclass
+class StepCheck:
+    """The largest departure, in noise units RMS, of a fit's final model at a coarser MuJoCo step (a shooter's
+    ``engine_substeps``) from the same model at the file's step, on up to ``sample`` of its windows: every fit of an
+    analysis reports here, so a step that held for the nominal model but not for a fitted friction is caught."""
+
+    sample: int = 32
+    worst: float = 0.0
+
+    def measure(self, shooter: Shooter, system: System, X: np.ndarray, r: np.ndarray) -> None:
+        w = shooter.w
+        idx = np.unique(np.linspace(0, w.count - 1, min(self.sample, w.count)).astype(int))
+        at_file = Shooter(w.select(idx), shooter.sigma, shooter.substeps, shooter.x_scale).residual(system, X[idx])
+        ok = (np.abs(at_file) < 1e5) & (np.abs(r[idx]) < 1e5)  # samples the file's step itself follows
+        d = (at_file - r[idx])[ok]
+        self.worst = max(self.worst, math.sqrt(float(np.mean(d**2))) if d.size else math.inf)
+
+
+@dataclass
 class Heartbeat:
     """A progress line during a long computation (a shooting fit, the weak form's parameter check): :meth:`due` says
     when the next one is owed (``every`` seconds after the last, checked between the computation's steps, so a line
@@ -564,6 +582,7 @@ class Shooter:
         self.heartbeat: Heartbeat | None = None  # progress lines during long fits
         #: MuJoCo-simulated systems at most this many steps an interval (:func:`simulate_qv`; None: the file's step)
         self.engine_substeps: int | None = None
+        self.step_check: StepCheck | None = None  # where fits at a coarser step report their departure
 
     def _time_base(self) -> tuple[float | np.ndarray, int | np.ndarray]:
         """(dt, substeps) for simulate_qv: the scalar ones when the windows are uniform, else the recorded
@@ -748,6 +767,8 @@ class Shooter:
                                    f"{per * (max_iter - it):.0f} s left)")
             if rel < tol:
                 break
+        if self.engine_substeps is not None and self.step_check is not None and self.w.count:
+            self.step_check.measure(self, system, X, r)
         if not stats:
             return ShootFit(X, g, r, np.zeros(r.shape + (0,)), np.zeros(r.shape + (0,)), cost, r.size, it, self.w.traj)
         # Jacobians at the final point for statistics

@@ -49,7 +49,10 @@ def test_described_up_to_its_drives():
     assert Described(0.1, 0.95).ok and Described(0.1, 0.95).to_dict() == {"explained_share": 0.1, "drive_share": 0.95}
     assert not Described(0.1, 0.2).ok and not Described(0.1).ok
     assert Described(0.1, 0.95).drives_first and not Described(0.9).drives_first
-    assert Described(0.9, None, 1.1).drives_first and not Described(0.9, None, 5.0).drives_first
+    assert Described(0.9, None, 1.1).drives_first and not Described(0.9, None, 6.0).drives_first
+    # drives that nearly follow (chi2/dof 3): drives first, the body values after them
+    near = Described(0.4, None, 3.0)
+    assert near.ok and near.drives_first and near.drives_near and not near.drives_follow
     assert Described(0.9, None, 1.1).to_dict() == {"explained_share": 0.9, "drives_alone_chi2_per_dof": 1.1}
 
 

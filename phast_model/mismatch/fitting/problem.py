@@ -4,7 +4,7 @@ family."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -12,7 +12,17 @@ from phast_gym.systems.base import System
 
 from ...identify.mujoco_sim import steps_per_interval
 from ...identify.recordings import Recordings
-from ...identify.shooting import Heartbeat, Shooter, Windows, estimate_noise, odd, smooth, substeps_for, time_scale
+from ...identify.shooting import (
+    Heartbeat,
+    Shooter,
+    StepCheck,
+    Windows,
+    estimate_noise,
+    odd,
+    smooth,
+    substeps_for,
+    time_scale,
+)
 from ...identify.simulators import Simulator
 from ...identify.weakform import rms_speed, sign_smoothing, smoothing_window
 from ..options import Options, Progress
@@ -71,6 +81,7 @@ class Problem:
     smoothing: Smoothing
     shooting: ShootingSetup
     nominal_family: Family  # the nominal family (no parameters, no terms)
+    step_check: StepCheck = field(default_factory=StepCheck)  # every fit's departure at the coarser MuJoCo step
 
     @property
     def has_u(self) -> list[bool]:
@@ -129,6 +140,7 @@ class Problem:
         shooter = Shooter(windows, self.sigma, self.shooting.substeps, self.x_scale)
         shooter.heartbeat = Heartbeat(self.log)
         shooter.engine_substeps = self.shooting.engine_substeps
+        shooter.step_check = self.step_check
         return shooter
 
     def q_sample(self) -> np.ndarray:
@@ -201,7 +213,7 @@ def coarse_substeps(sys0: System, windows: Windows, X0: np.ndarray, substeps: in
 
 def at_file_step(problem: Problem) -> Problem:
     """``problem`` with MuJoCo at the file's own step in every fit."""
-    return replace(problem, shooting=replace(problem.shooting, engine_substeps=None))
+    return replace(problem, shooting=replace(problem.shooting, engine_substeps=None), step_check=StepCheck())
 
 
 def prepare(sim: Simulator, sys0: System, train: Recordings, opts: Options, log: Progress) -> Problem:

@@ -45,6 +45,10 @@ FLOOR = 0.1
 TOL = 1e-4
 #: a refit whose chi^2/dof is at most this leaves noise (1) and no model error: its intervals decide which terms stay
 AT_NOISE = 3.0
+#: a log-relative parameter's largest excursion in a trial step (exp(30): 1e13 times its start)
+LOG_BOUND = 30.0
+#: a body value refitted beyond this factor of the file's is not pinned by the windows: held at the file's
+MAX_CHANGE = 3.0
 #: start values that leave a chi^2/dof above this (a real arm's model error: 1e6 on the UR10e) are not refitted: no
 #: change of the same terms brings them to the noise, and the refit would cost minutes
 FAR = 100 * AT_NOISE
@@ -62,13 +66,21 @@ class Item:
     velocity: float = 0.0  # a Stribeck term's v_s (held)
     start: float = 0.0
     scale: float = 1.0
+    nominal: float = 0.0  # a parameter's value in the file
+
+    def runaway(self, g: float) -> bool:
+        """A parameter fitted more than a factor :data:`MAX_CHANGE` from the file's value: not a CAD value a few per
+        cent off but one the windows do not pin (a principal moment the motion leaves unexcited runs to zero)."""
+        return (self.kind == "param" and self.nominal != 0.0
+                and not abs(math.log(max(self.value(g) / self.nominal, 1e-300))) <= math.log(MAX_CHANGE))
 
     @property
     def label(self) -> str:
         return self.name if self.kind == "param" else f"{self.name}[{self.coordinate}]"
 
     def value(self, g: float) -> float:
-        return self.start * math.exp(g) if self.kind == "param" else self.scale * g
+        # a Levenberg-Marquardt trial far out (exp(g) beyond 1e13) is a bad step, not an overflow
+        return self.start * math.exp(min(max(g, -LOG_BOUND), LOG_BOUND)) if self.kind == "param" else self.scale * g
 
     @property
     def g0(self) -> float:
@@ -87,6 +99,11 @@ class EngineRefit:
     t_quantile: float
     cost_before: float
     dropped: list[str]
+    held: tuple[str, ...] = ()  # parameters returned to the file's values (:meth:`Item.runaway`)
+
+    def applied(self, final: WeakFit) -> WeakFit:
+        """``final`` with the refit's values and intervals, and the held parameters at the file's values."""
+        return updated(_at_file(final, self.held), self.items, self.values, self.ci95, self.t_quantile)
 
     @property
     def at_noise(self) -> bool:
@@ -123,8 +140,17 @@ def _items(final: WeakFit, armature_on: Sequence[int], starts: Sequence[Term]) -
     arm = {a.coordinate: a.coefficient for a in final.armature if a.coefficient > 0}
     big = max([*arm.values(), 0.0])
     inertia = [term("inertia", ARMATURE.name, i, 0.0, arm.get(i, 0.0), FLOOR * big) for i in armature_on]
-    params = [Item("param", k, start=row.fitted) for k, row in final.params.items()]
+    params = [Item("param", k, start=row.fitted, nominal=row.nominal) for k, row in final.params.items()]
     return [*law, *inertia, *params]
+
+
+def _at_file(final: WeakFit, names: Sequence[str]) -> WeakFit:
+    """``final`` with the parameters ``names`` at the file's values (no longer fitted)."""
+    if not names:
+        return final
+    kwargs = {**final.kwargs, **{k: final.params[k].nominal for k in names}}
+    params = {k: row for k, row in final.params.items() if k not in names}
+    return replace(final, kwargs=kwargs, params=params)
 
 
 def updated(final: WeakFit, items: Sequence[Item], values: np.ndarray, ci95: np.ndarray | None = None,
@@ -157,6 +183,19 @@ def _builder(model: WeakModel, final: WeakFit, items: list[Item]):  # noqa: ANN2
     return build
 
 
+def _better_start(shooter: Shooter, X: np.ndarray, model: WeakModel, final: WeakFit, items: list[Item],
+                  g0: np.ndarray, max_iter: int) -> tuple[list[Item], ShootFit]:
+    """The items with their parameters at the weak form's values, or at the file's where those follow the windows
+    better (with the window states fitted to each): a balance over a few samples can bend a body value that the
+    drives, fitted first, leave within a few per cent of the file's."""
+    before = shooter.fit_states(_builder(model, final, items)(g0), X, max_iter=max_iter)
+    if not any(it.kind == "param" for it in items):
+        return items, before
+    at_file = [replace(it, start=final.params[it.name].nominal) if it.kind == "param" else it for it in items]
+    alt = shooter.fit_states(_builder(model, final, at_file)(g0), X, max_iter=max_iter)
+    return (at_file, alt) if alt.cost < before.cost else (items, before)
+
+
 class _Tested(NamedTuple):
     ci95: np.ndarray  # (P, 2) 95% intervals of the values
     t_quantile: float
@@ -184,7 +223,8 @@ def _eliminated(fit: ShootFit, items: list[Item]) -> tuple[ShootFit, list[Item],
     while True:
         scale = max(fit.chi2_red, 1.0)
         costs = [(fit.without(j).cost - fit.cost) / scale if it.kind != "param" and fit.g[j] > 0 else
-                 (-math.inf if it.kind != "param" else math.inf) for j, it in enumerate(items)]
+                 (-math.inf if it.kind != "param" or it.runaway(float(fit.g[j])) else math.inf)
+                 for j, it in enumerate(items)]
         if not costs or min(costs) >= bar:
             return fit, items, dropped
         j = int(np.argmin(costs))
@@ -202,7 +242,7 @@ def engine_refit(shooter: Shooter, X: np.ndarray, model: WeakModel, final: WeakF
     if not items:
         return None
     g0 = np.array([it.g0 for it in items])
-    before = shooter.fit_states(_builder(model, final, items)(g0), X, max_iter=max_iter)
+    items, before = _better_start(shooter, X, model, final, items, g0, max_iter)
     if before.chi2_red > FAR:
         return EngineRefit(items, before, np.array([it.value(g) for it, g in zip(items, g0)]),
                            np.full((len(items), 2), np.nan), math.nan, before.cost, [])
@@ -210,17 +250,18 @@ def engine_refit(shooter: Shooter, X: np.ndarray, model: WeakModel, final: WeakF
     # a fit that leaves model error has intervals widened by it, which say nothing about a term: nothing is dropped
     fit_all = fit
     fit, kept, dropped = _eliminated(fit, items) if fit.chi2_red <= AT_NOISE else (fit, items, [])
+    held = tuple(it.name for it in items if it.kind == "param" and it.label in dropped)
     if dropped:
         full = (fit_all, items)
         values = np.array([it.value(float(x)) for it, x in zip(kept, fit.g)])
-        start = updated(final, kept, values)
+        start = updated(_at_file(final, held), kept, values)
         kept = [replace(it, start=it.value(float(x)) if it.kind == "param" else it.start) for it, x in zip(kept, fit.g)]
         g = np.where([it.kind == "param" for it in kept], 0.0, fit.g)
         fit = shooter.fit(_builder(model, start, kept), fit.X, g, max_iter=max_iter, tol=TOL)
         if fit.chi2_red > AT_NOISE:  # the linearization misjudged a term the data need: every term stays
-            (fit, kept), dropped = full, []
-    if not fit.cost <= before.cost:
+            (fit, kept), dropped, held = full, [], ()
+    if not fit_all.cost <= before.cost:  # what elimination gives up is judged by its own test, not this one
         return None
     tested = _tested(fit, kept)
     values = np.array([it.value(float(x)) for it, x in zip(kept, fit.g)])
-    return EngineRefit(kept, fit, values, tested.ci95, tested.t_quantile, before.cost, dropped)
+    return EngineRefit(kept, fit, values, tested.ci95, tested.t_quantile, before.cost, dropped, held)

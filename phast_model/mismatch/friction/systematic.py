@@ -59,7 +59,7 @@ from ..vocabulary.candidates import Candidate
 from ..vocabulary.registry import ARMATURE, COULOMB, VISCOUS, law_terms
 from ..vocabulary.terms import VOCABULARY, AugmentedSystem, Term
 from ..written import in_mujoco, is_model_file_system
-from .engine_refit import EngineRefit, engine_refit, updated
+from .engine_refit import EngineRefit, engine_refit
 from .laws import FrictionLaw, spec_of
 from .lawselect import LawSelection, select_friction
 from .passivity import check_against_curve, is_passive
@@ -301,7 +301,7 @@ def systematic(ctx: SystematicContext) -> SystematicResult:
     final = identify(replace(model, kwargs=first.kwargs), train, specs)
     refit = _in_engine(ctx, model, final)
     if refit is not None:
-        final = updated(final, refit.items, refit.values, refit.ci95, refit.t_quantile)
+        final = refit.applied(final)
     augmented = final.system(model)
     curve = friction_curve(model.build(final.kwargs, final.armature_terms()), train, window=window, eps=problem.eps)
     passive = is_passive(final.law, curve).to_dict()
