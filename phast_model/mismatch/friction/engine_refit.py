@@ -13,8 +13,9 @@ ratio at 95% with Bonferroni's correction over the terms, :func:`_eliminated`), 
 frictionloss are non-negative, so a term fitted at zero or below goes.  When the terms left no longer follow the
 windows to the noise, the linearization misjudged one and every term stays.  All this only where the refit leaves
 noise and no model error (chi^2/dof <= 3): a real arm's recordings, with model error, keep the weak form's answer.
-The refit is kept only when it follows the windows at least as well as the values it starts from (the weak form's, or
-a trial's).
+The refit is kept only when it follows the windows, before elimination, at least as well as the values it starts from
+(the weak form's, or a trial's).  Body values start at the weak form's or the file's, whichever follows the windows
+better, and one refitted beyond :data:`MAX_CHANGE` times the file's (a moment no joint turns) goes back to the file's.
 """
 
 from __future__ import annotations
