@@ -50,9 +50,11 @@ def test_described_up_to_its_drives():
     assert not Described(0.1, 0.2).ok and not Described(0.1).ok
     assert Described(0.1, 0.95).drives_first and not Described(0.9).drives_first
     assert Described(0.9, None, 1.1).drives_first and not Described(0.9, None, 6.0).drives_first
-    # drives that nearly follow (chi2/dof 3): drives first, the body values after them
-    near = Described(0.4, None, 3.0)
+    # drives that remove 90% of the file's misfit (143 -> 15.3): drives first, the body values after them
+    near = Described(0.6, None, 15.3, 143.0)
     assert near.ok and near.drives_first and near.drives_near and not near.drives_follow
+    assert not Described(0.6, None, 81.8, 94.1).drives_near  # a CAD model's body values: the drives remove 13%
+    assert not Described(0.6, None, 9.4e3, 1.1e5).drives_near  # far from following (a real arm's model error)
     assert Described(0.9, None, 1.1).to_dict() == {"explained_share": 0.9, "drives_alone_chi2_per_dof": 1.1}
 
 
