@@ -30,9 +30,13 @@ def cluster_cov(X: np.ndarray, r: np.ndarray, g: np.ndarray) -> tuple[np.ndarray
     """Cluster-robust (CR1) covariance of least-squares coefficients of X with residual r, clusters g; and the cluster
     count."""
     XtXi = np.linalg.pinv(X.T @ X)
-    G = np.unique(g)
-    s = np.stack([X[g == k].T @ r[g == k] for k in G]) if len(G) else np.zeros((0, X.shape[1]))
-    meat = s.T @ s
     n, p = X.shape
+    G, inv = np.unique(g, return_inverse=True)
+    Xr = X * r[:, None]
+    # each cluster's score sum X_k^T r_k, one pass over the rows per column (not one pass per cluster)
+    s = np.zeros((len(G), p))
+    for j in range(p):
+        s[:, j] = np.bincount(inv.ravel(), weights=Xr[:, j], minlength=len(G))
+    meat = s.T @ s
     corr = len(G) / max(len(G) - 1, 1) * (n - 1) / max(n - p, 1)
     return corr * XtXi @ meat @ XtXi, len(G)

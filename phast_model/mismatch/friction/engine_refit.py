@@ -31,6 +31,7 @@ from scipy.stats import norm
 from phast_gym.systems.base import System
 
 from ...identify.shooting import Shooter, ShootFit
+from ..rows import ParamRow
 from ..selection.forward import quantile95
 from ..vocabulary.registry import ARMATURE
 from ..vocabulary.terms import Term
@@ -145,8 +146,20 @@ def _items(final: WeakFit, armature_on: Sequence[int], starts: Sequence[Term]) -
     return [*law, *inertia, *params]
 
 
+def _with_params(final: WeakFit, model: WeakModel, names: Sequence[str]) -> WeakFit:
+    """``final`` with the body values ``names`` fitted too, from the file's values (the weak form left them out as not
+    predicting its left-out balance better; the windows judge them here, and hold those they do not pin)."""
+    if not names:
+        return final
+    nominal = model.sim.numeric_params(model.sim.build())
+    rows = {k: ParamRow(float(nominal[k]), float(nominal[k])) for k in names if k not in final.params}
+    return replace(final, params={**final.params, **rows}, kwargs={**final.kwargs, **{k: r.fitted for k, r in rows.items()}})
+
+
 def _at_file(final: WeakFit, names: Sequence[str]) -> WeakFit:
-    """``final`` with the parameters ``names`` at the file's values (no longer fitted)."""
+    """``final`` with the parameters ``names`` at the file's values (no longer fitted; one ``final`` never fitted is
+    at the file's value already)."""
+    names = [k for k in names if k in final.params]
     if not names:
         return final
     kwargs = {**final.kwargs, **{k: final.params[k].nominal for k in names}}
@@ -168,7 +181,7 @@ def updated(final: WeakFit, items: Sequence[Item], values: np.ndarray, ci95: np.
     for j, it in enumerate(items):
         if it.kind == "param":
             kwargs[it.name] = float(values[j])
-            row = params[it.name]
+            row = params.get(it.name, ParamRow(it.nominal, it.nominal))  # a body value the refit added
             params[it.name] = replace(row, fitted=float(values[j]), ci95=ci(j) if ci95 is not None else row.ci95,
                                       relative_change=float(values[j]) / row.nominal - 1.0 if row.nominal else None)
     return replace(final, kwargs=kwargs, params=params, armature=armature, law=replace(final.law, terms=terms))
@@ -234,11 +247,12 @@ def _eliminated(fit: ShootFit, items: list[Item]) -> tuple[ShootFit, list[Item],
 
 
 def engine_refit(shooter: Shooter, X: np.ndarray, model: WeakModel, final: WeakFit, armature_on: Sequence[int],
-                 max_iter: int, starts: Sequence[Term] = ()) -> EngineRefit | None:
+                 max_iter: int, starts: Sequence[Term] = (), more_params: Sequence[str] = ()) -> EngineRefit | None:
     """The weak-form answer ``final`` refitted by shooting through MuJoCo on ``shooter``'s windows (states started at
     ``X``; the terms of ``starts``, e.g. a trial's refit, considered too and started at their values), as the module
     docstring says; None when it follows the windows worse than its start does, the start itself (not at the noise)
     when that is :data:`FAR` from following them."""
+    final = _with_params(final, model, more_params)
     items = _items(final, armature_on, starts)
     if not items:
         return None

@@ -148,7 +148,8 @@ def _own_viscous(system: System, rec_q: np.ndarray) -> dict[int, float]:
     return {i: float(np.mean(np.asarray(d[i], dtype=float))) for i in range(rec_q.shape[1])}
 
 
-def _in_engine(ctx: SystematicContext, model: WeakModel, final: WeakFit) -> EngineRefit | None:
+def _in_engine(ctx: SystematicContext, model: WeakModel, final: WeakFit,
+               more_params: Sequence[str] = ()) -> EngineRefit | None:
     """A model file's weak-form answer refitted on the shooting windows as MuJoCo simulates it (:mod:`.engine_refit`);
     None for another simulator, or when the refit follows the windows worse than its start or leaves model error."""
     problem = ctx.problem
@@ -158,7 +159,7 @@ def _in_engine(ctx: SystematicContext, model: WeakModel, final: WeakFit) -> Engi
         problem.log("no refit in MuJoCo: the drives alone were far from following the windows (model error)")
         return None
     refit = engine_refit(ctx.cal.shooter, ctx.cal.fit.X, model, final, model.armature, problem.opts.max_iter,
-                         ctx.cal.screen.starts)
+                         ctx.cal.screen.starts, more_params)
     if refit is None:
         return None
     chi2 = f"chi2/dof {refit.cost_before / refit.fit.dof:.3g} -> {refit.fit.chi2_red:.3g}"
@@ -279,6 +280,7 @@ def systematic(ctx: SystematicContext) -> SystematicResult:
     model = _weak_model(ctx, window)
     provisional = [(nm, i) for i in range(problem.n) for nm in PROVISIONAL_LAW]
     drive_like: list[str] = []
+    beyond: list[str] = []
     if ctx.cal.screen.bodies_after:
         beyond = beyond_drives(model, train, provisional)
         drive_like = [k for k in model.params if k not in beyond]
@@ -299,7 +301,7 @@ def systematic(ctx: SystematicContext) -> SystematicResult:
     problem.log(f"friction law: {law.name}; parameters {first.kwargs}")
     specs = [spec_of(t.term, t.coordinate, t.velocity) for t in law.terms]
     final = identify(replace(model, kwargs=first.kwargs), train, specs)
-    refit = _in_engine(ctx, model, final)
+    refit = _in_engine(ctx, model, final, [k for k in beyond if k not in model.params])
     if refit is not None:
         final = refit.applied(final)
     augmented = final.system(model)
