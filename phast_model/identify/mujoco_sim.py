@@ -17,14 +17,18 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .shooting import Shooter
+
 if TYPE_CHECKING:
     import mujoco  # untyped to mypy (pyproject.toml): the annotations name MuJoCo's classes for the reader
 
+    from phast_gym.systems.base import System
     from phast_gym.systems.mjcf import MJCFSystem
 
 
@@ -122,3 +126,21 @@ def mujoco_simulated(path: str | Path) -> MJCFSystem:
     system.engine_timestep = timestep  # type: ignore[attr-defined]
     system.engine_coarsens = coarsens  # type: ignore[attr-defined]
     return system
+
+
+@dataclass
+class StepCheck:
+    """The largest departure, in noise units RMS, of a fit's final model at a coarser MuJoCo step (a shooter's
+    ``engine_substeps``) from the same model at the file's step, on up to ``sample`` of its windows: every fit of an
+    analysis reports here, so a step that held for the nominal model but not for a fitted friction is caught."""
+
+    sample: int = 32
+    worst: float = 0.0
+
+    def measure(self, shooter: Shooter, system: System, X: np.ndarray, r: np.ndarray) -> None:
+        w = shooter.w
+        idx = np.unique(np.linspace(0, w.count - 1, min(self.sample, w.count)).astype(int))
+        at_file = Shooter(w.select(idx), shooter.sigma, shooter.substeps, shooter.x_scale).residual(system, X[idx])
+        ok = (np.abs(at_file) < 1e5) & (np.abs(r[idx]) < 1e5)  # samples the file's step itself follows
+        d = (at_file - r[idx])[ok]
+        self.worst = max(self.worst, math.sqrt(float(np.mean(d**2))) if d.size else math.inf)

@@ -21,7 +21,7 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
@@ -87,7 +87,9 @@ def simulate_qv(system: System, q0: np.ndarray, v0: np.ndarray, n_steps: int, u:
         u = delay_in(u, dt, u_before)
     external = getattr(system, "external_rollout", None)  # a model another simulator runs (MuJoCo: mujoco_sim)
     if external is not None:
-        return external(q0, v0, n_steps, u, dt, engine_substeps) if engine_substeps else external(q0, v0, n_steps, u, dt)
+        if engine_substeps:
+            return external(q0, v0, n_steps, u, dt, engine_substeps)
+        return external(q0, v0, n_steps, u, dt)
     p0 = momentum(system, q0, v0)
     q = [q0[:, i].copy() for i in range(n)]
     p = [p0[:, i].copy() for i in range(n)]
@@ -526,22 +528,10 @@ def _damped_step(normal: Normal, lam: float) -> tuple[np.ndarray, np.ndarray]:
     return -np.einsum("wab,wb->wa", Ainv, gx + np.einsum("wbp,p->wb", B, dg)), dg
 
 
-@dataclass
-class StepCheck:
-    """The largest departure, in noise units RMS, of a fit's final model at a coarser MuJoCo step (a shooter's
-    ``engine_substeps``) from the same model at the file's step, on up to ``sample`` of its windows: every fit of an
-    analysis reports here, so a step that held for the nominal model but not for a fitted friction is caught."""
+class FitCheck(Protocol):
+    """Told every fit's final model (:class:`.mujoco_sim.StepCheck`)."""
 
-    sample: int = 32
-    worst: float = 0.0
-
-    def measure(self, shooter: Shooter, system: System, X: np.ndarray, r: np.ndarray) -> None:
-        w = shooter.w
-        idx = np.unique(np.linspace(0, w.count - 1, min(self.sample, w.count)).astype(int))
-        at_file = Shooter(w.select(idx), shooter.sigma, shooter.substeps, shooter.x_scale).residual(system, X[idx])
-        ok = (np.abs(at_file) < 1e5) & (np.abs(r[idx]) < 1e5)  # samples the file's step itself follows
-        d = (at_file - r[idx])[ok]
-        self.worst = max(self.worst, math.sqrt(float(np.mean(d**2))) if d.size else math.inf)
+    def measure(self, shooter: Shooter, system: System, X: np.ndarray, r: np.ndarray) -> None: ...
 
 
 @dataclass
@@ -582,7 +572,7 @@ class Shooter:
         self.heartbeat: Heartbeat | None = None  # progress lines during long fits
         #: MuJoCo-simulated systems at most this many steps an interval (:func:`simulate_qv`; None: the file's step)
         self.engine_substeps: int | None = None
-        self.step_check: StepCheck | None = None  # where fits at a coarser step report their departure
+        self.step_check: FitCheck | None = None  # where fits at a coarser step report their departure
 
     def _time_base(self) -> tuple[float | np.ndarray, int | np.ndarray]:
         """(dt, substeps) for simulate_qv: the scalar ones when the windows are uniform, else the recorded
@@ -616,7 +606,8 @@ class Shooter:
             dt = np.tile(dt, (K, 1))
         u = w.u if w.u is None or K == 1 else np.tile(w.u, (K, 1, 1))
         ub = w.u_before if w.u_before is None or K == 1 else np.tile(w.u_before, (K, 1, 1))
-        sim = simulate_qv(system, X[:, :n], X[:, n:], w.length - 1, u, dt, sub, ub, engine_substeps=self.engine_substeps)
+        sim = simulate_qv(system, X[:, :n], X[:, n:], w.length - 1, u, dt, sub, ub,
+                          engine_substeps=self.engine_substeps)
         sim = sim.reshape((K, -1) + sim.shape[1:])
         if w.stride == 1:
             d = angle_diff(sim, w.q[None], w.angle_dims) / self.sigma

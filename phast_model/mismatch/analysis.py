@@ -44,7 +44,7 @@ from .calibrate import (
 from .energy import energy_check
 from .evaluate import FitTable, HeldOut, check_rollout_window, held_out
 from .explainers import Context, Explained, Explainer, ShootingExplainer, explain_in_turn
-from .fitting.problem import Problem, at_file_step, prepare, step_departure
+from .fitting.problem import Problem, at_file_step, prepare
 from .friction.engine_refit import FAR
 from .friction.systematic import WeakFormExplainer, drive_share, drives_trial, parameter_share
 from .locate import locate
@@ -55,7 +55,7 @@ from .rows import ParamRow, TermRow
 from .selection import candidates, select
 from .vocabulary.registry import ACTUATOR_GAIN, mujoco_vocabulary
 from .vocabulary.terms import VOCABULARY
-from .written import in_mujoco, is_model_file_system
+from .written import in_mujoco, is_model_file_system, step_departure, with_coarse_step
 
 __all__ = ["EXPLAINERS", "InternalError", "Options", "Report", "analyze", "held_out_scores"]
 
@@ -274,7 +274,7 @@ def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mappin
         raise ValueError(f"threads must be at least 1, got {opts.threads}")
     with engine_threads(opts.threads):
         try:  # the input was checked above: anything raised from here on is the tool's own failure
-            problem = prepare(simulator, sys0, train, opts, log)
+            problem = with_coarse_step(prepare(simulator, sys0, train, opts, log))
             held = replace(held_out(hold, evaluated_on, problem.sigma, problem.x_scale, problem.shoot_window,
                                     problem.smoothing_window, held_out_window(problem, hold)),
                            heartbeat=Heartbeat(log), engine_substeps=problem.shooting.engine_substeps)
@@ -340,9 +340,10 @@ def held_out_scores(sim: str | type[System] | Simulator, recordings: str | Path 
     simulator, sys0 = _simulator(sim, sim_kwargs)
     rec, _ = _decimate(_recordings(recordings, sys0, simulator.name), opts)
     train, hold, evaluated_on = split(rec, holdout_fraction, holdout)
-    problem = prepare(simulator, sys0, train, opts, Progress(False))
-    held = held_out(hold, evaluated_on, problem.sigma, problem.x_scale, problem.shoot_window, problem.smoothing_window,
-                    held_out_window(problem, hold))
+    problem = with_coarse_step(prepare(simulator, sys0, train, opts, Progress(False)))
+    held = replace(held_out(hold, evaluated_on, problem.sigma, problem.x_scale, problem.shoot_window,
+                            problem.smoothing_window, held_out_window(problem, hold)),
+                   engine_substeps=problem.shooting.engine_substeps)
     metrics, _ = held.evaluate({"nominal": sys0, **models})
     return metrics
 
@@ -379,6 +380,8 @@ def _second_look(problem: Problem, inputs: _Inputs, report: Report) -> Report:
         return report
     long_problem = prepare(inputs.simulator, problem.sys0, inputs.train, problem.opts.with_(shoot_window=longer),
                            problem.log)
+    if problem.shooting.engine_substeps is not None:  # the same engine step, its fits checked with the first pass's
+        long_problem = replace(with_coarse_step(long_problem), step_check=problem.step_check)
     followed = _followed_on(long_problem, inputs.simulator.build(**report.diagnostics["calibrated_kwargs"]))
     look: dict[str, Any] = {"shoot_window_samples": longer, "calibrated_chi2_per_dof": followed}
     if not AT_NOISE_CHI2 < followed <= CANNOT_FOLLOW_CHI2:
@@ -503,8 +506,8 @@ def _screen(problem: Problem) -> tuple[ParameterScreen, Described]:
         if trial is not None and chi2 <= DRIVES_CHI2:
             return drives_screen(problem, (shooter, fit, 0), starts), _described(problem, share, None, chi2)
         if trial is not None and drives_near(chi2, fit.chi2_red):
-            problem.log(f"the drives nearly follow the sample (chi2/dof {fit.chi2_red:.3g} -> {chi2:.3g}): drives first, "
-                        "then the body values they cannot stand in for")
+            problem.log(f"the drives nearly follow the sample (chi2/dof {fit.chi2_red:.3g} -> {chi2:.3g}): drives "
+                        "first, then the body values they cannot stand in for")
             return (drives_screen(problem, (shooter, fit, 0), starts, bodies_after=True),
                     _described(problem, share, None, chi2, fit.chi2_red))
         if share < MIN_DESCRIBED:

@@ -87,11 +87,13 @@ def _nominal_problem(path, n_traj: int = 4, T: int = 120):
     from phast_model.identify.simulators import load_simulator
     from phast_model.mismatch.fitting.problem import prepare
     from phast_model.mismatch.options import Options, Progress
+    from phast_model.mismatch.written import with_coarse_step
 
     q0, v0, u = _batch(n_traj, L=T - 1, seed=1)
     q = rollout_q(str(path), q0, v0, u, 0.01, T - 1) + np.random.default_rng(2).normal(0, 1e-3, (n_traj, T, 3))
     sim = load_simulator(str(path))
-    return prepare(sim, sim.build(), Recordings(q=q, u=u, dt=0.01, angle_dims=(0, 1, 2)), Options(), Progress(False))
+    return with_coarse_step(prepare(sim, sim.build(), Recordings(q=q, u=u, dt=0.01, angle_dims=(0, 1, 2)), Options(),
+                                    Progress(False)))
 
 
 def test_a_coarser_step_only_where_the_nominal_model_follows_the_files(tmp_path):

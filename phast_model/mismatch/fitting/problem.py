@@ -10,12 +10,11 @@ import numpy as np
 
 from phast_gym.systems.base import System
 
-from ...identify.mujoco_sim import steps_per_interval
+from ...identify.mujoco_sim import StepCheck
 from ...identify.recordings import Recordings
 from ...identify.shooting import (
     Heartbeat,
     Shooter,
-    StepCheck,
     Windows,
     estimate_noise,
     odd,
@@ -27,13 +26,6 @@ from ...identify.simulators import Simulator
 from ...identify.weakform import rms_speed, sign_smoothing, smoothing_window
 from ..options import Options, Progress
 from ..vocabulary.candidates import Family
-from ..written import in_mujoco
-
-#: RMS departure, in noise units, that the fits' coarser MuJoCo step may leave from the file's step on the nominal
-#: model's shooting windows (:func:`coarse_substeps`)
-COARSE_TOL = 0.05
-#: shooting windows the coarse-step check simulates (evenly spaced)
-COARSE_SAMPLE = 32
 
 
 @dataclass(frozen=True)
@@ -65,7 +57,7 @@ class ShootingSetup:
     windows: Windows
     substeps: int
     X0: np.ndarray  # smoothed window initial states
-    engine_substeps: int | None = None  # MuJoCo's steps an interval in the fits (None: the file's; coarse_substeps)
+    engine_substeps: int | None = None  # MuJoCo's steps an interval in the fits (None: the file's; written.py)
 
 
 @dataclass(frozen=True)
@@ -136,7 +128,7 @@ class Problem:
 
     def shooter(self, windows: Windows) -> Shooter:
         """A shooter on ``windows`` whose long fits report their progress in the analysis' log, and simulate a model
-        file at the analysis' coarser step where one holds (:func:`coarse_substeps`)."""
+        file at the analysis' coarser step where one holds (:func:`~phast_model.mismatch.written.with_coarse_step`)."""
         shooter = Shooter(windows, self.sigma, self.shooting.substeps, self.x_scale)
         shooter.heartbeat = Heartbeat(self.log)
         shooter.engine_substeps = self.shooting.engine_substeps
@@ -178,39 +170,6 @@ def comparison_stride(train: Recordings, period: float) -> int:
     return max(1, int(period / (2 * math.pi) / (20 * train.dt)))
 
 
-def step_departure(system: System, windows: Windows, X0: np.ndarray, substeps: int, engine_substeps: int,
-                   sigma: np.ndarray, x_scale: np.ndarray) -> float:
-    """RMS, in noise units, of how far a MuJoCo-simulated ``system`` at ``engine_substeps`` steps an interval departs
-    from itself at the file's step on up to :data:`COARSE_SAMPLE` of the shooting ``windows`` (from their states
-    ``X0``); samples where the file's step itself diverges are no test; inf when none is left."""
-    idx = np.unique(np.linspace(0, windows.count - 1, min(COARSE_SAMPLE, windows.count)).astype(int))
-    w, X = windows.select(idx), X0[idx]
-    shooter = Shooter(w, sigma, substeps, x_scale)
-    at_file = shooter.residual(system, X)
-    shooter.engine_substeps = engine_substeps
-    d = (shooter.residual(system, X) - at_file)[np.abs(at_file) < 1e5]
-    return math.sqrt(float(np.mean(d**2))) if d.size else math.inf
-
-
-def coarse_substeps(sys0: System, windows: Windows, X0: np.ndarray, substeps: int, sigma: np.ndarray,
-                    x_scale: np.ndarray) -> int | None:
-    """The fewest MuJoCo steps an interval, from the fits' RK4 ``substeps`` doubling, at which the nominal model file
-    follows its own step within :data:`COARSE_TOL` noise units RMS (:func:`step_departure`).  None (the file's step
-    everywhere): not a MuJoCo-simulated RK4 file, or no coarser step holds.  The held-out rollouts are always at the
-    file's step, and the answer is checked again at the end (``analysis``: a fitted friction can make the coarser step
-    depart where the nominal model did not)."""
-    system = in_mujoco(sys0)
-    if not getattr(system, "engine_coarsens", False) or not windows.count:
-        return None
-    file_k = steps_per_interval(float(np.mean(windows.sim_dt)), float(system.engine_timestep))  # type: ignore[attr-defined]
-    k = substeps
-    while k < file_k:
-        if step_departure(system, windows, X0, substeps, k, sigma, x_scale) <= COARSE_TOL:
-            return k
-        k *= 2
-    return None
-
-
 def at_file_step(problem: Problem) -> Problem:
     """``problem`` with MuJoCo at the file's own step in every fit."""
     return replace(problem, shooting=replace(problem.shooting, engine_substeps=None), step_check=StepCheck())
@@ -238,9 +197,5 @@ def prepare(sim: Simulator, sys0: System, train: Recordings, opts: Options, log:
     u = train.u
     u_med = float(np.median(np.abs(u[u != 0]))) if u is not None and np.any(u != 0) else 1.0
     nominal = Family(sim, {}, [], [], eps_coord, 0.05 * u_med)
-    substeps = int(substeps_for(sys0, dt))
-    coarse = coarse_substeps(sys0, win, X0, substeps, noise.sigma, x_scale)
-    if coarse is not None:
-        log(f"MuJoCo in the fits at {coarse} steps a sample (the file's step for held-out rollouts)")
     return Problem(sim, sys0, train, opts, log, noise, Smoothing(window, qs, vs, x_scale, eps, eps_coord),
-                   ShootingSetup(shoot_window, win, substeps, X0, coarse), nominal)
+                   ShootingSetup(shoot_window, win, int(substeps_for(sys0, dt)), X0), nominal)

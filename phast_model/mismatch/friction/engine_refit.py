@@ -153,7 +153,8 @@ def _with_params(final: WeakFit, model: WeakModel, names: Sequence[str]) -> Weak
         return final
     nominal = model.sim.numeric_params(model.sim.build())
     rows = {k: ParamRow(float(nominal[k]), float(nominal[k])) for k in names if k not in final.params}
-    return replace(final, params={**final.params, **rows}, kwargs={**final.kwargs, **{k: r.fitted for k, r in rows.items()}})
+    kwargs = {**final.kwargs, **{k: r.fitted for k, r in rows.items()}}
+    return replace(final, params={**final.params, **rows}, kwargs=kwargs)
 
 
 def _at_file(final: WeakFit, names: Sequence[str]) -> WeakFit:
