@@ -295,9 +295,9 @@ ANSWER_STEP_TOL = 0.2
 
 
 def _checked_step(problem: Problem, inputs: _Inputs, report: Report) -> tuple[Problem, _Inputs, Report]:
-    """A model file's answer from fits at a coarser MuJoCo step (:func:`.fitting.problem.coarse_substeps`), kept when
+    """A model file's answer from fits at a coarser MuJoCo step (:func:`.written.coarse_substeps`), kept when
     every fit's final model and the answer itself follow the file's step within :data:`ANSWER_STEP_TOL` noise units
-    on the shooting windows (:class:`~phast_model.identify.shooting.StepCheck`); else the analysis again at the file's
+    on the shooting windows (:class:`~phast_model.identify.mujoco_sim.StepCheck`); else the analysis again at the file's
     step (MuJoCo's frictionloss sticks with a time constant of a few ms: a step that held for the frictionless nominal
     model can depart with a fitted friction).  ``details.engine_step`` says which."""
     k, s = problem.shooting.engine_substeps, problem.shooting
