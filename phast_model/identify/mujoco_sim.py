@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .shooting import Shooter
+from .shooting import Shooter, Windows
 
 if TYPE_CHECKING:
     import mujoco  # untyped to mypy (pyproject.toml): the annotations name MuJoCo's classes for the reader
@@ -128,19 +128,46 @@ def mujoco_simulated(path: str | Path) -> MJCFSystem:
     return system
 
 
+#: shooting windows a comparison of MuJoCo's steps simulates (evenly spaced)
+STEP_SAMPLE = 32
+
+
+def departure(at_coarse: np.ndarray, at_file: np.ndarray) -> float:
+    """RMS, in noise units, of standardized residuals at a coarser MuJoCo step against the same at the file's step;
+    samples where the file's step itself diverges (clipped residuals) are no test; inf when none is left."""
+    d = (at_coarse - at_file)[np.abs(at_file) < 1e5]
+    return math.sqrt(float(np.mean(d**2))) if d.size else math.inf
+
+
+class StepProbe:
+    """A MuJoCo-simulated ``system`` on up to :data:`STEP_SAMPLE` of a shooter's windows (states ``X``), simulated at
+    the file's step once: :meth:`departure` compares a coarser step with it."""
+
+    def __init__(self, system: System, windows: Windows, X: np.ndarray, substeps: int, sigma: np.ndarray,
+                 x_scale: np.ndarray) -> None:
+        self.idx = np.unique(np.linspace(0, windows.count - 1, min(STEP_SAMPLE, windows.count)).astype(int))
+        self.system, self.X = system, X[self.idx]
+        self.shooter = Shooter(windows.select(self.idx), sigma, substeps, x_scale)
+        self.at_file = self.shooter.residual(system, self.X)
+
+    def departure(self, engine_substeps: int) -> float:
+        """How far ``engine_substeps`` steps a sample depart from the file's step (:func:`departure`)."""
+        self.shooter.engine_substeps = engine_substeps
+        try:
+            return departure(self.shooter.residual(self.system, self.X), self.at_file)
+        finally:
+            self.shooter.engine_substeps = None
+
+
 @dataclass
 class StepCheck:
-    """The largest departure, in noise units RMS, of a fit's final model at a coarser MuJoCo step (a shooter's
-    ``engine_substeps``) from the same model at the file's step, on up to ``sample`` of its windows: every fit of an
-    analysis reports here, so a step that held for the nominal model but not for a fitted friction is caught."""
+    """The largest departure (:func:`departure`) of a fit's final model at a coarser MuJoCo step (a shooter's
+    ``engine_substeps``) from the same model at the file's step, on a sample of its windows: every fit of an analysis
+    reports here, so a step that held for the nominal model but not for a fitted friction is caught."""
 
-    sample: int = 32
     worst: float = 0.0
 
     def measure(self, shooter: Shooter, system: System, X: np.ndarray, r: np.ndarray) -> None:
-        w = shooter.w
-        idx = np.unique(np.linspace(0, w.count - 1, min(self.sample, w.count)).astype(int))
-        at_file = Shooter(w.select(idx), shooter.sigma, shooter.substeps, shooter.x_scale).residual(system, X[idx])
-        ok = (np.abs(at_file) < 1e5) & (np.abs(r[idx]) < 1e5)  # samples the file's step itself follows
-        d = (at_file - r[idx])[ok]
-        self.worst = max(self.worst, math.sqrt(float(np.mean(d**2))) if d.size else math.inf)
+        """Compare the fit's final residual ``r`` (at its coarser step) with the file's step on a sample."""
+        probe = StepProbe(system, shooter.w, X, shooter.substeps, shooter.sigma, shooter.x_scale)
+        self.worst = max(self.worst, departure(r[probe.idx], probe.at_file))

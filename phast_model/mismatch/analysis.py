@@ -27,7 +27,7 @@ import numpy as np
 
 from phast_gym.systems.base import System
 
-from ..identify.mujoco_sim import engine_threads
+from ..identify.mujoco_sim import StepProbe, engine_threads
 from ..identify.recordings import Recordings, load_raw, validate
 from ..identify.shooting import Heartbeat, odd, time_scale
 from ..identify.simulators import Simulator, load_simulator
@@ -55,7 +55,7 @@ from .rows import ParamRow, TermRow
 from .selection import candidates, select
 from .vocabulary.registry import ACTUATOR_GAIN, mujoco_vocabulary
 from .vocabulary.terms import VOCABULARY
-from .written import in_mujoco, is_model_file_system, step_departure, with_coarse_step
+from .written import in_mujoco, is_model_file_system, with_coarse_step
 
 __all__ = ["EXPLAINERS", "InternalError", "Options", "Report", "analyze", "held_out_scores"]
 
@@ -134,7 +134,7 @@ DRIVES_CHI2 = 2.0
 DRIVES_NEAR_SHARE = 0.8
 
 
-def drives_near(drives_chi2: float | None, file_chi2: float | None) -> bool:
+def drives_nearly_follow(drives_chi2: float | None, file_chi2: float | None) -> bool:
     """The drives alone nearly follow the sample (:data:`DRIVES_NEAR_SHARE`)."""
     return (drives_chi2 is not None and file_chi2 is not None and file_chi2 > 1.0 and drives_chi2 <= FAR
             and file_chi2 - drives_chi2 >= DRIVES_NEAR_SHARE * (file_chi2 - 1.0))
@@ -301,9 +301,11 @@ def _checked_step(problem: Problem, inputs: _Inputs, report: Report) -> tuple[Pr
     step (MuJoCo's frictionloss sticks with a time constant of a few ms: a step that held for the frictionless nominal
     model can depart with a fitted friction).  ``details.engine_step`` says which."""
     k, s = problem.shooting.engine_substeps, problem.shooting
-    dep = 0.0 if k is None else step_departure(in_mujoco(report.augmented_system()), s.windows, s.X0, s.substeps, k,
-                                                 problem.sigma, problem.x_scale)
-    dep = max(dep, problem.step_check.worst)
+    dep = 0.0
+    if k is not None:
+        answer = StepProbe(in_mujoco(report.augmented_system()), s.windows, s.X0, s.substeps, problem.sigma,
+                           problem.x_scale)
+        dep = max(answer.departure(k), problem.step_check.worst)
     redo = k is not None and not dep <= ANSWER_STEP_TOL
     if redo:
         problem.log(f"the answer at {k} MuJoCo steps a sample departs from the file's step by {dep:.3g} noise units "
@@ -451,8 +453,9 @@ class Described:
 
     @property
     def drives_near(self) -> bool:
-        """The drives alone nearly follow the sampled windows (:func:`drives_near`): body values come after them."""
-        return self.drives_follow or drives_near(self.drives_chi2, self.file_chi2)
+        """The drives alone nearly follow the sampled windows (:func:`drives_nearly_follow`): body values come after
+        them."""
+        return self.drives_follow or drives_nearly_follow(self.drives_chi2, self.file_chi2)
 
     @property
     def ok(self) -> bool:
@@ -505,7 +508,7 @@ def _screen(problem: Problem) -> tuple[ParameterScreen, Described]:
         starts = () if trial is None else trial.terms()
         if trial is not None and chi2 <= DRIVES_CHI2:
             return drives_screen(problem, (shooter, fit, 0), starts), _described(problem, share, None, chi2)
-        if trial is not None and drives_near(chi2, fit.chi2_red):
+        if trial is not None and drives_nearly_follow(chi2, fit.chi2_red):
             problem.log(f"the drives nearly follow the sample (chi2/dof {fit.chi2_red:.3g} -> {chi2:.3g}): drives "
                         "first, then the body values they cannot stand in for")
             return (drives_screen(problem, (shooter, fit, 0), starts, bodies_after=True),

@@ -24,8 +24,8 @@ from phast_gym.systems.mjcf import MJCFSystem
 from phast_gym.systems.mjcf_tree import MJCFTree, ModelFileError
 
 from ..identify.mjcf_write import Edit, calibrated_xml
-from ..identify.mujoco_sim import mujoco_simulated, steps_per_interval
-from ..identify.shooting import Shooter, Windows
+from ..identify.mujoco_sim import StepProbe, mujoco_simulated, steps_per_interval
+from ..identify.shooting import Windows
 from .fitting.problem import Problem
 from .vocabulary.registry import VOCABULARY
 from .vocabulary.terms import AugmentedSystem
@@ -105,39 +105,24 @@ def text_simulated(text: str) -> System:
 #: RMS departure, in noise units, that the fits' coarser MuJoCo step may leave from the file's step on the nominal
 #: model's shooting windows (:func:`coarse_substeps`)
 COARSE_TOL = 0.05
-#: shooting windows the coarse-step check simulates (evenly spaced)
-COARSE_SAMPLE = 32
-
-
-def step_departure(system: System, windows: Windows, X0: np.ndarray, substeps: int, engine_substeps: int,
-                   sigma: np.ndarray, x_scale: np.ndarray) -> float:
-    """RMS, in noise units, of how far a MuJoCo-simulated ``system`` at ``engine_substeps`` steps an interval departs
-    from itself at the file's step on up to :data:`COARSE_SAMPLE` of the shooting ``windows`` (from their states
-    ``X0``); samples where the file's step itself diverges are no test; inf when none is left."""
-    idx = np.unique(np.linspace(0, windows.count - 1, min(COARSE_SAMPLE, windows.count)).astype(int))
-    w, X = windows.select(idx), X0[idx]
-    shooter = Shooter(w, sigma, substeps, x_scale)
-    at_file = shooter.residual(system, X)
-    shooter.engine_substeps = engine_substeps
-    d = (shooter.residual(system, X) - at_file)[np.abs(at_file) < 1e5]
-    return math.sqrt(float(np.mean(d**2))) if d.size else math.inf
 
 
 def coarse_substeps(sys0: System, windows: Windows, X0: np.ndarray, substeps: int, sigma: np.ndarray,
                     x_scale: np.ndarray) -> int | None:
     """The fewest MuJoCo steps an interval, from the fits' RK4 ``substeps`` doubling, at which the nominal model file
-    follows its own step within :data:`COARSE_TOL` noise units RMS (:func:`step_departure`).  None (the file's step
-    everywhere): not a MuJoCo-simulated RK4 file, or no coarser step holds.  The held-out rollouts are always at the
-    file's step, and the answer is checked again at the end (``analysis``: a fitted friction can make the coarser step
-    depart where the nominal model did not)."""
+    follows its own step within :data:`COARSE_TOL` noise units RMS (:class:`~..identify.mujoco_sim.StepProbe`).
+    None (the file's step everywhere): not a MuJoCo-simulated RK4 file, or no coarser step holds.  The held-out
+    rollouts are always at the file's step, and the answer is checked again at the end (``analysis``: a fitted
+    friction can make the coarser step depart where the nominal model did not)."""
     system = in_mujoco(sys0)
     if not getattr(system, "engine_coarsens", False) or not windows.count:
         return None
     file_step = float(system.engine_timestep)  # type: ignore[attr-defined]
     file_k = steps_per_interval(float(np.mean(windows.sim_dt)), file_step)
+    probe = StepProbe(system, windows, X0, substeps, sigma, x_scale)
     k = substeps
     while k < file_k:
-        if step_departure(system, windows, X0, substeps, k, sigma, x_scale) <= COARSE_TOL:
+        if probe.departure(k) <= COARSE_TOL:
             return k
         k *= 2
     return None

@@ -1,5 +1,5 @@
 """MuJoCo as the fits' engine: the fits' own step, native threads, and how far the fits' integration departs from
-the file's (phast_model.identify.mujoco_sim, Shooter.engine_substeps, mjcf_answer.fit_step_departure)."""
+the file's (phast_model.identify.mujoco_sim: StepProbe, StepCheck; Shooter.engine_substeps)."""
 
 from __future__ import annotations
 
