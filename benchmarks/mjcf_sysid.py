@@ -1,7 +1,7 @@
 """``phast-mismatch`` side by side with MuJoCo's own ``mujoco.sysid`` on the same model files and recordings.
 
     python benchmarks/mjcf_sysid.py [--cases synthetic_arm dfki_c0] [--out DIR] [--data PATH] [--skip-ours CASE ...]
-                                    [--weighting sysid|plain] [--max-iters N]
+                                    [--weighting sysid|plain|wrapped] [--max-iters N]
 
 For each case, on the same nominal MJCF file and the same recordings (same held-out trajectories):
 
@@ -298,7 +298,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--skip-ours", nargs="*", default=[], help="cases scored without our analysis (see above)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--max-iters", type=int, default=50, help="sysid optimizer iterations")
-    ap.add_argument("--weighting", choices=("sysid", "plain"), default="sysid",
+    ap.add_argument("--weighting", choices=("sysid", "plain", "wrapped"), default="sysid",
                     help="sysid's residual: its default (per-window normalised) or plain q errors (sysid_peer.plain_residual)")
     args = ap.parse_args(argv)
     bad = sorted(set(args.cases) - {"synthetic_arm", "dfki_c0"})

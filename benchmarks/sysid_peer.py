@@ -305,7 +305,7 @@ def fitted_xml(xml_path: str | Path, opt_params: Any) -> str:
 
 # ------------------------------------------------------------------------------------------------------- the fit
 
-Weighting = Literal["sysid", "plain"]
+Weighting = Literal["sysid", "plain", "wrapped"]
 
 
 def plain_residual(params: Any, pred_sensordata: Any, measured_sensordata: Any, model: Any, return_pred_all: bool,
@@ -321,6 +321,19 @@ def plain_residual(params: Any, pred_sensordata: Any, measured_sensordata: Any, 
     meas = sysid.signal_modifier.apply_delayed_ts_window(measured_sensordata, pred, 0.0, 0.0)
     pred = pred.resample(meas.times)
     return meas.data - pred.data, pred, meas
+
+
+def wrapped_residual(params: Any, pred_sensordata: Any, measured_sensordata: Any, model: Any,
+                     return_pred_all: bool, state: np.ndarray | None = None, **kw: Any) -> tuple[np.ndarray, Any, Any]:
+    """:func:`plain_residual` with every hinge's error wrapped to (-pi, pi], as the held-out RMSE wraps it: a window
+    whose rollout goes over the top a turn early counts as at most half a turn off, not whole turns (which otherwise
+    dominate the least squares on a real arm that swings over the top)."""
+    import mujoco
+
+    d, pred, meas = plain_residual(params, pred_sensordata, measured_sensordata, model, return_pred_all, state, **kw)
+    hinge = np.asarray(model.jnt_type)[: d.shape[-1]] == int(mujoco.mjtJoint.mjJNT_HINGE)
+    d = np.where(hinge, np.mod(d + np.pi, 2 * np.pi) - np.pi, d)
+    return d, pred, meas
 
 
 
@@ -366,7 +379,8 @@ def fit_with_sysid(xml_path: str | Path, recordings: Mapping[str, Any], train_in
     ``"joints"`` (per-joint armature, damping, frictionloss) or ``"joints+masses"`` (and every body mass).
     ``window_s``: length of the rollout windows the trajectories are cut into (None: whole trajectories).
     ``weighting``: ``"sysid"`` (its default residual: each window's columns divided by the norm of its measured q)
-    or ``"plain"`` (:func:`plain_residual`, q errors as they are, like the held-out RMSE).
+    or ``"plain"`` (:func:`plain_residual`, q errors as they are) or ``"wrapped"`` (:func:`wrapped_residual`: hinge
+    errors wrapped, like the held-out RMSE).
     """
     sysid = _sysid()
     t0 = time.time()
@@ -375,7 +389,8 @@ def fit_with_sysid(xml_path: str | Path, recordings: Mapping[str, Any], train_in
     timestep = float(spec.compile().opt.timestep)
     seqs = model_sequences(spec, recs, list(train_indices), window_s)
     pd = parameter_dict(spec, params, upper)
-    extra = {"modify_residual": plain_residual} if weighting == "plain" else {}
+    extra = {"plain": {"modify_residual": plain_residual},
+             "wrapped": {"modify_residual": wrapped_residual}}.get(weighting, {})
     residual_fn = sysid.build_residual_fn(models_sequences=[seqs], n_threads=n_threads, **extra)
     cost0, _ = _cost(residual_fn, pd.as_vector(), pd.copy())
     log = io.StringIO()

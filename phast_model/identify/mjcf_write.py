@@ -56,6 +56,10 @@ def _quat(rot: np.ndarray) -> np.ndarray:
     return q
 
 
+#: relative margin by which a raised principal moment clears A + B >= C (:func:`physical_moments`)
+TEXT_MARGIN = 1e-5
+
+
 def physical_moments(name: str, moments: list[float], fixed: set[int]) -> tuple[list[float], list[str]]:
     """Principal moments that satisfy A + B >= C (a rigid body), raising the moments not in ``fixed`` (those the
     data did not change) as little as needed; with a sentence per raise."""
@@ -65,6 +69,7 @@ def physical_moments(name: str, moments: list[float], fixed: set[int]) -> tuple[
         short = out[c] - sum(out[i] for i in others)
         free = [i for i in others if i not in fixed]
         if short > 0 and free:
+            short += TEXT_MARGIN * out[c]  # the MJCF text rounds every moment: the bound must hold after rounding
             i = min(free, key=lambda j: out[j])
             notes.append(f"{name}.inertia_{AXES[i]} raised {out[i]:.4g} -> {out[i] + short:.4g} so that the body stays "
                          "rigid (A + B >= C); the recordings did not change it")

@@ -747,8 +747,10 @@ class Shooter:
             step = self._lm_step(build, X, g, lam, cost, Normal.of(*lin, r))
             if step is None:
                 break
-            # converged when the gain is negligible in chi^2 units (or relatively)
-            rel = 0.0 if cost - step[3] < 0.02 else (cost - step[3]) / max(cost, 1e-300)
+            # converged when the gain is negligible in chi^2 units, scaled by chi^2/dof where model error leaves more
+            # than noise (the intervals' scale: a value then moves by no visible share of its standard error)
+            scale = max(1.0, cost / max(r.size, 1))
+            rel = 0.0 if cost - step[3] < 0.02 * scale else (cost - step[3]) / max(cost, 1e-300)
             X, g, r, cost, system, lam_used = step
             lam, lin = max(lam_used / 5, 1e-9), None
             if self.heartbeat is not None and self.heartbeat.due():
@@ -778,11 +780,11 @@ class Shooter:
         s = self.w.stride
         n_obs = len(self.w.obs)  # prefixes in compared samples (= samples at stride 1)
         lengths = sorted({min(L, 1 + s * (k - 1)) for k in (6, max(6, n_obs // 4), max(6, n_obs // 2))} - {L})
-        full = self.w
+        full, check, self.step_check = self.w, self.step_check, None  # a prefix only starts the full fit, checked
         for k in lengths:
             self.w = full.prefix(k)
             X = self.fit(lambda g: system, X, np.zeros(0), max_iter=max_iter, stats=False).X
-        self.w = full
+        self.w, self.step_check = full, check
         return self.fit(lambda g: system, X, np.zeros(0), max_iter=max_iter)
 
     def columns(self, builds: list[Callable[[], System]], fit: ShootFit, base_r: np.ndarray, h: list[float],

@@ -280,43 +280,58 @@ def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mappin
                            heartbeat=Heartbeat(log), engine_substeps=problem.shooting.engine_substeps)
             inputs = _Inputs(simulator, given, dec, train, hold, held, comparison,
                              tuple(EXPLAINERS if explainers is None else explainers))
-            report = _second_look(problem, inputs, _explain(problem, inputs))
             if not is_model_file_system(sys0):
-                return report
-            problem, inputs, report = _checked_step(problem, inputs, report)
+                return _second_look(problem, inputs, _explain(problem, inputs))
+            problem, inputs, report = _checked_step(problem, inputs)
             return answer_in_model_terms(report, sys0, inputs.held, given)
         except ValueError as exc:
             raise InternalError(f"internal failure of the analysis: {type(exc).__name__}: {exc}") from exc
 
 
-#: RMS departure (noise units) of the answer at the fits' coarser MuJoCo step from the file's step above which the
-#: fits are redone at the file's step
+#: RMS departure of the answer (and of every fit) at the fits' coarser MuJoCo step from the file's step, in units of
+#: the larger of the noise and that model's own residual RMS, above which the fits are redone at the file's step
 ANSWER_STEP_TOL = 0.2
 
 
-def _checked_step(problem: Problem, inputs: _Inputs, report: Report) -> tuple[Problem, _Inputs, Report]:
+class _StepDeparts(Exception):
+    """A fit at the coarser MuJoCo step departed from the file's step (:class:`~phast_model.identify.mujoco_sim.
+    StepCheck`) early in the analysis (the drives trial, whose friction the nominal model lacked)."""
+
+
+def _at_file_step(problem: Problem, inputs: _Inputs, dep: float, k: int) -> tuple[Problem, _Inputs]:
+    problem.log(f"a fit at {k} MuJoCo steps a sample departs from the file's step by {dep:.3g} RMS (noise units, or "
+                "the residual's own RMS where larger): the fits at the file's step")
+    return at_file_step(problem), replace(inputs, held=replace(inputs.held, engine_substeps=None))
+
+
+def _checked_step(problem: Problem, inputs: _Inputs) -> tuple[Problem, _Inputs, Report]:
     """A model file's answer from fits at a coarser MuJoCo step (:func:`.written.coarse_substeps`), kept when
-    every fit's final model and the answer itself follow the file's step within :data:`ANSWER_STEP_TOL` noise units
-    on the shooting windows (:class:`~phast_model.identify.mujoco_sim.StepCheck`); else the analysis again at the file's
-    step (MuJoCo's frictionloss sticks with a time constant of a few ms: a step that held for the frictionless nominal
-    model can depart with a fitted friction).  ``details.engine_step`` says which."""
+    every fit's final model and the answer itself follow the file's step within :data:`ANSWER_STEP_TOL` on the
+    shooting windows (noise units, or the model's own residual RMS where model error leaves more;
+    :class:`~phast_model.identify.mujoco_sim.StepCheck`); else the analysis again at the file's step (MuJoCo's
+    frictionloss sticks with a time constant of a few ms: a step that held for the frictionless nominal model can
+    depart with a fitted friction).  A departure of the drives trial, the first fit with friction, switches to the
+    file's step at once (:class:`_StepDeparts`).  ``details.engine_step`` says which."""
     k, s = problem.shooting.engine_substeps, problem.shooting
-    dep = 0.0
-    if k is not None:
-        answer = StepProbe(in_mujoco(report.augmented_system()), s.windows, s.X0, s.substeps, problem.sigma,
-                           problem.x_scale)
-        dep = max(answer.departure(k), problem.step_check.worst)
-    redo = k is not None and not dep <= ANSWER_STEP_TOL
-    if redo:
-        problem.log(f"the answer at {k} MuJoCo steps a sample departs from the file's step by {dep:.3g} noise units "
-                    "RMS: the fits again at the file's step")
-        problem = at_file_step(problem)
-        inputs = replace(inputs, held=replace(inputs.held, engine_substeps=None))
+    dep, when = 0.0, None
+    try:
         report = _second_look(problem, inputs, _explain(problem, inputs))
-    info = {"fit_steps_per_sample": k, "departure_noise_rms": dep, "redone_at_file_step": redo,
+        if k is not None:
+            answer = StepProbe(in_mujoco(report.augmented_system()), s.windows, s.X0, s.substeps, problem.sigma,
+                               problem.x_scale)
+            dep = max(answer.departure(k, relative=True), problem.step_check.worst)
+            when = "the answer" if not dep <= ANSWER_STEP_TOL else None
+    except _StepDeparts:
+        dep, when = problem.step_check.worst, "the drives trial"
+    if when is not None:
+        problem, inputs = _at_file_step(problem, inputs, dep, k)
+        report = _second_look(problem, inputs, _explain(problem, inputs))
+    info = {"fit_steps_per_sample": k, "departure_rms": dep, "redone_at_file_step": when is not None,
+            "departed": when,
             "note": "MuJoCo steps a sample in the fits (None: the file's own step) and the largest RMS departure of a "
-                    "fit's final model or the answer from the file's step on the shooting windows; the held-out "
-                    "rollouts and calibrated.xml are at the file's step"}
+                    "fit's final model or the answer from the file's step on the shooting windows, in units of the "
+                    "larger of the noise and that model's own residual RMS; the held-out rollouts and calibrated.xml "
+                    "are at the file's step"}
     return problem, inputs, replace(report, diagnostics={**report.diagnostics, "engine_step": info})
 
 
@@ -502,6 +517,8 @@ def _screen(problem: Problem) -> tuple[ParameterScreen, Described]:
         shooter, fit = nominal_sample(problem, in_mujoco(problem.nominal_family.build(np.zeros(0))))
         share = explained_share(shooter, fit)
         trial = drives_trial(problem, shooter, fit.X)
+        if problem.shooting.engine_substeps is not None and not problem.step_check.worst <= ANSWER_STEP_TOL:
+            raise _StepDeparts
         chi2 = math.inf if trial is None else float(trial.fit.chi2_red)
         problem.log(f"the drives alone (rotor inertia per driven joint, friction per joint) follow {len(fit.X)} of the "
                     f"windows to chi2/dof {chi2:.3g} (the file's model: {fit.chi2_red:.3g})")

@@ -112,7 +112,7 @@ def test_end_to_end_furuta_small():
     assert row["fit"]["calibrated_xml"]["rollout_rmse"] < 0.7 * row["fit"]["calibrated"]["rollout_rmse"]
     # the fits ran MuJoCo at 2 RK4 steps a sample (the file's: 10), and the answer follows the file's step
     step = row["engine_step"]
-    assert step["fit_steps_per_sample"] == 2 and step["departure_noise_rms"] < 0.2
+    assert step["fit_steps_per_sample"] == 2 and step["departure_rms"] < 0.2
     assert not step["redone_at_file_step"]
 
 

@@ -3,6 +3,8 @@ batches, MuJoCo rollouts, the written-back model and the refusals (docs/mismatch
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -330,6 +332,11 @@ def test_written_body_stays_rigid(tmp_path):
     moments = m.body_inertia[2]
     assert moments[1] == pytest.approx(0.01)
     assert moments[0] + moments[2] >= moments[1] - 1e-12
+    # a value of full precision (a fit's) still compiles once the text has rounded every moment (the real C.0 arm's
+    # link1.inertia_y once made the written model fail, and the fits fall back from MuJoCo)
+    c0 = read_tree(Path(__file__).resolve().parents[2] / "examples" / "robots" / "dfki_c0.xml")
+    written = calibrated_xml(c0, {"link1.inertia_y": 0.004934953679488724})
+    assert len(written.notes) == 1 and "link1.inertia_" in written.notes[0]
 
 
 def test_recordings_at_a_joint_limit_are_named(tmp_path):

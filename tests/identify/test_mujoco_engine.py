@@ -102,3 +102,16 @@ def test_a_coarser_step_only_where_the_nominal_model_follows_the_files(tmp_path)
         stiff = tmp_path / f"arm3_stiff{stiffness}.xml"
         stiff.write_text(ARM3.read_text().replace('<joint name="elbow"', f'<joint name="elbow" stiffness="{stiffness}"'))
         assert _nominal_problem(stiff).shooting.engine_substeps == steps
+
+
+def test_a_departure_is_judged_against_the_residual_it_leaves():
+    """In noise units at the noise; where model error leaves a residual of s noise units, in units of s (the scale of
+    that fit's intervals); samples where the file's step itself diverged are no test."""
+    from phast_model.identify.mujoco_sim import departure
+
+    at_file = np.full((4, 10), 10.0)
+    assert departure(at_file + 1.0, at_file) == pytest.approx(1.0)
+    assert departure(at_file + 1.0, at_file, relative=True) == pytest.approx(0.1)
+    small = np.full((4, 10), 0.5)  # below the noise: noise units either way
+    assert departure(small + 0.2, small, relative=True) == pytest.approx(0.2)
+    assert departure(np.zeros(3), np.full(3, 2e5)) == np.inf

@@ -562,3 +562,19 @@ def test_a_system_listed_under_two_names_is_scored_once_with_the_same_numbers(co
     assert calls == [["nominal"], ["nominal", "calibrated"]]
     assert twice == apart and twice["calibrated"] == twice["nominal"]
     assert list(twice) == list(rolls) == ["nominal", "calibrated"]
+
+
+def test_linear_reach_is_what_every_column_at_once_leaves():
+    """The chi^2 the whole vocabulary leaves to first order: none for a residual in the columns' span, all of it for
+    one orthogonal to them; a column with a non-finite entry is left out."""
+    from phast_model.mismatch.selection.forward import linear_reach
+
+    rng = np.random.default_rng(0)
+    cols = rng.normal(size=(50, 3))
+    r = cols @ np.array([1.0, -2.0, 0.5])
+    assert linear_reach(r, cols) == pytest.approx(0.0, abs=1e-18)
+    q, _ = np.linalg.qr(np.column_stack([cols, rng.normal(size=50)]))
+    ortho = q[:, 3] * 7.0
+    assert linear_reach(ortho, cols) == pytest.approx(49.0)
+    bad = np.column_stack([cols, np.full(50, np.nan)])
+    assert linear_reach(r + ortho, bad) == pytest.approx(49.0)

@@ -198,16 +198,29 @@ def _builder(model: WeakModel, final: WeakFit, items: list[Item]):  # noqa: ANN2
     return build
 
 
+def _mujoco_runs(system: System) -> bool:
+    """Whether MuJoCo simulates ``system`` (:func:`~..written.in_mujoco` falls back to the tool's own integrator where
+    the written model does not compile: a body that is no rigid body, say)."""
+    return getattr(system, "external_rollout", None) is not None
+
+
 def _better_start(shooter: Shooter, X: np.ndarray, model: WeakModel, final: WeakFit, items: list[Item],
                   g0: np.ndarray, max_iter: int) -> tuple[list[Item], ShootFit]:
     """The items with their parameters at the weak form's values, or at the file's where those follow the windows
     better (with the window states fitted to each): a balance over a few samples can bend a body value that the
-    drives, fitted first, leave within a few per cent of the file's."""
-    before = shooter.fit_states(_builder(model, final, items)(g0), X, max_iter=max_iter)
+    drives, fitted first, leave within a few per cent of the file's.  Values MuJoCo refuses (the weak form's
+    least squares can leave a body that is no rigid body) are no start: the file's are taken."""
+    weak = _builder(model, final, items)(g0)
     if not any(it.kind == "param" for it in items):
-        return items, before
+        return items, shooter.fit_states(weak, X, max_iter=max_iter)
     at_file = [replace(it, start=final.params[it.name].nominal) if it.kind == "param" else it for it in items]
-    alt = shooter.fit_states(_builder(model, final, at_file)(g0), X, max_iter=max_iter)
+    filed = _builder(model, final, at_file)(g0)
+    if _mujoco_runs(filed) and not _mujoco_runs(weak):
+        return at_file, shooter.fit_states(filed, X, max_iter=max_iter)
+    before = shooter.fit_states(weak, X, max_iter=max_iter)
+    # from the states fitted to the weak form's values: the same basin (the values differ by per cent), no
+    # short-window starts needed
+    alt = shooter.fit(lambda g: filed, before.X, np.zeros(0), max_iter=max_iter)
     return (at_file, alt) if alt.cost < before.cost else (items, before)
 
 

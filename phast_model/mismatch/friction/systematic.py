@@ -148,27 +148,37 @@ def _own_viscous(system: System, rec_q: np.ndarray) -> dict[int, float]:
     return {i: float(np.mean(np.asarray(d[i], dtype=float))) for i in range(rec_q.shape[1])}
 
 
+@dataclass(frozen=True)
+class _EngineStates:
+    """The refit in MuJoCo where it stands (None: it does not), and the window states its closest model was fitted
+    with (None: no refit ran), from which the answer's own state fit starts."""
+
+    refit: EngineRefit | None
+    X: np.ndarray | None
+
+
 def _in_engine(ctx: SystematicContext, model: WeakModel, final: WeakFit,
-               more_params: Sequence[str] = ()) -> EngineRefit | None:
+               more_params: Sequence[str] = ()) -> _EngineStates:
     """A model file's weak-form answer refitted on the shooting windows as MuJoCo simulates it (:mod:`.engine_refit`);
-    None for another simulator, or when the refit follows the windows worse than its start or leaves model error."""
+    no refit for another simulator, or when the refit follows the windows worse than its start or leaves model
+    error."""
     problem = ctx.problem
     if not is_model_file_system(problem.sys0):
-        return None
+        return _EngineStates(None, None)
     if ctx.cal.screen.far:
         problem.log("no refit in MuJoCo: the drives alone were far from following the windows (model error)")
-        return None
+        return _EngineStates(None, None)
     refit = engine_refit(ctx.cal.shooter, ctx.cal.fit.X, model, final, model.armature, problem.opts.max_iter,
                          ctx.cal.screen.starts, more_params)
     if refit is None:
-        return None
+        return _EngineStates(None, None)
     chi2 = f"chi2/dof {refit.cost_before / refit.fit.dof:.3g} -> {refit.fit.chi2_red:.3g}"
     if not refit.at_noise:
         problem.log(f"refitted in MuJoCo on the windows: {chi2}, model error left: the weak form's answer stands")
-        return None
+        return _EngineStates(None, refit.fit.X)
     problem.log(f"refitted in MuJoCo on the windows: {chi2}"
                 + (f"; dropped {refit.dropped} (not backed by the data)" if refit.dropped else ""))
-    return refit
+    return _EngineStates(refit, refit.fit.X)
 
 
 def _weak_model(ctx: SystematicContext, window: int) -> WeakModel:
@@ -301,14 +311,18 @@ def systematic(ctx: SystematicContext) -> SystematicResult:
     problem.log(f"friction law: {law.name}; parameters {first.kwargs}")
     specs = [spec_of(t.term, t.coordinate, t.velocity) for t in law.terms]
     final = identify(replace(model, kwargs=first.kwargs), train, specs)
-    refit = _in_engine(ctx, model, final, [k for k in beyond if k not in model.params])
+    engine = _in_engine(ctx, model, final, [k for k in beyond if k not in model.params])
+    refit = engine.refit
     if refit is not None:
         final = refit.applied(final)
     augmented = final.system(model)
     curve = friction_curve(model.build(final.kwargs, final.armature_terms()), train, window=window, eps=problem.eps)
     passive = is_passive(final.law, curve).to_dict()
     # its training chi^2 as held-out scores simulate it (a model file's: MuJoCo, whose frictionloss stays stable)
-    fit = ctx.cal.shooter.fit_states(in_mujoco(augmented), ctx.cal.fit.X, max_iter=problem.opts.max_iter)
+    # (from the states of the refit's closest model where one ran: the same basin, no short-window starts needed)
+    simulated = in_mujoco(augmented)
+    fit = (ctx.cal.shooter.fit_states(simulated, ctx.cal.fit.X, max_iter=problem.opts.max_iter) if engine.X is None
+           else ctx.cal.shooter.fit(lambda g: simulated, engine.X, np.zeros(0), max_iter=problem.opts.max_iter))
     own = _own_viscous(augmented, problem.q_sample())
     missing = _law_rows(final.law, sels, passive, own, refit is not None) + _armature_rows(final, refit is not None)
     reason = (f"shooting-augmented chi^2/dof {ctx.chi2_aug:.3g} > {problem.opts.systematic_chi2}: the residual is "

@@ -462,9 +462,43 @@ def _prune_parameters(s: Search) -> None:
         _refit(s, list(s.chosen))  # ... then one nonlinear refit, whose statistics are checked again
 
 
+#: the shooting selection stops at the calibration when even every candidate term at once, on the linearized problem
+#: (:func:`linear_reach`), leaves a chi^2/dof above this many times ``Options.systematic_chi2``: no selection of terms
+#: brings the windows near the noise, the weak form answers (model error, :mod:`..friction.systematic`), and the
+#: selection's refits would be minutes spent on an answer that is not adopted (on the real C.0 arm: 92 of 221 s)
+REACH_FACTOR = 10.0
+
+
+def linear_reach(r: np.ndarray, cols: np.ndarray) -> float:
+    """The chi^2 left when every column of ``cols`` (N, K) is fitted to the residual ``r`` (N,) at once: what the
+    whole vocabulary can explain, to first order (friction signs not enforced: optimistic, never too pessimistic
+    for the linearized problem)."""
+    ok = np.all(np.isfinite(cols), axis=0)
+    if not np.any(ok):
+        return float(r @ r)
+    beta = np.linalg.lstsq(cols[:, ok], r, rcond=None)[0]
+    left = r - cols[:, ok] @ beta
+    return float(left @ left)
+
+
+def _beyond_reach(s: Search, r: np.ndarray, cols_o: np.ndarray) -> bool:
+    """Whether model error dominates beyond what any selection of terms can change (:data:`REACH_FACTOR`)."""
+    bar = s.problem.opts.systematic_chi2
+    if not 0.0 < bar < math.inf:
+        return False
+    reach = linear_reach(r, cols_o) / max(s.fit.dof, 1)
+    if reach <= REACH_FACTOR * bar:
+        s.problem.log(f"every candidate term at once (linearized) would leave chi2/dof {reach:.3g}")
+        return False
+    s.problem.log(f"every candidate term at once (linearized) leaves chi2/dof {reach:.3g} > {REACH_FACTOR:g} x "
+                  f"{bar:g}: model error dominates, no shooting selection of terms")
+    return True
+
+
 def select(problem: Problem, screen: ParameterScreen, cands: list[AnyCandidate]) -> Selection:
     """Terms by forward selection on top of a full-rank calibration, then the parameter changes pruned to those the
-    recordings need; prune terms, the port-gain equivalent, the left-out check, velocities (Stribeck's)."""
+    recordings need; prune terms, the port-gain equivalent, the left-out check, velocities (Stribeck's).  Only the
+    calibration where no selection of terms could reach the noise (:func:`_beyond_reach`)."""
     s = Search(problem, screen, list(cands), screen.fit_nominal, problem.nominal_family)
     _start_calibrated(s)
     terms = [k for k in range(len(s.cands)) if not s.cands[k].is_param]
@@ -476,6 +510,8 @@ def select(problem: Problem, screen: ParameterScreen, cands: list[AnyCandidate])
         usable = [k for j, k in enumerate(terms)
                   if np.all(np.isfinite(cols_p[:, j])) and np.linalg.norm(cols_p[:, j]) > 0]
         keep = [terms.index(k) for k in usable]
+        if _beyond_reach(s, r, cols_o[:, keep]):
+            return Selection(s.cands, usable, cols, s.chosen, s.gains, s.fam, s.fit, s.cov)
         _forward(s, r, cols_o[:, keep], usable, {k: j for j, k in enumerate(usable)})
     _prune_parameters(s)
     _prune(s)
