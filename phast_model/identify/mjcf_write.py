@@ -169,15 +169,22 @@ class WrittenModel:
     notes: list[str]
 
 
+def _calibrated_spec(tree: MJCFTree, params: Mapping[str, float], edits: Sequence[Edit]
+                     ) -> tuple[mujoco.MjSpec, list[str]]:
+    """The source model's spec with ``params`` and ``edits`` applied, and the notes of what had to change."""
+    spec = _spec(tree.source)
+    notes = _apply_params(spec, tree, params)
+    for e in edits:
+        _apply_edit(spec, tree, e)
+    return spec, notes
+
+
 def calibrated_xml(tree: MJCFTree, params: Mapping[str, float], edits: Sequence[Edit] = ()) -> WrittenModel:
     """The source model with ``params`` (changed parameters, the file's names) and ``edits`` (found terms) applied,
     as MJCF text that MuJoCo compiles."""
     import mujoco
 
-    spec = _spec(tree.source)
-    notes = _apply_params(spec, tree, params)
-    for e in edits:
-        _apply_edit(spec, tree, e)
+    spec, notes = _calibrated_spec(tree, params, edits)
     try:
         spec.compile()
         text = spec.to_xml()
@@ -185,3 +192,13 @@ def calibrated_xml(tree: MJCFTree, params: Mapping[str, float], edits: Sequence[
     except ValueError as exc:
         raise ModelFileError(f"the calibrated model does not compile: {exc}") from None
     return WrittenModel(text, notes)
+
+
+def calibrated_model(tree: MJCFTree, params: Mapping[str, float], edits: Sequence[Edit] = ()) -> mujoco.MjModel:
+    """The same model as :func:`calibrated_xml`, compiled from the spec in full precision: what the fits simulate
+    (the text keeps six significant digits, which would round a fit's finite-difference steps away)."""
+    spec, _ = _calibrated_spec(tree, params, edits)
+    try:
+        return spec.compile()
+    except ValueError as exc:
+        raise ModelFileError(f"the calibrated model does not compile: {exc}") from None

@@ -69,11 +69,13 @@ def load_mjmodel(model: str | Path | mujoco.MjModel) -> mujoco.MjModel:
 
 
 def rollout_q(model: str | Path | mujoco.MjModel, q0: np.ndarray, v0: np.ndarray, ctrl: np.ndarray | None, dt: float,
-              n_steps: int, timestep: float | None = None, max_substeps: int | None = None) -> np.ndarray:
+              n_steps: int, timestep: float | None = None, max_substeps: int | None = None,
+              qfrc: np.ndarray | None = None) -> np.ndarray:
     """Simulate B trajectories with MuJoCo from ``(q0, v0)`` (B, n) for ``n_steps`` intervals of ``dt`` with ``ctrl``
     (B, n_steps, m) held per interval (None: zero) -> q (B, n_steps + 1, n).  ``timestep``: the model's own (default:
     as compiled; give it when the same model is rolled out again, since the step is set to ``dt / k`` here).
-    ``max_substeps``: at most this many steps per interval (:func:`steps_per_interval`)."""
+    ``max_substeps``: at most this many steps per interval (:func:`steps_per_interval`).  ``qfrc`` (n,): a constant
+    generalized force applied at every step (``qfrc_applied``)."""
     import mujoco
     from mujoco import rollout
 
@@ -93,9 +95,13 @@ def rollout_q(model: str | Path | mujoco.MjModel, q0: np.ndarray, v0: np.ndarray
     state0 = np.tile(rest, (B, 1))
     state0[:, 1: 1 + m.nq], state0[:, 1 + m.nq: 1 + m.nq + m.nv] = q0, v0
     c = np.zeros((B, n_steps, m.nu)) if ctrl is None else np.asarray(ctrl, dtype=float).reshape(B, n_steps, m.nu)
-    control = np.repeat(c, k, axis=1)
-    state, _ = rollout.rollout(m, datas if threads > 1 else d, state0, control, nstep=n_steps * k,
-                               persistent_pool=threads > 1)
+    control, control_spec = np.repeat(c, k, axis=1), int(mujoco.mjtState.mjSTATE_CTRL)
+    if qfrc is not None:  # the control vector is (ctrl, qfrc_applied), in mjtState's order
+        applied = np.broadcast_to(np.asarray(qfrc, dtype=float), (B, n_steps * k, m.nv))
+        control, control_spec = np.concatenate([control, applied], axis=-1), control_spec | int(
+            mujoco.mjtState.mjSTATE_QFRC_APPLIED)
+    state, _ = rollout.rollout(m, datas if threads > 1 else d, state0, control, control_spec=control_spec,
+                               nstep=n_steps * k, persistent_pool=threads > 1)
     q = state[:, k - 1:: k, 1: 1 + m.nq]
     return np.concatenate([q0[:, None, :], q], axis=1)
 
@@ -105,22 +111,27 @@ def mujoco_simulated(path: str | Path) -> MJCFSystem:
     simulate_qv`, so initial-state fits and held-out scores alike) are MuJoCo's own: its timestep, integrator and
     constraint-based frictionloss (an RK4 file: at most ``max_substeps`` steps an interval where a fit asks for its own
     step; any other integrator always at the file's)."""
-    import mujoco
-
     from phast_gym.systems.mjcf import mjcf_system
 
-    system = mjcf_system(path)()
-    model = load_mjmodel(path)
+    return simulated_by(mjcf_system(path)(), load_mjmodel(path))
+
+
+def simulated_by(system: MJCFSystem, model: mujoco.MjModel) -> MJCFSystem:
+    """``system`` (set up in place: give a copy) whose rollouts are ``model``'s in MuJoCo, as
+    :func:`mujoco_simulated` says; ``model`` is the file's structure with ``system``'s values (a calibrated model)."""
+    import mujoco
+
     cols = list(system.actuated_dofs)
     timestep = float(model.opt.timestep)
     # a coarser step only for RK4, whose error at the fits' step is O(h^4) (Euler's would grow with h)
     coarsens = int(model.opt.integrator) == int(mujoco.mjtIntegrator.mjINT_RK4)
 
     def external_rollout(q0: np.ndarray, v0: np.ndarray, n_steps: int, u: np.ndarray | None,
-                         dt: float | np.ndarray, max_substeps: int | None = None) -> np.ndarray:
+                         dt: float | np.ndarray, max_substeps: int | None = None,
+                         qfrc: np.ndarray | None = None) -> np.ndarray:
         step = float(np.mean(dt))  # recorded jitter: MuJoCo steps at one rate
         ctrl = None if u is None or not cols else np.broadcast_to(u, (q0.shape[0], n_steps, u.shape[-1]))[..., cols]
-        return rollout_q(model, q0, v0, ctrl, step, n_steps, timestep, max_substeps if coarsens else None)
+        return rollout_q(model, q0, v0, ctrl, step, n_steps, timestep, max_substeps if coarsens else None, qfrc)
 
     system.external_rollout = external_rollout  # type: ignore[attr-defined]
     system.engine_timestep = timestep  # type: ignore[attr-defined]

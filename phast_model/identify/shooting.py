@@ -44,11 +44,8 @@ def momentum(system: System, q: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 # --------------------------------------------------------------------------- simulation
 def substeps_for(system: System, dt: float | np.ndarray) -> int | np.ndarray:
-    """Enough RK4 substeps that each is no longer than the env's own substep.
-
-    ``dt`` scalar: one count (int).  ``dt`` (B, n_steps) per-sample steps: one count per interval,
-    common to the batch (from the interval's longest step), an (n_steps,) int array for :func:`simulate_qv`.
-    """
+    """Enough RK4 substeps that each is no longer than the env's own substep: one count (int) for a scalar ``dt``;
+    for per-sample steps (B, n_steps) one count per interval (from its longest step), an (n_steps,) int array."""
     h_env = system.dt / max(system.substeps, 1)
     if np.ndim(dt) == 0:
         return max(1, int(math.ceil(float(dt) / h_env - 1e-9)))
@@ -69,27 +66,34 @@ def simulate_qv(system: System, q0: np.ndarray, v0: np.ndarray, n_steps: int, u:
                 engine_substeps: int | None = None) -> np.ndarray:
     """Simulate a batch from (q0, qdot0) (B, n) and return measured q (B, n_steps+1, n).
 
-    ``dt``: the sampling step (scalar), or the per-sample length of every interval, (B, n_steps) or
-    (n_steps,) (recorded, jittered times: e.g. ``Recordings.steps`` or ``Recordings.sim_dt``); u (B, n_steps, n)
-    is held over each interval.  ``substeps``: RK4 substeps per interval, an int (every interval of every
-    sample: substep h = dt / substeps) or an (n_steps,) int array, one count per interval common to the batch
-    (``substeps_for(system, dt)`` gives counts that keep every substep within the env's).  A scalar dt and an
-    array filled with that value give the same numbers.
-    The model's measurement map (``measure``: sensor terms) is applied to the output.
-    A model with delays (``delayed_input`` / ``delayed_output``, :mod:`.delays`) gets u delayed (``u_before``
-    (B, P, n): the recorded inputs before the first interval; None: the first one held) and reports q delayed.
+    ``dt``: the sampling step (scalar), or the per-sample length of every interval, (B, n_steps) or (n_steps,)
+    (recorded, jittered times: ``Recordings.steps`` / ``sim_dt``); u (B, n_steps, n) is held over each interval.
+    ``substeps``: RK4 substeps per interval, an int (substep h = dt / substeps) or one count per interval, (n_steps,)
+    (``substeps_for(system, dt)`` keeps every substep within the env's).  A model with delays (``delayed_input`` /
+    ``delayed_output``, :mod:`.delays`) gets u delayed (``u_before`` (B, P, n): the inputs before the first interval;
+    None: the first one held) and reports q delayed; its measurement map (``measure``: sensor terms) maps the output.
     A model another engine simulates (``external_rollout``: MuJoCo) takes its own step, or with ``engine_substeps`` no
-    more steps an interval than that (a fit's coarser step; :mod:`.mujoco_sim`).
+    more steps an interval than that (a fit's coarser step; :mod:`.mujoco_sim`); the delays and map apply alike.
     """
-    B, n = q0.shape
     delay_in = getattr(system, "delayed_input", None)
     if u is not None and delay_in is not None:
         u = delay_in(u, dt, u_before)
     external = getattr(system, "external_rollout", None)  # a model another simulator runs (MuJoCo: mujoco_sim)
     if external is not None:
-        if engine_substeps:
-            return external(q0, v0, n_steps, u, dt, engine_substeps)
-        return external(q0, v0, n_steps, u, dt)
+        out = external(q0, v0, n_steps, u, dt, *([engine_substeps] if engine_substeps else []))
+    else:
+        out = _integrated(system, q0, v0, n_steps, u, dt, substeps)
+    delay_out = getattr(system, "delayed_output", None)
+    if delay_out is not None:
+        out = delay_out(out, v0, dt)
+    measure = getattr(system, "measure", None)
+    return measure(out) if measure is not None else out
+
+
+def _integrated(system: System, q0: np.ndarray, v0: np.ndarray, n_steps: int, u: np.ndarray | None,
+                dt: float | np.ndarray, substeps: int | np.ndarray) -> np.ndarray:
+    """The true q (B, n_steps+1, n) of :func:`simulate_qv` by the tool's own integrator."""
+    B, n = q0.shape
     p0 = momentum(system, q0, v0)
     q = [q0[:, i].copy() for i in range(n)]
     p = [p0[:, i].copy() for i in range(n)]
@@ -118,11 +122,7 @@ def simulate_qv(system: System, q0: np.ndarray, v0: np.ndarray, n_steps: int, u:
                 q = [np.broadcast_to(c, (B,)) for c in q]
                 p = [np.broadcast_to(c, (B,)) for c in p]
                 out[:, t + 1] = np.stack(q, -1)
-    delay_out = getattr(system, "delayed_output", None)
-    if delay_out is not None:
-        out = delay_out(out, v0, dt)
-    measure = getattr(system, "measure", None)
-    return measure(out) if measure is not None else out
+    return out
 
 
 # --------------------------------------------------------------------------- several systems as one batch

@@ -55,7 +55,7 @@ from .rows import ParamRow, TermRow
 from .selection import candidates, select
 from .vocabulary.registry import ACTUATOR_GAIN, mujoco_vocabulary
 from .vocabulary.terms import VOCABULARY
-from .written import in_mujoco, is_model_file_system, with_coarse_step
+from .written import fits_in_mujoco, in_mujoco, is_model_file_system, with_coarse_step
 
 __all__ = ["EXPLAINERS", "InternalError", "Options", "Report", "analyze", "held_out_scores"]
 
@@ -274,7 +274,7 @@ def analyze(sim: str | type[System] | Simulator, recordings: str | Path | Mappin
         raise ValueError(f"threads must be at least 1, got {opts.threads}")
     with engine_threads(opts.threads):
         try:  # the input was checked above: anything raised from here on is the tool's own failure
-            problem = with_coarse_step(prepare(simulator, sys0, train, opts, log))
+            problem = with_coarse_step(fits_in_mujoco(prepare(simulator, sys0, train, opts, log)))
             held = replace(held_out(hold, evaluated_on, problem.sigma, problem.x_scale, problem.shoot_window,
                                     problem.smoothing_window, held_out_window(problem, hold)),
                            heartbeat=Heartbeat(log), engine_substeps=problem.shooting.engine_substeps)
@@ -298,7 +298,7 @@ class _StepDeparts(Exception):
     StepCheck`) early in the analysis (the drives trial, whose friction the nominal model lacked)."""
 
 
-def _at_file_step(problem: Problem, inputs: _Inputs, dep: float, k: int) -> tuple[Problem, _Inputs]:
+def _at_file_step(problem: Problem, inputs: _Inputs, dep: float, k: int | None) -> tuple[Problem, _Inputs]:
     problem.log(f"a fit at {k} MuJoCo steps a sample departs from the file's step by {dep:.3g} RMS (noise units, or "
                 "the residual's own RMS where larger): the fits at the file's step")
     return at_file_step(problem), replace(inputs, held=replace(inputs.held, engine_substeps=None))

@@ -1,36 +1,40 @@
 """A model file's answer as MuJoCo simulates it: the fitted model is the model that is written back.
 
-When the simulator is a MuJoCo model file (MJCF / URDF), every model the held-out comparison scores (nominal,
-calibrated, augmented, a challenger) is written back as MJCF through ``MjSpec`` (:func:`~phast_model.identify.
-mjcf_write.calibrated_xml`: the changed body values, and each term as the joint / actuator attribute that expresses it)
-and simulated by MuJoCo with the file's own timestep and integrator (:func:`~phast_model.identify.mujoco_sim.
-mujoco_simulated`).  So Coulomb friction is MuJoCo's ``frictionloss`` constraint, not a smoothed ``sign(qdot)`` under
-explicit substeps, and the held-out table scores what a MuJoCo user gets from ``calibrated.xml``.  A model with a
-term no attribute expresses (a delay, a sensor map, a drag law MuJoCo lacks) is simulated by the tool's own
-integrator, as before.
+When the simulator is a MuJoCo model file (MJCF / URDF), every fit (:func:`fits_in_mujoco`) and every model the
+held-out comparison scores (nominal, calibrated, augmented, a challenger) is written back through ``MjSpec``
+(:func:`~phast_model.identify.mjcf_write.calibrated_model`: the changed body values, and each term as the joint /
+actuator attribute that expresses it, compiled in full precision) and simulated by MuJoCo with the file's own
+integrator (:func:`~phast_model.identify.mujoco_sim.simulated_by`).  So Coulomb friction is MuJoCo's ``frictionloss``
+constraint, not a smoothed ``sign(qdot)``, and the held-out table scores what a MuJoCo user gets from
+``calibrated.xml`` (whose text, six digits a value, is scored as well).  A term no attribute expresses acts around
+MuJoCo's rollout where it can (:func:`simulated_copy`: a deadzone or delay of the control, a constant force, a sensor
+map or delay); a model with a state-dependent force MuJoCo lacks (a cubic stiffness, a drag law) is simulated by the
+tool's own integrator.
 """
-
 from __future__ import annotations
 
+import copy
 import math
 import tempfile
+from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from phast_gym.systems.base import System
+from phast_gym.systems.base import NUMPY, System
 from phast_gym.systems.mjcf import MJCFSystem
 from phast_gym.systems.mjcf_tree import MJCFTree, ModelFileError
 
-from ..identify.mjcf_write import Edit, calibrated_xml
-from ..identify.mujoco_sim import StepProbe, mujoco_simulated, steps_per_interval
+from ..identify.mjcf_write import Edit, calibrated_model
+from ..identify.mujoco_sim import StepProbe, mujoco_simulated, simulated_by, steps_per_interval
 from ..identify.shooting import Windows
 from .fitting.problem import Problem
 from .vocabulary.registry import VOCABULARY
 from .vocabulary.terms import AugmentedSystem
 
-__all__ = ["in_mujoco", "is_model_file_system", "term_edit", "text_simulated", "written_form"]
+__all__ = ["family_engine", "fits_in_mujoco", "in_mujoco", "is_model_file_system", "simulated_copy", "term_edit",
+           "text_simulated", "written_form"]
 
 
 def is_model_file_system(system: object) -> bool:
@@ -79,18 +83,105 @@ def written_form(system: System) -> tuple[MJCFTree, dict[str, float], list[Edit]
 
 def in_mujoco(system: System) -> System:
     """``system`` written back and simulated by MuJoCo (:mod:`this module <.written>`), or ``system`` itself when it
-    cannot be written (not a model file's, a term MuJoCo lacks) or the written model does not compile (a negative
-    total damping, say)."""
+    cannot be written (not a model file's, a term MuJoCo cannot simulate) or the written model does not compile (a
+    negative total damping, say).  Terms no attribute expresses but MuJoCo simulates (:attr:`~.vocabulary.registry.
+    TermKind.in_mujoco`) act around the rollout (:func:`simulated_copy`)."""
     if getattr(system, "external_rollout", None) is not None:  # already simulated by another engine
         return system
+    if isinstance(system, AugmentedSystem) and any(t.kind.mjcf is None for t in system.terms):
+        return simulated_copy(system) or system
     form = written_form(system)
-    if form is None:
+    if form is None or _negative_total(system, form[2]):
         return system
-    try:
-        text = calibrated_xml(*form).text
+    try:  # compiled from the spec: the values in full precision (the text rounds them to six digits)
+        model = calibrated_model(*form)
     except ModelFileError:
         return system
-    return text_simulated(text)
+    base = system.base if isinstance(system, AugmentedSystem) else system
+    assert isinstance(base, MJCFSystem)  # (a written form is a model file's)
+    out = copy.copy(base)
+    out.params = {**out.params, **_written_values(out.params, form[2])}  # the values MuJoCo simulates
+    return simulated_by(out, model)
+
+
+def _written_values(params: Mapping[str, object], edits: list[Edit]) -> dict[str, float]:
+    """The file's joint / actuator values after the term edits (added to, or scaling, the file's)."""
+    out: dict[str, float] = {}
+    for e in edits:
+        key = f"{e.target}.{e.attr}"
+        if key in params:
+            old = out.get(key, float(params[key]))  # type: ignore[arg-type]
+            out[key] = old * e.value if e.op == "scale" else old + e.value
+    return out
+
+
+def _negative_total(system: System, edits: list[Edit]) -> bool:
+    """Whether an added term leaves a joint attribute below zero (a trial step past zero): MuJoCo would compile a
+    negative rotor inertia with a warning, and the file's parameters refuse it."""
+    params = getattr(system, "base", system).params
+    return any(e.op == "add" and float(params.get(f"{e.target}.{e.attr}") or 0.0) + e.value < 0
+               for e in edits)
+
+
+def simulated_copy(system: AugmentedSystem) -> AugmentedSystem | None:
+    """A copy of ``system`` whose rollouts are MuJoCo's: its attribute terms written into the file
+    (:func:`in_mujoco`), port terms without an attribute (a deadzone) applied to the recorded control before the
+    rollout, constant forces as ``qfrc_applied``, and its own delays and sensor maps around it
+    (:func:`~phast_model.identify.shooting.simulate_qv`).  The copy keeps every other method (the weak form's vector
+    field).  None when a term is one MuJoCo cannot simulate or the written model does not compile."""
+    if not is_model_file_system(system) or not all(t.kind.in_mujoco for t in system.terms):
+        return None
+    eps, width = system.coulomb_eps_per_coordinate, system.deadzone_width
+    engine = in_mujoco(AugmentedSystem(system.base, [t for t in system.terms if t.kind.mjcf is not None], eps, width))
+    inner = getattr(engine, "external_rollout", None)
+    if inner is None:
+        return None
+    ports = AugmentedSystem(system.base, [t for t in system.terms if t.component == "port" and t.kind.mjcf is None],
+                            eps, width)
+    force = np.zeros(system.n)
+    for t in system.terms:
+        if t.kind.applied_force:
+            force[t.coordinate] -= float(t.kind.gradient(0.0, t.coefficient))
+
+    def external_rollout(q0: np.ndarray, v0: np.ndarray, n_steps: int, u: np.ndarray | None,
+                         dt: float | np.ndarray, max_substeps: int | None = None) -> np.ndarray:
+        if u is not None and ports.terms:
+            delivered = ports.port([u[..., i] for i in range(system.n)], NUMPY) or []
+            u = np.stack(np.broadcast_arrays(*delivered), -1)
+        return inner(q0, v0, n_steps, u, dt, max_substeps, qfrc=force if np.any(force) else None)
+
+    out = copy.copy(system)
+    out.external_rollout = external_rollout  # type: ignore[attr-defined]
+    out.engine_timestep, out.engine_coarsens = engine.engine_timestep, engine.engine_coarsens  # type: ignore
+    return out
+
+
+def _refused(system: AugmentedSystem) -> AugmentedSystem:
+    """A copy of ``system`` whose rollouts are NaN: values MuJoCo refuses (a negative total friction in a trial step)
+    give a residual no fit accepts, never a silent switch to another integrator."""
+    def external_rollout(q0: np.ndarray, v0: np.ndarray, n_steps: int, u: np.ndarray | None,
+                         dt: float | np.ndarray, max_substeps: int | None = None) -> np.ndarray:
+        return np.full((q0.shape[0], n_steps + 1, q0.shape[1]), np.nan)
+
+    out = copy.copy(system)
+    out.external_rollout = external_rollout  # type: ignore[attr-defined]
+    return out
+
+
+def family_engine(system: AugmentedSystem) -> AugmentedSystem:
+    """A fitted family's system as MuJoCo simulates it (:func:`simulated_copy`), or refused (:func:`_refused`)."""
+    return simulated_copy(system) or _refused(system)
+
+
+def fits_in_mujoco(problem: Problem) -> Problem:
+    """``problem`` whose fits simulate a model file with MuJoCo (:func:`family_engine`): the fitted model is the one
+    written back (MuJoCo's frictionloss, integrator and step, not a smoothed sign(qdot)).  Unchanged for another
+    simulator, or a vocabulary with a term MuJoCo cannot simulate (a cubic stiffness, a drag law): then every fit runs
+    the tool's own integrator, so that no chi^2 compares two engines."""
+    terms = problem.opts.terms or tuple(VOCABULARY)
+    if not is_model_file_system(problem.sys0) or not all(VOCABULARY[t].in_mujoco for t in terms):
+        return problem
+    return replace(problem, nominal_family=replace(problem.nominal_family, engine=family_engine))
 
 
 def text_simulated(text: str) -> System:

@@ -71,3 +71,44 @@ def test_model_files_default_to_the_friction_muJoCo_simulates():
     vocab = mujoco_vocabulary()
     assert set(law_terms(vocab)) == {"viscous_damping", "coulomb_friction"}
     assert {"armature", "actuator_gain", "input_delay"} <= set(vocab)
+
+
+def test_model_files_default_to_the_terms_muJoCo_simulates():
+    """No state-dependent force without an attribute (the fits then run on MuJoCo); sensor and port maps, delays and
+    a constant force stay."""
+    vocab = set(mujoco_vocabulary())
+    assert "cubic_stiffness" not in vocab and "quadratic_drag" not in vocab
+    assert {"sensor_offset", "sensor_delay", "actuator_deadzone", "constant_force", "input_delay"} <= vocab
+
+
+def test_terms_without_an_attribute_act_around_muJoCos_rollout(arm):
+    """A constant force (qfrc_applied), a deadzone of the control, a sensor offset and both delays, with a rotor
+    inertia written into the file: MuJoCo's rollout follows the tool's own integrator of the same model."""
+    from phast_model.mismatch.written import simulated_copy
+
+    terms = [Term("constant_force", 0, 0.05), Term("sensor_offset", 1, 0.01), Term("actuator_deadzone", 0, 0.05),
+             Term("armature", 1, 0.003), Term("input_delay", 0, 0.004), Term("sensor_delay", 1, 0.002)]
+    aug = AugmentedSystem(mjcf_system(arm)(), terms)
+    simulated = in_mujoco(aug)
+    assert isinstance(simulated, AugmentedSystem) and simulated.terms == aug.terms
+    assert getattr(simulated, "external_rollout", None) is not None
+    rng = np.random.default_rng(0)
+    n = aug.n
+    q0, v0, u = rng.normal(0, 0.3, (4, n)), rng.normal(0, 0.3, (4, n)), rng.normal(0, 0.2, (4, 60, n))
+    ours = simulate_qv(aug, q0, v0, 60, u, 0.01, 10)
+    theirs = simulate_qv(simulated, q0, v0, 60, u, 0.01, 10)
+    assert np.max(np.abs(ours - theirs)) < 1e-3 < np.max(np.abs(ours - q0[:, None]))
+    assert simulated_copy(AugmentedSystem(mjcf_system(arm)(), [Term("cubic_stiffness", 0, 1.0)])) is None
+
+
+def test_a_family_on_muJoCo_refuses_what_muJoCo_refuses(arm):
+    """A trial value MuJoCo will not compile (a negative total rotor inertia) gives a rollout no fit accepts, not a
+    switch to the tool's own integrator."""
+    from phast_model.mismatch.written import family_engine
+
+    refused = family_engine(AugmentedSystem(mjcf_system(arm)(), [Term("armature", 0, 0.0)]))
+    bad = AugmentedSystem(mjcf_system(arm)(), [Term("armature", 0, 0.01)])
+    object.__setattr__(bad.terms[0], "coefficient", -1.0)  # past Term's own check, as a trial step can be
+    assert getattr(refused, "external_rollout", None) is not None
+    out = simulate_qv(family_engine(bad), np.zeros((2, bad.n)), np.zeros((2, bad.n)), 5, None, 0.01, 1)
+    assert np.all(np.isnan(out))

@@ -552,7 +552,7 @@ def _edge_shift(s: Search) -> np.ndarray | None:
     chosen term has an edge."""
     coords = {c.coordinate for c in (s.cands[k] for k in s.chosen) if isinstance(c, Candidate)
               and (c.kind.stiff_edge or c.kind.excess_near_rest)}
-    if not coords:
+    if not coords or s.fam.engine is not None:  # MuJoCo's frictionloss has no tanh edge to sharpen
         return None
     eps = list(s.eps or s.problem.eps_coord)
     for i in coords:

@@ -9,6 +9,7 @@ calibrated parameter is ``nominal * exp(z)`` (log-relative).  :func:`candidates`
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -140,7 +141,9 @@ class ParamCandidate:
 
 @dataclass
 class Family:
-    """g -> system: calibrated parameters (log-relative) then terms (scaled coefficients), built by the simulator."""
+    """g -> system: calibrated parameters (log-relative) then terms (scaled coefficients), built by the simulator.
+    ``engine``: what simulates a built system (a model file's MuJoCo: ``written.family_engine``; None: the tool's
+    own integrator)."""
 
     sim: Simulator
     kwargs: dict[str, Any]  # overrides of the simulator's kwargs
@@ -148,6 +151,7 @@ class Family:
     terms: list[ScaledTerm]
     eps: float | tuple[float, ...]  # Coulomb smoothing, one or one per coordinate
     deadzone_width: float = 0.0
+    engine: Callable[[AugmentedSystem], AugmentedSystem] | None = None
 
     def kwargs_of(self, g: np.ndarray) -> dict[str, Any]:
         kw = dict(self.kwargs)
@@ -159,11 +163,12 @@ class Family:
         return [t.at(z) for t, z in zip(self.terms, g[len(self.params):])]
 
     def build(self, g: np.ndarray) -> AugmentedSystem:
-        return AugmentedSystem(self.sim.build(**self.kwargs_of(g)), self.terms_of(g), self.eps, self.deadzone_width)
+        system = AugmentedSystem(self.sim.build(**self.kwargs_of(g)), self.terms_of(g), self.eps, self.deadzone_width)
+        return system if self.engine is None else self.engine(system)
 
     def with_(self, params: list[tuple[str, float]] | None = None, terms: list[ScaledTerm] | None = None) -> Family:
-        return Family(self.sim, self.kwargs, self.params if params is None else params,
-                      self.terms if terms is None else terms, self.eps, self.deadzone_width)
+        return replace(self, params=self.params if params is None else params,
+                       terms=self.terms if terms is None else terms)
 
     def plus(self, cand: Candidate) -> Family:
         """This family with one more term."""

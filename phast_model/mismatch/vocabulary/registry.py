@@ -135,6 +135,8 @@ class TermKind:
     delay: ClassVar[bool] = False
     #: the MuJoCo attribute (joint or actuator) that expresses the term exactly, or None
     mjcf: ClassVar[str | None] = None
+    #: a generalized force that does not depend on the state (-gradient(0, c)): MuJoCo applies it as qfrc_applied
+    applied_force: ClassVar[bool] = False
     #: what a MuJoCo user adds for a term no attribute expresses
     mjcf_advice: ClassVar[str] = ("no MuJoCo attribute expresses it: apply the force as qfrc_applied (or mjcb_passive) "
                                   "each step")
@@ -143,6 +145,13 @@ class TermKind:
     def fit_positive(self) -> bool:
         """The selection keeps only c > 0 (passivity); an actuator gain's sign is free around 1."""
         return self.positive
+
+    @property
+    def in_mujoco(self) -> bool:
+        """MuJoCo simulates a model file with this term: as an attribute (:attr:`mjcf`), a map of the recorded control
+        before the rollout (a port term), of the rolled-out q after it (a sensor term or delay), or a constant
+        ``qfrc_applied`` (:attr:`applied_force`); not a state-dependent force no attribute expresses."""
+        return self.mjcf is not None or self.component in ("port", "sensor") or self.applied_force
 
     def check(self, coefficient: float, velocity: float) -> None:
         """Raise ValueError for a coefficient / velocity the term cannot have."""
@@ -387,6 +396,7 @@ class CubicStiffness(PotentialKind):
 
 class ConstantForce(PotentialKind):
     name, formula = "constant_force", "c"
+    applied_force = True
 
     def potential(self, q: Coord, c: float) -> Coord:
         return -c * q
@@ -608,10 +618,12 @@ def law_terms(vocabulary: Sequence[str] | None = None) -> tuple[str, ...]:
 
 
 def mujoco_vocabulary() -> tuple[str, ...]:
-    """The default vocabulary on a MuJoCo model file: every term except the dissipative ones no MuJoCo attribute
-    expresses (quadratic drag, Stribeck, position-dependent damping).  The friction found is then the friction MuJoCo
-    simulates (``damping``, ``frictionloss``), so the answer is the model written back."""
-    return tuple(k.name for k in VOCABULARY.values() if k.component != "dissipation" or k.mjcf is not None)
+    """The default vocabulary on a MuJoCo model file: every term MuJoCo simulates (:attr:`TermKind.in_mujoco`), not
+    the state-dependent forces no attribute expresses (quadratic drag, Stribeck, position-dependent damping, a cubic
+    stiffness).  The fits then run on MuJoCo itself and the friction found is the friction MuJoCo simulates
+    (``damping``, ``frictionloss``): the answer is the model written back.  A user who names such a term
+    (``--terms``) gets it, and every fit on the tool's own integrator."""
+    return tuple(k.name for k in VOCABULARY.values() if k.in_mujoco)
 
 
 #: the built-in kinds other modules refer to by object (their names live here only)
