@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from phast_gym.systems.base import NUMPY, System
+from phast_gym.systems.base import NUMPY, ParameterError, System
 from phast_gym.systems.mjcf import MJCFSystem
 from phast_gym.systems.mjcf_tree import MJCFTree, ModelFileError
 
@@ -189,7 +189,10 @@ def text_simulated(text: str) -> System:
     with tempfile.TemporaryDirectory(prefix="phast-written-") as d:
         path = Path(d) / "model.xml"
         path.write_text(text)
-        return mujoco_simulated(path)
+        try:
+            return mujoco_simulated(path)
+        except ParameterError as exc:  # a value the file's parameters refuse (a negative total damping)
+            raise ModelFileError(f"the written model's values are refused: {exc}") from None
 
 
 # --------------------------------------------------------------------------- the step MuJoCo takes in the fits

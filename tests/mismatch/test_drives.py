@@ -199,3 +199,21 @@ def test_left_out_fits_from_fold_grams_equal_the_direct_ones(seed: int, folds: i
         c = np.linalg.lstsq(X[~te], y[~te], rcond=None)[0]
         direct.append(np.sqrt(np.mean((y[te] - X[te] @ c) ** 2)))
     np.testing.assert_allclose(_FoldGrams.of(X, y, labels).left_out_rms(cols), direct, rtol=1e-7)
+
+
+def test_a_refitted_term_at_zero_or_below_leaves_the_answer():
+    """MuJoCo simulates a negative friction or inertia at zero: such a term is absent from the model the refit
+    describes, so it leaves the answer (and its label joins the dropped), the other values as they were."""
+    from phast_model.identify.shooting import ShootFit
+    from phast_model.mismatch.friction.engine_refit import Item, _absent_at_zero
+
+    rng = np.random.default_rng(0)
+    JX, Jg = rng.normal(size=(4, 6, 2)), rng.normal(size=(4, 6, 3))
+    Jg[..., 0] = 0.0  # clamped at zero: no effect
+    fit = ShootFit(np.zeros((4, 2)), np.array([-0.5, 0.2, 0.0]), np.zeros((4, 6)), JX, Jg, 0.0, 24, 3)
+    items = [Item("law", "viscous_damping", 3), Item("inertia", "armature", 1, scale=0.01),
+             Item("param", "link2.mass", start=1.0, nominal=1.0)]
+    fit2, kept, dropped = _absent_at_zero(fit, items, ["link2.ipos_y"])
+    assert [it.label for it in kept] == ["armature[1]", "link2.mass"]
+    assert dropped == ["link2.ipos_y", "viscous_damping[3]"]
+    np.testing.assert_allclose(fit2.g, [0.2, 0.0], atol=1e-12)

@@ -112,3 +112,15 @@ def test_a_family_on_muJoCo_refuses_what_muJoCo_refuses(arm):
     assert getattr(refused, "external_rollout", None) is not None
     out = simulate_qv(family_engine(bad), np.zeros((2, bad.n)), np.zeros((2, bad.n)), 5, None, 0.01, 1)
     assert np.all(np.isnan(out))
+
+
+def test_a_written_model_whose_values_are_refused_is_an_error_the_report_can_name(arm):
+    """A text MuJoCo compiles but whose values the file's parameters refuse (a negative total damping) raises
+    ModelFileError, which the report turns into a note instead of a failed analysis."""
+    from phast_gym.systems.mjcf_tree import ModelFileError
+    from phast_model.mismatch.written import text_simulated
+
+    text = arm.read_text().replace('damping="0.1" armature="0.01"', 'damping="-0.01" armature="0.01"', 1)
+    assert text != arm.read_text()
+    with pytest.raises(ModelFileError, match="refused"):
+        text_simulated(text)

@@ -260,6 +260,17 @@ def _eliminated(fit: ShootFit, items: list[Item]) -> tuple[ShootFit, list[Item],
         fit, items = fit.without(j), [it for k, it in enumerate(items) if k != j]
 
 
+def _absent_at_zero(fit: ShootFit, items: list[Item], dropped: list[str]) -> tuple[ShootFit, list[Item], list[str]]:
+    """Terms fitted at zero or below leave the answer: MuJoCo simulates them at zero (:func:`_builder`), so they are
+    absent from the model the fit describes, and a negative friction or inertia is not missing physics (dropped on
+    the fit's linearization, :meth:`ShootFit.without`: no new simulation)."""
+    for j in reversed(range(len(items))):
+        if items[j].kind != "param" and not items[j].value(float(fit.g[j])) > 0:
+            dropped = [*dropped, items[j].label]
+            fit, items = fit.without(j), items[:j] + items[j + 1:]
+    return fit, items, dropped
+
+
 def engine_refit(shooter: Shooter, X: np.ndarray, model: WeakModel, final: WeakFit, armature_on: Sequence[int],
                  max_iter: int, starts: Sequence[Term] = (), more_params: Sequence[str] = ()) -> EngineRefit | None:
     """The weak-form answer ``final`` refitted by shooting through MuJoCo on ``shooter``'s windows (states started at
@@ -291,6 +302,7 @@ def engine_refit(shooter: Shooter, X: np.ndarray, model: WeakModel, final: WeakF
             (fit, kept), dropped, held = full, [], ()
     if not fit_all.cost <= before.cost:  # what elimination gives up is judged by its own test, not this one
         return None
+    fit, kept, dropped = _absent_at_zero(fit, kept, dropped)
     tested = _tested(fit, kept)
     values = np.array([it.value(float(x)) for it, x in zip(kept, fit.g)])
     return EngineRefit(kept, fit, values, tested.ci95, tested.t_quantile, before.cost, dropped, held)

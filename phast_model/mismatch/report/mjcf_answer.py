@@ -153,6 +153,10 @@ def answer_in_model_terms(report: Report, system: System, held: HeldOut, recordi
         return replace(report, diagnostics={**report.diagnostics, "mjcf": info})
     info = {**info, "notes": [*back.notes, *written.notes],
             "fit_row": f"fit.{CALIBRATED_XML_ROW}: {CALIBRATED_MODEL} as MuJoCo simulates it"}
-    fit = {**report.fit, CALIBRATED_XML_ROW: _score_in_mujoco(written.text, held)}
+    try:
+        fit = {**report.fit, CALIBRATED_XML_ROW: _score_in_mujoco(written.text, held)}
+    except ModelFileError as exc:  # the text compiles but its values are refused: the answer stands
+        info = {**info, "file": None, "error": str(exc)}
+        return replace(report, diagnostics={**report.diagnostics, "mjcf": info})
     return replace(report, fit=fit, diagnostics={**report.diagnostics, "mjcf": info},
                    files={**report.files, CALIBRATED_MODEL: written.text})
