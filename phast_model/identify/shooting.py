@@ -573,6 +573,7 @@ class Shooter:
         #: MuJoCo-simulated systems at most this many steps an interval (:func:`simulate_qv`; None: the file's step)
         self.engine_substeps: int | None = None
         self.step_check: FitCheck | None = None  # where fits at a coarser step report their departure
+        self.scaled_stop = True  # convergence in chi^2 units scaled by chi2/dof (False: a score's state fit, in noise)
 
     def _time_base(self) -> tuple[float | np.ndarray, int | np.ndarray]:
         """(dt, substeps) for simulate_qv: the scalar ones when the windows are uniform, else the recorded
@@ -749,7 +750,7 @@ class Shooter:
                 break
             # converged when the gain is negligible in chi^2 units, scaled by chi^2/dof where model error leaves more
             # than noise (the intervals' scale: a value then moves by no visible share of its standard error)
-            scale = max(1.0, cost / max(r.size, 1))
+            scale = max(1.0, cost / max(r.size, 1)) if self.scaled_stop else 1.0
             rel = 0.0 if cost - step[3] < 0.02 * scale else (cost - step[3]) / max(cost, 1e-300)
             X, g, r, cost, system, lam_used = step
             lam, lin = max(lam_used / 5, 1e-9), None

@@ -48,6 +48,7 @@ def _fit_states(system: System, rec: Recordings, K: int, sigma: np.ndarray, x_sc
     shooter = Shooter(Windows.cut(rec.time_slice(0, K), K), sigma, sub, x_scale)
     shooter.heartbeat = heartbeat
     shooter.engine_substeps = engine_substeps
+    shooter.scaled_stop = False  # a score's initial state: converged in noise units, whatever the model error
     return shooter.fit(lambda g: system, X0, np.zeros(0), max_iter=15, stats=False).X
 
 
