@@ -115,3 +115,19 @@ def test_a_departure_is_judged_against_the_residual_it_leaves():
     small = np.full((4, 10), 0.5)  # below the noise: noise units either way
     assert departure(small + 0.2, small, relative=True) == pytest.approx(0.2)
     assert departure(np.zeros(3), np.full(3, 2e5)) == np.inf
+
+
+def test_the_fits_run_on_muJoCo_unless_the_vocabulary_holds_a_force_it_lacks():
+    """A model file's families build MuJoCo-simulated systems when every term of the vocabulary is one MuJoCo
+    simulates (the model-file default); with a cubic stiffness in it every fit keeps the tool's own integrator."""
+    from dataclasses import replace
+
+    from phast_model.mismatch.vocabulary.registry import mujoco_vocabulary
+    from phast_model.mismatch.written import family_engine, fits_in_mujoco
+
+    problem = _nominal_problem(ARM3)
+    with_cubic = replace(problem, opts=replace(problem.opts, terms=("viscous_damping", "cubic_stiffness")))
+    assert fits_in_mujoco(with_cubic).nominal_family.engine is None
+    on_mujoco = fits_in_mujoco(replace(problem, opts=replace(problem.opts, terms=mujoco_vocabulary())))
+    assert on_mujoco.nominal_family.engine is family_engine
+    assert getattr(on_mujoco.nominal_family.build(np.zeros(0)), "external_rollout", None) is not None
