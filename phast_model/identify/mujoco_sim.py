@@ -189,4 +189,6 @@ class StepCheck:
     def measure(self, shooter: Shooter, system: System, X: np.ndarray, r: np.ndarray) -> None:
         """Compare the fit's final residual ``r`` (at its coarser step) with the file's step on a sample."""
         probe = StepProbe(system, shooter.w, X, shooter.substeps, shooter.sigma, shooter.x_scale)
-        self.worst = max(self.worst, departure(r[probe.idx], probe.at_file, relative=True))
+        d = departure(r[probe.idx], probe.at_file, relative=True)
+        if math.isfinite(d):  # (inf: the file's step diverged on every sample, a model no fit accepted: no test)
+            self.worst = max(self.worst, d)
