@@ -31,6 +31,10 @@ class Edit:
     value: float
     op: str = "add"
 
+    def applied(self, old: float) -> float:
+        """The attribute's value after this edit, from its value ``old`` in the file."""
+        return old * self.value if self.op == "scale" else old + self.value
+
 
 def _spec(source: str) -> mujoco.MjSpec:
     import mujoco
@@ -151,14 +155,14 @@ def _apply_edit(spec: mujoco.MjSpec, tree: MJCFTree, edit: Edit) -> None:
         if act is None:
             raise ModelFileError(f"no actuator {edit.target!r} in the file")
         gear = np.array(act.gear, dtype=float)
-        gear[0] = gear[0] * edit.value if edit.op == "scale" else gear[0] + edit.value
+        gear[0] = edit.applied(gear[0])
         act.gear = gear
         return
     joint = spec.joint(edit.target)
     if joint is None:
         raise ModelFileError(f"no joint {edit.target!r} in the file")
     old = joint_attr(joint, edit.attr)
-    set_joint_attr(joint, edit.attr, old * edit.value if edit.op == "scale" else old + edit.value)
+    set_joint_attr(joint, edit.attr, edit.applied(old))
 
 
 @dataclass(frozen=True)

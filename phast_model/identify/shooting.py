@@ -769,18 +769,17 @@ class Shooter:
         JX, Jg = lin if lin is not None else self.linearize(build, system, g, X, g_step, r)[1:]
         return ShootFit(X, g, r, JX, Jg, cost, r.size, it, self.w.traj)
 
-    def fit_states(self, system: System, X0: np.ndarray, max_iter: int = 25) -> ShootFit:
-        """Window states only, by homotopy on the window length (short prefixes first).
-
-        Long windows have local minima (a pendulum seeded on the wrong side of the
-        separatrix); fitting the first few samples first puts every window in
-        the right basin before the whole window is used.
-        """
+    def fit_states(self, system: System, X0: np.ndarray, max_iter: int = 25, in_basin: bool = False) -> ShootFit:
+        """Window states only, by homotopy on the window length (short prefixes first): long windows have local
+        minima (a pendulum seeded on the wrong side of the separatrix); fitting the first few samples first puts every
+        window in the right basin before the whole window is used.  ``in_basin``: ``X0`` are states fitted to a model
+        within per cent of this one (the whole window at once)."""
         X = X0.copy()
         L = self.w.length
         s = self.w.stride
         n_obs = len(self.w.obs)  # prefixes in compared samples (= samples at stride 1)
-        lengths = sorted({min(L, 1 + s * (k - 1)) for k in (6, max(6, n_obs // 4), max(6, n_obs // 2))} - {L})
+        lengths = [] if in_basin else sorted({min(L, 1 + s * (k - 1)) for k in (6, max(6, n_obs // 4),
+                                                                                max(6, n_obs // 2))} - {L})
         full, check, self.step_check = self.w, self.step_check, None  # a prefix only starts the full fit, checked
         for k in lengths:
             self.w = full.prefix(k)

@@ -33,8 +33,8 @@ from .fitting.problem import Problem
 from .vocabulary.registry import VOCABULARY
 from .vocabulary.terms import AugmentedSystem
 
-__all__ = ["family_engine", "fits_in_mujoco", "in_mujoco", "is_model_file_system", "simulated_copy", "term_edit",
-           "text_simulated", "written_form"]
+__all__ = ["family_engine", "fits_in_mujoco", "in_mujoco", "is_model_file_system", "mujoco_runs", "simulated_copy",
+           "term_edit", "text_simulated", "written_form"]
 
 
 def is_model_file_system(system: object) -> bool:
@@ -81,46 +81,45 @@ def written_form(system: System) -> tuple[MJCFTree, dict[str, float], list[Edit]
     return base.TREE, params, [e for e in edits if e is not None]
 
 
+def mujoco_runs(system: System) -> bool:
+    """Whether another engine (MuJoCo) simulates ``system``: :func:`in_mujoco` falls back to the tool's own integrator
+    where the written model does not compile (a body that is no rigid body, say)."""
+    return getattr(system, "external_rollout", None) is not None
+
+
 def in_mujoco(system: System) -> System:
     """``system`` written back and simulated by MuJoCo (:mod:`this module <.written>`), or ``system`` itself when it
     cannot be written (not a model file's, a term MuJoCo cannot simulate) or the written model does not compile (a
     negative total damping, say).  Terms no attribute expresses but MuJoCo simulates (:attr:`~.vocabulary.registry.
     TermKind.in_mujoco`) act around the rollout (:func:`simulated_copy`)."""
-    if getattr(system, "external_rollout", None) is not None:  # already simulated by another engine
+    if mujoco_runs(system):  # already simulated by another engine
         return system
     if isinstance(system, AugmentedSystem) and any(t.kind.mjcf is None for t in system.terms):
         return simulated_copy(system) or system
     form = written_form(system)
-    if form is None or _negative_total(system, form[2]):
+    if form is None:
         return system
+    base = system.base if isinstance(system, AugmentedSystem) else system
+    assert isinstance(base, MJCFSystem)  # (a written form is a model file's)
+    written = _written_values(base.params, form[2])
+    if any(v < 0 for v in written.values()):  # a trial step past zero: MuJoCo would compile a negative rotor inertia
+        return system  # with a warning, and the file's parameters refuse it
     try:  # compiled from the spec: the values in full precision (the text rounds them to six digits)
         model = calibrated_model(*form)
     except ModelFileError:
         return system
-    base = system.base if isinstance(system, AugmentedSystem) else system
-    assert isinstance(base, MJCFSystem)  # (a written form is a model file's)
     out = copy.copy(base)
-    out.params = {**out.params, **_written_values(out.params, form[2])}  # the values MuJoCo simulates
+    out.params = {**out.params, **written}  # the values MuJoCo simulates
     return simulated_by(out, model)
 
 
 def _written_values(params: Mapping[str, object], edits: list[Edit]) -> dict[str, float]:
-    """The file's joint / actuator values after the term edits (added to, or scaling, the file's)."""
+    """The file's joint / actuator values (every one a parameter of the file's system) after the term edits."""
     out: dict[str, float] = {}
     for e in edits:
         key = f"{e.target}.{e.attr}"
-        if key in params:
-            old = out.get(key, float(params[key]))  # type: ignore[arg-type]
-            out[key] = old * e.value if e.op == "scale" else old + e.value
+        out[key] = e.applied(out.get(key, float(params[key])))  # type: ignore[arg-type]
     return out
-
-
-def _negative_total(system: System, edits: list[Edit]) -> bool:
-    """Whether an added term leaves a joint attribute below zero (a trial step past zero): MuJoCo would compile a
-    negative rotor inertia with a warning, and the file's parameters refuse it."""
-    params = getattr(system, "base", system).params
-    return any(e.op == "add" and float(params.get(f"{e.target}.{e.attr}") or 0.0) + e.value < 0
-               for e in edits)
 
 
 def simulated_copy(system: AugmentedSystem) -> AugmentedSystem | None:

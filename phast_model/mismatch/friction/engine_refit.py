@@ -35,7 +35,7 @@ from ..rows import ParamRow
 from ..selection.forward import quantile95
 from ..vocabulary.registry import ARMATURE
 from ..vocabulary.terms import Term
-from ..written import in_mujoco
+from ..written import in_mujoco, mujoco_runs
 from .laws import LawTerm
 from .weakid import WeakFit, WeakModel
 
@@ -198,12 +198,6 @@ def _builder(model: WeakModel, final: WeakFit, items: list[Item]):  # noqa: ANN2
     return build
 
 
-def _mujoco_runs(system: System) -> bool:
-    """Whether MuJoCo simulates ``system`` (:func:`~..written.in_mujoco` falls back to the tool's own integrator where
-    the written model does not compile: a body that is no rigid body, say)."""
-    return getattr(system, "external_rollout", None) is not None
-
-
 def _better_start(shooter: Shooter, X: np.ndarray, model: WeakModel, final: WeakFit, items: list[Item],
                   g0: np.ndarray, max_iter: int) -> tuple[list[Item], ShootFit]:
     """The items with their parameters at the weak form's values, or at the file's where those follow the windows
@@ -215,12 +209,10 @@ def _better_start(shooter: Shooter, X: np.ndarray, model: WeakModel, final: Weak
         return items, shooter.fit_states(weak, X, max_iter=max_iter)
     at_file = [replace(it, start=final.params[it.name].nominal) if it.kind == "param" else it for it in items]
     filed = _builder(model, final, at_file)(g0)
-    if _mujoco_runs(filed) and not _mujoco_runs(weak):
+    if mujoco_runs(filed) and not mujoco_runs(weak):
         return at_file, shooter.fit_states(filed, X, max_iter=max_iter)
     before = shooter.fit_states(weak, X, max_iter=max_iter)
-    # from the states fitted to the weak form's values: the same basin (the values differ by per cent), no
-    # short-window starts needed
-    alt = shooter.fit(lambda g: filed, before.X, np.zeros(0), max_iter=max_iter)
+    alt = shooter.fit_states(filed, before.X, max_iter=max_iter, in_basin=True)  # (the values differ by per cent)
     return (at_file, alt) if alt.cost < before.cost else (items, before)
 
 

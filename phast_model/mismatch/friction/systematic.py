@@ -319,10 +319,9 @@ def systematic(ctx: SystematicContext) -> SystematicResult:
     curve = friction_curve(model.build(final.kwargs, final.armature_terms()), train, window=window, eps=problem.eps)
     passive = is_passive(final.law, curve).to_dict()
     # its training chi^2 as held-out scores simulate it (a model file's: MuJoCo, whose frictionloss stays stable)
-    # (from the states of the refit's closest model where one ran: the same basin, no short-window starts needed)
-    simulated = in_mujoco(augmented)
-    fit = (ctx.cal.shooter.fit_states(simulated, ctx.cal.fit.X, max_iter=problem.opts.max_iter) if engine.X is None
-           else ctx.cal.shooter.fit(lambda g: simulated, engine.X, np.zeros(0), max_iter=problem.opts.max_iter))
+    # (from the states of the refit's closest model where one ran)
+    fit = ctx.cal.shooter.fit_states(in_mujoco(augmented), ctx.cal.fit.X if engine.X is None else engine.X,
+                                     max_iter=problem.opts.max_iter, in_basin=engine.X is not None)
     own = _own_viscous(augmented, problem.q_sample())
     missing = _law_rows(final.law, sels, passive, own, refit is not None) + _armature_rows(final, refit is not None)
     reason = (f"shooting-augmented chi^2/dof {ctx.chi2_aug:.3g} > {problem.opts.systematic_chi2}: the residual is "

@@ -148,15 +148,11 @@ def answer_in_model_terms(report: Report, system: System, held: HeldOut, recordi
     info = {**back.to_dict(), "source": tree.source, "joint_limits_reached": contacts}
     try:
         written = calibrated_xml(tree, back.params, back.edits)
-    except ModelFileError as exc:  # the answer stands; only the file cannot be written
+        fit = {**report.fit, CALIBRATED_XML_ROW: _score_in_mujoco(written.text, held)}
+    except ModelFileError as exc:  # the answer stands; only the file cannot be written (or its values are refused)
         info = {**info, "file": None, "error": str(exc)}
         return replace(report, diagnostics={**report.diagnostics, "mjcf": info})
     info = {**info, "notes": [*back.notes, *written.notes],
             "fit_row": f"fit.{CALIBRATED_XML_ROW}: {CALIBRATED_MODEL} as MuJoCo simulates it"}
-    try:
-        fit = {**report.fit, CALIBRATED_XML_ROW: _score_in_mujoco(written.text, held)}
-    except ModelFileError as exc:  # the text compiles but its values are refused: the answer stands
-        info = {**info, "file": None, "error": str(exc)}
-        return replace(report, diagnostics={**report.diagnostics, "mjcf": info})
     return replace(report, fit=fit, diagnostics={**report.diagnostics, "mjcf": info},
                    files={**report.files, CALIBRATED_MODEL: written.text})
