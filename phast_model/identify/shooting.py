@@ -15,13 +15,11 @@ cost of a step grows linearly with the number of windows.
 
 from __future__ import annotations
 
-import copy
-import dataclasses
 import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, NamedTuple, Protocol
+from typing import NamedTuple, Protocol
 
 import numpy as np
 
@@ -30,6 +28,7 @@ from phast_gym.systems import angle_diff, split
 from phast_gym.systems.base import NUMPY, System
 
 from .delays import history
+from .merging import merge_systems, merged_field_ok
 from .recordings import Recordings
 from .signals import estimate_noise, odd, smooth, time_scale
 
@@ -125,175 +124,6 @@ def _integrated(system: System, q0: np.ndarray, v0: np.ndarray, n_steps: int, u:
     return out
 
 
-# --------------------------------------------------------------------------- several systems as one batch
-class _Unmergeable(Exception):
-    """The systems differ in something other than numbers (a flag, a term list): simulate them one by one."""
-
-
-def _merge_values(vals: Sequence[Any], reps: int) -> Any:
-    """One value standing for ``vals`` (one per system), each system's value repeated over its ``reps`` samples.
-
-    Equal values stay as they are (the same arithmetic as a single system); differing floats become a (K*reps,)
-    array, differing float arrays a (K*reps, ...) one; tuples, lists, dicts, systems and dataclasses (terms) are merged
-    field by field.
-    """
-    v0 = vals[0]
-    t = type(v0)
-    if all(v is v0 for v in vals):
-        return v0
-    if any(type(v) is not t for v in vals):
-        raise _Unmergeable
-    if t is float or issubclass(t, np.floating):
-        if all(v == v0 for v in vals):
-            return v0
-        return np.repeat(np.asarray(vals, dtype=float), reps)
-    if t is tuple or t is list:
-        if any(len(v) != len(v0) for v in vals):
-            raise _Unmergeable
-        return t(_merge_values([v[i] for v in vals], reps) for i in range(len(v0)))
-    if t is dict:
-        if any(v.keys() != v0.keys() for v in vals):
-            raise _Unmergeable
-        return {k: _merge_values([v[k] for v in vals], reps) for k in v0}
-    if isinstance(v0, System) or (dataclasses.is_dataclass(v0) and not isinstance(v0, type)):
-        if any(vars(v).keys() != vars(v0).keys() for v in vals):
-            raise _Unmergeable
-        out = copy.copy(v0)  # no __init__ / __post_init__: they validate scalars
-        for k in vars(v0):
-            object.__setattr__(out, k, _merge_values([vars(v)[k] for v in vals], reps))
-        return out
-    if t is np.ndarray and all(v.shape == v0.shape and np.array_equal(v, v0) for v in vals):
-        return v0
-    if t is np.ndarray and v0.dtype.kind == "f" and v0.ndim and all(v.shape == v0.shape for v in vals):
-        return np.repeat(np.stack(vals), reps, axis=0)  # a parameter array: one row per sample (MJCFSystem broadcasts)
-    if t in (str, bool, int) and all(v == v0 for v in vals):  # a differing int or flag is structure, not a number
-        return v0
-    raise _Unmergeable
-
-
-def merge_systems(systems: Sequence[System], reps: int) -> System | None:
-    """One system that simulates ``len(systems)`` batches of ``reps`` samples, the k-th with ``systems[k]``.
-
-    The systems must be of one class and differ only in float attributes (parameters, coefficients and what
-    is derived from them): those become per-sample arrays, so each sample sees its own system's numbers in
-    the same operations.  The measurement map runs per system.  None when the systems cannot be merged.
-    """
-    merged: Any
-    if all(s is systems[0] for s in systems):  # one system for every batch: itself (never mutated here)
-        return systems[0]
-    try:
-        merged = _merge_values(list(systems), reps)
-    except (_Unmergeable, TypeError):  # TypeError: no instance __dict__ (slots)
-        return None
-    measures: list[Any] = [getattr(s, "measure", None) for s in systems]
-    if measures[0] is not None:
-        def measure(out: np.ndarray) -> np.ndarray:
-            return np.concatenate([m(out[k * reps: (k + 1) * reps]) for k, m in enumerate(measures)])
-        merged.measure = measure
-    size = len(systems) * reps
-    plan: dict[int, list] = {}
-    _take_plan(merged, size, plan)
-    # the integrator refines the samples that cross a switching surface on their own: the system of those samples
-    merged.select_samples = lambda idx: _take_values(merged, idx, size, plan)
-    return merged
-
-
-def _take_plan(v: Any, size: int, plan: dict[int, list]) -> bool:
-    """Whether ``v`` (a merged value of :func:`_merge_values`) holds a per-sample (size,) array; ``plan`` gets, for
-    each container that does (by id), the keys or indices of its items that do."""
-    t = type(v)
-    if t is np.ndarray:
-        return v.shape[:1] == (size,)
-    if t is tuple or t is list:
-        items: Any = enumerate(v)
-    elif t is dict:
-        items = v.items()
-    elif isinstance(v, System) or (dataclasses.is_dataclass(v) and not isinstance(v, type)):
-        items = vars(v).items()
-    else:
-        return False
-    keys = [k for k, x in items if _take_plan(x, size, plan)]
-    if keys:
-        plan[id(v)] = keys
-    return bool(keys)
-
-
-def _take_values(v: Any, idx: np.ndarray, size: int, plan: dict[int, list]) -> Any:
-    """``v`` restricted to the samples ``idx`` of its ``size``: the containers in ``plan`` (:func:`_take_plan`)
-    are copied with their per-sample arrays indexed."""
-    t = type(v)
-    if t is np.ndarray:
-        return v[idx] if v.shape[:1] == (size,) else v
-    keys = plan.get(id(v))
-    if keys is None:
-        return v
-    if t is tuple or t is list:
-        items = list(v)
-        for i in keys:
-            items[i] = _take_values(items[i], idx, size, plan)
-        return t(items)
-    d = dict(v) if t is dict else dict(vars(v))
-    for k in keys:
-        d[k] = _take_values(d[k], idx, size, plan)
-    if t is dict:
-        return d
-    d.pop("select_samples", None)
-    out = object.__new__(t)  # a system or a (frozen) dataclass: no __init__, the fields are set here
-    out.__dict__.update(d)
-    return out
-
-
-def _merged_field_ok(merged: System, systems: Sequence[System], q: list, p: list, u: list | None) -> bool:
-    """Whether the merged system's vector field, switching value and momentum at (q, p, u) (one batch of
-    len(systems) x reps samples) equal each system's on its own samples: a cheap guard against a system that
-    folds a parameter into something other than elementwise arithmetic.
-
-    A switching function that branches on a parameter in Python (``sin q if dd != 0 else None``) cannot take
-    an array parameter: the merged system then uses the first system's, if it gives every system's values here.
-    """
-    try:
-        return _same_field(merged, systems, q, p, u)
-    except (ValueError, TypeError, AttributeError, IndexError):  # e.g. `if param != 0` on an array: not mergeable
-        return False
-
-
-def _same_field(merged: System, systems: Sequence[System], q: list, p: list, u: list | None) -> bool:
-    """:func:`_merged_field_ok` (raises where the merged system cannot evaluate)."""
-    K = len(systems)
-    B = len(q[0])
-    reps = B // K
-
-    def flat(x: object) -> list:
-        if x is None:
-            return []
-        if isinstance(x, (tuple, list)):
-            return [c for xi in x for c in flat(xi)]
-        return [x]
-
-    with np.errstate(all="ignore"):
-        try:
-            s_whole = merged.switching(q, p, NUMPY)
-        except (ValueError, TypeError):
-            merged.switching = systems[0].switching  # type: ignore[method-assign]
-            s_whole = merged.switching(q, p, NUMPY)
-        whole = flat((merged.rhs(q, p, u, NUMPY), s_whole, merged.momentum(q, p, NUMPY)))
-        for k, s in enumerate(systems):
-            sl = slice(k * reps, (k + 1) * reps)
-            qs, ps = [c[sl] for c in q], [c[sl] for c in p]
-            us = None if u is None else [c[sl] for c in u]
-            part = flat((s.rhs(qs, ps, us, NUMPY), s.switching(qs, ps, NUMPY), s.momentum(qs, ps, NUMPY)))
-            if len(part) != len(whole):
-                return False
-            for a, b in zip(whole, part):
-                a = np.broadcast_to(np.asarray(a, dtype=float), (B,))[sl]
-                b = np.broadcast_to(np.asarray(b, dtype=float), (reps,))
-                # to rounding: a contraction may sum in another order for another batch size (einsum)
-                atol = 1e-12 * float(np.max(np.abs(b), initial=0.0, where=np.isfinite(b)))
-                if not np.allclose(a, b, rtol=1e-12, atol=atol, equal_nan=True):
-                    return False
-    return True
-
-
 # --------------------------------------------------------------------------- windows
 def compared_samples(length: int, stride: int) -> np.ndarray:
     """Indices of a window's samples that enter the residual: 0, stride, 2 stride, ... and the last."""
@@ -379,6 +209,24 @@ class Windows:
 
 
 # --------------------------------------------------------------------------- least squares
+@dataclass(frozen=True)
+class Prior:
+    """A Gaussian prior on the globals: the penalty sum_j precision_j (g_j - center_j)^2 in chi^2 units, added to the
+    fit's cost (a maximum a posteriori fit).  Precision zero: no prior on that global.  A body value of a CAD file is
+    a measurement of the machine too, trusted to some tens of per cent: where the recordings do not pin it (a link's
+    moment that trades with a rotor inertia on the same axis) it stays near the file's value instead of wandering."""
+
+    precision: np.ndarray  # (P,)
+    center: np.ndarray  # (P,)
+
+    def cost(self, g: np.ndarray) -> float:
+        return float(np.sum(self.precision * (g - self.center) ** 2))
+
+    def without(self, j: int) -> Prior:
+        keep = np.arange(self.precision.size) != j
+        return Prior(self.precision[keep], self.center[keep])
+
+
 @dataclass
 class ShootFit:
     """Result of a shooting fit: window states, global vector, residuals and Jacobians."""
@@ -392,6 +240,12 @@ class ShootFit:
     n_obs: int
     iterations: int
     groups: np.ndarray | None = None  # (W,) the recording of each window: the clusters of interval_covariance
+    prior: Prior | None = None  # on g (a maximum a posteriori fit): in the objective, steps and covariance
+
+    @property
+    def objective(self) -> float:
+        """What the fit minimizes: the cost plus the prior's penalty (the cost alone without a prior)."""
+        return self.cost + (0.0 if self.prior is None else self.prior.cost(self.g))
 
     @property
     def dof(self) -> int:
@@ -419,11 +273,11 @@ class ShootFit:
         r0 = self.r - self.Jg[..., j] * self.g[j]
         Jg = self.Jg[..., keep]
         JX = self.JX
-        dx, dg = _damped_step(Normal.of(JX, Jg, r0), 0.0)
+        prior = None if self.prior is None else self.prior.without(j)
+        dx, dg = _damped_step(Normal.of(JX, Jg, r0).with_prior(prior, self.g[keep]), 0.0)
         r = r0 + np.einsum("wla,wa->wl", JX, dx) + np.einsum("wlp,p->wl", Jg, dg)
         return ShootFit(self.X + dx, self.g[keep] + dg, r, JX, np.ascontiguousarray(Jg), float(np.sum(r**2)),
-                        self.n_obs, 0,
-                        self.groups)
+                        self.n_obs, 0, self.groups, prior)
 
     def covariance(self) -> np.ndarray:
         """Covariance of g: max of Gauss-Newton (scaled by chi2_red) and window-cluster sandwich."""
@@ -454,7 +308,8 @@ class ShootFit:
     def _scores(self) -> tuple[np.ndarray, np.ndarray]:
         """(H^-1 (P, P), per-window scores (W, P)) of the problem with the window states projected out."""
         r, Jp = self.projected()
-        Hinv = np.linalg.pinv(np.einsum("wlp,wlq->pq", Jp, Jp))
+        H = np.einsum("wlp,wlq->pq", Jp, Jp)
+        Hinv = np.linalg.pinv(H if self.prior is None else H + np.diag(self.prior.precision))
         return Hinv, np.einsum("wlp,wl->wp", Jp, r)
 
     def _covariance(self, Hinv: np.ndarray, scores: np.ndarray) -> np.ndarray:
@@ -509,6 +364,12 @@ class Normal(NamedTuple):
         return cls(np.einsum("wla,wlb->wab", JX, JX), np.einsum("wla,wlp->wap", JX, Jg),
                    np.einsum("wlp,wlq->pq", Jg, Jg),
                    np.einsum("wla,wl->wa", JX, r), np.einsum("wlp,wl->p", Jg, r))
+
+    def with_prior(self, prior: Prior | None, g: np.ndarray) -> Normal:
+        """The normal equations with ``prior``'s penalty at ``g`` added (its curvature and gradient)."""
+        if prior is None:
+            return self
+        return self._replace(C=self.C + np.diag(prior.precision), gg=self.gg + prior.precision * (g - prior.center))
 
 
 def _damped_step(normal: Normal, lam: float) -> tuple[np.ndarray, np.ndarray]:
@@ -683,7 +544,7 @@ class Shooter:
         Xf = Xs.reshape(-1, 2 * n)
         q, v = [Xf[:, i] for i in range(n)], [Xf[:, n + i] for i in range(n)]
         u = None if self.w.u is None else [np.tile(self.w.u[:, 0, i], K) for i in range(n)]
-        return self._residuals(merged, Xs) if _merged_field_ok(merged, reference or systems, q, v, u) else None
+        return self._residuals(merged, Xs) if merged_field_ok(merged, reference or systems, q, v, u) else None
 
     def linearize(self, build: Callable[[np.ndarray], System], system: System, g: np.ndarray, X: np.ndarray,
                   g_step: float, r: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -710,9 +571,11 @@ class Shooter:
     LADDER = (1, 3, 4)
 
     def _lm_step(self, build: Callable[[np.ndarray], System], X: np.ndarray, g: np.ndarray, lam: float, cost: float,
-                 normal: Normal) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, System, float] | None:
-        """The first of the damped steps ``lam 8^i`` (i = 0..7) that lowers the cost, as (X, g, r, cost, system,
-        its lambda); the tries of one :data:`LADDER` rung are simulated as one batch.  None: none lowers it."""
+                 normal: Normal, prior: Prior | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, System, float] | None:
+        """The first of the damped steps ``lam 8^i`` (i = 0..7) that lowers the objective ``cost`` (with ``prior``'s
+        penalty), as (X, g, r, objective, system, its lambda); the tries of one :data:`LADDER` rung are simulated as
+        one batch.  None: none lowers it."""
         i = 0
         for rung in self.LADDER:
             lams = [lam * 8.0 ** (i + t) for t in range(rung)]
@@ -725,19 +588,21 @@ class Shooter:
             if R is None:
                 R = np.stack([self.residual(sn, Xn) for sn, Xn in zip(systems, Xs)])
             for t, la in enumerate(lams):
-                cn = float(np.sum(R[t] ** 2))
+                cn = float(np.sum(R[t] ** 2)) + (0.0 if prior is None else prior.cost(gs[t]))
                 if np.isfinite(cn) and cn < cost:
                     return Xs[t], gs[t], R[t], cn, systems[t], la
         return None
 
     def fit(self, build: Callable[[np.ndarray], System], X0: np.ndarray, g0: np.ndarray,
-            max_iter: int = 25, tol: float = 1e-7, g_step: float = 1e-4, stats: bool = True) -> ShootFit:
+            max_iter: int = 25, tol: float = 1e-7, g_step: float = 1e-4, stats: bool = True,
+            prior: Prior | None = None) -> ShootFit:
         """Levenberg-Marquardt on (window states, g) with Schur elimination of the states.  ``stats=False``: no
-        Jacobians at the final point (JX and Jg come back with no columns), for a fit whose statistics are unused."""
+        Jacobians at the final point (JX and Jg come back with no columns), for a fit whose statistics are unused.
+        ``prior``: a penalty on g added to the cost (:class:`Prior`)."""
         X, g = X0.copy(), np.asarray(g0, dtype=float).copy()
         system = build(g)
         r, JX, Jg = self.linearize(build, system, g, X, g_step)
-        cost = float(np.sum(r**2))
+        cost = float(np.sum(r**2)) + (0.0 if prior is None else prior.cost(g))  # the objective
         lam = 1e-3
         it = 0
         lin: tuple[np.ndarray, np.ndarray] | None = (JX, Jg)  # the Jacobians at the current point, when known
@@ -745,7 +610,7 @@ class Shooter:
         for it in range(1, max_iter + 1):  # noqa: B007
             if lin is None:
                 lin = self.linearize(build, system, g, X, g_step, r)[1:]
-            step = self._lm_step(build, X, g, lam, cost, Normal.of(*lin, r))
+            step = self._lm_step(build, X, g, lam, cost, Normal.of(*lin, r).with_prior(prior, g), prior)
             if step is None:
                 break
             # converged when the gain is negligible in chi^2 units, scaled by chi^2/dof where model error leaves more
@@ -757,17 +622,19 @@ class Shooter:
             if self.heartbeat is not None and self.heartbeat.due():
                 per = (time.monotonic() - started) / it
                 self.heartbeat.say(f"  shooting fit: iteration {it} of at most {max_iter}, chi2/dof "
-                                   f"{cost / max(r.size, 1):.3g}, {per:.0f} s per iteration (at most "
+                                   f"{float(np.sum(r**2)) / max(r.size, 1):.3g}, {per:.0f} s per iteration (at most "
                                    f"{per * (max_iter - it):.0f} s left)")
             if rel < tol:
                 break
         if self.engine_substeps is not None and self.step_check is not None and self.w.count:
             self.step_check.measure(self, system, X, r)
+        cost = float(np.sum(r**2))
         if not stats:
-            return ShootFit(X, g, r, np.zeros(r.shape + (0,)), np.zeros(r.shape + (0,)), cost, r.size, it, self.w.traj)
+            return ShootFit(X, g, r, np.zeros(r.shape + (0,)), np.zeros(r.shape + (0,)), cost, r.size, it, self.w.traj,
+                            prior)
         # Jacobians at the final point for statistics
         JX, Jg = lin if lin is not None else self.linearize(build, system, g, X, g_step, r)[1:]
-        return ShootFit(X, g, r, JX, Jg, cost, r.size, it, self.w.traj)
+        return ShootFit(X, g, r, JX, Jg, cost, r.size, it, self.w.traj, prior)
 
     def fit_states(self, system: System, X0: np.ndarray, max_iter: int = 25, in_basin: bool = False) -> ShootFit:
         """Window states only, by homotopy on the window length (short prefixes first): long windows have local

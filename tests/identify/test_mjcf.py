@@ -12,9 +12,10 @@ mujoco = pytest.importorskip("mujoco")
 
 from phast_gym.systems.mjcf import mjcf_system  # noqa: E402
 from phast_gym.systems.mjcf_tree import ModelFileError, read_tree  # noqa: E402
+from phast_model.identify.merging import merge_systems  # noqa: E402
 from phast_model.identify.mjcf_write import Edit, calibrated_xml  # noqa: E402
 from phast_model.identify.mujoco_sim import rollout_q  # noqa: E402
-from phast_model.identify.shooting import merge_systems, simulate_qv  # noqa: E402
+from phast_model.identify.shooting import simulate_qv  # noqa: E402
 from phast_model.identify.simulators import load_simulator  # noqa: E402
 
 #: a 4-joint tree with what MuJoCo models allow: rotated frames and inertia axes, joint anchors off the body origin,

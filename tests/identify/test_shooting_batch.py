@@ -7,8 +7,9 @@ import pytest
 
 from phast_gym.systems.base import System
 from phast_model.bench.reality import make_reality
+from phast_model.identify.merging import merge_systems
 from phast_model.identify.recordings import Recordings
-from phast_model.identify.shooting import Shooter, Windows, merge_systems, smooth
+from phast_model.identify.shooting import Shooter, Windows, smooth
 from phast_model.identify.simulators import load_simulator
 from phast_model.mismatch import Term
 from phast_model.mismatch.vocabulary.candidates import Family, ScaledTerm

@@ -30,7 +30,7 @@ from scipy.stats import norm
 
 from phast_gym.systems.base import System
 
-from ...identify.shooting import Shooter, ShootFit
+from ...identify.shooting import Prior, Shooter, ShootFit
 from ..rows import ParamRow
 from ..selection.forward import quantile95
 from ..vocabulary.registry import ARMATURE
@@ -51,6 +51,9 @@ AT_NOISE = 3.0
 LOG_BOUND = 30.0
 #: a body value refitted beyond this factor of the file's is not pinned by the windows: held at the file's
 MAX_CHANGE = 3.0
+#: a body value's prior standard deviation, on log(value / the file's value): a CAD file's masses, centres of mass and
+#: moments are measurements of the machine too, good to some tens of per cent (:class:`~...identify.shooting.Prior`)
+BODY_PRIOR_SD = 0.2
 #: start values that leave a chi^2/dof above this (a real arm's model error: 1e6 on the UR10e) are not refitted: no
 #: change of the same terms brings them to the noise, and the refit would cost minutes
 FAR = 100 * AT_NOISE
@@ -216,6 +219,15 @@ def _better_start(shooter: Shooter, X: np.ndarray, model: WeakModel, final: Weak
     return (at_file, alt) if alt.cost < before.cost else (items, before)
 
 
+def body_prior(items: Sequence[Item]) -> Prior:
+    """The prior of the refit's body values: each log-relative value centred on the file's (:data:`BODY_PRIOR_SD`);
+    rotor inertias and friction laws, which the file lacks, have none."""
+    body = [it.kind == "param" and it.nominal != 0.0 and it.start != 0.0 for it in items]
+    center = [math.log(it.nominal / it.start) if b and it.nominal / it.start > 0 else 0.0
+              for it, b in zip(items, body)]
+    return Prior(np.where(body, 1.0 / BODY_PRIOR_SD**2, 0.0), np.array(center, dtype=float))
+
+
 class _Tested(NamedTuple):
     ci95: np.ndarray  # (P, 2) 95% intervals of the values
     t_quantile: float
@@ -242,7 +254,7 @@ def _eliminated(fit: ShootFit, items: list[Item]) -> tuple[ShootFit, list[Item],
     dropped: list[str] = []
     while True:
         scale = max(fit.chi2_red, 1.0)
-        costs = [(fit.without(j).cost - fit.cost) / scale if it.kind != "param" and fit.g[j] > 0 else
+        costs = [(fit.without(j).objective - fit.objective) / scale if it.kind != "param" and fit.g[j] > 0 else
                  (-math.inf if it.kind != "param" or it.runaway(float(fit.g[j])) else math.inf)
                  for j, it in enumerate(items)]
         if not costs or min(costs) >= bar:
@@ -278,7 +290,7 @@ def engine_refit(shooter: Shooter, X: np.ndarray, model: WeakModel, final: WeakF
     if before.chi2_red > FAR:
         return EngineRefit(items, before, np.array([it.value(g) for it, g in zip(items, g0)]),
                            np.full((len(items), 2), np.nan), math.nan, before.cost, [])
-    fit = shooter.fit(_builder(model, final, items), before.X, g0, max_iter=max_iter, tol=TOL)
+    fit = shooter.fit(_builder(model, final, items), before.X, g0, max_iter=max_iter, tol=TOL, prior=body_prior(items))
     # a fit that leaves model error has intervals widened by it, which say nothing about a term: nothing is dropped
     fit_all = fit
     fit, kept, dropped = _eliminated(fit, items) if fit.chi2_red <= AT_NOISE else (fit, items, [])
@@ -289,10 +301,10 @@ def engine_refit(shooter: Shooter, X: np.ndarray, model: WeakModel, final: WeakF
         start = updated(_at_file(final, held), kept, values)
         kept = [replace(it, start=it.value(float(x)) if it.kind == "param" else it.start) for it, x in zip(kept, fit.g)]
         g = np.where([it.kind == "param" for it in kept], 0.0, fit.g)
-        fit = shooter.fit(_builder(model, start, kept), fit.X, g, max_iter=max_iter, tol=TOL)
+        fit = shooter.fit(_builder(model, start, kept), fit.X, g, max_iter=max_iter, tol=TOL, prior=body_prior(kept))
         if fit.chi2_red > AT_NOISE:  # the linearization misjudged a term the data need: every term stays
             (fit, kept), dropped, held = full, [], ()
-    if not fit_all.cost <= before.cost:  # what elimination gives up is judged by its own test, not this one
+    if not fit_all.objective <= before.cost + body_prior(items).cost(g0):  # (elimination is judged by its own test)
         return None
     fit, kept, dropped = _absent_at_zero(fit, kept, dropped)
     tested = _tested(fit, kept)

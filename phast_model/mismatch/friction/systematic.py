@@ -311,7 +311,10 @@ def systematic(ctx: SystematicContext) -> SystematicResult:
     problem.log(f"friction law: {law.name}; parameters {first.kwargs}")
     specs = [spec_of(t.term, t.coordinate, t.velocity) for t in law.terms]
     final = identify(replace(model, kwargs=first.kwargs), train, specs)
-    engine = _in_engine(ctx, model, final, [k for k in beyond if k not in model.params])
+    # every body value is refitted in MuJoCo, under the file's prior (:func:`.engine_refit.body_prior`): the windows
+    # pin more of them than the weak form's balance can tell from a drive, and those it leaves out bend the drives
+    bodies = [k for k in ctx.params if k not in model.params] if ctx.cal.screen.bodies_after else []
+    engine = _in_engine(ctx, model, final, bodies)
     refit = engine.refit
     if refit is not None:
         final = refit.applied(final)
