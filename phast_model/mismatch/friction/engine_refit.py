@@ -16,6 +16,9 @@ noise and no model error (chi^2/dof <= 3): a real arm's recordings, with model e
 The refit is kept only when it follows the windows, before elimination, at least as well as the values it starts from
 (the weak form's, or a trial's).  Body values start at the weak form's or the file's, whichever follows the windows
 better, and one refitted beyond :data:`MAX_CHANGE` times the file's (a moment no joint turns) goes back to the file's.
+Body values are fitted under a prior centred on the file's (:func:`body_prior`, a maximum a posteriori fit): a CAD
+value is a measurement of the machine too, so the windows move the values they pin and the prior holds those they
+leave free (a link's moment about an axis that only trades with the rotor inertia behind it).
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ import numpy as np
 from scipy.stats import norm
 
 from phast_gym.systems.base import System
+from phast_gym.systems.mjcf import is_body_value
 
 from ...identify.shooting import Prior, Shooter, ShootFit
 from ..rows import ParamRow
@@ -221,8 +225,8 @@ def _better_start(shooter: Shooter, X: np.ndarray, model: WeakModel, final: Weak
 
 def body_prior(items: Sequence[Item]) -> Prior:
     """The prior of the refit's body values: each log-relative value centred on the file's (:data:`BODY_PRIOR_SD`);
-    rotor inertias and friction laws, which the file lacks, have none."""
-    body = [it.kind == "param" and it.nominal != 0.0 and it.start != 0.0 for it in items]
+    rotor inertias and friction laws, which the file lacks, and other parameters (a gear) have none."""
+    body = [it.kind == "param" and is_body_value(it.name) and it.nominal != 0.0 and it.start != 0.0 for it in items]
     center = [math.log(it.nominal / it.start) if b and it.nominal / it.start > 0 else 0.0
               for it, b in zip(items, body)]
     return Prior(np.where(body, 1.0 / BODY_PRIOR_SD**2, 0.0), np.array(center, dtype=float))
