@@ -39,6 +39,14 @@ class ParamRow:
     relative_change: float | None = None
     equivalent_changes: str | None = None  # other parameters whose change the recordings cannot tell from this one's
     note: str | None = None
+    #: for a value fitted under a prior (a CAD body value): the share of what is known of it that comes from the
+    #: recordings, 1 - posterior variance / prior variance (below a half: mostly the file's value)
+    data_share: float | None = None
+
+    @property
+    def from_data(self) -> bool:
+        """A changed value the recordings, not a prior, mostly decide."""
+        return self.changed and (self.data_share is None or self.data_share >= 0.5)
 
     @classmethod
     def held(cls, nominal: float, note: str) -> ParamRow:
@@ -52,7 +60,7 @@ class ParamRow:
     def to_dict(self) -> dict[str, Any]:
         return {"nominal": self.nominal, "fitted": self.fitted, "ci95": None if self.ci95 is None else list(self.ci95),
                 **_present([("relative_change", self.relative_change), ("equivalent_changes", self.equivalent_changes),
-                            ("note", self.note)])}
+                            ("note", self.note), ("data_share", self.data_share)])}
 
 
 @dataclass(frozen=True)

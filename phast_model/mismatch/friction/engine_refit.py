@@ -109,10 +109,12 @@ class EngineRefit:
     cost_before: float
     dropped: list[str]
     held: tuple[str, ...] = ()  # parameters returned to the file's values (:meth:`Item.runaway`)
+    data_share: np.ndarray | None = None  # (P,) per item, :attr:`_Tested.data_share`
 
     def applied(self, final: WeakFit) -> WeakFit:
         """``final`` with the refit's values and intervals, and the held parameters at the file's values."""
-        return updated(_at_file(final, self.held), self.items, self.values, self.ci95, self.t_quantile)
+        return updated(_at_file(final, self.held), self.items, self.values, self.ci95, self.t_quantile,
+                       self.data_share)
 
     @property
     def at_noise(self) -> bool:
@@ -132,10 +134,11 @@ class EngineRefit:
                      for it, v in zip(self.items, self.values) if it.kind != "param" and v > 0)
 
 
-def _items(final: WeakFit, armature_on: Sequence[int], starts: Sequence[Term]) -> list[Item]:
-    """The law terms and the friction terms of ``starts`` (e.g. a trial's), a rotor inertia on every joint of
-    ``armature_on`` and the weak form's fitted parameters; a term starts at its value in ``starts`` where there is
-    one."""
+def _items(final: WeakFit, armature_on: Sequence[int], starts: Sequence[Term],
+           law_on: Sequence[tuple[str, int]] = ()) -> list[Item]:
+    """The law terms and the friction terms of ``starts`` (e.g. a trial's), each (kind, joint) of ``law_on`` (from
+    zero where neither has it), a rotor inertia on every joint of ``armature_on`` and the weak form's fitted
+    parameters; a term starts at its value in ``starts`` where there is one."""
     given = {(t.name, t.coordinate): t for t in starts}
 
     def term(kind: str, name: str, i: int, velocity: float, value: float, floor: float) -> Item:
@@ -146,6 +149,10 @@ def _items(final: WeakFit, armature_on: Sequence[int], starts: Sequence[Term]) -
     have = {(it.name, it.coordinate) for it in law}
     law += [term("law", t.name, t.coordinate, t.velocity, t.coefficient, 0.0) for t in starts
             if t.name != ARMATURE.name and (t.name, t.coordinate) not in have]
+    have = {(it.name, it.coordinate) for it in law}
+    sizes = [abs(it.start) for it in law]
+    law += [term("law", name, i, 0.0, 0.0, FLOOR * max(sizes, default=1.0)) for name, i in law_on
+            if (name, i) not in have]
     arm = {a.coordinate: a.coefficient for a in final.armature if a.coefficient > 0}
     big = max([*arm.values(), 0.0])
     inertia = [term("inertia", ARMATURE.name, i, 0.0, arm.get(i, 0.0), FLOOR * big) for i in armature_on]
@@ -176,8 +183,9 @@ def _at_file(final: WeakFit, names: Sequence[str]) -> WeakFit:
 
 
 def updated(final: WeakFit, items: Sequence[Item], values: np.ndarray, ci95: np.ndarray | None = None,
-            t_quantile: float = 1.96) -> WeakFit:
-    """``final`` with the items' values (and intervals, when given); rotor inertias replace the weak form's."""
+            t_quantile: float = 1.96, data_share: np.ndarray | None = None) -> WeakFit:
+    """``final`` with the items' values (and intervals and the recordings' share of a prior-fitted value's
+    information, when given); rotor inertias replace the weak form's."""
     def ci(j: int) -> tuple[float, float]:
         return (float(ci95[j, 0]), float(ci95[j, 1])) if ci95 is not None else (math.nan, math.nan)
 
@@ -190,8 +198,10 @@ def updated(final: WeakFit, items: Sequence[Item], values: np.ndarray, ci95: np.
         if it.kind == "param":
             kwargs[it.name] = float(values[j])
             row = params.get(it.name, ParamRow(it.nominal, it.nominal))  # a body value the refit added
+            share = None if data_share is None or not np.isfinite(data_share[j]) else float(data_share[j])
             params[it.name] = replace(row, fitted=float(values[j]), ci95=ci(j) if ci95 is not None else row.ci95,
-                                      relative_change=float(values[j]) / row.nominal - 1.0 if row.nominal else None)
+                                      relative_change=float(values[j]) / row.nominal - 1.0 if row.nominal else None,
+                                      data_share=share)
     return replace(final, kwargs=kwargs, params=params, armature=armature, law=replace(final.law, terms=terms))
 
 
@@ -235,6 +245,7 @@ def body_prior(items: Sequence[Item]) -> Prior:
 class _Tested(NamedTuple):
     ci95: np.ndarray  # (P, 2) 95% intervals of the values
     t_quantile: float
+    data_share: np.ndarray  # (P,) 1 - variance / prior variance where a prior acts (NaN elsewhere)
 
 
 def _tested(fit: ShootFit, items: Sequence[Item]) -> _Tested:
@@ -244,7 +255,9 @@ def _tested(fit: ShootFit, items: Sequence[Item]) -> _Tested:
     tq = quantile95(dof)
     sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
     ci = np.array([[it.value(float(x - tq * s)), it.value(float(x + tq * s))] for it, x, s in zip(items, fit.g, sd)])
-    return _Tested(ci, tq)
+    prec = np.zeros(len(items)) if fit.prior is None else fit.prior.precision
+    share = np.where(prec > 0, np.clip(1.0 - sd**2 * prec, 0.0, 1.0), np.nan)
+    return _Tested(ci, tq, share)
 
 
 def _eliminated(fit: ShootFit, items: list[Item]) -> tuple[ShootFit, list[Item], list[str]]:
@@ -280,13 +293,15 @@ def _absent_at_zero(fit: ShootFit, items: list[Item], dropped: list[str]) -> tup
 
 
 def engine_refit(shooter: Shooter, X: np.ndarray, model: WeakModel, final: WeakFit, armature_on: Sequence[int],
-                 max_iter: int, starts: Sequence[Term] = (), more_params: Sequence[str] = ()) -> EngineRefit | None:
+                 max_iter: int, starts: Sequence[Term] = (), more_params: Sequence[str] = (),
+                 law_on: Sequence[tuple[str, int]] = ()) -> EngineRefit | None:
     """The weak-form answer ``final`` refitted by shooting through MuJoCo on ``shooter``'s windows (states started at
-    ``X``; the terms of ``starts``, e.g. a trial's refit, considered too and started at their values), as the module
-    docstring says; None when it follows the windows worse than its start does, the start itself (not at the noise)
-    when that is :data:`FAR` from following them."""
+    ``X``; the terms of ``starts``, e.g. a trial's refit, considered too and started at their values; the friction
+    kinds ``law_on`` on their joints too, from zero where neither has them), as the module docstring says; None when
+    it follows the windows worse than its start does, the start itself (not at the noise) when that is :data:`FAR`
+    from following them."""
     final = _with_params(final, model, more_params)
-    items = _items(final, armature_on, starts)
+    items = _items(final, armature_on, starts, law_on)
     if not items:
         return None
     g0 = np.array([it.g0 for it in items])
@@ -313,4 +328,5 @@ def engine_refit(shooter: Shooter, X: np.ndarray, model: WeakModel, final: WeakF
     fit, kept, dropped = _absent_at_zero(fit, kept, dropped)
     tested = _tested(fit, kept)
     values = np.array([it.value(float(x)) for it, x in zip(kept, fit.g)])
-    return EngineRefit(kept, fit, values, tested.ci95, tested.t_quantile, before.cost, dropped, held)
+    return EngineRefit(kept, fit, values, tested.ci95, tested.t_quantile, before.cost, dropped, held,
+                       tested.data_share)

@@ -159,17 +159,20 @@ class _EngineStates:
 
 def _in_engine(ctx: SystematicContext, model: WeakModel, final: WeakFit,
                more_params: Sequence[str] = ()) -> _EngineStates:
-    """A model file's weak-form answer refitted on the shooting windows as MuJoCo simulates it (:mod:`.engine_refit`);
-    no refit for another simulator, or when the refit follows the windows worse than its start or leaves model
-    error."""
+    """A model file's weak-form answer refitted on the shooting windows as MuJoCo simulates it (:mod:`.engine_refit`),
+    with both of MuJoCo's friction kinds (``damping``, ``frictionloss``) on every joint as candidates: the weak form's
+    law choice per joint starts the refit, and the windows, whose backward elimination keeps only what they back,
+    decide it; no refit for another simulator, or when the refit follows the windows worse than its start or leaves
+    model error."""
     problem = ctx.problem
     if not is_model_file_system(problem.sys0):
         return _EngineStates(None, None)
     if ctx.cal.screen.far:
         problem.log("no refit in MuJoCo: the drives alone were far from following the windows (model error)")
         return _EngineStates(None, None)
+    kinds = [k for k in PROVISIONAL_LAW if k in law_terms(problem.opts.terms)]
     refit = engine_refit(ctx.cal.shooter, ctx.cal.fit.X, model, final, model.armature, problem.opts.max_iter,
-                         ctx.cal.screen.starts, more_params)
+                         ctx.cal.screen.starts, more_params, [(k, i) for i in range(problem.n) for k in kinds])
     if refit is None:
         return _EngineStates(None, None)
     chi2 = f"chi2/dof {refit.cost_before / refit.fit.dof:.3g} -> {refit.fit.chi2_red:.3g}"

@@ -75,6 +75,13 @@ class Report:
 
 
 # --------------------------------------------------------------------------- summary
+def _fitted_note(row: ParamRow) -> str:
+    """The table's note of a fitted value: how much of it the recordings decide, where a prior entered."""
+    if row.data_share is None:
+        return "fitted"
+    return f"fitted; {row.data_share:.0%} from the recordings, the rest the file's prior"
+
+
 def _fmt_ci(ci: Sequence[float] | None) -> str:
     return "" if not ci else f" [95% CI {ci[0]:.4g}, {ci[1]:.4g}]"
 
@@ -118,9 +125,13 @@ def summary_text(name: str, calibrated: Mapping[str, ParamRow], missing: Sequenc
     said)."""
     parts = [f"Compared {name} with the recordings (estimated measurement noise "
              f"{float(np.sqrt(np.mean(sigma**2))):.3g})."]
-    cal = [f"{k} {v.nominal:.4g} -> {v.fitted:.4g}{_fmt_ci(v.ci95)}" for k, v in calibrated.items() if v.ci95]
+    cal = [f"{k} {v.nominal:.4g} -> {v.fitted:.4g}{_fmt_ci(v.ci95)}" for k, v in calibrated.items() if v.from_data]
     if cal:
         parts.append("Calibrated parameters: " + "; ".join(cal) + ".")
+    prior = sum(v.changed and not v.from_data for v in calibrated.values())
+    if prior:
+        parts.append(f"{prior} more value(s) refitted within the file's prior: the recordings carry less than half of "
+                     "what is known of them (the table).")
     # the simulator does not describe the recordings / found terms do not predict: nothing is named
     parts += list(verdicts)
     if missing:
@@ -162,7 +173,7 @@ def markdown(report: Report) -> str:
              "| parameter | nominal | fitted | 95% CI | note |", "|---|---|---|---|---|"]
     for k, v in report.calibrated.items():
         ci_s = f"[{v.ci95[0]:.4g}, {v.ci95[1]:.4g}]" if v.ci95 else "-"
-        lines.append(f"| {k} | {v.nominal:.4g} | {v.fitted:.4g} | {ci_s} | {v.note or 'fitted'} |")
+        lines.append(f"| {k} | {v.nominal:.4g} | {v.fitted:.4g} | {ci_s} | {v.note or _fitted_note(v)} |")
     lines += ["", "## Where the mismatch is (calibrated model, training recordings)", ""]
     if d["located"]:
         lines += ["| coordinate | component | where | when | share |", "|---|---|---|---|---|"]
