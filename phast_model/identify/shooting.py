@@ -15,6 +15,7 @@ cost of a step grows linearly with the number of windows.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -278,6 +279,13 @@ class ShootFit:
         r = r0 + np.einsum("wla,wa->wl", JX, dx) + np.einsum("wlp,p->wl", Jg, dg)
         return ShootFit(self.X + dx, self.g[keep] + dg, r, JX, np.ascontiguousarray(Jg), float(np.sum(r**2)),
                         self.n_obs, 0, self.groups, prior)
+
+    def without_effect(self, j: int) -> ShootFit:
+        """The fit with global ``j`` taken out where it has no effect on the simulation (a coefficient the model clips
+        at zero): the same residuals, nothing else moved."""
+        keep = [i for i in range(self.g.size) if i != j]
+        return dataclasses.replace(self, g=self.g[keep], Jg=np.ascontiguousarray(self.Jg[..., keep]),
+                                   prior=None if self.prior is None else self.prior.without(j))
 
     def covariance(self) -> np.ndarray:
         """Covariance of g: max of Gauss-Newton (scaled by chi2_red) and window-cluster sandwich."""

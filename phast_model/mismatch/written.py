@@ -19,6 +19,7 @@ import tempfile
 from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 
@@ -33,8 +34,10 @@ from .fitting.problem import Problem
 from .vocabulary.registry import VOCABULARY
 from .vocabulary.terms import AugmentedSystem
 
-__all__ = ["family_engine", "fits_in_mujoco", "in_mujoco", "is_model_file_system", "mujoco_runs", "simulated_copy",
-           "term_edit", "text_simulated", "written_form"]
+__all__ = ["family_engine", "fits_in_mujoco", "in_engine", "in_mujoco", "is_model_file_system", "mujoco_runs",
+           "simulated_copy", "term_edit", "text_simulated", "written_form"]
+
+_S = TypeVar("_S", bound=System)
 
 
 def is_model_file_system(system: object) -> bool:
@@ -84,7 +87,7 @@ def written_form(system: System) -> tuple[MJCFTree, dict[str, float], list[Edit]
 def mujoco_runs(system: System) -> bool:
     """Whether another engine (MuJoCo) simulates ``system``: :func:`in_mujoco` falls back to the tool's own integrator
     where the written model does not compile (a body that is no rigid body, say)."""
-    return getattr(system, "external_rollout", None) is not None
+    return getattr(system, "external_rollout", None) is not None and not getattr(system, "refused", False)
 
 
 def in_mujoco(system: System) -> System:
@@ -155,7 +158,7 @@ def simulated_copy(system: AugmentedSystem) -> AugmentedSystem | None:
     return out
 
 
-def _refused(system: AugmentedSystem) -> AugmentedSystem:
+def _refused(system: _S) -> _S:
     """A copy of ``system`` whose rollouts are NaN: values MuJoCo refuses (a negative total friction in a trial step)
     give a residual no fit accepts, never a silent switch to another integrator."""
     def external_rollout(q0: np.ndarray, v0: np.ndarray, n_steps: int, u: np.ndarray | None,
@@ -164,7 +167,15 @@ def _refused(system: AugmentedSystem) -> AugmentedSystem:
 
     out = copy.copy(system)
     out.external_rollout = external_rollout  # type: ignore[attr-defined]
+    out.refused = True  # type: ignore[attr-defined]
     return out
+
+
+def in_engine(system: System) -> System:
+    """``system`` as MuJoCo simulates it (:func:`in_mujoco`), or refused (:func:`_refused`) where MuJoCo does not
+    simulate it (a trial body that is no rigid body): a fit in MuJoCo never switches integrators silently."""
+    out = in_mujoco(system)
+    return out if mujoco_runs(out) else _refused(out)
 
 
 def family_engine(system: AugmentedSystem) -> AugmentedSystem:

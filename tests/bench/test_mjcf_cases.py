@@ -154,8 +154,8 @@ def test_a_cases_data_seed_does_not_depend_on_the_list():
 def test_drives_missing_and_body_values_off_at_once(seed):
     """arm6_mixed (the UR10e's situation in miniature): the drives nearly follow the sample, so they come first and
     the body values after them; every hidden drive is found and no body value absorbs one (seed 4: with only the
-    body values the weak form picked refitted, the others bent the drives; seed 2: the weak form chose Coulomb friction for a
-    damping, and both of MuJoCo's kinds on every joint let the windows decide)."""
+    body values the weak form picked refitted, the others bent the drives; seed 2: the weak form chose Coulomb
+    friction for a damping, and both of MuJoCo's kinds on every joint let the windows decide)."""
     row = mc.run_case(CASES["arm6_mixed"], seed=seed)
     assert row["passed"], row["reason"]
     assert row["fit"]["calibrated_xml"]["rollout_rmse"] < 0.1 * row["fit"]["nominal"]["rollout_rmse"]

@@ -39,7 +39,7 @@ from ..rows import ParamRow
 from ..selection.forward import quantile95
 from ..vocabulary.registry import ARMATURE
 from ..vocabulary.terms import Term
-from ..written import in_mujoco, mujoco_runs
+from ..written import in_engine, mujoco_runs
 from .laws import LawTerm
 from .weakid import WeakFit, WeakModel
 
@@ -211,7 +211,7 @@ def _builder(model: WeakModel, final: WeakFit, items: list[Item]):  # noqa: ANN2
         # MuJoCo refuses a negative inertia or friction: at zero the term is absent, which the interval then says
         values = np.where([it.kind != "param" for it in items], np.maximum(values, 0.0), values)
         fit = updated(final, items, values)
-        return in_mujoco(fit.law.augmented(model.build(fit.kwargs, fit.armature_terms(significant_only=False))))
+        return in_engine(fit.law.augmented(model.build(fit.kwargs, fit.armature_terms(significant_only=False))))
     return build
 
 
@@ -283,13 +283,32 @@ def _eliminated(fit: ShootFit, items: list[Item]) -> tuple[ShootFit, list[Item],
 
 def _absent_at_zero(fit: ShootFit, items: list[Item], dropped: list[str]) -> tuple[ShootFit, list[Item], list[str]]:
     """Terms fitted at zero or below leave the answer: MuJoCo simulates them at zero (:func:`_builder`), so they are
-    absent from the model the fit describes, and a negative friction or inertia is not missing physics (dropped on
-    the fit's linearization, :meth:`ShootFit.without`: no new simulation)."""
+    absent from the model the fit describes (the same fit, nothing else moved: :meth:`ShootFit.without_effect`), and a
+    negative friction or inertia is not missing physics."""
     for j in reversed(range(len(items))):
         if items[j].kind != "param" and not items[j].value(float(fit.g[j])) > 0:
             dropped = [*dropped, items[j].label]
-            fit, items = fit.without(j), items[:j] + items[j + 1:]
+            fit, items = fit.without_effect(j), items[:j] + items[j + 1:]
     return fit, items, dropped
+
+
+def _kept_start(final: WeakFit, kept: list[Item], g: np.ndarray) -> tuple[WeakFit, list[Item], np.ndarray]:
+    """``final`` with the kept items at ``g``, the items restarted there (a parameter's start: its value), and their
+    g from that start."""
+    start = updated(final, kept, np.array([it.value(float(x)) for it, x in zip(kept, g)]))
+    items = [replace(it, start=it.value(float(x)) if it.kind == "param" else it.start) for it, x in zip(kept, g)]
+    return start, items, np.where([it.kind == "param" for it in items], 0.0, g)
+
+
+def _refit_kept(shooter: Shooter, model: WeakModel, final: WeakFit, kept: list[Item],
+                starts: tuple[np.ndarray, np.ndarray], X: np.ndarray, max_iter: int) -> tuple[ShootFit, list[Item]]:
+    """The items left after elimination refitted, from the linearized fit without the dropped ones (``starts[0]``,
+    :meth:`ShootFit.without`), or from their values in the fit of every item (``starts[1]``) where MuJoCo refuses
+    the first (a linear step can take a body past A + B >= C)."""
+    start, items, g = _kept_start(final, kept, starts[0])
+    if not mujoco_runs(_builder(model, start, items)(g)):
+        start, items, g = _kept_start(final, kept, starts[1])
+    return shooter.fit(_builder(model, start, items), X, g, max_iter=max_iter, tol=TOL, prior=body_prior(items)), items
 
 
 def engine_refit(shooter: Shooter, X: np.ndarray, model: WeakModel, final: WeakFit, armature_on: Sequence[int],
@@ -316,12 +335,10 @@ def engine_refit(shooter: Shooter, X: np.ndarray, model: WeakModel, final: WeakF
     held = tuple(it.name for it in items if it.kind == "param" and it.label in dropped)
     if dropped:
         full = (fit_all, items)
-        values = np.array([it.value(float(x)) for it, x in zip(kept, fit.g)])
-        start = updated(_at_file(final, held), kept, values)
-        kept = [replace(it, start=it.value(float(x)) if it.kind == "param" else it.start) for it, x in zip(kept, fit.g)]
-        g = np.where([it.kind == "param" for it in kept], 0.0, fit.g)
-        fit = shooter.fit(_builder(model, start, kept), fit.X, g, max_iter=max_iter, tol=TOL, prior=body_prior(kept))
-        if fit.chi2_red > AT_NOISE:  # the linearization misjudged a term the data need: every term stays
+        in_full = [fit_all.g[[it.label for it in items].index(it.label)] for it in kept]
+        fit, kept = _refit_kept(shooter, model, _at_file(final, held), kept, (fit.g, np.array(in_full)), fit.X,
+                                max_iter)
+        if not fit.chi2_red <= AT_NOISE:  # the linearization misjudged a term the data need: every term stays
             (fit, kept), dropped, held = full, [], ()
     if not fit_all.objective <= before.cost + body_prior(items).cost(g0):  # (elimination is judged by its own test)
         return None
