@@ -124,3 +124,18 @@ def test_a_written_model_whose_values_are_refused_is_an_error_the_report_can_nam
     assert text != arm.read_text()
     with pytest.raises(ModelFileError, match="refused"):
         text_simulated(text)
+
+
+def test_a_fit_in_muJoCo_refuses_a_body_that_is_no_rigid_body(arm):
+    """Every principal moment of link2 fitted and past A + B >= C: MuJoCo does not compile it, so a fit's trial there
+    rolls out NaN (in_engine) instead of running on the tool's integrator (in_mujoco's fallback for scoring)."""
+    from phast_model.mismatch.written import in_engine, mujoco_runs
+
+    sim = load_simulator(str(arm))
+    bad = sim.build(**{"link2.inertia_x": 0.03, "link2.inertia_y": 0.016, "link2.inertia_z": 0.005})  # 0.021 < 0.03
+    assert not mujoco_runs(in_mujoco(bad))
+    refused = in_engine(bad)
+    assert not mujoco_runs(refused)
+    assert np.all(np.isnan(simulate_qv(refused, np.zeros((2, bad.n)), np.zeros((2, bad.n)), 5, None, 0.01, 1)))
+    good = in_engine(sim.build(**{"link2.inertia_x": 0.02, "link2.inertia_y": 0.017, "link2.inertia_z": 0.004}))
+    assert mujoco_runs(good)
