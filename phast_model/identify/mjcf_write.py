@@ -65,18 +65,21 @@ TEXT_MARGIN = 1e-5
 
 
 def physical_moments(name: str, moments: list[float], fixed: set[int]) -> tuple[list[float], list[str]]:
-    """Principal moments that satisfy A + B >= C (a rigid body), raising the moments not in ``fixed`` (those the
-    data did not change) as little as needed; with a sentence per raise."""
+    """Principal moments that satisfy A + B >= C (a rigid body), raising the smaller of the other two moments as little
+    as needed, one not in ``fixed`` (those the data did not change) where there is one; with a sentence per raise.
+    So a fit of all three moments that takes a body past the bound simulates, and writes, the nearest rigid body
+    along that moment (as a friction coefficient past zero simulates zero)."""
     out, notes = list(moments), []
     for c in sorted(range(3), key=lambda i: -out[i]):
         others = [i for i in range(3) if i != c]
         short = out[c] - sum(out[i] for i in others)
         free = [i for i in others if i not in fixed]
-        if short > 0 and free:
+        if short > 0:
             short += TEXT_MARGIN * out[c]  # the MJCF text rounds every moment: the bound must hold after rounding
-            i = min(free, key=lambda j: out[j])
+            i = min(free or others, key=lambda j: out[j])
+            why = "the recordings did not change it" if free else "the fitted moments broke it"
             notes.append(f"{name}.inertia_{AXES[i]} raised {out[i]:.4g} -> {out[i] + short:.4g} so that the body stays "
-                         "rigid (A + B >= C); the recordings did not change it")
+                         f"rigid (A + B >= C); {why}")
             out[i] += short
     return out, notes
 

@@ -126,16 +126,21 @@ def test_a_written_model_whose_values_are_refused_is_an_error_the_report_can_nam
         text_simulated(text)
 
 
-def test_a_fit_in_muJoCo_refuses_a_body_that_is_no_rigid_body(arm):
-    """Every principal moment of link2 fitted and past A + B >= C: MuJoCo does not compile it, so a fit's trial there
-    rolls out NaN (in_engine) instead of running on the tool's integrator (in_mujoco's fallback for scoring)."""
+def test_a_fit_in_muJoCo_simulates_and_writes_the_nearest_rigid_body_and_refuses_what_muJoCo_refuses(arm):
+    """Every principal moment of link2 fitted and past A + B >= C: MuJoCo simulates, and the file gets, the body with
+    the smaller other moment raised to the bound, with a note; a value MuJoCo refuses outright (a negative total
+    rotor inertia) rolls out NaN in a fit (in_engine), never on the tool's integrator."""
+    from phast_model.identify.mjcf_write import calibrated_xml
     from phast_model.mismatch.written import in_engine, mujoco_runs
 
     sim = load_simulator(str(arm))
-    bad = sim.build(**{"link2.inertia_x": 0.03, "link2.inertia_y": 0.016, "link2.inertia_z": 0.005})  # 0.021 < 0.03
-    assert not mujoco_runs(in_mujoco(bad))
+    moments = {"link2.inertia_x": 0.03, "link2.inertia_y": 0.016, "link2.inertia_z": 0.005}  # 0.021 < 0.03
+    assert mujoco_runs(in_engine(sim.build(**moments)))
+    written = calibrated_xml(mjcf_system(arm).TREE, moments)
+    assert any("link2.inertia_z raised 0.005 -> 0.014" in n and "the fitted moments broke it" in n
+               for n in written.notes)
+    bad = AugmentedSystem(mjcf_system(arm)(), [Term("armature", 0, 0.01)])
+    object.__setattr__(bad.terms[0], "coefficient", -1.0)  # past Term's own check, as a trial step can be
     refused = in_engine(bad)
     assert not mujoco_runs(refused)
     assert np.all(np.isnan(simulate_qv(refused, np.zeros((2, bad.n)), np.zeros((2, bad.n)), 5, None, 0.01, 1)))
-    good = in_engine(sim.build(**{"link2.inertia_x": 0.02, "link2.inertia_y": 0.017, "link2.inertia_z": 0.004}))
-    assert mujoco_runs(good)
