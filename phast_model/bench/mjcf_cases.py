@@ -18,6 +18,10 @@ recordings (q with Gaussian noise, u, dt) and the NOMINAL file; the last 25% of 
   shoulder frictionloss, elbow damping.
 * ``arm6_mixed``: the 6-joint arm with the drives of ``arm6_drives`` and every body value 3-8% off at once (a
   vendor's file against the machine: motors left out, CAD values off); the drives are the rows to find.
+* ``ur10e_mixed``: a UR10e-like arm built from Universal Robots' published DH parameters, masses and centres of mass,
+  with a UR10e's drives (rotor inertia of 0.2-5 kg m^2, Coulomb friction of 2-15 N m and viscous friction on every
+  joint, drawn about the real arm's identified sizes) and every body value 3-8% off; recorded under the machine's
+  own computed-torque controller.
 * ``cartpole``: a cart on a rail with a hanging pole, force on the cart; hidden: pole-hinge damping and cart
   frictionloss.
 
@@ -105,6 +109,10 @@ class Case:
     #: the PD acts through the nominal mass matrix (computed torque): every mode of a long chain gets the bandwidth;
     #: a per-joint PD on the diagonal alone drives the 6-joint arm's fast modes unstable at 100 Hz
     computed_torque: bool = False
+    #: the PD and the gravity torque through the machine's own model (its controller knows its drives and inertias,
+    #: as an industrial arm's does), not the nominal file's: a wrist whose rotor inertia is a hundred times its link's
+    #: would barely move under gains sized for the link alone
+    own_controller: bool = False
     free_q0: dict[str, float] = field(default_factory=dict)  # unactuated joint -> initial angle uniform in +- value
     n_traj: int = 16
     T: int = 400
@@ -117,18 +125,40 @@ def _joint_edit(target: str, attr: str, value: float, term: str) -> HiddenEdits:
     return lambda spec, rng: [Hidden("joint", target, attr, value, term)]
 
 
+def _rigid(factors: dict[str, float], moments: np.ndarray) -> dict[str, float]:
+    """The principal moments' error factors, all of one sign (the first's) where the drawn ones break A + B >= C (a
+    slender link: a CAD error leaves a rigid body), and all the first's where even that breaks it; the same factors
+    otherwise."""
+    keys = [f"inertia_{a}" for a in "xyz"]
+    if not all(k in factors for k in keys):
+        return factors
+
+    def rigid(f: dict[str, float]) -> bool:
+        new = moments * np.array([f[k] for k in keys])
+        return bool(np.all(2 * new <= new.sum()))
+
+    if rigid(factors):
+        return factors
+    sign = math.copysign(1.0, factors[keys[0]] - 1.0)
+    same = {**factors, **{k: 1.0 + sign * abs(factors[k] - 1.0) for k in keys}}
+    return same if rigid(same) else {**factors, **{k: factors[keys[0]] for k in keys}}
+
+
 def _cad_errors(spec: mujoco.MjSpec, rng: np.random.Generator) -> list[Hidden]:
-    """Every non-zero mass, centre-of-mass coordinate and principal inertia of every body 3-8% off (random signs)."""
+    """Every non-zero mass, centre-of-mass coordinate and principal inertia of every body 3-8% off (random signs; a
+    body stays rigid: :func:`_rigid`)."""
     out = []
     for body in spec.bodies:
         if not body.name or body.name == "world":
             continue
         vals = {"mass": body.mass, **{f"ipos_{a}": body.ipos[k] for k, a in enumerate("xyz")},
                 **{f"inertia_{a}": body.inertia[k] for k, a in enumerate("xyz")}}
-        for attr, v in vals.items():
-            if v != 0.0 and np.isfinite(v):  # a body whose inertia MuJoCo infers from its geoms has none to edit
-                f = 1.0 + rng.choice([-1.0, 1.0]) * rng.uniform(0.03, 0.08)
-                out.append(Hidden("body", body.name, attr, float(f"{float(v) * f:.6g}")))  # as to_xml writes it
+        # a body whose inertia MuJoCo infers from its geoms has none to edit
+        factors = {attr: 1.0 + rng.choice([-1.0, 1.0]) * rng.uniform(0.03, 0.08)
+                   for attr, v in vals.items() if v != 0.0 and np.isfinite(v)}
+        factors = _rigid(factors, np.array(body.inertia, dtype=float))
+        out += [Hidden("body", body.name, attr, float(f"{float(vals[attr]) * f:.6g}"))  # as to_xml writes it
+                for attr, f in factors.items()]
     return out
 
 
@@ -196,6 +226,24 @@ def _drives7(spec: mujoco.MjSpec, rng: np.random.Generator) -> list[Hidden]:
     return out
 
 
+UR_JOINTS = [f"{j}_joint" for j in ("shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3")]
+UR_TARGETS = {j: Targets(c, 0.2, 0.4, 0.2, 0.8) for j, c in zip(UR_JOINTS, (0.0, -1.57, 1.57, -1.57, -1.57, 0.0))}
+UR_BANDWIDTH = {j: 3.0 for j in UR_JOINTS}
+#: a UR10e's drives at the sizes identified on the real arm (docs/robot_models.md, "A real UR10e"): reflected rotor
+#: inertia [kg m^2], gearbox Coulomb friction [N m] and viscous friction [N m s] per joint
+UR_DRIVES = {"armature": (4.2, 5.3, 1.1, 0.24, 0.26, 0.32), "frictionloss": (14.0, 15.0, 6.0, 2.3, 2.8, 2.4),
+             "damping": (20.0, 19.0, 8.6, 3.0, 2.3, 3.0)}
+UR_TERMS = {"armature": "armature", "frictionloss": "coulomb_friction", "damping": "viscous_damping"}
+
+
+def _ur_drives_and_cad(spec: mujoco.MjSpec, rng: np.random.Generator) -> list[Hidden]:
+    """Every joint's rotor inertia, Coulomb and viscous friction at a UR10e's sizes, each 0.8-1.25 times them (drawn
+    from the seed), and every body value 3-8% off: 18 drive values and 36 body values at once."""
+    drives = [Hidden("joint", j, attr, float(f"{v * rng.uniform(0.8, 1.25):.4g}"), UR_TERMS[attr])
+              for attr, values in UR_DRIVES.items() for j, v in zip(UR_JOINTS, values)]
+    return drives + _cad_errors(spec, rng)
+
+
 CASES: dict[str, Case] = {c.name: c for c in [
     Case("furuta", "furuta.xml", "effect", "rotary pendulum; hidden: pendulum frictionloss",
          {"arm": Targets(0.0, 0.5, 0.8, 0.2, 1.0)}, {"arm": 2.0},
@@ -241,6 +289,10 @@ CASES: dict[str, Case] = {c.name: c for c in [
     Case("arm7_drives", "arm7.xml", "effect", "7-joint spatial arm (roll, pitch/yaw, wrist roll); hidden: drives "
          "with random sizes on every joint (rotor inertia on six, frictionloss or damping on each)", ARM7_TARGETS,
          ARM7_BANDWIDTH, _drives7, gravity_comp=True, computed_torque=True, n_traj=16, T=400),
+    Case("ur10e_mixed", "ur10e_like.xml", "effect", "UR10e-like arm (UR's published DH, masses, centres of mass); "
+         "hidden: rotor inertia, Coulomb and viscous friction on every joint at a UR10e's sizes and every body value "
+         "3-8% off", UR_TARGETS, UR_BANDWIDTH, _ur_drives_and_cad, gravity_comp=True, computed_torque=True,
+         own_controller=True, n_traj=16, T=400),
 ]}
 
 
@@ -436,7 +488,8 @@ def record(case: Case, real_path: str | Path, n_traj: int, T: int, seed: int,
     act_jnt = [int(nom.actuator_trnid[a, 0]) for a in range(nom.nu)]
     act_names = [mujoco.mj_id2name(nom, mujoco.mjtObj.mjOBJ_JOINT, j) for j in act_jnt]
     act_q = [int(nom.jnt_qposadr[j]) for j in act_jnt]
-    ctl = _Controller(case, nom, act_q, [int(nom.jnt_dofadr[j]) for j in act_jnt], nom.actuator_gear[:, 0].copy())
+    ctl = _Controller(case, real if case.own_controller else nom, act_q, [int(nom.jnt_dofadr[j]) for j in act_jnt],
+                      nom.actuator_gear[:, 0].copy())
     rng = np.random.default_rng([seed, 1])
     t = np.arange(T) * DT
     n, m = real.nq, real.nu
@@ -481,7 +534,7 @@ def effect_over_noise(case: Case, real_path: str | Path, rec: dict[str, Any], wi
 #: each case's share of the data seed, frozen as its documented runs drew it (the order of :data:`CASES` at the time):
 #: a case added later takes the next number, and reordering the list changes no recording
 SEED_INDEX = {"furuta": 0, "arm3": 1, "arm3_cad": 2, "weak_motor": 3, "arm3_drives": 4, "arm6_drives": 5,
-              "cartpole": 6, "arm7_drives": 7, "arm6_mixed": 6, "arm2_drives": 5}
+              "cartpole": 6, "arm7_drives": 7, "arm6_mixed": 6, "arm2_drives": 5, "ur10e_mixed": 8}
 
 
 def case_seed(seed: int, name: str) -> int:

@@ -19,21 +19,24 @@ CASE_NAMES = list(CASES)
 
 def test_the_cases_are_there():
     assert CASE_NAMES == ["furuta", "arm3", "arm3_cad", "weak_motor", "arm3_drives", "arm2_drives", "arm6_drives",
-                          "arm6_mixed", "cartpole", "arm7_drives"]
+                          "arm6_mixed", "cartpole", "arm7_drives", "ur10e_mixed"]
     assert all(mc.nominal_path(c).is_file() for c in CASES.values())
     with pytest.raises(ValueError, match="cases"):  # a case without its models folder says where to get one
         mc.nominal_path(mc.CASES["furuta"])
 
 
-@pytest.mark.parametrize("name", ["arm6_drives", "arm6_mixed", "arm7_drives"])
+@pytest.mark.parametrize("name", ["arm6_drives", "arm6_mixed", "arm7_drives", "ur10e_mixed"])
 def test_a_long_arm_is_recorded_under_a_stable_loop(name, tmp_path):
     """The computed-torque PD keeps the 6- and 7-joint arms near their targets, nominal or real (a per-joint PD on the
-    mass-matrix diagonal drove the nominal 6-joint arm to 1e11 rad)."""
+    mass-matrix diagonal drove the nominal 6-joint arm to 1e11 rad); the UR10e-like arm's own controller moves even
+    the wrists whose rotor inertia is a hundred times their links' moments."""
     case = CASES[name]
+    centres = np.array([t.center for t in case.targets.values()])
     for hidden in ([], mc.hidden_effects(case, 0)):
         rec = mc.record(case, mc.write_real(case, hidden, tmp_path), 2, 150, 0)
         v = np.diff(rec["q_true"], axis=1) / rec["dt"]
-        assert np.abs(rec["q_true"]).max() < 1.5 and np.sqrt(np.mean(v**2)) < 3.0
+        assert np.abs(rec["q_true"] - centres).max() < 1.5 and np.sqrt(np.mean(v**2)) < 3.0
+        assert np.all(np.sqrt(np.mean(v**2, axis=(0, 1))) > 0.1)  # every joint moves
 
 
 @pytest.mark.parametrize("name", CASE_NAMES)
@@ -159,6 +162,14 @@ def test_drives_missing_and_body_values_off_at_once(seed):
     row = mc.run_case(CASES["arm6_mixed"], seed=seed)
     assert row["passed"], row["reason"]
     assert row["fit"]["calibrated_xml"]["rollout_rmse"] < 0.1 * row["fit"]["nominal"]["rollout_rmse"]
+
+
+@pytest.mark.slow  # a UR10e-sized arm end to end: about 170 s of CPU
+def test_a_ur10e_like_arm_with_its_drives_and_cad_errors():
+    """18 drive values at a UR10e's sizes (rotor inertia up to 5 kg m^2, gearbox friction up to 15 N m) and 36 body
+    values off at once: every drive found within 30%."""
+    row = mc.run_case(CASES["ur10e_mixed"], seed=0)
+    assert row["passed"], row["reason"]
 
 
 def test_a_refitted_body_value_the_windows_do_not_pin_returns_to_the_files():
