@@ -39,12 +39,12 @@ def compared_models(rec: dict, kwargs: dict, ident: dict[str, float], progress: 
 
 
 def run(data: Path, out: Path, regime: str = "partial", epochs: int = RigTrainConfig().epochs,
-        progress: bool = True) -> dict:
+        progress: bool = True, seed: int = 0) -> dict:
     rec, kwargs, ident = load(data)
     compare = compared_models(rec, kwargs, ident, progress)
     spec = RecordingsSpec(rec, "PHAST/DoublePendulum-v0", kwargs, regime, DEFAULT_HOLDOUT, ROLLOUT_WINDOW_S,
                           compare=compare)
-    metrics = train_recordings_run(spec, out, RigTrainConfig(epochs=epochs, progress=progress))
+    metrics = train_recordings_run(spec, out, RigTrainConfig(epochs=epochs, progress=progress, seed=seed))
     return headline(metrics, regime, REFERENCE, out)
 
 

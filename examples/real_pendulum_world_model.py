@@ -33,11 +33,11 @@ REFERENCE = {"phast-mismatch augmented / published": 0.345}
 
 
 def run(data: Path, out: Path, regime: str = "partial", epochs: int = RigTrainConfig().epochs,
-        progress: bool = True) -> dict:
+        progress: bool = True, seed: int = 0) -> dict:
     rec, kwargs = load(data)
     spec = RecordingsSpec(rec, "PHAST/Pendulum-v0", kwargs, regime, HOLDOUT, None, decimate=DECIMATE)
     # UNKNOWN starts from the recorded motion (phast_model.train.motion_start): no window warm-up is needed
-    train = RigTrainConfig(epochs=epochs, window_s=WINDOW_S, state_iters=STATE_ITERS, progress=progress)
+    train = RigTrainConfig(epochs=epochs, window_s=WINDOW_S, state_iters=STATE_ITERS, progress=progress, seed=seed)
     metrics = train_recordings_run(spec, out, train)
     return headline(metrics, regime, REFERENCE, out)
 

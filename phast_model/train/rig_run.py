@@ -229,8 +229,8 @@ def headline(metrics: dict[str, Any], regime: str, reference: dict[str, float], 
 
 def example_cli(argv: list[str] | None, description: str, default_data: Path,
                 run: Callable[..., Mapping[str, object]], name: str) -> int:
-    """The command line of a real-rig example: ``--data --out --regime --epochs --json --quiet``; ``run(data, out,
-    regime, epochs, progress)`` returns the headline dict."""
+    """The command line of a real-rig example: ``--data --out --regime --epochs --seed --json --quiet``; ``run(data,
+    out, regime, epochs, progress, seed)`` returns the headline dict."""
     import argparse
     import json
     import sys
@@ -242,11 +242,13 @@ def example_cli(argv: list[str] | None, description: str, default_data: Path,
     ap.add_argument("--out", type=Path, required=True, help="run directory")
     ap.add_argument("--regime", default="partial", choices=("known", "partial", "unknown"))
     ap.add_argument("--epochs", type=int, default=RigTrainConfig().epochs)
+    ap.add_argument("--seed", type=int, default=RigTrainConfig().seed,
+                    help="the training seed (initialization, validation split, the windows drawn each epoch)")
     ap.add_argument("--json", type=Path, help="write the headline numbers here")
     ap.add_argument("--quiet", action="store_true")
     args = ap.parse_args(argv)
     try:
-        res = run(args.data, args.out, args.regime, args.epochs, progress=not args.quiet)
+        res = run(args.data, args.out, args.regime, args.epochs, progress=not args.quiet, seed=args.seed)
     except ValueError as exc:
         print(f"{name}: error: {exc}", file=sys.stderr)
         return 2
