@@ -53,13 +53,13 @@ from ...identify.simulators import known_params
 from ..calibrate import Calibration
 from ..evaluate import HeldOut
 from ..explainers import Answer, Context, Declined
-from ..fitting.problem import Problem
+from ..fitting.problem import Problem, longer_windows, smoothed_states
 from ..rows import Alternative, ParamRow, TermRow, param_value
 from ..vocabulary.candidates import Candidate
 from ..vocabulary.registry import ARMATURE, COULOMB, VISCOUS, law_terms
 from ..vocabulary.terms import VOCABULARY, AugmentedSystem, Term
 from ..written import in_mujoco, is_model_file_system
-from .engine_refit import EngineRefit, engine_refit
+from .engine_refit import AT_NOISE, EngineRefit, engine_refit
 from .laws import FrictionLaw, spec_of
 from .lawselect import LawSelection, select_friction
 from .passivity import check_against_curve, is_passive
@@ -170,9 +170,8 @@ def _in_engine(ctx: SystematicContext, model: WeakModel, final: WeakFit,
     if ctx.cal.screen.far:
         problem.log("no refit in MuJoCo: the drives alone were far from following the windows (model error)")
         return _EngineStates(None, None)
-    kinds = [k for k in PROVISIONAL_LAW if k in law_terms(problem.opts.terms)]
     refit = engine_refit(ctx.cal.shooter, ctx.cal.fit.X, model, final, model.armature, problem.opts.max_iter,
-                         ctx.cal.screen.starts, more_params, [(k, i) for i in range(problem.n) for k in kinds])
+                         ctx.cal.screen.starts, more_params, _law_on(problem))
     if refit is None:
         return _EngineStates(None, None)
     chi2 = f"chi2/dof {refit.cost_before / refit.fit.dof:.3g} -> {refit.fit.chi2_red:.3g}"
@@ -182,6 +181,61 @@ def _in_engine(ctx: SystematicContext, model: WeakModel, final: WeakFit,
     problem.log(f"refitted in MuJoCo on the windows: {chi2}"
                 + (f"; dropped {refit.dropped} (not backed by the data)" if refit.dropped else ""))
     return _EngineStates(refit, refit.fit.X)
+
+
+#: the longer look at a model file's body values: windows this many times the shooting windows (a driven robot's
+#: held-out windows are 4 of them), at most :data:`BODY_LOOK_WINDOWS` of them spread over the recordings
+BODY_LOOK = 4
+BODY_LOOK_WINDOWS = 16
+
+
+def _refitted(ctx: SystematicContext, model: WeakModel, final: WeakFit) -> tuple[WeakFit, _EngineStates]:
+    """The weak-form answer refitted in MuJoCo (:func:`_in_engine`), with every body value where they come after the
+    drives (under the file's prior, :func:`.engine_refit.body_prior`: the windows pin more of them than the weak
+    form's balance can tell from a drive, and those it leaves out bend the drives), and where the drives alone
+    followed the windows, the body values' longer look (:func:`_bodies_on_longer_windows`)."""
+    bodies = [k for k in ctx.params if k not in model.params] if ctx.cal.screen.bodies_after else []
+    engine = _in_engine(ctx, model, final, bodies)
+    if engine.refit is None:
+        return final, engine
+    final = engine.refit.applied(final)
+    look = None if ctx.cal.screen.bodies_after else _bodies_on_longer_windows(ctx, model, final, engine.refit)
+    return (final, engine) if look is None else (look.applied(final), replace(engine, refit=look))
+
+
+def _bodies_on_longer_windows(ctx: SystematicContext, model: WeakModel, final: WeakFit,
+                              refit: EngineRefit) -> EngineRefit | None:
+    """Where the drives alone follow the shooting windows and the answer keeps the file's body values, the answer on
+    windows :data:`BODY_LOOK` times longer: body values a few per cent off, which short windows cannot tell next to
+    a rotor inertia of kilograms-metres squared, show there.  When the answer does not follow those windows to the
+    noise (chi^2/dof above :data:`.engine_refit.AT_NOISE`), the refit in MuJoCo runs on them with every body value
+    under the file's prior, and its answer stands when it follows them to the noise.  None: nothing adopted."""
+    problem = ctx.problem
+    bodies = [k for k in body_values(problem) if k not in final.params]
+    if not bodies:
+        return None
+    windows = longer_windows(problem, BODY_LOOK * problem.shoot_window)
+    windows = windows.select(np.unique(np.linspace(0, windows.count - 1, min(BODY_LOOK_WINDOWS, windows.count))
+                                       .round().astype(int)))
+    shooter = problem.shooter(windows)
+    states = shooter.fit_states(in_mujoco(final.system(model)), smoothed_states(problem.qs, problem.vs, windows),
+                                max_iter=problem.opts.max_iter)
+    problem.log(f"the answer on {windows.count} windows {BODY_LOOK}x longer: chi2/dof {states.chi2_red:.3g}")
+    if states.chi2_red <= AT_NOISE:
+        return None
+    long = engine_refit(shooter, states.X, model, final, model.armature, problem.opts.max_iter, refit.terms(), bodies,
+                        _law_on(problem))
+    stands = long is not None and long.at_noise
+    said = "no refit" if long is None else f"chi2/dof {long.fit.chi2_red:.3g}"
+    problem.log(f"refitted on them with the {len(bodies)} body values under the file's prior: {said}"
+                + ("" if stands else ": the short windows' answer stands"))
+    return long if stands else None
+
+
+def _law_on(problem: Problem) -> list[tuple[str, int]]:
+    """Both of MuJoCo's friction kinds on every joint (of the vocabulary's): the refit's friction candidates."""
+    kinds = [k for k in PROVISIONAL_LAW if k in law_terms(problem.opts.terms)]
+    return [(k, i) for i in range(problem.n) for k in kinds]
 
 
 def _weak_model(ctx: SystematicContext, window: int) -> WeakModel:
@@ -207,7 +261,9 @@ def _calibrated_rows(ctx: SystematicContext, fit: WeakFit, held: list[str],
         rows[k] = ParamRow.held(nominal[k], "held at nominal: fitting it does not predict left-out recordings better "
                                             "(details.friction.parameter_check)")
     for k, row in fit.params.items():
-        rows[k] = replace(row, note="weak-form fit jointly with the friction law (and the armature where u drives)")
+        rows[k] = replace(row, note="weak-form fit jointly with the friction law (and the armature where u drives)"
+                          if row.data_share is None else "refitted in MuJoCo under the file's prior: "
+                          f"{row.data_share:.0%} of what is known of it from the recordings")
     for k in no_signal:  # a row the shooting answer or the fit above made keeps its other fields
         note = "held at nominal: the friction law (added to the model's own dissipation) covers it"
         rows[k] = (replace(rows[k], fitted=nominal[k], ci95=None, note=note) if k in rows
@@ -314,13 +370,8 @@ def systematic(ctx: SystematicContext) -> SystematicResult:
     problem.log(f"friction law: {law.name}; parameters {first.kwargs}")
     specs = [spec_of(t.term, t.coordinate, t.velocity) for t in law.terms]
     final = identify(replace(model, kwargs=first.kwargs), train, specs)
-    # every body value is refitted in MuJoCo, under the file's prior (:func:`.engine_refit.body_prior`): the windows
-    # pin more of them than the weak form's balance can tell from a drive, and those it leaves out bend the drives
-    bodies = [k for k in ctx.params if k not in model.params] if ctx.cal.screen.bodies_after else []
-    engine = _in_engine(ctx, model, final, bodies)
+    final, engine = _refitted(ctx, model, final)
     refit = engine.refit
-    if refit is not None:
-        final = refit.applied(final)
     augmented = final.system(model)
     curve = friction_curve(model.build(final.kwargs, final.armature_terms()), train, window=window, eps=problem.eps)
     passive = is_passive(final.law, curve).to_dict()
