@@ -53,13 +53,13 @@ from ...identify.simulators import known_params
 from ..calibrate import Calibration
 from ..evaluate import HeldOut
 from ..explainers import Answer, Context, Declined
-from ..fitting.problem import Problem, longer_windows, smoothed_states
+from ..fitting.problem import Problem
 from ..rows import Alternative, ParamRow, TermRow, param_value
 from ..vocabulary.candidates import Candidate
 from ..vocabulary.registry import ARMATURE, COULOMB, VISCOUS, law_terms
 from ..vocabulary.terms import VOCABULARY, AugmentedSystem, Term
 from ..written import in_mujoco, is_model_file_system
-from .engine_refit import AT_NOISE, EngineRefit, engine_refit
+from .engine_refit import EngineRefit, engine_refit
 from .laws import FrictionLaw, spec_of
 from .lawselect import LawSelection, select_friction
 from .passivity import check_against_curve, is_passive
@@ -183,53 +183,13 @@ def _in_engine(ctx: SystematicContext, model: WeakModel, final: WeakFit,
     return _EngineStates(refit, refit.fit.X)
 
 
-#: the longer look at a model file's body values: windows this many times the shooting windows (a driven robot's
-#: held-out windows are 4 of them), at most :data:`BODY_LOOK_WINDOWS` of them spread over the recordings
-BODY_LOOK = 4
-BODY_LOOK_WINDOWS = 16
-
-
 def _refitted(ctx: SystematicContext, model: WeakModel, final: WeakFit) -> tuple[WeakFit, _EngineStates]:
     """The weak-form answer refitted in MuJoCo (:func:`_in_engine`), with every body value where they come after the
     drives (under the file's prior, :func:`.engine_refit.body_prior`: the windows pin more of them than the weak
-    form's balance can tell from a drive, and those it leaves out bend the drives), and where the drives alone
-    followed the windows, the body values' longer look (:func:`_bodies_on_longer_windows`)."""
+    form's balance can tell from a drive, and those it leaves out bend the drives)."""
     bodies = [k for k in ctx.params if k not in model.params] if ctx.cal.screen.bodies_after else []
     engine = _in_engine(ctx, model, final, bodies)
-    if engine.refit is None:
-        return final, engine
-    final = engine.refit.applied(final)
-    look = None if ctx.cal.screen.bodies_after else _bodies_on_longer_windows(ctx, model, final, engine.refit)
-    return (final, engine) if look is None else (look.applied(final), replace(engine, refit=look))
-
-
-def _bodies_on_longer_windows(ctx: SystematicContext, model: WeakModel, final: WeakFit,
-                              refit: EngineRefit) -> EngineRefit | None:
-    """Where the drives alone follow the shooting windows and the answer keeps the file's body values, the answer on
-    windows :data:`BODY_LOOK` times longer: body values a few per cent off, which short windows cannot tell next to
-    a rotor inertia of kilograms-metres squared, show there.  When the answer does not follow those windows to the
-    noise (chi^2/dof above :data:`.engine_refit.AT_NOISE`), the refit in MuJoCo runs on them with every body value
-    under the file's prior, and its answer stands when it follows them to the noise.  None: nothing adopted."""
-    problem = ctx.problem
-    bodies = [k for k in body_values(problem) if k not in final.params]
-    if not bodies:
-        return None
-    windows = longer_windows(problem, BODY_LOOK * problem.shoot_window)
-    windows = windows.select(np.unique(np.linspace(0, windows.count - 1, min(BODY_LOOK_WINDOWS, windows.count))
-                                       .round().astype(int)))
-    shooter = problem.shooter(windows)
-    states = shooter.fit_states(in_mujoco(final.system(model)), smoothed_states(problem.qs, problem.vs, windows),
-                                max_iter=problem.opts.max_iter)
-    problem.log(f"the answer on {windows.count} windows {BODY_LOOK}x longer: chi2/dof {states.chi2_red:.3g}")
-    if states.chi2_red <= AT_NOISE:
-        return None
-    long = engine_refit(shooter, states.X, model, final, model.armature, problem.opts.max_iter, refit.terms(), bodies,
-                        _law_on(problem))
-    stands = long is not None and long.at_noise
-    said = "no refit" if long is None else f"chi2/dof {long.fit.chi2_red:.3g}"
-    problem.log(f"refitted on them with the {len(bodies)} body values under the file's prior: {said}"
-                + ("" if stands else ": the short windows' answer stands"))
-    return long if stands else None
+    return (final, engine) if engine.refit is None else (engine.refit.applied(final), engine)
 
 
 def _law_on(problem: Problem) -> list[tuple[str, int]]:
