@@ -226,6 +226,22 @@ def _drives7(spec: mujoco.MjSpec, rng: np.random.Generator) -> list[Hidden]:
     return out
 
 
+def _mixed(drives: HiddenEdits) -> HiddenEdits:
+    """``drives`` and, at once, every body value 3-8% off (:func:`_cad_errors`)."""
+    return lambda spec, rng: drives(spec, rng) + _cad_errors(spec, rng)
+
+
+def _drives3(spec: mujoco.MjSpec, rng: np.random.Generator) -> list[Hidden]:
+    """The 3-joint arm's geared motors: rotor inertia on every joint (behind the yaw one number with the turret's
+    inertia), frictionloss on the shoulder and elbow, damping on the yaw."""
+    return [Hidden("joint", "yaw", "armature", 0.004, "armature"),
+            Hidden("joint", "shoulder", "armature", 0.012, "armature"),
+            Hidden("joint", "elbow", "armature", 0.006, "armature"),
+            Hidden("joint", "shoulder", "frictionloss", 0.08, "coulomb_friction"),
+            Hidden("joint", "elbow", "frictionloss", 0.04, "coulomb_friction"),
+            Hidden("joint", "yaw", "damping", 0.03, "viscous_damping")]
+
+
 UR_JOINTS = [f"{j}_joint" for j in ("shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3")]
 UR_TARGETS = {j: Targets(c, 0.2, 0.4, 0.2, 0.8) for j, c in zip(UR_JOINTS, (0.0, -1.57, 1.57, -1.57, -1.57, 0.0))}
 UR_BANDWIDTH = {j: 3.0 for j in UR_JOINTS}
@@ -260,12 +276,7 @@ CASES: dict[str, Case] = {c.name: c for c in [
     Case("arm3_drives", "arm3.xml", "effect", "3-joint arm; hidden: rotor inertia on every joint (behind the yaw it "
          "is one number with the turret's inertia), frictionloss on two joints, damping on one", ARM_TARGETS,
          ARM_BANDWIDTH,
-         lambda spec, rng: [Hidden("joint", "yaw", "armature", 0.004, "armature"),
-                            Hidden("joint", "shoulder", "armature", 0.012, "armature"),
-                            Hidden("joint", "elbow", "armature", 0.006, "armature"),
-                            Hidden("joint", "shoulder", "frictionloss", 0.08, "coulomb_friction"),
-                            Hidden("joint", "elbow", "frictionloss", 0.04, "coulomb_friction"),
-                            Hidden("joint", "yaw", "damping", 0.03, "viscous_damping")], gravity_comp=True, **ARM_SIZE),
+         _drives3, gravity_comp=True, **ARM_SIZE),
     Case("arm2_drives", "arm2.xml", "effect", "2-joint planar arm; hidden: rotor inertia on both joints (the "
          "shoulder's is one number with the upper arm's inertia about its axis), frictionloss on the shoulder, "
          "damping on the elbow", {j: ARM_TARGETS[j] for j in ("shoulder", "elbow")},
@@ -293,6 +304,11 @@ CASES: dict[str, Case] = {c.name: c for c in [
          "hidden: rotor inertia, Coulomb and viscous friction on every joint at a UR10e's sizes and every body value "
          "3-8% off", UR_TARGETS, UR_BANDWIDTH, _ur_drives_and_cad, gravity_comp=True, computed_torque=True,
          own_controller=True, n_traj=16, T=400),
+    Case("arm3_mixed", "arm3.xml", "effect", "3-joint arm; hidden: the drives of arm3_drives and every body value "
+         "3-8% off (17 values)", ARM_TARGETS, ARM_BANDWIDTH, _mixed(_drives3), gravity_comp=True, **ARM_SIZE),
+    Case("arm7_mixed", "arm7.xml", "effect", "7-joint spatial arm; hidden: the drives of arm7_drives (drawn from the "
+         "seed) and every body value 3-8% off", ARM7_TARGETS, ARM7_BANDWIDTH, _mixed(_drives7), gravity_comp=True,
+         computed_torque=True, n_traj=16, T=400),
 ]}
 
 
@@ -534,7 +550,8 @@ def effect_over_noise(case: Case, real_path: str | Path, rec: dict[str, Any], wi
 #: each case's share of the data seed, frozen as its documented runs drew it (the order of :data:`CASES` at the time):
 #: a case added later takes the next number, and reordering the list changes no recording
 SEED_INDEX = {"furuta": 0, "arm3": 1, "arm3_cad": 2, "weak_motor": 3, "arm3_drives": 4, "arm6_drives": 5,
-              "cartpole": 6, "arm7_drives": 7, "arm6_mixed": 6, "arm2_drives": 5, "ur10e_mixed": 8}
+              "cartpole": 6, "arm7_drives": 7, "arm6_mixed": 6, "arm2_drives": 5, "ur10e_mixed": 8,
+              "arm3_mixed": 9, "arm7_mixed": 10}
 
 
 def case_seed(seed: int, name: str) -> int:

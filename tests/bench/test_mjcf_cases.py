@@ -19,13 +19,13 @@ CASE_NAMES = list(CASES)
 
 def test_the_cases_are_there():
     assert CASE_NAMES == ["furuta", "arm3", "arm3_cad", "weak_motor", "arm3_drives", "arm2_drives", "arm6_drives",
-                          "arm6_mixed", "cartpole", "arm7_drives", "ur10e_mixed"]
+                          "arm6_mixed", "cartpole", "arm7_drives", "ur10e_mixed", "arm3_mixed", "arm7_mixed"]
     assert all(mc.nominal_path(c).is_file() for c in CASES.values())
     with pytest.raises(ValueError, match="cases"):  # a case without its models folder says where to get one
         mc.nominal_path(mc.CASES["furuta"])
 
 
-@pytest.mark.parametrize("name", ["arm6_drives", "arm6_mixed", "arm7_drives", "ur10e_mixed"])
+@pytest.mark.parametrize("name", ["arm6_drives", "arm6_mixed", "arm7_drives", "ur10e_mixed", "arm7_mixed"])
 def test_a_long_arm_is_recorded_under_a_stable_loop(name, tmp_path):
     """The computed-torque PD keeps the 6- and 7-joint arms near their targets, nominal or real (a per-joint PD on the
     mass-matrix diagonal drove the nominal 6-joint arm to 1e11 rad); the UR10e-like arm's own controller moves even
