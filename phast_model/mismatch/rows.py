@@ -45,8 +45,12 @@ class ParamRow:
 
     @property
     def from_data(self) -> bool:
-        """A changed value the recordings, not a prior, mostly decide."""
-        return self.changed and (self.data_share is None or self.data_share >= 0.5)
+        """A changed value the recordings, not a prior, mostly decide, and whose interval excludes the file's value
+        where a prior entered."""
+        if not self.changed or self.data_share is None:
+            return self.changed
+        lo, hi = sorted(self.ci95) if self.ci95 is not None else (self.nominal, self.nominal)
+        return self.data_share >= 0.5 and not lo <= self.nominal <= hi
 
     @classmethod
     def held(cls, nominal: float, note: str) -> ParamRow:

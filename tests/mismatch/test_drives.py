@@ -227,11 +227,13 @@ def test_the_summary_names_the_values_the_recordings_decide_and_counts_the_prior
     from phast_model.mismatch.report.document import summary_text
     from phast_model.mismatch.rows import ParamRow
 
-    rows = {"link3.mass": ParamRow(0.8, 0.84, (0.74, 0.95), 0.05, data_share=0.9),
+    rows = {"link3.mass": ParamRow(0.8, 0.84, (0.82, 0.86), 0.05, data_share=0.9),
             "link1.ipos_y": ParamRow(0.005, 0.00501, (0.0032, 0.0078), 0.002, data_share=0.1),
             "gear": ParamRow(1.0, 0.85, (0.84, 0.86), -0.15)}
     fit = SimpleNamespace(rmse=lambda name: 0.01, evaluated_on="held-out recordings", energy_check=None)
     text = summary_text("arm.xml", rows, [], [], fit, 1.0, 1.0, np.full(2, 0.002))  # type: ignore[arg-type]
     assert "link3.mass 0.8 -> 0.84" in text and "gear 1 -> 0.85" in text and "link1.ipos_y" not in text
     assert "1 more value(s) refitted within the file's prior" in text
+    held = ParamRow(0.9, 0.901, (0.89, 0.91), 0.001, data_share=0.95)  # decided by the data, and at the file's value
+    assert not held.from_data and held.changed
     assert rows["link1.ipos_y"].to_dict()["data_share"] == 0.1 and "data_share" not in rows["gear"].to_dict()

@@ -130,8 +130,8 @@ def summary_text(name: str, calibrated: Mapping[str, ParamRow], missing: Sequenc
         parts.append("Calibrated parameters: " + "; ".join(cal) + ".")
     prior = sum(v.changed and not v.from_data for v in calibrated.values())
     if prior:
-        parts.append(f"{prior} more value(s) refitted within the file's prior: the recordings carry less than half of "
-                     "what is known of them (the table).")
+        parts.append(f"{prior} more value(s) refitted within the file's prior, each consistent with the file's value "
+                     "or mostly decided by the prior (the table).")
     # the simulator does not describe the recordings / found terms do not predict: nothing is named
     parts += list(verdicts)
     if missing:
