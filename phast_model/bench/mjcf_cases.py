@@ -197,11 +197,11 @@ def _drives6(spec: mujoco.MjSpec, rng: np.random.Generator) -> list[Hidden]:
     return arm + fric + damp
 
 
-def _drives6_and_cad(spec: mujoco.MjSpec, rng: np.random.Generator) -> list[Hidden]:
-    """The drives of ``arm6_drives`` and, at once, every body value 3-8% off (the situation of a real arm from its
-    vendor's file: motors left out and a CAD model that is not the machine).  The drives are the rows to find; the
+def _mixed(drives: HiddenEdits) -> HiddenEdits:
+    """``drives`` and, at once, every body value 3-8% off (:func:`_cad_errors`): the situation of a real arm from its
+    vendor's file, motors left out and a CAD model that is not the machine.  The drives are the rows to find; the
     body values are parameter changes, not missing physics."""
-    return _drives6(spec, rng) + _cad_errors(spec, rng)
+    return lambda spec, rng: drives(spec, rng) + _cad_errors(spec, rng)
 
 
 ARM7_JOINTS = [f"j{i}" for i in range(1, 8)]
@@ -226,11 +226,6 @@ def _drives7(spec: mujoco.MjSpec, rng: np.random.Generator) -> list[Hidden]:
     return out
 
 
-def _mixed(drives: HiddenEdits) -> HiddenEdits:
-    """``drives`` and, at once, every body value 3-8% off (:func:`_cad_errors`)."""
-    return lambda spec, rng: drives(spec, rng) + _cad_errors(spec, rng)
-
-
 def _drives3(spec: mujoco.MjSpec, rng: np.random.Generator) -> list[Hidden]:
     """The 3-joint arm's geared motors: rotor inertia on every joint (behind the yaw one number with the turret's
     inertia), frictionloss on the shoulder and elbow, damping on the yaw."""
@@ -252,12 +247,11 @@ UR_DRIVES = {"armature": (4.2, 5.3, 1.1, 0.24, 0.26, 0.32), "frictionloss": (14.
 UR_TERMS = {"armature": "armature", "frictionloss": "coulomb_friction", "damping": "viscous_damping"}
 
 
-def _ur_drives_and_cad(spec: mujoco.MjSpec, rng: np.random.Generator) -> list[Hidden]:
+def _ur_drives(spec: mujoco.MjSpec, rng: np.random.Generator) -> list[Hidden]:
     """Every joint's rotor inertia, Coulomb and viscous friction at a UR10e's sizes, each 0.8-1.25 times them (drawn
-    from the seed), and every body value 3-8% off: 18 drive values and 36 body values at once."""
-    drives = [Hidden("joint", j, attr, float(f"{v * rng.uniform(0.8, 1.25):.4g}"), UR_TERMS[attr])
-              for attr, values in UR_DRIVES.items() for j, v in zip(UR_JOINTS, values)]
-    return drives + _cad_errors(spec, rng)
+    from the seed): 18 drive values."""
+    return [Hidden("joint", j, attr, float(f"{v * rng.uniform(0.8, 1.25):.4g}"), UR_TERMS[attr])
+            for attr, values in UR_DRIVES.items() for j, v in zip(UR_JOINTS, values)]
 
 
 CASES: dict[str, Case] = {c.name: c for c in [
@@ -290,7 +284,7 @@ CASES: dict[str, Case] = {c.name: c for c in [
          "frictionloss on three, damping on two", ARM6_TARGETS, ARM6_BANDWIDTH, _drives6, gravity_comp=True,
          computed_torque=True, n_traj=16, T=400),
     Case("arm6_mixed", "arm6.xml", "effect", "6-joint spatial arm; hidden: the drives of arm6_drives and every "
-         "body value 3-8% off", ARM6_TARGETS, ARM6_BANDWIDTH, _drives6_and_cad, gravity_comp=True,
+         "body value 3-8% off", ARM6_TARGETS, ARM6_BANDWIDTH, _mixed(_drives6), gravity_comp=True,
          computed_torque=True, n_traj=16, T=400),
     Case("cartpole", "cartpole.xml", "effect", "cart with hanging pole; hidden: pole damping, cart frictionloss",
          {"slider": Targets(0.0, 0.05, 0.15, 0.15, 0.6)}, {"slider": 1.0},
@@ -302,7 +296,7 @@ CASES: dict[str, Case] = {c.name: c for c in [
          ARM7_BANDWIDTH, _drives7, gravity_comp=True, computed_torque=True, n_traj=16, T=400),
     Case("ur10e_mixed", "ur10e_like.xml", "effect", "UR10e-like arm (UR's published DH, masses, centres of mass); "
          "hidden: rotor inertia, Coulomb and viscous friction on every joint at a UR10e's sizes and every body value "
-         "3-8% off", UR_TARGETS, UR_BANDWIDTH, _ur_drives_and_cad, gravity_comp=True, computed_torque=True,
+         "3-8% off", UR_TARGETS, UR_BANDWIDTH, _mixed(_ur_drives), gravity_comp=True, computed_torque=True,
          own_controller=True, n_traj=16, T=400),
     Case("arm3_mixed", "arm3.xml", "effect", "3-joint arm; hidden: the drives of arm3_drives and every body value "
          "3-8% off (17 values)", ARM_TARGETS, ARM_BANDWIDTH, _mixed(_drives3), gravity_comp=True, **ARM_SIZE),
@@ -446,11 +440,12 @@ def _pd_gains(case: Case, nominal: mujoco.MjModel) -> tuple[np.ndarray, np.ndarr
 
 @dataclass
 class _Controller:
-    """The recording's controller: PD on the measured q (filtered finite-difference velocity), optionally through the
-    nominal mass matrix, plus the nominal model's gravity torque."""
+    """The recording's controller: PD on the measured q (filtered finite-difference velocity), optionally through its
+    ``model``'s mass matrix, plus that model's gravity torque (``model``: the nominal file, or the machine's own:
+    :attr:`Case.own_controller`)."""
 
     case: Case
-    nominal: mujoco.MjModel
+    model: mujoco.MjModel
     act_q: list[int]
     act_v: list[int]
     gear: np.ndarray
@@ -459,8 +454,8 @@ class _Controller:
     def __post_init__(self) -> None:
         import mujoco
 
-        self.kp, self.kd = _pd_gains(self.case, self.nominal)
-        self.data = mujoco.MjData(self.nominal)
+        self.kp, self.kd = _pd_gains(self.case, self.model)
+        self.data = mujoco.MjData(self.model)
         self.reset()
 
     def reset(self) -> None:
@@ -479,10 +474,10 @@ class _Controller:
             dn = self.data
             dn.qpos[:] = qm
             dn.qvel[:] = 0
-            mujoco.mj_forward(self.nominal, dn)
+            mujoco.mj_forward(self.model, dn)
             if self.case.computed_torque:
-                M = np.zeros((self.nominal.nv, self.nominal.nv))
-                mujoco.mj_fullM(self.nominal, dn, M)
+                M = np.zeros((self.model.nv, self.model.nv))
+                mujoco.mj_fullM(self.model, dn, M)
                 tau = M[np.ix_(self.act_v, self.act_v)] @ tau
             if self.case.gravity_comp:
                 tau = tau + dn.qfrc_bias[self.act_v]

@@ -15,11 +15,10 @@ cost of a step grows linearly with the number of windows.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import NamedTuple, Protocol
 
 import numpy as np
@@ -284,7 +283,7 @@ class ShootFit:
         """The fit with global ``j`` taken out where it has no effect on the simulation (a coefficient the model clips
         at zero): the same residuals, nothing else moved."""
         keep = [i for i in range(self.g.size) if i != j]
-        return dataclasses.replace(self, g=self.g[keep], Jg=np.ascontiguousarray(self.Jg[..., keep]),
+        return replace(self, g=self.g[keep], Jg=np.ascontiguousarray(self.Jg[..., keep]),
                                    prior=None if self.prior is None else self.prior.without(j))
 
     def covariance(self) -> np.ndarray:

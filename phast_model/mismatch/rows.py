@@ -47,9 +47,9 @@ class ParamRow:
     def from_data(self) -> bool:
         """A changed value the recordings, not a prior, mostly decide, and whose interval excludes the file's value
         where a prior entered."""
-        if not self.changed or self.data_share is None:
+        if self.ci95 is None or self.data_share is None:
             return self.changed
-        lo, hi = sorted(self.ci95) if self.ci95 is not None else (self.nominal, self.nominal)
+        lo, hi = sorted(self.ci95)
         return self.data_share >= 0.5 and not lo <= self.nominal <= hi
 
     @classmethod

@@ -86,7 +86,8 @@ def written_form(system: System) -> tuple[MJCFTree, dict[str, float], list[Edit]
 
 def mujoco_runs(system: System) -> bool:
     """Whether another engine (MuJoCo) simulates ``system``: :func:`in_mujoco` falls back to the tool's own integrator
-    where the written model does not compile (a body that is no rigid body, say)."""
+    where the written model does not compile or its values are refused (a negative total rotor inertia, say), and a
+    refused copy (:func:`_refused`) simulates nothing."""
     return getattr(system, "external_rollout", None) is not None and not getattr(system, "refused", False)
 
 
@@ -173,7 +174,8 @@ def _refused(system: _S) -> _S:
 
 def in_engine(system: System) -> System:
     """``system`` as MuJoCo simulates it (:func:`in_mujoco`), or refused (:func:`_refused`) where MuJoCo does not
-    simulate it (a trial body that is no rigid body): a fit in MuJoCo never switches integrators silently."""
+    simulate it (a trial step past a negative total rotor inertia, a body value the compiler rejects): a fit in MuJoCo
+    never switches integrators silently."""
     out = in_mujoco(system)
     return out if mujoco_runs(out) else _refused(out)
 

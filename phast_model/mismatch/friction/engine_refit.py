@@ -305,8 +305,8 @@ def _kept_start(final: WeakFit, kept: list[Item], g: np.ndarray) -> tuple[WeakFi
 def _refit_kept(shooter: Shooter, model: WeakModel, final: WeakFit, kept: list[Item],
                 starts: tuple[np.ndarray, np.ndarray], X: np.ndarray, max_iter: int) -> tuple[ShootFit, list[Item]]:
     """The items left after elimination refitted, from the linearized fit without the dropped ones (``starts[0]``,
-    :meth:`ShootFit.without`), or from their values in the fit of every item (``starts[1]``) where MuJoCo refuses
-    the first (a linear step can take a body past A + B >= C)."""
+    :meth:`ShootFit.without`), or from their values in the fit of every item (``starts[1]``), which MuJoCo simulated,
+    where it refuses the first (a linear step is no simulated one)."""
     start, items, g = _kept_start(final, kept, starts[0])
     if not mujoco_runs(_builder(model, start, items)(g)):
         start, items, g = _kept_start(final, kept, starts[1])
@@ -337,7 +337,8 @@ def engine_refit(shooter: Shooter, X: np.ndarray, model: WeakModel, final: WeakF
     held = tuple(it.name for it in items if it.kind == "param" and it.label in dropped)
     if dropped:
         full = (fit_all, items)
-        in_full = [fit_all.g[[it.label for it in items].index(it.label)] for it in kept]
+        index = {it.label: j for j, it in enumerate(items)}
+        in_full = [fit_all.g[index[it.label]] for it in kept]
         fit, kept = _refit_kept(shooter, model, _at_file(final, held), kept, (fit.g, np.array(in_full)), fit.X,
                                 max_iter)
         if not fit.chi2_red <= AT_NOISE:  # the linearization misjudged a term the data need: every term stays
